@@ -1,0 +1,82 @@
+"""SPH density summation (report eq. 7, with Akinci boundaries eq. 8/13-15)."""
+import functools
+
+import warp as wp
+
+from .smoothing import SMOOTHING_FUNCTIONS
+
+
+@functools.cache
+def density_kernel(smoothing: str, with_boundary: bool):
+    """rho_i = m sum_j W_ij + sum_b Psi_b W_ib, Psi_b = rho0 V_b [kg/m^3]; one thread per particle."""
+    value, _ = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_density(
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        boundary_grid: wp.uint64,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        fluid_grid: wp.uint64,
+        particle_x: wp.array(dtype=wp.vec3),
+        # Out:
+        particle_density_out: wp.array(dtype=float),
+    ):
+        tid = wp.tid()
+        i = wp.hash_grid_point_id(fluid_grid, tid)
+        xi = particle_x[i]
+        total = float(0.0)
+        query = wp.hash_grid_query(fluid_grid, xi, support_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            r = wp.length(xi - particle_x[j])
+            if r < support_radius:
+                total += wp.static(value)(r, smoothing_length)
+        rho = particle_mass * total
+        if wp.static(with_boundary):
+            boundary_sum = float(0.0)
+            bquery = wp.hash_grid_query(boundary_grid, xi, support_radius)
+            b = int(0)
+            while wp.hash_grid_query_next(bquery, b):
+                r = wp.length(xi - boundary_x[b])
+                if r < support_radius:
+                    boundary_sum += boundary_volume[b] * wp.static(value)(r, smoothing_length)
+            rho += rest_density * boundary_sum
+        particle_density_out[i] = rho
+
+    return compute_density
+
+
+@functools.cache
+def boundary_volume_kernel(smoothing: str):
+    """Akinci 2012 boundary volume V_b = 1 / sum_k W_bk over boundary neighbours (report eq. 15) [m^3]."""
+    value, _ = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_boundary_volume(
+        # Model:
+        smoothing_length: float,
+        support_radius: float,
+        boundary_grid: wp.uint64,
+        boundary_x: wp.array(dtype=wp.vec3),
+        # Out:
+        boundary_volume_out: wp.array(dtype=float),
+    ):
+        tid = wp.tid()
+        b = wp.hash_grid_point_id(boundary_grid, tid)
+        xb = boundary_x[b]
+        total = float(0.0)
+        query = wp.hash_grid_query(boundary_grid, xb, support_radius)
+        k = int(0)
+        while wp.hash_grid_query_next(query, k):
+            r = wp.length(xb - boundary_x[k])
+            if r < support_radius:
+                total += wp.static(value)(r, smoothing_length)
+        boundary_volume_out[b] = 1.0 / total
+
+    return compute_boundary_volume

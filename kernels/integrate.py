@@ -1,0 +1,69 @@
+"""Time integration and velocity filters."""
+import functools
+
+import warp as wp
+
+from .smoothing import SMOOTHING_FUNCTIONS
+
+
+@wp.kernel(enable_backward=False)
+def integrate_symplectic_euler(
+    # State in:
+    particle_acceleration: wp.array(dtype=wp.vec3),
+    dt: float,
+    # State in/out:
+    particle_v: wp.array(dtype=wp.vec3),
+    particle_x: wp.array(dtype=wp.vec3),
+):
+    """Semi-implicit Euler (report eq. 11): v += dt a; x += dt v [m, m/s]."""
+    i = wp.tid()
+    v = particle_v[i] + dt * particle_acceleration[i]
+    particle_v[i] = v
+    particle_x[i] = particle_x[i] + dt * v
+
+
+@functools.cache
+def xsph_kernel(smoothing: str):
+    """XSPH (report eq. 21): dv_i = eps sum_j (m/rho_j) (v_j - v_i) W_ij [m/s]."""
+    value, _ = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_xsph(
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        xsph: float,
+        # State in:
+        fluid_grid: wp.uint64,
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
+        particle_density: wp.array(dtype=float),
+        # Out:
+        velocity_correction_out: wp.array(dtype=wp.vec3),
+    ):
+        tid = wp.tid()
+        i = wp.hash_grid_point_id(fluid_grid, tid)
+        xi = particle_x[i]
+        vi = particle_v[i]
+        dv = wp.vec3(0.0)
+        query = wp.hash_grid_query(fluid_grid, xi, support_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            r = wp.length(xi - particle_x[j])
+            if r < support_radius:
+                dv += (particle_mass / particle_density[j] * wp.static(value)(r, smoothing_length)) * (particle_v[j] - vi)
+        velocity_correction_out[i] = xsph * dv
+
+    return compute_xsph
+
+
+@wp.kernel(enable_backward=False)
+def add_velocity_correction(
+    # In:
+    velocity_correction: wp.array(dtype=wp.vec3),
+    # State in/out:
+    particle_v: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid()
+    particle_v[i] = particle_v[i] + velocity_correction[i]

@@ -1,0 +1,225 @@
+"""Triangle meshes for obstacles: loading (OBJ, STL, PLY via meshio; USD via usd-core),
+surface sampling at a particle spacing, and an inside test.
+
+Everything here is host-side NumPy in float64; positions are in metres, Z up.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SceneError
+
+MESHIO_SUFFIXES = (".obj", ".stl", ".ply")
+USD_SUFFIXES = (".usd", ".usda", ".usdc")
+MESH_SUFFIXES = MESHIO_SUFFIXES + USD_SUFFIXES
+
+
+@dataclass(frozen=True)
+class TriangleMesh:
+    """A triangle soup with shared vertices.
+
+    vertices: positions [m], shape (vertex_count, 3), float64.
+    triangles: vertex indices, shape (triangle_count, 3), int64.
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+
+    def transformed(self, scale: float = 1.0, translate=(0.0, 0.0, 0.0)) -> "TriangleMesh":
+        """The mesh with x -> scale * x + translate (scale [-], translate [m])."""
+        v = self.vertices * float(scale) + np.asarray(translate, dtype=np.float64)
+        return TriangleMesh(v, self.triangles)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(min, max) corners of the axis-aligned bounding box [m]."""
+        return self.vertices.min(axis=0), self.vertices.max(axis=0)
+
+    def triangle_corners(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Corner positions a, b, c of every triangle [m], each of shape (triangle_count, 3)."""
+        t = self.triangles
+        return self.vertices[t[:, 0]], self.vertices[t[:, 1]], self.vertices[t[:, 2]]
+
+
+def _fan(polygons) -> list[tuple[int, int, int]]:
+    """Triangulate convex-ish polygons (index lists) as fans around their first vertex."""
+    tris = []
+    for poly in polygons:
+        for k in range(1, len(poly) - 1):
+            tris.append((int(poly[0]), int(poly[k]), int(poly[k + 1])))
+    return tris
+
+
+def _load_meshio(path: Path) -> TriangleMesh:
+    import meshio
+
+    # meshio prints warnings on odd files; keep them out of the user's terminal.
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        mesh = meshio.read(str(path))
+    points = np.asarray(mesh.points, dtype=np.float64)
+    tris: list[np.ndarray] = []
+    for block in mesh.cells:
+        data = block.data
+        if block.type == "triangle":
+            tris.append(np.asarray(data, dtype=np.int64).reshape(-1, 3))
+        elif block.type in ("quad", "polygon") or block.type.startswith("polygon"):
+            tris.append(np.asarray(_fan(np.asarray(data)), dtype=np.int64).reshape(-1, 3))
+    if points.ndim != 2 or points.shape[0] == 0 or points.shape[1] not in (2, 3):
+        raise ValueError("no vertices")
+    if points.shape[1] == 2:
+        points = np.concatenate([points, np.zeros((len(points), 1))], axis=1)
+    triangles = np.concatenate(tris) if tris else np.zeros((0, 3), dtype=np.int64)
+    return TriangleMesh(points, triangles)
+
+
+def _load_usd(path: Path) -> TriangleMesh:
+    from pxr import Gf, Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))
+    if stage is None:
+        raise ValueError("usd-core cannot open it")
+    meters = UsdGeom.GetStageMetersPerUnit(stage) or 1.0
+    y_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
+    cache = UsdGeom.XformCache()
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        points = mesh.GetPointsAttr().Get()
+        counts = mesh.GetFaceVertexCountsAttr().Get()
+        indices = mesh.GetFaceVertexIndicesAttr().Get()
+        if points is None or counts is None or indices is None:
+            continue
+        xf = cache.GetLocalToWorldTransform(prim)
+        pts = np.array([xf.Transform(Gf.Vec3d(*p)) for p in points], dtype=np.float64) * meters
+        if y_up:  # the project is Z-up: (x, y, z)_Y-up -> (x, -z, y)_Z-up
+            pts = np.stack([pts[:, 0], -pts[:, 2], pts[:, 1]], axis=1)
+        polys, start = [], 0
+        idx = list(indices)
+        for c in counts:
+            polys.append(idx[start:start + c])
+            start += c
+        return TriangleMesh(pts, np.asarray(_fan(polys), dtype=np.int64).reshape(-1, 3))
+    raise ValueError("it holds no UsdGeom.Mesh")
+
+
+def load_triangle_mesh(path: str | os.PathLike) -> TriangleMesh:
+    """Load a triangle mesh [m] from .obj/.stl/.ply (meshio) or .usd/.usda/.usdc (first UsdGeom.Mesh).
+
+    Polygons are triangulated as fans. USD meshes get their world transform, metersPerUnit and a
+    Y-up to Z-up rotation applied. Raises SceneError naming the file when it is missing, has an
+    unknown suffix, cannot be parsed, or holds no triangle.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"mesh file {str(path)!r} not found")
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise SceneError(f"mesh file {str(path)!r}: unknown suffix {suffix!r}; expected one of {', '.join(MESH_SUFFIXES)}")
+    try:
+        mesh = _load_usd(path) if suffix in USD_SUFFIXES else _load_meshio(path)
+    except Exception as exc:  # noqa: BLE001 - any parser failure means "not a mesh"
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        raise SceneError(f"mesh file {str(path)!r} is not a readable triangle mesh ({msg[:120]})") from None
+    tris = mesh.triangles
+    if len(tris) == 0:
+        raise SceneError(f"mesh file {str(path)!r} holds no triangles or polygons")
+    if tris.min() < 0 or tris.max() >= len(mesh.vertices) or not np.all(np.isfinite(mesh.vertices)):
+        raise SceneError(f"mesh file {str(path)!r} has out-of-range vertex indices or non-finite vertices")
+    return mesh
+
+
+def sample_surface(mesh: TriangleMesh, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the surface of ``mesh`` about ``spacing`` [m] apart, with the face normals there.
+
+    Each triangle a, b, c gets the barycentric lattice a + (i/n)(b - a) + (j/n)(c - a), i + j <= n,
+    n = ceil(longest edge / spacing); points closer than spacing/2 to an earlier point are then
+    dropped (shared edges and the crowded tips of thin triangles). A square split into two
+    triangles thus gets a square lattice. Returns (points (K, 3), unit normals (K, 3)), float64.
+    """
+    a, b, c = mesh.triangle_corners()
+    ab, ac = b - a, c - a
+    normal = np.cross(ab, ac)
+    area2 = np.linalg.norm(normal, axis=1)
+    keep = area2 > 1e-30
+    pts, nrm = [], []
+    edge = np.maximum.reduce([np.linalg.norm(ab, axis=1), np.linalg.norm(ac, axis=1), np.linalg.norm(c - b, axis=1)])
+    for t in np.nonzero(keep)[0]:
+        n = max(1, int(math.ceil(edge[t] / spacing - 1e-9)))
+        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+        m = (i + j) <= n
+        u, v = i[m] / n, j[m] / n
+        p = a[t] + u[:, None] * ab[t] + v[:, None] * ac[t]
+        pts.append(p)
+        nrm.append(np.broadcast_to(normal[t] / area2[t], p.shape))
+    if not pts:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    points = np.concatenate(pts)
+    normals = np.concatenate(nrm)
+    keep_idx = greedy_thin(points, 0.5 * spacing)
+    return points[keep_idx], normals[keep_idx]
+
+
+def greedy_thin(points: np.ndarray, min_distance: float) -> np.ndarray:
+    """Indices of a subset of ``points`` (in order) in which no two are closer than ``min_distance``.
+
+    Greedy in input order: a point is kept when no earlier kept point lies within min_distance.
+    """
+    cell = float(min_distance)
+    keys = np.floor(points / cell).astype(np.int64)
+    grid: dict[tuple[int, int, int], list[int]] = {}
+    kept: list[int] = []
+    r2 = min_distance * min_distance
+    offsets = [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)]
+    for idx in range(len(points)):
+        kx, ky, kz = (int(k) for k in keys[idx])
+        p = points[idx]
+        close = False
+        for dx, dy, dz in offsets:
+            for q in grid.get((kx + dx, ky + dy, kz + dz), ()):
+                d = points[q] - p
+                if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] < r2:
+                    close = True
+                    break
+            if close:
+                break
+        if not close:
+            grid.setdefault((kx, ky, kz), []).append(idx)
+            kept.append(idx)
+    return np.asarray(kept, dtype=np.int64)
+
+
+def winding_number(mesh: TriangleMesh, points: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """Generalised winding number of a closed mesh at ``points`` (shape (N, 3)) [-].
+
+    Sum of the solid angles of the triangles seen from each point over 4 pi (Van Oosterom &
+    Strackee 1983): +-1 inside a closed surface (sign from the orientation), 0 outside, robust
+    where a ray-parity test would hit an edge.
+    """
+    a, b, c = mesh.triangle_corners()
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    out = np.zeros(len(points))
+    step = max(1, chunk * 64 // max(1, len(a)))
+    for s in range(0, len(points), step):
+        p = points[s:s + step, None, :]
+        ra, rb, rc = a[None] - p, b[None] - p, c[None] - p
+        la, lb, lc = (np.linalg.norm(x, axis=2) for x in (ra, rb, rc))
+        num = np.einsum("ptk,ptk->pt", ra, np.cross(rb, rc))
+        den = (la * lb * lc + np.einsum("ptk,ptk->pt", ra, rb) * lc
+               + np.einsum("ptk,ptk->pt", rb, rc) * la + np.einsum("ptk,ptk->pt", rc, ra) * lb)
+        out[s:s + step] = 2.0 * np.arctan2(num, den).sum(axis=1) / (4.0 * math.pi)
+    return out
+
+
+def points_inside(mesh: TriangleMesh, points: np.ndarray) -> np.ndarray:
+    """Boolean mask of ``points`` inside the closed mesh (|winding number| > 0.5)."""
+    if len(points) == 0:
+        return np.zeros(0, dtype=bool)
+    return np.abs(winding_number(mesh, points)) > 0.5

@@ -1,0 +1,176 @@
+"""Model (constant during a run) and State (what a checkpoint needs), built from a scene.
+
+Positions on the device are relative to a local origin (the centre of the container, or of the
+fluid when there is none), so float32 keeps its precision wherever the scene sits; exports add
+the origin back (float64 on the host).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from .errors import SceneError
+from .kernels import density as _density_dev
+from .neighbors import NeighborGrid
+from .smoothing import SmoothingKernel, calibrated_mass, get_smoothing_kernel, lattice_sum
+
+
+@dataclass
+class Model:
+    """Everything constant during a run. Lengths [m], densities [kg/m^3], times [s]."""
+
+    device: object
+    smoothing: SmoothingKernel
+    rest_density: float           # rho0 [kg/m^3]
+    particle_radius: float        # r [m]
+    spacing: float                # d = 2r [m]
+    smoothing_length: float       # h [m]
+    support_radius: float         # H_s = kappa h [m], also the neighbour search radius
+    particle_mass: float          # m [kg], calibrated: m sum_lattice W = rho0
+    lattice_bias: float           # d^3 sum_lattice W - 1 before calibration [-]
+    gravity: np.ndarray           # g [m/s^2], shape (3,)
+    origin: np.ndarray            # local origin [m], float64 shape (3,)
+    reference_speed: float        # expected max speed sqrt(2 |g| H) [m/s]
+    speed_of_sound: float         # c_s [m/s]
+    stiffness: float              # K [Pa]: linear p = K (rho/rho0 - 1), Tait p = K ((rho/rho0)^7 - 1)
+    equation_of_state: str        # "linear" | "tait"
+    viscosity: float              # kinematic nu [m^2/s]
+    xsph: float                   # XSPH factor [-]
+    boundary_friction: float      # Akinci sigma [-]
+    boundary_method: str          # "akinci2012" | "penalty" | "none"
+    boundary_x: wp.array          # boundary particle positions (local) [m], shape (boundary_count,)
+    boundary_volume: wp.array     # Akinci V_b = 1/sum_k W_bk [m^3], shape (boundary_count,)
+    boundary_grid: NeighborGrid | None
+    container_lo: np.ndarray | None  # container box in local coordinates [m]
+    container_hi: np.ndarray | None
+    fluid_count: int
+    boundary_count: int
+
+    @property
+    def boundary_grid_id(self):
+        return self.boundary_grid.id if self.boundary_grid is not None else wp.uint64(0)
+
+    def to_local(self, x: np.ndarray) -> np.ndarray:
+        return (np.asarray(x, dtype=np.float64) - self.origin).astype(np.float32)
+
+    def to_world(self, x: np.ndarray) -> np.ndarray:
+        return (np.asarray(x, dtype=np.float64) + self.origin)
+
+    def summary(self) -> dict:
+        return {
+            "smoothing_kernel": self.smoothing.name,
+            "rest_density": self.rest_density,
+            "particle_radius": self.particle_radius,
+            "spacing": self.spacing,
+            "smoothing_length": self.smoothing_length,
+            "support_radius": self.support_radius,
+            "particle_mass": self.particle_mass,
+            "lattice_bias_before_calibration": self.lattice_bias,
+            "speed_of_sound": self.speed_of_sound,
+            "stiffness": self.stiffness,
+            "equation_of_state": self.equation_of_state,
+            "reference_speed": self.reference_speed,
+            "boundary_method": self.boundary_method,
+            "origin": [float(v) for v in self.origin],
+            "fluid_count": self.fluid_count,
+            "boundary_count": self.boundary_count,
+        }
+
+
+@dataclass
+class State:
+    """What changes during a run: positions (local) [m], velocities [m/s], time [s], step count."""
+
+    particle_x: wp.array
+    particle_v: wp.array
+    time: float = 0.0
+    step: int = 0
+    frame: int = 0
+
+
+def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_lo) -> tuple[float, float]:
+    """(reference speed, c_s): v_ref = max(sqrt(2 |g| H), max|v0|), c_s = factor * v_ref (Becker &
+    Teschner 2007: |drho|/rho0 ~ v^2/c^2, so factor 10 keeps density errors near 1 %).
+    H is the height of the fluid above the container floor (or the fluid's own height)."""
+    g = np.asarray(scene.gravity, dtype=np.float64)
+    gnorm = float(np.linalg.norm(g))
+    if gnorm > 0 and len(fluid_x):
+        up = -g / gnorm
+        heights = fluid_x.astype(np.float64) @ up
+        floor = heights.min()
+        if container_lo is not None:
+            corners = np.array([[a, b, c] for a in (container_lo[0], scene.container.max[0])
+                                for b in (container_lo[1], scene.container.max[1])
+                                for c in (container_lo[2], scene.container.max[2])])
+            floor = min(floor, (corners @ up).min())
+        height = heights.max() - floor + scene.particle_radius
+    else:
+        height = float(np.ptp(fluid_x[:, 2])) + 2 * scene.particle_radius if len(fluid_x) else 1.0
+    g_ref = gnorm if gnorm > 0 else 9.81
+    v_ref = max(math.sqrt(2.0 * g_ref * height), float(np.linalg.norm(fluid_v, axis=1).max()) if len(fluid_v) else 0.0)
+    c_s = scene.wcsph.speed_of_sound if scene.wcsph.speed_of_sound > 0 else scene.wcsph.speed_of_sound_factor * v_ref
+    return v_ref, c_s
+
+
+def build_model(scene, sampled, device) -> tuple[Model, State]:
+    """Model and initial State from a validated Scene and its SampledScene."""
+    kernel = get_smoothing_kernel(scene.smoothing_kernel)
+    r = float(scene.particle_radius)
+    d = 2.0 * r
+    h_per_d = scene.h_per_spacing if scene.h_per_spacing else kernel.default_h_per_spacing
+    h = h_per_d * d
+    support = kernel.support_radius(h)
+    rho0 = float(scene.material.rest_density)
+    mass = calibrated_mass(kernel.name, h, d, rho0)
+    bias = lattice_sum(kernel.name, h, d) * d**3 - 1.0
+
+    fluid_x = np.asarray(sampled.fluid_x, dtype=np.float64).reshape(-1, 3)
+    fluid_v = np.asarray(sampled.fluid_v, dtype=np.float32).reshape(-1, 3)
+    boundary_x = np.asarray(sampled.boundary_x, dtype=np.float64).reshape(-1, 3)
+    if len(fluid_x) == 0:
+        raise SceneError(f"{scene.name}: the scene holds no fluid particles after sampling")
+
+    if scene.container is not None:
+        lo = np.asarray(scene.container.min, dtype=np.float64)
+        hi = np.asarray(scene.container.max, dtype=np.float64)
+        origin = 0.5 * (lo + hi)
+    else:
+        lo = hi = None
+        origin = 0.5 * (fluid_x.min(axis=0) + fluid_x.max(axis=0))
+
+    v_ref, c_s = _speed_of_sound(scene, fluid_x, fluid_v, lo)
+    eos = scene.wcsph.equation_of_state
+    if scene.wcsph.stiffness > 0:
+        stiffness = float(scene.wcsph.stiffness)
+    else:
+        stiffness = rho0 * c_s * c_s / (7.0 if eos == "tait" else 1.0)
+
+    boundary_method = scene.boundary if len(boundary_x) else "none"
+    bx = wp.array((boundary_x - origin).astype(np.float32), dtype=wp.vec3, device=device)
+    bvol = wp.zeros(len(boundary_x), dtype=float, device=device)
+    bgrid = None
+    if len(boundary_x):
+        bgrid = NeighborGrid(support, device=device)
+        bgrid.build(bx)
+        wp.launch(_density_dev.boundary_volume_kernel(kernel.name), dim=len(boundary_x),
+                  inputs=[float(h), float(support), bgrid.id, bx], outputs=[bvol], device=device)
+
+    model = Model(
+        device=device, smoothing=kernel, rest_density=rho0, particle_radius=r, spacing=d,
+        smoothing_length=h, support_radius=support, particle_mass=mass, lattice_bias=bias,
+        gravity=np.asarray(scene.gravity, dtype=np.float32), origin=origin,
+        reference_speed=v_ref, speed_of_sound=c_s, stiffness=stiffness, equation_of_state=eos,
+        viscosity=float(scene.material.viscosity), xsph=float(scene.material.xsph),
+        boundary_friction=float(scene.material.boundary_friction), boundary_method=boundary_method,
+        boundary_x=bx, boundary_volume=bvol, boundary_grid=bgrid,
+        container_lo=None if lo is None else (lo - origin), container_hi=None if hi is None else (hi - origin),
+        fluid_count=len(fluid_x), boundary_count=len(boundary_x),
+    )
+    state = State(
+        particle_x=wp.array((fluid_x - origin).astype(np.float32), dtype=wp.vec3, device=device),
+        particle_v=wp.array(fluid_v, dtype=wp.vec3, device=device),
+    )
+    return model, state

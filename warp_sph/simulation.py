@@ -1,0 +1,197 @@
+"""The scripting entry point: a Simulation built from a scene, advanced step by step or frame by frame.
+
+    sim = Simulation(load_scene("dam_break"))
+    sim.advance_frame()                 # CFL-bounded substeps up to the next frame time
+    x = sim.get_field("particle_x")     # NumPy copy, world coordinates [m]
+    sim.fields["particle_v"]            # the wp.array itself (device, local coordinates for positions)
+    sim.graph.insert(Stage(...), before="integrate")
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from .errors import SceneError, SimulationError
+from .kernels import diagnostics as _diag
+from .launch import launch
+from .model import Model, State, build_model
+from .neighbors import NeighborGrid
+from .step_graph import StepGraph
+
+
+def _solver_for(name: str):
+    if name == "wcsph":
+        from .wcsph import WcsphSolver
+
+        return WcsphSolver()
+    if name == "pbf":
+        from .pbf import PbfSolver
+
+        return PbfSolver()
+    raise SceneError(f"unknown solver {name!r}; expected 'wcsph' or 'pbf'")
+
+
+@dataclass
+class FrameStatistics:
+    """Diagnostics of the state at the end of a frame (one host read)."""
+
+    frame: int
+    time: float                 # [s]
+    steps: int                  # substeps in this frame
+    dt_min: float               # [s]
+    dt_max: float               # [s]
+    max_speed: float            # [m/s]
+    density_error_mean: float   # mean of max(rho/rho0 - 1, 0) [-] (compression only, as SPlisHSPlasH)
+    density_error_max: float    # max of rho/rho0 - 1 [-]
+    density_error_min: float    # min of rho/rho0 - 1 [-] (surface particles read under-dense)
+    kinetic_energy: float       # [J]
+    potential_energy: float     # [J], relative to the local origin
+    non_finite: int
+    outside: int
+    max_acceleration: float = 0.0
+    solver: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+class Simulation:
+    """A scene turned into Model + State + step graph. ``device`` is a Warp device name or None."""
+
+    def __init__(self, scene, device: str | None = None):
+        from .sampling import sample_scene
+
+        self.scene = scene
+        self.device = wp.get_device(device)
+        self.sampled = sample_scene(scene)
+        self.model, self.state = build_model(scene, self.sampled, self.device)
+        self.fields: dict[str, object] = {
+            "particle_x": self.state.particle_x,
+            "particle_v": self.state.particle_v,
+        }
+        inputs = {"particle_x", "particle_v"}
+        if self.model.boundary_method != "none":
+            self.fields.update(boundary_x=self.model.boundary_x, boundary_volume=self.model.boundary_volume,
+                               boundary_grid=self.model.boundary_grid)
+            inputs |= {"boundary_x", "boundary_volume", "boundary_grid"}
+        self.fluid_grid = NeighborGrid(self.model.support_radius, device=self.device)
+        self.fields["fluid_grid"] = self.fluid_grid
+        self.solver = _solver_for(scene.solver)
+        self.graph = StepGraph(self.solver.stages(self), inputs, device=self.device,
+                               synchronize_timing=self.device.is_cuda)
+        self._stats = wp.zeros(_diag.STAT_COUNT, dtype=float, device=self.device)
+        self.frame_dt = 1.0 / float(scene.fps)
+        self.last_frame: FrameStatistics | None = None
+        self._refresh_density()
+
+    # --- fields ----------------------------------------------------------------------------
+    def allocate(self, name: str, dtype) -> wp.array:
+        """Workspace array of one value per fluid particle (allocated once)."""
+        if name not in self.fields:
+            self.fields[name] = wp.zeros(self.model.fluid_count, dtype=dtype, device=self.device)
+        return self.fields[name]
+
+    def get_field(self, name: str) -> np.ndarray:
+        """NumPy copy of a field; positions come back in world coordinates [m]."""
+        a = self.fields[name]
+        if not isinstance(a, wp.array):
+            raise KeyError(f"field {name!r} is not an array")
+        out = a.numpy().copy()
+        if name in ("particle_x", "boundary_x"):
+            out = self.model.to_world(out)
+        return out
+
+    def set_field(self, name: str, values: np.ndarray) -> None:
+        """Overwrite a field from NumPy (positions in world coordinates [m])."""
+        a = self.fields[name]
+        values = np.asarray(values)
+        if name in ("particle_x", "boundary_x"):
+            values = self.model.to_local(values)
+        if values.shape[0] != a.shape[0]:
+            raise ValueError(f"field {name!r} holds {a.shape[0]} values, got {values.shape[0]}")
+        a.assign(wp.array(values.astype(np.float32), dtype=a.dtype, device=self.device))
+
+    # --- stepping --------------------------------------------------------------------------
+    def _refresh_density(self) -> None:
+        for s in self.graph.stages:
+            if s.name in ("neighbors", "density"):
+                s.run(self, 0.0)
+
+    def step(self, dt: float) -> None:
+        """One substep of dt seconds through every stage of the graph."""
+        self.graph.run(self, dt)
+        self.state.step += 1
+        self.state.time += dt
+
+    def time_step(self, max_speed: float) -> float:
+        """Substep bound [s] for the next frame: the solver's CFL bounds clamped to [dt_min, dt_max],
+        or the scene's fixed_dt."""
+        t = self.scene.time
+        if t.fixed_dt > 0:
+            return float(t.fixed_dt)
+        dt = self.solver.time_step_bound(self, max_speed, self.frame_dt)
+        return float(min(max(dt, t.dt_min), t.dt_max))
+
+    def advance_frame(self) -> FrameStatistics:
+        """Advance to the next frame time in equal substeps no larger than the time-step bound."""
+        max_speed = self.last_frame.max_speed if self.last_frame else self.statistics().max_speed
+        bound = self.time_step(max_speed)
+        n = max(1, math.ceil(self.frame_dt / bound - 1e-9))
+        dt = self.frame_dt / n
+        solver_stats = []
+        for _ in range(n):
+            self.step(dt)
+            solver_stats.append(self.solver.step_statistics(self))
+        self.state.frame += 1
+        self.state.time = self.state.frame * self.frame_dt
+        stats = self.statistics(steps=n, dt_min=dt, dt_max=dt)
+        if solver_stats and solver_stats[0]:
+            keys = solver_stats[0].keys()
+            stats.solver = {k: {"mean": float(np.mean([s[k] for s in solver_stats])),
+                                "max": float(np.max([s[k] for s in solver_stats]))} for k in keys}
+        self.last_frame = stats
+        return stats
+
+    def statistics(self, steps: int = 0, dt_min: float = 0.0, dt_max: float = 0.0) -> FrameStatistics:
+        """Reduce diagnostics on the device and read them once."""
+        m = self.model
+        f = self.fields
+        acc = f.get("particle_acceleration")
+        if acc is None:
+            acc = self.allocate("particle_acceleration", wp.vec3)
+        check = m.container_lo is not None
+        tol = m.spacing
+        lo = wp.vec3(*(m.container_lo - tol)) if check else wp.vec3(0.0)
+        hi = wp.vec3(*(m.container_hi + tol)) if check else wp.vec3(0.0)
+        launch(_diag.reset_statistics, 1, [], [self._stats], device=self.device)
+        launch(_diag.accumulate_statistics, m.fluid_count,
+               [m.particle_mass, m.rest_density, wp.vec3(*m.gravity), lo, hi, int(check),
+                f["particle_x"], f["particle_v"], f["particle_density"], acc], [self._stats], device=self.device)
+        s = self._stats.numpy()
+        n = m.fluid_count
+        return FrameStatistics(
+            frame=self.state.frame, time=self.state.time, steps=steps, dt_min=dt_min, dt_max=dt_max,
+            max_speed=float(s[_diag.STAT_MAX_SPEED]),
+            density_error_mean=float(s[_diag.STAT_SUM_COMPRESSION]) / n,
+            density_error_max=float(s[_diag.STAT_MAX_DENSITY_ERROR]),
+            density_error_min=float(s[_diag.STAT_MIN_DENSITY_ERROR]),
+            kinetic_energy=float(s[_diag.STAT_KINETIC_ENERGY]),
+            potential_energy=float(s[_diag.STAT_POTENTIAL_ENERGY]),
+            non_finite=int(s[_diag.STAT_NON_FINITE]), outside=int(s[_diag.STAT_OUTSIDE]),
+            max_acceleration=float(s[_diag.STAT_MAX_ACCELERATION]),
+        )
+
+    def check_health(self, stats: FrameStatistics) -> None:
+        """Watchdog: raise SimulationError on non-finite values or particles outside the container."""
+        if stats.non_finite:
+            raise SimulationError(
+                f"{stats.non_finite} particle(s) turned non-finite by frame {stats.frame} (t = {stats.time:.4g} s, "
+                f"step {self.state.step}); likely cause: time step too large for the stiffness "
+                f"(dt = {stats.dt_max:.3g} s) or a stiffness too low for the scene")
+        if stats.outside:
+            raise SimulationError(
+                f"{stats.outside} particle(s) left the container by frame {stats.frame} (t = {stats.time:.4g} s, "
+                f"step {self.state.step}); likely cause: boundary too soft or time step too large")
