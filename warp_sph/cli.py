@@ -1,0 +1,194 @@
+"""Command line: ``warp-sph run | scenes | check | export | preview | bench``.
+
+Errors the user can act on print one line (``warp-sph: error: ...``) and exit with status 2;
+no traceback. Ctrl-C stops a run and keeps every frame written so far (exit status 130).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+
+def _quiet_warp():
+    import warp as wp
+
+    wp.config.quiet = os.environ.get("WARP_SPH_VERBOSE", "") == ""
+    return wp
+
+
+def _cmd_run(args) -> int:
+    from . import runner
+    from .scene import load_scene
+
+    _quiet_warp()
+    if args.resume:
+        info = runner.run(None, device=args.device, frames=args.frames, progress=not args.no_progress,
+                          resume=Path(args.resume))
+    else:
+        scene = load_scene(args.scene, overrides=args.set)
+        info = runner.run(scene, out=Path(args.out) if args.out else None, device=args.device,
+                          frames=args.frames, overwrite=args.overwrite, progress=not args.no_progress)
+    _print_summary(info)
+    return 0
+
+
+def _print_summary(info: dict) -> None:
+    frames = info["frames"]
+    steps = sum(f["steps"] for f in frames)
+    err = max((f["density_error_max"] for f in frames), default=0.0)
+    mean = sum(f["density_error_mean"] for f in frames) / max(1, len(frames))
+    out = Path(info["out"])
+    usd = sorted(out.glob("*.usdc"))
+    print(f"{info['status']}: {len(frames)} frames, {steps} steps, {info['simulated_time']:.3f} s simulated "
+          f"in {info['wall_time']:.1f} s wall ({info['fluid_particles']} fluid, {info['boundary_particles']} boundary particles)")
+    print(f"density error: mean {100 * mean:.3f} %, max {100 * err:.3f} %; "
+          f"{info['sim_time_per_step_ms']:.2f} ms/step; export {info['export_time']:.1f} s")
+    print(f"output: {out}" + (f"  (Blender: File > Import > USD, {usd[0].name})" if usd else ""))
+
+
+def _cmd_scenes(args) -> int:
+    from .scene import list_scenes
+
+    for name, desc in list_scenes():
+        print(f"{name:18s} {desc}")
+    return 0
+
+
+def _cmd_check(args) -> int:
+    from .model import build_model
+    from .sampling import sample_scene
+    from .scene import load_scene
+
+    wp = _quiet_warp()
+    scene = load_scene(args.scene, overrides=args.set)
+    sampled = sample_scene(scene)
+    model, _ = build_model(scene, sampled, wp.get_device("cpu"))
+    s = model.summary()
+    print(f"{scene.name}: ok")
+    print(f"  {s['fluid_count']} fluid particles, {s['boundary_count']} boundary particles")
+    print(f"  solver {scene.solver}, kernel {s['smoothing_kernel']} (h = {s['smoothing_length']:.4g} m, "
+          f"support {s['support_radius']:.4g} m), mass {s['particle_mass']:.4g} kg")
+    print(f"  speed of sound {s['speed_of_sound']:.3g} m/s, stiffness {s['stiffness']:.4g} Pa, "
+          f"{int(round(scene.duration * scene.fps)) + 1} frames at {scene.fps:g} fps")
+    return 0
+
+
+def _cmd_export(args) -> int:
+    from .export import export_run
+
+    _quiet_warp()
+    written = export_run(Path(args.run), fmt=args.format, out=Path(args.out) if args.out else None,
+                         cell_per_radius=args.surface_cell, iso=args.surface_iso, frames=args.frames,
+                         overwrite=args.overwrite)
+    print(f"wrote {written}")
+    return 0
+
+
+def _cmd_preview(args) -> int:
+    from .preview import Camera, preview_run
+
+    _quiet_warp()
+    frames = None
+    if args.frame is not None:
+        frames = [args.frame]
+    elif args.frames:
+        a, _, b = args.frames.partition(":")
+        frames = list(range(int(a), int(b) + 1))
+    camera = None
+    if args.camera:
+        vals = [float(v) for v in args.camera.split(",")]
+        if len(vals) != 6:
+            raise SystemExit("warp-sph: error: --camera takes px,py,pz,tx,ty,tz")
+        camera = Camera(position=tuple(vals[:3]), target=tuple(vals[3:]))
+    w, _, h = args.size.partition("x")
+    paths = preview_run(Path(args.run), frames=frames, mode="surface" if args.surface else "particles",
+                        camera=camera, size=(int(w), int(h)), out=Path(args.out) if args.out else None,
+                        gif=args.gif)
+    for p in paths:
+        print(p)
+    return 0
+
+
+def _cmd_bench(args) -> int:
+    from .benchmarks.runner import main as bench_main
+
+    _quiet_warp()
+    return bench_main(args.bench_args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="warp-sph", description="SPH fluid simulation in NVIDIA Warp, exported to USD for Blender.")
+    sub = p.add_subparsers(dest="command")
+
+    r = sub.add_parser("run", help="simulate a scene (default: dam_break) into a run folder")
+    r.add_argument("scene", nargs="?", default="dam_break", help="built-in scene name or path to a .toml file (default: dam_break)")
+    r.add_argument("--out", help="output folder (default: runs/<scene>, or runs/<scene>-N if that holds a run)")
+    r.add_argument("--frames", type=int, help="frames to write including the initial one (default: duration * fps + 1)")
+    r.add_argument("--device", default=None, help="Warp device: cpu or cuda:0 (default: Warp's default device)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene value by key path, e.g. particle_radius=0.02 or material.xsph=0.05 (repeatable)")
+    r.add_argument("--overwrite", action="store_true", help="replace a previous run in --out")
+    r.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its latest checkpoint")
+    r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    r.set_defaults(func=_cmd_run)
+
+    s = sub.add_parser("scenes", help="list the built-in scenes")
+    s.set_defaults(func=_cmd_scenes)
+
+    c = sub.add_parser("check", help="validate a scene (and sample it) without running")
+    c.add_argument("scene")
+    c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    c.set_defaults(func=_cmd_check)
+
+    e = sub.add_parser("export", help="re-export a run's recorded frames (surface, USD or mesh sequence) without simulating")
+    e.add_argument("run", help="run folder")
+    e.add_argument("--format", default="usd", choices=["usd", "obj", "ply", "vtk"])
+    e.add_argument("--out", help="output file (usd) or folder (meshes); default inside the run folder under export/")
+    e.add_argument("--surface-cell", type=float, default=None, help="surface grid cell per particle radius (default: the run's)")
+    e.add_argument("--surface-iso", type=float, default=None, help="iso level of the colour field (default: the run's)")
+    e.add_argument("--frames", default=None, help="A:B frame range (default: all recorded)")
+    e.add_argument("--overwrite", action="store_true", help="replace existing export files")
+    e.set_defaults(func=_cmd_export)
+
+    v = sub.add_parser("preview", help="render frames of a run to PNG (and GIF), headless")
+    v.add_argument("run", help="run folder")
+    g = v.add_mutually_exclusive_group()
+    g.add_argument("--frame", type=int, help="one frame (default: the last)")
+    g.add_argument("--frames", help="A:B frame range")
+    m = v.add_mutually_exclusive_group()
+    m.add_argument("--particles", action="store_true", help="render particles as spheres (default)")
+    m.add_argument("--surface", action="store_true", help="render the reconstructed surface")
+    v.add_argument("--camera", help="px,py,pz,tx,ty,tz camera position and target [m] (default: automatic)")
+    v.add_argument("--size", default="640x360", help="WxH pixels (default 640x360)")
+    v.add_argument("--gif", action="store_true", help="also write an animated GIF of the frames")
+    v.add_argument("--out", help="output folder (default: RUN/preview)")
+    v.set_defaults(func=_cmd_preview)
+
+    b = sub.add_parser("bench", help="benchmarks: speed and accuracy (see warp-sph bench --help)", add_help=False)
+    b.add_argument("bench_args", nargs=argparse.REMAINDER)
+    b.set_defaults(func=_cmd_bench)
+    return p
+
+
+def main(argv=None) -> int:
+    from .errors import WarpSphError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return 2
+    try:
+        return args.func(args)
+    except WarpSphError as e:
+        print(f"warp-sph: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("\nwarp-sph: interrupted; every frame written so far is kept", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,330 @@
+"""Runner: frames at the export rate, CFL substeps, progress, watchdog, exports, checkpoints, resume.
+
+Frame k (k = 1, 2, ...) is the state at t = (k - 1) / fps; frame 1 is the initial state. Exports of
+frame k run on a background thread while frame k + 1 is simulated (a CPU ``wp.launch`` releases
+the GIL), with at most two frames in flight.
+"""
+from __future__ import annotations
+
+import math
+import platform
+import queue
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from . import run_folder as rf
+from .errors import OutputError, SimulationError, WarpSphError
+from .simulation import Simulation
+
+
+def versions() -> dict:
+    import numpy
+
+    from . import __version__
+
+    out = {"warp_sph": __version__, "warp": wp.__version__, "numpy": numpy.__version__,
+           "python": platform.python_version(), "platform": platform.platform()}
+    try:
+        from pxr import Usd
+
+        out["usd"] = ".".join(str(v) for v in Usd.GetVersion())
+    except Exception:
+        pass
+    return out
+
+
+class Progress:
+    """A one-line progress bar with ETA on stderr (plain lines every few seconds when not a TTY)."""
+
+    def __init__(self, total: int, enabled: bool = True, stream=None):
+        self.total = max(total, 1)
+        self.enabled = enabled
+        self.stream = stream or sys.stderr
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.t0 = time.perf_counter()
+        self.last = 0.0
+        self.done0 = None
+
+    def update(self, done: int, info: str = "") -> None:
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        if self.done0 is None:
+            self.done0 = done
+            self.t0 = now
+        if not self.tty and now - self.last < 5.0 and done < self.total:
+            return
+        self.last = now
+        elapsed = now - self.t0
+        rate = (done - self.done0) / elapsed if elapsed > 0 and done > self.done0 else 0.0
+        eta = (self.total - done) / rate if rate > 0 else float("nan")
+        width = 28
+        filled = int(width * done / self.total)
+        bar = "#" * filled + "-" * (width - filled)
+        eta_s = f"{eta:6.0f}s" if math.isfinite(eta) else "     ?s"
+        line = f"[{bar}] {done}/{self.total} frames  {elapsed:6.1f}s elapsed  ETA {eta_s}  {info}"
+        if self.tty:
+            self.stream.write("\r" + line[:160].ljust(160))
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled and self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+class Exporter:
+    """Writes each frame's outputs: recorded frame (npz), USD points + surface, mesh sequence."""
+
+    def __init__(self, sim: Simulation, out: Path, resume_after_frame: int | None = None):
+        self.sim = sim
+        self.out = Path(out)
+        o = sim.scene.output
+        self.record = bool(o.record_frames)
+        self.usd = None
+        self.surface = None
+        self.mesh_writer = None
+        m = sim.model
+        if o.surface and (o.usd or o.mesh_sequence):
+            from .surface import SurfaceReconstructor
+
+            self.surface = SurfaceReconstructor(
+                m.smoothing.name, m.smoothing_length, m.particle_mass, m.particle_radius,
+                cell_size=o.surface_cell_per_radius * m.particle_radius, iso_level=o.surface_iso,
+                device=sim.device)
+        if o.usd:
+            from .export_usd import UsdWriter, container_box_mesh
+
+            statics = []
+            if m.container_lo is not None:
+                statics.append(("container", *container_box_mesh(m.to_world(m.container_lo), m.to_world(m.container_hi))))
+            for k, (verts, tris) in enumerate(getattr(sim.sampled, "obstacle_meshes", []) or []):
+                statics.append((f"obstacle_{k}", np.asarray(verts, np.float32), np.asarray(tris, np.int32)))
+            self.usd = UsdWriter(self.out / f"{sim.scene.name}.usdc", fps=sim.scene.fps,
+                                 particle_radius=m.particle_radius, static_meshes=statics,
+                                 primvars=tuple(o.particle_primvars), with_surface=self.surface is not None,
+                                 resume_after_frame=resume_after_frame)
+        if o.mesh_sequence and self.surface is not None:
+            from .export_mesh import MeshSequenceWriter
+
+            (self.out / "mesh").mkdir(exist_ok=True)
+            self.mesh_writer = MeshSequenceWriter(self.out / "mesh", o.mesh_sequence)
+        if self.record:
+            (self.out / "frames").mkdir(exist_ok=True)
+        self.seconds = 0.0
+
+    def snapshot(self) -> dict:
+        """Device copies of what a frame export needs (taken on the simulation thread)."""
+        f = self.sim.fields
+        snap = {"x": wp.clone(f["particle_x"]), "v": wp.clone(f["particle_v"]),
+                "density": wp.clone(f["particle_density"])}
+        if "particle_pressure" in f:
+            snap["pressure"] = wp.clone(f["particle_pressure"])
+        return snap
+
+    def write(self, frame: int, t: float, snap: dict) -> None:
+        t0 = time.perf_counter()
+        m = self.sim.model
+        x_world = m.to_world(snap["x"].numpy()).astype(np.float32)
+        v = snap["v"].numpy()
+        rho = snap["density"].numpy()
+        if self.record:
+            rf.atomic_save_npz(rf.frame_path(self.out, frame), x=x_world, v=v, density=rho, time=np.float64(t))
+        surface = None
+        if self.surface is not None:
+            verts, tris = self.surface.extract(snap["x"], snap["density"])
+            surface = (m.to_world(verts).astype(np.float32), tris)
+            if self.mesh_writer is not None:
+                self.mesh_writer.write_frame(frame, *surface)
+        if self.usd is not None:
+            primvars = {}
+            for name in self.sim.scene.output.particle_primvars:
+                if name == "density":
+                    primvars["density"] = rho
+                elif name == "pressure" and "pressure" in snap:
+                    primvars["pressure"] = snap["pressure"].numpy()
+            self.usd.write_frame(frame, x_world, v, primvars=primvars, surface=surface)
+        self.seconds += time.perf_counter() - t0
+
+    def close(self) -> None:
+        if self.usd is not None:
+            self.usd.close()
+
+
+class _ExportThread:
+    """Runs Exporter.write on a worker thread, at most ``depth`` frames behind; re-raises its errors."""
+
+    def __init__(self, exporter: Exporter, depth: int = 2):
+        self.exporter = exporter
+        self.q: queue.Queue = queue.Queue(maxsize=depth)
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._work, name="warp-sph-export", daemon=True)
+        self.thread.start()
+
+    def _work(self):
+        while True:
+            item = self.q.get()
+            if item is None:
+                return
+            if self.error is None:
+                try:
+                    self.exporter.write(*item)
+                except BaseException as e:  # reported on the simulation thread
+                    self.error = e
+
+    def submit(self, frame, t, snap):
+        self.check()
+        self.q.put((frame, t, snap))
+
+    def check(self):
+        if self.error is not None:
+            raise self.error
+
+    def finish(self):
+        self.q.put(None)
+        self.thread.join()
+        self.check()
+
+
+def _checkpoint(sim: Simulation, out: Path, frame: int) -> None:
+    s = sim.state
+    last = sim.last_frame.max_speed if sim.last_frame else 0.0
+    extra = sim.solver.checkpoint_arrays(sim) if hasattr(sim.solver, "checkpoint_arrays") else {}
+    (out / "checkpoints").mkdir(exist_ok=True)
+    rf.atomic_save_npz(rf.checkpoint_path(out, frame), particle_x_local=s.particle_x.numpy(),
+                       particle_v=s.particle_v.numpy(), step=np.int64(s.step), frame=np.int64(frame),
+                       state_frame=np.int64(s.frame), time=np.float64(s.time), last_max_speed=np.float64(last),
+                       **extra)
+
+
+def run(scene, out: Path | None = None, device: str | None = None, frames: int | None = None,
+        overwrite: bool = False, progress: bool = True, resume: Path | None = None,
+        threaded_export: bool = True, log=print) -> dict:
+    """Simulate ``scene`` into a run folder and return the run.json contents.
+
+    frames: number of frames to write including the initial one (default duration * fps + 1).
+    resume: a run folder to continue from its latest checkpoint (scene and folder come from it).
+    """
+    from .scene import scene_from_dict
+
+    t_start = time.perf_counter()
+    resume_info = None
+    if resume is not None:
+        out = Path(resume)
+        info = rf.read_run_json(out)
+        cp = rf.latest_checkpoint(out)
+        if cp is None:
+            raise OutputError(f"{out}: no checkpoint to resume from")
+        scene = scene_from_dict(info["scene"], source=str(out / rf.RUN_JSON))
+        frames = frames or info.get("frames_requested")
+        resume_info = (info, np.load(cp))
+    else:
+        out = rf.prepare_run_folder(out, scene.name, overwrite)
+
+    total = frames if frames is not None else int(round(scene.duration * scene.fps)) + 1
+    if total < 1:
+        raise WarpSphError(f"--frames must be >= 1, got {total}")
+    sim = Simulation(scene, device=device)
+
+    frame_log: list[dict] = []
+    start_frame = 1
+    if resume_info is not None:
+        info, cp = resume_info
+        start_frame = int(cp["frame"])
+        sim.state.particle_x.assign(wp.array(cp["particle_x_local"], dtype=wp.vec3, device=sim.device))
+        sim.state.particle_v.assign(wp.array(cp["particle_v"], dtype=wp.vec3, device=sim.device))
+        sim.state.step = int(cp["step"])
+        sim.state.frame = int(cp["state_frame"])
+        sim.state.time = float(cp["time"])
+        if hasattr(sim.solver, "restore_arrays"):
+            sim.solver.restore_arrays(sim, cp)
+        sim._refresh_density()
+        sim.last_frame = sim.statistics()
+        sim.last_frame.max_speed = float(cp["last_max_speed"])
+        frame_log = [f for f in info.get("frames", []) if f["frame"] <= start_frame]
+        for p in (out / "frames").glob("frame_*.npz") if (out / "frames").is_dir() else []:
+            if int(p.stem.split("_")[1]) > start_frame:
+                p.unlink()
+        log(f"resuming {out} from frame {start_frame} (step {sim.state.step})")
+
+    exporter = Exporter(sim, out, resume_after_frame=start_frame if resume_info is not None else None)
+    worker = _ExportThread(exporter) if threaded_export else None
+
+    def export(frame, t):
+        snap = exporter.snapshot()
+        if worker is not None:
+            worker.submit(frame, t, snap)
+        else:
+            exporter.write(frame, t, snap)
+
+    run_info = {
+        "scene": scene.to_dict(), "versions": versions(), "device": str(sim.device),
+        "model": sim.model.summary(), "fluid_particles": sim.model.fluid_count,
+        "boundary_particles": sim.model.boundary_count, "frames_requested": total,
+        "fps": scene.fps, "step_graph": [{"stage": s.name, "reads": list(s.reads), "writes": list(s.writes),
+                                         "updates": list(s.updates), "doc": s.doc} for s in sim.graph.stages],
+        "frames": frame_log, "status": "running", "out": str(out),
+    }
+
+    def save_info(status):
+        run_info["status"] = status
+        run_info["simulated_time"] = sim.state.time
+        run_info["steps"] = sim.state.step
+        run_info["wall_time"] = time.perf_counter() - t_start
+        run_info["stage_times"] = sim.graph.timing_table()
+        run_info["export_time"] = exporter.seconds
+        sim_seconds = sum(t["seconds"] for t in run_info["stage_times"])
+        run_info["sim_time_per_step_ms"] = 1e3 * sim_seconds / max(1, sum(f["steps"] for f in run_info["frames"]))
+        rf.atomic_write_json(out / rf.RUN_JSON, run_info)
+
+    bar = Progress(total, enabled=progress)
+    checkpoint_every = int(scene.output.checkpoint_every)
+    status = "failed"
+    try:
+        if resume_info is None:
+            stats = sim.statistics()
+            sim.check_health(stats)
+            sim.last_frame = stats
+            d = stats.to_dict()
+            d["frame"] = 1
+            frame_log.append(d)
+            export(1, 0.0)
+            if checkpoint_every > 0:
+                _checkpoint(sim, out, 1)
+            save_info("running")
+        for frame in range(start_frame + 1, total + 1):
+            stats = sim.advance_frame()
+            sim.check_health(stats)
+            d = stats.to_dict()
+            d["frame"] = frame
+            frame_log.append(d)
+            export(frame, sim.state.time)
+            if checkpoint_every > 0 and (frame - 1) % checkpoint_every == 0:
+                if worker is not None:
+                    worker.check()
+                _checkpoint(sim, out, frame)
+            save_info("running")
+            bar.update(frame, f"{stats.steps} steps/frame  max err {100 * stats.density_error_max:5.2f}%")
+        status = "completed"
+    except KeyboardInterrupt:
+        status = "interrupted"
+        raise
+    except SimulationError:
+        status = "failed"
+        raise
+    finally:
+        bar.close()
+        try:
+            if worker is not None:
+                worker.finish()
+        finally:
+            exporter.close()
+            save_info(status)
+    return run_info
