@@ -99,3 +99,36 @@ def lattice_sum(name: str, h: float, spacing: float) -> float:
 def calibrated_mass(name: str, h: float, spacing: float, rest_density: float) -> float:
     """Particle mass m [kg] with rest_density = m sum_j W_ij on a perfect lattice (report 7.3)."""
     return rest_density / lattice_sum(name, h, spacing)
+
+
+def first_layer_density(name: str, h: float, spacing: float, gap: float, rest_density: float = 1.0) -> float:
+    """Density [kg/m^3] of a fluid particle in the first layer of a half-space lattice (spacing d,
+    calibrated mass) whose layer sits ``gap`` [m] above one Akinci wall layer (square lattice at
+    spacing d, V_b = 1 / sum_k W_bk). Physics note section 7: at gap = d this reads ~6 % over rho0."""
+    kernel = get_smoothing_kernel(name)
+    support = kernel.support_radius(h)
+    n = int(math.ceil(support / spacing)) + 1
+    a = np.arange(-n, n + 1) * spacing
+    gx, gy = np.meshgrid(a, a, indexing="ij")
+    plane = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
+    w_wall, _ = evaluate(name, plane, h)
+    volume = 1.0 / float(np.sum(w_wall.astype(np.float64)))
+    fluid = np.concatenate([plane + [0.0, 0.0, k * spacing] for k in range(n + 1)])
+    w_fluid, _ = evaluate(name, fluid, h)
+    w_bound, _ = evaluate(name, plane + [0.0, 0.0, gap], h)
+    mass = calibrated_mass(name, h, spacing, rest_density)
+    return mass * float(np.sum(w_fluid.astype(np.float64))) + rest_density * volume * float(np.sum(w_bound.astype(np.float64)))
+
+
+@functools.lru_cache(maxsize=64)
+def wall_gap(name: str, h: float, spacing: float) -> float:
+    """Distance [m] between an Akinci wall layer and the first fluid layer at which that layer sits
+    at rest density (bisection; about 1.1 d for the cubic kernel, physics note section 7)."""
+    lo, hi = 0.8 * spacing, 1.6 * spacing
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if first_layer_density(name, h, spacing, mid) > 1.0:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
