@@ -57,7 +57,8 @@ def penalty_weight(q: float) -> float:
 
 
 @functools.cache
-def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, with_friction: bool):
+def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, with_friction: bool,
+                        mirrored_pressure: bool = False):
     """a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij (eq. 10)
              + 10 nu sum_j (m/rho_j) (v_ij . x_ij)/(|x_ij|^2 + 0.01 h^2) grad W_ij   (viscosity, m^2/s)
              + boundary terms + g                                                    [m/s^2]
@@ -100,6 +101,11 @@ def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, wit
         vi = particle_v[i]
         rho_i = particle_density[i]
         p_rho2_i = particle_pressure[i] / (rho_i * rho_i)
+        # boundary pressure term: eq. 16 uses p_i/rho_i^2; mirrored (SPlisHSPlasH) gives the wall
+        # particle the fluid particle's pressure at rest density: p_i/rho_i^2 + p_i/rho0^2
+        p_rho2_b = p_rho2_i
+        if wp.static(mirrored_pressure):
+            p_rho2_b = p_rho2_i + particle_pressure[i] / (rest_density * rest_density)
         h = smoothing_length
         eps_h2 = 0.01 * h * h
         a = wp.vec3(0.0)
@@ -127,7 +133,7 @@ def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, wit
                 if r < support_radius:
                     grad = wp.static(gradient)(x_ib, h)
                     psi = rest_density * boundary_volume[b]
-                    a_boundary -= psi * p_rho2_i * grad
+                    a_boundary -= psi * p_rho2_b * grad
                     if wp.static(with_friction):
                         vx = wp.dot(vi, x_ib)
                         if vx < 0.0:

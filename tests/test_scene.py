@@ -64,6 +64,7 @@ def test_defaults_resolved(tmp_path):
     assert s.particle_radius == 0.025
     assert s.smoothing_kernel == "cubic" and s.h_per_spacing is None
     assert s.solver == "wcsph" and s.boundary == "akinci2012"
+    assert s.boundary_gap is None and 1.05 * s.spacing < s.wall_gap < 1.15 * s.spacing
     assert s.gravity == (0.0, 0.0, -9.81)
     assert s.material.rest_density == 1000.0 and s.material.viscosity == 0.0
     assert s.wcsph.equation_of_state == "linear" and s.wcsph.speed_of_sound_factor == 10.0
@@ -231,6 +232,7 @@ def test_parameter_table_lists_every_parameter():
     table = parameter_table_markdown()
     rows = {line.split("|")[1].strip().strip("`"): line for line in table.splitlines()[2:]}
     assert len(rows) == len(PARAMETERS)
+    assert all(line.count("|") == 7 for line in table.splitlines())  # six cells, no stray pipes
     for p in PARAMETERS:
         row = rows[p.path]
         cells = [c.strip() for c in row.split("|")[1:-1]]

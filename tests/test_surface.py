@@ -149,3 +149,30 @@ def test_empty_and_coarsened_grid():
     assert np.prod(small.grid_shape) <= 20**3
     assert small.grid_cell_size > small.cell_size
     assert len(tris) > 0 and signed_volume(verts, tris, np.zeros(3)) > 0.0
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_ties_at_nodes_are_welded(method):
+    """A field that equals the iso level exactly on whole layers of nodes (ties the extractors turn
+    into coincident vertices and zero-area triangles) still gives a closed, clean, outward mesh."""
+    field = np.zeros((12, 12, 12), np.float32)
+    field[3:9, 3:9, 3:9] = DEFAULT_ISO_LEVEL
+    field[4:8, 4:8, 4:8] = 1.0
+    field[5, 2, 5] = DEFAULT_ISO_LEVEL
+    recon = reconstructor(method)
+    recon.grid_shape, recon.grid_origin, recon.grid_cell_size = field.shape, np.zeros(3), 1.0
+    import warp.geometry
+
+    extractor = {"marching_cubes": warp.geometry.IsoSurfaceMarchingCubes, "surface_nets": warp.geometry.IsoSurfaceNets}[method]
+    raw_verts, raw_indices = extractor.extract(wp.array(field, dtype=float, device="cpu"), DEFAULT_ISO_LEVEL)
+    verts, tris = recon._finish(raw_verts.numpy(), raw_indices.numpy())
+    check_closed_outward(verts, tris, np.full(3, 5.5))
+
+
+def test_non_finite_positions_raise():
+    from warp_sph.errors import SimulationError
+
+    points = lattice_sphere(radius=0.1)
+    points[3] = np.nan
+    with pytest.raises(SimulationError, match="not finite"):
+        extract(reconstructor(), points)

@@ -1,0 +1,64 @@
+"""Surface mesh sequences through meshio: one file per frame, ``surface_{frame:06d}.{fmt}``.
+
+Each file is written to a temporary file in the same folder and moved into place with
+``os.replace`` (atomic on POSIX and Windows), so a crash never leaves a half-written frame under
+the final name.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+
+import meshio
+import numpy as np
+
+from .errors import OutputError
+
+#: format name -> meshio file_format
+MESH_FORMATS = {"obj": "obj", "ply": "ply", "vtk": "vtk"}
+
+
+class MeshSequenceWriter:
+    """Writes the fluid surface of each frame as ``folder/surface_{frame:06d}.{fmt}``.
+
+    Args:
+        folder: output folder (created if missing).
+        fmt: "obj", "ply" (binary) or "vtk" (legacy, binary).
+    """
+
+    def __init__(self, folder, fmt: str = "obj"):
+        if fmt not in MESH_FORMATS:
+            raise ValueError(f"unknown mesh format {fmt!r}; expected one of {', '.join(MESH_FORMATS)}")
+        self.folder = os.fspath(folder)
+        self.fmt = fmt
+        try:
+            os.makedirs(self.folder, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"cannot create mesh output folder {self.folder}: {exc}") from exc
+
+    def path(self, frame: int) -> str:
+        """File of frame ``frame``."""
+        return os.path.join(self.folder, f"surface_{int(frame):06d}.{self.fmt}")
+
+    def write_frame(self, frame: int, vertices: np.ndarray, triangles: np.ndarray) -> str:
+        """Write one frame's surface: vertices (V, 3) [m], triangles (T, 3) (CCW from outside).
+
+        Returns the path written. An empty surface gives a valid file with no faces.
+        """
+        verts = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
+        tris = np.ascontiguousarray(triangles, dtype=np.int32).reshape(-1, 3)
+        if len(tris) and (tris.min() < 0 or tris.max() >= len(verts)):
+            raise ValueError(f"triangle indices out of range 0..{len(verts) - 1}")
+        # an empty surface gets no cell block (meshio's VTK writer fails on an empty one)
+        mesh = meshio.Mesh(verts, [("triangle", tris)] if len(tris) else [])
+        final = self.path(frame)
+        fd, tmp = tempfile.mkstemp(prefix=f".surface_{int(frame):06d}.", suffix=f".{self.fmt}.tmp", dir=self.folder)
+        os.close(fd)
+        try:
+            meshio.write(tmp, mesh, file_format=MESH_FORMATS[self.fmt])
+            os.replace(tmp, final)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+            raise
+        return final
