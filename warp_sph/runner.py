@@ -107,10 +107,12 @@ class Exporter:
                 statics.append(("container", *container_box_mesh(m.to_world(m.container_lo), m.to_world(m.container_hi))))
             for k, (verts, tris) in enumerate(getattr(sim.sampled, "obstacle_meshes", []) or []):
                 statics.append((f"obstacle_{k}", np.asarray(verts, np.float32), np.asarray(tris, np.int32)))
+            self.primvars = tuple(n for n in o.particle_primvars
+                                  if n == "density" or (n == "pressure" and "particle_pressure" in sim.fields))
             self.usd = UsdWriter(self.out / f"{sim.scene.name}.usdc", fps=sim.scene.fps,
                                  particle_radius=m.particle_radius, static_meshes=statics,
-                                 primvars=tuple(o.particle_primvars), with_surface=self.surface is not None,
-                                 resume_after_frame=resume_after_frame)
+                                 primvars=self.primvars, with_surface=self.surface is not None,
+                                 resume_after_frame=resume_after_frame, overwrite=True)
         if o.mesh_sequence and self.surface is not None:
             from .export_mesh import MeshSequenceWriter
 
@@ -145,7 +147,7 @@ class Exporter:
                 self.mesh_writer.write_frame(frame, *surface)
         if self.usd is not None:
             primvars = {}
-            for name in self.sim.scene.output.particle_primvars:
+            for name in self.primvars:
                 if name == "density":
                     primvars["density"] = rho
                 elif name == "pressure" and "pressure" in snap:
