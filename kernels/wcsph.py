@@ -58,7 +58,7 @@ def penalty_weight(q: float) -> float:
 
 @functools.cache
 def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, with_friction: bool,
-                        mirrored_pressure: bool = False):
+                        mirrored_pressure: bool):
     """a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij (eq. 10)
              + 10 nu sum_j (m/rho_j) (v_ij . x_ij)/(|x_ij|^2 + 0.01 h^2) grad W_ij   (viscosity, m^2/s)
              + boundary terms + g                                                    [m/s^2]

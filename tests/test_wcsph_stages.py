@@ -108,9 +108,9 @@ def test_pressure_stage(eos):
     assert (p > 0).any() and (p == 0).any()
 
 
-@pytest.mark.parametrize("boundary", ["akinci2012", "penalty"])
-def test_forces_stage(boundary):
-    sim = Simulation(small_scene(boundary=boundary))
+@pytest.mark.parametrize("boundary,mirrored", [("akinci2012", True), ("akinci2012", False), ("penalty", False)])
+def test_forces_stage(boundary, mirrored):
+    sim = Simulation(small_scene(boundary=boundary, wcsph={"boundary_pressure": "mirrored" if mirrored else "eq16"}))
     x, _ = jittered(sim, seed=3, amp=0.3)
     for name in ("neighbors", "density", "xsph", "pressure"):
         run_stage(sim, name)
@@ -134,7 +134,8 @@ def test_forces_stage(boundary):
     if boundary == "akinci2012":
         psi = m.rest_density * m.boundary_volume.numpy().astype(np.float64)
         gb = grad_W(k, xib, h)
-        ab = -(psi[None, :, None] * (p / rho**2)[:, None, None] * gb).sum(1)
+        pb = p / rho**2 + (p / m.rest_density**2 if mirrored else 0.0)
+        ab = -(psi[None, :, None] * pb[:, None, None] * gb).sum(1)
         vx = (v[:, None] * xib).sum(2)
         nu = m.boundary_friction * h * m.speed_of_sound / (2 * rho)
         pi = np.where(vx < 0, -nu[:, None] * vx / (rb**2 + 0.01 * h * h), 0.0)

@@ -150,6 +150,10 @@ PARAMETERS: tuple[Param, ...] = (
        "speed_of_sound is 0 (factor 10 keeps the density error near 1 %)", gt=0.0),
     _P("wcsph.stiffness", "float", "Pa", 0.0, "stiffness k (linear) or B (Tait); 0: derived "
        "from c_s, k = rho0 c_s^2 or B = rho0 c_s^2 / 7; overrides c_s when > 0", ge=0.0),
+    _P("wcsph.boundary_pressure", "str", "-", "mirrored", "pressure of Akinci boundary particles in the "
+       "force: 'mirrored' (p_b = p_i at rest density, as SPlisHSPlasH) or 'eq16' (report eq. 16, "
+       "p_i/rho_i^2 only: the wall pushes half as hard, the first layer compresses)",
+       choices=("mirrored", "eq16")),
     # pbf
     _P("pbf", "table", "-", {}, "position-based fluids settings"),
     _P("pbf.target_density_error", "float", "-", 0.005, "stop iterating when the average density error "
@@ -170,6 +174,9 @@ PARAMETERS: tuple[Param, ...] = (
     _P("time.dt_min", "float", "s", 1e-6, "smallest adaptive step", gt=0.0),
     _P("time.dt_max", "float", "s", 5e-3, "largest adaptive step", gt=0.0),
     _P("time.fixed_dt", "float", "s", 0.0, "fixed step (0: adaptive)", ge=0.0),
+    _P("time.on_instability", "str", "-", "stop", "when the watchdog finds a non-finite value or an "
+       "escaped particle: 'stop' with an error (frames so far are kept) or 'retry' the frame with "
+       "half the time step", choices=("stop", "retry")),
     # container
     _P("container", "table_or_false", "-", {}, "box of boundary-particle walls (six faces); "
        "'container = false': no walls", default_text="box"),
@@ -205,8 +212,11 @@ PARAMETERS: tuple[Param, ...] = (
     _P("output", "table", "-", {}, "what a run writes"),
     _P("output.usd", "bool", "-", True, "write a USD stage (points, and the surface mesh if surface)"),
     _P("output.surface", "bool", "-", True, "reconstruct the fluid surface (marching cubes)"),
-    _P("output.surface_cell_per_radius", "float", "-", 0.5, "marching-cubes cell size / r (0.5: four "
-       "cells per spacing d)", gt=0.0, le=4.0),
+    _P("output.surface_cell_per_radius", "float", "-", 0.75, "surface grid cell size / r (0.75: "
+       "sphere volume within 0.3 %, 3x cheaper than 0.5)", gt=0.0, le=4.0),
+    _P("output.surface_method", "str", "-", "marching_cubes", "iso-surface extraction: Warp's "
+       "marching cubes, or surface nets (4-5x faster extraction, same quality checks)",
+       choices=("marching_cubes", "surface_nets")),
     _P("output.surface_iso", "float", "-", 0.5, "iso level of Phi = sum_j m_j/rho_j W_ij (1 inside "
        "the fluid; 0.5 lies r beyond the last particle layer)", gt=0.0, lt=1.0),
     _P("output.mesh_sequence", "str", "-", "", "also write one surface mesh file per frame "
@@ -247,6 +257,7 @@ class WcsphParams:
     speed_of_sound: float = 0.0
     speed_of_sound_factor: float = 10.0
     stiffness: float = 0.0
+    boundary_pressure: str = "mirrored"
 
 
 @dataclass
@@ -273,6 +284,7 @@ class TimeParams:
     dt_min: float = 1e-6
     dt_max: float = 5e-3
     fixed_dt: float = 0.0
+    on_instability: str = "stop"
 
 
 @dataclass
@@ -330,7 +342,8 @@ class OutputParams:
 
     usd: bool = True
     surface: bool = True
-    surface_cell_per_radius: float = 0.5
+    surface_cell_per_radius: float = 0.75
+    surface_method: str = "marching_cubes"
     surface_iso: float = 0.5
     mesh_sequence: str = ""
     particle_primvars: list[str] = field(default_factory=lambda: ["density"])

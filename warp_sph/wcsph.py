@@ -32,7 +32,9 @@ class WcsphSolver:
         with_viscosity = m.viscosity > 0.0
         with_friction = m.boundary_method == "akinci2012" and m.boundary_friction > 0.0
         pressure_kernel = _wcsph.pressure_kernel(m.equation_of_state)
-        force_kernel = _wcsph.acceleration_kernel(m.smoothing.name, m.boundary_method, with_viscosity, with_friction)
+        mirrored = sim.scene.wcsph.boundary_pressure == "mirrored"
+        force_kernel = _wcsph.acceleration_kernel(m.smoothing.name, m.boundary_method, with_viscosity, with_friction,
+                                                  mirrored)
 
         def run_pressure(sim, dt):
             launch(pressure_kernel, n, [m.rest_density, m.stiffness, sim.fields["particle_density"]],
@@ -55,7 +57,7 @@ class WcsphSolver:
         boundary_reads = ("boundary_x", "boundary_volume", "boundary_grid") if with_boundary else ()
         terms = ["pressure (eq. 10)"]
         if m.boundary_method == "akinci2012":
-            terms.append("Akinci boundary pressure (eq. 16)")
+            terms.append("Akinci boundary pressure (" + ("mirrored" if mirrored else "eq. 16") + ")")
         if m.boundary_method == "penalty":
             terms.append("penalty boundary (eq. 12)")
         if with_viscosity:
