@@ -24,6 +24,13 @@ def _cmd_run(args) -> int:
 
     _quiet_warp()
     if args.resume:
+        ignored = [flag for flag, given in (("a scene", args.scene != "dam_break"), ("--out", args.out),
+                                            ("--set", args.set), ("--overwrite", args.overwrite)) if given]
+        if ignored:
+            from .errors import WarpSphError
+
+            raise WarpSphError(f"--resume continues the run in {args.resume} with its own scene and folder; "
+                               f"drop {', '.join(ignored)}")
         info = runner.run(None, device=args.device, frames=args.frames, progress=not args.no_progress,
                           resume=Path(args.resume))
     else:
@@ -130,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene value by key path, e.g. particle_radius=0.02 or material.xsph=0.05 (repeatable)")
     r.add_argument("--overwrite", action="store_true", help="replace a previous run in --out")
-    r.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its latest checkpoint")
+    r.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its latest checkpoint "
+                   "(its scene and folder; --frames may extend it); on the CPU the result equals an uninterrupted run")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
 

@@ -9,10 +9,15 @@ Layout (notes/usd_blender.md section 2), one ``.usdc`` file for the whole run:
                            time-sampled every frame, in stable particle order; widths = 2 r (constant)
     /sph/surface           Mesh (subdivisionScheme none): points, faceVertexCounts,
                            faceVertexIndices (CCW seen from outside), extent, every frame
-    /sph/<name>            static meshes (container walls, obstacles): default values only
+    /sph/<name>            static meshes (container walls, obstacles): topology as default values;
+                           points and extent as default values *and* one (equal) time sample per
+                           frame, so every Points/Mesh prim spans the frame range (check_usd.py
+                           --strict; Blender adds a Mesh Sequence Cache that reads the same mesh).
+                           Crate shares equal values only within one Save, so each frame costs
+                           12 B per static vertex (the 8-vertex container: ~0.1 kB per frame).
 
-Frame f is written at time code f (1 = the initial state). The stage is saved after every frame:
-crate saves append, so memory stays flat and a crash (even SIGKILL) leaves every frame written
+Frame f is written at time code f (1 = the initial state; ``first_frame`` for a re-export of a
+frame range). The stage is saved after every frame: crate saves append, so memory stays flat and a crash (even SIGKILL) leaves every frame written
 so far readable (tests/test_export_usd.py). Arrays go through ``Vt.*Array.FromNumpy`` (a list
 round trip is ~9x slower).
 """
@@ -78,6 +83,8 @@ class UsdWriter:
         resume_after_frame: k to reopen the existing file, delete every time sample after frame k
             and continue with frame k + 1; None to create a new file.
         overwrite: replace an existing file when creating a new one (otherwise OutputError).
+        first_frame: time code of the first frame of a new file (startTimeCode; default 1). A
+            re-export of frames A..B keeps the run's frame numbers: first_frame = A.
     """
 
     def __init__(
@@ -92,6 +99,7 @@ class UsdWriter:
         *,
         with_velocities: bool = True,
         overwrite: bool = False,
+        first_frame: int = 1,
     ):
         if not fps > 0.0:
             raise ValueError(f"fps must be > 0; got {fps}")
@@ -107,8 +115,9 @@ class UsdWriter:
             if not Sdf.Path.IsValidIdentifier(name):
                 raise ValueError(f"primvar name {name!r} is not a valid USD identifier")
         if resume_after_frame is None:
+            self.first_frame = int(first_frame)
             self.stage = self._create(static_meshes, overwrite)
-            self.last_frame = 0
+            self.last_frame = self.first_frame - 1
         else:
             self.stage = self._resume(int(resume_after_frame))
             self.last_frame = int(resume_after_frame)
@@ -125,15 +134,20 @@ class UsdWriter:
                                   "or resume it")
             os.remove(self.path)
         try:
-            stage = Usd.Stage.CreateNew(self.path)
+            layer = Sdf.Layer.Find(self.path)
+            if layer is not None:  # still open in this process (a stage someone holds): reuse it, emptied
+                layer.Clear()
+                stage = Usd.Stage.Open(layer)
+            else:
+                stage = Usd.Stage.CreateNew(self.path)
         except Exception as exc:  # pxr raises Tf.ErrorException
             raise OutputError(f"cannot create USD file {self.path}: {exc}") from exc
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
         UsdGeom.SetStageMetersPerUnit(stage, 1.0)
         stage.SetTimeCodesPerSecond(self.fps)
         stage.SetFramesPerSecond(self.fps)
-        stage.SetStartTimeCode(1)
-        stage.SetEndTimeCode(1)
+        stage.SetStartTimeCode(self.first_frame)
+        stage.SetEndTimeCode(self.first_frame)
         root = UsdGeom.Xform.Define(stage, "/sph")
         stage.SetDefaultPrim(root.GetPrim())
 
@@ -186,6 +200,9 @@ class UsdWriter:
         if stage.GetTimeCodesPerSecond() != self.fps:
             raise OutputError(f"cannot resume: {self.path} was written at {stage.GetTimeCodesPerSecond():g} fps, "
                               f"this run exports at {self.fps:g} fps")
+        self.first_frame = int(stage.GetStartTimeCode())
+        if k < self.first_frame - 1:
+            raise OutputError(f"cannot resume after frame {k}: {self.path} starts at frame {self.first_frame}")
         end = stage.GetEndTimeCode()
         if end < k:
             raise OutputError(f"cannot resume after frame {k}: {self.path} ends at frame {end:g}")
@@ -196,7 +213,7 @@ class UsdWriter:
                 for t in attr.GetTimeSamples():
                     if t > k:
                         attr.ClearAtTime(t)
-        stage.SetEndTimeCode(max(k, 1))
+        stage.SetEndTimeCode(max(k, self.first_frame))
         stage.Save()
         return stage
 
@@ -219,6 +236,17 @@ class UsdWriter:
             self._mesh_counts = mesh.GetFaceVertexCountsAttr()
             self._mesh_indices = mesh.GetFaceVertexIndicesAttr()
             self._mesh_extent = mesh.GetExtentAttr()
+        # static meshes: their default points and extent, repeated as a time sample every frame
+        self._statics = []
+        for prim in stage.GetPrimAtPath("/sph").GetChildren():
+            if prim.GetName() in _RESERVED or not prim.IsA(UsdGeom.Mesh):
+                continue
+            mesh = UsdGeom.Mesh(prim)
+            for attr in (mesh.GetPointsAttr(), mesh.GetExtentAttr()):
+                value = attr.Get(Usd.TimeCode.Default())
+                if value is None:
+                    raise OutputError(f"{self.path}: static mesh {prim.GetPath()} has no default {attr.GetName()}")
+                self._statics.append((attr, value))
 
     # -- frames --------------------------------------------------------------------------------
     def write_frame(
@@ -232,7 +260,7 @@ class UsdWriter:
         """Write frame ``frame`` (time code; 1 = initial state) and save the stage.
 
         Args:
-            frame: the next frame: last written + 1 (1 for a new file, k + 1 after a resume).
+            frame: the next frame: last written + 1 (first_frame for a new file, k + 1 after a resume).
             particle_x: positions [m], (N, 3), in stable particle order.
             particle_v: velocities [m/s], (N, 3); required unless with_velocities=False.
             primvars: one (N,) float array per declared primvar name (e.g. density [kg/m^3]).
@@ -276,6 +304,8 @@ class UsdWriter:
             self._mesh_counts.Set(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)), t)
             self._mesh_indices.Set(Vt.IntArray.FromNumpy(tris.reshape(-1)), t)
             self._mesh_extent.Set(_extent(verts, 0.0), t)
+        for attr, value in self._statics:
+            attr.Set(value, t)
         self.stage.SetEndTimeCode(frame)
         self.stage.Save()
         self.last_frame = frame

@@ -4,13 +4,16 @@ Layout of DIR:
     run.json                      resolved scene, versions, device, counts, per-frame statistics
     <scene>.usdc                  particles + surface for Blender (saved after every frame)
     frames/frame_000001.npz       recorded frames: x [m] (world), v [m/s], density [kg/m^3], time [s]
-    checkpoints/checkpoint_000010.npz   exact state to resume from (written atomically)
+    checkpoints/checkpoint_000010.npz   exact state to resume from (written atomically, after the
+                                  frame's other outputs: checkpoint k implies frames 1..k are saved)
     mesh/surface_000001.obj       optional mesh sequence
+    export/                       re-exports from the recorded frames (``warp-sph export``)
 """
 from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -34,8 +37,13 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         raise
 
 
+def to_json(obj, indent: int | None = None) -> str:
+    """JSON text of run data (NumPy scalars and arrays, Paths included)."""
+    return json.dumps(obj, indent=indent, default=_json_default)
+
+
 def atomic_write_json(path: Path, obj) -> None:
-    atomic_write_bytes(path, json.dumps(obj, indent=1, default=_json_default).encode())
+    atomic_write_bytes(path, to_json(obj, indent=1).encode())
 
 
 def atomic_save_npz(path: Path, **arrays) -> None:
@@ -124,6 +132,26 @@ def latest_checkpoint(out: Path) -> Path | None:
     d = Path(out) / "checkpoints"
     cps = sorted(d.glob("checkpoint_*.npz")) if d.is_dir() else []
     return cps[-1] if cps else None
+
+
+def _frame_number(path: Path) -> int | None:
+    """N of ``<prefix>_NNNNNN.<ext>`` (frames, checkpoints, mesh files), None for other names."""
+    m = re.fullmatch(r"[a-z]+_(\d+)", path.stem)
+    return int(m.group(1)) if m else None
+
+
+def truncate_run(out: Path, frame: int) -> list[Path]:
+    """Remove recorded frames, checkpoints and mesh-sequence files after ``frame`` (before a resume
+    from the checkpoint of ``frame``: what a run wrote beyond it is written again). Returns them."""
+    removed = []
+    for sub, suffixes in (("frames", (".npz",)), ("checkpoints", (".npz",)), ("mesh", (".obj", ".ply", ".vtk"))):
+        d = Path(out) / sub
+        for p in sorted(d.iterdir()) if d.is_dir() else []:
+            n = _frame_number(p)
+            if p.is_file() and p.suffix in suffixes and n is not None and n > frame:
+                p.unlink()
+                removed.append(p)
+    return removed
 
 
 def read_run_json(out: Path) -> dict:

@@ -3,9 +3,16 @@
 Frame k (k = 1, 2, ...) is the state at t = (k - 1) / fps; frame 1 is the initial state. Exports of
 frame k run on a background thread while frame k + 1 is simulated (a CPU ``wp.launch`` releases
 the GIL), with at most two frames in flight.
+
+Checkpoints are written by the exporter too, right after the frame's own outputs, from copies of
+the state taken on the simulation thread. So checkpoint k on disk implies that frames 1..k are
+in frames/, in the USD and in the mesh sequence, and a resume from it (after Ctrl-C, a crash or
+SIGKILL) finds every output it continues. On the CPU a resumed run reproduces an uninterrupted
+one bit for bit (tests/test_run_outputs.py).
 """
 from __future__ import annotations
 
+import json
 import math
 import platform
 import queue
@@ -19,6 +26,7 @@ import warp as wp
 
 from . import run_folder as rf
 from .errors import OutputError, SimulationError, WarpSphError
+from .preflight import preflight_checks
 from .simulation import Simulation
 
 
@@ -98,15 +106,12 @@ class Exporter:
             self.surface = SurfaceReconstructor(
                 m.smoothing.name, m.smoothing_length, m.particle_mass, m.particle_radius,
                 cell_size=o.surface_cell_per_radius * m.particle_radius, iso_level=o.surface_iso,
-                device=sim.device)
+                device=sim.device, method=getattr(o, "surface_method", "marching_cubes"))
         if o.usd:
-            from .export_usd import UsdWriter, container_box_mesh
+            from .export import scene_static_meshes
+            from .export_usd import UsdWriter
 
-            statics = []
-            if m.container_lo is not None:
-                statics.append(("container", *container_box_mesh(m.to_world(m.container_lo), m.to_world(m.container_hi))))
-            for k, (verts, tris) in enumerate(getattr(sim.sampled, "obstacle_meshes", []) or []):
-                statics.append((f"obstacle_{k}", np.asarray(verts, np.float32), np.asarray(tris, np.int32)))
+            statics = [] if resume_after_frame is not None else scene_static_meshes(sim.scene.to_dict())
             self.primvars = tuple(n for n in o.particle_primvars
                                   if n == "density" or (n == "pressure" and "particle_pressure" in sim.fields))
             self.usd = UsdWriter(self.out / f"{sim.scene.name}.usdc", fps=sim.scene.fps,
@@ -122,13 +127,18 @@ class Exporter:
             (self.out / "frames").mkdir(exist_ok=True)
         self.seconds = 0.0
 
-    def snapshot(self) -> dict:
-        """Device copies of what a frame export needs (taken on the simulation thread)."""
+    def snapshot(self, checkpoint: dict | None = None) -> dict:
+        """Device copies of what a frame export needs (taken on the simulation thread).
+
+        checkpoint: the host part of a checkpoint (``_checkpoint_info``) to write after the frame.
+        """
         f = self.sim.fields
         snap = {"x": wp.clone(f["particle_x"]), "v": wp.clone(f["particle_v"]),
                 "density": wp.clone(f["particle_density"])}
         if "particle_pressure" in f:
             snap["pressure"] = wp.clone(f["particle_pressure"])
+        if checkpoint is not None:
+            snap["checkpoint"] = checkpoint
         return snap
 
     def write(self, frame: int, t: float, snap: dict) -> None:
@@ -153,6 +163,10 @@ class Exporter:
                 elif name == "pressure" and "pressure" in snap:
                     primvars["pressure"] = snap["pressure"].numpy()
             self.usd.write_frame(frame, x_world, v, primvars=primvars, surface=surface)
+        if "checkpoint" in snap:  # after the frame's outputs: checkpoint k implies frames <= k are saved
+            (self.out / "checkpoints").mkdir(exist_ok=True)
+            rf.atomic_save_npz(rf.checkpoint_path(self.out, frame), particle_x_local=snap["x"].numpy(),
+                               particle_v=v, **snap["checkpoint"])
         self.seconds += time.perf_counter() - t0
 
     def close(self) -> None:
@@ -195,15 +209,19 @@ class _ExportThread:
         self.check()
 
 
-def _checkpoint(sim: Simulation, out: Path, frame: int) -> None:
+def _checkpoint_info(sim: Simulation, frame: int, frame_log: list[dict]) -> dict:
+    """Host part of a checkpoint of ``frame`` (positions and velocities come from the frame's snapshot).
+
+    Holds the step count, frame, time, the max speed that sizes the next substep, any arrays the
+    solver carries between steps, and the per-frame statistics so far (run.json may lag behind).
+    """
     s = sim.state
     last = sim.last_frame.max_speed if sim.last_frame else 0.0
     extra = sim.solver.checkpoint_arrays(sim) if hasattr(sim.solver, "checkpoint_arrays") else {}
-    (out / "checkpoints").mkdir(exist_ok=True)
-    rf.atomic_save_npz(rf.checkpoint_path(out, frame), particle_x_local=s.particle_x.numpy(),
-                       particle_v=s.particle_v.numpy(), step=np.int64(s.step), frame=np.int64(frame),
-                       state_frame=np.int64(s.frame), time=np.float64(s.time), last_max_speed=np.float64(last),
-                       **extra)
+    extra = {k: (a.numpy() if isinstance(a, wp.array) else np.asarray(a)) for k, a in extra.items()}
+    return dict(step=np.int64(s.step), frame=np.int64(frame), state_frame=np.int64(s.frame),
+                time=np.float64(s.time), last_max_speed=np.float64(last),
+                frame_log=np.array(rf.to_json(frame_log)), **extra)
 
 
 def run(scene, out: Path | None = None, device: str | None = None, frames: int | None = None,
@@ -234,12 +252,16 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     if total < 1:
         raise WarpSphError(f"--frames must be >= 1, got {total}")
     sim = Simulation(scene, device=device)
+    preflight_checks(scene, sim)
 
     frame_log: list[dict] = []
     start_frame = 1
     if resume_info is not None:
         info, cp = resume_info
         start_frame = int(cp["frame"])
+        if total < start_frame:
+            raise WarpSphError(f"{out}: its latest checkpoint is frame {start_frame}; resume with --frames >= {start_frame} "
+                               f"(got {total})")
         sim.state.particle_x.assign(wp.array(cp["particle_x_local"], dtype=wp.vec3, device=sim.device))
         sim.state.particle_v.assign(wp.array(cp["particle_v"], dtype=wp.vec3, device=sim.device))
         sim.state.step = int(cp["step"])
@@ -250,21 +272,29 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         sim._refresh_density()
         sim.last_frame = sim.statistics()
         sim.last_frame.max_speed = float(cp["last_max_speed"])
-        frame_log = [f for f in info.get("frames", []) if f["frame"] <= start_frame]
-        for p in (out / "frames").glob("frame_*.npz") if (out / "frames").is_dir() else []:
-            if int(p.stem.split("_")[1]) > start_frame:
-                p.unlink()
+        if "frame_log" in cp:
+            frame_log = json.loads(str(cp["frame_log"]))
+        else:
+            frame_log = [f for f in info.get("frames", []) if f["frame"] <= start_frame]
+        rf.truncate_run(out, start_frame)
         log(f"resuming {out} from frame {start_frame} (step {sim.state.step})")
 
     exporter = Exporter(sim, out, resume_after_frame=start_frame if resume_info is not None else None)
     worker = _ExportThread(exporter) if threaded_export else None
+    checkpoint_every = int(scene.output.checkpoint_every)
+    export_wait = [0.0]  # seconds the simulation thread spent on exports (snapshot, queue, drain)
 
     def export(frame, t):
-        snap = exporter.snapshot()
+        t0 = time.perf_counter()
+        checkpoint = None
+        if checkpoint_every > 0 and (frame - 1) % checkpoint_every == 0:
+            checkpoint = _checkpoint_info(sim, frame, frame_log)
+        snap = exporter.snapshot(checkpoint)
         if worker is not None:
             worker.submit(frame, t, snap)
         else:
             exporter.write(frame, t, snap)
+        export_wait[0] += time.perf_counter() - t0
 
     run_info = {
         "scene": scene.to_dict(), "versions": versions(), "device": str(sim.device),
@@ -282,12 +312,12 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["wall_time"] = time.perf_counter() - t_start
         run_info["stage_times"] = sim.graph.timing_table()
         run_info["export_time"] = exporter.seconds
+        run_info["export_wait_time"] = export_wait[0]
         sim_seconds = sum(t["seconds"] for t in run_info["stage_times"])
         run_info["sim_time_per_step_ms"] = 1e3 * sim_seconds / max(1, sum(f["steps"] for f in run_info["frames"]))
         rf.atomic_write_json(out / rf.RUN_JSON, run_info)
 
     bar = Progress(total, enabled=progress)
-    checkpoint_every = int(scene.output.checkpoint_every)
     status = "failed"
     try:
         if resume_info is None:
@@ -298,8 +328,6 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             d["frame"] = 1
             frame_log.append(d)
             export(1, 0.0)
-            if checkpoint_every > 0:
-                _checkpoint(sim, out, 1)
             save_info("running")
         for frame in range(start_frame + 1, total + 1):
             stats = sim.advance_frame()
@@ -308,10 +336,6 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             d["frame"] = frame
             frame_log.append(d)
             export(frame, sim.state.time)
-            if checkpoint_every > 0 and (frame - 1) % checkpoint_every == 0:
-                if worker is not None:
-                    worker.check()
-                _checkpoint(sim, out, frame)
             save_info("running")
             bar.update(frame, f"{stats.steps} steps/frame  max err {100 * stats.density_error_max:5.2f}%")
         status = "completed"
@@ -325,7 +349,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         bar.close()
         try:
             if worker is not None:
+                t0 = time.perf_counter()
                 worker.finish()
+                export_wait[0] += time.perf_counter() - t0
         finally:
             exporter.close()
             save_info(status)

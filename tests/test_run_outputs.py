@@ -1,0 +1,299 @@
+"""What a real run leaves in its folder: a Blender-ready USD (checked like check_usd.py does, and by
+it when it is beside the checkout), checkpoints a resumed run continues bit for bit, a USD that
+survives SIGKILL, and re-exports from the recorded frames (``warp-sph export``).
+
+All runs are a small dam break (particle_radius 0.05 m: 729 fluid particles) on the CPU.
+"""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+from pxr import Usd, UsdGeom
+
+from warp_sph import runner
+from warp_sph import run_folder as rf
+from warp_sph.cli import main as cli_main
+from warp_sph.errors import OutputError, WarpSphError
+from warp_sph.export import export_run, parse_frame_range
+from warp_sph.scene import load_scene
+
+SMALL = ["particle_radius=0.05", "output.checkpoint_every=3"]
+FRAMES = 7
+
+
+def checker_path() -> Path | None:
+    env = os.environ.get("WARP_SPH_CHECK_USD")
+    for candidate in ([Path(env)] if env else []) + [Path(__file__).resolve().parents[2] / "shared" / "tools" / "check_usd.py"]:
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def run_checker_strict(path: Path) -> None:
+    """check_usd.py --strict must pass (a no-op where the shared checker is not beside the checkout)."""
+    checker = checker_path()
+    if checker is None:
+        return
+    result = subprocess.run([sys.executable, str(checker), str(path), "--strict"], capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def quiet(*args, **kwargs):
+    pass
+
+
+def run_small(out: Path, frames: int, extra=(), scene="dam_break", **kw) -> dict:
+    return runner.run(load_scene(scene, overrides=SMALL + list(extra)), out=out, device="cpu", frames=frames,
+                      progress=False, log=quiet, **kw)
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """An uninterrupted 7-frame run (checkpoints at frames 1, 4, 7)."""
+    out = tmp_path_factory.mktemp("reference") / "run"
+    run_small(out, FRAMES)
+    return out
+
+
+def usd_path(out: Path) -> Path:
+    (path,) = sorted(Path(out).glob("*.usdc"))
+    return path
+
+
+def usd_samples(path: Path) -> dict:
+    """Every time sample of every attribute: {(attribute path, time): numpy value}."""
+    stage = Usd.Stage.Open(str(path))
+    out = {}
+    for prim in stage.Traverse():
+        for attr in prim.GetAttributes():
+            for t in attr.GetTimeSamples():
+                out[(str(attr.GetPath()), t)] = np.asarray(attr.Get(t))
+    return out
+
+
+def assert_blender_ready(path: Path, frames: int, first: int = 1, radius: float = 0.05) -> None:
+    """What Blender's importer needs (notes/usd_blender.md), checked on every prim and sample."""
+    stage = Usd.Stage.Open(str(path))
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
+    assert stage.GetTimeCodesPerSecond() == stage.GetFramesPerSecond() > 0
+    assert stage.GetStartTimeCode() == first and stage.GetEndTimeCode() == first + frames - 1
+    assert stage.GetDefaultPrim().GetPath() == "/sph"
+    times = [float(t) for t in range(first, first + frames)]
+    gprims = [p for p in stage.Traverse() if p.IsA(UsdGeom.Points) or p.IsA(UsdGeom.Mesh)]
+    assert {"particles", "surface", "container"} <= {p.GetName() for p in gprims}
+    for prim in gprims:
+        g = UsdGeom.PointBased(prim)
+        assert [float(t) for t in g.GetPointsAttr().GetTimeSamples()] == times, prim.GetPath()
+        assert [float(t) for t in g.GetExtentAttr().GetTimeSamples()] == times, prim.GetPath()
+        for t in times:
+            pts = np.asarray(g.GetPointsAttr().Get(t), dtype=np.float64).reshape(-1, 3)
+            assert np.all(np.isfinite(pts)), (prim.GetPath(), t)
+            lo, hi = np.asarray(g.GetExtentAttr().Get(t), dtype=np.float64)
+            if len(pts):
+                pad = radius if prim.IsA(UsdGeom.Points) else 0.0
+                assert np.all(lo <= pts.min(0) - pad + 1e-5) and np.all(hi >= pts.max(0) + pad - 1e-5)
+            if prim.IsA(UsdGeom.Points):
+                widths = np.asarray(UsdGeom.Points(prim).GetWidthsAttr().Get(t))
+                assert len(widths) == 1 and widths[0] == pytest.approx(2 * radius)
+                v = np.asarray(UsdGeom.Points(prim).GetVelocitiesAttr().Get(t))
+                assert v.shape == pts.shape and np.all(np.isfinite(v))
+            else:
+                mesh = UsdGeom.Mesh(prim)
+                assert mesh.GetSubdivisionSchemeAttr().Get() == UsdGeom.Tokens.none
+                counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(t))
+                idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(t))
+                assert np.all(counts == 3) and counts.sum() == len(idx)
+                if len(idx):
+                    assert idx.min() >= 0 and idx.max() < len(pts)
+                    tris = idx.reshape(-1, 3)
+                    assert not np.any((tris[:, 0] == tris[:, 1]) | (tris[:, 1] == tris[:, 2]) | (tris[:, 0] == tris[:, 2]))
+                    if prim.GetName() == "surface":  # closed, wound outward: positive volume
+                        a, b, c = pts[tris[:, 0]], pts[tris[:, 1]], pts[tris[:, 2]]
+                        assert np.einsum("ij,ij->i", a, np.cross(b, c)).sum() > 0, t
+
+
+# -- the USD of a run ---------------------------------------------------------------------------
+def test_run_usd_passes_check_usd_strict(reference):
+    if checker_path() is None:
+        pytest.skip("shared/tools/check_usd.py not beside the checkout (set WARP_SPH_CHECK_USD)")
+    run_checker_strict(usd_path(reference))
+
+
+def test_run_usd_is_blender_ready(reference):
+    path = usd_path(reference)
+    assert_blender_ready(path, FRAMES)
+    info = rf.read_run_json(reference)
+    assert info["status"] == "completed" and len(info["frames"]) == FRAMES
+    stage = Usd.Stage.Open(str(path))
+    n = info["fluid_particles"]
+    for f in range(1, FRAMES + 1):
+        rec = np.load(rf.frame_path(reference, f))
+        assert np.array_equal(np.asarray(stage.GetAttributeAtPath("/sph/particles.points").Get(f)), rec["x"])
+        assert len(rec["x"]) == n and float(rec["time"]) == pytest.approx((f - 1) / 24.0)
+    assert sorted(p.name for p in (reference / "checkpoints").iterdir()) == \
+        ["checkpoint_000001.npz", "checkpoint_000004.npz", "checkpoint_000007.npz"]
+
+
+def test_obstacle_meshes_in_usd(tmp_path):
+    out = tmp_path / "obstacle"
+    run_small(out, 2, scene="obstacle", extra=["output.checkpoint_every=0"])
+    path = usd_path(out)
+    assert_blender_ready(path, 2)
+    run_checker_strict(path)
+    stage = Usd.Stage.Open(str(path))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/sph/obstacle_0"))
+    assert mesh, [str(p.GetPath()) for p in stage.Traverse()]
+    pts = np.asarray(mesh.GetPointsAttr().Get(2))
+    # scenes/obstacle.toml: cylinder of radius 0.15 m, height 0.6 m standing at (1.6, 0.505, 0)
+    assert pts[:, 2].min() == pytest.approx(0.0, abs=1e-6) and pts[:, 2].max() == pytest.approx(0.6, abs=1e-5)
+    assert np.hypot(pts[:, 0] - 1.6, pts[:, 1] - 0.505).max() == pytest.approx(0.15, rel=1e-3)
+    assert not (out / "checkpoints").exists()
+
+
+# -- checkpoints and resume -----------------------------------------------------------------------
+def assert_same_run(a: Path, b: Path) -> None:
+    """Recorded frames, USD samples and per-frame statistics of two runs are bitwise equal."""
+    fa, fb = sorted((a / "frames").iterdir()), sorted((b / "frames").iterdir())
+    assert [p.name for p in fa] == [p.name for p in fb]
+    for pa, pb in zip(fa, fb):
+        da, db = np.load(pa), np.load(pb)
+        assert sorted(da.files) == sorted(db.files)
+        for k in da.files:
+            assert np.array_equal(da[k], db[k]), (pa.name, k)
+    sa, sb = usd_samples(usd_path(a)), usd_samples(usd_path(b))
+    assert sorted(sa) == sorted(sb)
+    for key in sa:
+        assert np.array_equal(sa[key], sb[key]), key
+    ia, ib = rf.read_run_json(a), rf.read_run_json(b)
+    assert ia["frames"] == ib["frames"] and ia["steps"] == ib["steps"]
+
+
+def test_resume_reproduces_uninterrupted_run(reference, tmp_path):
+    out = tmp_path / "resumed"
+    run_small(out, 5, threaded_export=False)  # checkpoints 1 and 4; frame 5 is recomputed after the resume
+    assert rf.latest_checkpoint(out).name == "checkpoint_000004.npz"
+    info = runner.run(None, frames=FRAMES, resume=out, progress=False, device="cpu", log=quiet)
+    assert info["status"] == "completed"
+    assert_same_run(reference, out)
+    assert_blender_ready(usd_path(out), FRAMES)
+
+
+def test_resume_errors(tmp_path):
+    with pytest.raises(OutputError, match="run.json"):
+        runner.run(None, resume=tmp_path, progress=False, log=quiet)
+    out = tmp_path / "nocp"
+    run_small(out, 2, extra=["output.checkpoint_every=0"])
+    with pytest.raises(OutputError, match="no checkpoint"):
+        runner.run(None, resume=out, progress=False, log=quiet)
+
+
+def test_sigkill_then_resume(reference, tmp_path):
+    """A run killed with SIGKILL keeps a USD holding every frame saved before the kill, each sample
+    readable, with endTimeCode = the number of frames; resuming it reproduces the uninterrupted run."""
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "warp_sph.cli", "run", "--out", str(out), "--frames", "400", "--device", "cpu",
+           "--no-progress"] + [a for s in SMALL for a in ("--set", s)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not rf.frame_path(out, 4).exists():
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() < deadline, "no frame 4 within 60 s"
+            time.sleep(0.01)
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    stage = Usd.Stage.Open(str(usd_path(out)))
+    end = int(stage.GetEndTimeCode())
+    assert 3 <= end < 400
+    for prim in ("/sph/particles", "/sph/surface", "/sph/container"):
+        attr = stage.GetAttributeAtPath(f"{prim}.points")
+        assert [float(t) for t in attr.GetTimeSamples()] == [float(f) for f in range(1, end + 1)], prim
+        for f in range(1, end + 1):
+            assert np.all(np.isfinite(np.asarray(attr.Get(f))))
+    recorded = sorted(int(p.stem.split("_")[1]) for p in (out / "frames").glob("frame_*.npz"))
+    assert recorded[:end] == list(range(1, end + 1))
+    # a checkpoint on disk implies its frame's outputs are: resume from it continues the file
+    k = int(np.load(rf.latest_checkpoint(out))["frame"])
+    assert k <= end and k <= recorded[-1]
+    frames = max(end, k) + 2
+    runner.run(None, frames=frames, resume=out, progress=False, device="cpu", log=quiet)
+    ref = reference
+    if frames != FRAMES:
+        ref = tmp_path / "uninterrupted"
+        run_small(ref, frames)
+    assert_same_run(ref, out)
+    assert_blender_ready(usd_path(out), frames)
+    run_checker_strict(usd_path(out))
+
+
+# -- re-export ------------------------------------------------------------------------------------
+def test_export_usd_finer_surface(reference, tmp_path):
+    out = tmp_path / "fine.usdc"
+    path = export_run(reference, fmt="usd", out=out, cell_per_radius=0.5, frames="2:4")
+    assert path == out
+    assert_blender_ready(out, 3, first=2)
+    run_checker_strict(out)
+    run_stage, fine = Usd.Stage.Open(str(usd_path(reference))), Usd.Stage.Open(str(out))
+    for f in (2, 3, 4):
+        for attr in ("/sph/particles.points", "/sph/particles.velocities", "/sph/particles.primvars:density"):
+            assert np.array_equal(np.asarray(fine.GetAttributeAtPath(attr).Get(f)),
+                                  np.asarray(run_stage.GetAttributeAtPath(attr).Get(f))), (attr, f)
+        # the run's surface cell is 0.75 r: a 0.5 r grid gives about (0.75 / 0.5)^2 = 2.25x the triangles
+        n_run = len(run_stage.GetAttributeAtPath("/sph/surface.faceVertexIndices").Get(f))
+        n_fine = len(fine.GetAttributeAtPath("/sph/surface.faceVertexIndices").Get(f))
+        assert 1.8 < n_fine / n_run < 2.8
+    with pytest.raises(OutputError, match="overwrite"):
+        export_run(reference, fmt="usd", out=out, frames="2:4")
+    export_run(reference, fmt="usd", out=out, frames="3:3", overwrite=True)
+    assert Usd.Stage.Open(str(out)).GetStartTimeCode() == Usd.Stage.Open(str(out)).GetEndTimeCode() == 3
+
+
+def test_export_same_settings_reproduces_run_surface(reference, tmp_path):
+    path = export_run(reference, fmt="usd", out=tmp_path, frames="1:2")
+    assert path == tmp_path / "dam_break.usdc"
+    a, b = Usd.Stage.Open(str(usd_path(reference))), Usd.Stage.Open(str(path))
+    for f in (1, 2):
+        va = np.asarray(a.GetAttributeAtPath("/sph/surface.points").Get(f))
+        vb = np.asarray(b.GetAttributeAtPath("/sph/surface.points").Get(f))
+        assert len(va) == len(vb) and np.allclose(va, vb, atol=1e-5)
+
+
+@pytest.mark.parametrize("fmt", ["obj", "ply", "vtk"])
+def test_export_mesh_sequence(reference, tmp_path, fmt):
+    out = tmp_path / fmt
+    assert cli_main(["export", str(reference), "--format", fmt, "--out", str(out), "--frames", "6:7",
+                     "--surface-cell", "1.0"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [f"surface_000006.{fmt}", f"surface_000007.{fmt}"]
+    mesh = meshio.read(out / f"surface_000007.{fmt}")
+    assert len(mesh.cells_dict["triangle"]) > 100 and np.all(np.isfinite(mesh.points))
+    assert cli_main(["export", str(reference), "--format", fmt, "--out", str(out), "--frames", "5"]) == 2
+    assert cli_main(["export", str(reference), "--format", fmt, "--out", str(out), "--frames", "5",
+                     "--overwrite"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [f"surface_000005.{fmt}"]
+
+
+def test_export_default_location_and_errors(reference, tmp_path, capsys):
+    assert cli_main(["export", str(reference), "--format", "obj", "--frames", "7:"]) == 0
+    assert (reference / "export" / "obj" / "surface_000007.obj").is_file()
+    assert cli_main(["export", str(reference), "--frames", "3:99"]) == 2
+    assert "not recorded" in capsys.readouterr().err
+    assert cli_main(["export", str(tmp_path)]) == 2
+    with pytest.raises(WarpSphError):
+        parse_frame_range("a:b", [1, 2])
+    with pytest.raises(WarpSphError):
+        parse_frame_range("3:2", [1, 2, 3])
+    assert parse_frame_range(None, [1, 2, 3]) == [1, 2, 3]
+    assert parse_frame_range(":2", [1, 2, 3]) == [1, 2]
+    info = json.loads((reference / "run.json").read_text())
+    assert info["status"] == "completed"  # exports leave the run itself alone

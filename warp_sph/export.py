@@ -1,0 +1,225 @@
+"""Re-export a finished (or interrupted) run from its recorded frames, without simulating again.
+
+    warp-sph export runs/dam_break --surface-cell 0.5             # finer surface, new USD
+    warp-sph export runs/dam_break --format obj --frames 10:40    # OBJ sequence of frames 10..40
+
+Inputs, all from the run folder (``run_folder`` describes the layout):
+- ``frames/frame_NNNNNN.npz``: x (world) [m], v [m/s], density [kg/m^3], time [s] of each frame;
+- ``run.json``: the resolved scene (container, obstacles, output settings, fps) and the model
+  constants the surface needs: smoothing kernel, smoothing length h, particle mass m, particle
+  radius r, and the local origin (positions are meshed relative to it, as during the run, so
+  float32 keeps its precision wherever the scene sits).
+
+Outputs (default under ``DIR/export/``): ``<scene>.usdc`` (particles, surface, container and
+obstacles; the run's frame numbers are kept as time codes) or ``<fmt>/surface_NNNNNN.<fmt>``.
+An existing output is never replaced without ``overwrite``.
+"""
+from __future__ import annotations
+
+import re
+import warnings
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from . import run_folder as rf
+from .errors import OutputError, SceneError, WarpSphError
+
+#: export formats: "usd" (one stage) or a mesh sequence format of ``export_mesh``
+EXPORT_FORMATS = ("usd", "obj", "ply", "vtk")
+
+
+def scene_static_meshes(scene: dict) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Static meshes of a scene (``Scene.to_dict()`` form) for the USD stage, in world metres.
+
+    ``container``: the container box without its top (an open tank); ``obstacle_<i>``: box
+    obstacles as closed boxes, mesh obstacles loaded and placed as the sampler places them
+    (x -> scale x + translate) and wound outward (a closed mesh with negative signed volume is
+    flipped). A mesh file that no longer loads is left out with a warning: the particles and
+    surface are what an export is for.
+    """
+    from .export_usd import container_box_mesh
+    from .meshes import load_triangle_mesh
+
+    out = []
+    c = scene.get("container")
+    if c is not None:
+        out.append(("container", *container_box_mesh(c["min"], c["max"], open_top=True)))
+    for i, ob in enumerate(scene.get("obstacles") or []):
+        name = f"obstacle_{i}"
+        if ob.get("shape", "box") == "box":
+            out.append((name, *container_box_mesh(ob["min"], ob["max"], open_top=False)))
+            continue
+        try:
+            scale = ob.get("scale")
+            translate = ob.get("translate")
+            mesh = load_triangle_mesh(ob["file"]).transformed(1.0 if scale is None else scale,
+                                                              (0.0, 0.0, 0.0) if translate is None else translate)
+        except (SceneError, OSError, KeyError) as exc:
+            warnings.warn(f"obstacle {i} left out of the USD: {exc}", RuntimeWarning, stacklevel=2)
+            continue
+        verts = np.asarray(mesh.vertices, dtype=np.float64)
+        tris = np.asarray(mesh.triangles, dtype=np.int64)
+        a, b, cc = verts[tris[:, 0]], verts[tris[:, 1]], verts[tris[:, 2]]
+        if np.einsum("ij,ij->i", a, np.cross(b, cc)).sum() < 0.0:  # 6 x signed volume
+            tris = tris[:, ::-1]
+        out.append((name, verts.astype(np.float32), np.ascontiguousarray(tris, dtype=np.int32)))
+    return out
+
+
+def recorded_frames(run_dir: Path) -> dict[int, Path]:
+    """Frame number -> recorded frame file of a run folder."""
+    d = Path(run_dir) / "frames"
+    found = {}
+    for p in d.glob("frame_*.npz") if d.is_dir() else []:
+        m = re.fullmatch(r"frame_(\d+)", p.stem)
+        if m:
+            found[int(m.group(1))] = p
+    return dict(sorted(found.items()))
+
+
+def parse_frame_range(frames, available: Iterable[int]) -> list[int]:
+    """Frames to export: None (all recorded), "A:B" (inclusive; A or B may be left out), "A", or ints.
+
+    Raises WarpSphError when the range is malformed, empty, or asks for frames not recorded.
+    """
+    available = sorted(available)
+    if not available:
+        raise OutputError("the run recorded no frames (frames/ is empty; output.record_frames = false?)")
+    if frames is None:
+        wanted = available
+    elif isinstance(frames, str):
+        text = frames.strip()
+        a, sep, b = text.partition(":")
+        try:
+            lo = int(a) if a.strip() else available[0]
+            hi = (int(b) if b.strip() else available[-1]) if sep else lo
+        except ValueError:
+            raise WarpSphError(f"--frames {frames!r}: expected A:B (integers, inclusive), A: , :B or A") from None
+        if lo > hi:
+            raise WarpSphError(f"--frames {frames!r}: first frame {lo} is after last frame {hi}")
+        wanted = list(range(lo, hi + 1))
+    else:
+        wanted = sorted(int(f) for f in frames)
+    if not wanted:
+        raise WarpSphError("no frame to export")
+    missing = sorted(set(wanted) - set(available))
+    if missing:
+        shown = ", ".join(str(f) for f in missing[:8]) + (" ..." if len(missing) > 8 else "")
+        raise OutputError(f"frame(s) {shown} not recorded; the run holds frames "
+                          f"{available[0]}..{available[-1]} ({len(available)} files)")
+    return wanted
+
+
+def _surface_reconstructor(info: dict, cell_per_radius: float | None, iso: float | None, device):
+    from .surface import DEFAULT_CELL_PER_RADIUS, DEFAULT_ISO_LEVEL, SurfaceReconstructor
+
+    model = info.get("model") or {}
+    out_cfg = (info.get("scene") or {}).get("output") or {}
+    try:
+        kernel = model["smoothing_kernel"]
+        h = float(model["smoothing_length"])
+        mass = float(model["particle_mass"])
+        r = float(model["particle_radius"])
+    except (KeyError, TypeError, ValueError):
+        raise OutputError("run.json lacks the model constants of the surface (model.smoothing_kernel, "
+                          "smoothing_length, particle_mass, particle_radius)") from None
+    cell = float(cell_per_radius if cell_per_radius is not None
+                 else out_cfg.get("surface_cell_per_radius", DEFAULT_CELL_PER_RADIUS))
+    level = float(iso if iso is not None else out_cfg.get("surface_iso", DEFAULT_ISO_LEVEL))
+    if not cell > 0.0:
+        raise WarpSphError(f"--surface-cell must be > 0 (cell size / particle radius); got {cell}")
+    return SurfaceReconstructor(kernel, h, mass, r, cell_size=cell * r, iso_level=level, device=device,
+                                method=out_cfg.get("surface_method", "marching_cubes"))
+
+
+def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | None = None,
+               iso: float | None = None, frames=None, overwrite: bool = False, device=None) -> Path:
+    """Re-export the recorded frames of ``run_dir`` and return the file (usd) or folder written.
+
+    Args:
+        run_dir: a run folder (holds run.json and frames/).
+        fmt: "usd" (particles + surface + static meshes in one .usdc) or "obj" / "ply" / "vtk"
+            (one surface file per frame).
+        out: output file (usd; an existing folder gets ``<scene>.usdc`` inside) or folder
+            (meshes); default ``run_dir/export/<scene>.usdc`` or ``run_dir/export/<fmt>/``.
+        cell_per_radius: surface grid cell / particle radius (default: the run's output setting).
+        iso: iso level of the colour field, 0 < iso < 1 (default: the run's).
+        frames: None (all recorded), "A:B" (inclusive), or an iterable of frame numbers.
+        overwrite: replace existing output files (otherwise OutputError before anything is written).
+        device: Warp device of the surface reconstruction (default: Warp's default device).
+    """
+    import warp as wp
+
+    run_dir = Path(run_dir)
+    if fmt not in EXPORT_FORMATS:
+        raise WarpSphError(f"unknown export format {fmt!r}; expected one of {', '.join(EXPORT_FORMATS)}")
+    info = rf.read_run_json(run_dir)
+    scene = info.get("scene") or {}
+    name = scene.get("name") or "run"
+    files = recorded_frames(run_dir)
+    wanted = parse_frame_range(frames, files)
+    if fmt == "usd" and wanted != list(range(wanted[0], wanted[-1] + 1)):
+        raise WarpSphError("a USD export needs consecutive frames")
+    origin = np.asarray((info.get("model") or {}).get("origin", (0.0, 0.0, 0.0)), dtype=np.float64)
+    device = wp.get_device(device)
+    surface = _surface_reconstructor(info, cell_per_radius, iso, device)
+    radius = surface.particle_radius
+
+    # choose and check the output before any work
+    if fmt == "usd":
+        target = Path(out) if out is not None else run_dir / "export" / f"{name}.usdc"
+        if target.is_dir():
+            target = target / f"{name}.usdc"
+        if target.exists() and not overwrite:
+            raise OutputError(f"{target} exists; pass --overwrite to replace it or choose another --out")
+        target.parent.mkdir(parents=True, exist_ok=True)
+    else:
+        target = Path(out) if out is not None else run_dir / "export" / fmt
+        if target.exists() and not target.is_dir():
+            raise OutputError(f"--out {target} exists and is not a folder")
+        pattern = re.compile(rf"surface_\d{{6}}\.{fmt}")
+        existing = sorted(p for p in target.glob(f"surface_*.{fmt}") if pattern.fullmatch(p.name)) \
+            if target.is_dir() else []
+        if existing and not overwrite:
+            raise OutputError(f"{target} already holds {len(existing)} surface_*.{fmt} files; pass --overwrite "
+                              "to replace them or choose another --out")
+        target.mkdir(parents=True, exist_ok=True)
+        for p in existing:  # a shorter export must not leave stale frames behind
+            p.unlink()
+
+    usd = mesh_writer = None
+    if fmt == "usd":
+        from .export_usd import UsdWriter
+
+        primvars = tuple(n for n in (scene.get("output") or {}).get("particle_primvars", ("density",))
+                         if n == "density")  # pressure is not recorded
+        usd = UsdWriter(target, fps=float(info.get("fps") or scene.get("fps") or 24.0), particle_radius=radius,
+                        static_meshes=scene_static_meshes(scene), primvars=primvars, with_surface=True,
+                        overwrite=overwrite, first_frame=wanted[0])
+    else:
+        from .export_mesh import MeshSequenceWriter
+
+        mesh_writer = MeshSequenceWriter(target, fmt)
+    try:
+        for frame in wanted:
+            try:
+                with np.load(files[frame]) as data:
+                    x_world = np.asarray(data["x"], dtype=np.float64).reshape(-1, 3)
+                    v = np.asarray(data["v"], dtype=np.float32).reshape(-1, 3)
+                    rho = np.asarray(data["density"], dtype=np.float32).reshape(-1)
+            except (OSError, KeyError, ValueError) as exc:
+                raise OutputError(f"{files[frame]}: unreadable recorded frame ({exc})") from None
+            x_local = wp.array((x_world - origin).astype(np.float32), dtype=wp.vec3, device=device)
+            verts, tris = surface.extract(x_local, wp.array(rho, dtype=float, device=device))
+            verts = (verts.astype(np.float64) + origin).astype(np.float32)
+            if usd is not None:
+                usd.write_frame(frame, x_world.astype(np.float32), v,
+                                primvars={n: rho for n in usd.primvar_names}, surface=(verts, tris))
+            else:
+                mesh_writer.write_frame(frame, verts, tris)
+    finally:
+        if usd is not None:
+            usd.close()
+    return target
