@@ -1,0 +1,382 @@
+"""Position-based fluids (Macklin & Mueller 2013) with the seed report's equations 17-20.
+
+Units (SPlisHSPlasH convention, physics notes section 4): V = m / rho0 [m^3] is the rest volume of
+a fluid particle, V_b the Akinci volume of a boundary particle [m^3];
+
+    rho_i / rho0 = V sum_j W_ij + sum_b V_b W_ib                        (report eq. 7/13)
+    C_i          = max(rho_i / rho0 - 1, 0)                             (eq. 17)         [-]
+    grad_j C_i   = -V grad_i W_ij,  grad_i C_i = V sum_j grad_i W_ij + sum_b V_b grad_i W_ib
+                                                                        (eq. 20)         [1/m]
+    lambda_i     = -C_i / (|grad_i C_i|^2 + sum_j |grad_j C_i|^2 + eps) (eq. 19)         [m^2]
+    dx_i         = sum_j V (lambda_i + lambda_j + s_corr_ij) grad_i W_ij
+                   + lambda_i sum_b V_b grad_i W_ib                     (eq. 18)         [m]
+
+Boundary particles do not move, so they are left out of the sum over k of |grad_k C_i|^2 but kept
+in grad_i C_i (SPlisHSPlasH). The position correction of particle i by the walls, over dt^2 and
+times m, is the force of the walls on it (physics notes 2.1); its negative sums to the wall load.
+
+Kernels take the smoothing kernel as a compile-time choice (factory + ``wp.static``). Neighbour
+queries use ``query_radius`` >= support radius (the grid may have been built on slightly older
+positions) and keep pairs closer than the support radius.
+"""
+import functools
+
+import warp as wp
+
+from .smoothing import SMOOTHING_FUNCTIONS
+
+
+@wp.kernel(enable_backward=False)
+def predict_positions(
+    # Model:
+    gravity: wp.vec3,
+    dt: float,
+    # State in:
+    particle_x: wp.array(dtype=wp.vec3),
+    # State in/out:
+    particle_v: wp.array(dtype=wp.vec3),
+    # Out:
+    predicted_x_out: wp.array(dtype=wp.vec3),
+    boundary_force_out: wp.array(dtype=wp.vec3),
+):
+    """v += dt g; x* = x + dt v [m/s, m]; clears the per-step boundary force."""
+    i = wp.tid()
+    v = particle_v[i] + dt * gravity
+    particle_v[i] = v
+    predicted_x_out[i] = particle_x[i] + dt * v
+    boundary_force_out[i] = wp.vec3(0.0)
+
+
+@functools.cache
+def density_lambda_kernel(smoothing: str, with_boundary: bool):
+    """Density (eq. 7/13), constraint C (eq. 17) and Lagrange multiplier lambda (eq. 19) at the
+    predicted positions, in one neighbour pass. Adds C_i to ``density_error_sum[0]``."""
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_density_lambda(
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        relaxation_epsilon: float,
+        query_radius: float,
+        boundary_grid: wp.uint64,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        fluid_grid: wp.uint64,
+        predicted_x: wp.array(dtype=wp.vec3),
+        # Out:
+        particle_density_out: wp.array(dtype=float),
+        particle_lambda_out: wp.array(dtype=float),
+        density_error_sum_out: wp.array(dtype=float),
+    ):
+        tid = wp.tid()
+        i = wp.hash_grid_point_id(fluid_grid, tid)
+        xi = predicted_x[i]
+        h = smoothing_length
+        volume = particle_mass / rest_density
+        w_sum = float(0.0)
+        grad_i = wp.vec3(0.0)
+        grad_sq = float(0.0)
+        query = wp.hash_grid_query(fluid_grid, xi, query_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            x_ij = xi - predicted_x[j]
+            r = wp.length(x_ij)
+            if r < support_radius:
+                w_sum += wp.static(value)(r, h)
+                g = volume * wp.static(gradient)(x_ij, h)
+                grad_i += g
+                grad_sq += wp.dot(g, g)
+        ratio = volume * w_sum
+        if wp.static(with_boundary):
+            bquery = wp.hash_grid_query(boundary_grid, xi, support_radius)
+            b = int(0)
+            while wp.hash_grid_query_next(bquery, b):
+                x_ib = xi - boundary_x[b]
+                r = wp.length(x_ib)
+                if r < support_radius:
+                    vb = boundary_volume[b]
+                    ratio += vb * wp.static(value)(r, h)
+                    grad_i += vb * wp.static(gradient)(x_ib, h)
+        c = wp.max(ratio - 1.0, 0.0)
+        lam = float(0.0)
+        if c > 0.0:
+            lam = -c / (wp.dot(grad_i, grad_i) + grad_sq + relaxation_epsilon)
+            wp.atomic_add(density_error_sum_out, 0, c)
+        particle_density_out[i] = rest_density * ratio
+        particle_lambda_out[i] = lam
+
+    return compute_density_lambda
+
+
+@functools.cache
+def correction_kernel(smoothing: str, with_boundary: bool, tensile: bool):
+    """Jacobi position correction dx_i (eq. 18), optional tensile term
+    s_corr = -k (W_ij / W(dq))^n * tensile_scale [m^2] (Macklin & Mueller 2013 eq. 13, made
+    dimensionally consistent: tensile_scale = 1 / rest-lattice denominator, so s_corr acts like a
+    constraint violation of k). Adds m dx_i^boundary / dt^2 to the boundary force [N] and the
+    largest |dx_i| to ``max_correction[0]`` [m]."""
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_correction(
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        query_radius: float,
+        tensile_k: float,
+        tensile_n: int,
+        tensile_inv_w: float,
+        tensile_scale: float,
+        inv_dt2: float,
+        max_step: float,
+        boundary_grid: wp.uint64,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        fluid_grid: wp.uint64,
+        predicted_x: wp.array(dtype=wp.vec3),
+        particle_lambda: wp.array(dtype=float),
+        # Out:
+        position_correction_out: wp.array(dtype=wp.vec3),
+        boundary_force_out: wp.array(dtype=wp.vec3),
+        max_correction_out: wp.array(dtype=float),
+    ):
+        tid = wp.tid()
+        i = wp.hash_grid_point_id(fluid_grid, tid)
+        xi = predicted_x[i]
+        lam_i = particle_lambda[i]
+        h = smoothing_length
+        volume = particle_mass / rest_density
+        dx = wp.vec3(0.0)
+        query = wp.hash_grid_query(fluid_grid, xi, query_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            x_ij = xi - predicted_x[j]
+            r = wp.length(x_ij)
+            if r < support_radius:
+                s = lam_i + particle_lambda[j]
+                if wp.static(tensile):
+                    s -= tensile_k * wp.pow(wp.static(value)(r, h) * tensile_inv_w, float(tensile_n)) * tensile_scale
+                dx += (volume * s) * wp.static(gradient)(x_ij, h)
+        if wp.static(with_boundary):
+            dx_b = wp.vec3(0.0)
+            if lam_i != 0.0:
+                bquery = wp.hash_grid_query(boundary_grid, xi, support_radius)
+                b = int(0)
+                while wp.hash_grid_query_next(bquery, b):
+                    x_ib = xi - boundary_x[b]
+                    if wp.length(x_ib) < support_radius:
+                        dx_b += (lam_i * boundary_volume[b]) * wp.static(gradient)(x_ib, h)
+            dx += dx_b
+            boundary_force_out[i] = boundary_force_out[i] + (particle_mass * inv_dt2) * dx_b
+        size = wp.length(dx)
+        if size > max_step:
+            dx = dx * (max_step / size)
+        position_correction_out[i] = dx
+        wp.atomic_max(max_correction_out, 0, size)
+
+    return compute_correction
+
+
+@wp.kernel(enable_backward=False)
+def apply_correction(
+    # In:
+    position_correction: wp.array(dtype=wp.vec3),
+    grid_x: wp.array(dtype=wp.vec3),
+    # State in/out:
+    predicted_x: wp.array(dtype=wp.vec3),
+    # Out:
+    max_drift_out: wp.array(dtype=float),
+):
+    """x* += dx; tracks the largest distance from the positions the fluid grid was built on [m]."""
+    i = wp.tid()
+    x = predicted_x[i] + position_correction[i]
+    predicted_x[i] = x
+    wp.atomic_max(max_drift_out, 0, wp.length(x - grid_x[i]))
+
+
+@wp.kernel(enable_backward=False)
+def update_velocity(
+    # Model:
+    gravity: wp.vec3,
+    inv_dt: float,
+    # State in:
+    predicted_x: wp.array(dtype=wp.vec3),
+    # State in/out:
+    particle_v: wp.array(dtype=wp.vec3),
+    particle_x: wp.array(dtype=wp.vec3),
+    # Out:
+    particle_acceleration_out: wp.array(dtype=wp.vec3),
+):
+    """v = (x* - x) / dt; x = x*; a = (v_new - v_old) / dt [m/s^2] (v in holds v_old + dt g)."""
+    i = wp.tid()
+    x_new = predicted_x[i]
+    v_new = (x_new - particle_x[i]) * inv_dt
+    particle_acceleration_out[i] = (v_new - particle_v[i]) * inv_dt + gravity
+    particle_v[i] = v_new
+    particle_x[i] = x_new
+
+
+@functools.cache
+def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool):
+    """Velocity change dt a [m/s] of explicit viscosity
+    a_i = 10 nu sum_j (m/rho_j) (v_ij . x_ij) / (|x_ij|^2 + 0.01 h^2) grad W_ij (as WCSPH) and of
+    Akinci boundary friction (report eq. 22-24, nu_b = sigma h c_s / (2 rho_i)); the friction part
+    is clamped so it never reverses the particle's velocity, and m a_friction is added to the
+    boundary force [N]."""
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_viscous(
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        viscosity: float,
+        boundary_friction: float,
+        speed_of_sound: float,
+        dt: float,
+        boundary_grid: wp.uint64,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        fluid_grid: wp.uint64,
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
+        particle_density: wp.array(dtype=float),
+        # Out:
+        viscous_dv_out: wp.array(dtype=wp.vec3),
+        boundary_force_out: wp.array(dtype=wp.vec3),
+    ):
+        tid = wp.tid()
+        i = wp.hash_grid_point_id(fluid_grid, tid)
+        xi = particle_x[i]
+        vi = particle_v[i]
+        h = smoothing_length
+        eps_h2 = 0.01 * h * h
+        a = wp.vec3(0.0)
+        if wp.static(with_viscosity):
+            query = wp.hash_grid_query(fluid_grid, xi, support_radius)
+            j = int(0)
+            while wp.hash_grid_query_next(query, j):
+                if j != i:
+                    x_ij = xi - particle_x[j]
+                    r = wp.length(x_ij)
+                    if r < support_radius:
+                        v_ij = vi - particle_v[j]
+                        a += (10.0 * viscosity * particle_mass / particle_density[j]) * wp.dot(v_ij, x_ij) / (
+                            r * r + eps_h2) * wp.static(gradient)(x_ij, h)
+        dv = dt * a
+        if wp.static(with_friction):
+            nu_b = boundary_friction * h * speed_of_sound / (2.0 * particle_density[i])
+            a_f = wp.vec3(0.0)
+            bquery = wp.hash_grid_query(boundary_grid, xi, support_radius)
+            b = int(0)
+            while wp.hash_grid_query_next(bquery, b):
+                x_ib = xi - boundary_x[b]
+                r = wp.length(x_ib)
+                if r < support_radius:
+                    vx = wp.dot(vi, x_ib)
+                    if vx < 0.0:
+                        pi_ib = -nu_b * vx / (r * r + eps_h2)
+                        a_f -= (rest_density * boundary_volume[b] * pi_ib) * wp.static(gradient)(x_ib, h)
+            dv_f = dt * a_f
+            speed = wp.length(vi)
+            size = wp.length(dv_f)
+            if size > speed:
+                dv_f = dv_f * (speed / size)
+            dv += dv_f
+            boundary_force_out[i] = boundary_force_out[i] + (particle_mass / dt) * dv_f
+        viscous_dv_out[i] = dv
+
+    return compute_viscous
+
+
+@functools.cache
+def vorticity_kernel(smoothing: str):
+    """Vorticity omega_i = sum_j (m/rho_j) grad_i W_ij x (v_j - v_i) [1/s] (Macklin & Mueller 2013 eq. 15)."""
+    _, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_vorticity(
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        # State in:
+        fluid_grid: wp.uint64,
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
+        particle_density: wp.array(dtype=float),
+        # Out:
+        particle_vorticity_out: wp.array(dtype=wp.vec3),
+    ):
+        tid = wp.tid()
+        i = wp.hash_grid_point_id(fluid_grid, tid)
+        xi = particle_x[i]
+        vi = particle_v[i]
+        w = wp.vec3(0.0)
+        query = wp.hash_grid_query(fluid_grid, xi, support_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            x_ij = xi - particle_x[j]
+            if wp.length(x_ij) < support_radius:
+                w += (particle_mass / particle_density[j]) * wp.cross(
+                    wp.static(gradient)(x_ij, smoothing_length), particle_v[j] - vi)
+        particle_vorticity_out[i] = w
+
+    return compute_vorticity
+
+
+@functools.cache
+def confinement_kernel(smoothing: str):
+    """Vorticity confinement (Macklin & Mueller 2013 eq. 16): eta = grad |omega| (SPH difference
+    gradient), N = eta / |eta|, dv_i = dt vorticity v_ref (N x omega_i) [m/s]; v_ref [m/s] makes
+    the strength dimensionless."""
+    _, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_confinement(
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        vorticity: float,
+        reference_speed: float,
+        dt: float,
+        # State in:
+        fluid_grid: wp.uint64,
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_density: wp.array(dtype=float),
+        particle_vorticity: wp.array(dtype=wp.vec3),
+        # Out:
+        vorticity_dv_out: wp.array(dtype=wp.vec3),
+    ):
+        tid = wp.tid()
+        i = wp.hash_grid_point_id(fluid_grid, tid)
+        xi = particle_x[i]
+        wi = particle_vorticity[i]
+        mag_i = wp.length(wi)
+        eta = wp.vec3(0.0)
+        query = wp.hash_grid_query(fluid_grid, xi, support_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            x_ij = xi - particle_x[j]
+            if wp.length(x_ij) < support_radius:
+                eta += (particle_mass / particle_density[j] * (wp.length(particle_vorticity[j]) - mag_i)) * wp.static(
+                    gradient)(x_ij, smoothing_length)
+        n = wp.length(eta)
+        dv = wp.vec3(0.0)
+        if n > 1.0e-12:
+            dv = (dt * vorticity * reference_speed / n) * wp.cross(eta, wi)
+        vorticity_dv_out[i] = dv
+
+    return compute_confinement

@@ -1,0 +1,276 @@
+"""Position-based fluids (report section 4.5): stage oracles, the rest-lattice denominator, and the
+report's failure case (an over-dense block that exploded) plus whole-scene invariants."""
+import math
+
+import numpy as np
+import pytest
+
+from sph_oracle import SUPPORT, W, grad_W
+from warp_sph.pbf import PbfSolver, rest_denominator
+from warp_sph.scene import load_scene, scene_from_dict
+from warp_sph.simulation import Simulation
+from warp_sph.smoothing import lattice_offsets
+
+
+def pbf_scene(**kw):
+    d = {
+        "name": "pbf_test",
+        "particle_radius": 0.05,
+        "solver": "pbf",
+        "container": {"min": [0.0, 0.0, 0.0], "max": [0.8, 0.6, 0.8]},
+        "fluid": [{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.6, 0.5, 0.5]}],
+        "output": {"usd": False, "surface": False},
+    }
+    for k, v in kw.items():
+        if isinstance(v, dict) and isinstance(d.get(k), dict):
+            d[k] = {**d[k], **v}
+        else:
+            d[k] = v
+    return scene_from_dict(d)
+
+
+def stage(sim, name):
+    return next(s for s in sim.graph.stages if s.name == name)
+
+
+def oracle_denominator(kernel, h, d, volume):
+    g = grad_W(kernel, lattice_offsets(d, SUPPORT[kernel] * h), h) * volume
+    return float(g.sum(0) @ g.sum(0) + (g * g).sum())
+
+
+# --- the lambda denominator (physics notes 4.4) ----------------------------------------------
+@pytest.mark.parametrize("h_per_d, expected", [(1.0, 0.425), (1.3, 0.143), (2.0, 0.017)])
+def test_rest_denominator_matches_unit_free_table(h_per_d, expected):
+    d, rho0 = 0.02, 1000.0
+    got = rest_denominator("cubic", h_per_d * d, d, rho0 * d**3, rho0) * d * d
+    assert got == pytest.approx(expected, abs=1.5e-3)
+
+
+@pytest.mark.parametrize("kernel", ["cubic", "quintic", "quadric"])
+def test_rest_denominator_matches_numpy_oracle_and_solver(kernel):
+    sim = Simulation(pbf_scene(smoothing_kernel=kernel))
+    m = sim.model
+    volume = m.particle_mass / m.rest_density
+    ref = oracle_denominator(kernel, m.smoothing_length, m.spacing, volume)
+    assert sim.solver.rest_denominator == pytest.approx(ref, rel=1e-4)
+    # units: d^2 D0 is O(0.1-1) for support 2d in any unit system, never 1e-3 or 1e-6 (report 4.5)
+    assert 0.2 < ref * m.spacing**2 < 0.6
+    assert sim.solver.epsilon == pytest.approx(sim.scene.pbf.relaxation * ref, rel=1e-4)
+
+
+# --- stages against NumPy --------------------------------------------------------------------
+def oracle_density_lambda(sim, x):
+    m = sim.model
+    k, h, H = m.smoothing.name, m.smoothing_length, m.support_radius
+    V = m.particle_mass / m.rest_density
+    xij = x[:, None] - x[None]
+    r = np.linalg.norm(xij, axis=2)
+    ratio = V * W(k, r, h).sum(1)
+    g = V * grad_W(k, xij, h)
+    grad_i = g.sum(1)
+    xb = m.boundary_x.numpy().astype(np.float64)
+    vb = m.boundary_volume.numpy().astype(np.float64)
+    xib = x[:, None] - xb[None]
+    ratio += (W(k, np.linalg.norm(xib, axis=2), h) * vb[None]).sum(1)
+    gb = grad_W(k, xib, h) * vb[None, :, None]
+    grad_i += gb.sum(1)
+    c = np.maximum(ratio - 1.0, 0.0)
+    lam = -c / ((grad_i**2).sum(1) + (g**2).sum((1, 2)) + sim.solver.epsilon)
+    return m.rest_density * ratio, lam, c, g, gb
+
+
+def prepared(kernel="cubic", tensile=False, seed=0):
+    """A compressed, jittered block with x* = x, neighbours and density + lambda computed."""
+    sim = Simulation(pbf_scene(smoothing_kernel=kernel, pbf={"tensile_correction": tensile}))
+    rng = np.random.default_rng(seed)
+    m = sim.model
+    x = m.to_local(sim.get_field("particle_x")).astype(np.float64)
+    lo = x.min(0)
+    x = lo + 0.92 * (x - lo) + rng.uniform(-0.1, 0.1, x.shape) * m.spacing  # 8 % compressed, towards the floor
+    sim.set_field("particle_x", m.to_world(x))
+    sim.solver.restore_arrays(sim, {})  # x* = x
+    stage(sim, "neighbors").run(sim, 0.0)
+    stage(sim, "density").run(sim, 0.0)
+    return sim, m.to_local(sim.get_field("particle_x")).astype(np.float64)
+
+
+@pytest.mark.parametrize("kernel", ["cubic", "quintic", "quadric"])
+def test_density_and_lambda_stage(kernel):
+    sim, x = prepared(kernel)
+    rho, lam, c, _, _ = oracle_density_lambda(sim, x)
+    np.testing.assert_allclose(sim.get_field("particle_density"), rho, rtol=2e-4)
+    got = sim.get_field("particle_lambda")
+    np.testing.assert_allclose(got, lam, rtol=2e-3, atol=2e-3 * np.abs(lam).max())
+    assert (c > 0).sum() > 20 and (c == 0).any()  # constraint clamp exercised both ways
+    err = float(sim.solver._error_sum.numpy()[0])
+    assert err == pytest.approx(c.sum(), rel=1e-3)
+
+
+@pytest.mark.parametrize("tensile", [False, True])
+def test_position_correction_stage(tensile):
+    sim, x = prepared(tensile=tensile, seed=1)
+    m = sim.model
+    p = sim.scene.pbf
+    sim.solver.max_step = 1e30  # the trust region off: compare the raw eq. 18
+    lam = sim.get_field("particle_lambda").astype(np.float64)
+    _, _, _, g, gb = oracle_density_lambda(sim, x)
+    s = lam[:, None] + lam[None]
+    if tensile:
+        k, h = m.smoothing.name, m.smoothing_length
+        r = np.linalg.norm(x[:, None] - x[None], axis=2)
+        wq = W(k, p.tensile_dq * h, h)
+        s = s - p.tensile_k * (W(k, r, h) / wq) ** p.tensile_n / sim.solver.rest_denominator
+    dx = (s[:, :, None] * g).sum(1)
+    dx_b = lam[:, None] * gb.sum(1)
+    dx += dx_b
+    sim.fields["boundary_force"].zero_()
+    dt = 2e-3
+    sim.solver.run_correction(sim, dt)
+    got = sim.get_field("position_correction")
+    scale = np.abs(dx).max()
+    np.testing.assert_allclose(got, dx, rtol=2e-3, atol=2e-3 * scale)
+    np.testing.assert_allclose(sim.get_field("boundary_force"), m.particle_mass * dx_b / dt**2,
+                               rtol=2e-3, atol=2e-3 * m.particle_mass * np.abs(dx_b).max() / dt**2)
+    assert np.abs(dx_b).max() > 0.05 * scale  # the wall term is exercised
+    np.testing.assert_allclose(m.to_local(sim.get_field("particle_x")) + 0 * x, x, atol=1e-6)  # x untouched
+    np.testing.assert_allclose(sim.fields["predicted_x"].numpy(), x + got, atol=1e-5)
+    assert sim.solver._max_correction.numpy()[0] == pytest.approx(np.linalg.norm(dx, axis=1).max(), rel=2e-3)
+
+
+def test_graph_and_time_step():
+    sim = Simulation(pbf_scene(material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.2},
+                               pbf={"vorticity": 0.01}))
+    assert sim.graph.names() == ["predict", "neighbors", "density", "solve", "update", "viscosity", "xsph",
+                                 "vorticity"]
+    bare = Simulation(pbf_scene(container=False, gravity=[0.0, 0.0, 0.0]))
+    assert bare.graph.names() == ["predict", "neighbors", "density", "solve", "update"]
+    m = sim.model
+    dt = sim.solver.time_step_bound(sim, 2.0, 1 / 24)
+    assert dt == pytest.approx(min(0.4 * m.spacing / (2.0 + 9.81 / 24), 0.125 * (m.support_radius / 2) ** 2 / 1e-3))
+    for _ in range(3):  # every optional stage runs
+        sim.step(2e-3)
+    assert np.isfinite(sim.get_field("particle_v")).all()
+
+
+# --- the report's failure case --------------------------------------------------------------
+def test_block_compressed_20_percent_against_the_floor_does_not_explode():
+    """Report 4.5: particles pushed over rest density made the solver explode. A block sampled at
+    0.8 d (rho ~ 1.95 rho0) on the floor: the start-of-step error is projected out of x without
+    becoming velocity (pre-stabilisation), no correction reaches the particle radius after that, no
+    particle leaves the box and speeds stay at dam-break level."""
+    sc = pbf_scene(particle_radius=0.025, container={"min": [0, 0, 0], "max": [0.5, 0.5, 0.5]},
+                   fluid=[{"min": [0, 0, 0], "max": [0.25, 0.25, 0.25], "spacing_scale": 0.8}])
+    sim = Simulation(sc)
+    m = sim.model
+    rho0 = sim.get_field("particle_density") / m.rest_density - 1
+    assert np.maximum(rho0, 0).mean() > 0.5  # it really starts ~ 1.7-1.95 rho0
+    dt = 4e-3
+    sim.solver.trace = True
+    sim.step(dt)
+    assert sim.solver.last_stabilization > 0
+    v = np.linalg.norm(sim.get_field("particle_v"), axis=1)
+    assert v.max() < 0.5  # the compression did not turn into velocity (it exploded at ~50 m/s without)
+    largest = []
+    for _ in range(25):
+        sim.step(dt)
+        largest += [c for _, c in sim.solver.last_trace]
+        assert sim.solver.last_density_error <= sc.pbf.target_density_error
+    assert max(largest) < m.particle_radius
+    x = m.to_local(sim.get_field("particle_x"))
+    assert np.isfinite(x).all()
+    assert (x > m.container_lo).all() and (x < m.container_hi).all()
+    assert np.linalg.norm(sim.get_field("particle_v"), axis=1).max() < math.sqrt(2 * 9.81 * 0.5)
+
+
+# --- whole scenes ---------------------------------------------------------------------------
+def test_hydrostatic_tank_error_and_bottom_force():
+    sc = load_scene("hydrostatic")
+    sc.solver = "pbf"
+    sim = Simulation(sc)
+    m = sim.model
+    weight = m.particle_mass * m.fluid_count * 9.81
+    target = sc.pbf.target_density_error
+    for _ in range(2):
+        st = sim.advance_frame()
+        assert st.solver["density_error"]["max"] <= target and st.outside == 0
+    dt = sim.frame_dt / st.steps
+    forces = []
+    for _ in range(2 * st.steps):
+        sim.step(dt)
+        assert sim.solver.last_density_error <= target
+        forces.append(sim.get_field("boundary_force")[:, 2].sum())
+    assert np.mean(forces) == pytest.approx(weight, rel=0.03)
+    x = m.to_local(sim.get_field("particle_x"))
+    assert (x > m.container_lo).all() and (x < m.container_hi).all()
+
+
+def test_dam_break_coarse():
+    sc = load_scene("dam_break")
+    sc.solver = "pbf"
+    sc.particle_radius = 0.05
+    sim = Simulation(sc)
+    for _ in range(4):
+        st = sim.advance_frame()
+        assert st.solver["density_error"]["max"] <= sc.pbf.target_density_error
+        assert st.outside == 0 and st.non_finite == 0
+        assert st.solver["max_correction"]["max"] < 0.5 * sim.model.particle_radius  # trust region idle
+    assert 0.5 < st.max_speed < 1.5 * math.sqrt(2 * 9.81 * 1.0)
+
+
+def test_neighbor_modes_agree():
+    res = []
+    for mode in ("rebuild", "margin"):
+        sim = Simulation(pbf_scene())
+        solver = PbfSolver(neighbor_mode=mode)
+        sim.solver = solver
+        from warp_sph.step_graph import StepGraph
+
+        sim.graph = StepGraph(solver.stages(sim), {"particle_x", "particle_v", "boundary_x", "boundary_volume",
+                                                   "boundary_grid"})
+        sim._refresh_density()
+        for _ in range(5):
+            sim.step(4e-3)
+        res.append(sim.get_field("particle_x"))
+    np.testing.assert_allclose(res[0], res[1], atol=1e-4 * 0.1)
+
+
+def block_on_floor(kernel="cubic", nx=6, ny=6, nz=4, **kw):
+    r = 0.025
+    d = 2 * r
+    gap = 1.1 * d
+    size = [nx * d + 2 * gap - d, ny * d + 2 * gap - d, 1.0]
+    return pbf_scene(particle_radius=r, smoothing_kernel=kernel, container={"min": [0, 0, 0], "max": size},
+                     fluid=[{"min": [0, 0, 0], "max": [size[0], size[1], nz * d + gap]}], **kw)
+
+
+@pytest.mark.parametrize("kernel", ["cubic", "quintic", "quadric"])
+def test_same_start_no_initial_explosion(kernel):
+    sim = Simulation(block_on_floor(kernel))
+    rho = sim.get_field("particle_density") / sim.model.rest_density - 1
+    assert rho.max() < 0.02  # the wall gap is computed per kernel
+    for _ in range(10):
+        sim.step(4e-3)
+    # Free fall over these 40 ms would give 0.39 m/s; the report's kernel swap exploded at m/s.
+    # Measured max speeds: cubic 0.21, quadric 0.23, quintic 0.47 m/s, all at the block's bottom
+    # corners and edges (Jacobi: the bulk's lambda_j push a wall-corner particle before its own
+    # wall term answers), so "small" here means below the 0.39 m/s scale, not zero.
+    v = np.linalg.norm(sim.get_field("particle_v"), axis=1)
+    assert v.max() < 0.6 and np.median(v) < 0.2
+
+
+def test_small_block_comes_to_rest():
+    """A 6x6x4 block on the floor with XSPH 0.1 (small, so the test stays short). Measured (cubic,
+    dt = 2 ms): max speed 0.1 m/s after 0.2 s, falling to ~1e-2 m/s after 1.2 s. The 1e-3 m/s of
+    physics notes 2.2 is not reached within the test's time: the surface layer rearranges
+    (particles slide into the hollows of the layer below) and the partial solve leaves a noise of
+    order g dt."""
+    sim = Simulation(block_on_floor(material={"xsph": 0.1}))
+    early = late = 0.0
+    for k in range(600):
+        sim.step(2e-3)
+        if k == 100:
+            early = np.linalg.norm(sim.get_field("particle_v"), axis=1).max()
+    late = np.linalg.norm(sim.get_field("particle_v"), axis=1).max()
+    assert late < 0.5 * early and late < 0.03
+    x = sim.model.to_local(sim.get_field("particle_x"))
+    assert (x > sim.model.container_lo).all()
