@@ -1,0 +1,376 @@
+"""Tables and plots from the benchmark JSON lines; ``warp-sph bench report`` writes RESULTS.md.
+
+Every number in the report comes from ``<results>/<kind>.jsonl``; for each kind (and each sweep
+name) the latest invocation is shown. Plots need matplotlib (``pip install matplotlib``, the
+``plots`` extra); without it the report says so and keeps the tables.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+from pathlib import Path
+
+from . import metrics as M
+
+#: Accuracy metrics plotted against speed: (key in record metrics, axis label, scale).
+ACCURACY_METRICS = (
+    ("density_error_mean_avg", "mean density error (time average) [%]", 100.0),
+    ("density_error_max", "max density error [%]", 100.0),
+    ("volume_drift_max_abs", "max |volume drift| [%]", 100.0),
+    ("energy_change_final", "total energy change / (M g h_com) [-]", 1.0),
+    ("pressure_error_mean_abs", "hydrostatic pressure error (layer mean |err|) [%]", 100.0),
+)
+SPEED_KEY = "wall_per_simulated_second"
+
+
+def load_records(results_dir: Path) -> dict[str, list[dict]]:
+    """{kind: [records]} from every ``*.jsonl`` in results_dir (bad lines are skipped)."""
+    out: dict[str, list[dict]] = {}
+    for path in sorted(Path(results_dir).glob("*.jsonl")):
+        for line in path.read_text().splitlines():
+            line = line.strip()
+            if not line:
+                continue
+            try:
+                r = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            out.setdefault(r.get("kind", path.stem), []).append(r)
+    return out
+
+
+def latest(records: list[dict]) -> list[dict]:
+    """The records of the latest invocation (records without one count as their own)."""
+    if not records:
+        return []
+    inv = max(r.get("invocation", r.get("date", "")) for r in records)
+    return [r for r in records if r.get("invocation", r.get("date", "")) == inv]
+
+
+def _fmt(v, scale=1.0, digits=3) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    if isinstance(v, (int, float)):
+        x = v * scale
+        if x != 0 and (abs(x) >= 1e5 or abs(x) < 1e-3):
+            return f"{x:.{digits - 1}e}"
+        return f"{x:.{digits}g}"
+    return str(v)
+
+
+def _m(r: dict, key: str):
+    return (r.get("metrics") or {}).get(key)
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    out += ["| " + " | ".join(row) + " |" for row in rows]
+    return out
+
+
+def sweep_table(records: list[dict]) -> list[str]:
+    """Markdown rows for accuracy runs; '*' marks the Pareto front of speed against mean density error."""
+    front = M.pareto_front([_m(r, SPEED_KEY) if r.get("status") in ("ok", "time_limit") else None for r in records],
+                           [_m(r, "density_error_mean_avg") for r in records])
+    hydro = any(_m(r, "pressure_error_mean_abs") is not None for r in records)
+    header = ["case", "status", "fluid N", "steps", "wall s / sim s", "particle-steps/s", "ms/step",
+              "mean ρ err %", "max ρ err %", "max |vol drift| %", "energy change", "front [m]", "bytes/particle"]
+    if hydro:
+        header.insert(-1, "p err %")
+    rows = []
+    for r, best in zip(records, front):
+        row = [("**" + r["label"] + "** *" if best else r["label"]), r.get("status", "?"),
+               _fmt(r.get("fluid_particles")), _fmt(_m(r, "steps")), _fmt(_m(r, SPEED_KEY)),
+               _fmt(_m(r, "particle_steps_per_second")), _fmt(_m(r, "ms_per_step")),
+               _fmt(_m(r, "density_error_mean_avg"), 100), _fmt(_m(r, "density_error_max"), 100),
+               _fmt(_m(r, "volume_drift_max_abs"), 100), _fmt(_m(r, "energy_change_final")),
+               _fmt(_m(r, "front_final")), _fmt(_m(r, "bytes_per_particle"))]
+        if hydro:
+            row.insert(-1, _fmt(_m(r, "pressure_error_mean_abs"), 100))
+        rows.append(row)
+    return _table(header, rows)
+
+
+def stage_table(records: list[dict]) -> list[str]:
+    stages: list[str] = []
+    for r in records:
+        for s in r.get("stage_times") or []:
+            if s["stage"] not in stages:
+                stages.append(s["stage"])
+    if not stages:
+        return []
+    rows = []
+    for r in records:
+        by = {s["stage"]: s for s in r.get("stage_times") or []}
+        rows.append([r["label"]] + [(_fmt(by[s]["ms_per_call"]) + f" ({100 * by[s].get('fraction', 0):.0f}%)")
+                                    if s in by and by[s]["calls"] else "-" for s in stages])
+    return _table(["case (ms per call, share)"] + stages, rows)
+
+
+def _failures(records: list[dict]) -> list[str]:
+    out = []
+    for r in records:
+        if r.get("status") not in ("ok",) and r.get("error"):
+            out.append(f"- `{r['label']}`: {r['status']}: {str(r['error']).splitlines()[0][:300]}")
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Plots
+# --------------------------------------------------------------------------------------------
+def _pyplot():
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        return plt
+    except ImportError:
+        return None
+
+
+def _short_label(label: str) -> str:
+    """'scene=dam_break solver=pbf smoothing_kernel=cubic time.cfl=0.4' -> 'pbf cubic cfl=0.4'."""
+    parts = []
+    for tok in label.split():
+        k, sep, v = tok.partition("=")
+        if not sep:
+            parts.append(tok)
+        elif k in ("solver", "smoothing_kernel", "engine"):
+            parts.append(v)
+        elif k != "scene":
+            parts.append(f"{k.rpartition('.')[2]}={v}")
+    return " ".join(parts)
+
+
+def plot_tradeoff(records: list[dict], path: Path, title: str) -> Path | None:
+    """Speed against each accuracy metric present, Pareto front marked; None if nothing to plot."""
+    plt = _pyplot()
+    ok = [r for r in records if r.get("status") in ("ok", "time_limit") and _m(r, SPEED_KEY) is not None]
+    present = [(k, lab, s) for k, lab, s in ACCURACY_METRICS if any(_m(r, k) is not None for r in ok)]
+    if plt is None or not ok or not present:
+        return None
+    fig, axes = plt.subplots(1, len(present), figsize=(4.6 * len(present), 4.2), squeeze=False)
+    for ax, (key, label, scale) in zip(axes[0], present):
+        pts = [(float(_m(r, SPEED_KEY)), abs(float(_m(r, key))) * scale, r["label"]) for r in ok if _m(r, key) is not None]
+        cost = [p[0] for p in pts]
+        err = [p[1] for p in pts]
+        front = M.pareto_front(cost, err)
+        ax.scatter(cost, err, c=["C3" if f else "C0" for f in front], zorder=3)
+        for c, e, lab in pts:
+            ax.annotate(_short_label(lab), (c, e), fontsize=6, xytext=(3, 3), textcoords="offset points")
+        fp = sorted((c, e) for (c, e, _), f in zip(pts, front) if f)
+        if fp:
+            ax.step([p[0] for p in fp], [p[1] for p in fp], where="post", color="C3", lw=1, label="Pareto front")
+            ax.legend(fontsize=7)
+        ax.set_xscale("log")
+        ax.set_xlabel("wall seconds per simulated second (lower is faster)")
+        ax.set_ylabel(("|" + label + "|") if key == "energy_change_final" else label)
+        ax.grid(True, alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_series(records: list[dict], keys: list[tuple[str, str, float]], path: Path, title: str) -> Path | None:
+    """Per-frame series (front, density error, energy, ...) of every run against time."""
+    plt = _pyplot()
+    ok = [r for r in records if r.get("series") and r["series"].get("time")]
+    if plt is None or not ok:
+        return None
+    fig, axes = plt.subplots(1, len(keys), figsize=(4.6 * len(keys), 4.0), squeeze=False)
+    for ax, (key, label, scale) in zip(axes[0], keys):
+        for r in ok:
+            t = r["series"]["time"]
+            y = r["series"].get(key)
+            if not y:
+                continue
+            pts = [(a, b * scale) for a, b in zip(t, y) if b is not None]
+            if pts:
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], label=r["label"], lw=1)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[0][0].legend(fontsize=6)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_scaling(records: list[dict], path: Path) -> Path | None:
+    plt = _pyplot()
+    ok = [r for r in records if r.get("status") == "ok" and r.get("fluid_particles")]
+    if plt is None or not ok:
+        return None
+    ok.sort(key=lambda r: r["fluid_particles"])
+    n = [r["fluid_particles"] for r in ok]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    axes[0].plot(n, [_m(r, "ns_per_particle_step") for r in ok], "o-")
+    axes[0].set_ylabel("time per particle-step [ns]")
+    axes[1].plot(n, [_m(r, "bytes_per_particle") for r in ok], "o-", label="arrays + hash grids")
+    axes[1].plot(n, [_m(r, "rss_growth_per_particle") for r in ok], "s--", label="process RSS growth")
+    if any(_m(r, "device_pool_peak_bytes") for r in ok):
+        axes[1].plot(n, [(_m(r, "device_pool_peak_bytes") or 0) / r["fluid_particles"] for r in ok], "^:",
+                     label="device pool peak")
+    axes[1].set_ylabel("bytes per fluid particle")
+    axes[1].legend(fontsize=7)
+    for ax in axes:
+        ax.set_xscale("log")
+        ax.set_xlabel("fluid particles N")
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# The report
+# --------------------------------------------------------------------------------------------
+def _machine(records: list[dict]) -> str:
+    hosts = {(r.get("host") or {}).get("cpu_model", "?") + f" ({(r.get('host') or {}).get('nproc', '?')} CPUs)"
+             for r in records}
+    devs = {r.get("device_name") or r.get("device") for r in records if r.get("device")}
+    return "; ".join(sorted(hosts)) + (f"; device {', '.join(sorted(map(str, devs)))}" if devs else "")
+
+
+def _versions(records: list[dict]) -> str:
+    for r in records:
+        v = r.get("versions") or {}
+        if "warp" in v:
+            return f"warp-sph {v.get('warp_sph')}, Warp {v.get('warp')}, NumPy {v.get('numpy')}, Python {v.get('python')}"
+    return "-"
+
+
+def _section_head(recs: list[dict]) -> list[str]:
+    cmd = recs[0].get("command", "?")
+    return [f"Command: `{cmd}`  ", f"Run: {recs[0].get('invocation', recs[0].get('date', '?'))}; "
+            f"machine: {_machine(recs)}; {_versions(recs)}", ""]
+
+
+def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> Path:
+    """Regenerate the Markdown report (and PNG plots in results_dir) from the JSON lines."""
+    from .runner import RESULTS_DIR
+
+    results_dir = Path(results_dir)
+    if md_path is None:
+        md_path = results_dir.parent / "RESULTS.md" if results_dir.resolve() == RESULTS_DIR else results_dir / "RESULTS.md"
+    data = load_records(results_dir)
+    plt = _pyplot()
+    rel = os.path.relpath(results_dir, md_path.parent)
+    cpu = _host_line()
+    lines = ["# warp-sph benchmark results", "",
+             "Generated by `warp-sph bench report` from the JSON lines in "
+             f"`{rel}/` on {_dt.datetime.now().astimezone().isoformat(timespec='seconds')} "
+             f"(report written on: {cpu}). Do not edit by hand: rerun the commands below.", ""]
+    if plt is None:
+        lines += ["> Plots skipped: matplotlib is not installed (`pip install matplotlib`, or the `plots` extra).", ""]
+    lines += ["Metrics (benchmarks/metrics.py): *wall s / sim s* is stepping wall time per simulated second "
+              "(setup and kernel compilation excluded); *mean ρ err* the time average over frames of the "
+              "mean compression max(ρ/ρ0 − 1, 0); *max ρ err* the largest ρ/ρ0 − 1 seen; *vol drift* "
+              "Σ m/max(ρ, ρ0) against t = 0; *energy change* (E_end − E_0)/(M g h_com); *front* the 99.9th "
+              "percentile of x from the wall at the last frame; *p err* the layer-averaged hydrostatic "
+              "pressure error deeper than 2h below the surface; *bytes/particle* the simulation's arrays plus "
+              "its hash grids (estimated) per fluid particle. **Bold \\*** rows are on the Pareto front of speed "
+              "against mean density error.", ""]
+
+    sweeps = data.get("sweep", [])
+    names = sorted({r.get("name", "custom") for r in sweeps}, key=lambda n: (n != "tradeoff", n))
+    for name in names:
+        recs = latest([r for r in sweeps if r.get("name", "custom") == name])
+        lines += [f"## Sweep: {name}", ""] + _section_head(recs)
+        scenes = []
+        for r in recs:
+            s = (r.get("params") or {}).get("scene") or (r.get("scene") or {}).get("name", "?")
+            if s not in scenes:
+                scenes.append(s)
+        for s in scenes:
+            sr = [r for r in recs if ((r.get("params") or {}).get("scene") or (r.get("scene") or {}).get("name")) == s]
+            lines += [f"### {s}", ""] + sweep_table(sr) + [""]
+            png = plot_tradeoff(sr, results_dir / f"sweep_{name}_{s}_tradeoff.png", f"{name}: {s}")
+            if png:
+                lines += [f"![speed against accuracy, {s}]({rel}/{png.name})", ""]
+            keys = [("front", "surge front [m]", 1.0), ("density_error_mean", "mean density error [%]", 100.0),
+                    ("total_energy", "total energy [J]", 1.0)]
+            if any((r.get("series") or {}).get("pressure_error_mean_abs") for r in sr):
+                keys[0] = ("pressure_error_mean_abs", "pressure error [%]", 100.0)
+            png = plot_series(sr, keys, results_dir / f"sweep_{name}_{s}_series.png", f"{name}: {s} over time")
+            if png:
+                lines += [f"![series, {s}]({rel}/{png.name})", ""]
+            st = stage_table(sr)
+            if st:
+                lines += ["<details><summary>time per stage</summary>", ""] + st + ["", "</details>", ""]
+        lines += _failures(recs) + [""]
+
+    scaling = latest(data.get("scaling", []))
+    if scaling:
+        lines += ["## Scaling", ""] + _section_head(scaling)
+        rows = []
+        for r in sorted(scaling, key=lambda r: r.get("fluid_particles") or 0):
+            rows.append([_fmt((r.get("params") or {}).get("particle_radius")), r.get("status", "?"),
+                         _fmt(r.get("fluid_particles")), _fmt(r.get("boundary_particles")), _fmt(_m(r, "steps")),
+                         _fmt(_m(r, "ms_per_step")), _fmt(_m(r, "ns_per_particle_step")),
+                         _fmt(_m(r, "particle_steps_per_second")), _fmt(_m(r, "bytes_per_particle")),
+                         _fmt(_m(r, "rss_growth_per_particle")), _fmt((_m(r, "peak_rss_bytes") or 0) / 2**20)])
+        lines += _table(["radius [m]", "status", "fluid N", "boundary N", "steps", "ms/step", "ns/particle-step",
+                         "particle-steps/s", "bytes/particle", "RSS growth/particle", "peak RSS [MiB]"], rows) + [""]
+        png = plot_scaling(scaling, results_dir / "scaling.png")
+        if png:
+            lines += [f"![scaling]({rel}/{png.name})", ""]
+        st = stage_table(scaling)
+        if st:
+            lines += ["<details><summary>time per stage</summary>", ""] + st + ["", "</details>", ""]
+        lines += _failures(scaling) + [""]
+
+    sph = latest(data.get("splishsplash", []))
+    if sph:
+        lines += ["## Side by side with SPlisHSPlasH", ""] + _section_head(sph)
+        skipped = [r for r in sph if r.get("engine") == "splishsplash" and r.get("status") != "ok"]
+        if skipped:
+            lines += [f"SPlisHSPlasH runs not available: {skipped[0].get('error')}", ""]
+        rows = []
+        for r in sph:
+            p = r.get("params") or {}
+            rows.append([r.get("label", r.get("engine", "?")), p.get("solver", "?"), r.get("status", "?"), _fmt(p.get("dt")),
+                         _fmt(r.get("threads")), _fmt(r.get("fluid_particles")), _fmt(_m(r, "steps")),
+                         _fmt(_m(r, SPEED_KEY)), _fmt(_m(r, "particle_steps_per_second")),
+                         _fmt(_m(r, "density_error_mean_avg"), 100), _fmt(_m(r, "density_error_max"), 100),
+                         _fmt(_m(r, "volume_drift_max_abs"), 100), _fmt(_m(r, "energy_change_final")),
+                         _fmt(_m(r, "front_final"))])
+        lines += _table(["case", "solver", "status", "dt [s]", "threads", "fluid N", "steps", "wall s / sim s",
+                         "particle-steps/s", "mean ρ err %", "max ρ err %", "max |vol drift| %", "energy change",
+                         "front [m]"], rows) + [""]
+        lines += ["Threads: SPlisHSPlasH runs with OMP_NUM_THREADS as listed; warp-sph's CPU backend runs each "
+                  "kernel on one thread. Same box, fluid lattice, particle radius, fixed step and Akinci 2012 "
+                  "walls; SPlisHSPlasH's particle mass is 0.8 d³ρ0 (warp-sph calibrates its mass to a rest "
+                  "lattice), and it samples the walls with its own sampler (benchmarks/splishsplash.py).", ""]
+        ok = [r for r in sph if r.get("status") == "ok"]
+        png = plot_series(ok, [("front", "surge front [m]", 1.0), ("density_error_mean", "mean density error [%]", 100.0),
+                               ("density_error_max", "max density error [%]", 100.0)],
+                          results_dir / "splishsplash_series.png", "warp-sph and SPlisHSPlasH over time")
+        if png:
+            lines += [f"![warp-sph and SPlisHSPlasH]({rel}/{png.name})", ""]
+        png = plot_tradeoff(ok, results_dir / "splishsplash_tradeoff.png", "warp-sph and SPlisHSPlasH")
+        if png:
+            lines += [f"![speed against accuracy]({rel}/{png.name})", ""]
+        lines += _failures([r for r in sph if r.get("engine") != "splishsplash"]) + [""]
+
+    if not (sweeps or scaling or sph):
+        lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]
+    md_path.parent.mkdir(parents=True, exist_ok=True)
+    md_path.write_text("\n".join(lines).rstrip() + "\n")
+    return md_path
+
+
+def _host_line() -> str:
+    from .runner import host_info
+
+    h = host_info()
+    return f"{h['cpu_model'] or 'unknown CPU'}, {h['nproc']} CPUs"

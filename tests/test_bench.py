@@ -1,0 +1,200 @@
+"""Benchmark runner and metrics. Speed is never asserted: only that the runner works and each metric
+is right on a configuration whose answer is known."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from warp_sph.benchmarks import metrics as M
+from warp_sph.benchmarks import report as R
+from warp_sph.benchmarks import runner as B
+from warp_sph.benchmarks import splishsplash as S
+
+
+# --- metrics ---------------------------------------------------------------------------------
+def test_surge_front_ignores_outermost_tenth_of_a_percent():
+    x = np.zeros((1000, 3))
+    x[:, 0] = np.linspace(0.0, 0.999, 1000)   # 0.000, 0.001, ..., 0.999
+    x[-1, 0] = 50.0                            # one splash far out: 0.1 % of the particles
+    front = M.surge_front(x, wall=0.0)
+    assert 0.997 <= front <= 0.999 + 1e-12
+    assert M.surge_front(x, wall=-1.0) == pytest.approx(front + 1.0)
+    # a known point set: 0.999 quantile of 0..1 sampled at 1001 points is 0.999
+    xs = np.linspace(0.0, 1.0, 1001)
+    assert M.surge_front(xs) == pytest.approx(0.999)
+
+
+def test_density_error_stats():
+    rho0 = 1000.0
+    rho = np.array([990.0, 1000.0, 1010.0, 1030.0])
+    s = M.density_error_stats(rho, rho0)
+    assert s["mean"] == pytest.approx((0.0 + 0.0 + 0.01 + 0.03) / 4)
+    assert s["max"] == pytest.approx(0.03)
+    assert s["min"] == pytest.approx(-0.01)
+
+
+def test_compression_volume_counts_rest_volume_at_most():
+    m, rho0 = 2.0, 1000.0
+    assert M.compression_volume(np.full(10, rho0), m, rho0) == pytest.approx(10 * m / rho0)
+    # under-dense (surface) particles count their rest volume, compressed ones less
+    assert M.compression_volume(np.array([500.0, 1000.0]), m, rho0) == pytest.approx(2 * m / rho0)
+    assert M.compression_volume(np.array([1100.0]), m, rho0) == pytest.approx(m / 1100.0)
+
+
+def test_energy():
+    v = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    assert M.kinetic_energy(v, 3.0) == pytest.approx(0.5 * 3.0 * (1.0 + 4.0))
+    x = np.array([[0.0, 0.0, 1.0], [5.0, 5.0, 3.0]])
+    g = (0.0, 0.0, -9.81)
+    assert M.potential_energy(x, 2.0, g) == pytest.approx(2.0 * 9.81 * 4.0)
+    assert M.potential_energy(x, 2.0, g, reference=(0.0, 0.0, 1.0)) == pytest.approx(2.0 * 9.81 * 2.0)
+    s = M.energy_summary([10.0, 11.0, 7.0], scale=2.0)
+    assert s["change_final"] == pytest.approx(-1.5)
+    assert s["rise_max"] == pytest.approx(0.5)
+
+
+def _column(depth=0.5, d=0.02, rho0=1000.0, g=9.81):
+    z = np.arange(d / 2, depth, d)                 # layer centres; surface = top centre + d/2
+    zz = np.repeat(z, 9)
+    hs = z.max() + d / 2
+    return zz, rho0 * g * (hs - zz), hs
+
+
+def test_hydrostatic_pressure_error_zero_for_exact_profile():
+    z, p, hs = _column()
+    e = M.hydrostatic_pressure_error(z, p, 1000.0, 9.81, 0.02, exclude_depth=0.04)
+    assert e["surface"] == pytest.approx(hs)
+    assert e["layers"] > 10
+    assert e["mean_abs"] == pytest.approx(0.0, abs=1e-12)
+    assert e["max_abs"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_hydrostatic_pressure_error_of_perturbed_profile():
+    z, p, _ = _column()
+    e = M.hydrostatic_pressure_error(z, 1.03 * p, 1000.0, 9.81, 0.02, exclude_depth=0.04)
+    assert e["mean_abs"] == pytest.approx(0.03)
+    assert e["mean"] == pytest.approx(0.03)
+    # a constant offset: error falls with depth; the shallowest kept layer has the largest
+    e = M.hydrostatic_pressure_error(z, p + 100.0, 1000.0, 9.81, 0.02, exclude_depth=0.04)
+    expected_max = 100.0 / (1000.0 * 9.81 * min(e["profile"]["depth"]))
+    assert e["max_abs"] == pytest.approx(expected_max)
+    # layers within exclude_depth of the surface are left out, whatever their pressure
+    z2, p2, _ = _column()
+    p2[z2 > z2.max() - 0.03] = 0.0
+    assert M.hydrostatic_pressure_error(z2, p2, 1000.0, 9.81, 0.02, exclude_depth=0.04)["mean_abs"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_speed_metrics_and_pareto():
+    s = M.speed_metrics(wall_seconds=2.0, simulated_seconds=0.5, steps=100, fluid_count=1000)
+    assert s["wall_per_simulated_second"] == pytest.approx(4.0)
+    assert s["particle_steps_per_second"] == pytest.approx(5e4)
+    assert s["ms_per_step"] == pytest.approx(20.0)
+    assert s["ns_per_particle_step"] == pytest.approx(2e4)
+    assert M.pareto_front([1, 2, 3, 2, None], [3, 1, 0.5, 2, 0]) == [True, True, True, False, False]
+
+
+def test_array_bytes_and_nan_to_none():
+    import warp as wp
+
+    a = wp.zeros(10, dtype=wp.vec3, device="cpu")
+    assert M.array_bytes([a, a, np.zeros(4), "not an array"]) == 120 + 32
+    assert M.nan_to_none({"a": [float("nan"), 1.0], "b": np.float32(2.0)}) == {"a": [None, 1.0], "b": 2.0}
+
+
+# --- sweep parsing -----------------------------------------------------------------------------
+def test_parse_and_expand_params():
+    assert B.parse_param("solver=wcsph,pbf") == ("solver", ["wcsph", "pbf"])
+    assert B.parse_param("gravity=[0,0,-9.81],[0,0,-5]") == ("gravity", ["[0,0,-9.81]", "[0,0,-5]"])
+    combos = B.expand_sweep({"solver": ["wcsph", "pbf"], "time.cfl": ["0.2", "0.4", "0.8"]})
+    assert len(combos) == 6 and combos[0] == {"solver": "wcsph", "time.cfl": "0.2"}
+    with pytest.raises(ValueError):
+        B.parse_param("solver")
+
+
+# --- the runner on a tiny case ----------------------------------------------------------------------
+def test_sweep_writes_json_lines_and_table(tmp_path):
+    argv = ["sweep", "--scene", "dam_break", "--set", "particle_radius=0.1", "--param", "solver=wcsph",
+            "--param", "smoothing_kernel=cubic,quintic", "--frames", "2", "--out", str(tmp_path), "--in-process"]
+    assert B.main(argv) == 0
+    lines = (tmp_path / "sweep.jsonl").read_text().splitlines()
+    assert len(lines) == 2
+    for line in lines:
+        r = json.loads(line)  # valid JSON, no NaN
+        assert r["schema"] == B.SCHEMA and r["status"] == "ok", r.get("error")
+        assert r["command"].startswith("warp-sph bench sweep")
+        assert r["scene"]["particle_radius"] == 0.1
+        assert r["fluid_particles"] > 0 and r["versions"]["warp"]
+        m = r["metrics"]
+        assert m["frames"] == 2 and m["steps"] > 0
+        for k in ("wall_per_simulated_second", "particle_steps_per_second", "bytes_per_particle",
+                  "density_error_mean_avg", "volume_drift_max_abs", "energy_change_final", "front_final",
+                  "peak_rss_bytes"):
+            assert isinstance(m[k], (int, float)) and math.isfinite(m[k]), k
+        assert len(r["series"]["time"]) == 3 and len(r["series"]["front"]) == 3
+        assert {s["stage"] for s in r["stage_times"]} >= {"neighbors", "density"}
+    md = (tmp_path / "RESULTS.md").read_text()
+    assert "warp-sph bench sweep" in md and "| case |" in md
+    assert "solver=wcsph smoothing_kernel=quintic" in md
+
+
+def test_hydrostatic_run_reports_pressure_error(tmp_path):
+    spec = B.RunSpec(scene="hydrostatic", overrides=["particle_radius=0.05"], frames=1, name="t",
+                     params={"scene": "hydrostatic"})
+    r = B.run_warp_sph(spec)
+    assert r["status"] == "ok", r.get("error")
+    assert r["metrics"]["pressure_error_mean_abs"] is not None
+    assert r["pressure_profile"]["depth"]
+
+
+def test_scaling_records_time_and_memory(tmp_path):
+    argv = ["scaling", "--radii", "0.1,0.07", "--steps", "2", "--out", str(tmp_path), "--in-process"]
+    assert B.main(argv) == 0
+    recs = [json.loads(x) for x in (tmp_path / "scaling.jsonl").read_text().splitlines()]
+    assert [r["status"] for r in recs] == ["ok", "ok"]
+    assert recs[1]["fluid_particles"] > recs[0]["fluid_particles"]
+    assert all(r["metrics"]["ns_per_particle_step"] > 0 and r["metrics"]["bytes_per_particle"] > 0 for r in recs)
+    assert "## Scaling" in (tmp_path / "RESULTS.md").read_text()
+
+
+def test_failed_case_is_a_record_not_a_crash(tmp_path):
+    r = B.run_warp_sph(B.RunSpec(scene="dam_break", overrides=["particle_radius=-1"], frames=1))
+    assert r["status"] == "failed" and "particle_radius" in r["error"]
+
+
+def test_report_from_json_lines_only(tmp_path):
+    rec = {"schema": B.SCHEMA, "kind": "sweep", "name": "quick", "label": "solver=wcsph", "status": "ok",
+           "invocation": "2020-01-01T00:00:00", "command": "warp-sph bench sweep --preset quick",
+           "host": {"nproc": 2, "cpu_model": "Test CPU"}, "fluid_particles": 10,
+           "params": {"scene": "dam_break", "solver": "wcsph"},
+           "metrics": {"wall_per_simulated_second": 3.0, "density_error_mean_avg": 0.01},
+           "series": {"time": [0.0, 0.1], "front": [0.5, 0.6], "density_error_mean": [0, 0.01], "total_energy": [1, 1]}}
+    (tmp_path / "sweep.jsonl").write_text(json.dumps(rec) + "\n" + json.dumps(dict(rec, invocation="2019")) + "\n")
+    md = R.write_report(tmp_path).read_text()
+    assert "Test CPU (2 CPUs)" in md and "warp-sph bench sweep --preset quick" in md
+    assert md.count("| **solver=wcsph** * |") == 1  # only the latest invocation
+
+
+# --- SPlisHSPlasH scene translation (no pysplishsplash needed) ---------------------------------------
+def test_splishsplash_scene_matches_the_warp_sph_scene():
+    scene = {"particle_radius": 0.025, "gravity": (0.0, 0.0, -9.81), "material": {"rest_density": 1000.0},
+             "pbf": {"max_iterations": 50, "min_iterations": 2, "target_density_error": 0.005}}
+    model = {"stiffness": 2.0e6, "equation_of_state": "linear"}
+    sj = S.scene_json(scene, model, (0.055, 0.055, 0.055), (0.955, 0.955, 0.955), "wcsph", 4e-4, "/tmp/box.obj")
+    c = sj["Configuration"]
+    assert c["gravitation"] == [0.0, -9.81, 0.0]            # Y-up
+    assert c["simulationMethod"] == 0 and c["boundaryHandlingMethod"] == 0 and c["cflMethod"] == 0
+    assert c["WCSPH"] == {"stiffness": 2.0e6, "exponent": 1.0}
+    b = sj["FluidBlocks"][0]
+    # SPlisHSPlasH puts particles at start + d ... end - d: the lattice corners -/+ d
+    assert b["start"] == pytest.approx([0.005, 0.005, 0.005]) and b["end"] == pytest.approx([1.005, 1.005, 1.005])
+    assert S.time_step_values(scene, model, "pbf")["MAX_ERROR"] == pytest.approx(0.5)
+    assert S.from_y_up(np.array([[1.0, 2.0, 3.0]])).tolist() == [[1.0, 3.0, 2.0]]
+    assert S.box_obj_text((0, 0, 0), (1, 2, 3)).count("\nf ") == 12
+
+
+def test_isolated_run_in_a_fresh_process():
+    r = B._run_isolated(B.RunSpec(scene="dam_break", overrides=["particle_radius=0.1"], frames=1,
+                                  params={"scene": "dam_break"}))
+    assert r["status"] == "ok", r.get("error")
+    assert r["metrics"]["peak_rss_bytes"] > 0
