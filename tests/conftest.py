@@ -4,6 +4,8 @@ import pytest
 import warp as wp
 
 wp.config.quiet = True
+if hasattr(wp.config, "log_level"):
+    wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
 
 
 def _devices():

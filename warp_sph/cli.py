@@ -14,7 +14,10 @@ from pathlib import Path
 def _quiet_warp():
     import warp as wp
 
-    wp.config.quiet = os.environ.get("WARP_SPH_VERBOSE", "") == ""
+    if os.environ.get("WARP_SPH_VERBOSE", "") == "":
+        wp.config.quiet = True
+        if hasattr(wp.config, "log_level"):  # warp >= 1.19 reads this instead of quiet
+            wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
     return wp
 
 
