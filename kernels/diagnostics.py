@@ -1,22 +1,35 @@
-"""Per-frame diagnostics reduced on the device: one small host read per frame."""
+"""Per-frame diagnostics and the watchdog's checks, reduced on the device: one small host read per frame."""
 import warp as wp
 
-# slots of the statistics array
+# slots of the statistics array (float)
 STAT_MAX_SPEED = 0          # max |v| [m/s]
 STAT_SUM_COMPRESSION = 1    # sum max(rho/rho0 - 1, 0) [-]
 STAT_MAX_DENSITY_ERROR = 2  # max (rho/rho0 - 1) [-]
 STAT_MIN_DENSITY_ERROR = 3  # min (rho/rho0 - 1) [-]
-STAT_NON_FINITE = 4         # particles with a non-finite position, velocity or density
+STAT_NON_FINITE = 4         # particles with a non-finite position, velocity, density or acceleration
 STAT_OUTSIDE = 5            # particles outside the container (grown by a tolerance)
 STAT_KINETIC_ENERGY = 6     # sum 1/2 m |v|^2 [J]
 STAT_POTENTIAL_ENERGY = 7   # sum -m g.x [J]
 STAT_MAX_ACCELERATION = 8   # max |a| [m/s^2]
-STAT_FIRST_BAD = 9          # smallest index of a non-finite particle (or -1 stays as count n)
+STAT_FIRST_BAD = 9          # kept for compatibility; the watch array holds exact indices
 STAT_COUNT = 10
+
+# slots of the watch array (int): counts of particles breaking a watchdog rule and the smallest
+# index of one of them (INDEX_NONE when none); exact for any particle count, unlike float slots.
+WATCH_NON_FINITE = 0
+WATCH_FIRST_NON_FINITE = 1
+WATCH_OUTSIDE = 2
+WATCH_FIRST_OUTSIDE = 3
+WATCH_FAST = 4
+WATCH_FIRST_FAST = 5
+WATCH_DENSE = 6
+WATCH_FIRST_DENSE = 7
+WATCH_COUNT = 8
+INDEX_NONE = 2147483647
 
 
 @wp.kernel(enable_backward=False)
-def reset_statistics(stats_out: wp.array(dtype=float)):
+def reset_statistics(stats_out: wp.array(dtype=float), watch_out: wp.array(dtype=int)):
     stats_out[STAT_MAX_SPEED] = 0.0
     stats_out[STAT_SUM_COMPRESSION] = 0.0
     stats_out[STAT_MAX_DENSITY_ERROR] = -1.0e30
@@ -27,6 +40,9 @@ def reset_statistics(stats_out: wp.array(dtype=float)):
     stats_out[STAT_POTENTIAL_ENERGY] = 0.0
     stats_out[STAT_MAX_ACCELERATION] = 0.0
     stats_out[STAT_FIRST_BAD] = 1.0e30
+    for k in range(WATCH_COUNT // 2):
+        watch_out[2 * k] = 0
+        watch_out[2 * k + 1] = INDEX_NONE
 
 
 @wp.kernel(enable_backward=False)
@@ -38,6 +54,8 @@ def accumulate_statistics(
     container_lo: wp.vec3,
     container_hi: wp.vec3,
     check_container: int,
+    speed_limit: float,
+    density_limit: float,
     # State in:
     particle_x: wp.array(dtype=wp.vec3),
     particle_v: wp.array(dtype=wp.vec3),
@@ -45,7 +63,10 @@ def accumulate_statistics(
     particle_acceleration: wp.array(dtype=wp.vec3),
     # Out:
     stats_out: wp.array(dtype=float),
+    watch_out: wp.array(dtype=int),
 ):
+    """Frame statistics plus the watchdog rules: non-finite values, a particle outside the container
+    box [m], |v| > speed_limit [m/s], rho/rho0 - 1 > density_limit [-]."""
     i = wp.tid()
     x = particle_x[i]
     v = particle_v[i]
@@ -55,6 +76,8 @@ def accumulate_statistics(
     if not wp.isfinite(s):
         wp.atomic_add(stats_out, STAT_NON_FINITE, 1.0)
         wp.atomic_min(stats_out, STAT_FIRST_BAD, float(i))
+        wp.atomic_add(watch_out, WATCH_NON_FINITE, 1)
+        wp.atomic_min(watch_out, WATCH_FIRST_NON_FINITE, i)
         return
     speed = wp.length(v)
     err = rho / rest_density - 1.0
@@ -68,3 +91,46 @@ def accumulate_statistics(
     if check_container != 0:
         if x[0] < container_lo[0] or x[1] < container_lo[1] or x[2] < container_lo[2] or x[0] > container_hi[0] or x[1] > container_hi[1] or x[2] > container_hi[2]:
             wp.atomic_add(stats_out, STAT_OUTSIDE, 1.0)
+            wp.atomic_add(watch_out, WATCH_OUTSIDE, 1)
+            wp.atomic_min(watch_out, WATCH_FIRST_OUTSIDE, i)
+    if speed > speed_limit:
+        wp.atomic_add(watch_out, WATCH_FAST, 1)
+        wp.atomic_min(watch_out, WATCH_FIRST_FAST, i)
+    if err > density_limit:
+        wp.atomic_add(watch_out, WATCH_DENSE, 1)
+        wp.atomic_min(watch_out, WATCH_FIRST_DENSE, i)
+
+
+@wp.kernel(enable_backward=False)
+def reset_count(count_out: wp.array(dtype=int)):
+    count_out[0] = 0
+    count_out[1] = INDEX_NONE
+
+
+@wp.kernel(enable_backward=False)
+def count_non_finite_float(
+    # In:
+    values: wp.array(dtype=float),
+    # Out:
+    count_out: wp.array(dtype=int),
+):
+    """count_out[0] += number of non-finite values; count_out[1] = smallest such index."""
+    i = wp.tid()
+    if not wp.isfinite(values[i]):
+        wp.atomic_add(count_out, 0, 1)
+        wp.atomic_min(count_out, 1, i)
+
+
+@wp.kernel(enable_backward=False)
+def count_non_finite_vec3(
+    # In:
+    values: wp.array(dtype=wp.vec3),
+    # Out:
+    count_out: wp.array(dtype=int),
+):
+    """count_out[0] += number of non-finite vectors; count_out[1] = smallest such index."""
+    i = wp.tid()
+    v = values[i]
+    if not (wp.isfinite(v[0]) and wp.isfinite(v[1]) and wp.isfinite(v[2])):
+        wp.atomic_add(count_out, 0, 1)
+        wp.atomic_min(count_out, 1, i)

@@ -1,0 +1,225 @@
+"""Bad input through the command line and through load_scene: one clear line on stderr, a non-zero
+exit status, no traceback, and no file that existed before is changed or lost."""
+import hashlib
+import re
+from pathlib import Path
+
+import pytest
+
+from warp_sph.cli import main
+from warp_sph.errors import SceneError
+from warp_sph.scene import load_scene
+
+GOOD = """
+name = "tiny"
+particle_radius = 0.05
+duration = 0.05
+fps = 20.0
+[container]
+min = [0.0, 0.0, 0.0]
+max = [0.8, 0.6, 0.8]
+[[fluid]]
+min = [0.0, 0.0, 0.0]
+max = [0.4, 0.6, 0.4]
+[output]
+usd = false
+surface = false
+"""
+
+
+def snapshot(folder: Path) -> dict:
+    """{relative path: sha256} of every file under folder."""
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def run_cli(args, capsys):
+    code = main(args)
+    err = capsys.readouterr().err
+    return code, err
+
+
+def error_line(err: str) -> str:
+    """The one 'warp-sph: error:' line (Warp may print its own CUDA banner lines before it)."""
+    lines = [ln for ln in err.splitlines() if ln.startswith("warp-sph: error:")]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+@pytest.fixture
+def workdir(tmp_path, monkeypatch):
+    """A folder with a user's files in it (that must survive every failed run) as the cwd."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("my notes\n")
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "measurements.csv").write_text("t,x\n0,1\n")
+    return tmp_path
+
+
+def write(folder: Path, name: str, text: str) -> Path:
+    p = folder / name
+    p.write_text(text)
+    return p
+
+
+CASES = {
+    # name: (scene text or None for GOOD, extra CLI args, pattern the error line must match)
+    "malformed_toml": ("particle_radius = = 0.05\n", [], r"malformed TOML"),
+    "unterminated_table": ("[container\nmin = [0, 0, 0]\n", [], r"malformed TOML"),
+    "unknown_solver": (GOOD.replace('name = "tiny"', 'name = "tiny"\nsolver = "sph9000"'), [],
+                       r"solver: expected one of 'wcsph', 'pbf', got 'sph9000'"),
+    "unknown_kernel": (GOOD.replace('name = "tiny"', 'name = "tiny"\nsmoothing_kernel = "gauss"'), [],
+                       r"smoothing_kernel: expected one of .*'cubic'.*got 'gauss'"),
+    "nan_radius": (GOOD.replace("particle_radius = 0.05", "particle_radius = nan"), [],
+                   r"particle_radius: expected a finite number > 0, got nan"),
+    "inf_gravity": (GOOD.replace('name = "tiny"', 'name = "tiny"\ngravity = [0.0, 0.0, -inf]'), [],
+                    r"gravity: expected a list of 3 finite numbers"),
+    "negative_radius": (GOOD.replace("particle_radius = 0.05", "particle_radius = -0.05"), [],
+                        r"particle_radius: expected a finite number > 0, got -0.05"),
+    "negative_viscosity_set": (None, ["--set", "material.viscosity=-1"],
+                               r"material.viscosity: expected a finite number >= 0, got -1"),
+    "nan_set": (None, ["--set", "material.rest_density=nan"], r"material.rest_density: expected a finite number"),
+    "negative_fps": (None, ["--set", "fps=-24"], r"fps: expected a finite number > 0"),
+    "no_fluid": ("\n".join(ln for ln in GOOD.splitlines() if "fluid" not in ln and not ln.startswith(("min", "max")))
+                 + "\n", [], r"fluid: expected at least one \[\[fluid\]\] block"),
+    "fluid_smaller_than_d": (GOOD.replace("max = [0.4, 0.6, 0.4]", "max = [0.01, 0.01, 0.01]"), [],
+                             r"no fluid particle left after sampling"),
+    "fluid_outside_container": (GOOD.replace("max = [0.4, 0.6, 0.4]", "max = [0.4, 0.6, 4.0]"), [],
+                                r"fluid\[0\]: box .* is not inside the container"),
+    "inverted_box": (GOOD.replace("max = [0.4, 0.6, 0.4]", "max = [-0.4, 0.6, 0.4]"), [],
+                     r"fluid\[0\]\.max: expected every component >"),
+    "unknown_key": (GOOD.replace('name = "tiny"', 'name = "tiny"\nparticle_radios = 0.05'), [],
+                    r"particle_radios: unknown key"),
+    "fixed_dt_above_bound": (None, ["--set", "time.fixed_dt=0.004"],
+                             r"time\.fixed_dt: 0\.004 s is .*x the acoustic CFL time-step bound"),
+    "unknown_scene": ("__builtin__:no_such_scene", [], r"no such scene file or built-in scene"),
+    "missing_file": ("__path__:missing.toml", [], r"missing.toml: scene file not found"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_cli_bad_scene(case, workdir, capsys):
+    text, extra, pattern = CASES[case]
+    if text is not None and text.startswith("__builtin__:"):
+        scene_arg = text.split(":", 1)[1]
+    elif text is not None and text.startswith("__path__:"):
+        scene_arg = str(workdir / text.split(":", 1)[1])
+    else:
+        scene_arg = str(write(workdir, "scene.toml", GOOD if text is None else text))
+    before = snapshot(workdir)
+    code, err = run_cli(["run", scene_arg, "--out", str(workdir / "out"), "--no-progress"] + extra, capsys)
+    assert code != 0
+    line = error_line(err)
+    assert re.search(pattern, line), line
+    after = snapshot(workdir)
+    for path, digest in before.items():
+        assert after.get(path) == digest, f"{path} changed or vanished"
+
+
+def test_mesh_file_that_is_not_a_mesh(workdir, capsys):
+    (workdir / "cylinder.obj").write_text("this is not a mesh\n\x00\x01 binary junk\n")
+    (workdir / "picture.stl").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(200))
+    for name in ("cylinder.obj", "picture.stl", "nowhere.ply", "notes.txt"):
+        scene = GOOD + f'[[obstacles]]\nshape = "mesh"\nfile = "{name}"\n'
+        path = write(workdir, "scene.toml", scene)
+        before = snapshot(workdir)
+        code, err = run_cli(["run", str(path), "--out", str(workdir / "out"), "--no-progress"], capsys)
+        assert code != 0
+        line = error_line(err)
+        assert "obstacles[0].file" in line and name in line, line
+        assert snapshot(workdir) == before
+        with pytest.raises(SceneError, match=r"obstacles\[0\]\.file"):
+            load_scene(str(path))
+
+
+def test_non_empty_output_folder_is_refused(workdir, capsys):
+    scene = write(workdir, "scene.toml", GOOD)
+    out = workdir / "data"  # holds the user's measurements, not a run
+    before = snapshot(workdir)
+    code, err = run_cli(["run", str(scene), "--out", str(out), "--no-progress"], capsys)
+    assert code != 0
+    assert re.search(r"output folder .*data is not empty and holds no warp-sph run", error_line(err))
+    code, err = run_cli(["run", str(scene), "--out", str(out), "--no-progress", "--overwrite"], capsys)
+    assert code != 0
+    error_line(err)
+    assert snapshot(workdir) == before
+
+
+def test_output_path_is_a_file(workdir, capsys):
+    scene = write(workdir, "scene.toml", GOOD)
+    before = snapshot(workdir)
+    code, err = run_cli(["run", str(scene), "--out", str(workdir / "notes.txt"), "--no-progress"], capsys)
+    assert code != 0
+    assert "exists and is not a folder" in error_line(err)
+    assert snapshot(workdir) == before
+
+
+def test_unwritable_output_folder(workdir, capsys):
+    import os
+
+    scene = write(workdir, "scene.toml", GOOD)
+    locked = workdir / "locked"
+    locked.mkdir()
+    (locked / "keep.txt").write_text("keep me\n")
+    locked.chmod(0o555)
+    try:
+        if os.access(locked, os.W_OK):
+            pytest.skip("running as a user who can write anywhere (root)")
+        before = snapshot(workdir)
+        for out in (locked / "run", locked):
+            code, err = run_cli(["run", str(scene), "--out", str(out), "--no-progress"], capsys)
+            assert code != 0
+            error_line(err)
+        assert snapshot(workdir) == before
+    finally:
+        locked.chmod(0o755)
+
+
+def test_unwritable_output_folder_as_root(workdir, capsys, monkeypatch):
+    """Where permissions cannot be tested (root), a write that fails still gives one line."""
+    from warp_sph import run_folder
+
+    def refuse(self, *a, **k):
+        raise PermissionError(13, "Permission denied")
+
+    scene = write(workdir, "scene.toml", GOOD)
+    monkeypatch.setattr(run_folder.Path, "write_bytes", refuse)
+    before = snapshot(workdir)
+    code, err = run_cli(["run", str(scene), "--out", str(workdir / "new_out"), "--no-progress"], capsys)
+    assert code != 0
+    assert re.search(r"cannot write to output folder .*new_out: Permission denied", error_line(err))
+    assert snapshot(workdir) == before
+
+
+def test_previous_run_is_kept_without_overwrite(workdir, capsys):
+    scene = write(workdir, "scene.toml", GOOD)
+    out = workdir / "run1"
+    code, _ = run_cli(["run", str(scene), "--out", str(out), "--no-progress", "--frames", "2"], capsys)
+    assert code == 0
+    before = snapshot(workdir)
+    code, err = run_cli(["run", str(scene), "--out", str(out), "--no-progress", "--frames", "2"], capsys)
+    assert code != 0
+    assert "holds a previous run; pass --overwrite" in error_line(err)
+    assert snapshot(workdir) == before
+
+
+def test_check_command_reports_bad_scene(workdir, capsys):
+    path = write(workdir, "scene.toml", GOOD.replace("particle_radius = 0.05", "particle_radius = 0"))
+    code, err = run_cli(["check", str(path)], capsys)
+    assert code == 2
+    assert "particle_radius: expected a finite number > 0, got 0" in error_line(err)
+
+
+@pytest.mark.parametrize("text,pattern", [
+    ("particle_radius = = 1", r"malformed TOML"),
+    ('solver = "dfsph"\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n', r"solver: expected one of"),
+    ("particle_radius = nan\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n", r"particle_radius"),
+    ("[material]\nviscosity = -0.1\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n", r"material\.viscosity"),
+    ("fluid = []\n", r"expected at least one \[\[fluid\]\] block"),
+])
+def test_load_scene_errors(text, pattern, tmp_path):
+    path = write(tmp_path, "bad.toml", text)
+    with pytest.raises(SceneError, match=pattern) as err:
+        load_scene(str(path))
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
