@@ -24,6 +24,7 @@ import functools
 import warp as wp
 
 from .smoothing import SMOOTHING_FUNCTIONS
+from .viscosity import boundary_friction_acceleration, viscosity_acceleration
 
 
 @wp.kernel(enable_backward=False)
@@ -271,9 +272,8 @@ def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool):
                     x_ij = xi - particle_x[j]
                     r = wp.length(x_ij)
                     if r < support_radius:
-                        v_ij = vi - particle_v[j]
-                        a += (10.0 * viscosity * particle_mass / particle_density[j]) * wp.dot(v_ij, x_ij) / (
-                            r * r + eps_h2) * wp.static(gradient)(x_ij, h)
+                        a += viscosity_acceleration(viscosity, particle_mass, particle_density[i], particle_density[j],
+                                                    vi - particle_v[j], x_ij, eps_h2, wp.static(gradient)(x_ij, h))
         dv = dt * a
         if wp.static(with_friction):
             nu_b = boundary_friction * h * speed_of_sound / (2.0 * particle_density[i])
@@ -284,10 +284,8 @@ def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool):
                 x_ib = xi - boundary_x[b]
                 r = wp.length(x_ib)
                 if r < support_radius:
-                    vx = wp.dot(vi, x_ib)
-                    if vx < 0.0:
-                        pi_ib = -nu_b * vx / (r * r + eps_h2)
-                        a_f -= (rest_density * boundary_volume[b] * pi_ib) * wp.static(gradient)(x_ib, h)
+                    a_f += boundary_friction_acceleration(nu_b, rest_density * boundary_volume[b], vi, x_ib, eps_h2,
+                                                          wp.static(gradient)(x_ib, h))
             dv_f = dt * a_f
             speed = wp.length(vi)
             size = wp.length(dv_f)

@@ -9,6 +9,7 @@ import functools
 import warp as wp
 
 from .smoothing import SMOOTHING_FUNCTIONS
+from .viscosity import boundary_friction_acceleration, viscosity_acceleration
 
 EOS_LINEAR = 0
 EOS_TAIT = 1
@@ -60,7 +61,7 @@ def penalty_weight(q: float) -> float:
 def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, with_friction: bool,
                         mirrored_pressure: bool):
     """a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij (eq. 10)
-             + 10 nu sum_j (m/rho_j) (v_ij . x_ij)/(|x_ij|^2 + 0.01 h^2) grad W_ij   (viscosity, m^2/s)
+             + 10 nu sum_j (2m/(rho_i+rho_j)) (v_ij . x_ij)/(|x_ij|^2 + 0.01 h^2) grad W_ij  (viscosity)
              + boundary terms + g                                                    [m/s^2]
 
     boundary: "none", "akinci2012" (a_i -= sum_b Psi_b p_i/rho_i^2 grad W_ib, eq. 16, plus friction
@@ -121,7 +122,7 @@ def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, wit
                     a -= particle_mass * (p_rho2_i + particle_pressure[j] / (rho_j * rho_j)) * grad
                     if wp.static(with_viscosity):
                         v_ij = vi - particle_v[j]
-                        a += (10.0 * viscosity * particle_mass / rho_j) * wp.dot(v_ij, x_ij) / (r * r + eps_h2) * grad
+                        a += viscosity_acceleration(viscosity, particle_mass, rho_i, rho_j, v_ij, x_ij, eps_h2, grad)
         a_boundary = wp.vec3(0.0)
         if wp.static(akinci):
             nu_b = boundary_friction * h * speed_of_sound / (2.0 * rho_i)
@@ -135,10 +136,7 @@ def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, wit
                     psi = rest_density * boundary_volume[b]
                     a_boundary -= psi * p_rho2_b * grad
                     if wp.static(with_friction):
-                        vx = wp.dot(vi, x_ib)
-                        if vx < 0.0:
-                            pi_ib = -nu_b * vx / (r * r + eps_h2)
-                            a_boundary -= psi * pi_ib * grad
+                        a_boundary += boundary_friction_acceleration(nu_b, psi, vi, x_ib, eps_h2, grad)
         if wp.static(penalty):
             # q relative to half the support, so the force acts over the kernel's support radius
             h_b = 0.5 * support_radius

@@ -126,7 +126,7 @@ def test_forces_stage(boundary, mirrored):
     coef = -mass * (p / rho**2)[:, None] - mass * (p / rho**2)[None]
     a = (coef[:, :, None] * g).sum(1)
     vij = v[:, None] - v[None]
-    visc = 10 * m.viscosity * mass / rho[None] * (vij * xij).sum(2) / (r2 + 0.01 * h * h)
+    visc = 20 * m.viscosity * mass / (rho[:, None] + rho[None]) * (vij * xij).sum(2) / (r2 + 0.01 * h * h)
     a += (visc[:, :, None] * g).sum(1)
     xb = m.boundary_x.numpy().astype(np.float64)
     xib = x[:, None] - xb[None]

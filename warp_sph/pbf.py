@@ -23,6 +23,7 @@ import math
 import numpy as np
 import warp as wp
 
+from .wcsph import VISCOUS_FACTOR
 from .kernels import integrate as _integrate
 from .kernels import pbf as _pbf
 from .launch import launch
@@ -46,7 +47,7 @@ def rest_denominator(smoothing: str, h: float, spacing: float, particle_mass: fl
 
 class PbfSolver:
     """Iterative position-based pressure solver. Time step: velocity CFL
-    dt <= cfl d / (v_max + |g| frame_dt) and, with viscosity, dt <= 0.125 (H_s/2)^2 / nu."""
+    dt <= cfl d / (v_max + |g| frame_dt) and, with viscosity, dt <= 0.0625 (H_s/2)^2 / nu."""
 
     name = "pbf"
 
@@ -273,7 +274,7 @@ class PbfSolver:
         dt = sim.scene.time.cfl * m.spacing / max(max_speed + g * frame_dt, 1e-12)
         if m.viscosity > 0:
             length = 0.5 * m.support_radius
-            dt = min(dt, 0.125 * length * length / m.viscosity)
+            dt = min(dt, VISCOUS_FACTOR * length * length / m.viscosity)
         return dt
 
     def step_statistics(self, sim) -> dict:

@@ -6,7 +6,7 @@ particle count from the scene's geometry and refuses a run that would not fit in
 ``preflight_checks(scene, sim)`` runs once the Simulation is built (the runner calls it before
 the first step):
 - a fixed time step above the solver's stability bound (WCSPH: acoustic CFL
-  cfl (H_s/2)/(c_s + v_ref); with viscosity also 0.125 (H_s/2)^2/nu, Morris et al. 1997) is refused
+  cfl (H_s/2)/(c_s + v_ref); with viscosity also 0.0625 (H_s/2)^2/nu, Morris et al. 1997) is refused
   with the bound in the message; adaptive steps are clamped by it anyway, but a ``time.dt_min``
   above it is refused;
 - fluid removed by sampling (inside obstacles, within the wall gap, overlapping an earlier block):
@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from .wcsph import VISCOUS_FACTOR
 from .errors import SceneError
 
 #: Warn when the kernel's rest-lattice sum before calibration is off by more than this [-].
@@ -64,7 +65,7 @@ def time_step_bounds(sim, speed: float | None = None) -> dict[str, float]:
     """The solver's time-step bounds [s] by name at flow speed ``speed`` [m/s] (default: the model's
     reference speed, the largest speed the scene is expected to reach).
 
-    WCSPH: {"acoustic CFL": cfl (H_s/2)/(c_s + v), "viscous": 0.125 (H_s/2)^2/nu (with viscosity)};
+    WCSPH: {"acoustic CFL": cfl (H_s/2)/(c_s + v), "viscous": 0.0625 (H_s/2)^2/nu (with viscosity)};
     other solvers: {"<solver> CFL": solver.time_step_bound(...)}.
     """
     m = sim.model
@@ -75,7 +76,7 @@ def time_step_bounds(sim, speed: float | None = None) -> dict[str, float]:
     length = 0.5 * m.support_radius
     out = {"acoustic CFL": sim.scene.time.cfl * length / (m.speed_of_sound + v)}
     if m.viscosity > 0:
-        out["viscous"] = 0.125 * length * length / m.viscosity
+        out["viscous"] = VISCOUS_FACTOR * length * length / m.viscosity
     # the solver's own bound is the reference: when it is tighter than the parts named here, say so
     if total < 0.999 * min(out.values()):
         out["wcsph"] = total
@@ -89,7 +90,7 @@ def _bound_text(sim, name: str) -> str:
         return (f"cfl (H_s/2)/(c_s + v_ref) with cfl = {sim.scene.time.cfl:g}, H_s/2 = {length:.4g} m, "
                 f"c_s = {m.speed_of_sound:.4g} m/s, v_ref = {m.reference_speed:.3g} m/s")
     if name == "viscous":
-        return f"0.125 (H_s/2)^2/nu with H_s/2 = {length:.4g} m, nu = {m.viscosity:g} m^2/s"
+        return f"0.0625 (H_s/2)^2/nu with H_s/2 = {length:.4g} m, nu = {m.viscosity:g} m^2/s"
     return f"the {sim.scene.solver} solver's bound at v_ref = {m.reference_speed:.3g} m/s"
 
 

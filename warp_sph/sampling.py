@@ -21,7 +21,8 @@ gap at which the first fluid layer over one Akinci wall layer is at rest density
   centre is closer than g d to any boundary particle are removed; a fluid particle closer than
   d/2 to a particle of an earlier fluid block is removed (overlapping blocks).
 
-All geometry is NumPy in float64; the arrays handed to the solver are float32.
+All geometry is NumPy in float64; positions stay float64 until the model subtracts its local
+origin (float32 would round them by 1e-3 m at 10^4 m from the origin); velocities are float32.
 """
 from __future__ import annotations
 
@@ -43,10 +44,10 @@ _EPS = 1e-6
 class SampledScene:
     """Initial particles of a scene.
 
-    fluid_x: fluid positions [m], shape (fluid_count, 3), float32.
+    fluid_x: fluid positions [m], shape (fluid_count, 3), float64.
     fluid_v: fluid velocities [m/s], shape (fluid_count, 3), float32.
     fluid_block: index of the [[fluid]] block each particle came from, shape (fluid_count,), int32.
-    boundary_x: boundary particle positions [m], shape (boundary_count, 3), float32.
+    boundary_x: boundary particle positions [m], shape (boundary_count, 3), float64.
     boundary_normals: unit normals pointing into the fluid side (container walls: inward,
         obstacles: outward; edges and corners: the normalised sum), shape (boundary_count, 3), float32.
     boundary_object: -1 for container walls, i for ``scene.obstacles[i]``, shape (boundary_count,), int32.
@@ -251,10 +252,10 @@ def sample_scene(scene: Scene) -> SampledScene:
             f"(blocks smaller than d, inside obstacles, or within boundary_gap of the walls)"
         )
     return SampledScene(
-        fluid_x=np.ascontiguousarray(fluid_x, dtype=np.float32),
+        fluid_x=np.ascontiguousarray(fluid_x, dtype=np.float64),
         fluid_v=np.ascontiguousarray(fluid_v, dtype=np.float32),
         fluid_block=fluid_b,
-        boundary_x=np.ascontiguousarray(boundary_x, dtype=np.float32),
+        boundary_x=np.ascontiguousarray(boundary_x, dtype=np.float64),
         boundary_normals=np.ascontiguousarray(boundary_n, dtype=np.float32),
         boundary_object=boundary_o.astype(np.int32),
         particle_radius=r,

@@ -137,7 +137,7 @@ PARAMETERS: tuple[Param, ...] = (
     _P("material", "table", "-", {}, "fluid material"),
     _P("material.rest_density", "float", "kg/m^3", 1000.0, "rest density rho0", gt=0.0),
     _P("material.viscosity", "float", "m^2/s", 0.0, "kinematic viscosity, explicit (SPlisHSPlasH "
-       "'standard' form); needs dt <= 0.125 h^2 / nu", ge=0.0),
+       "'standard' form); needs dt <= 0.0625 (H_s/2)^2 / nu", ge=0.0),
     _P("material.xsph", "float", "-", 0.0, "XSPH velocity smoothing factor (report eq. 21)", ge=0.0, le=1.0),
     _P("material.boundary_friction", "float", "-", 0.0, "Akinci boundary friction sigma (report eq. 22-24)", ge=0.0),
     # wcsph
@@ -150,10 +150,10 @@ PARAMETERS: tuple[Param, ...] = (
        "speed_of_sound is 0 (factor 10 keeps the density error near 1 %)", gt=0.0),
     _P("wcsph.stiffness", "float", "Pa", 0.0, "stiffness k (linear) or B (Tait); 0: derived "
        "from c_s, k = rho0 c_s^2 or B = rho0 c_s^2 / 7; overrides c_s when > 0", ge=0.0),
-    _P("wcsph.boundary_pressure", "str", "-", "mirrored", "pressure of Akinci boundary particles in the "
-       "force: 'mirrored' (p_b = p_i at rest density, as SPlisHSPlasH) or 'eq16' (report eq. 16, "
-       "p_i/rho_i^2 only: the wall pushes half as hard, the first layer compresses)",
-       choices=("mirrored", "eq16")),
+    _P("wcsph.boundary_pressure", "str", "-", "eq16", "pressure term of Akinci boundary particles: "
+       "'eq16' (report eq. 16, p_i/rho_i^2: energy-consistent, but layers near a wall read 15-70 % over "
+       "rho0 g depth) or 'mirrored' (p_i/rho_i^2 + p_i/rho0^2, as SPlisHSPlasH: hydrostatic profile within "
+       "4 %, but not energy-consistent: it can add energy in violent flows)", choices=("eq16", "mirrored")),
     # pbf
     _P("pbf", "table", "-", {}, "position-based fluids settings"),
     _P("pbf.target_density_error", "float", "-", 0.005, "stop iterating when the average density error "
@@ -257,7 +257,7 @@ class WcsphParams:
     speed_of_sound: float = 0.0
     speed_of_sound_factor: float = 10.0
     stiffness: float = 0.0
-    boundary_pressure: str = "mirrored"
+    boundary_pressure: str = "eq16"
 
 
 @dataclass
