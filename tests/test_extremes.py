@@ -502,7 +502,7 @@ def test_run_keeps_frames_written_before_a_blow_up(tmp_path, monkeypatch):
 def test_preflight_viscous_bound_named():
     scene = dam(material={"viscosity": 4.0}, time={"fixed_dt": 5e-4})
     sim = Simulation(scene)
-    with pytest.raises(SceneError, match=r"viscous time-step bound .*0\.125 \(H_s/2\)\^2/nu"):
+    with pytest.raises(SceneError, match=r"viscous time-step bound .*0\.0625 \(H_s/2\)\^2/nu"):
         preflight_checks(scene, sim)
 
 

@@ -57,7 +57,7 @@ def test_box_count_and_positions_exact():
     ss = sample_scene(s)
     d, r = 0.05, 0.025
     assert ss.fluid_count == round(0.5 * 0.3 * 0.2 / d**3) == 240
-    assert ss.fluid_x.dtype == np.float32 and ss.fluid_x.shape == (240, 3)
+    assert ss.fluid_x.dtype == np.float64 and ss.fluid_x.shape == (240, 3)
     axes = [lo + r + d * np.arange(n) for lo, n in zip((0.1, 0.2, 0.3), (10, 6, 4))]
     expected = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
     got = ss.fluid_x[np.lexsort(ss.fluid_x.T[::-1])]
@@ -127,7 +127,7 @@ def test_no_fluid_within_gap_of_boundary(name):
     s = load_scene(name)
     ss = sample_scene(s)
     assert 0 < ss.fluid_count < 20000
-    assert ss.fluid_x.dtype == np.float32 and ss.boundary_x.dtype == np.float32
+    assert ss.fluid_x.dtype == np.float64 and ss.boundary_x.dtype == np.float64
     if ss.boundary_count == 0:
         return
     d = s.spacing
