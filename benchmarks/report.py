@@ -362,7 +362,22 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
             lines += [f"![speed against accuracy]({rel}/{png.name})", ""]
         lines += _failures([r for r in sph if r.get("engine") != "splishsplash"]) + [""]
 
-    if not (sweeps or scaling or sph):
+    surf = latest(data.get("surface", []))
+    if surf:
+        lines += ["## Surface reconstruction", ""] + _section_head(surf)
+        rows = []
+        for r in surf:
+            rows.append([_fmt(r.get("particle_radius")), _fmt(r.get("time")), _fmt(r.get("fluid_particles")),
+                         _fmt(r.get("cell_per_radius")), r.get("method", "?"), _fmt(r.get("ms")),
+                         _fmt(r.get("triangles")), _fmt(r.get("splashsurf_ms_1_thread")),
+                         _fmt(r.get("splashsurf_ms_2_threads"))])
+        lines += _table(["radius [m]", "t [s]", "fluid N", "cell / r", "method", "ms/frame", "triangles",
+                         "splashsurf 1 thread [ms]", "splashsurf 2 threads [ms]"], rows) + [""]
+        lines += ["ms/frame: field splatting + extraction + host clean-up (welding, winding, degenerate "
+                  "triangles) of one `SurfaceReconstructor.extract` call, median of 3, warm. splashsurf "
+                  "times are the reference numbers from the issue (cube size 0.5 r), not rerun here.", ""]
+
+    if not (sweeps or scaling or sph or surf):
         lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]
     md_path.parent.mkdir(parents=True, exist_ok=True)
     md_path.write_text("\n".join(lines).rstrip() + "\n")

@@ -499,6 +499,28 @@ def _finish(out: Path, args, records: list[dict], log) -> int:
     return 1 if failed else 0
 
 
+def cmd_surface(args, argv: list[str], log=print) -> int:
+    from warp_sph.runner import versions
+
+    from .surface import run_surface_bench
+
+    radii = [float(v) for v in args.radius.split(",")]
+    times = [float(v) for v in args.time.split(",")]
+    if len(times) == 1:
+        times = times * len(radii)
+    records = run_surface_bench(radii=radii, times=times, cells=[float(v) for v in args.cell.split(",")],
+                                methods=args.method.split(","), device=args.device, log=log)
+    for r in records:
+        r.update(host=host_info(), versions=versions(), date=_now())
+    _stamp(records, _command_text(argv), _now())
+    out = Path(args.out) if args.out else RESULTS_DIR
+    path = _append_records(out, "surface", records)
+    log(f"results: {path}")
+    if not args.no_report:
+        return cmd_report(argparse.Namespace(out=args.out, markdown=None), argv, log=log)
+    return 0
+
+
 def cmd_report(args, argv: list[str], log=print) -> int:
     from .report import write_report
 
@@ -555,6 +577,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="place SPlisHSPlasH's fluid D spacings from the walls (default: on warp-sph's lattice)")
     common(x)
     x.set_defaults(func=cmd_splishsplash)
+
+    u = sub.add_parser("surface", help="surface reconstruction time per frame on dam-break particles")
+    common(u)
+    u.add_argument("--radius", default="0.025", help="particle radii [m], comma separated (default 0.025: 6,859 particles)")
+    u.add_argument("--time", default="0.3", help="simulated time [s] of the particles, per radius or one for all (default 0.3)")
+    u.add_argument("--cell", default="0.5,0.75", help="cell sizes per particle radius (default 0.5,0.75)")
+    u.add_argument("--method", default="marching_cubes,surface_nets", help="extraction methods (default both)")
+    u.set_defaults(func=cmd_surface)
 
     r = sub.add_parser("report", help="regenerate RESULTS.md, tables and plots from the JSON lines")
     r.add_argument("--out", help="results folder (default: benchmarks/results)")

@@ -198,3 +198,18 @@ def test_isolated_run_in_a_fresh_process():
                                   params={"scene": "dam_break"}))
     assert r["status"] == "ok", r.get("error")
     assert r["metrics"]["peak_rss_bytes"] > 0
+
+
+def test_surface_bench_tiny(tmp_path):
+    """The surface benchmark runs on a tiny dam break and its section lands in the report."""
+    from warp_sph.benchmarks.runner import main
+
+    out = tmp_path / "res"
+    assert main(["surface", "--radius", "0.1", "--time", "0", "--cell", "1.0", "--method", "surface_nets",
+                 "--out", str(out)]) == 0
+    lines = (out / "surface.jsonl").read_text().splitlines()
+    import json
+
+    rec = json.loads(lines[-1])
+    assert rec["kind"] == "surface" and rec["triangles"] > 0 and rec["ms"] > 0
+    assert "## Surface reconstruction" in (out / "RESULTS.md").read_text()
