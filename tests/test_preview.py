@@ -196,14 +196,14 @@ def test_preview_run_writes_pngs_of_the_requested_size(tmp_path, mode):
     image_module = pytest.importorskip("PIL.Image")
     run = _fake_run(tmp_path)
     written = preview_run(run, frames=[0, 5], mode=mode, size=(96, 64), gif=True)
-    pngs = [run / "preview" / "frame_000000.png", run / "preview" / "frame_000005.png"]
-    assert written == pngs + [run / "preview" / "preview.gif"]
+    pngs = [run / "preview" / f"{mode}_000000.png", run / "preview" / f"{mode}_000005.png"]
+    assert written == pngs + [run / "preview" / f"{mode}.gif"]
     for path in pngs:
         with image_module.open(path) as im:
             assert im.size == (96, 64) and im.mode == "RGB"
             pixels = np.asarray(im)
         assert _foreground(pixels).sum() > 0.05 * 96 * 64  # the fluid (or surface) is in the picture
-    with image_module.open(run / "preview" / "preview.gif") as im:
+    with image_module.open(run / "preview" / f"{mode}.gif") as im:
         assert im.n_frames == 2
     assert not list((run / "preview").glob("*.tmp"))
 
@@ -212,7 +212,7 @@ def test_preview_run_defaults_and_errors(tmp_path):
     pytest.importorskip("PIL")
     run = _fake_run(tmp_path)
     out = tmp_path / "pictures"
-    assert preview_run(run, size=(32, 24), out=out) == [out / "frame_000005.png"]  # the last frame
+    assert preview_run(run, size=(32, 24), out=out) == [out / "particles_000005.png"]  # the last frame
     with pytest.raises(PreviewError, match="not recorded"):
         preview_run(run, frames=[3], size=(32, 24))
     with pytest.raises(PreviewError, match="mode"):

@@ -495,13 +495,14 @@ def preview_run(
     device="cpu",
     light: Light | None = None,
 ) -> list[Path]:
-    """Render recorded frames of a run folder to ``out/frame_{frame:06d}.png``; returns the paths written.
+    """Render recorded frames of a run folder to ``out/<mode>_{frame:06d}.png``; returns the paths written.
 
     frames: frame numbers; None means the last recorded frame (every recorded frame when ``gif``).
     mode: "particles" (spheres coloured by speed) or "surface" (the USD surface mesh).
     camera: None frames the container (or, without one, the fluid over all chosen frames).
     out: output folder, default ``run_dir/preview``. gif: also write ``out/preview.gif`` when more
-    than one frame is rendered, at ``fps`` (default: the scene's frame rate).
+    than one frame is rendered, at ``fps`` (default: the scene's frame rate). The mode is in every
+    file name, so particle and surface previews of one frame sit side by side.
     """
     run_dir = Path(run_dir)
     if mode not in ("particles", "surface"):
@@ -559,10 +560,10 @@ def preview_run(
             x, v = _load_frame(run_dir, frame)
             colors = _speed_colors(v, speed_scale, len(x))
             image = render_particles(x, radius, camera, size, container, colors, device, light=light)
-        written.append(save_png(image, out_dir / f"frame_{frame:06d}.png"))
+        written.append(save_png(image, out_dir / f"{mode}_{frame:06d}.png"))
         if gif:
             images.append(image)
     if gif and len(images) > 1:
         rate = float(fps if fps is not None else scene.get("fps", 30.0))
-        written.append(save_gif(images, out_dir / "preview.gif", rate))
+        written.append(save_gif(images, out_dir / f"{mode}.gif", rate))
     return written
