@@ -3,49 +3,65 @@ import functools
 
 import warp as wp
 
+from .neighbors import NeighborList, neighbor_count, particle_in_cell_order
 from .smoothing import SMOOTHING_FUNCTIONS
+
+NEIGHBOR_TYPES = {"grid": wp.uint64, "list": NeighborList}
+"""Neighbour iteration chosen at compile time: "grid" (``fluid_neighbors``/``boundary_neighbors`` are
+wp.HashGrid ids, queried per pass) or "list" (``NeighborList`` structs built once per step)."""
 
 
 @functools.cache
-def density_kernel(smoothing: str, with_boundary: bool):
+def density_kernel(smoothing: str, with_boundary: bool, neighbors: str = "grid"):
     """rho_i = m sum_j W_ij + sum_b Psi_b W_ib, Psi_b = rho0 V_b [kg/m^3]; one thread per particle."""
     value, _ = SMOOTHING_FUNCTIONS[smoothing]
+    lists = neighbors == "list"
+    Neighbors = NEIGHBOR_TYPES[neighbors]
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_density(
+        tid_offset: int,
         # Model:
         particle_mass: float,
         smoothing_length: float,
         support_radius: float,
         rest_density: float,
-        boundary_grid: wp.uint64,
+        boundary_neighbors: Neighbors,
         boundary_x: wp.array(dtype=wp.vec3),
         boundary_volume: wp.array(dtype=float),
         # State in:
-        fluid_grid: wp.uint64,
+        fluid_neighbors: Neighbors,
         particle_x: wp.array(dtype=wp.vec3),
         # Out:
         particle_density_out: wp.array(dtype=float),
     ):
-        tid = wp.tid()
-        i = wp.hash_grid_point_id(fluid_grid, tid)
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
         total = float(0.0)
-        query = wp.hash_grid_query(fluid_grid, xi, support_radius)
-        j = int(0)
-        while wp.hash_grid_query_next(query, j):
-            r = wp.length(xi - particle_x[j])
-            if r < support_radius:
-                total += wp.static(value)(r, smoothing_length)
+        if wp.static(lists):
+            for k in range(neighbor_count(fluid_neighbors, i)):
+                total += wp.static(value)(wp.length(xi - particle_x[fluid_neighbors.index[i, k]]), smoothing_length)
+        else:
+            query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
+            j = int(0)
+            while wp.hash_grid_query_next(query, j):
+                r = wp.length(xi - particle_x[j])
+                if r < support_radius:
+                    total += wp.static(value)(r, smoothing_length)
         rho = particle_mass * total
         if wp.static(with_boundary):
             boundary_sum = float(0.0)
-            bquery = wp.hash_grid_query(boundary_grid, xi, support_radius)
-            b = int(0)
-            while wp.hash_grid_query_next(bquery, b):
-                r = wp.length(xi - boundary_x[b])
-                if r < support_radius:
-                    boundary_sum += boundary_volume[b] * wp.static(value)(r, smoothing_length)
+            if wp.static(lists):
+                for k in range(neighbor_count(boundary_neighbors, i)):
+                    b = boundary_neighbors.index[i, k]
+                    boundary_sum += boundary_volume[b] * wp.static(value)(wp.length(xi - boundary_x[b]), smoothing_length)
+            else:
+                bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
+                b = int(0)
+                while wp.hash_grid_query_next(bquery, b):
+                    r = wp.length(xi - boundary_x[b])
+                    if r < support_radius:
+                        boundary_sum += boundary_volume[b] * wp.static(value)(r, smoothing_length)
             rho += rest_density * boundary_sum
         particle_density_out[i] = rho
 

@@ -3,11 +3,14 @@ import functools
 
 import warp as wp
 
+from .density import NEIGHBOR_TYPES
+from .neighbors import neighbor_count, particle_in_cell_order
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
 @wp.kernel(enable_backward=False)
 def integrate_symplectic_euler(
+    tid_offset: int,
     # State in:
     particle_acceleration: wp.array(dtype=wp.vec3),
     dt: float,
@@ -16,43 +19,52 @@ def integrate_symplectic_euler(
     particle_x: wp.array(dtype=wp.vec3),
 ):
     """Semi-implicit Euler (report eq. 11): v += dt a; x += dt v [m, m/s]."""
-    i = wp.tid()
+    i = wp.tid() + tid_offset
     v = particle_v[i] + dt * particle_acceleration[i]
     particle_v[i] = v
     particle_x[i] = particle_x[i] + dt * v
 
 
 @functools.cache
-def xsph_kernel(smoothing: str):
-    """XSPH (report eq. 21): dv_i = eps sum_j (m/rho_j) (v_j - v_i) W_ij [m/s]."""
+def xsph_kernel(smoothing: str, neighbors: str = "grid"):
+    """XSPH (report eq. 21): dv_i = eps sum_j (m/rho_j) (v_j - v_i) W_ij [m/s].
+    neighbors: "grid" or "list" (see ``density.NEIGHBOR_TYPES``)."""
     value, _ = SMOOTHING_FUNCTIONS[smoothing]
+    lists = neighbors == "list"
+    Neighbors = NEIGHBOR_TYPES[neighbors]
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_xsph(
+        tid_offset: int,
         # Model:
         particle_mass: float,
         smoothing_length: float,
         support_radius: float,
         xsph: float,
         # State in:
-        fluid_grid: wp.uint64,
+        fluid_neighbors: Neighbors,
         particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
         particle_density: wp.array(dtype=float),
         # Out:
         velocity_correction_out: wp.array(dtype=wp.vec3),
     ):
-        tid = wp.tid()
-        i = wp.hash_grid_point_id(fluid_grid, tid)
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
         vi = particle_v[i]
         dv = wp.vec3(0.0)
-        query = wp.hash_grid_query(fluid_grid, xi, support_radius)
-        j = int(0)
-        while wp.hash_grid_query_next(query, j):
-            r = wp.length(xi - particle_x[j])
-            if r < support_radius:
+        if wp.static(lists):
+            for k in range(neighbor_count(fluid_neighbors, i)):
+                j = fluid_neighbors.index[i, k]
+                r = wp.length(xi - particle_x[j])
                 dv += (particle_mass / particle_density[j] * wp.static(value)(r, smoothing_length)) * (particle_v[j] - vi)
+        else:
+            query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
+            j = int(0)
+            while wp.hash_grid_query_next(query, j):
+                r = wp.length(xi - particle_x[j])
+                if r < support_radius:
+                    dv += (particle_mass / particle_density[j] * wp.static(value)(r, smoothing_length)) * (particle_v[j] - vi)
         velocity_correction_out[i] = xsph * dv
 
     return compute_xsph
@@ -60,10 +72,11 @@ def xsph_kernel(smoothing: str):
 
 @wp.kernel(enable_backward=False)
 def add_velocity_correction(
+    tid_offset: int,
     # In:
     velocity_correction: wp.array(dtype=wp.vec3),
     # State in/out:
     particle_v: wp.array(dtype=wp.vec3),
 ):
-    i = wp.tid()
+    i = wp.tid() + tid_offset
     particle_v[i] = particle_v[i] + velocity_correction[i]

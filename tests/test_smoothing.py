@@ -146,7 +146,7 @@ def test_rest_lattice_density(name, device):
     rho = wp.zeros(len(g), dtype=float, device=device)
     empty = wp.zeros(0, dtype=wp.vec3, device=device)
     wp.launch(density_dev.density_kernel(name, False), dim=len(g),
-              inputs=[m, h, k.support_radius(h), rho0, wp.uint64(0), empty, wp.zeros(0, dtype=float, device=device), grid.id, x],
+              inputs=[0, m, h, k.support_radius(h), rho0, wp.uint64(0), empty, wp.zeros(0, dtype=float, device=device), grid.id, x],
               outputs=[rho], device=device)
     centre = np.argmin(np.linalg.norm(g - g.mean(0), axis=1))
     assert rho.numpy()[centre] == pytest.approx(rho0, rel=1e-3)

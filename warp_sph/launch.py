@@ -1,9 +1,67 @@
-"""The one place host code launches kernels (returns early on empty ranges)."""
+"""The one place host code launches kernels (returns early on empty ranges).
+
+Kernels whose first parameter is ``tid_offset: int`` are particle-parallel over disjoint indices
+``wp.tid() + tid_offset``. On the CPU, ``launch`` splits such a launch into one contiguous range
+per worker thread (a CPU ``wp.launch`` releases the GIL, so the ranges run on separate cores) and
+waits for all of them; elsewhere it launches once with offset 0. The caller never passes the
+offset. Each thread writes only its own indices, so results do not depend on the thread count
+or timing as long as the kernel does not accumulate across indices with atomics.
+
+Worker count: ``WARP_SPH_CPU_THREADS`` if set, else the number of cores this process may use.
+"""
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import warp as wp
+
+MIN_RANGE = 1024  # fewest indices worth a thread of their own
+
+_pool: ThreadPoolExecutor | None = None
+_loaded: set = set()
+
+
+def cpu_threads() -> int:
+    """Worker threads for split CPU launches."""
+    env = os.environ.get("WARP_SPH_CPU_THREADS")
+    if env:
+        return max(1, int(env))
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _takes_offset(kernel) -> bool:
+    args = kernel.adj.args
+    return bool(args) and args[0].label == "tid_offset"
 
 
 def launch(kernel, dim: int, inputs, outputs=(), device=None) -> None:
-    """wp.launch over ``dim`` threads; nothing happens when dim == 0."""
+    """wp.launch over ``dim`` threads; nothing happens when dim == 0. Kernels taking ``tid_offset``
+    first run in disjoint ranges on all CPU cores (see the module docstring)."""
+    global _pool
     if dim <= 0:
         return
-    wp.launch(kernel, dim=dim, inputs=list(inputs), outputs=list(outputs), device=device)
+    if not _takes_offset(kernel):
+        wp.launch(kernel, dim=dim, inputs=list(inputs), outputs=list(outputs), device=device)
+        return
+    device = wp.get_device(device)
+    threads = min(cpu_threads(), dim // MIN_RANGE) if device.is_cpu else 1
+    key = (kernel, device.alias)
+    if threads <= 1 or key not in _loaded:
+        # the first launch also loads the module, from this thread only
+        wp.launch(kernel, dim=dim, inputs=[0, *inputs], outputs=list(outputs), device=device)
+        _loaded.add(key)
+        return
+    if _pool is None or _pool._max_workers < threads - 1:
+        _pool = ThreadPoolExecutor(max_workers=max(threads - 1, 1), thread_name_prefix="warp_sph_launch")
+    bounds = [dim * k // threads for k in range(threads + 1)]
+    ins = list(inputs)
+    outs = list(outputs)
+    futures = [_pool.submit(wp.launch, kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *ins],
+                            outputs=outs, device=device) for k in range(1, threads)]
+    wp.launch(kernel, dim=bounds[1], inputs=[0, *ins], outputs=outs, device=device)
+    for f in futures:
+        f.result()

@@ -49,3 +49,132 @@ def neighbor_lists(grid: NeighborGrid, points: wp.array, query_x: wp.array, capa
         raise ValueError(f"a query point has {c.max()} neighbours, more than capacity {capacity}")
     idx = index.numpy()
     return c, [np.sort(idx[i, : c[i]]) for i in range(n)]
+
+
+MAX_CELLS = 1 << 22  # the dense cell grid grows its cell size past the search radius beyond this
+
+
+class CellGrid:
+    """Points sorted by the cell of a dense grid over a fixed box, cell size = search radius /
+    ``cells_per_radius`` [m] (larger when the box would need more than MAX_CELLS cells).
+
+    Points outside the box are clamped to its border cells, which keeps every query exact.
+    After ``build``: ``cell_point`` (sorted index -> point index), ``sorted_x`` (positions in that
+    order [m]) and ``cell_start`` (first sorted index of each cell, shape (cell_count + 1,)).
+    """
+
+    def __init__(self, search_radius: float, lo, hi, capacity: int, cells_per_radius: int = 2, device="cpu"):
+        import numpy as np
+
+        lo = np.asarray(lo, dtype=np.float64)
+        hi = np.asarray(hi, dtype=np.float64)
+        cell = float(search_radius) / cells_per_radius
+        while True:
+            dims = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
+            if int(np.prod(dims)) <= MAX_CELLS:
+                break
+            cell *= 1.25
+        self.search_radius = float(search_radius)
+        self.cell_size = cell
+        self.lo = wp.vec3(*lo.astype(np.float32))
+        self.inv_cell_size = float(1.0 / cell)
+        self.dims = wp.vec3i(*(int(v) for v in dims))
+        self.cell_count = int(np.prod(dims))
+        self.device = device
+        self.capacity = int(capacity)
+        self._keys = wp.zeros(2 * max(capacity, 1), dtype=wp.int32, device=device)
+        self.cell_point = wp.zeros(2 * max(capacity, 1), dtype=wp.int32, device=device)
+        self.sorted_x = wp.zeros(max(capacity, 1), dtype=wp.vec3, device=device)
+        self.cell_start = wp.zeros(self.cell_count + 1, dtype=wp.int32, device=device)
+        self.count = 0
+
+    def build(self, points: wp.array) -> None:
+        """Sort ``points`` (wp.array of vec3 [m], at most ``capacity``) by cell."""
+        from .kernels import neighbors as _dev
+        from .launch import launch
+
+        n = points.shape[0]
+        if n > self.capacity:
+            raise ValueError(f"CellGrid holds {self.capacity} points, got {n}")
+        self.count = n
+        launch(_dev.compute_cell_keys, n, [self.lo, self.inv_cell_size, self.dims, points],
+               [self._keys, self.cell_point], device=self.device)
+        if n:
+            wp.utils.radix_sort_pairs(self._keys, self.cell_point, n)
+        launch(_dev.compute_cell_start, n + 1, [n, self.cell_count, self._keys], [self.cell_start],
+               device=self.device)
+        launch(_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device)
+
+
+class NeighborLists:
+    """Per-step neighbour lists of the fluid: fluid-fluid (self included) and fluid-boundary.
+
+    Built once per step over dense cell grids (``CellGrid``; the boundary one is built once) and
+    read by every neighbour loop of the step (density, XSPH, forces). Fixed capacities per
+    particle [-]; ``overflow()`` (one host read, once per frame) returns the largest count that did
+    not fit, and ``grow`` enlarges the lists for the next steps.
+    """
+
+    def __init__(self, search_radius: float, lo, hi, fluid_count: int, boundary_x: wp.array | None = None,
+                 fluid_capacity: int = 64, boundary_capacity: int = 48, cells_per_radius: int = 2, device="cpu"):
+        from .kernels import neighbors as _dev
+
+        self.search_radius = float(search_radius)
+        self.device = device
+        self.fluid_count = int(fluid_count)
+        self.fluid_cells = CellGrid(search_radius, lo, hi, fluid_count, cells_per_radius, device=device)
+        self.boundary_cells = None
+        if boundary_x is not None and boundary_x.shape[0]:
+            self.boundary_cells = CellGrid(search_radius, lo, hi, boundary_x.shape[0], cells_per_radius,
+                                           device=device)
+            self.boundary_cells.build(boundary_x)
+        self._max_count = wp.zeros(1, dtype=wp.int32, device=device)
+        self.fluid = _dev.NeighborList()
+        self.boundary = _dev.NeighborList()
+        self._allocate(self.fluid, fluid_capacity)
+        self._allocate(self.boundary, boundary_capacity if self.boundary_cells is not None else 0)
+
+    def _allocate(self, lists, capacity: int) -> None:
+        n = max(self.fluid_count, 1)
+        lists.count = wp.zeros(n, dtype=wp.int32, device=self.device)
+        lists.index = wp.zeros((n, max(capacity, 1)), dtype=wp.int32, device=self.device)
+        lists.order = self.fluid_cells.cell_point
+
+    def build(self, particle_x: wp.array) -> None:
+        """Rebuild both lists for fluid positions ``particle_x`` [m]."""
+        from .kernels import neighbors as _dev
+        from .launch import launch
+
+        n = particle_x.shape[0]
+        fc = self.fluid_cells
+        fc.build(particle_x)
+        launch(_dev.build_neighbor_list, n,
+               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, self.search_radius,
+                fc.cell_point, particle_x],
+               [self.fluid.count, self.fluid.index, self._max_count], device=self.device)
+        bc = self.boundary_cells
+        if bc is not None:
+            launch(_dev.build_neighbor_list, n,
+                   [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, self.search_radius,
+                    fc.cell_point, particle_x],
+                   [self.boundary.count, self.boundary.index, self._max_count], device=self.device)
+
+    @property
+    def capacities(self) -> tuple[int, int]:
+        return self.fluid.index.shape[1], self.boundary.index.shape[1]
+
+    def overflow(self) -> int:
+        """Largest neighbour count that exceeded a capacity since the last call (0: none). Host read."""
+        worst = int(self._max_count.numpy()[0])
+        if worst:
+            self._max_count.zero_()
+        return worst
+
+    def grow(self, count: int) -> None:
+        """Make room for ``count`` neighbours (plus a margin) in both lists."""
+        fcap, bcap = self.capacities
+        new = int(count * 1.5) + 8
+        if new > fcap:
+            self._allocate(self.fluid, new)
+        if self.boundary_cells is not None and new > bcap:
+            self._allocate(self.boundary, new)

@@ -185,6 +185,9 @@ class Simulation:
             for _ in range(n):
                 self.step(dt)
                 solver_stats.append(self.solver.step_statistics(self))
+            if self._grow_neighbor_lists():
+                wd.restore()  # neighbours were dropped: redo the frame with the larger lists
+                continue
             self.state.frame += 1
             self.state.time = self.state.frame * self.frame_dt
             stats = self.statistics(steps=n, dt_min=dt, dt_max=dt)
@@ -205,6 +208,22 @@ class Simulation:
                                 "max": float(np.max([s[k] for s in solver_stats]))} for k in keys}
         self.last_frame = stats
         return stats
+
+    def _grow_neighbor_lists(self) -> bool:
+        """Once per frame (one host read): True, after growing them, if a particle had more neighbours
+        than the neighbour lists hold."""
+        lists = self.fields.get("neighbor_lists")
+        if lists is None:
+            return False
+        worst = lists.overflow()
+        if worst:
+            import warnings
+
+            warnings.warn(f"frame {self.state.frame + 1}: a particle had {worst} neighbours, more than the list "
+                          f"capacities {lists.capacities}; the lists grow and the frame is redone",
+                          RuntimeWarning, stacklevel=3)
+            lists.grow(worst)
+        return bool(worst)
 
     def statistics(self, steps: int = 0, dt_min: float = 0.0, dt_max: float = 0.0,
                    at_time: float | None = None) -> FrameStatistics:

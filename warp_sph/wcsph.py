@@ -12,7 +12,7 @@ import warp as wp
 from .kernels import integrate as _integrate
 from .kernels import wcsph as _wcsph
 from .launch import launch
-from .sph_common import density_stage, neighbors_stage, xsph_stage
+from .sph_common import _neighbor_args, density_stage, neighbors_stage, xsph_stage
 from .step_graph import Stage
 
 
@@ -24,9 +24,15 @@ class WcsphSolver:
     """Explicit WCSPH. Time step: acoustic CFL dt <= cfl (H_s/2) / (c_s + v_max) and, with
     viscosity, dt <= 0.0625 (H_s/2)^2 / nu: Morris 1997's 0.125 h^2/nu halved, because the
     10-nu explicit form was measured unstable at 1.0x and stable at 0.8x of the Morris bound
-    (tests/test_extremes.py, nu = 1 m^2/s column)."""
+    (tests/test_extremes.py, nu = 1 m^2/s column).
+
+    Neighbours: lists built once per step and read by density, XSPH and forces (``lists = True``),
+    or hash-grid queries in every pass (``lists = False``, the reference variant)."""
 
     name = "wcsph"
+
+    def __init__(self, lists: bool = True):
+        self.lists = lists
 
     def stages(self, sim) -> list[Stage]:
         m = sim.model
@@ -40,7 +46,10 @@ class WcsphSolver:
         pressure_kernel = _wcsph.pressure_kernel(m.equation_of_state)
         mirrored = sim.scene.wcsph.boundary_pressure == "mirrored"
         force_kernel = _wcsph.acceleration_kernel(m.smoothing.name, m.boundary_method, with_viscosity, with_friction,
-                                                  mirrored)
+                                                  mirrored, "list" if self.lists else "grid")
+
+        gravity = wp.vec3(*m.gravity)
+        neighbors = "neighbor_lists" if self.lists else "fluid_grid"
 
         def run_pressure(sim, dt):
             launch(pressure_kernel, n, [m.rest_density, m.stiffness, sim.fields["particle_density"]],
@@ -48,11 +57,12 @@ class WcsphSolver:
 
         def run_forces(sim, dt):
             f = sim.fields
+            boundary_neighbors, fluid_neighbors = _neighbor_args(sim, self.lists)
             launch(force_kernel, n,
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density,
-                    wp.vec3(*m.gravity), m.viscosity, m.boundary_friction, m.speed_of_sound,
-                    m.boundary_grid_id, m.boundary_x, m.boundary_volume,
-                    sim.fluid_grid.id, f["particle_x"], f["particle_v"], f["particle_density"], f["particle_pressure"]],
+                    gravity, m.viscosity, m.boundary_friction, m.speed_of_sound,
+                    boundary_neighbors, m.boundary_x, m.boundary_volume,
+                    fluid_neighbors, f["particle_x"], f["particle_v"], f["particle_density"], f["particle_pressure"]],
                    [f["particle_acceleration"], f["boundary_force"]], device=m.device)
 
         def run_integrate(sim, dt):
@@ -71,14 +81,14 @@ class WcsphSolver:
         if with_friction:
             terms.append("boundary friction (eq. 22-24)")
         terms.append("gravity")
-        stages = [neighbors_stage(sim), density_stage(sim)]
+        stages = [neighbors_stage(sim, lists=self.lists), density_stage(sim, lists=self.lists)]
         if m.xsph > 0.0:
-            stages.append(xsph_stage(sim))
+            stages.append(xsph_stage(sim, lists=self.lists))
         stages += [
             Stage("pressure", run_pressure, reads=("particle_density",), writes=("particle_pressure",),
                   doc=f"{m.equation_of_state} equation of state, K = {m.stiffness:.4g} Pa"),
             Stage("forces", run_forces,
-                  reads=("fluid_grid", "particle_x", "particle_v", "particle_density", "particle_pressure") + boundary_reads,
+                  reads=(neighbors, "particle_x", "particle_v", "particle_density", "particle_pressure") + boundary_reads,
                   writes=("particle_acceleration", "boundary_force"), doc=" + ".join(terms)),
             Stage("integrate", run_integrate, reads=("particle_acceleration",), updates=("particle_v", "particle_x"),
                   doc="semi-implicit Euler (eq. 11)"),
