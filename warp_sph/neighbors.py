@@ -63,7 +63,7 @@ class CellGrid:
     order [m]) and ``cell_start`` (first sorted index of each cell, shape (cell_count + 1,)).
     """
 
-    def __init__(self, search_radius: float, lo, hi, capacity: int, cells_per_radius: int = 2, device="cpu"):
+    def __init__(self, search_radius: float, lo, hi, capacity: int, cells_per_radius: int = 1, device="cpu"):
         import numpy as np
 
         lo = np.asarray(lo, dtype=np.float64)
@@ -116,7 +116,7 @@ class NeighborLists:
     """
 
     def __init__(self, search_radius: float, lo, hi, fluid_count: int, boundary_x: wp.array | None = None,
-                 fluid_capacity: int = 64, boundary_capacity: int = 48, cells_per_radius: int = 2, device="cpu"):
+                 fluid_capacity: int = 64, boundary_capacity: int = 48, cells_per_radius: int = 1, device="cpu"):
         from .kernels import neighbors as _dev
 
         self.search_radius = float(search_radius)
