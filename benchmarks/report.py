@@ -255,6 +255,22 @@ def _section_head(recs: list[dict]) -> list[str]:
             f"machine: {_machine(recs)}; {_versions(recs)}", ""]
 
 
+def speed_ratios(records: list[dict]) -> list[dict]:
+    """warp-sph against SPlisHSPlasH per solver: ratio of wall time per simulated second (both run the
+    same fixed time step, so this is also the ratio of time per step) and the two mean density errors."""
+    out = []
+    ok = [r for r in records if r.get("status") == "ok"]
+    for solver in ("wcsph", "pbf"):
+        ours = [r for r in ok if r.get("engine") != "splishsplash" and (r.get("params") or {}).get("solver") == solver]
+        ref = [r for r in ok if r.get("engine") == "splishsplash" and (r.get("params") or {}).get("solver") == solver]
+        if ours and ref and _m(ours[0], SPEED_KEY) and _m(ref[0], SPEED_KEY):
+            out.append({"solver": solver, "threads": ref[0].get("threads"),
+                        "ratio": _m(ours[0], SPEED_KEY) / _m(ref[0], SPEED_KEY),
+                        "ours_error": _m(ours[0], "density_error_mean_avg"),
+                        "ref_error": _m(ref[0], "density_error_mean_avg")})
+    return out
+
+
 def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> Path:
     """Regenerate the Markdown report (and PNG plots in results_dir) from the JSON lines."""
     from .runner import RESULTS_DIR
@@ -347,8 +363,14 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
         lines += _table(["case", "solver", "status", "dt [s]", "threads", "fluid N", "steps", "wall s / sim s",
                          "particle-steps/s", "mean ρ err %", "max ρ err %", "max |vol drift| %", "energy change",
                          "front [m]"], rows) + [""]
-        lines += ["Threads: SPlisHSPlasH runs with OMP_NUM_THREADS as listed; warp-sph's CPU backend runs each "
-                  "kernel on one thread. Same box, fluid lattice, particle radius, fixed step and Akinci 2012 "
+        ratios = speed_ratios(sph)
+        if ratios:
+            lines += _table(["solver", "SPlisHSPlasH threads", "warp-sph time / SPlisHSPlasH time",
+                             "warp-sph mean ρ err %", "SPlisHSPlasH mean ρ err %"],
+                            [[q["solver"], _fmt(q["threads"]), _fmt(q["ratio"]), _fmt(q["ours_error"], 100),
+                              _fmt(q["ref_error"], 100)] for q in ratios]) + [""]
+        lines += ["Threads: SPlisHSPlasH runs with OMP_NUM_THREADS as listed; warp-sph splits each particle-parallel "
+                  "kernel over all cores (WARP_SPH_CPU_THREADS). Same box, fluid lattice, particle radius, fixed step and Akinci 2012 "
                   "walls; SPlisHSPlasH's particle mass is 0.8 d³ρ0 (warp-sph calibrates its mass to a rest "
                   "lattice), and it samples the walls with its own sampler (benchmarks/splishsplash.py).", ""]
         ok = [r for r in sph if r.get("status") == "ok"]

@@ -484,6 +484,12 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
     out = Path(args.out) if args.out else RESULTS_DIR
     path = _append_records(out, "splishsplash", records)
     log(f"wrote {len(records)} records to {path}")
+    from .report import speed_ratios
+
+    for q in speed_ratios(records):
+        log(f"{q['solver']}: warp-sph time / SPlisHSPlasH time = {q['ratio']:.2f} "
+            f"(SPlisHSPlasH on {q['threads']} threads); mean density error {100 * (q['ours_error'] or 0):.3f} % "
+            f"vs {100 * (q['ref_error'] or 0):.3f} %")
     return _finish(out, args, records, log)
 
 

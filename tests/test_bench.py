@@ -213,3 +213,18 @@ def test_surface_bench_tiny(tmp_path):
     rec = json.loads(lines[-1])
     assert rec["kind"] == "surface" and rec["triangles"] > 0 and rec["ms"] > 0
     assert "## Surface reconstruction" in (out / "RESULTS.md").read_text()
+
+
+def test_speed_ratio_against_splishsplash():
+    """The ratio is warp-sph's wall time per simulated second over SPlisHSPlasH's, per solver."""
+    from warp_sph.benchmarks.report import speed_ratios
+
+    def rec(engine, solver, speed, err):
+        return {"engine": engine, "status": "ok", "threads": 2, "params": {"solver": solver},
+                "metrics": {"wall_per_simulated_second": speed, "density_error_mean_avg": err}}
+
+    records = [rec("warp_sph", "wcsph", 6.0, 0.001), rec("splishsplash", "wcsph", 8.0, 0.005),
+               rec("warp_sph", "pbf", 30.0, 0.003), rec("splishsplash", "dfsph", 5.0, 0.0001)]
+    (q,) = speed_ratios(records)
+    assert q["solver"] == "wcsph" and q["ratio"] == pytest.approx(0.75)
+    assert q["ours_error"] == 0.001 and q["ref_error"] == 0.005
