@@ -3,7 +3,6 @@ code is importable as ``warp_sph.kernels`` and built-in scenes are found by name
 import os
 import shutil
 import subprocess
-import sys
 import venv
 from pathlib import Path
 

@@ -7,7 +7,7 @@ the origin back (float64 on the host).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp

@@ -21,7 +21,7 @@ import warp as wp
 from .errors import SceneError
 from .kernels import diagnostics as _diag
 from .launch import launch
-from .model import Model, State, build_model
+from .model import build_model
 from .neighbors import GRID_DIM, NeighborGrid
 from .step_graph import StepGraph
 from .watchdog import MAX_RETRIES, Watchdog, frame_substeps

@@ -8,7 +8,7 @@ The graph checks this when it is built or changed, and times each stage.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import warp as wp

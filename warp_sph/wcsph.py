@@ -5,7 +5,6 @@ forces (eq. 10, 12 or 16, viscosity, friction eq. 22-24, gravity) -> semi-implic
 """
 from __future__ import annotations
 
-import math
 
 import warp as wp
 
