@@ -401,7 +401,9 @@ def run_comparison(particle_radius: float = 0.025, frames: int = 25, threads: in
                            params={"engine": "warp-sph", "solver": s, "dt": dts[s], "particle_radius": particle_radius})
             r = run_specs([spec], isolate=isolate, log=log)[0]
             r["label"] = f"warp-sph {s}"
-            r["threads"] = 1
+            from warp_sph.launch import cpu_threads
+
+            r["threads"] = cpu_threads()  # warp-sph splits particle-parallel CPU launches over these
             records.append(r)
         log(f"SPlisHSPlasH {s} (dt {dts[s]:.3g} s, OMP_NUM_THREADS={threads})")
         r = run_splishsplash_case(sc.to_dict(), summary, fmin, fmax, s, dts[s], frames, threads)
