@@ -15,20 +15,31 @@ Boundary particles do not move, so they are left out of the sum over k of |grad_
 in grad_i C_i (SPlisHSPlasH). The position correction of particle i by the walls, over dt^2 and
 times m, is the force of the walls on it (physics notes 2.1); its negative sums to the wall load.
 
-Kernels take the smoothing kernel as a compile-time choice (factory + ``wp.static``). Neighbour
-queries use ``query_radius`` >= support radius (the grid may have been built on slightly older
-positions) and keep pairs closer than the support radius.
+Kernels take the smoothing kernel and the neighbour iteration as compile-time choices (factory +
+``wp.static``): ``neighbors="grid"`` queries wp.HashGrid ids in every pass, with ``query_radius`` >=
+support radius (the grid may have been built on slightly older positions); ``neighbors="list"``
+reads ``NeighborList`` structs built once per step with a search radius enlarged by a margin. Both
+keep only pairs closer than the support radius. Every particle-parallel kernel takes ``tid_offset``
+first (split over CPU cores by ``warp_sph.launch``) and writes only its own particle: no atomics
+(CPU atomics are plain read-modify-writes, racy across split ranges). Sums and maxima over the
+particles come from per-particle values reduced chunk by chunk (``sum_chunks``,
+``max_correction_drift_chunks``) in a fixed order, so they are bitwise reproducible.
 """
 import functools
 
 import warp as wp
 
+from .density import NEIGHBOR_TYPES
+from .neighbors import neighbor_count, particle_in_cell_order
 from .smoothing import SMOOTHING_FUNCTIONS
 from .viscosity import boundary_friction_acceleration, viscosity_acceleration
+
+REDUCE_CHUNK = 256  # particles per partial sum / maximum (fixed: results do not depend on the thread count)
 
 
 @wp.kernel(enable_backward=False)
 def predict_positions(
+    tid_offset: int,
     # Model:
     gravity: wp.vec3,
     dt: float,
@@ -41,7 +52,7 @@ def predict_positions(
     boundary_force_out: wp.array(dtype=wp.vec3),
 ):
     """v += dt g; x* = x + dt v [m/s, m]; clears the per-step boundary force."""
-    i = wp.tid()
+    i = wp.tid() + tid_offset
     v = particle_v[i] + dt * gravity
     particle_v[i] = v
     predicted_x_out[i] = particle_x[i] + dt * v
@@ -49,13 +60,16 @@ def predict_positions(
 
 
 @functools.cache
-def density_lambda_kernel(smoothing: str, with_boundary: bool):
+def density_lambda_kernel(smoothing: str, with_boundary: bool, neighbors: str = "grid"):
     """Density (eq. 7/13), constraint C (eq. 17) and Lagrange multiplier lambda (eq. 19) at the
-    predicted positions, in one neighbour pass. Adds C_i to ``density_error_sum[0]``."""
+    predicted positions, in one neighbour pass. Writes C_i to ``particle_constraint_out``."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    lists = neighbors == "list"
+    Neighbors = NEIGHBOR_TYPES[neighbors]
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_density_lambda(
+        tid_offset: int,
         # Model:
         particle_mass: float,
         smoothing_length: float,
@@ -63,68 +77,98 @@ def density_lambda_kernel(smoothing: str, with_boundary: bool):
         rest_density: float,
         relaxation_epsilon: float,
         query_radius: float,
-        boundary_grid: wp.uint64,
+        boundary_neighbors: Neighbors,
         boundary_x: wp.array(dtype=wp.vec3),
         boundary_volume: wp.array(dtype=float),
         # State in:
-        fluid_grid: wp.uint64,
+        fluid_neighbors: Neighbors,
         predicted_x: wp.array(dtype=wp.vec3),
         # Out:
         particle_density_out: wp.array(dtype=float),
         particle_lambda_out: wp.array(dtype=float),
-        density_error_sum_out: wp.array(dtype=float),
+        particle_constraint_out: wp.array(dtype=float),
     ):
-        tid = wp.tid()
-        i = wp.hash_grid_point_id(fluid_grid, tid)
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = predicted_x[i]
         h = smoothing_length
         volume = particle_mass / rest_density
         w_sum = float(0.0)
         grad_i = wp.vec3(0.0)
         grad_sq = float(0.0)
-        query = wp.hash_grid_query(fluid_grid, xi, query_radius)
-        j = int(0)
-        while wp.hash_grid_query_next(query, j):
-            x_ij = xi - predicted_x[j]
-            r = wp.length(x_ij)
-            if r < support_radius:
-                w_sum += wp.static(value)(r, h)
-                g = volume * wp.static(gradient)(x_ij, h)
-                grad_i += g
-                grad_sq += wp.dot(g, g)
+        if wp.static(lists):
+            for k in range(neighbor_count(fluid_neighbors, i)):
+                x_ij = xi - predicted_x[fluid_neighbors.index[i, k]]
+                r = wp.length(x_ij)
+                if r < support_radius:
+                    w_sum += wp.static(value)(r, h)
+                    g = volume * wp.static(gradient)(x_ij, h)
+                    grad_i += g
+                    grad_sq += wp.dot(g, g)
+        else:
+            query = wp.hash_grid_query(fluid_neighbors, xi, query_radius)
+            j = int(0)
+            while wp.hash_grid_query_next(query, j):
+                x_ij = xi - predicted_x[j]
+                r = wp.length(x_ij)
+                if r < support_radius:
+                    w_sum += wp.static(value)(r, h)
+                    g = volume * wp.static(gradient)(x_ij, h)
+                    grad_i += g
+                    grad_sq += wp.dot(g, g)
         ratio = volume * w_sum
         if wp.static(with_boundary):
-            bquery = wp.hash_grid_query(boundary_grid, xi, support_radius)
-            b = int(0)
-            while wp.hash_grid_query_next(bquery, b):
-                x_ib = xi - boundary_x[b]
-                r = wp.length(x_ib)
-                if r < support_radius:
-                    vb = boundary_volume[b]
-                    ratio += vb * wp.static(value)(r, h)
-                    grad_i += vb * wp.static(gradient)(x_ib, h)
+            if wp.static(lists):
+                for k in range(neighbor_count(boundary_neighbors, i)):
+                    b = boundary_neighbors.index[i, k]
+                    x_ib = xi - boundary_x[b]
+                    r = wp.length(x_ib)
+                    if r < support_radius:
+                        vb = boundary_volume[b]
+                        ratio += vb * wp.static(value)(r, h)
+                        grad_i += vb * wp.static(gradient)(x_ib, h)
+            else:
+                bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
+                b = int(0)
+                while wp.hash_grid_query_next(bquery, b):
+                    x_ib = xi - boundary_x[b]
+                    r = wp.length(x_ib)
+                    if r < support_radius:
+                        vb = boundary_volume[b]
+                        ratio += vb * wp.static(value)(r, h)
+                        grad_i += vb * wp.static(gradient)(x_ib, h)
         c = wp.max(ratio - 1.0, 0.0)
         lam = float(0.0)
         if c > 0.0:
             lam = -c / (wp.dot(grad_i, grad_i) + grad_sq + relaxation_epsilon)
-            wp.atomic_add(density_error_sum_out, 0, c)
         particle_density_out[i] = rest_density * ratio
         particle_lambda_out[i] = lam
+        particle_constraint_out[i] = c
 
     return compute_density_lambda
 
 
 @functools.cache
-def correction_kernel(smoothing: str, with_boundary: bool, tensile: bool):
+def correction_kernel(smoothing: str, with_boundary: bool, tensile: bool, neighbors: str = "grid"):
     """Jacobi position correction dx_i (eq. 18), optional tensile term
     s_corr = -k (W_ij / W(dq))^n * tensile_scale [m^2] (Macklin & Mueller 2013 eq. 13, made
     dimensionally consistent: tensile_scale = 1 / rest-lattice denominator, so s_corr acts like a
-    constraint violation of k). Adds m dx_i^boundary / dt^2 to the boundary force [N] and the
-    largest |dx_i| to ``max_correction[0]`` [m]."""
+    constraint violation of k). Adds m dx_i^boundary / dt^2 to the boundary force [N] and writes
+    |dx_i| before the trust-region clamp to ``correction_size_out`` [m]."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    lists = neighbors == "list"
+    Neighbors = NEIGHBOR_TYPES[neighbors]
+
+    @wp.func(module="unique")
+    def pair_weight(lam_i: float, lam_j: float, r: float, h: float, tensile_k: float, tensile_n: int,
+                    tensile_inv_w: float, tensile_scale: float) -> float:
+        s = lam_i + lam_j
+        if wp.static(tensile):
+            s -= tensile_k * wp.pow(wp.static(value)(r, h) * tensile_inv_w, float(tensile_n)) * tensile_scale
+        return s
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_correction(
+        tid_offset: int,
         # Model:
         particle_mass: float,
         smoothing_length: float,
@@ -137,74 +181,128 @@ def correction_kernel(smoothing: str, with_boundary: bool, tensile: bool):
         tensile_scale: float,
         inv_dt2: float,
         max_step: float,
-        boundary_grid: wp.uint64,
+        boundary_neighbors: Neighbors,
         boundary_x: wp.array(dtype=wp.vec3),
         boundary_volume: wp.array(dtype=float),
         # State in:
-        fluid_grid: wp.uint64,
+        fluid_neighbors: Neighbors,
         predicted_x: wp.array(dtype=wp.vec3),
         particle_lambda: wp.array(dtype=float),
         # Out:
         position_correction_out: wp.array(dtype=wp.vec3),
         boundary_force_out: wp.array(dtype=wp.vec3),
-        max_correction_out: wp.array(dtype=float),
+        correction_size_out: wp.array(dtype=float),
     ):
-        tid = wp.tid()
-        i = wp.hash_grid_point_id(fluid_grid, tid)
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = predicted_x[i]
         lam_i = particle_lambda[i]
         h = smoothing_length
         volume = particle_mass / rest_density
         dx = wp.vec3(0.0)
-        query = wp.hash_grid_query(fluid_grid, xi, query_radius)
-        j = int(0)
-        while wp.hash_grid_query_next(query, j):
-            x_ij = xi - predicted_x[j]
-            r = wp.length(x_ij)
-            if r < support_radius:
-                s = lam_i + particle_lambda[j]
-                if wp.static(tensile):
-                    s -= tensile_k * wp.pow(wp.static(value)(r, h) * tensile_inv_w, float(tensile_n)) * tensile_scale
-                dx += (volume * s) * wp.static(gradient)(x_ij, h)
+        if wp.static(lists):
+            for k in range(neighbor_count(fluid_neighbors, i)):
+                j = fluid_neighbors.index[i, k]
+                x_ij = xi - predicted_x[j]
+                r = wp.length(x_ij)
+                if r < support_radius:
+                    s = pair_weight(lam_i, particle_lambda[j], r, h, tensile_k, tensile_n, tensile_inv_w,
+                                    tensile_scale)
+                    dx += (volume * s) * wp.static(gradient)(x_ij, h)
+        else:
+            query = wp.hash_grid_query(fluid_neighbors, xi, query_radius)
+            j = int(0)
+            while wp.hash_grid_query_next(query, j):
+                x_ij = xi - predicted_x[j]
+                r = wp.length(x_ij)
+                if r < support_radius:
+                    s = pair_weight(lam_i, particle_lambda[j], r, h, tensile_k, tensile_n, tensile_inv_w,
+                                    tensile_scale)
+                    dx += (volume * s) * wp.static(gradient)(x_ij, h)
         if wp.static(with_boundary):
             dx_b = wp.vec3(0.0)
             if lam_i != 0.0:
-                bquery = wp.hash_grid_query(boundary_grid, xi, support_radius)
-                b = int(0)
-                while wp.hash_grid_query_next(bquery, b):
-                    x_ib = xi - boundary_x[b]
-                    if wp.length(x_ib) < support_radius:
-                        dx_b += (lam_i * boundary_volume[b]) * wp.static(gradient)(x_ib, h)
+                if wp.static(lists):
+                    for k in range(neighbor_count(boundary_neighbors, i)):
+                        b = boundary_neighbors.index[i, k]
+                        x_ib = xi - boundary_x[b]
+                        if wp.length(x_ib) < support_radius:
+                            dx_b += (lam_i * boundary_volume[b]) * wp.static(gradient)(x_ib, h)
+                else:
+                    bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
+                    b = int(0)
+                    while wp.hash_grid_query_next(bquery, b):
+                        x_ib = xi - boundary_x[b]
+                        if wp.length(x_ib) < support_radius:
+                            dx_b += (lam_i * boundary_volume[b]) * wp.static(gradient)(x_ib, h)
             dx += dx_b
             boundary_force_out[i] = boundary_force_out[i] + (particle_mass * inv_dt2) * dx_b
         size = wp.length(dx)
         if size > max_step:
             dx = dx * (max_step / size)
         position_correction_out[i] = dx
-        wp.atomic_max(max_correction_out, 0, size)
+        correction_size_out[i] = size
 
     return compute_correction
 
 
 @wp.kernel(enable_backward=False)
 def apply_correction(
+    tid_offset: int,
     # In:
     position_correction: wp.array(dtype=wp.vec3),
-    grid_x: wp.array(dtype=wp.vec3),
     # State in/out:
     predicted_x: wp.array(dtype=wp.vec3),
-    # Out:
-    max_drift_out: wp.array(dtype=float),
 ):
-    """x* += dx; tracks the largest distance from the positions the fluid grid was built on [m]."""
-    i = wp.tid()
-    x = predicted_x[i] + position_correction[i]
-    predicted_x[i] = x
-    wp.atomic_max(max_drift_out, 0, wp.length(x - grid_x[i]))
+    """x* += dx [m]."""
+    i = wp.tid() + tid_offset
+    predicted_x[i] = predicted_x[i] + position_correction[i]
+
+
+@wp.kernel(enable_backward=False)
+def sum_chunks(
+    chunk: int,
+    # In:
+    values: wp.array(dtype=float),
+    # Out:
+    partial_out: wp.array(dtype=float),
+):
+    """partial_out[k] = sum of values[k chunk .. (k + 1) chunk - 1], summed in index order."""
+    k = wp.tid()
+    lo = k * chunk
+    hi = wp.min(lo + chunk, values.shape[0])
+    s = float(0.0)
+    for i in range(lo, hi):
+        s += values[i]
+    partial_out[k] = s
+
+
+@wp.kernel(enable_backward=False)
+def max_correction_drift_chunks(
+    chunk: int,
+    # In:
+    correction_size: wp.array(dtype=float),
+    predicted_x: wp.array(dtype=wp.vec3),
+    neighbor_x: wp.array(dtype=wp.vec3),
+    # Out:
+    partial_out: wp.array2d(dtype=float),
+):
+    """Per chunk of particles: the largest |dx_i| [m] and the largest distance of x*_i from the
+    position its neighbours were searched at [m]."""
+    k = wp.tid()
+    lo = k * chunk
+    hi = wp.min(lo + chunk, correction_size.shape[0])
+    largest = float(0.0)
+    drift = float(0.0)
+    for i in range(lo, hi):
+        largest = wp.max(largest, correction_size[i])
+        drift = wp.max(drift, wp.length(predicted_x[i] - neighbor_x[i]))
+    partial_out[k, 0] = largest
+    partial_out[k, 1] = drift
 
 
 @wp.kernel(enable_backward=False)
 def update_velocity(
+    tid_offset: int,
     # Model:
     gravity: wp.vec3,
     inv_dt: float,
@@ -217,7 +315,7 @@ def update_velocity(
     particle_acceleration_out: wp.array(dtype=wp.vec3),
 ):
     """v = (x* - x) / dt; x = x*; a = (v_new - v_old) / dt [m/s^2] (v in holds v_old + dt g)."""
-    i = wp.tid()
+    i = wp.tid() + tid_offset
     x_new = predicted_x[i]
     v_new = (x_new - particle_x[i]) * inv_dt
     particle_acceleration_out[i] = (v_new - particle_v[i]) * inv_dt + gravity
@@ -226,16 +324,19 @@ def update_velocity(
 
 
 @functools.cache
-def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool):
+def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool, neighbors: str = "grid"):
     """Velocity change dt a [m/s] of explicit viscosity
     a_i = 10 nu sum_j (m/rho_j) (v_ij . x_ij) / (|x_ij|^2 + 0.01 h^2) grad W_ij (as WCSPH) and of
     Akinci boundary friction (report eq. 22-24, nu_b = sigma h c_s / (2 rho_i)); the friction part
     is clamped so it never reverses the particle's velocity, and m a_friction is added to the
     boundary force [N]."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    lists = neighbors == "list"
+    Neighbors = NEIGHBOR_TYPES[neighbors]
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_viscous(
+        tid_offset: int,
         # Model:
         particle_mass: float,
         smoothing_length: float,
@@ -245,11 +346,11 @@ def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool):
         boundary_friction: float,
         speed_of_sound: float,
         dt: float,
-        boundary_grid: wp.uint64,
+        boundary_neighbors: Neighbors,
         boundary_x: wp.array(dtype=wp.vec3),
         boundary_volume: wp.array(dtype=float),
         # State in:
-        fluid_grid: wp.uint64,
+        fluid_neighbors: Neighbors,
         particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
         particle_density: wp.array(dtype=float),
@@ -257,35 +358,51 @@ def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool):
         viscous_dv_out: wp.array(dtype=wp.vec3),
         boundary_force_out: wp.array(dtype=wp.vec3),
     ):
-        tid = wp.tid()
-        i = wp.hash_grid_point_id(fluid_grid, tid)
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
         vi = particle_v[i]
         h = smoothing_length
         eps_h2 = 0.01 * h * h
         a = wp.vec3(0.0)
         if wp.static(with_viscosity):
-            query = wp.hash_grid_query(fluid_grid, xi, support_radius)
-            j = int(0)
-            while wp.hash_grid_query_next(query, j):
-                if j != i:
-                    x_ij = xi - particle_x[j]
-                    r = wp.length(x_ij)
-                    if r < support_radius:
-                        a += viscosity_acceleration(viscosity, particle_mass, particle_density[i], particle_density[j],
-                                                    vi - particle_v[j], x_ij, eps_h2, wp.static(gradient)(x_ij, h))
+            if wp.static(lists):
+                for k in range(neighbor_count(fluid_neighbors, i)):
+                    j = fluid_neighbors.index[i, k]
+                    if j != i:
+                        x_ij = xi - particle_x[j]
+                        if wp.length(x_ij) < support_radius:
+                            a += viscosity_acceleration(viscosity, particle_mass, particle_density[i],
+                                                        particle_density[j], vi - particle_v[j], x_ij, eps_h2,
+                                                        wp.static(gradient)(x_ij, h))
+            else:
+                query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
+                j = int(0)
+                while wp.hash_grid_query_next(query, j):
+                    if j != i:
+                        x_ij = xi - particle_x[j]
+                        if wp.length(x_ij) < support_radius:
+                            a += viscosity_acceleration(viscosity, particle_mass, particle_density[i],
+                                                        particle_density[j], vi - particle_v[j], x_ij, eps_h2,
+                                                        wp.static(gradient)(x_ij, h))
         dv = dt * a
         if wp.static(with_friction):
             nu_b = boundary_friction * h * speed_of_sound / (2.0 * particle_density[i])
             a_f = wp.vec3(0.0)
-            bquery = wp.hash_grid_query(boundary_grid, xi, support_radius)
-            b = int(0)
-            while wp.hash_grid_query_next(bquery, b):
-                x_ib = xi - boundary_x[b]
-                r = wp.length(x_ib)
-                if r < support_radius:
-                    a_f += boundary_friction_acceleration(nu_b, rest_density * boundary_volume[b], vi, x_ib, eps_h2,
-                                                          wp.static(gradient)(x_ib, h))
+            if wp.static(lists):
+                for k in range(neighbor_count(boundary_neighbors, i)):
+                    b = boundary_neighbors.index[i, k]
+                    x_ib = xi - boundary_x[b]
+                    if wp.length(x_ib) < support_radius:
+                        a_f += boundary_friction_acceleration(nu_b, rest_density * boundary_volume[b], vi, x_ib,
+                                                              eps_h2, wp.static(gradient)(x_ib, h))
+            else:
+                bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
+                b = int(0)
+                while wp.hash_grid_query_next(bquery, b):
+                    x_ib = xi - boundary_x[b]
+                    if wp.length(x_ib) < support_radius:
+                        a_f += boundary_friction_acceleration(nu_b, rest_density * boundary_volume[b], vi, x_ib,
+                                                              eps_h2, wp.static(gradient)(x_ib, h))
             dv_f = dt * a_f
             speed = wp.length(vi)
             size = wp.length(dv_f)
@@ -299,50 +416,63 @@ def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool):
 
 
 @functools.cache
-def vorticity_kernel(smoothing: str):
+def vorticity_kernel(smoothing: str, neighbors: str = "grid"):
     """Vorticity omega_i = sum_j (m/rho_j) grad_i W_ij x (v_j - v_i) [1/s] (Macklin & Mueller 2013 eq. 15)."""
     _, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    lists = neighbors == "list"
+    Neighbors = NEIGHBOR_TYPES[neighbors]
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_vorticity(
+        tid_offset: int,
         # Model:
         particle_mass: float,
         smoothing_length: float,
         support_radius: float,
         # State in:
-        fluid_grid: wp.uint64,
+        fluid_neighbors: Neighbors,
         particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
         particle_density: wp.array(dtype=float),
         # Out:
         particle_vorticity_out: wp.array(dtype=wp.vec3),
     ):
-        tid = wp.tid()
-        i = wp.hash_grid_point_id(fluid_grid, tid)
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
         vi = particle_v[i]
         w = wp.vec3(0.0)
-        query = wp.hash_grid_query(fluid_grid, xi, support_radius)
-        j = int(0)
-        while wp.hash_grid_query_next(query, j):
-            x_ij = xi - particle_x[j]
-            if wp.length(x_ij) < support_radius:
-                w += (particle_mass / particle_density[j]) * wp.cross(
-                    wp.static(gradient)(x_ij, smoothing_length), particle_v[j] - vi)
+        if wp.static(lists):
+            for k in range(neighbor_count(fluid_neighbors, i)):
+                j = fluid_neighbors.index[i, k]
+                x_ij = xi - particle_x[j]
+                if wp.length(x_ij) < support_radius:
+                    w += (particle_mass / particle_density[j]) * wp.cross(
+                        wp.static(gradient)(x_ij, smoothing_length), particle_v[j] - vi)
+        else:
+            query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
+            j = int(0)
+            while wp.hash_grid_query_next(query, j):
+                x_ij = xi - particle_x[j]
+                if wp.length(x_ij) < support_radius:
+                    w += (particle_mass / particle_density[j]) * wp.cross(
+                        wp.static(gradient)(x_ij, smoothing_length), particle_v[j] - vi)
         particle_vorticity_out[i] = w
 
     return compute_vorticity
 
 
 @functools.cache
-def confinement_kernel(smoothing: str):
+def confinement_kernel(smoothing: str, neighbors: str = "grid"):
     """Vorticity confinement (Macklin & Mueller 2013 eq. 16): eta = grad |omega| (SPH difference
     gradient), N = eta / |eta|, dv_i = dt vorticity v_ref (N x omega_i) [m/s]; v_ref [m/s] makes
     the strength dimensionless."""
     _, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    lists = neighbors == "list"
+    Neighbors = NEIGHBOR_TYPES[neighbors]
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_confinement(
+        tid_offset: int,
         # Model:
         particle_mass: float,
         smoothing_length: float,
@@ -351,26 +481,33 @@ def confinement_kernel(smoothing: str):
         reference_speed: float,
         dt: float,
         # State in:
-        fluid_grid: wp.uint64,
+        fluid_neighbors: Neighbors,
         particle_x: wp.array(dtype=wp.vec3),
         particle_density: wp.array(dtype=float),
         particle_vorticity: wp.array(dtype=wp.vec3),
         # Out:
         vorticity_dv_out: wp.array(dtype=wp.vec3),
     ):
-        tid = wp.tid()
-        i = wp.hash_grid_point_id(fluid_grid, tid)
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
         wi = particle_vorticity[i]
         mag_i = wp.length(wi)
         eta = wp.vec3(0.0)
-        query = wp.hash_grid_query(fluid_grid, xi, support_radius)
-        j = int(0)
-        while wp.hash_grid_query_next(query, j):
-            x_ij = xi - particle_x[j]
-            if wp.length(x_ij) < support_radius:
-                eta += (particle_mass / particle_density[j] * (wp.length(particle_vorticity[j]) - mag_i)) * wp.static(
-                    gradient)(x_ij, smoothing_length)
+        if wp.static(lists):
+            for k in range(neighbor_count(fluid_neighbors, i)):
+                j = fluid_neighbors.index[i, k]
+                x_ij = xi - particle_x[j]
+                if wp.length(x_ij) < support_radius:
+                    eta += (particle_mass / particle_density[j] * (wp.length(particle_vorticity[j]) - mag_i)) * wp.static(
+                        gradient)(x_ij, smoothing_length)
+        else:
+            query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
+            j = int(0)
+            while wp.hash_grid_query_next(query, j):
+                x_ij = xi - particle_x[j]
+                if wp.length(x_ij) < support_radius:
+                    eta += (particle_mass / particle_density[j] * (wp.length(particle_vorticity[j]) - mag_i)) * wp.static(
+                        gradient)(x_ij, smoothing_length)
         n = wp.length(eta)
         dv = wp.vec3(0.0)
         if n > 1.0e-12:

@@ -12,9 +12,12 @@ grad C uses V = m/rho0 (report eq. 20 with consistent units), and the relaxation
 dimensionless: eps = relaxation * D0, with D0 the denominator of an interior particle of a
 rest lattice, computed once on the host from the same kernel (``rest_denominator``).
 
-Neighbours: the fluid grid is rebuilt on x* before every density pass (``neighbor_mode =
-"rebuild"``, the default), or built once per step and queried with the radius enlarged by a
-margin (``"margin"``), rebuilt only when a particle drifted farther than the margin.
+Neighbours (``PbfSolver`` lists/neighbor_mode): lists built once per step on x* with the search
+radius H_s + margin (``warp_sph.neighbors.NeighborLists``), read by every solver iteration and by
+viscosity, XSPH and vorticity, rebuilt only when a particle drifted farther than margin / 2 (the
+default); or the reference hash-grid variant, rebuilt before every density pass or queried with
+H_s + margin. Sums and maxima over the particles are reduced in a fixed order (bitwise
+reproducible on any thread count).
 """
 from __future__ import annotations
 
@@ -28,8 +31,13 @@ from .kernels import integrate as _integrate
 from .kernels import pbf as _pbf
 from .launch import launch
 from .smoothing import evaluate, lattice_offsets
-from .sph_common import xsph_stage
+from .sph_common import neighbor_lists, xsph_stage
 from .step_graph import Stage
+
+
+#: default search margin of the neighbour lists [spacings d]: lists hold pairs within H_s + margin
+#: and are rebuilt once a particle moved more than margin / 2 during the solve
+LIST_MARGIN = 0.2
 
 
 def rest_denominator(smoothing: str, h: float, spacing: float, particle_mass: float, rest_density: float) -> float:
@@ -47,19 +55,38 @@ def rest_denominator(smoothing: str, h: float, spacing: float, particle_mass: fl
 
 class PbfSolver:
     """Iterative position-based pressure solver. Time step: velocity CFL
-    dt <= cfl d / (v_max + |g| frame_dt) and, with viscosity, dt <= 0.0625 (H_s/2)^2 / nu."""
+    dt <= cfl d / (v_max + |g| frame_dt) and, with viscosity, dt <= 0.0625 (H_s/2)^2 / nu.
+
+    lists: neighbour lists (``warp_sph.neighbors.NeighborLists``) built on x* once per step with the
+    search radius H_s + margin and read by every pass of the step (solver iterations, viscosity,
+    XSPH, vorticity); rebuilt when a particle of x* drifted more than margin / 2 from where they
+    were built (then no pair closer than H_s can be missing). ``lists=False``: hash-grid queries in
+    every pass (the reference variant), grid rebuilt before every density pass ("rebuild") or
+    queried with H_s + margin and rebuilt once a particle drifted more than the margin ("margin").
+    neighbor_mode "rebuild" with lists: rebuilt before every density pass, no margin.
+    margin [spacings d]; max_step [particle radii] caps |dx_i| per iteration (0: off).
+    """
 
     name = "pbf"
 
-    def __init__(self, neighbor_mode: str = "rebuild", margin: float = 0.25, max_step: float = 0.5):
+    def __init__(self, neighbor_mode: str | None = None, margin: float | None = None, max_step: float = 0.5,
+                 lists: bool = True):
+        if neighbor_mode is None:
+            neighbor_mode = "margin" if lists else "rebuild"
         if neighbor_mode not in ("rebuild", "margin"):
             raise ValueError(f"neighbor_mode must be 'rebuild' or 'margin', got {neighbor_mode!r}")
+        self.lists = bool(lists)
         self.neighbor_mode = neighbor_mode
-        self.margin_per_spacing = margin   # query margin in spacings d ("margin" mode)
+        if margin is None:
+            margin = LIST_MARGIN if lists else 0.25
+        self.margin_per_spacing = float(margin)  # search margin in spacings d ("margin" mode)
         self.max_step_per_radius = max_step  # trust region: |dx_i| per iteration <= this * r (0: off)
         self.last_iterations = 0
         self.last_density_error = 0.0
         self.last_max_correction = 0.0
+        self.last_error_sum = 0.0             # sum of C_i of the last density pass [-]
+        self.last_iteration_correction = 0.0  # largest |dx_i| of the last correction [m]
+        self.last_drift = 0.0                 # largest distance of x* from where neighbours were searched [m]
         self.grid_builds = 0
         self.stabilize_factor = 2.0  # pre-stabilise when the error at x exceeds this times the target
         self.last_stabilization = 0
@@ -77,6 +104,9 @@ class PbfSolver:
         with_friction = with_boundary and m.boundary_friction > 0.0
         tensile = bool(p.tensile_correction)
         with_vorticity = p.vorticity > 0.0
+        lists = self.lists
+        kind = "list" if lists else "grid"
+        neighbors_field = "neighbor_lists" if lists else "fluid_grid"
 
         sim.fields["predicted_x"] = wp.clone(sim.fields["particle_x"])  # x* = x until the first step
         sim.allocate("particle_density", float)
@@ -84,12 +114,12 @@ class PbfSolver:
         sim.allocate("position_correction", wp.vec3)
         sim.allocate("boundary_force", wp.vec3)
         sim.allocate("particle_acceleration", wp.vec3)
-        self._grid_x = wp.zeros(n, dtype=wp.vec3, device=dev)
-        # per-iteration numbers read back in one copy: [sum of C_i, largest |dx_i| of the iteration]
-        self._iteration_stats = wp.zeros(2, dtype=float, device=dev)
-        self._error_sum = self._iteration_stats[0:1]
-        self._max_correction = self._iteration_stats[1:2]
-        self._max_drift = wp.zeros(1, dtype=float, device=dev)
+        self._neighbor_x = wp.zeros(n, dtype=wp.vec3, device=dev)   # x* the neighbours were searched at
+        self._constraint = wp.zeros(n, dtype=float, device=dev)      # C_i of the last density pass
+        self._correction_size = wp.zeros(n, dtype=float, device=dev)  # |dx_i| of the last correction
+        chunks = max(1, -(-n // _pbf.REDUCE_CHUNK))
+        self._error_partial = wp.zeros(chunks, dtype=float, device=dev)
+        self._correction_partial = wp.zeros((chunks, 2), dtype=float, device=dev)
 
         self.rest_denominator = rest_denominator(m.smoothing.name, m.smoothing_length, m.spacing,
                                                  m.particle_mass, m.rest_density)
@@ -99,104 +129,127 @@ class PbfSolver:
         tensile_inv_w = 1.0 / float(w_dq[0])
         tensile_scale = 1.0 / self.rest_denominator
         margin = self.margin_per_spacing * m.spacing if self.neighbor_mode == "margin" else 0.0
-        self.query_radius = m.support_radius + margin
+        if lists:
+            nl = neighbor_lists(sim, margin)
+            self.query_radius = m.support_radius  # pairs are filtered by H_s; the lists hold H_s + margin
+            allowed_drift = 0.5 * margin  # two particles may each move margin / 2 towards each other
+        else:
+            nl = None
+            self.query_radius = m.support_radius + margin
+            allowed_drift = margin  # the query point is current, only the grid's points are old
         self.max_step = self.max_step_per_radius * m.particle_radius if self.max_step_per_radius > 0 else 1e30
 
-        density_lambda = _pbf.density_lambda_kernel(m.smoothing.name, with_boundary)
-        correction = _pbf.correction_kernel(m.smoothing.name, with_boundary, tensile)
+        density_lambda = _pbf.density_lambda_kernel(m.smoothing.name, with_boundary, kind)
+        correction = _pbf.correction_kernel(m.smoothing.name, with_boundary, tensile, kind)
         target = float(p.target_density_error)
         min_it, max_it = int(p.min_iterations), int(p.max_iterations)
 
-        def build_grid(sim):
-            f = sim.fields
-            sim.fluid_grid.build(f["predicted_x"])
+        def neighbor_args(sim):
+            """(boundary_neighbors, fluid_neighbors) kernel arguments."""
+            if lists:
+                return nl.boundary, nl.fluid
+            return m.boundary_grid_id, sim.fluid_grid.id
+
+        def build_neighbors(sim):
+            x = sim.fields["predicted_x"]
+            if lists:
+                nl.build(x)
+            else:
+                sim.fluid_grid.build(x)
             self.grid_builds += 1
-            if self.neighbor_mode == "margin":
-                wp.copy(self._grid_x, f["predicted_x"])
-                self._max_drift.zero_()
+            wp.copy(self._neighbor_x, x)
+            self.last_drift = 0.0
+
+        def refresh_neighbors(sim):
+            """After a correction: rebuild where the neighbours may be incomplete."""
+            if self.neighbor_mode == "rebuild" or self.last_drift > allowed_drift:
+                build_neighbors(sim)
 
         def run_predict(sim, dt):
             f = sim.fields
             # pre-stabilisation (Macklin et al. 2014, section 4.4): an error already present at x
             # (an over-dense start, or a step that hit max_iterations) is projected out of x
-            # itself, without turning into velocity; _error_sum holds the last density pass, at x
-            err = float(self._error_sum.numpy()[0]) / n
+            # itself, without turning into velocity; last_error_sum is the last density pass, at x
+            err = self.last_error_sum / n
             self.last_stabilization = 0
             self.last_max_correction = 0.0
             if err > self.stabilize_factor * target:
                 # re-evaluate at x (the last pass may belong to another state, e.g. a watchdog retry)
                 wp.copy(f["predicted_x"], f["particle_x"])
-                build_grid(sim)
+                build_neighbors(sim)
                 run_density(sim, 0.0)
-                err = float(self._error_sum.numpy()[0]) / n
+                err = self.last_error_sum / n
                 it = 0
                 while err > target and it < max_it:
-                    self._max_correction.zero_()
                     run_correction(sim, 0.0)
                     it += 1
-                    build_grid(sim)
+                    refresh_neighbors(sim)
                     run_density(sim, 0.0)
-                    s = self._iteration_stats.numpy()
-                    err = float(s[0]) / n
-                    self.last_max_correction = max(self.last_max_correction, float(s[1]))
+                    err = self.last_error_sum / n
+                    self.last_max_correction = max(self.last_max_correction, self.last_iteration_correction)
                 wp.copy(f["particle_x"], f["predicted_x"])
                 self.last_stabilization = it
             launch(_pbf.predict_positions, n, [wp.vec3(*m.gravity), float(dt), f["particle_x"]],
                    [f["particle_v"], f["predicted_x"], f["boundary_force"]], device=dev)
 
         def run_neighbors(sim, dt):
-            build_grid(sim)
+            build_neighbors(sim)
 
         def run_density(sim, dt):
             f = sim.fields
-            self._error_sum.zero_()
+            boundary_neighbors, fluid_neighbors = neighbor_args(sim)
             launch(density_lambda, n,
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
-                    self.query_radius, m.boundary_grid_id, m.boundary_x, m.boundary_volume,
-                    sim.fluid_grid.id, f["predicted_x"]],
-                   [f["particle_density"], f["particle_lambda"], self._error_sum], device=dev)
+                    self.query_radius, boundary_neighbors, m.boundary_x, m.boundary_volume,
+                    fluid_neighbors, f["predicted_x"]],
+                   [f["particle_density"], f["particle_lambda"], self._constraint], device=dev)
+            # sum of C_i in a fixed order: chunk sums on the device, their sum on the host (one read)
+            launch(_pbf.sum_chunks, self._error_partial.shape[0], [_pbf.REDUCE_CHUNK, self._constraint],
+                   [self._error_partial], device=dev)
+            self.last_error_sum = float(self._error_partial.numpy().sum(dtype=np.float64))
 
         def run_correction(sim, dt):
             f = sim.fields
+            boundary_neighbors, fluid_neighbors = neighbor_args(sim)
             launch(correction, n,
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
                     float(p.tensile_k), int(p.tensile_n), tensile_inv_w, tensile_scale,
                     1.0 / (dt * dt) if dt > 0 else 0.0, self.max_step,
-                    m.boundary_grid_id, m.boundary_x, m.boundary_volume,
-                    sim.fluid_grid.id, f["predicted_x"], f["particle_lambda"]],
-                   [f["position_correction"], f["boundary_force"], self._max_correction], device=dev)
-            launch(_pbf.apply_correction, n, [f["position_correction"], self._grid_x],
-                   [f["predicted_x"], self._max_drift], device=dev)
+                    boundary_neighbors, m.boundary_x, m.boundary_volume,
+                    fluid_neighbors, f["predicted_x"], f["particle_lambda"]],
+                   [f["position_correction"], f["boundary_force"], self._correction_size], device=dev)
+            launch(_pbf.apply_correction, n, [f["position_correction"]], [f["predicted_x"]], device=dev)
+            launch(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
+                   [_pbf.REDUCE_CHUNK, self._correction_size, f["predicted_x"], self._neighbor_x],
+                   [self._correction_partial], device=dev)
+            s = self._correction_partial.numpy().max(axis=0)  # one read
+            self.last_iteration_correction = float(s[0])
+            self.last_drift = float(s[1])
 
         self.run_correction = run_correction  # one Jacobi correction of x* (stage tests)
 
         def run_solve(sim, dt):
             it = 0
-            err = float(self._error_sum.numpy()[0]) / n  # from the "density" stage
+            err = self.last_error_sum / n  # from the "density" stage
             largest = 0.0
             trace = [] if self.trace else None
             while True:
                 if it >= max_it or (it >= min_it and err <= target):
                     break
-                self._max_correction.zero_()
                 run_correction(sim, dt)
                 it += 1
-                if self.neighbor_mode == "margin" and float(self._max_drift.numpy()[0]) > margin:
-                    build_grid(sim)
-                elif self.neighbor_mode == "rebuild":
-                    build_grid(sim)
+                refresh_neighbors(sim)
                 run_density(sim, dt)
-                s = self._iteration_stats.numpy()  # one host read per iteration
-                err = float(s[0]) / n
-                largest = max(largest, float(s[1]))
+                err = self.last_error_sum / n
+                largest = max(largest, self.last_iteration_correction)
                 if trace is not None:
-                    trace.append((err, float(s[1])))
+                    trace.append((err, self.last_iteration_correction))
             self.last_iterations = it
             self.last_density_error = err
             self.last_max_correction = max(largest, self.last_max_correction)
             self.last_trace = trace
-            if self.neighbor_mode == "margin" and self._needs_exact_grid and float(self._max_drift.numpy()[0]) > 0:
-                build_grid(sim)  # later stages query with the plain support radius
+            if not lists and self.neighbor_mode == "margin" and self._needs_exact_grid and self.last_drift > 0:
+                build_neighbors(sim)  # later stages query the grid with the plain support radius
 
         def run_update(sim, dt):
             f = sim.fields
@@ -204,64 +257,72 @@ class PbfSolver:
                    [f["particle_v"], f["particle_x"], f["particle_acceleration"]], device=dev)
 
         boundary_reads = ("boundary_x", "boundary_volume", "boundary_grid") if with_boundary else ()
+        if lists:
+            neighbor_doc = (f"neighbour lists on x* within H_s + {margin / m.spacing:.3g} d = {nl.search_radius:.4g} m "
+                            f"(capacities {nl.capacities}), rebuilt "
+                            + ("before every density pass" if self.neighbor_mode == "rebuild"
+                               else f"when x* drifts > {allowed_drift / m.spacing:.3g} d"))
+        else:
+            neighbor_doc = f"wp.HashGrid on x*, radius H_s = {m.support_radius:.4g} m ({self.neighbor_mode})"
         stages = [
             Stage("predict", run_predict, reads=("particle_x",), updates=("particle_v", "particle_x"),
                   writes=("predicted_x", "boundary_force"),
-                  doc="[pre-stabilise x when its error > 2x target, with the previous step's grid, "
+                  doc="[pre-stabilise x when its error > 2x target, with the previous step's neighbours, "
                       "density and lambda]; v += dt g; x* = x + dt v"),
-            Stage("neighbors", run_neighbors, reads=("predicted_x",), writes=("fluid_grid",),
-                  doc=f"wp.HashGrid on x*, radius H_s = {m.support_radius:.4g} m ({self.neighbor_mode})"),
-            Stage("density", run_density, reads=("fluid_grid", "predicted_x") + boundary_reads,
+            Stage("neighbors", run_neighbors, reads=("predicted_x",), writes=(neighbors_field,), doc=neighbor_doc),
+            Stage("density", run_density, reads=(neighbors_field, "predicted_x") + boundary_reads,
                   writes=("particle_density", "particle_lambda"),
                   doc="density at x* (eq. 7" + (" + Akinci eq. 13" if with_boundary else "")
                       + "), C (eq. 17), lambda (eq. 19)"),
             Stage("solve", run_solve, reads=("particle_density", "particle_lambda") + boundary_reads,
                   writes=("position_correction",),
-                  updates=("predicted_x", "fluid_grid", "particle_density", "particle_lambda", "boundary_force"),
+                  updates=("predicted_x", neighbors_field, "particle_density", "particle_lambda", "boundary_force"),
                   doc=f"Jacobi corrections (eq. 18) until mean C < {target:g} ({min_it}-{max_it} iterations), "
                       f"eps = {p.relaxation:g} D0" + (", s_corr" if tensile else "")),
             Stage("update", run_update, reads=("predicted_x",), updates=("particle_v", "particle_x"),
                   writes=("particle_acceleration",), doc="v = (x* - x)/dt; x = x*"),
         ]
         if with_viscosity or with_friction:
-            viscous = _pbf.viscous_kernel(m.smoothing.name, with_viscosity, with_friction)
+            viscous = _pbf.viscous_kernel(m.smoothing.name, with_viscosity, with_friction, kind)
             sim.allocate("viscous_dv", wp.vec3)
 
             def run_viscous(sim, dt):
                 f = sim.fields
+                boundary_neighbors, fluid_neighbors = neighbor_args(sim)
                 launch(viscous, n,
                        [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, m.viscosity,
                         m.boundary_friction, m.speed_of_sound, float(dt),
-                        m.boundary_grid_id, m.boundary_x, m.boundary_volume,
-                        sim.fluid_grid.id, f["particle_x"], f["particle_v"], f["particle_density"]],
+                        boundary_neighbors, m.boundary_x, m.boundary_volume,
+                        fluid_neighbors, f["particle_x"], f["particle_v"], f["particle_density"]],
                        [f["viscous_dv"], f["boundary_force"]], device=dev)
                 launch(_integrate.add_velocity_correction, n, [f["viscous_dv"]], [f["particle_v"]], device=dev)
 
             terms = (["viscosity"] if with_viscosity else []) + (["boundary friction (eq. 22-24)"] if with_friction else [])
             stages.append(Stage("viscosity", run_viscous,
-                                reads=("fluid_grid", "particle_x", "particle_density") + boundary_reads,
+                                reads=(neighbors_field, "particle_x", "particle_density") + boundary_reads,
                                 writes=("viscous_dv",), updates=("particle_v", "boundary_force"),
                                 doc=" + ".join(terms)))
         if m.xsph > 0.0:
-            stages.append(xsph_stage(sim))
+            stages.append(xsph_stage(sim, lists=lists))
         if with_vorticity:
-            vort = _pbf.vorticity_kernel(m.smoothing.name)
-            conf = _pbf.confinement_kernel(m.smoothing.name)
+            vort = _pbf.vorticity_kernel(m.smoothing.name, kind)
+            conf = _pbf.confinement_kernel(m.smoothing.name, kind)
             sim.allocate("particle_vorticity", wp.vec3)
             sim.allocate("vorticity_dv", wp.vec3)
 
             def run_vorticity(sim, dt):
                 f = sim.fields
-                launch(vort, n, [m.particle_mass, m.smoothing_length, m.support_radius, sim.fluid_grid.id,
+                _, fluid_neighbors = neighbor_args(sim)
+                launch(vort, n, [m.particle_mass, m.smoothing_length, m.support_radius, fluid_neighbors,
                                  f["particle_x"], f["particle_v"], f["particle_density"]],
                        [f["particle_vorticity"]], device=dev)
                 launch(conf, n, [m.particle_mass, m.smoothing_length, m.support_radius, float(p.vorticity),
-                                 m.reference_speed, float(dt), sim.fluid_grid.id, f["particle_x"],
+                                 m.reference_speed, float(dt), fluid_neighbors, f["particle_x"],
                                  f["particle_density"], f["particle_vorticity"]],
                        [f["vorticity_dv"]], device=dev)
                 launch(_integrate.add_velocity_correction, n, [f["vorticity_dv"]], [f["particle_v"]], device=dev)
 
-            stages.append(Stage("vorticity", run_vorticity, reads=("fluid_grid", "particle_x", "particle_density"),
+            stages.append(Stage("vorticity", run_vorticity, reads=(neighbors_field, "particle_x", "particle_density"),
                                 writes=("particle_vorticity", "vorticity_dv"), updates=("particle_v",),
                                 doc=f"vorticity confinement, eps = {p.vorticity:g}"))
         self._needs_exact_grid = len(stages) > 5

@@ -6,6 +6,8 @@ once per step (``neighbor_lists``, fluid-fluid and fluid-boundary) that every la
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import warp as wp
 
@@ -16,13 +18,18 @@ from .neighbors import NeighborLists
 from .step_graph import Stage
 
 
-def neighbor_lists(sim) -> NeighborLists:
+def neighbor_lists(sim, margin: float = 0.0) -> NeighborLists:
     """The simulation's per-step neighbour lists (created on first use, field ``neighbor_lists``).
 
     Their dense cell grid covers the container, the boundary and the initial fluid, padded by two
     support radii (by a quarter of the extent without a container); particles beyond it stay exact.
+    margin [m]: the search radius is H_s + margin (lists that stay complete while particles move
+    by up to margin / 2); the capacities grow with the searched volume. Lists of another search
+    radius are replaced.
     """
     lists = sim.fields.get("neighbor_lists")
+    if lists is not None and not math.isclose(lists.search_radius, sim.model.support_radius + margin, rel_tol=1e-6):
+        lists = None  # another search radius (a solver swapped in): new lists replace the old ones
     if lists is None:
         m = sim.model
         x = sim.state.particle_x.numpy()
@@ -35,8 +42,12 @@ def neighbor_lists(sim) -> NeighborLists:
         lo = np.min(boxes, axis=0).astype(np.float64)
         hi = np.max(boxes, axis=0).astype(np.float64)
         pad = 2.0 * m.support_radius + (0.0 if m.container_lo is not None else 0.25 * float(np.max(hi - lo)))
-        lists = NeighborLists(m.support_radius, lo - pad, hi + pad, m.fluid_count,
-                              m.boundary_x if m.boundary_method != "none" else None, device=m.device)
+        radius = m.support_radius + margin
+        volume = (radius / m.support_radius) ** 3
+        lists = NeighborLists(radius, lo - pad, hi + pad, m.fluid_count,
+                              m.boundary_x if m.boundary_method != "none" else None,
+                              fluid_capacity=int(math.ceil(64 * volume)), boundary_capacity=int(math.ceil(48 * volume)),
+                              device=m.device)
         sim.fields["neighbor_lists"] = lists
     return lists
 
