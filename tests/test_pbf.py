@@ -61,7 +61,7 @@ def test_rest_denominator_matches_numpy_oracle_and_solver(kernel):
 # --- stages against NumPy --------------------------------------------------------------------
 def oracle_density_lambda(sim, x):
     m = sim.model
-    k, h, H = m.smoothing.name, m.smoothing_length, m.support_radius
+    k, h = m.smoothing.name, m.smoothing_length
     V = m.particle_mass / m.rest_density
     xij = x[:, None] - x[None]
     r = np.linalg.norm(xij, axis=2)

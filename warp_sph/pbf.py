@@ -21,7 +21,6 @@ reproducible on any thread count).
 """
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import warp as wp
