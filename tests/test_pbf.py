@@ -306,19 +306,27 @@ def test_same_start_no_initial_explosion(kernel):
     assert v.max() < 0.6 and np.median(v) < 0.2
 
 
-def test_small_block_comes_to_rest():
-    """A 6x6x4 block on the floor with XSPH 0.1 (small, so the test stays short). Measured (cubic,
-    dt = 2 ms): max speed 0.1 m/s after 0.2 s, falling to ~1e-2 m/s after 1.2 s. The 1e-3 m/s of
-    physics notes 2.2 is not reached within the test's time: the surface layer rearranges
-    (particles slide into the hollows of the layer below) and the partial solve leaves a noise of
-    order g dt."""
-    sim = Simulation(block_on_floor(material={"xsph": 0.1}))
-    early = late = 0.0
-    for k in range(600):
+def test_block_at_rest_stays_at_rest_for_ten_thousand_steps():
+    """A 6x6x4 block on the floor between walls (cubic, dt = 2 ms) settles, then holds max |v| below
+    1e-3 m/s for 10^4 steps (issue 4). Plain Jacobi (relaxation 1e-4 D0, the default) overshoots: on a
+    disordered packing every step injects a little energy and the block keeps creeping at ~1e-2 m/s
+    (measured, even with 30 iterations per step). Under-relaxing with eps = 3 D0 and a little
+    viscosity (1e-3 m^2/s) lets it settle; measured: max |v| 1.6e-3 after 6,000 steps, 6e-5 m/s after
+    16,000 steps."""
+    sim = Simulation(block_on_floor(material={"xsph": 0.1, "viscosity": 1e-3}, pbf={"relaxation": 3.0}))
+    for _ in range(8000):
         sim.step(2e-3)
-        if k == 100:
-            early = np.linalg.norm(sim.get_field("particle_v"), axis=1).max()
-    late = np.linalg.norm(sim.get_field("particle_v"), axis=1).max()
-    assert late < 0.5 * early and late < 0.03
+    x_settled = sim.get_field("particle_x").copy()
+    largest = 0.0
+    for k in range(10_000):
+        sim.step(2e-3)
+        if k % 10 == 0:
+            largest = max(largest, float(np.linalg.norm(sim.get_field("particle_v"), axis=1).max()))
+    assert largest < 1e-3
+    # creep: 1e-3 m/s over the 20 s would be 2 cm = 0.4 d; measured 5.5 mm = 0.11 d (the surface
+    # layer still rearranges slowly, at ~3e-4 m/s on average)
+    moved = np.linalg.norm(sim.get_field("particle_x") - x_settled, axis=1).max()
+    assert moved < 0.2 * sim.model.spacing
+    assert sim.solver.last_density_error <= sim.scene.pbf.target_density_error
     x = sim.model.to_local(sim.get_field("particle_x"))
-    assert (x > sim.model.container_lo).all()
+    assert (x > sim.model.container_lo).all() and (x < sim.model.container_hi).all()
