@@ -30,7 +30,7 @@ import functools
 import warp as wp
 
 from .density import NEIGHBOR_TYPES
-from .neighbors import neighbor_count, particle_in_cell_order
+from .neighbors import NeighborList, neighbor_count, particle_in_cell_order
 from .smoothing import SMOOTHING_FUNCTIONS
 from .viscosity import boundary_friction_acceleration, viscosity_acceleration
 
@@ -243,6 +243,146 @@ def correction_kernel(smoothing: str, with_boundary: bool, tensile: bool, neighb
         correction_size_out[i] = size
 
     return compute_correction
+
+
+@wp.struct
+class PairCache:
+    """Pairs of the last density pass, for the correction at the same positions (lists only).
+
+    count: pairs closer than the support radius per particle, shape (fluid_count,); index[i, k]:
+    neighbour j; gradient[i, k] = V grad_i W_ij [1/m]; value[i, k] = W_ij [1/m^3] (s_corr only,
+    else shape (1, 1)); boundary_gradient[i] = sum_b V_b grad_i W_ib [1/m]. The 2-D arrays have
+    the fluid list's capacity per row.
+    """
+
+    count: wp.array(dtype=wp.int32)
+    index: wp.array2d(dtype=wp.int32)
+    gradient: wp.array2d(dtype=wp.vec3)
+    value: wp.array2d(dtype=float)
+    boundary_gradient: wp.array(dtype=wp.vec3)
+
+
+@functools.cache
+def density_lambda_pairs_kernel(smoothing: str, with_boundary: bool, tensile: bool):
+    """As ``density_lambda_kernel`` over neighbour lists, and it keeps what the correction needs at
+    these positions in a ``PairCache``: the pairs within the support radius (the lists hold a
+    margin more) with V grad W_ij [and W_ij], and the boundary gradient sum."""
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_density_lambda_pairs(
+        tid_offset: int,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        relaxation_epsilon: float,
+        boundary_neighbors: NeighborList,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        fluid_neighbors: NeighborList,
+        predicted_x: wp.array(dtype=wp.vec3),
+        # Out:
+        particle_density_out: wp.array(dtype=float),
+        particle_lambda_out: wp.array(dtype=float),
+        particle_constraint_out: wp.array(dtype=float),
+        pairs_out: PairCache,
+    ):
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        xi = predicted_x[i]
+        h = smoothing_length
+        support2 = support_radius * support_radius
+        volume = particle_mass / rest_density
+        w_sum = float(0.0)
+        grad_i = wp.vec3(0.0)
+        grad_sq = float(0.0)
+        n = int(0)
+        for k in range(neighbor_count(fluid_neighbors, i)):
+            j = fluid_neighbors.index[i, k]
+            x_ij = xi - predicted_x[j]
+            if wp.dot(x_ij, x_ij) < support2:
+                w = wp.static(value)(wp.length(x_ij), h)
+                w_sum += w
+                g = volume * wp.static(gradient)(x_ij, h)
+                grad_i += g
+                grad_sq += wp.dot(g, g)
+                pairs_out.index[i, n] = j
+                pairs_out.gradient[i, n] = g
+                if wp.static(tensile):
+                    pairs_out.value[i, n] = w
+                n += 1
+        pairs_out.count[i] = n
+        ratio = volume * w_sum
+        grad_b = wp.vec3(0.0)
+        if wp.static(with_boundary):
+            for k in range(neighbor_count(boundary_neighbors, i)):
+                b = boundary_neighbors.index[i, k]
+                x_ib = xi - boundary_x[b]
+                if wp.dot(x_ib, x_ib) < support2:
+                    vb = boundary_volume[b]
+                    ratio += vb * wp.static(value)(wp.length(x_ib), h)
+                    grad_b += vb * wp.static(gradient)(x_ib, h)
+        pairs_out.boundary_gradient[i] = grad_b
+        grad_i += grad_b
+        c = wp.max(ratio - 1.0, 0.0)
+        lam = float(0.0)
+        if c > 0.0:
+            lam = -c / (wp.dot(grad_i, grad_i) + grad_sq + relaxation_epsilon)
+        particle_density_out[i] = rest_density * ratio
+        particle_lambda_out[i] = lam
+        particle_constraint_out[i] = c
+
+    return compute_density_lambda_pairs
+
+
+@functools.cache
+def correction_pairs_kernel(with_boundary: bool, tensile: bool):
+    """Jacobi correction (eq. 18) from a ``PairCache`` of the density pass at the same positions:
+    dx_i = sum_j (lambda_i + lambda_j + s_corr_ij) V grad W_ij + lambda_i sum_b V_b grad W_ib, no
+    kernel evaluation (the smoothing kernel entered through the cache). Same outputs as
+    ``correction_kernel``."""
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_correction_pairs(
+        tid_offset: int,
+        # Model:
+        particle_mass: float,
+        tensile_k: float,
+        tensile_n: int,
+        tensile_inv_w: float,
+        tensile_scale: float,
+        inv_dt2: float,
+        max_step: float,
+        # State in:
+        fluid_neighbors: NeighborList,
+        pairs: PairCache,
+        particle_lambda: wp.array(dtype=float),
+        # Out:
+        position_correction_out: wp.array(dtype=wp.vec3),
+        boundary_force_out: wp.array(dtype=wp.vec3),
+        correction_size_out: wp.array(dtype=float),
+    ):
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        lam_i = particle_lambda[i]
+        dx = wp.vec3(0.0)
+        for k in range(pairs.count[i]):
+            s = lam_i + particle_lambda[pairs.index[i, k]]
+            if wp.static(tensile):
+                s -= tensile_k * wp.pow(pairs.value[i, k] * tensile_inv_w, float(tensile_n)) * tensile_scale
+            dx += s * pairs.gradient[i, k]
+        if wp.static(with_boundary):
+            dx_b = lam_i * pairs.boundary_gradient[i]
+            dx += dx_b
+            boundary_force_out[i] = boundary_force_out[i] + (particle_mass * inv_dt2) * dx_b
+        size = wp.length(dx)
+        if size > max_step:
+            dx = dx * (max_step / size)
+        position_correction_out[i] = dx
+        correction_size_out[i] = size
+
+    return compute_correction_pairs
 
 
 @wp.kernel(enable_backward=False)

@@ -245,8 +245,8 @@ def test_neighbor_modes_agree():
 
 def test_lists_margin_rebuilds_only_on_drift():
     """The lists are searched with H_s + margin and rebuilt when x* drifted more than margin / 2:
-    a tiny margin rebuilds in (nearly) every iteration, the default one about once per step, and
-    both agree."""
+    a tiny margin rebuilds before (nearly) every density pass of an iteration after the first, the
+    default one about once per step, and both agree."""
     res, builds = [], []
     for margin in (0.2, 1e-4):
         sim = with_solver(Simulation(block_on_floor(nx=8, ny=8, nz=6)), PbfSolver(margin=margin))
@@ -259,7 +259,7 @@ def test_lists_margin_rebuilds_only_on_drift():
         builds.append((sim.solver.grid_builds - start, iterations))
         res.append(sim.get_field("particle_x"))
     (wide, it_wide), (narrow, it_narrow) = builds
-    assert wide == 5 and narrow > 5 + 0.5 * it_narrow
+    assert wide == 5 and narrow > 5 + 0.5 * (it_narrow - 5)
     np.testing.assert_allclose(res[0], res[1], atol=1e-6)
 
 
@@ -308,23 +308,30 @@ def test_same_start_no_initial_explosion(kernel):
 
 def test_block_at_rest_stays_at_rest_for_ten_thousand_steps():
     """A 6x6x4 block on the floor between walls (cubic, dt = 2 ms) settles, then holds max |v| below
-    1e-3 m/s for 10^4 steps (issue 4). Plain Jacobi (relaxation 1e-4 D0, the default) overshoots: on a
-    disordered packing every step injects a little energy and the block keeps creeping at ~1e-2 m/s
-    (measured, even with 30 iterations per step). Under-relaxing with eps = 3 D0 and a little
-    viscosity (1e-3 m^2/s) lets it settle; measured: max |v| 1.6e-3 after 6,000 steps, 6e-5 m/s after
-    16,000 steps."""
-    sim = Simulation(block_on_floor(material={"xsph": 0.1, "viscosity": 1e-3}, pbf={"relaxation": 3.0}))
-    for _ in range(8000):
-        sim.step(2e-3)
+    1e-3 m/s for 10^4 steps (issue 4). Plain Jacobi (relaxation 1e-4 D0, the default) overshoots:
+    on a disordered packing every step injects a little energy and the block keeps creeping at
+    ~1e-2 m/s (measured, even with 30 iterations per step). Under-relaxing with eps = 5 D0 and a
+    little viscosity (2e-3 m^2/s) lets it settle. Settling is a sequence of rearrangements whose
+    end varies with the block (measured: 8,000-18,000 steps for 5x5x4, 6x6x4, 6x6x5 blocks and the
+    three kernels), so the test settles until a 1,000-step window stays below 1e-3 m/s."""
+    sim = Simulation(block_on_floor(material={"xsph": 0.1, "viscosity": 2e-3}, pbf={"relaxation": 5.0}))
+
+    def window_max(steps):
+        largest = 0.0
+        for k in range(steps):
+            sim.step(2e-3)
+            if k % 10 == 0:
+                largest = max(largest, float(np.linalg.norm(sim.get_field("particle_v"), axis=1).max()))
+        return largest
+
+    settle = 0
+    while window_max(1000) >= 1e-3:
+        settle += 1000
+        assert settle < 20_000, "the block did not settle within 20,000 steps"
     x_settled = sim.get_field("particle_x").copy()
-    largest = 0.0
-    for k in range(10_000):
-        sim.step(2e-3)
-        if k % 10 == 0:
-            largest = max(largest, float(np.linalg.norm(sim.get_field("particle_v"), axis=1).max()))
-    assert largest < 1e-3
-    # creep: 1e-3 m/s over the 20 s would be 2 cm = 0.4 d; measured 5.5 mm = 0.11 d (the surface
-    # layer still rearranges slowly, at ~3e-4 m/s on average)
+    assert window_max(10_000) < 1e-3
+    # creep: 1e-3 m/s over the 20 s would be 2 cm = 0.4 d; measured 6.7 mm = 0.13 d, the largest
+    # single-particle displacement (surface particles still slide slowly, at ~3e-4 m/s on average)
     moved = np.linalg.norm(sim.get_field("particle_x") - x_settled, axis=1).max()
     assert moved < 0.2 * sim.model.spacing
     assert sim.solver.last_density_error <= sim.scene.pbf.target_density_error

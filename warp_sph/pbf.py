@@ -1,9 +1,9 @@
 """Position-based fluids (Macklin & Mueller 2013; seed report section 4.5, eq. 17-20).
 
 Step: predict (v += dt g, x* = x + dt v) -> neighbours on x* -> density and lambda at x* ->
-solve (Jacobi corrections dx, eq. 18, until the average density error mean(max(rho/rho0 - 1, 0))
-is below ``pbf.target_density_error``, between ``min_iterations`` and ``max_iterations``
-corrections) -> update (v = (x* - x)/dt, x = x*) -> [viscosity and boundary friction] -> [XSPH]
+solve (iterations of a density pass and a Jacobi correction dx, eq. 18, as in SPlisHSPlasH:
+until the average density error mean(max(rho/rho0 - 1, 0)) of the iteration's density pass is below
+``pbf.target_density_error``, between ``min_iterations`` and ``max_iterations`` iterations) -> update (v = (x* - x)/dt, x = x*) -> [viscosity and boundary friction] -> [XSPH]
 -> [vorticity confinement].
 
 Why the report's solver exploded (physics notes 4.4): dx ~ C grad C / |grad C|^2, so a
@@ -138,8 +138,17 @@ class PbfSolver:
             allowed_drift = margin  # the query point is current, only the grid's points are old
         self.max_step = self.max_step_per_radius * m.particle_radius if self.max_step_per_radius > 0 else 1e30
 
-        density_lambda = _pbf.density_lambda_kernel(m.smoothing.name, with_boundary, kind)
-        correction = _pbf.correction_kernel(m.smoothing.name, with_boundary, tensile, kind)
+        if lists:
+            # the density pass keeps its pairs (V grad W, neighbour, [W]) for the correction at the same x*
+            density_lambda = _pbf.density_lambda_pairs_kernel(m.smoothing.name, with_boundary, tensile)
+            correction = _pbf.correction_pairs_kernel(with_boundary, tensile)
+            self._pairs = _pbf.PairCache()
+            self._pairs.count = wp.zeros(n, dtype=wp.int32, device=dev)
+            self._pairs.boundary_gradient = wp.zeros(n, dtype=wp.vec3, device=dev)
+            self._pairs_capacity = 0
+        else:
+            density_lambda = _pbf.density_lambda_kernel(m.smoothing.name, with_boundary, kind)
+            correction = _pbf.correction_kernel(m.smoothing.name, with_boundary, tensile, kind)
         target = float(p.target_density_error)
         min_it, max_it = int(p.min_iterations), int(p.max_iterations)
 
@@ -194,14 +203,30 @@ class PbfSolver:
         def run_neighbors(sim, dt):
             build_neighbors(sim)
 
+        def pair_cache():
+            """The PairCache, with rows as long as the fluid lists (which grow on overflow)."""
+            capacity = nl.capacities[0]
+            if capacity != self._pairs_capacity:
+                self._pairs.index = wp.zeros((max(n, 1), capacity), dtype=wp.int32, device=dev)
+                self._pairs.gradient = wp.zeros((max(n, 1), capacity), dtype=wp.vec3, device=dev)
+                self._pairs.value = wp.zeros((max(n, 1), capacity) if tensile else (1, 1), dtype=float, device=dev)
+                self._pairs_capacity = capacity
+            return self._pairs
+
         def run_density(sim, dt):
             f = sim.fields
             boundary_neighbors, fluid_neighbors = neighbor_args(sim)
-            launch(density_lambda, n,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
-                    self.query_radius, boundary_neighbors, m.boundary_x, m.boundary_volume,
-                    fluid_neighbors, f["predicted_x"]],
-                   [f["particle_density"], f["particle_lambda"], self._constraint], device=dev)
+            if lists:
+                launch(density_lambda, n,
+                       [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
+                        boundary_neighbors, m.boundary_x, m.boundary_volume, fluid_neighbors, f["predicted_x"]],
+                       [f["particle_density"], f["particle_lambda"], self._constraint, pair_cache()], device=dev)
+            else:
+                launch(density_lambda, n,
+                       [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
+                        self.query_radius, boundary_neighbors, m.boundary_x, m.boundary_volume,
+                        fluid_neighbors, f["predicted_x"]],
+                       [f["particle_density"], f["particle_lambda"], self._constraint], device=dev)
             # sum of C_i in a fixed order: chunk sums on the device, their sum on the host (one read)
             launch(_pbf.sum_chunks, self._error_partial.shape[0], [_pbf.REDUCE_CHUNK, self._constraint],
                    [self._error_partial], device=dev)
@@ -210,13 +235,19 @@ class PbfSolver:
         def run_correction(sim, dt):
             f = sim.fields
             boundary_neighbors, fluid_neighbors = neighbor_args(sim)
-            launch(correction, n,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
-                    float(p.tensile_k), int(p.tensile_n), tensile_inv_w, tensile_scale,
-                    1.0 / (dt * dt) if dt > 0 else 0.0, self.max_step,
-                    boundary_neighbors, m.boundary_x, m.boundary_volume,
-                    fluid_neighbors, f["predicted_x"], f["particle_lambda"]],
-                   [f["position_correction"], f["boundary_force"], self._correction_size], device=dev)
+            inv_dt2 = 1.0 / (dt * dt) if dt > 0 else 0.0
+            if lists:
+                launch(correction, n,
+                       [m.particle_mass, float(p.tensile_k), int(p.tensile_n), tensile_inv_w, tensile_scale,
+                        inv_dt2, self.max_step, fluid_neighbors, self._pairs, f["particle_lambda"]],
+                       [f["position_correction"], f["boundary_force"], self._correction_size], device=dev)
+            else:
+                launch(correction, n,
+                       [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
+                        float(p.tensile_k), int(p.tensile_n), tensile_inv_w, tensile_scale, inv_dt2, self.max_step,
+                        boundary_neighbors, m.boundary_x, m.boundary_volume,
+                        fluid_neighbors, f["predicted_x"], f["particle_lambda"]],
+                       [f["position_correction"], f["boundary_force"], self._correction_size], device=dev)
             launch(_pbf.apply_correction, n, [f["position_correction"]], [f["predicted_x"]], device=dev)
             launch(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
                    [_pbf.REDUCE_CHUNK, self._correction_size, f["predicted_x"], self._neighbor_x],
@@ -228,18 +259,20 @@ class PbfSolver:
         self.run_correction = run_correction  # one Jacobi correction of x* (stage tests)
 
         def run_solve(sim, dt):
+            """Iterations as in SPlisHSPlasH: each one is a density pass (the "density" stage for the
+            first) and a correction; the stop test reads the error of the iteration's density pass,
+            so it costs no extra pass after the last correction (``finish_frame`` measures x)."""
             it = 0
             err = self.last_error_sum / n  # from the "density" stage
             largest = 0.0
             trace = [] if self.trace else None
-            while True:
-                if it >= max_it or (it >= min_it and err <= target):
-                    break
+            while it < max_it and (it < min_it or err > target):
+                if it > 0:
+                    refresh_neighbors(sim)
+                    run_density(sim, dt)
+                    err = self.last_error_sum / n
                 run_correction(sim, dt)
                 it += 1
-                refresh_neighbors(sim)
-                run_density(sim, dt)
-                err = self.last_error_sum / n
                 largest = max(largest, self.last_iteration_correction)
                 if trace is not None:
                     trace.append((err, self.last_iteration_correction))
@@ -247,8 +280,20 @@ class PbfSolver:
             self.last_density_error = err
             self.last_max_correction = max(largest, self.last_max_correction)
             self.last_trace = trace
+            self._density_is_current = it == 0
             if not lists and self.neighbor_mode == "margin" and self._needs_exact_grid and self.last_drift > 0:
                 build_neighbors(sim)  # later stages query the grid with the plain support radius
+
+        def finish_frame(sim):
+            """Density, lambda and error at the frame's positions x (= x*) for the statistics and the
+            next step's pre-stabilisation test: one pass per frame, not per step."""
+            if not self._density_is_current:
+                refresh_neighbors(sim)
+                run_density(sim, 0.0)
+                self._density_is_current = True
+
+        self.finish_frame = finish_frame
+        self._density_is_current = True
 
         def run_update(sim, dt):
             f = sim.fields
@@ -276,7 +321,8 @@ class PbfSolver:
             Stage("solve", run_solve, reads=("particle_density", "particle_lambda") + boundary_reads,
                   writes=("position_correction",),
                   updates=("predicted_x", neighbors_field, "particle_density", "particle_lambda", "boundary_force"),
-                  doc=f"Jacobi corrections (eq. 18) until mean C < {target:g} ({min_it}-{max_it} iterations), "
+                  doc=f"iterations of [density pass +] Jacobi correction (eq. 18) until the pass reads mean C < {target:g} "
+                      f"({min_it}-{max_it} iterations), "
                       f"eps = {p.relaxation:g} D0" + (", s_corr" if tensile else "")),
             Stage("update", run_update, reads=("predicted_x",), updates=("particle_v", "particle_x"),
                   writes=("particle_acceleration",), doc="v = (x* - x)/dt; x = x*"),
@@ -338,6 +384,7 @@ class PbfSolver:
         return dt
 
     def step_statistics(self, sim) -> dict:
+        # density_error: the average error of the last iteration's density pass, before its correction
         return {"iterations": float(self.last_iterations), "density_error": self.last_density_error,
                 "max_correction": self.last_max_correction, "stabilization_iterations": float(self.last_stabilization)}
 

@@ -161,9 +161,9 @@ PARAMETERS: tuple[Param, ...] = (
     _P("pbf.max_iterations", "int", "-", 50, "most constraint iterations per substep", ge=1),
     _P("pbf.min_iterations", "int", "-", 2, "fewest constraint iterations per substep", ge=0),
     _P("pbf.relaxation", "float", "-", 1e-4, "constraint-force mixing epsilon, relative to the "
-       "rest-lattice denominator sum_k (grad_k C)^2; 1-3 under-relaxes the Jacobi solve so that fluid at "
-       "rest comes to rest (3 with viscosity 1e-3 m^2/s: a resting block holds |v| < 1e-3 m/s; the "
-       "small default keeps corrections exact, dam break error 0.23 % vs 0.49 % at 3)", ge=0.0),
+       "rest-lattice denominator sum_k (grad_k C)^2; about 5 under-relaxes the Jacobi solve so that fluid "
+       "at rest settles (with viscosity 2e-3 m^2/s a resting block holds speeds below 1e-3 m/s); the "
+       "small default applies each correction in full: fewer iterations in violent flows", ge=0.0),
     _P("pbf.tensile_correction", "bool", "-", False, "artificial pressure s_corr against clustering"),
     _P("pbf.tensile_k", "float", "-", 0.1, "s_corr strength k", ge=0.0),
     _P("pbf.tensile_n", "int", "-", 4, "s_corr exponent n", ge=1),

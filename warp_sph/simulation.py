@@ -185,6 +185,9 @@ class Simulation:
             for _ in range(n):
                 self.step(dt)
                 solver_stats.append(self.solver.step_statistics(self))
+            finish = getattr(self.solver, "finish_frame", None)
+            if finish is not None:
+                finish(self)  # e.g. PBF: the density at the frame's positions, for the statistics
             if self._grow_neighbor_lists():
                 wd.restore()  # neighbours were dropped: redo the frame with the larger lists
                 continue
