@@ -156,7 +156,8 @@ def build_neighbor_list(
     max_count_out: wp.array(dtype=wp.int32),
 ):
     """Indices of the points within search_radius of each query point (|x_ij| < radius), in cell
-    order; the count is exact, entries past the capacity are dropped and max_count_out records it.
+    order; the count is exact, entries past the capacity are dropped and max_count_out[i] keeps the
+    largest such count of particle i (cleared by the host after reading it).
 
     Rows of cells (fixed y, z) farther than the radius are skipped and each row's x range is trimmed
     to the sphere, so the cells visited hug the sphere (cells may be smaller than the radius). Border
@@ -197,5 +198,5 @@ def build_neighbor_list(
                             neighbor_index_out[i, n] = cell_point[k]
                         n += 1
     neighbor_count_out[i] = n
-    if n > capacity:
-        wp.atomic_max(max_count_out, 0, n)
+    if n > capacity:  # per particle, no atomics: split launches write disjoint particles
+        max_count_out[i] = wp.max(max_count_out[i], n)

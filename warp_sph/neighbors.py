@@ -128,7 +128,7 @@ class NeighborLists:
             self.boundary_cells = CellGrid(search_radius, lo, hi, boundary_x.shape[0], cells_per_radius,
                                            device=device)
             self.boundary_cells.build(boundary_x)
-        self._max_count = wp.zeros(1, dtype=wp.int32, device=device)
+        self._max_count = wp.zeros(max(self.fluid_count, 1), dtype=wp.int32, device=device)  # per particle
         self.fluid = _dev.NeighborList()
         self.boundary = _dev.NeighborList()
         self._allocate(self.fluid, fluid_capacity)
@@ -165,7 +165,7 @@ class NeighborLists:
 
     def overflow(self) -> int:
         """Largest neighbour count that exceeded a capacity since the last call (0: none). Host read."""
-        worst = int(self._max_count.numpy()[0])
+        worst = int(self._max_count.numpy().max())
         if worst:
             self._max_count.zero_()
         return worst
