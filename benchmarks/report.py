@@ -345,9 +345,16 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
             lines += ["<details><summary>time per stage</summary>", ""] + st + ["", "</details>", ""]
         lines += _failures(scaling) + [""]
 
-    sph = latest(data.get("splishsplash", []))
-    if sph:
-        lines += ["## Side by side with SPlisHSPlasH", ""] + _section_head(sph)
+    # the latest comparison at each resolution (fluid particle count), smallest first
+    by_size: dict[int, list[dict]] = {}
+    for r in data.get("splishsplash", []):
+        by_size.setdefault(int(r.get("fluid_particles") or 0), []).append(r)
+    if by_size:
+        lines += ["## Side by side with SPlisHSPlasH", ""]
+    for size in sorted(by_size):
+        sph = latest(by_size[size])
+        suffix = "" if size == min(by_size) else f"_{size}"
+        lines += [f"### {size:,} fluid particles", ""] + _section_head(sph)
         skipped = [r for r in sph if r.get("engine") == "splishsplash" and r.get("status") != "ok"]
         if skipped:
             lines += [f"SPlisHSPlasH runs not available: {skipped[0].get('error')}", ""]
@@ -376,10 +383,10 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
         ok = [r for r in sph if r.get("status") == "ok"]
         png = plot_series(ok, [("front", "surge front [m]", 1.0), ("density_error_mean", "mean density error [%]", 100.0),
                                ("density_error_max", "max density error [%]", 100.0)],
-                          results_dir / "splishsplash_series.png", "warp-sph and SPlisHSPlasH over time")
+                          results_dir / f"splishsplash_series{suffix}.png", "warp-sph and SPlisHSPlasH over time")
         if png:
             lines += [f"![warp-sph and SPlisHSPlasH]({rel}/{png.name})", ""]
-        png = plot_tradeoff(ok, results_dir / "splishsplash_tradeoff.png", "warp-sph and SPlisHSPlasH")
+        png = plot_tradeoff(ok, results_dir / f"splishsplash_tradeoff{suffix}.png", "warp-sph and SPlisHSPlasH")
         if png:
             lines += [f"![speed against accuracy]({rel}/{png.name})", ""]
         lines += _failures([r for r in sph if r.get("engine") != "splishsplash"]) + [""]
