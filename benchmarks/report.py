@@ -406,7 +406,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                   "triangles) of one `SurfaceReconstructor.extract` call, median of 3, warm. splashsurf "
                   "times are the reference numbers from the issue (cube size 0.5 r), not rerun here.", ""]
 
-    if not (sweeps or scaling or sph or surf):
+    if not (sweeps or scaling or by_size or surf):
         lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]
     md_path.parent.mkdir(parents=True, exist_ok=True)
     md_path.write_text("\n".join(lines).rstrip() + "\n")
