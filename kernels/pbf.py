@@ -19,7 +19,8 @@ Kernels take the smoothing kernel and the neighbour iteration as compile-time ch
 ``wp.static``): ``neighbors="grid"`` queries wp.HashGrid ids in every pass, with ``query_radius`` >=
 support radius (the grid may have been built on slightly older positions); ``neighbors="list"``
 reads ``NeighborList`` structs built once per step with a search radius enlarged by a margin. Both
-keep only pairs closer than the support radius. Every particle-parallel kernel takes ``tid_offset``
+keep only pairs closer than the support radius. The density/lambda pass and the correction have one
+kernel per variant: over lists the density pass fills a ``PairCache`` that the correction reads. Every particle-parallel kernel takes ``tid_offset``
 first (split over CPU cores by ``warp_sph.launch``) and writes only its own particle: no atomics
 (CPU atomics are plain read-modify-writes, racy across split ranges). Sums and maxima over the
 particles come from per-particle values reduced chunk by chunk (``sum_chunks``,
@@ -59,13 +60,23 @@ def predict_positions(
     boundary_force_out[i] = wp.vec3(0.0)
 
 
+@wp.func
+def constraint_lambda(ratio: float, grad_i: wp.vec3, grad_sq: float, relaxation_epsilon: float) -> wp.vec2:
+    """(C_i, lambda_i) from rho_i/rho0, grad_i C_i and sum_j |grad_j C_i|^2 (eq. 17, 19)."""
+    c = wp.max(ratio - 1.0, 0.0)
+    lam = float(0.0)
+    if c > 0.0:
+        lam = -c / (wp.dot(grad_i, grad_i) + grad_sq + relaxation_epsilon)
+    return wp.vec2(c, lam)
+
+
 @functools.cache
-def density_lambda_kernel(smoothing: str, with_boundary: bool, neighbors: str = "grid"):
+def density_lambda_kernel(smoothing: str, with_boundary: bool):
     """Density (eq. 7/13), constraint C (eq. 17) and Lagrange multiplier lambda (eq. 19) at the
-    predicted positions, in one neighbour pass. Writes C_i to ``particle_constraint_out``."""
+    predicted positions, in one hash-grid pass (neighbour lists: ``density_lambda_pairs_kernel``).
+    Writes C_i to ``particle_constraint_out``."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
-    lists = neighbors == "list"
-    Neighbors = NEIGHBOR_TYPES[neighbors]
+    Neighbors = NEIGHBOR_TYPES["grid"]
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_density_lambda(
@@ -95,68 +106,45 @@ def density_lambda_kernel(smoothing: str, with_boundary: bool, neighbors: str = 
         w_sum = float(0.0)
         grad_i = wp.vec3(0.0)
         grad_sq = float(0.0)
-        if wp.static(lists):
-            for k in range(neighbor_count(fluid_neighbors, i)):
-                x_ij = xi - predicted_x[fluid_neighbors.index[i, k]]
-                r = wp.length(x_ij)
-                if r < support_radius:
-                    w_sum += wp.static(value)(r, h)
-                    g = volume * wp.static(gradient)(x_ij, h)
-                    grad_i += g
-                    grad_sq += wp.dot(g, g)
-        else:
-            query = wp.hash_grid_query(fluid_neighbors, xi, query_radius)
-            j = int(0)
-            while wp.hash_grid_query_next(query, j):
-                x_ij = xi - predicted_x[j]
-                r = wp.length(x_ij)
-                if r < support_radius:
-                    w_sum += wp.static(value)(r, h)
-                    g = volume * wp.static(gradient)(x_ij, h)
-                    grad_i += g
-                    grad_sq += wp.dot(g, g)
+        query = wp.hash_grid_query(fluid_neighbors, xi, query_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            x_ij = xi - predicted_x[j]
+            r = wp.length(x_ij)
+            if r < support_radius:
+                w_sum += wp.static(value)(r, h)
+                g = volume * wp.static(gradient)(x_ij, h)
+                grad_i += g
+                grad_sq += wp.dot(g, g)
         ratio = volume * w_sum
         if wp.static(with_boundary):
-            if wp.static(lists):
-                for k in range(neighbor_count(boundary_neighbors, i)):
-                    b = boundary_neighbors.index[i, k]
-                    x_ib = xi - boundary_x[b]
-                    r = wp.length(x_ib)
-                    if r < support_radius:
-                        vb = boundary_volume[b]
-                        ratio += vb * wp.static(value)(r, h)
-                        grad_i += vb * wp.static(gradient)(x_ib, h)
-            else:
-                bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
-                b = int(0)
-                while wp.hash_grid_query_next(bquery, b):
-                    x_ib = xi - boundary_x[b]
-                    r = wp.length(x_ib)
-                    if r < support_radius:
-                        vb = boundary_volume[b]
-                        ratio += vb * wp.static(value)(r, h)
-                        grad_i += vb * wp.static(gradient)(x_ib, h)
-        c = wp.max(ratio - 1.0, 0.0)
-        lam = float(0.0)
-        if c > 0.0:
-            lam = -c / (wp.dot(grad_i, grad_i) + grad_sq + relaxation_epsilon)
+            bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
+            b = int(0)
+            while wp.hash_grid_query_next(bquery, b):
+                x_ib = xi - boundary_x[b]
+                r = wp.length(x_ib)
+                if r < support_radius:
+                    vb = boundary_volume[b]
+                    ratio += vb * wp.static(value)(r, h)
+                    grad_i += vb * wp.static(gradient)(x_ib, h)
+        c_lam = constraint_lambda(ratio, grad_i, grad_sq, relaxation_epsilon)
         particle_density_out[i] = rest_density * ratio
-        particle_lambda_out[i] = lam
-        particle_constraint_out[i] = c
+        particle_lambda_out[i] = c_lam[1]
+        particle_constraint_out[i] = c_lam[0]
 
     return compute_density_lambda
 
 
 @functools.cache
-def correction_kernel(smoothing: str, with_boundary: bool, tensile: bool, neighbors: str = "grid"):
-    """Jacobi position correction dx_i (eq. 18), optional tensile term
+def correction_kernel(smoothing: str, with_boundary: bool, tensile: bool):
+    """Jacobi position correction dx_i (eq. 18) over the hash grid (neighbour lists:
+    ``correction_pairs_kernel``), optional tensile term
     s_corr = -k (W_ij / W(dq))^n * tensile_scale [m^2] (Macklin & Mueller 2013 eq. 13, made
     dimensionally consistent: tensile_scale = 1 / rest-lattice denominator, so s_corr acts like a
     constraint violation of k). Adds m dx_i^boundary / dt^2 to the boundary force [N] and writes
     |dx_i| before the trust-region clamp to ``correction_size_out`` [m]."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
-    lists = neighbors == "list"
-    Neighbors = NEIGHBOR_TYPES[neighbors]
+    Neighbors = NEIGHBOR_TYPES["grid"]
 
     @wp.func(module="unique")
     def pair_weight(lam_i: float, lam_j: float, r: float, h: float, tensile_k: float, tensile_n: int,
@@ -199,41 +187,24 @@ def correction_kernel(smoothing: str, with_boundary: bool, tensile: bool, neighb
         h = smoothing_length
         volume = particle_mass / rest_density
         dx = wp.vec3(0.0)
-        if wp.static(lists):
-            for k in range(neighbor_count(fluid_neighbors, i)):
-                j = fluid_neighbors.index[i, k]
-                x_ij = xi - predicted_x[j]
-                r = wp.length(x_ij)
-                if r < support_radius:
-                    s = pair_weight(lam_i, particle_lambda[j], r, h, tensile_k, tensile_n, tensile_inv_w,
-                                    tensile_scale)
-                    dx += (volume * s) * wp.static(gradient)(x_ij, h)
-        else:
-            query = wp.hash_grid_query(fluid_neighbors, xi, query_radius)
-            j = int(0)
-            while wp.hash_grid_query_next(query, j):
-                x_ij = xi - predicted_x[j]
-                r = wp.length(x_ij)
-                if r < support_radius:
-                    s = pair_weight(lam_i, particle_lambda[j], r, h, tensile_k, tensile_n, tensile_inv_w,
-                                    tensile_scale)
-                    dx += (volume * s) * wp.static(gradient)(x_ij, h)
+        query = wp.hash_grid_query(fluid_neighbors, xi, query_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            x_ij = xi - predicted_x[j]
+            r = wp.length(x_ij)
+            if r < support_radius:
+                s = pair_weight(lam_i, particle_lambda[j], r, h, tensile_k, tensile_n, tensile_inv_w,
+                                tensile_scale)
+                dx += (volume * s) * wp.static(gradient)(x_ij, h)
         if wp.static(with_boundary):
             dx_b = wp.vec3(0.0)
             if lam_i != 0.0:
-                if wp.static(lists):
-                    for k in range(neighbor_count(boundary_neighbors, i)):
-                        b = boundary_neighbors.index[i, k]
-                        x_ib = xi - boundary_x[b]
-                        if wp.length(x_ib) < support_radius:
-                            dx_b += (lam_i * boundary_volume[b]) * wp.static(gradient)(x_ib, h)
-                else:
-                    bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
-                    b = int(0)
-                    while wp.hash_grid_query_next(bquery, b):
-                        x_ib = xi - boundary_x[b]
-                        if wp.length(x_ib) < support_radius:
-                            dx_b += (lam_i * boundary_volume[b]) * wp.static(gradient)(x_ib, h)
+                bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
+                b = int(0)
+                while wp.hash_grid_query_next(bquery, b):
+                    x_ib = xi - boundary_x[b]
+                    if wp.length(x_ib) < support_radius:
+                        dx_b += (lam_i * boundary_volume[b]) * wp.static(gradient)(x_ib, h)
             dx += dx_b
             boundary_force_out[i] = boundary_force_out[i] + (particle_mass * inv_dt2) * dx_b
         size = wp.length(dx)
@@ -326,13 +297,10 @@ def density_lambda_pairs_kernel(smoothing: str, with_boundary: bool, tensile: bo
                     grad_b += vb * wp.static(gradient)(x_ib, h)
         pairs_out.boundary_gradient[i] = grad_b
         grad_i += grad_b
-        c = wp.max(ratio - 1.0, 0.0)
-        lam = float(0.0)
-        if c > 0.0:
-            lam = -c / (wp.dot(grad_i, grad_i) + grad_sq + relaxation_epsilon)
+        c_lam = constraint_lambda(ratio, grad_i, grad_sq, relaxation_epsilon)
         particle_density_out[i] = rest_density * ratio
-        particle_lambda_out[i] = lam
-        particle_constraint_out[i] = c
+        particle_lambda_out[i] = c_lam[1]
+        particle_constraint_out[i] = c_lam[0]
 
     return compute_density_lambda_pairs
 

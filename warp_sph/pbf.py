@@ -147,8 +147,8 @@ class PbfSolver:
             self._pairs.boundary_gradient = wp.zeros(n, dtype=wp.vec3, device=dev)
             self._pairs_capacity = 0
         else:
-            density_lambda = _pbf.density_lambda_kernel(m.smoothing.name, with_boundary, kind)
-            correction = _pbf.correction_kernel(m.smoothing.name, with_boundary, tensile, kind)
+            density_lambda = _pbf.density_lambda_kernel(m.smoothing.name, with_boundary)
+            correction = _pbf.correction_kernel(m.smoothing.name, with_boundary, tensile)
         target = float(p.target_density_error)
         min_it, max_it = int(p.min_iterations), int(p.max_iterations)
 
