@@ -479,7 +479,7 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
         solvers=[s.strip() for s in args.solvers.split(",") if s.strip()],
         dt={"wcsph": args.dt_wcsph, "pbf": args.dt_pbf, "dfsph": args.dt_dfsph},
         device=args.device, isolate=not args.in_process, skip_warp_sph=args.skip_warp_sph,
-        splishsplash_gap=args.splishsplash_gap, log=log)
+        splishsplash_gap=args.splishsplash_gap, warp_sph_overrides=args.warp_sph_set, log=log)
     _stamp(records, _command_text(argv), invocation)
     out = Path(args.out) if args.out else RESULTS_DIR
     path = _append_records(out, "splishsplash", records)
@@ -581,6 +581,10 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--skip-warp-sph", action="store_true", help="only the SPlisHSPlasH runs")
     x.add_argument("--splishsplash-gap", type=float, default=None, metavar="D",
                    help="place SPlisHSPlasH's fluid D spacings from the walls (default: on warp-sph's lattice)")
+    x.add_argument("--warp-sph-set", action="append", default=[], metavar="KEY=VALUE",
+                   help="scene override for warp-sph's runs only (repeatable; wcsph.* keys for its WCSPH run, "
+                        "pbf.* for its PBF run), e.g. wcsph.speed_of_sound_factor=11; SPlisHSPlasH keeps the "
+                        "stiffness and time step of the scene without it")
     common(x)
     x.set_defaults(func=cmd_splishsplash)
 

@@ -356,12 +356,15 @@ def default_dt(model: dict, solver: str, particle_radius: float) -> float:
 def run_comparison(particle_radius: float = 0.025, frames: int = 25, threads: int = 1,
                    solvers=("wcsph", "pbf", "dfsph"), dt: dict | None = None, device=None, isolate: bool = True,
                    skip_warp_sph: bool = False, scene: str = "dam_break", splishsplash_gap: float | None = None,
-                   log=print) -> list[dict]:
+                   warp_sph_overrides: list[str] | None = None, log=print) -> list[dict]:
     """Run the dam break in warp-sph (wcsph, pbf) and SPlisHSPlasH (wcsph, pbf, dfsph) with fixed steps.
 
     splishsplash_gap: None places SPlisHSPlasH's fluid on warp-sph's lattice (the same gap to the
     walls); a number moves its block so that the lattice sits that many spacings d from the walls it
     touches (SPlisHSPlasH's PBF blows up at t = 0 with fluid 1.1 d from its walls; 1.5 d is stable).
+    warp_sph_overrides: scene overrides for warp-sph's runs only ("wcsph.*" keys for its WCSPH run,
+    "pbf.*" keys for its PBF run, others for both); SPlisHSPlasH keeps the parameters (stiffness,
+    time step) of the scene without them.
     """
     import warp as wp
 
@@ -395,12 +398,15 @@ def run_comparison(particle_radius: float = 0.025, frames: int = 25, threads: in
         log(f"SPlisHSPlasH: not run: {why}")
     for s in solvers:
         if s in ("wcsph", "pbf") and not skip_warp_sph:
+            own = [o for o in warp_sph_overrides or () if o.split("=", 1)[0].split(".", 1)[0] not in
+                   ({"wcsph", "pbf"} - {s})]
             spec = RunSpec(scene=scene, overrides=[f"particle_radius={particle_radius}", f"solver={s}",
-                                                   f"time.fixed_dt={dts[s]}"],
+                                                   f"time.fixed_dt={dts[s]}", *own],
                            frames=frames, device=device, kind="splishsplash", name="splishsplash",
-                           params={"engine": "warp-sph", "solver": s, "dt": dts[s], "particle_radius": particle_radius})
+                           params={"engine": "warp-sph", "solver": s, "dt": dts[s], "particle_radius": particle_radius,
+                                   **({"overrides": " ".join(own)} if own else {})})
             r = run_specs([spec], isolate=isolate, log=log)[0]
-            r["label"] = f"warp-sph {s}"
+            r["label"] = f"warp-sph {s}" + (f" ({', '.join(own)})" if own else "")
             from warp_sph.launch import cpu_threads
 
             r["threads"] = cpu_threads()  # warp-sph splits particle-parallel CPU launches over these

@@ -39,3 +39,47 @@ def test_query_points_other_than_grid_points(device):
     dist = np.linalg.norm(q[:, None].astype(np.float64) - b[None].astype(np.float64), axis=2)
     for i in range(len(q)):
         assert set(lists[i].tolist()) == set(np.nonzero(dist[i] < radius)[0])
+
+
+@pytest.mark.parametrize("cells_per_radius", [1, 2])
+def test_neighbor_lists_and_fused_density_match_brute_force(cells_per_radius, device):
+    """Per-step lists (fluid-fluid, fluid-boundary) equal brute force, with fluid particles far from
+    the boundary (the boundary search is skipped there) and outside the cell grid (clamped cells);
+    the density summed during the search equals m sum_j W_ij + rho0 sum_b V_b W_ib in NumPy."""
+    from sph_oracle import W
+    from warp_sph.neighbors import NeighborLists
+
+    rng = np.random.default_rng(11)
+    h = 0.05
+    radius = 2.0 * h  # cubic support
+    fluid = rng.uniform(-0.5, 0.5, (1200, 3)).astype(np.float32)
+    fluid[:20] += np.float32(0.9)  # beyond the grid's box
+    b = rng.uniform(-0.5, 0.5, (900, 3)).astype(np.float32)
+    b[:, 2] = rng.uniform(-0.62, -0.5, 900)  # a floor slab: most fluid is far from it
+    volume = rng.uniform(0.5, 1.5, 900).astype(np.float32) * 1e-4
+    mass, rho0 = 0.125, 1000.0
+    x = wp.array(fluid, dtype=wp.vec3, device=device)
+    lists = NeighborLists(radius, [-0.7] * 3, [0.7] * 3, len(fluid), wp.array(b, dtype=wp.vec3, device=device),
+                          fluid_capacity=128, boundary_capacity=128, cells_per_radius=cells_per_radius,
+                          device=device, boundary_volume=wp.array(volume, dtype=float, device=device))
+    density = wp.zeros(len(fluid), dtype=float, device=device)
+    lists.sort(x)
+    lists.build_lists(x, density, "cubic", h, mass, rho0)
+    assert lists.overflow() == 0
+    d_ff = np.linalg.norm(fluid[:, None].astype(np.float64) - fluid[None].astype(np.float64), axis=2)
+    d_fb = np.linalg.norm(fluid[:, None].astype(np.float64) - b[None].astype(np.float64), axis=2)
+    for got, dist in ((lists.fluid, d_ff), (lists.boundary, d_fb)):
+        count = got.count.numpy()
+        index = got.index.numpy()
+        for i in range(len(fluid)):
+            ref = set(np.nonzero(dist[i] < radius)[0]) - set(np.nonzero(np.abs(dist[i] - radius) < 1e-6)[0])
+            mine = set(index[i, : count[i]].tolist()) - set(np.nonzero(np.abs(dist[i] - radius) < 1e-6)[0])
+            assert mine == ref, (i, sorted(mine ^ ref)[:5])
+    near = lists.boundary.count.numpy() > 0
+    assert 0.03 < near.mean() < 0.5  # both branches of the boundary search are exercised
+    assert (lists._boundary_mask is not None) == (cells_per_radius == 1)  # the skip needs cells >= radius
+    expected = mass * W("cubic", d_ff, h).sum(axis=1) + rho0 * (W("cubic", d_fb, h) * volume[None]).sum(axis=1)
+    np.testing.assert_allclose(density.numpy(), expected, rtol=2e-5)
+    # without the density the lists are the same
+    lists.build(x)
+    np.testing.assert_array_equal(lists.fluid.count.numpy(), (d_ff < radius).sum(axis=1))

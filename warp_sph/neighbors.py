@@ -105,6 +105,25 @@ class CellGrid:
                device=self.device)
         launch(_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device)
 
+    def occupied_near_mask(self) -> wp.array:
+        """uint8 per cell: 1 where a point lies in the cell or one of its 26 neighbours (host, after
+        ``build``). With cells >= the search radius, a query from a 0 cell finds nothing."""
+        import numpy as np
+
+        nx, ny, nz = (int(self.dims[k]) for k in range(3))
+        start = self.cell_start.numpy()[: self.cell_count + 1]
+        occupied = (np.diff(start) > 0).reshape(nz, ny, nx)
+        near = occupied.copy()
+        for axis in range(3):
+            grown = near.copy()
+            lo = [slice(None)] * 3
+            hi = [slice(None)] * 3
+            lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+            grown[tuple(lo)] |= near[tuple(hi)]
+            grown[tuple(hi)] |= near[tuple(lo)]
+            near = grown
+        return wp.array(near.reshape(-1).astype(np.uint8), dtype=wp.uint8, device=self.device)
+
 
 class NeighborLists:
     """Per-step neighbour lists of the fluid: fluid-fluid (self included) and fluid-boundary.
@@ -113,10 +132,16 @@ class NeighborLists:
     read by every neighbour loop of the step (density, XSPH, forces). Fixed capacities per
     particle [-]; ``overflow()`` (one host read, once per frame) returns the largest count that did
     not fit, and ``grow`` enlarges the lists for the next steps.
+
+    ``build`` = ``sort`` (fluid particles into cells) + ``build_lists``; ``build_lists`` can also
+    sum the SPH density of the listed pairs (WCSPH: one pass for search and density).
+    boundary_volume: Akinci V_b per boundary particle [m^3], needed for that density sum.
+    Fluid particles in cells with no boundary particle within one cell skip the boundary search.
     """
 
     def __init__(self, search_radius: float, lo, hi, fluid_count: int, boundary_x: wp.array | None = None,
-                 fluid_capacity: int = 64, boundary_capacity: int = 48, cells_per_radius: int = 1, device="cpu"):
+                 fluid_capacity: int = 64, boundary_capacity: int = 48, cells_per_radius: int = 1, device="cpu",
+                 boundary_volume: wp.array | None = None):
         from .kernels import neighbors as _dev
 
         self.search_radius = float(search_radius)
@@ -124,10 +149,19 @@ class NeighborLists:
         self.fluid_count = int(fluid_count)
         self.fluid_cells = CellGrid(search_radius, lo, hi, fluid_count, cells_per_radius, device=device)
         self.boundary_cells = None
+        self._no_mask = wp.zeros(1, dtype=wp.uint8, device=device)
+        self._no_weight = wp.zeros(1, dtype=float, device=device)
+        self._no_density = wp.zeros(1, dtype=float, device=device)
         if boundary_x is not None and boundary_x.shape[0]:
-            self.boundary_cells = CellGrid(search_radius, lo, hi, boundary_x.shape[0], cells_per_radius,
-                                           device=device)
-            self.boundary_cells.build(boundary_x)
+            bc = self.boundary_cells = CellGrid(search_radius, lo, hi, boundary_x.shape[0], cells_per_radius,
+                                                device=device)
+            bc.build(boundary_x)
+            # a mask needs cells of at least the search radius (one cell of growth covers a query)
+            self._boundary_mask = bc.occupied_near_mask() if bc.cell_size >= self.search_radius else None
+            self._boundary_weight = self._no_weight
+            if boundary_volume is not None:
+                order = bc.cell_point.numpy()[: boundary_x.shape[0]]
+                self._boundary_weight = wp.array(boundary_volume.numpy()[order], dtype=float, device=device)
         self._max_count = wp.zeros(max(self.fluid_count, 1), dtype=wp.int32, device=device)  # per particle
         self.fluid = _dev.NeighborList()
         self.boundary = _dev.NeighborList()
@@ -140,24 +174,47 @@ class NeighborLists:
         lists.index = wp.zeros((n, max(capacity, 1)), dtype=wp.int32, device=self.device)
         lists.order = self.fluid_cells.cell_point
 
+    def sort(self, particle_x: wp.array) -> None:
+        """Sort the fluid positions ``particle_x`` [m] into cells (the first half of ``build``)."""
+        self.fluid_cells.build(particle_x)
+
     def build(self, particle_x: wp.array) -> None:
         """Rebuild both lists for fluid positions ``particle_x`` [m]."""
+        self.sort(particle_x)
+        self.build_lists(particle_x)
+
+    def build_lists(self, particle_x: wp.array, density_out: wp.array | None = None, smoothing: str = "",
+                    smoothing_length: float = 0.0, particle_mass: float = 0.0, rest_density: float = 0.0,
+                    boundary_density: bool = True) -> None:
+        """Both lists for the positions ``particle_x`` [m] that ``sort`` was given; with ``density_out``
+        also rho_i = m sum_j W_ij [+ rho0 sum_b V_b W_ib with ``boundary_density``] [kg/m^3] over the
+        same pairs (``smoothing`` kernel name, h [m], m [kg], rho0 [kg/m^3]; the boundary term needs
+        ``boundary_volume``)."""
         from .kernels import neighbors as _dev
         from .launch import launch
 
+        with_density = density_out is not None
+        boundary_density = with_density and boundary_density and self.boundary_cells is not None
+        if boundary_density and self._boundary_weight is self._no_weight:
+            raise ValueError("NeighborLists: the boundary density term needs boundary_volume")
+        kernel = _dev.neighbor_list_kernel(smoothing if with_density else "")
+        density = density_out if with_density else self._no_density
         n = particle_x.shape[0]
         fc = self.fluid_cells
-        fc.build(particle_x)
-        launch(_dev.build_neighbor_list, n,
-               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, self.search_radius,
+        launch(kernel, n,
+               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, self._no_weight,
+                self._no_mask, 0, self.search_radius, float(smoothing_length), float(particle_mass), 0, 0,
                 fc.cell_point, particle_x],
-               [self.fluid.count, self.fluid.index, self._max_count], device=self.device)
+               [self.fluid.count, self.fluid.index, self._max_count, density], device=self.device)
         bc = self.boundary_cells
         if bc is not None:
-            launch(_dev.build_neighbor_list, n,
-                   [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, self.search_radius,
-                    fc.cell_point, particle_x],
-                   [self.boundary.count, self.boundary.index, self._max_count], device=self.device)
+            mask = self._boundary_mask
+            kernel = _dev.neighbor_list_kernel(smoothing if boundary_density else "")
+            launch(kernel, n,
+                   [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, self._boundary_weight,
+                    self._no_mask if mask is None else mask, int(mask is not None), self.search_radius,
+                    float(smoothing_length), float(rest_density), 1, 1, fc.cell_point, particle_x],
+                   [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
 
     @property
     def capacities(self) -> tuple[int, int]:

@@ -44,10 +44,11 @@ def neighbor_lists(sim, margin: float = 0.0) -> NeighborLists:
         pad = 2.0 * m.support_radius + (0.0 if m.container_lo is not None else 0.25 * float(np.max(hi - lo)))
         radius = m.support_radius + margin
         volume = (radius / m.support_radius) ** 3
+        with_boundary = m.boundary_method != "none"
         lists = NeighborLists(radius, lo - pad, hi + pad, m.fluid_count,
-                              m.boundary_x if m.boundary_method != "none" else None,
+                              m.boundary_x if with_boundary else None,
                               fluid_capacity=int(math.ceil(64 * volume)), boundary_capacity=int(math.ceil(48 * volume)),
-                              device=m.device)
+                              device=m.device, boundary_volume=m.boundary_volume if with_boundary else None)
         sim.fields["neighbor_lists"] = lists
     return lists
 
@@ -62,16 +63,16 @@ def _neighbor_args(sim, lists: bool):
 
 def neighbors_stage(sim, lists: bool = False) -> Stage:
     """Rebuild the fluid hash grid (cell = search radius = support radius H_s), or with ``lists``
-    the fluid-fluid and fluid-boundary neighbour lists."""
+    sort the fluid into the cells of the neighbour lists (``density_stage`` then builds the lists
+    and sums the density in one pass)."""
     if lists:
         nl = neighbor_lists(sim)
 
-        def run_lists(sim, dt):
-            nl.build(sim.fields["particle_x"])
+        def run_sort(sim, dt):
+            nl.sort(sim.fields["particle_x"])
 
-        return Stage("neighbors", run_lists, reads=("particle_x",), writes=("neighbor_lists",),
-                     doc=f"neighbour lists within H_s = {sim.model.support_radius:.4g} m "
-                         f"(dense cell grid, capacities {nl.capacities})")
+        return Stage("neighbors", run_sort, reads=("particle_x",), writes=("neighbor_cells",),
+                     doc=f"fluid sorted into cells of H_s = {sim.model.support_radius:.4g} m (dense cell grid)")
 
     def run(sim, dt):
         sim.fluid_grid.build(sim.fields["particle_x"])
@@ -81,11 +82,26 @@ def neighbors_stage(sim, lists: bool = False) -> Stage:
 
 
 def density_stage(sim, positions: str = "particle_x", lists: bool = False) -> Stage:
-    """rho_i = m sum_j W_ij (+ sum_b Psi_b W_ib with Akinci boundaries), report eq. 7/13."""
+    """rho_i = m sum_j W_ij (+ sum_b Psi_b W_ib with Akinci boundaries), report eq. 7/13.
+
+    With ``lists`` the same pass builds the fluid-fluid and fluid-boundary neighbour lists (after the
+    "neighbors" stage sorted the fluid into cells) that every later pass of the step reads: the
+    search already visits every pair, so the density costs no second walk over the neighbours."""
     m = sim.model
     with_boundary = m.boundary_method == "akinci2012"
-    kernel = _density.density_kernel(m.smoothing.name, with_boundary, "list" if lists else "grid")
     sim.allocate("particle_density", float)
+    if lists:
+        nl = neighbor_lists(sim)
+
+        def run_lists(sim, dt):
+            nl.build_lists(sim.fields[positions], sim.fields["particle_density"], m.smoothing.name,
+                           m.smoothing_length, m.particle_mass, m.rest_density, boundary_density=with_boundary)
+
+        reads = ("neighbor_cells", positions) + (("boundary_x", "boundary_volume") if with_boundary else ())
+        return Stage("density", run_lists, reads=reads, writes=("neighbor_lists", "particle_density"),
+                     doc=f"neighbour lists within H_s (capacities {nl.capacities}) and, over the same pairs, eq. 7"
+                         + (" + Akinci boundary eq. 13-15" if with_boundary else ""))
+    kernel = _density.density_kernel(m.smoothing.name, with_boundary, "grid")
 
     def run(sim, dt):
         f = sim.fields
@@ -95,7 +111,7 @@ def density_stage(sim, positions: str = "particle_x", lists: bool = False) -> St
                 boundary_neighbors, m.boundary_x, m.boundary_volume, fluid_neighbors, f[positions]],
                [f["particle_density"]], device=m.device)
 
-    reads = ("neighbor_lists" if lists else "fluid_grid", positions)
+    reads = ("fluid_grid", positions)
     reads += (("boundary_x", "boundary_volume", "boundary_grid") if with_boundary else ())
     return Stage("density", run, reads=reads, writes=("particle_density",),
                  doc="eq. 7" + (" + Akinci boundary eq. 13-15" if with_boundary else ""))
