@@ -39,8 +39,11 @@ def density_kernel(smoothing: str, with_boundary: bool, neighbors: str = "grid")
         xi = particle_x[i]
         total = float(0.0)
         if wp.static(lists):
-            for k in range(neighbor_count(fluid_neighbors, i)):
+            k = int(0)
+            k_end = int(neighbor_count(fluid_neighbors, i))
+            while k < k_end:
                 total += wp.static(value)(wp.length(xi - particle_x[fluid_neighbors.index[i, k]]), smoothing_length)
+                k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
             j = int(0)
@@ -52,9 +55,12 @@ def density_kernel(smoothing: str, with_boundary: bool, neighbors: str = "grid")
         if wp.static(with_boundary):
             boundary_sum = float(0.0)
             if wp.static(lists):
-                for k in range(neighbor_count(boundary_neighbors, i)):
+                k = int(0)
+                k_end = int(neighbor_count(boundary_neighbors, i))
+                while k < k_end:
                     b = boundary_neighbors.index[i, k]
                     boundary_sum += boundary_volume[b] * wp.static(value)(wp.length(xi - boundary_x[b]), smoothing_length)
+                    k += 1
             else:
                 bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
                 b = int(0)

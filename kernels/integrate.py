@@ -54,10 +54,13 @@ def xsph_kernel(smoothing: str, neighbors: str = "grid"):
         vi = particle_v[i]
         dv = wp.vec3(0.0)
         if wp.static(lists):
-            for k in range(neighbor_count(fluid_neighbors, i)):
+            k = int(0)
+            k_end = int(neighbor_count(fluid_neighbors, i))
+            while k < k_end:
                 j = fluid_neighbors.index[i, k]
                 r = wp.length(xi - particle_x[j])
                 dv += (particle_mass / particle_density[j] * wp.static(value)(r, smoothing_length)) * (particle_v[j] - vi)
+                k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
             j = int(0)

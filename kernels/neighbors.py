@@ -38,6 +38,9 @@ def collect_neighbors(
 # Coordinates outside the grid are clamped to its border cells; clamping keeps cells of points
 # closer than the cell size adjacent, so results stay exact (only slower for far-out particles).
 # Kernels that take ``tid_offset`` first are launched in disjoint ranges by ``warp_sph.launch``.
+# Loops over a neighbour list are ``while k < k_end`` loops in every kernel: Warp's CPU code for
+# ``for k in range(n)`` with a run-time n was measured 11-20 % slower (59k particles, one thread:
+# PBF density pass 49 -> 44 ms, correction 23 -> 19 ms, WCSPH forces 25 -> 21.5 ms).
 
 
 @wp.struct

@@ -270,7 +270,9 @@ def density_lambda_pairs_kernel(smoothing: str, with_boundary: bool, tensile: bo
         grad_i = wp.vec3(0.0)
         grad_sq = float(0.0)
         n = int(0)
-        for k in range(neighbor_count(fluid_neighbors, i)):
+        k = int(0)
+        k_end = int(neighbor_count(fluid_neighbors, i))
+        while k < k_end:
             j = fluid_neighbors.index[i, k]
             x_ij = xi - predicted_x[j]
             if wp.dot(x_ij, x_ij) < support2:
@@ -284,17 +286,21 @@ def density_lambda_pairs_kernel(smoothing: str, with_boundary: bool, tensile: bo
                 if wp.static(tensile):
                     pairs_out.value[i, n] = w
                 n += 1
+            k += 1
         pairs_out.count[i] = n
         ratio = volume * w_sum
         grad_b = wp.vec3(0.0)
         if wp.static(with_boundary):
-            for k in range(neighbor_count(boundary_neighbors, i)):
+            k = int(0)
+            k_end = int(neighbor_count(boundary_neighbors, i))
+            while k < k_end:
                 b = boundary_neighbors.index[i, k]
                 x_ib = xi - boundary_x[b]
                 if wp.dot(x_ib, x_ib) < support2:
                     vb = boundary_volume[b]
                     ratio += vb * wp.static(value)(wp.length(x_ib), h)
                     grad_b += vb * wp.static(gradient)(x_ib, h)
+                k += 1
         pairs_out.boundary_gradient[i] = grad_b
         grad_i += grad_b
         c_lam = constraint_lambda(ratio, grad_i, grad_sq, relaxation_epsilon)
@@ -335,11 +341,14 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         lam_i = particle_lambda[i]
         dx = wp.vec3(0.0)
-        for k in range(pairs.count[i]):
+        k = int(0)
+        k_end = int(pairs.count[i])
+        while k < k_end:
             s = lam_i + particle_lambda[pairs.index[i, k]]
             if wp.static(tensile):
                 s -= tensile_k * wp.pow(pairs.value[i, k] * tensile_inv_w, float(tensile_n)) * tensile_scale
             dx += s * pairs.gradient[i, k]
+            k += 1
         if wp.static(with_boundary):
             dx_b = lam_i * pairs.boundary_gradient[i]
             dx += dx_b
@@ -474,7 +483,9 @@ def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool, ne
         a = wp.vec3(0.0)
         if wp.static(with_viscosity):
             if wp.static(lists):
-                for k in range(neighbor_count(fluid_neighbors, i)):
+                k = int(0)
+                k_end = int(neighbor_count(fluid_neighbors, i))
+                while k < k_end:
                     j = fluid_neighbors.index[i, k]
                     if j != i:
                         x_ij = xi - particle_x[j]
@@ -482,6 +493,7 @@ def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool, ne
                             a += viscosity_acceleration(viscosity, particle_mass, particle_density[i],
                                                         particle_density[j], vi - particle_v[j], x_ij, eps_h2,
                                                         wp.static(gradient)(x_ij, h))
+                    k += 1
             else:
                 query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
                 j = int(0)
@@ -497,12 +509,15 @@ def viscous_kernel(smoothing: str, with_viscosity: bool, with_friction: bool, ne
             nu_b = boundary_friction * h * speed_of_sound / (2.0 * particle_density[i])
             a_f = wp.vec3(0.0)
             if wp.static(lists):
-                for k in range(neighbor_count(boundary_neighbors, i)):
+                k = int(0)
+                k_end = int(neighbor_count(boundary_neighbors, i))
+                while k < k_end:
                     b = boundary_neighbors.index[i, k]
                     x_ib = xi - boundary_x[b]
                     if wp.length(x_ib) < support_radius:
                         a_f += boundary_friction_acceleration(nu_b, rest_density * boundary_volume[b], vi, x_ib,
                                                               eps_h2, wp.static(gradient)(x_ib, h))
+                    k += 1
             else:
                 bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
                 b = int(0)
@@ -550,12 +565,15 @@ def vorticity_kernel(smoothing: str, neighbors: str = "grid"):
         vi = particle_v[i]
         w = wp.vec3(0.0)
         if wp.static(lists):
-            for k in range(neighbor_count(fluid_neighbors, i)):
+            k = int(0)
+            k_end = int(neighbor_count(fluid_neighbors, i))
+            while k < k_end:
                 j = fluid_neighbors.index[i, k]
                 x_ij = xi - particle_x[j]
                 if wp.length(x_ij) < support_radius:
                     w += (particle_mass / particle_density[j]) * wp.cross(
                         wp.static(gradient)(x_ij, smoothing_length), particle_v[j] - vi)
+                k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
             j = int(0)
@@ -602,12 +620,15 @@ def confinement_kernel(smoothing: str, neighbors: str = "grid"):
         mag_i = wp.length(wi)
         eta = wp.vec3(0.0)
         if wp.static(lists):
-            for k in range(neighbor_count(fluid_neighbors, i)):
+            k = int(0)
+            k_end = int(neighbor_count(fluid_neighbors, i))
+            while k < k_end:
                 j = fluid_neighbors.index[i, k]
                 x_ij = xi - particle_x[j]
                 if wp.length(x_ij) < support_radius:
                     eta += (particle_mass / particle_density[j] * (wp.length(particle_vorticity[j]) - mag_i)) * wp.static(
                         gradient)(x_ij, smoothing_length)
+                k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
             j = int(0)

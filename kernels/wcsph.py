@@ -145,12 +145,15 @@ def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, wit
         eps_h2 = 0.01 * h * h
         a = wp.vec3(0.0)
         if wp.static(lists):
-            for k in range(neighbor_count(fluid_neighbors, i)):
+            k = int(0)
+            k_end = int(neighbor_count(fluid_neighbors, i))
+            while k < k_end:
                 j = fluid_neighbors.index[i, k]
                 if j != i:
                     rho_j = particle_density[j]
                     a += fluid_pair(xi - particle_x[j], vi - particle_v[j], p_rho2_i,
                                     particle_pressure[j] / (rho_j * rho_j), rho_i, rho_j, particle_mass, h, eps_h2, viscosity)
+                k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
             j = int(0)
@@ -165,10 +168,13 @@ def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, wit
         if wp.static(akinci):
             nu_b = boundary_friction * h * speed_of_sound / (2.0 * rho_i)
             if wp.static(lists):
-                for k in range(neighbor_count(boundary_neighbors, i)):
+                k = int(0)
+                k_end = int(neighbor_count(boundary_neighbors, i))
+                while k < k_end:
                     b = boundary_neighbors.index[i, k]
                     a_boundary += akinci_pair(xi - boundary_x[b], vi, rest_density * boundary_volume[b], p_rho2_b, nu_b,
                                               h, eps_h2)
+                    k += 1
             else:
                 bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
                 b = int(0)
@@ -181,8 +187,11 @@ def acceleration_kernel(smoothing: str, boundary: str, with_viscosity: bool, wit
             h_b = 0.5 * support_radius
             strength = 0.02 * speed_of_sound * speed_of_sound
             if wp.static(lists):
-                for k in range(neighbor_count(boundary_neighbors, i)):
+                k = int(0)
+                k_end = int(neighbor_count(boundary_neighbors, i))
+                while k < k_end:
                     a_boundary += penalty_pair(xi - boundary_x[boundary_neighbors.index[i, k]], h_b, strength)
+                    k += 1
             else:
                 bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
                 b = int(0)
