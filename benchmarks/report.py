@@ -325,21 +325,35 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                 lines += ["<details><summary>time per stage</summary>", ""] + st + ["", "</details>", ""]
         lines += _failures(recs) + [""]
 
-    scaling = latest(data.get("scaling", []))
-    if scaling:
-        lines += ["## Scaling", ""] + _section_head(scaling)
+    # the latest scaling run of each solver
+    by_solver: dict[str, list[dict]] = {}
+    for r in data.get("scaling", []):
+        by_solver.setdefault((r.get("params") or {}).get("solver", "wcsph"), []).append(r)
+    for solver in sorted(by_solver, key=lambda s: (s != "wcsph", s)):
+        scaling = latest(by_solver[solver])
+        lines += [f"## Scaling: {solver}", ""] + _section_head(scaling)
+        iterative = any(_m(r, "ns_per_particle_iteration") for r in scaling)
         rows = []
         for r in sorted(scaling, key=lambda r: r.get("fluid_particles") or 0):
             rows.append([_fmt((r.get("params") or {}).get("particle_radius")), r.get("status", "?"),
                          _fmt(r.get("fluid_particles")), _fmt(r.get("boundary_particles")), _fmt(_m(r, "steps")),
                          _fmt(_m(r, "ms_per_step")), _fmt(_m(r, "ns_per_particle_step")),
                          _fmt(_m(r, "particle_steps_per_second")), _fmt(_m(r, "bytes_per_particle")),
-                         _fmt(_m(r, "rss_growth_per_particle")), _fmt((_m(r, "peak_rss_bytes") or 0) / 2**20)])
+                         _fmt(_m(r, "rss_growth_per_particle")), _fmt((_m(r, "peak_rss_bytes") or 0) / 2**20)]
+                        + ([_fmt(_m(r, "solver_iterations_mean")), _fmt(_m(r, "ns_per_particle_iteration"))]
+                           if iterative else []))
         lines += _table(["radius [m]", "status", "fluid N", "boundary N", "steps", "ms/step", "ns/particle-step",
-                         "particle-steps/s", "bytes/particle", "RSS growth/particle", "peak RSS [MiB]"], rows) + [""]
-        png = plot_scaling(scaling, results_dir / "scaling.png")
+                         "particle-steps/s", "bytes/particle", "RSS growth/particle", "peak RSS [MiB]"]
+                        + (["iterations/step", "ns/particle-iteration"] if iterative else []), rows) + [""]
+        for key, what in (("ns_per_particle_step", "particle-step"), ("ns_per_particle_iteration", "particle-iteration")):
+            cost = [_m(r, key) for r in scaling if r.get("status") == "ok"]
+            cost = [c for c in cost if c]
+            if len(cost) > 1:
+                lines += [f"Flatness: the slowest cost per {what} is {max(cost) / min(cost):.2f}x the fastest "
+                          f"({_fmt(min(cost))} to {_fmt(max(cost))} ns).", ""]
+        png = plot_scaling(scaling, results_dir / ("scaling.png" if solver == "wcsph" else f"scaling_{solver}.png"))
         if png:
-            lines += [f"![scaling]({rel}/{png.name})", ""]
+            lines += [f"![scaling, {solver}]({rel}/{png.name})", ""]
         st = stage_table(scaling)
         if st:
             lines += ["<details><summary>time per stage</summary>", ""] + st + ["", "</details>", ""]
@@ -406,7 +420,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                   "triangles) of one `SurfaceReconstructor.extract` call, median of 3, warm. splashsurf "
                   "times are the reference numbers from the issue (cube size 0.5 r), not rerun here.", ""]
 
-    if not (sweeps or scaling or by_size or surf):
+    if not (sweeps or by_solver or by_size or surf):
         lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]
     md_path.parent.mkdir(parents=True, exist_ok=True)
     md_path.write_text("\n".join(lines).rstrip() + "\n")

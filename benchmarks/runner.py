@@ -264,13 +264,16 @@ def run_warp_sph(spec: RunSpec) -> dict:
         status = "ok"
         wall = 0.0
         steps = 0
+        iterations = None
         if spec.steps > 0:
             # speed only: fixed substeps at the initial CFL step
             stats0 = sim.statistics()
             dt = sim.time_step(stats0.max_speed)
+            iterations = []
             t1 = time.perf_counter()
             for _ in range(spec.steps):
                 sim.step(dt)
+                iterations.append(sim.solver.step_statistics(sim).get("iterations"))  # host values, no sync
             wp.synchronize_device(sim.device)
             wall = time.perf_counter() - t1
             steps = spec.steps
@@ -302,6 +305,11 @@ def run_warp_sph(spec: RunSpec) -> dict:
                "simulated_seconds": simulated, "steps": steps, "frames": len(series["time"]) - 1}
         met.update(M.speed_metrics(wall, simulated, steps, m.fluid_count))
         met.update(_memory_metrics(sim, rss0))
+        if spec.steps > 0 and iterations and None not in iterations:
+            # iterative solvers: the iterations a step needs grow with the fluid's depth in particles
+            # (Jacobi), so the cost of one particle-iteration is the flat measure of the kernels
+            met["solver_iterations_mean"] = float(np.mean(iterations))
+            met["ns_per_particle_iteration"] = 1e9 * wall / (m.fluid_count * float(np.sum(iterations)))
         if spec.steps <= 0:
             met["density_error_mean_avg"] = M.series_summary(series["density_error_mean"][1:])["mean"]
             met["density_error_mean_max"] = M.series_summary(series["density_error_mean"][1:])["max"]

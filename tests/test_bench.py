@@ -154,7 +154,8 @@ def test_scaling_records_time_and_memory(tmp_path):
     assert [r["status"] for r in recs] == ["ok", "ok"]
     assert recs[1]["fluid_particles"] > recs[0]["fluid_particles"]
     assert all(r["metrics"]["ns_per_particle_step"] > 0 and r["metrics"]["bytes_per_particle"] > 0 for r in recs)
-    assert "## Scaling" in (tmp_path / "RESULTS.md").read_text()
+    md = (tmp_path / "RESULTS.md").read_text()
+    assert "## Scaling: wcsph" in md and "Flatness: the slowest cost per particle-step is" in md
 
 
 def test_failed_case_is_a_record_not_a_crash(tmp_path):

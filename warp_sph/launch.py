@@ -17,6 +17,9 @@ from concurrent.futures import ThreadPoolExecutor
 import warp as wp
 
 MIN_RANGE = 1024  # fewest indices worth a thread of their own
+#: the same for light kernels (a few loads and flops per index: integrators, gathers, the equation
+#: of state), for which a split costs more than it saves below this many indices
+LIGHT_MIN_RANGE = 32768
 
 _pool: ThreadPoolExecutor | None = None
 _loaded: set = set()
@@ -38,9 +41,10 @@ def _takes_offset(kernel) -> bool:
     return bool(args) and args[0].label == "tid_offset"
 
 
-def launch(kernel, dim: int, inputs, outputs=(), device=None) -> None:
+def launch(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = MIN_RANGE) -> None:
     """wp.launch over ``dim`` threads; nothing happens when dim == 0. Kernels taking ``tid_offset``
-    first run in disjoint ranges on all CPU cores (see the module docstring)."""
+    first run in disjoint ranges on all CPU cores (see the module docstring), each of at least
+    ``min_range`` indices (``LIGHT_MIN_RANGE`` for light kernels)."""
     global _pool
     if dim <= 0:
         return
@@ -48,7 +52,7 @@ def launch(kernel, dim: int, inputs, outputs=(), device=None) -> None:
         wp.launch(kernel, dim=dim, inputs=list(inputs), outputs=list(outputs), device=device)
         return
     device = wp.get_device(device)
-    threads = min(cpu_threads(), dim // MIN_RANGE) if device.is_cpu else 1
+    threads = min(cpu_threads(), dim // max(min_range, 1)) if device.is_cpu else 1
     key = (kernel, device.alias)
     if threads <= 1 or key not in _loaded:
         # the first launch also loads the module, from this thread only

@@ -37,7 +37,7 @@ def neighbor_lists(grid: NeighborGrid, points: wp.array, query_x: wp.array, capa
     import numpy as np
 
     from .kernels import neighbors as _dev
-    from .launch import launch
+    from .launch import LIGHT_MIN_RANGE, launch
 
     n = query_x.shape[0]
     counts = wp.zeros(n, dtype=int, device=query_x.device)
@@ -91,19 +91,19 @@ class CellGrid:
     def build(self, points: wp.array) -> None:
         """Sort ``points`` (wp.array of vec3 [m], at most ``capacity``) by cell."""
         from .kernels import neighbors as _dev
-        from .launch import launch
+        from .launch import LIGHT_MIN_RANGE, launch
 
         n = points.shape[0]
         if n > self.capacity:
             raise ValueError(f"CellGrid holds {self.capacity} points, got {n}")
         self.count = n
         launch(_dev.compute_cell_keys, n, [self.lo, self.inv_cell_size, self.dims, points],
-               [self._keys, self.cell_point], device=self.device)
+               [self._keys, self.cell_point], device=self.device, min_range=LIGHT_MIN_RANGE)
         if n:
             wp.utils.radix_sort_pairs(self._keys, self.cell_point, n)
         launch(_dev.compute_cell_start, n + 1, [n, self.cell_count, self._keys], [self.cell_start],
-               device=self.device)
-        launch(_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device)
+               device=self.device, min_range=LIGHT_MIN_RANGE)
+        launch(_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device, min_range=LIGHT_MIN_RANGE)
 
     def occupied_near_mask(self) -> wp.array:
         """uint8 per cell: 1 where a point lies in the cell or one of its 26 neighbours (host, after
@@ -191,7 +191,7 @@ class NeighborLists:
         same pairs (``smoothing`` kernel name, h [m], m [kg], rho0 [kg/m^3]; the boundary term needs
         ``boundary_volume``)."""
         from .kernels import neighbors as _dev
-        from .launch import launch
+        from .launch import LIGHT_MIN_RANGE, launch
 
         with_density = density_out is not None
         boundary_density = with_density and boundary_density and self.boundary_cells is not None

@@ -28,7 +28,7 @@ import warp as wp
 from .wcsph import VISCOUS_FACTOR
 from .kernels import integrate as _integrate
 from .kernels import pbf as _pbf
-from .launch import launch
+from .launch import LIGHT_MIN_RANGE, launch
 from .smoothing import evaluate, lattice_offsets
 from .sph_common import neighbor_lists, xsph_stage
 from .step_graph import Stage
@@ -198,7 +198,7 @@ class PbfSolver:
                 wp.copy(f["particle_x"], f["predicted_x"])
                 self.last_stabilization = it
             launch(_pbf.predict_positions, n, [wp.vec3(*m.gravity), float(dt), f["particle_x"]],
-                   [f["particle_v"], f["predicted_x"], f["boundary_force"]], device=dev)
+                   [f["particle_v"], f["predicted_x"], f["boundary_force"]], device=dev, min_range=LIGHT_MIN_RANGE)
 
         def run_neighbors(sim, dt):
             build_neighbors(sim)
@@ -248,7 +248,7 @@ class PbfSolver:
                         boundary_neighbors, m.boundary_x, m.boundary_volume,
                         fluid_neighbors, f["predicted_x"], f["particle_lambda"]],
                        [f["position_correction"], f["boundary_force"], self._correction_size], device=dev)
-            launch(_pbf.apply_correction, n, [f["position_correction"]], [f["predicted_x"]], device=dev)
+            launch(_pbf.apply_correction, n, [f["position_correction"]], [f["predicted_x"]], device=dev, min_range=LIGHT_MIN_RANGE)
             launch(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
                    [_pbf.REDUCE_CHUNK, self._correction_size, f["predicted_x"], self._neighbor_x],
                    [self._correction_partial], device=dev)
@@ -298,7 +298,7 @@ class PbfSolver:
         def run_update(sim, dt):
             f = sim.fields
             launch(_pbf.update_velocity, n, [wp.vec3(*m.gravity), 1.0 / dt, f["predicted_x"]],
-                   [f["particle_v"], f["particle_x"], f["particle_acceleration"]], device=dev)
+                   [f["particle_v"], f["particle_x"], f["particle_acceleration"]], device=dev, min_range=LIGHT_MIN_RANGE)
 
         boundary_reads = ("boundary_x", "boundary_volume", "boundary_grid") if with_boundary else ()
         if lists:
@@ -340,7 +340,7 @@ class PbfSolver:
                         boundary_neighbors, m.boundary_x, m.boundary_volume,
                         fluid_neighbors, f["particle_x"], f["particle_v"], f["particle_density"]],
                        [f["viscous_dv"], f["boundary_force"]], device=dev)
-                launch(_integrate.add_velocity_correction, n, [f["viscous_dv"]], [f["particle_v"]], device=dev)
+                launch(_integrate.add_velocity_correction, n, [f["viscous_dv"]], [f["particle_v"]], device=dev, min_range=LIGHT_MIN_RANGE)
 
             terms = (["viscosity"] if with_viscosity else []) + (["boundary friction (eq. 22-24)"] if with_friction else [])
             stages.append(Stage("viscosity", run_viscous,
@@ -365,7 +365,7 @@ class PbfSolver:
                                  m.reference_speed, float(dt), fluid_neighbors, f["particle_x"],
                                  f["particle_density"], f["particle_vorticity"]],
                        [f["vorticity_dv"]], device=dev)
-                launch(_integrate.add_velocity_correction, n, [f["vorticity_dv"]], [f["particle_v"]], device=dev)
+                launch(_integrate.add_velocity_correction, n, [f["vorticity_dv"]], [f["particle_v"]], device=dev, min_range=LIGHT_MIN_RANGE)
 
             stages.append(Stage("vorticity", run_vorticity, reads=(neighbors_field, "particle_x", "particle_density"),
                                 writes=("particle_vorticity", "vorticity_dv"), updates=("particle_v",),

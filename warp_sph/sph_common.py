@@ -13,7 +13,7 @@ import warp as wp
 
 from .kernels import density as _density
 from .kernels import integrate as _integrate
-from .launch import launch
+from .launch import LIGHT_MIN_RANGE, launch
 from .neighbors import NeighborLists
 from .step_graph import Stage
 
@@ -131,7 +131,7 @@ def xsph_stage(sim, positions: str = "particle_x", lists: bool = False) -> Stage
                 fluid_neighbors, f[positions], f["particle_v"], f["particle_density"]],
                [f["velocity_correction"]], device=m.device)
         launch(_integrate.add_velocity_correction, m.fluid_count, [f["velocity_correction"]],
-               [f["particle_v"]], device=m.device)
+               [f["particle_v"]], device=m.device, min_range=LIGHT_MIN_RANGE)
 
     return Stage("xsph", run, reads=("neighbor_lists" if lists else "fluid_grid", positions, "particle_density"),
                  writes=("velocity_correction",), updates=("particle_v",), doc=f"XSPH eq. 21, eps = {m.xsph}")

@@ -10,7 +10,7 @@ import warp as wp
 
 from .kernels import integrate as _integrate
 from .kernels import wcsph as _wcsph
-from .launch import launch
+from .launch import LIGHT_MIN_RANGE, launch
 from .sph_common import _neighbor_args, density_stage, neighbors_stage, xsph_stage
 from .step_graph import Stage
 
@@ -52,7 +52,7 @@ class WcsphSolver:
 
         def run_pressure(sim, dt):
             launch(pressure_kernel, n, [m.rest_density, m.stiffness, sim.fields["particle_density"]],
-                   [sim.fields["particle_pressure"]], device=m.device)
+                   [sim.fields["particle_pressure"]], device=m.device, min_range=LIGHT_MIN_RANGE)
 
         def run_forces(sim, dt):
             f = sim.fields
@@ -67,7 +67,7 @@ class WcsphSolver:
         def run_integrate(sim, dt):
             f = sim.fields
             launch(_integrate.integrate_symplectic_euler, n, [f["particle_acceleration"], float(dt)],
-                   [f["particle_v"], f["particle_x"]], device=m.device)
+                   [f["particle_v"], f["particle_x"]], device=m.device, min_range=LIGHT_MIN_RANGE)
 
         boundary_reads = ("boundary_x", "boundary_volume", "boundary_grid") if with_boundary else ()
         terms = ["pressure (eq. 10)"]
