@@ -1,5 +1,6 @@
 """Neighbour-list collection over a hash grid (diagnostics, tests and neighbour statistics)."""
 import functools
+from typing import Any
 
 import warp as wp
 
@@ -258,3 +259,34 @@ def neighbor_list_kernel(smoothing: str = ""):
             density_out[i] = rho
 
     return build_neighbor_list
+
+
+# --- Particle order (warp_sph/particle_order.py) ----------------------------------------------
+
+
+@wp.kernel(enable_backward=False)
+def gather_by_order(
+    tid_offset: int,
+    # In:
+    order: wp.array(dtype=wp.int32),
+    source: wp.array(dtype=Any),
+    # Out:
+    target_out: wp.array(dtype=Any),
+):
+    """target[k] = source[order[k]] (into cell order)."""
+    k = wp.tid() + tid_offset
+    target_out[k] = source[order[k]]
+
+
+@wp.kernel(enable_backward=False)
+def scatter_by_order(
+    tid_offset: int,
+    # In:
+    order: wp.array(dtype=wp.int32),
+    source: wp.array(dtype=Any),
+    # Out:
+    target_out: wp.array(dtype=Any),
+):
+    """target[order[k]] = source[k] (back to the stable particle order)."""
+    k = wp.tid() + tid_offset
+    target_out[order[k]] = source[k]

@@ -114,6 +114,9 @@ class Simulation:
         self.last_frame: FrameStatistics | None = None
         self._refresh_density()
         self.watchdog = Watchdog(self)
+        #: sort the per-particle fields into cell order for each frame (``warp_sph.particle_order``)
+        self.cell_order = True
+        self._cell_order = None
 
     # --- fields ----------------------------------------------------------------------------
     def allocate(self, name: str, dtype) -> wp.array:
@@ -168,6 +171,8 @@ class Simulation:
     def advance_frame(self) -> FrameStatistics:
         """Advance to the next frame time in equal substeps no larger than the time-step bound.
 
+        During the substeps the per-particle fields are in cell order (``cell_order``, see
+        ``warp_sph.particle_order``); before and after, every particle is at its stable index.
         The watchdog checks the frame's end state (non-finite values, escaped, too fast or too
         compressed particles). On a violation the frame is retried from its start with half the
         step (``time.on_instability = "retry"``) or a SimulationError names the stage, step, time,
@@ -182,12 +187,17 @@ class Simulation:
             n = frame_substeps(self.frame_dt, bound)
             dt = self.frame_dt / n
             solver_stats = []
-            for _ in range(n):
-                self.step(dt)
-                solver_stats.append(self.solver.step_statistics(self))
-            finish = getattr(self.solver, "finish_frame", None)
-            if finish is not None:
-                finish(self)  # e.g. PBF: the density at the frame's positions, for the statistics
+            order = self._sort_particles()
+            try:
+                for _ in range(n):
+                    self.step(dt)
+                    solver_stats.append(self.solver.step_statistics(self))
+                finish = getattr(self.solver, "finish_frame", None)
+                if finish is not None:
+                    finish(self)  # e.g. PBF: the density at the frame's positions, for the statistics
+            finally:
+                if order is not None:
+                    self._cell_order.unsort(order)
             if self._grow_neighbor_lists():
                 wd.restore()  # neighbours were dropped: redo the frame with the larger lists
                 continue
@@ -211,6 +221,16 @@ class Simulation:
                                 "max": float(np.max([s[k] for s in solver_stats]))} for k in keys}
         self.last_frame = stats
         return stats
+
+    def _sort_particles(self):
+        """Per-particle fields into cell order for this frame's substeps (None when off)."""
+        if not self.cell_order:
+            return None
+        if self._cell_order is None:
+            from .particle_order import CellOrder
+
+            self._cell_order = CellOrder(self)
+        return self._cell_order.sort()
 
     def _grow_neighbor_lists(self) -> bool:
         """Once per frame (one host read): True, after growing them, if a particle had more neighbours
