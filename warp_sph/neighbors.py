@@ -100,7 +100,8 @@ class CellGrid:
         launch(_dev.compute_cell_keys, n, [self.lo, self.inv_cell_size, self.dims, points],
                [self._keys, self.cell_point], device=self.device, min_range=LIGHT_MIN_RANGE)
         if n:
-            wp.utils.radix_sort_pairs(self._keys, self.cell_point, n)
+            # keys < cell_count: sort only their low bits (measured 0.22 -> 0.1 ms at 6.9k points)
+            wp.utils.radix_sort_pairs(self._keys, self.cell_point, n, 0, max(1, int(self.cell_count - 1).bit_length()))
         launch(_dev.compute_cell_start, n + 1, [n, self.cell_count, self._keys], [self.cell_start],
                device=self.device, min_range=LIGHT_MIN_RANGE)
         launch(_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device, min_range=LIGHT_MIN_RANGE)
