@@ -37,7 +37,7 @@ def neighbor_lists(grid: NeighborGrid, points: wp.array, query_x: wp.array, capa
     import numpy as np
 
     from .kernels import neighbors as _dev
-    from .launch import LIGHT_MIN_RANGE, launch
+    from .launch import launch
 
     n = query_x.shape[0]
     counts = wp.zeros(n, dtype=int, device=query_x.device)
@@ -192,7 +192,7 @@ class NeighborLists:
         same pairs (``smoothing`` kernel name, h [m], m [kg], rho0 [kg/m^3]; the boundary term needs
         ``boundary_volume``)."""
         from .kernels import neighbors as _dev
-        from .launch import LIGHT_MIN_RANGE, launch
+        from .launch import launch
 
         with_density = density_out is not None
         boundary_density = with_density and boundary_density and self.boundary_cells is not None
