@@ -326,12 +326,15 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
         lines += _failures(recs) + [""]
 
     # the latest scaling run of each solver
-    by_solver: dict[str, list[dict]] = {}
+    by_solver: dict[tuple, list[dict]] = {}  # (solver, the command's other --set overrides)
     for r in data.get("scaling", []):
-        by_solver.setdefault((r.get("params") or {}).get("solver", "wcsph"), []).append(r)
-    for solver in sorted(by_solver, key=lambda s: (s != "wcsph", s)):
-        scaling = latest(by_solver[solver])
-        lines += [f"## Scaling: {solver}", ""] + _section_head(scaling)
+        solver = (r.get("params") or {}).get("solver", "wcsph")
+        extra = tuple(o for o in (r.get("spec") or {}).get("overrides", [])
+                      if not o.startswith(("particle_radius=", "solver=")))
+        by_solver.setdefault((solver, extra), []).append(r)
+    for solver, extra in sorted(by_solver, key=lambda k: (k[0] != "wcsph", k)):
+        scaling = latest(by_solver[(solver, extra)])
+        lines += [f"## Scaling: {solver}" + (f" ({', '.join(extra)})" if extra else ""), ""] + _section_head(scaling)
         iterative = any(_m(r, "ns_per_particle_iteration") for r in scaling)
         rows = []
         for r in sorted(scaling, key=lambda r: r.get("fluid_particles") or 0):
@@ -351,7 +354,9 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
             if len(cost) > 1:
                 lines += [f"Flatness: the slowest cost per {what} is {max(cost) / min(cost):.2f}x the fastest "
                           f"({_fmt(min(cost))} to {_fmt(max(cost))} ns).", ""]
-        png = plot_scaling(scaling, results_dir / ("scaling.png" if solver == "wcsph" else f"scaling_{solver}.png"))
+        stem = "scaling" + ("" if solver == "wcsph" else f"_{solver}") + "".join(
+            "_" + "".join(c if c.isalnum() else "_" for c in o) for o in extra)
+        png = plot_scaling(scaling, results_dir / f"{stem}.png")
         if png:
             lines += [f"![scaling, {solver}]({rel}/{png.name})", ""]
         st = stage_table(scaling)

@@ -156,6 +156,13 @@ def test_scaling_records_time_and_memory(tmp_path):
     assert all(r["metrics"]["ns_per_particle_step"] > 0 and r["metrics"]["bytes_per_particle"] > 0 for r in recs)
     md = (tmp_path / "RESULTS.md").read_text()
     assert "## Scaling: wcsph" in md and "Flatness: the slowest cost per particle-step is" in md
+    # a run with other overrides gets a section of its own; iterative solvers report per iteration
+    argv = ["scaling", "--solver", "pbf", "--set", "pbf.max_iterations=2", "--radii", "0.1", "--steps", "2",
+            "--repeats", "1", "--out", str(tmp_path), "--in-process"]
+    assert B.main(argv) == 0
+    md = (tmp_path / "RESULTS.md").read_text()
+    assert "## Scaling: wcsph" in md and "## Scaling: pbf (pbf.max_iterations=2)" in md
+    assert "ns/particle-iteration" in md
 
 
 def test_failed_case_is_a_record_not_a_crash(tmp_path):
