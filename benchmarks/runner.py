@@ -272,17 +272,15 @@ def run_warp_sph(spec: RunSpec) -> dict:
             stats0 = sim.statistics()
             dt = sim.time_step(stats0.max_speed)
             blocks = []  # (wall [s], iterations per step) of each block of spec.steps substeps
-            order = sim._sort_particles()  # as advance_frame steps: the fields in cell order
-            for _ in range(max(1, int(spec.repeats))):
-                its = []
-                t1 = time.perf_counter()
-                for _ in range(spec.steps):
-                    sim.step(dt)
-                    its.append(sim.solver.step_statistics(sim).get("iterations"))  # host values, no sync
-                wp.synchronize_device(sim.device)
-                blocks.append((time.perf_counter() - t1, its))
-            if order is not None:
-                sim._cell_order.unsort(order)
+            with sim.in_cell_order():  # as advance_frame steps them
+                for _ in range(max(1, int(spec.repeats))):
+                    its = []
+                    t1 = time.perf_counter()
+                    for _ in range(spec.steps):
+                        sim.step(dt)
+                        its.append(sim.solver.step_statistics(sim).get("iterations"))  # host values, no sync
+                    wp.synchronize_device(sim.device)
+                    blocks.append((time.perf_counter() - t1, its))
             wall, iterations = min(blocks, key=lambda b: b[0])
             record["block_seconds"] = [b[0] for b in blocks]
             steps = spec.steps

@@ -1,4 +1,5 @@
-"""Neighbour-list collection over a hash grid (diagnostics, tests and neighbour statistics)."""
+"""Neighbour search kernels: per-step neighbour lists over a dense cell grid (with the fused WCSPH
+density sum), the cell-order gathers, and list collection over a hash grid (diagnostics, tests)."""
 import functools
 from typing import Any
 
@@ -154,10 +155,10 @@ def neighbor_list_kernel(smoothing: str = ""):
     in cell order; the count is exact, entries past the capacity are dropped and max_count_out[i]
     keeps the largest such count of particle i (cleared by the host after reading it).
 
-    Density (``smoothing``): density_out[i] = weight_scale sum_j w_j W(|x_ij|, h) [kg/m^3] over the
-    listed pairs, w_j = sorted_weight[k] (``use_weights``) or 1, added to density_out[i] when
-    ``accumulate`` (the boundary term after the fluid term). Fluid: weight_scale = m, w = 1;
-    Akinci boundary: weight_scale = rho0, w_b = V_b.
+    Density (``smoothing``) over the listed pairs [kg/m^3]: the fluid launch writes
+    density_out[i] = weight_scale sum_j W_ij (weight_scale = m); the boundary launch
+    (``boundary_term``, after it) adds weight_scale sum_b w_b W_ib (weight_scale = rho0,
+    w_b = sorted_weight[k] = Akinci V_b in cell order).
 
     cell_mask (``use_mask``): 0 for cells with no point of the searched set within one cell, so
     a query there finds nothing without visiting any cell (the boundary lists of the interior).
@@ -185,8 +186,7 @@ def neighbor_list_kernel(smoothing: str = ""):
         # Density sum (with ``smoothing``):
         smoothing_length: float,
         weight_scale: float,
-        use_weights: int,
-        accumulate: int,
+        boundary_term: int,
         # Query points (threads in the order ``query_order``):
         query_order: wp.array(dtype=wp.int32),
         query_x: wp.array(dtype=wp.vec3),
@@ -202,9 +202,6 @@ def neighbor_list_kernel(smoothing: str = ""):
             c = cell_of(xi, grid_lo, inv_cell_size, grid_dims)
             if cell_mask[c[0] + grid_dims[0] * (c[1] + grid_dims[1] * c[2])] == wp.uint8(0):
                 neighbor_count_out[i] = 0
-                if wp.static(with_density):
-                    if accumulate == 0:
-                        density_out[i] = 0.0
                 return
         q = (xi - grid_lo) * inv_cell_size
         qr = search_radius * inv_cell_size
@@ -245,7 +242,7 @@ def neighbor_list_kernel(smoothing: str = ""):
                             n += 1
                             if wp.static(with_density):
                                 w = wp.static(value)(wp.sqrt(dd), smoothing_length)
-                                if use_weights != 0:
+                                if boundary_term != 0:
                                     w *= sorted_weight[k]
                                 total += w
                         k += 1
@@ -254,7 +251,7 @@ def neighbor_list_kernel(smoothing: str = ""):
             max_count_out[i] = wp.max(max_count_out[i], n)
         if wp.static(with_density):
             rho = weight_scale * total
-            if accumulate != 0:
+            if boundary_term != 0:
                 rho = density_out[i] + rho
             density_out[i] = rho
 

@@ -204,7 +204,7 @@ class NeighborLists:
         fc = self.fluid_cells
         launch(kernel, n,
                [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, self._no_weight,
-                self._no_mask, 0, self.search_radius, float(smoothing_length), float(particle_mass), 0, 0,
+                self._no_mask, 0, self.search_radius, float(smoothing_length), float(particle_mass), 0,
                 fc.cell_point, particle_x],
                [self.fluid.count, self.fluid.index, self._max_count, density], device=self.device)
         bc = self.boundary_cells
@@ -214,7 +214,7 @@ class NeighborLists:
             launch(kernel, n,
                    [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, self._boundary_weight,
                     self._no_mask if mask is None else mask, int(mask is not None), self.search_radius,
-                    float(smoothing_length), float(rest_density), 1, 1, fc.cell_point, particle_x],
+                    float(smoothing_length), float(rest_density), 1, fc.cell_point, particle_x],
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
 
     @property

@@ -29,6 +29,7 @@ class CellOrder:
         self.sim = sim
         self._cells: CellGrid | None = None
         self._scratch: dict = {}
+        self.order: wp.array | None = None  # slot k holds particle order[k] after ``sort``
 
     def _grid(self) -> CellGrid:
         lists = self.sim.fields.get("neighbor_lists")
@@ -57,27 +58,28 @@ class CellOrder:
             t = self._scratch[key] = wp.empty(a.shape[0], dtype=a.dtype, device=a.device)
         return t
 
-    def sort(self) -> wp.array | None:
-        """Permute every per-particle field into cell order of the current positions; returns the
-        order (slot k holds particle order[k]) for ``unsort``, or None when there is nothing to sort."""
+    def sort(self) -> bool:
+        """Permute every per-particle field into cell order of the current positions (slot k then
+        holds particle ``order[k]``); False when there is nothing to sort."""
         n = self.sim.model.fluid_count
         if n < 2:
-            return None
+            return False
         grid = self._grid()
         grid.build(self.sim.state.particle_x)
-        order = wp.clone(grid.cell_point[:n])
+        if self.order is None:
+            self.order = wp.empty(n, dtype=wp.int32, device=self.sim.model.device)
+        wp.copy(self.order, grid.cell_point, count=n)
         for a in self._fields():
             t = self._tmp(a)
-            wp.launch(_dev.gather_by_order, n, inputs=[0, order, a], outputs=[t], device=a.device)
+            wp.launch(_dev.gather_by_order, n, inputs=[0, self.order, a], outputs=[t], device=a.device)
             wp.copy(a, t)
-        return order
+        return True
 
-    def unsort(self, order: wp.array | None) -> None:
-        """Put every per-particle field back at its stable index (the inverse of ``sort``)."""
-        if order is None:
-            return
+    def unsort(self) -> None:
+        """Put every per-particle field back at its stable index (the inverse of the last ``sort``)."""
         n = self.sim.model.fluid_count
         for a in self._fields():
             t = self._tmp(a)
-            wp.launch(_dev.scatter_by_order, n, inputs=[0, order, a], outputs=[t], device=a.device)
+            wp.launch(_dev.scatter_by_order, n, inputs=[0, self.order, a], outputs=[t], device=a.device)
             wp.copy(a, t)
+

@@ -13,6 +13,7 @@ the stage, step, time and particle, or retries the frame with half the step
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -187,17 +188,13 @@ class Simulation:
             n = frame_substeps(self.frame_dt, bound)
             dt = self.frame_dt / n
             solver_stats = []
-            order = self._sort_particles()
-            try:
+            with self.in_cell_order():
                 for _ in range(n):
                     self.step(dt)
                     solver_stats.append(self.solver.step_statistics(self))
                 finish = getattr(self.solver, "finish_frame", None)
                 if finish is not None:
                     finish(self)  # e.g. PBF: the density at the frame's positions, for the statistics
-            finally:
-                if order is not None:
-                    self._cell_order.unsort(order)
             if self._grow_neighbor_lists():
                 wd.restore()  # neighbours were dropped: redo the frame with the larger lists
                 continue
@@ -222,15 +219,22 @@ class Simulation:
         self.last_frame = stats
         return stats
 
-    def _sort_particles(self):
-        """Per-particle fields into cell order for this frame's substeps (None when off)."""
-        if not self.cell_order:
-            return None
-        if self._cell_order is None:
-            from .particle_order import CellOrder
+    @contextmanager
+    def in_cell_order(self):
+        """Context: the per-particle fields in cell order inside it (``cell_order``; see
+        ``warp_sph.particle_order``), at their stable indices again after it, also on an error."""
+        sorted_ = False
+        if self.cell_order:
+            if self._cell_order is None:
+                from .particle_order import CellOrder
 
-            self._cell_order = CellOrder(self)
-        return self._cell_order.sort()
+                self._cell_order = CellOrder(self)
+            sorted_ = self._cell_order.sort()
+        try:
+            yield
+        finally:
+            if sorted_:
+                self._cell_order.unsort()
 
     def _grow_neighbor_lists(self) -> bool:
         """Once per frame (one host read): True, after growing them, if a particle had more neighbours
