@@ -131,7 +131,7 @@ def _warm_up(scene, device) -> float:
     """Compile every kernel the run needs on a coarse copy of the scene (about 500 particles), so that
     no compile time lands in the timed steps. Returns the seconds it took."""
     from warp_sph.scene import scene_from_dict
-    from warp_sph.simulation import Simulation
+    from warp_sph.run.simulation import Simulation
 
     t0 = time.perf_counter()
     n_est = _fluid_volume(scene) / scene.spacing ** 3
@@ -195,8 +195,8 @@ def run_warp_sph(spec: RunSpec) -> dict:
     the record says ``status`` "failed" or "unstable" and why)."""
     import warp as wp
 
-    from warp_sph.errors import SimulationError
-    from warp_sph.runner import versions
+    from warp_sph.core.errors import SimulationError
+    from warp_sph.run.runner import versions
     from warp_sph.scene import load_scene
 
     record = {"schema": SCHEMA, "kind": spec.kind, "name": spec.name, "engine": "warp-sph",
@@ -211,7 +211,7 @@ def run_warp_sph(spec: RunSpec) -> dict:
         record["device_name"] = getattr(device, "name", str(device))
         warm_s = _warm_up(scene, device) if spec.warm_up else 0.0
 
-        from warp_sph.simulation import Simulation
+        from warp_sph.run.simulation import Simulation
 
         rss0 = M.current_rss_bytes()
         t0 = time.perf_counter()
@@ -524,7 +524,7 @@ def _finish(out: Path, args, records: list[dict], log) -> int:
 
 
 def cmd_surface(args, argv: list[str], log=print) -> int:
-    from warp_sph.runner import versions
+    from warp_sph.run.runner import versions
 
     from .surface import run_surface_bench
 

@@ -368,8 +368,8 @@ def run_comparison(particle_radius: float = 0.025, frames: int = 25, threads: in
     """
     import warp as wp
 
-    from warp_sph.model import build_model
-    from warp_sph.sampling import sample_scene
+    from warp_sph.core.model import build_model
+    from warp_sph.scene.sampling import sample_scene
     from warp_sph.scene import load_scene
 
     from .runner import RunSpec, run_specs
@@ -407,7 +407,7 @@ def run_comparison(particle_radius: float = 0.025, frames: int = 25, threads: in
                                    **({"overrides": " ".join(own)} if own else {})})
             r = run_specs([spec], isolate=isolate, log=log)[0]
             r["label"] = f"warp-sph {s}" + (f" ({', '.join(own)})" if own else "")
-            from warp_sph.launch import cpu_threads
+            from warp_sph.core.launch import cpu_threads
 
             r["threads"] = cpu_threads()  # warp-sph splits particle-parallel CPU launches over these
             records.append(r)

@@ -16,7 +16,7 @@ SPLASHSURF_MS = {6859: (81.0, 43.0), 59319: (592.0, 310.0)}
 def particles_at(radius: float, t: float, device=None):
     """Dam-break particles (local positions, densities as wp arrays) and the Simulation at time t [s]."""
     from warp_sph.scene import load_scene
-    from warp_sph.simulation import Simulation
+    from warp_sph.run.simulation import Simulation
 
     scene = load_scene("dam_break", [f"particle_radius={radius}", "output.usd=false", "output.surface=false"])
     sim = Simulation(scene, device=device)

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from warp_sph.cli import main
-from warp_sph.errors import SceneError
+from warp_sph.core.errors import SceneError
 from warp_sph.scene import load_scene
 
 GOOD = """
@@ -178,7 +178,7 @@ def test_unwritable_output_folder(workdir, capsys):
 
 def test_unwritable_output_folder_as_root(workdir, capsys, monkeypatch):
     """Where permissions cannot be tested (root), a write that fails still gives one line."""
-    from warp_sph import run_folder
+    from warp_sph.io import run_folder
 
     def refuse(self, *a, **k):
         raise PermissionError(13, "Permission denied")

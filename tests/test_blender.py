@@ -66,8 +66,8 @@ def blender_import(path) -> dict:
 def test_blender_imports_run(tmp_path):
     from pxr import Usd
 
-    from warp_sph import runner
-    from warp_sph import run_folder as rf
+    from warp_sph.run import runner
+    from warp_sph.io import run_folder as rf
     from warp_sph.scene import load_scene
 
     out = tmp_path / "run"

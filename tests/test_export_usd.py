@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
 
-from warp_sph.errors import OutputError
-from warp_sph.export_mesh import MeshSequenceWriter
-from warp_sph.export_usd import UsdWriter, container_box_mesh
+from warp_sph.core.errors import OutputError
+from warp_sph.io.export_mesh import MeshSequenceWriter
+from warp_sph.io.export_usd import UsdWriter, container_box_mesh
 
 FPS = 24.0
 RADIUS = 0.02
@@ -182,7 +182,7 @@ WRITER_SCRIPT = textwrap.dedent(
     import numpy as np
     sys.path.insert(0, {tests!r})
     from test_export_usd import frame_data, FPS, RADIUS
-    from warp_sph.export_usd import UsdWriter
+    from warp_sph.io.export_usd import UsdWriter
     writer = UsdWriter({path!r}, FPS, RADIUS)
     for f in range(1, 10000):
         x, v, rho, surface = frame_data(f, n=5000)

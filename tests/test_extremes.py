@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_sph.errors import SceneError, SimulationError
-from warp_sph.preflight import PreflightWarning, preflight_checks, time_step_bounds
+from warp_sph.core.errors import SceneError, SimulationError
+from warp_sph.run.preflight import PreflightWarning, preflight_checks, time_step_bounds
 from warp_sph.scene import scene_from_dict
-from warp_sph.simulation import Simulation
-from warp_sph.step_graph import Stage
+from warp_sph.run.simulation import Simulation
+from warp_sph.core.step_graph import Stage
 
 KERNELS = ["cubic", "quintic", "quadric"]
 
@@ -264,7 +264,7 @@ def test_wcsph_stiffness_extremes(factor, max_density_error):
 
 @pytest.mark.parametrize("iterations", [1, 100])
 def test_pbf_iterations(iterations):
-    pytest.importorskip("warp_sph.pbf")
+    pytest.importorskip("warp_sph.methods.pbf")
     sim = Simulation(dam(solver="pbf", pbf={"min_iterations": iterations, "max_iterations": iterations}))
     stats = frames(sim, 6)
     assert all(s.non_finite == 0 and s.outside == 0 for s in stats)
@@ -475,7 +475,7 @@ def test_run_keeps_frames_written_before_a_blow_up(tmp_path, monkeypatch):
     """Through the runner: the error names the stage; every frame written so far stays readable."""
     import json
 
-    from warp_sph import runner
+    from warp_sph.run import runner
 
     class Poisoned(Simulation):
         def __init__(self, *a, **k):

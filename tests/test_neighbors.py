@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_sph.neighbors import NeighborGrid, neighbor_lists
+from warp_sph.neighbors import NeighborGrid, query_neighbors
 
 
 @pytest.mark.parametrize("offset", [0.0, -3.7, 1.0e2, -1.0e3, 1.0e4])
@@ -14,7 +14,7 @@ def test_matches_brute_force(offset, device):
     x = wp.array(pts, dtype=wp.vec3, device=device)
     grid = NeighborGrid(radius, device=device)
     grid.build(x)
-    counts, lists = neighbor_lists(grid, x, x)
+    counts, lists = query_neighbors(grid, x, x)
     diff = pts[:, None, :].astype(np.float64) - pts[None, :, :].astype(np.float64)
     dist = np.linalg.norm(diff, axis=2)
     ambiguous = np.abs(dist - radius) < 1e-5 * max(1.0, abs(offset))
@@ -35,7 +35,7 @@ def test_query_points_other_than_grid_points(device):
     bx = wp.array(b, dtype=wp.vec3, device=device)
     grid = NeighborGrid(radius, device=device)
     grid.build(bx)
-    _, lists = neighbor_lists(grid, bx, wp.array(q, dtype=wp.vec3, device=device))
+    _, lists = query_neighbors(grid, bx, wp.array(q, dtype=wp.vec3, device=device))
     dist = np.linalg.norm(q[:, None].astype(np.float64) - b[None].astype(np.float64), axis=2)
     for i in range(len(q)):
         assert set(lists[i].tolist()) == set(np.nonzero(dist[i] < radius)[0])

@@ -1,12 +1,12 @@
-"""Particles in cell order during a frame (warp_sph.particle_order): stable indices outside it,
+"""Particles in cell order during a frame (warp_sph.neighbors.particle_order): stable indices outside it,
 fields that follow their particles, and the same physics as without the sort."""
 import numpy as np
 import pytest
 import warp as wp
 
 from test_wcsph_stages import jittered, small_scene
-from warp_sph.simulation import Simulation
-from warp_sph.step_graph import Stage
+from warp_sph.run.simulation import Simulation
+from warp_sph.core.step_graph import Stage
 
 
 def _cell_keys(x, cells):
@@ -67,7 +67,7 @@ def test_user_fields_follow_their_particles():
 
 
 def test_sort_then_unsort_is_the_identity():
-    from warp_sph.particle_order import CellOrder
+    from warp_sph.neighbors.particle_order import CellOrder
 
     sim = Simulation(small_scene())
     jittered(sim, seed=6, amp=0.4, vel=1.0)

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from sph_oracle import SUPPORT, W, grad_W
-from warp_sph.pbf import PbfSolver, rest_denominator
+from warp_sph.methods.pbf import PbfSolver, rest_denominator
 from warp_sph.scene import load_scene, scene_from_dict
-from warp_sph.simulation import Simulation
-from warp_sph.smoothing import lattice_offsets
+from warp_sph.run.simulation import Simulation
+from warp_sph.core.smoothing import lattice_offsets
 
 
 def pbf_scene(**kw):
@@ -219,7 +219,7 @@ def test_dam_break_coarse():
 
 def with_solver(sim, solver):
     """sim with its PBF solver replaced (a new step graph)."""
-    from warp_sph.step_graph import StepGraph
+    from warp_sph.core.step_graph import StepGraph
 
     sim.solver = solver
     sim.graph = StepGraph(solver.stages(sim), {"particle_x", "particle_v", "boundary_x", "boundary_volume",

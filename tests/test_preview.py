@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_sph.preview import (
+from warp_sph.preview.render_run import (
     BACKGROUND,
     Camera,
     Light,

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
 
-from warp_sph import runner
-from warp_sph import run_folder as rf
+from warp_sph.run import runner
+from warp_sph.io import run_folder as rf
 from warp_sph.cli import main as cli_main
-from warp_sph.errors import OutputError, WarpSphError
-from warp_sph.export import export_run, parse_frame_range
+from warp_sph.core.errors import OutputError, WarpSphError
+from warp_sph.io.reexport import export_run, parse_frame_range
 from warp_sph.scene import load_scene
 
 SMALL = ["particle_radius=0.05", "output.checkpoint_every=3"]

@@ -4,9 +4,9 @@ import math
 import numpy as np
 import pytest
 
-from warp_sph.errors import SceneError
-from warp_sph.meshes import TriangleMesh, load_triangle_mesh, points_inside, sample_surface
-from warp_sph.sampling import PointGrid, box_surface, sample_scene
+from warp_sph.core.errors import SceneError
+from warp_sph.scene.meshes import TriangleMesh, load_triangle_mesh, points_inside, sample_surface
+from warp_sph.scene.sampling import PointGrid, box_surface, sample_scene
 from warp_sph.scene import list_scenes, load_scene, scene_from_dict
 
 CUBE_OBJ = """# unit cube, outward counter-clockwise faces

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from warp_sph.errors import SceneError
+from warp_sph.core.errors import SceneError
 from warp_sph.scene import (
     PARAMETERS,
     Scene,

@@ -4,7 +4,7 @@ import pytest
 import warp as wp
 
 from sph_oracle import W as W_ref, grad_W as grad_ref
-from warp_sph import smoothing
+from warp_sph.core import smoothing
 from warp_sph.kernels import density as density_dev
 from warp_sph.neighbors import NeighborGrid
 
@@ -123,7 +123,7 @@ def test_support_is_search_radius_and_default_h(name):
 
 
 def test_unknown_kernel_name():
-    from warp_sph.errors import SceneError
+    from warp_sph.core.errors import SceneError
 
     with pytest.raises(SceneError, match="cubic"):
         smoothing.get_smoothing_kernel("gaussian")

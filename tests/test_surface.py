@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_sph.smoothing import calibrated_mass, evaluate, get_smoothing_kernel
+from warp_sph.core.smoothing import calibrated_mass, evaluate, get_smoothing_kernel
 from warp_sph.surface import DEFAULT_CELL_PER_RADIUS, DEFAULT_ISO_LEVEL, SurfaceReconstructor
 
 REST_DENSITY = 1000.0
@@ -170,7 +170,7 @@ def test_ties_at_nodes_are_welded(method):
 
 
 def test_non_finite_positions_raise():
-    from warp_sph.errors import SimulationError
+    from warp_sph.core.errors import SimulationError
 
     points = lattice_sphere(radius=0.1)
     points[3] = np.nan

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from warp_sph.scene import list_scenes, load_scene
-from warp_sph.simulation import Simulation
+from warp_sph.run.simulation import Simulation
 
 NO_OUTPUT = ["output.usd=false", "output.surface=false"]
 

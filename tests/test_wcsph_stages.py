@@ -4,7 +4,7 @@ import pytest
 
 from sph_oracle import W, grad_W
 from warp_sph.scene import scene_from_dict
-from warp_sph.simulation import Simulation
+from warp_sph.run.simulation import Simulation
 
 
 def small_scene(**kw):
@@ -183,7 +183,7 @@ def test_graph_holds_only_what_the_scene_needs():
 @pytest.mark.parametrize("boundary", ["akinci2012", "penalty"])
 def test_neighbor_lists_match_grid_queries(boundary):
     """The list variant of every neighbour loop (the default) equals the hash-grid variant."""
-    from warp_sph.wcsph import WcsphSolver
+    from warp_sph.methods.wcsph import WcsphSolver
 
     sim = Simulation(small_scene(boundary=boundary))
     jittered(sim, seed=5, amp=0.3)

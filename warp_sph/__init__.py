@@ -6,18 +6,18 @@ Scripting entry points::
     sim = ws.Simulation(ws.load_scene("dam_break"))
     sim.advance_frame()
 """
-from .errors import OutputError, SceneError, SimulationError, StepGraphError, WarpSphError
-from .scene import Scene, list_scenes, load_scene, parameter_table_markdown, scene_from_dict
-from .simulation import FrameStatistics, Simulation
-from .smoothing import SMOOTHING_KERNELS, SmoothingKernel, calibrated_mass, get_smoothing_kernel
-from .step_graph import Stage, StepGraph
+from .core.errors import OutputError, SceneError, SimulationError, StepGraphError, WarpSphError
+from .scene.description import Scene, list_scenes, load_scene, parameter_table_markdown, scene_from_dict
+from .run.simulation import FrameStatistics, Simulation
+from .core.smoothing import SMOOTHING_KERNELS, SmoothingKernel, calibrated_mass, get_smoothing_kernel
+from .core.step_graph import Stage, StepGraph
 
 __version__ = "0.1.0"
 
 
 def run(scene, out=None, **kwargs):
     """Simulate a scene (a Scene, a built-in name or a .toml path) into a run folder; see runner.run."""
-    from .runner import run as _run
+    from .run.runner import run as _run
 
     if isinstance(scene, str):
         scene = load_scene(scene)

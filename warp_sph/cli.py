@@ -23,15 +23,15 @@ def _quiet_warp():
 
 
 def _cmd_run(args) -> int:
-    from . import runner
-    from .scene import load_scene
+    from .run import runner
+    from .scene.description import load_scene
 
     _quiet_warp()
     if args.resume:
         ignored = [flag for flag, given in (("a scene", args.scene != "dam_break"), ("--out", args.out),
                                             ("--set", args.set), ("--overwrite", args.overwrite)) if given]
         if ignored:
-            from .errors import WarpSphError
+            from .core.errors import WarpSphError
 
             raise WarpSphError(f"--resume continues the run in {args.resume} with its own scene and folder; "
                                f"drop {', '.join(ignored)}")
@@ -60,7 +60,7 @@ def _print_summary(info: dict) -> None:
 
 
 def _cmd_scenes(args) -> int:
-    from .scene import list_scenes
+    from .scene.description import list_scenes
 
     for name, desc in list_scenes():
         print(f"{name:18s} {desc}")
@@ -68,9 +68,9 @@ def _cmd_scenes(args) -> int:
 
 
 def _cmd_check(args) -> int:
-    from .model import build_model
-    from .sampling import sample_scene
-    from .scene import load_scene
+    from .core.model import build_model
+    from .scene.sampling import sample_scene
+    from .scene.description import load_scene
 
     wp = _quiet_warp()
     scene = load_scene(args.scene, overrides=args.set)
@@ -87,7 +87,7 @@ def _cmd_check(args) -> int:
 
 
 def _cmd_export(args) -> int:
-    from .export import export_run
+    from .io.reexport import export_run
 
     _quiet_warp()
     written = export_run(Path(args.run), fmt=args.format, out=Path(args.out) if args.out else None,
@@ -98,7 +98,7 @@ def _cmd_export(args) -> int:
 
 
 def _cmd_preview(args) -> int:
-    from .preview import Camera, preview_run
+    from .preview.render_run import Camera, preview_run
 
     _quiet_warp()
     frames = None
@@ -194,7 +194,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def main(argv=None) -> int:
-    from .errors import WarpSphError
+    from .core.errors import WarpSphError
 
     warnings.showwarning = _show_warning
     parser = build_parser()

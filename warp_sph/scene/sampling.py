@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import SceneError
+from ..core.errors import SceneError
 from .meshes import load_triangle_mesh, points_inside, sample_surface
-from .scene import FluidBlock, Scene
+from .description import FluidBlock, Scene
 
 #: Points this close (relative to d) are one point (overlapping fluid blocks, shared boundary).
 DUPLICATE_DISTANCE = 0.5

@@ -6,10 +6,10 @@
     sim.fields["particle_v"]            # the wp.array itself (device, local coordinates for positions)
     sim.graph.insert(Stage(...), before="integrate")
 
-Every frame ends with the watchdog's rules (``warp_sph.watchdog``): a non-finite value, a particle
+Every frame ends with the watchdog's rules (``warp_sph.run.watchdog``): a non-finite value, a particle
 outside the container, too fast or too compressed stops the run with a SimulationError naming
 the stage, step, time and particle, or retries the frame with half the step
-(``time.on_instability = "retry"``). Pre-flight checks: ``warp_sph.preflight``.
+(``time.on_instability = "retry"``). Pre-flight checks: ``warp_sph.run.preflight``.
 """
 from __future__ import annotations
 
@@ -19,22 +19,22 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from .errors import SceneError
-from .kernels import diagnostics as _diag
-from .launch import launch
-from .model import build_model
-from .neighbors import GRID_DIM, NeighborGrid
-from .step_graph import StepGraph
+from ..core.errors import SceneError
+from ..kernels import diagnostics as _diag
+from ..core.launch import launch
+from ..core.model import build_model
+from ..neighbors import GRID_DIM, NeighborGrid
+from ..core.step_graph import StepGraph
 from .watchdog import MAX_RETRIES, Watchdog, frame_substeps
 
 
 def _solver_for(name: str):
     if name == "wcsph":
-        from .wcsph import WcsphSolver
+        from ..methods.wcsph import WcsphSolver
 
         return WcsphSolver()
     if name == "pbf":
-        from .pbf import PbfSolver
+        from ..methods.pbf import PbfSolver
 
         return PbfSolver()
     raise SceneError(f"unknown solver {name!r}; expected 'wcsph' or 'pbf'")
@@ -87,7 +87,7 @@ class Simulation:
 
     def __init__(self, scene, device: str | None = None):
         from .preflight import check_memory
-        from .sampling import sample_scene
+        from ..scene.sampling import sample_scene
 
         self.scene = scene
         self.device = wp.get_device(device)
@@ -115,7 +115,7 @@ class Simulation:
         self.last_frame: FrameStatistics | None = None
         self._refresh_density()
         self.watchdog = Watchdog(self)
-        #: sort the per-particle fields into cell order for each frame (``warp_sph.particle_order``)
+        #: sort the per-particle fields into cell order for each frame (``warp_sph.neighbors.particle_order``)
         self.cell_order = True
         self._cell_order = None
 
@@ -173,7 +173,7 @@ class Simulation:
         """Advance to the next frame time in equal substeps no larger than the time-step bound.
 
         During the substeps the per-particle fields are in cell order (``cell_order``, see
-        ``warp_sph.particle_order``); before and after, every particle is at its stable index.
+        ``warp_sph.neighbors.particle_order``); before and after, every particle is at its stable index.
         The watchdog checks the frame's end state (non-finite values, escaped, too fast or too
         compressed particles). On a violation the frame is retried from its start with half the
         step (``time.on_instability = "retry"``) or a SimulationError names the stage, step, time,
@@ -222,11 +222,11 @@ class Simulation:
     @contextmanager
     def in_cell_order(self):
         """Context: the per-particle fields in cell order inside it (``cell_order``; see
-        ``warp_sph.particle_order``), at their stable indices again after it, also on an error."""
+        ``warp_sph.neighbors.particle_order``), at their stable indices again after it, also on an error."""
         sorted_ = False
         if self.cell_order:
             if self._cell_order is None:
-                from .particle_order import CellOrder
+                from ..neighbors.particle_order import CellOrder
 
                 self._cell_order = CellOrder(self)
             sorted_ = self._cell_order.sort()
@@ -291,7 +291,7 @@ class Simulation:
 
     def check_health(self, stats: FrameStatistics) -> None:
         """Watchdog on a frame's statistics: raise SimulationError on a non-finite value, a particle
-        outside the container, too fast or too compressed (rules in ``warp_sph.watchdog``).
+        outside the container, too fast or too compressed (rules in ``warp_sph.run.watchdog``).
         ``advance_frame`` already checks every frame it simulates; this checks the initial state or
         a state the caller changed."""
         wd = self.watchdog

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SceneError
+from ..core.errors import SceneError
 
 MESHIO_SUFFIXES = (".obj", ".stl", ".ply")
 USD_SUFFIXES = (".usd", ".usda", ".usdc")

@@ -19,8 +19,8 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from .errors import WarpSphError
-from .kernels import render
+from ..core.errors import WarpSphError
+from ..kernels import render
 
 DEFAULT_SIZE = (640, 360)
 PARTICLE_COLOR = (0.16, 0.42, 0.78)  # water blue, linear [0, 1]

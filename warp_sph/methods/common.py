@@ -11,11 +11,11 @@ import math
 import numpy as np
 import warp as wp
 
-from .kernels import density as _density
-from .kernels import integrate as _integrate
-from .launch import LIGHT_MIN_RANGE, launch
-from .neighbors import NeighborLists
-from .step_graph import Stage
+from ..kernels import density as _density
+from ..kernels import integrate as _integrate
+from ..core.launch import LIGHT_MIN_RANGE, launch
+from ..neighbors import NeighborLists
+from ..core.step_graph import Stage
 
 
 def neighbor_lists(sim, margin: float = 0.0) -> NeighborLists:

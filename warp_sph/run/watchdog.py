@@ -30,9 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .errors import SimulationError
-from .kernels import diagnostics as _diag
-from .launch import launch
+from ..core.errors import SimulationError
+from ..kernels import diagnostics as _diag
+from ..core.launch import launch
 
 SPEED_LIMIT_FACTOR = 10.0
 DENSITY_LIMIT_FACTOR = 2.0

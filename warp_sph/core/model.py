@@ -13,8 +13,8 @@ import numpy as np
 import warp as wp
 
 from .errors import SceneError
-from .kernels import density as _density_dev
-from .neighbors import NeighborGrid
+from ..kernels import density as _density_dev
+from ..neighbors import NeighborGrid
 from .smoothing import SmoothingKernel, calibrated_mass, get_smoothing_kernel, lattice_sum
 
 

@@ -29,7 +29,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
-from .errors import OutputError
+from ..core.errors import OutputError
 
 _RESERVED = ("particles", "surface")
 

@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .kernels import neighbors as _dev
-from .neighbors import CellGrid
+from ..kernels import neighbors as _dev
+from .cell_lists import CellGrid
 
 
 class CellOrder:

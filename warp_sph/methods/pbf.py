@@ -26,12 +26,12 @@ import numpy as np
 import warp as wp
 
 from .wcsph import VISCOUS_FACTOR
-from .kernels import integrate as _integrate
-from .kernels import pbf as _pbf
-from .launch import LIGHT_MIN_RANGE, launch
-from .smoothing import evaluate, lattice_offsets
-from .sph_common import neighbor_lists, xsph_stage
-from .step_graph import Stage
+from ..kernels import integrate as _integrate
+from ..kernels import pbf as _pbf
+from ..core.launch import LIGHT_MIN_RANGE, launch
+from ..core.smoothing import evaluate, lattice_offsets
+from .common import neighbor_lists, xsph_stage
+from ..core.step_graph import Stage
 
 
 #: default search margin of the neighbour lists [spacings d]: lists hold pairs within H_s + margin
@@ -43,7 +43,7 @@ def rest_denominator(smoothing: str, h: float, spacing: float, particle_mass: fl
     """D0 = |grad_i C_i|^2 + sum_j |grad_j C_i|^2 [1/m^2] for an interior particle of a perfect
     cubic lattice at spacing d, with grad_j C_i = -(m/rho0) grad W_ij (physics notes 4.4; cubic
     h = d, m = rho0 d^3: d^2 D0 = 0.425)."""
-    from .smoothing import get_smoothing_kernel
+    from ..core.smoothing import get_smoothing_kernel
 
     kernel = get_smoothing_kernel(smoothing)
     offsets = lattice_offsets(spacing, kernel.support_radius(h))

@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from .wcsph import VISCOUS_FACTOR
-from .errors import SceneError
+from ..methods.wcsph import VISCOUS_FACTOR
+from ..core.errors import SceneError
 
 #: Warn when the kernel's rest-lattice sum before calibration is off by more than this [-].
 LATTICE_BIAS_WARN = 0.05
@@ -153,7 +153,7 @@ def estimate_particle_counts(scene) -> tuple[int, int]:
             boxes.append((ob.min, ob.max))
         else:
             try:
-                from .meshes import load_triangle_mesh
+                from ..scene.meshes import load_triangle_mesh
 
                 mesh = load_triangle_mesh(ob.file).transformed(ob.scale, ob.translate)
                 a, b, c = mesh.triangle_corners()
@@ -231,7 +231,7 @@ def check_memory(scene, device=None) -> None:
 # --------------------------------------------------------------------------------------------
 def _removed_fluid(scene, sim) -> tuple[list[int], list[int]]:
     """(lattice points per block before removal, particles per block after sampling)."""
-    from .sampling import lattice_block
+    from ..scene.sampling import lattice_block
 
     d = scene.spacing
     c = scene.container

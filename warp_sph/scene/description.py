@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import SceneError
+from ..core.errors import SceneError
 from .meshes import load_triangle_mesh
-from .smoothing import SMOOTHING_KERNELS, get_smoothing_kernel, wall_gap
+from ..core.smoothing import SMOOTHING_KERNELS, get_smoothing_kernel, wall_gap
 
 Vec3 = tuple[float, float, float]
 

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from . import run_folder as rf
-from .errors import OutputError, SimulationError, WarpSphError
+from ..io import run_folder as rf
+from ..core.errors import OutputError, SimulationError, WarpSphError
 from .preflight import preflight_checks
 from .simulation import Simulation
 
@@ -33,7 +33,7 @@ from .simulation import Simulation
 def versions() -> dict:
     import numpy
 
-    from . import __version__
+    from .. import __version__
 
     out = {"warp_sph": __version__, "warp": wp.__version__, "numpy": numpy.__version__,
            "python": platform.python_version(), "platform": platform.platform()}
@@ -101,15 +101,15 @@ class Exporter:
         self.mesh_writer = None
         m = sim.model
         if o.surface and (o.usd or o.mesh_sequence):
-            from .surface import SurfaceReconstructor
+            from ..surface.reconstruction import SurfaceReconstructor
 
             self.surface = SurfaceReconstructor(
                 m.smoothing.name, m.smoothing_length, m.particle_mass, m.particle_radius,
                 cell_size=o.surface_cell_per_radius * m.particle_radius, iso_level=o.surface_iso,
                 device=sim.device, method=getattr(o, "surface_method", "marching_cubes"))
         if o.usd:
-            from .export import scene_static_meshes
-            from .export_usd import UsdWriter
+            from ..io.reexport import scene_static_meshes
+            from ..io.export_usd import UsdWriter
 
             statics = [] if resume_after_frame is not None else scene_static_meshes(sim.scene.to_dict())
             self.primvars = tuple(n for n in o.particle_primvars
@@ -119,7 +119,7 @@ class Exporter:
                                  primvars=self.primvars, with_surface=self.surface is not None,
                                  resume_after_frame=resume_after_frame, overwrite=True)
         if o.mesh_sequence and self.surface is not None:
-            from .export_mesh import MeshSequenceWriter
+            from ..io.export_mesh import MeshSequenceWriter
 
             (self.out / "mesh").mkdir(exist_ok=True)
             self.mesh_writer = MeshSequenceWriter(self.out / "mesh", o.mesh_sequence)
@@ -232,7 +232,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     frames: number of frames to write including the initial one (default duration * fps + 1).
     resume: a run folder to continue from its latest checkpoint (scene and folder come from it).
     """
-    from .scene import scene_from_dict
+    from ..scene.description import scene_from_dict
 
     t_start = time.perf_counter()
     resume_info = None

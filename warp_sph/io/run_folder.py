@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import OutputError
+from ..core.errors import OutputError
 
 RUN_JSON = "run.json"
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from . import run_folder as rf
-from .errors import OutputError, SceneError, WarpSphError
+from ..core.errors import OutputError, SceneError, WarpSphError
 
 #: export formats: "usd" (one stage) or a mesh sequence format of ``export_mesh``
 EXPORT_FORMATS = ("usd", "obj", "ply", "vtk")
@@ -40,7 +40,7 @@ def scene_static_meshes(scene: dict) -> list[tuple[str, np.ndarray, np.ndarray]]
     surface are what an export is for.
     """
     from .export_usd import container_box_mesh
-    from .meshes import load_triangle_mesh
+    from ..scene.meshes import load_triangle_mesh
 
     out = []
     c = scene.get("container")
@@ -113,7 +113,7 @@ def parse_frame_range(frames, available: Iterable[int]) -> list[int]:
 
 
 def _surface_reconstructor(info: dict, cell_per_radius: float | None, iso: float | None, device):
-    from .surface import DEFAULT_CELL_PER_RADIUS, DEFAULT_ISO_LEVEL, SurfaceReconstructor
+    from ..surface.reconstruction import DEFAULT_CELL_PER_RADIUS, DEFAULT_ISO_LEVEL, SurfaceReconstructor
 
     model = info.get("model") or {}
     out_cfg = (info.get("scene") or {}).get("output") or {}

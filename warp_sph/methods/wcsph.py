@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import warp as wp
 
-from .kernels import integrate as _integrate
-from .kernels import wcsph as _wcsph
-from .launch import LIGHT_MIN_RANGE, launch
-from .sph_common import _neighbor_args, density_stage, neighbors_stage, xsph_stage
-from .step_graph import Stage
+from ..kernels import integrate as _integrate
+from ..kernels import wcsph as _wcsph
+from ..core.launch import LIGHT_MIN_RANGE, launch
+from .common import _neighbor_args, density_stage, neighbors_stage, xsph_stage
+from ..core.step_graph import Stage
 
 
 #: dt <= VISCOUS_FACTOR (H_s/2)^2 / nu for the explicit viscosity

@@ -12,7 +12,7 @@ import tempfile
 import meshio
 import numpy as np
 
-from .errors import OutputError
+from ..core.errors import OutputError
 
 #: format name -> meshio file_format
 MESH_FORMATS = {"obj": "obj", "ply": "ply", "vtk": "vtk"}

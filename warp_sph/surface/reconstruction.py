@@ -34,9 +34,9 @@ import numpy as np
 import warp as wp
 import warp.geometry
 
-from .errors import SceneError, SimulationError
-from .kernels import surface as _dev
-from .smoothing import get_smoothing_kernel
+from ..core.errors import SceneError, SimulationError
+from ..kernels import surface as _dev
+from ..core.smoothing import get_smoothing_kernel
 
 #: default grid cell size per particle radius (scene key ``output.surface_cell_per_radius``)
 DEFAULT_CELL_PER_RADIUS = 0.75

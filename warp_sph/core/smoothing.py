@@ -18,7 +18,7 @@ import numpy as np
 import warp as wp
 
 from .errors import SceneError
-from .kernels import smoothing as _dev
+from ..kernels import smoothing as _dev
 
 
 @dataclass(frozen=True)

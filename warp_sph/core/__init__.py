@@ -1,0 +1,1 @@
+"""Core: errors, the launch helper, the step graph, smoothing kernels, Model and State."""

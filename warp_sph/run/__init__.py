@@ -1,0 +1,1 @@
+"""Running a scene: the Simulation, the runner (frames, exports, checkpoints), watchdog, pre-flight."""
