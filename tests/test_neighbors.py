@@ -3,6 +3,8 @@ import numpy as np
 import pytest
 import warp as wp
 
+from warp_sph.kernels import akinci2012
+
 from warp_sph.neighbors import NeighborGrid, query_neighbors
 
 
@@ -64,7 +66,8 @@ def test_neighbor_lists_and_fused_density_match_brute_force(cells_per_radius, de
                           device=device, boundary_volume=wp.array(volume, dtype=float, device=device))
     density = wp.zeros(len(fluid), dtype=float, device=device)
     lists.sort(x)
-    lists.build_lists(x, density, "cubic", h, mass, rho0)
+    params = akinci2012.AkinciParams()  # Akinci boundary density: rho0 sum_b V_b W_ib
+    lists.build_lists(x, density, "cubic", h, mass, rho0, akinci2012.AKINCI2012, params)
     assert lists.overflow() == 0
     d_ff = np.linalg.norm(fluid[:, None].astype(np.float64) - fluid[None].astype(np.float64), axis=2)
     d_fb = np.linalg.norm(fluid[:, None].astype(np.float64) - b[None].astype(np.float64), axis=2)

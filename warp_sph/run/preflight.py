@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from ..methods.wcsph import VISCOUS_FACTOR
 from ..core.errors import SceneError
 
 #: Warn when the kernel's rest-lattice sum before calibration is off by more than this [-].
@@ -62,36 +61,64 @@ class PreflightWarning(UserWarning):
 # Time-step bounds
 # --------------------------------------------------------------------------------------------
 def time_step_bounds(sim, speed: float | None = None) -> dict[str, float]:
-    """The solver's time-step bounds [s] by name at flow speed ``speed`` [m/s] (default: the model's
-    reference speed, the largest speed the scene is expected to reach).
-
-    WCSPH: {"acoustic CFL": cfl (H_s/2)/(c_s + v), "viscous": 0.0625 (H_s/2)^2/nu (with viscosity)};
-    other solvers: {"<solver> CFL": solver.time_step_bound(...)}.
-    """
-    m = sim.model
-    v = m.reference_speed if speed is None else float(speed)
-    total = float(sim.solver.time_step_bound(sim, v, sim.frame_dt))
-    if sim.scene.solver != "wcsph":
-        return {f"{sim.scene.solver} CFL": total}
-    length = 0.5 * m.support_radius
-    out = {"acoustic CFL": sim.scene.time.cfl * length / (m.speed_of_sound + v)}
-    if m.viscosity > 0:
-        out["viscous"] = VISCOUS_FACTOR * length * length / m.viscosity
-    # the solver's own bound is the reference: when it is tighter than the parts named here, say so
-    if total < 0.999 * min(out.values()):
-        out["wcsph"] = total
-    return out
+    """{name: seconds} of every time-step bound (``Simulation.time_step_bounds``) at flow speed ``speed``
+    [m/s] (default: the model's reference speed, the largest speed the scene is expected to reach)."""
+    v = sim.model.reference_speed if speed is None else float(speed)
+    return {b.name: b.seconds for b in sim.time_step_bounds(v)}
 
 
-def _bound_text(sim, name: str) -> str:
-    m = sim.model
-    length = 0.5 * m.support_radius
-    if name == "acoustic CFL":
-        return (f"cfl (H_s/2)/(c_s + v_ref) with cfl = {sim.scene.time.cfl:g}, H_s/2 = {length:.4g} m, "
-                f"c_s = {m.speed_of_sound:.4g} m/s, v_ref = {m.reference_speed:.3g} m/s")
-    if name == "viscous":
-        return f"0.0625 (H_s/2)^2/nu with H_s/2 = {length:.4g} m, nu = {m.viscosity:g} m^2/s"
-    return f"the {sim.scene.solver} solver's bound at v_ref = {m.reference_speed:.3g} m/s"
+def _step_estimate(scene, sim) -> tuple[float, int, object]:
+    """(dt [s], substeps for the whole run, the tightest bound) at the reference speed."""
+    t = scene.time
+    bound = sim.time_step_bounds(sim.model.reference_speed)[0]
+    dt = float(t.fixed_dt) if t.fixed_dt > 0 else min(max(bound.seconds, t.dt_min), t.dt_max)
+    frame_dt = 1.0 / float(scene.fps)
+    per_frame = max(1, math.ceil(frame_dt / dt - 1e-9)) if dt > 0 else math.inf
+    frames = scene.duration * scene.fps
+    steps = per_frame * frames
+    return dt, int(min(steps, 2**62)) if math.isfinite(steps) else 2**62, bound
+
+
+def time_step_summary(scene, sim) -> list[str]:
+    """Lines for ``warp-sph check``: every bound at the reference speed and the estimated substep count."""
+    v = sim.model.reference_speed
+    lines = [f"time-step bound {b.name}: {b.seconds:.4g} s ({b.formula})" for b in sim.time_step_bounds(v)]
+    dt, steps, _ = _step_estimate(scene, sim)
+    frames = int(round(scene.duration * scene.fps)) + 1
+    lines.append(f"{frames} frames at {scene.fps:g} fps; about {steps:,} substeps of {dt:.4g} s at the reference "
+                 f"speed {v:.3g} m/s (adaptive steps follow the flow)")
+    return lines
+
+
+def measured_step_cost(sim, steps: int = 2) -> float:
+    """Wall seconds per particle-step of this simulation, measured on ``steps`` substeps after a first
+    one (which loads the kernels); the state is put back afterwards."""
+    import time
+
+    wd = sim.watchdog
+    dt = sim.time_step(sim.model.reference_speed)
+    wd.save()
+    try:
+        sim.step(dt)
+        wp.synchronize_device(sim.device)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            sim.step(dt)
+        wp.synchronize_device(sim.device)
+        seconds = (time.perf_counter() - t0) / steps
+    finally:
+        wd.restore()
+        sim.refresh_density()
+    return seconds / max(sim.model.fluid_count, 1)
+
+
+def _duration_text(seconds: float) -> str:
+    if not math.isfinite(seconds) or seconds > 3.15e9:
+        return "more than a century"
+    for unit, size in (("days", 86400.0), ("hours", 3600.0), ("minutes", 60.0)):
+        if seconds >= 2 * size:
+            return f"about {seconds / size:.3g} {unit}"
+    return f"about {seconds:.3g} s"
 
 
 # --------------------------------------------------------------------------------------------
@@ -259,17 +286,31 @@ def preflight_checks(scene, sim, warn: bool = True) -> list[str]:
     src = scene.source
 
     # time step ---------------------------------------------------------------------------------
-    bounds = time_step_bounds(sim)
-    name, bound = min(bounds.items(), key=lambda kv: kv[1])
+    bounds = sim.time_step_bounds(m.reference_speed)
+    tight = bounds[0]
+    bound = tight.seconds
     if t.fixed_dt > 0 and t.fixed_dt > bound * (1.0 + 1e-6):
         raise SceneError(
-            f"{src}: time.fixed_dt: {t.fixed_dt:.4g} s is {t.fixed_dt / bound:.3g}x the {name} time-step bound "
-            f"{bound:.4g} s ({_bound_text(sim, name)}); set time.fixed_dt <= {bound:.4g} or 0 for adaptive "
-            f"steps, which that bound clamps")
+            f"{src}: time.fixed_dt: {t.fixed_dt:.4g} s is {t.fixed_dt / bound:.3g}x the {tight.name} time-step bound "
+            f"{bound:.4g} s ({tight.formula}, at the scene's reference speed); set time.fixed_dt <= {bound:.4g} "
+            f"or 0 for adaptive steps, which that bound clamps")
     if t.fixed_dt == 0 and t.dt_min > bound * (1.0 + 1e-6):
         raise SceneError(
-            f"{src}: time.dt_min: {t.dt_min:.4g} s is above the {name} time-step bound {bound:.4g} s "
-            f"({_bound_text(sim, name)}); lower time.dt_min below {bound:.4g}")
+            f"{src}: time.dt_min: {t.dt_min:.4g} s is above the {tight.name} time-step bound {bound:.4g} s "
+            f"({tight.formula}); lower time.dt_min to {bound:.4g} or less")
+    dt, steps, _ = _step_estimate(scene, sim)
+    if steps > t.max_steps:
+        cost = measured_step_cost(sim) if steps < 2**62 else float("nan")
+        wall = steps * cost * m.fluid_count
+        why = (f"time.fixed_dt = {t.fixed_dt:.4g} s" if t.fixed_dt > 0 else
+               f"dt = {dt:.4g} s from the {tight.name} bound ({tight.formula}"
+               + (f"; set by {', '.join(tight.keys)}" if tight.keys else "") + ")")
+        raise SceneError(
+            f"{src}: the run needs about {steps:.3g} substeps ({why}, duration {scene.duration:g} s), more than "
+            f"time.max_steps = {t.max_steps:,}"
+            + (f"; at {1e9 * cost:.3g} ns per particle-step measured here that is {_duration_text(wall)}"
+               if math.isfinite(cost) else "")
+            + "; check those values, or raise time.max_steps to run it anyway")
 
     # fluid removed by sampling -----------------------------------------------------------------
     before, after = _removed_fluid(scene, sim)
