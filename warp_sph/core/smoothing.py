@@ -19,6 +19,7 @@ import warp as wp
 
 from .errors import SceneError
 from ..kernels import smoothing as _dev
+from .launch import launch
 
 
 @dataclass(frozen=True)
@@ -75,7 +76,7 @@ def evaluate(name: str, offsets: np.ndarray, h: float, device="cpu") -> tuple[np
     w = wp.zeros(n, dtype=float, device=device)
     g = wp.zeros(n, dtype=wp.vec3, device=device)
     if n:
-        wp.launch(_dev.evaluate_kernel(name), dim=n, inputs=[x, float(h)], outputs=[w, g], device=device)
+        launch(_dev.evaluate_kernel(name), n, [x, float(h)], [w, g], device=device)
     return w.numpy(), g.numpy()
 
 

@@ -182,6 +182,12 @@ class NeighborLists:
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
 
     @property
+    def boundary_mask(self):
+        """uint8 per cell of the boundary grid: 0 where no boundary particle is within one cell (the fluid
+        there skips the boundary search); None when the cells are smaller than the search radius."""
+        return self._boundary_mask if self.boundary_cells is not None else None
+
+    @property
     def capacities(self) -> tuple[int, int]:
         return self.fluid.index.shape[1], self.boundary.index.shape[1]
 
