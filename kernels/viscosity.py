@@ -24,6 +24,19 @@ def viscosity_acceleration(viscosity: float, particle_mass: float, rho_i: float,
     return (20.0 * viscosity * particle_mass / (rho_i + rho_j)) * wp.dot(v_ij, x_ij) / (r2 + eps_h2) * grad
 
 
+@wp.func
+def artificial_viscosity_acceleration(alpha_h_c: float, particle_mass: float, rho_i: float, rho_j: float,
+                                      v_ij: wp.vec3, x_ij: wp.vec3, eps_h2: float, grad: wp.vec3) -> wp.vec3:
+    """Artificial viscosity of pair ij [m/s^2] (Monaghan 1992; Becker & Teschner 2007): -m Pi_ij grad W_ij
+    with Pi_ij = -nu min(v_ij . x_ij, 0) / (|x_ij|^2 + 0.01 h^2), nu = 2 alpha h c_s / (rho_i + rho_j);
+    alpha_h_c = alpha h c_s [m^2/s]. Only approaching pairs: it dissipates compression (impacts), not shear."""
+    vx = wp.dot(v_ij, x_ij)
+    if vx >= 0.0:
+        return wp.vec3(0.0)
+    nu = 2.0 * alpha_h_c / (rho_i + rho_j)
+    return (particle_mass * nu * vx / (wp.dot(x_ij, x_ij) + eps_h2)) * grad
+
+
 @functools.cache
 def viscous_kernel(smoothing: str, boundary_terms, with_viscosity: bool, neighbors: str = "grid"):
     """Velocity change dt a [m/s] of explicit viscosity (``viscosity_acceleration`` over fluid pairs)

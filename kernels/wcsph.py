@@ -10,7 +10,7 @@ import warp as wp
 from .density import NEIGHBOR_TYPES
 from .neighbors import NoBoundaryParams, neighbor_count, particle_in_cell_order
 from .smoothing import SMOOTHING_FUNCTIONS
-from .viscosity import viscosity_acceleration
+from .viscosity import artificial_viscosity_acceleration, viscosity_acceleration
 
 
 @functools.cache
@@ -45,7 +45,7 @@ def pressure_kernel(equation_of_state: str):
 
 @functools.cache
 def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mirrored_pressure: bool,
-                        neighbors: str = "grid"):
+                        neighbors: str = "grid", with_artificial_viscosity: bool = False):
     """a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij (eq. 10)
              + 10 nu sum_j (2m/(rho_i+rho_j)) (v_ij . x_ij)/(|x_ij|^2 + 0.01 h^2) grad W_ij  (viscosity)
              + sum_b [pressure_b(grad W_ib, V_b, (p/rho^2)_b) + force_b(x_ib, v_ib, ...)] + g    [m/s^2]
@@ -67,12 +67,14 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
 
     @wp.func(module="unique")
     def fluid_pair(x_ij: wp.vec3, v_ij: wp.vec3, p_rho2_i: float, p_rho2_j: float, rho_i: float, rho_j: float,
-                   particle_mass: float, h: float, eps_h2: float, viscosity: float) -> wp.vec3:
-        """Pressure (eq. 10) and viscosity acceleration of i due to fluid neighbour j != i."""
+                   particle_mass: float, h: float, eps_h2: float, viscosity: float, alpha_h_c: float) -> wp.vec3:
+        """Pressure (eq. 10), viscosity and artificial viscosity acceleration of i due to fluid neighbour j != i."""
         grad = wp.static(gradient)(x_ij, h)
         a = -particle_mass * (p_rho2_i + p_rho2_j) * grad
         if wp.static(with_viscosity):
             a += viscosity_acceleration(viscosity, particle_mass, rho_i, rho_j, v_ij, x_ij, eps_h2, grad)
+        if wp.static(with_artificial_viscosity):
+            a += artificial_viscosity_acceleration(alpha_h_c, particle_mass, rho_i, rho_j, v_ij, x_ij, eps_h2, grad)
         return a
 
     @wp.func(module="unique")
@@ -97,6 +99,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         rest_density: float,
         gravity: wp.vec3,
         viscosity: float,
+        alpha_h_c: float,
         boundary_params: BoundaryParams,
         boundary_neighbors: Neighbors,
         boundary_x: wp.array(dtype=wp.vec3),
@@ -133,7 +136,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
                 if j != i:
                     rho_j = particle_density[j]
                     a += fluid_pair(xi - particle_x[j], vi - particle_v[j], p_rho2_i,
-                                    particle_pressure[j] / (rho_j * rho_j), rho_i, rho_j, particle_mass, h, eps_h2, viscosity)
+                                    particle_pressure[j] / (rho_j * rho_j), rho_i, rho_j, particle_mass, h, eps_h2, viscosity, alpha_h_c)
                 k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
@@ -144,7 +147,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
                     if wp.length(x_ij) < support_radius:
                         rho_j = particle_density[j]
                         a += fluid_pair(x_ij, vi - particle_v[j], p_rho2_i, particle_pressure[j] / (rho_j * rho_j),
-                                        rho_i, rho_j, particle_mass, h, eps_h2, viscosity)
+                                        rho_i, rho_j, particle_mass, h, eps_h2, viscosity, alpha_h_c)
         a_boundary = wp.vec3(0.0)
         if wp.static(with_boundary):
             if wp.static(lists):

@@ -146,7 +146,10 @@ def test_graph_and_time_step():
     assert bare.graph.names() == ["stabilize", "predict", "neighbors", "density", "solve", "update"]
     m = sim.model
     dt = min(b.seconds for b in sim.time_step_bounds(2.0))
-    assert dt == pytest.approx(min(0.4 * m.spacing / (2.0 + 9.81 / 24), 0.125 * (m.support_radius / 2) ** 2 / 1e-3))
+    solve = m.spacing * np.sqrt(2 * sim.solver.kappa * sim.scene.pbf.target_iterations
+                                * sim.scene.pbf.target_density_error / (9.81 * sim.solver.fluid_depth))
+    assert dt == pytest.approx(min(0.4 * m.spacing / (2.0 + 9.81 / 24), 0.125 * (m.support_radius / 2) ** 2 / 1e-3,
+                                   solve))
     for _ in range(3):  # every optional stage runs
         sim.step(2e-3)
     assert np.isfinite(sim.get_field("particle_v")).all()

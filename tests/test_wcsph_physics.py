@@ -30,8 +30,10 @@ def layer_pressure_profile(sim, n_layers=12):
 def test_hydrostatic_tank_akinci():
     """After settling: time- and layer-averaged p(depth) = rho0 g depth below 2h from the surface
     (mean error <= 5 %), bottom wall load = weight within 2 %, nobody leaves in 10^4 steps,
-    volume sum m/max(rho, rho0) within 1 %."""
-    sim = Simulation(load_scene("hydrostatic", NO_OUTPUT))
+    volume sum m/max(rho, rho0) within 1 %. With the mirrored wall pressure (SPlisHSPlasH), whose
+    profile this checks: it never comes to rest (it is not energy-consistent; the scene itself uses
+    eq16, tests/test_robust.py), but its time-averaged profile is hydrostatic within 5 %."""
+    sim = Simulation(load_scene("hydrostatic", NO_OUTPUT + ["wcsph.boundary_pressure=mirrored", "material.xsph=0"]))
     m = sim.model
     g = float(np.linalg.norm(m.gravity))
     weight = m.particle_mass * m.fluid_count * g

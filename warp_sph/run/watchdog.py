@@ -242,10 +242,22 @@ class Watchdog:
         first = stats.watch.get(f"first_{rule}", -1)
         count = stats.watch.get(rule, 0)
         who = f"particle {first}" + (f" and {count - 1} more" if count > 1 else "")
-        return SimulationError(
-            f"the state at frame {stats.frame} (t = {stats.time:.5g} s, step {self.sim.state.step}) holds "
-            f"{RULE_TEXT[rule]}: {who}{self._particle_text(first)}; check the scene's fluid blocks, "
-            f"velocities and container, or the values written with set_field")
+        where = (f"the state at frame {stats.frame} (t = {stats.time:.5g} s, step {self.sim.state.step}) holds "
+                 f"{RULE_TEXT[rule]}: {who}{self._particle_text(first)}")
+        dt = float(getattr(stats, "dt_max", 0.0) or 0.0)
+        if self.sim.state.step > 0 and dt > 0:
+            # the caller stepped the state (e.g. Simulation.step at a fixed dt): judge the step it used
+            # against the bounds at the flow's speed now, which the step did not follow
+            tight = self.sim.time_step_bounds(stats.max_speed)[0]
+            if dt > 1.01 * tight.seconds:
+                cause = (f"the steps taken, dt = {dt:.3g} s, are {dt / tight.seconds:.2g}x the {tight.name} bound "
+                         f"{tight.seconds:.3g} s at the flow's speed now ({tight.formula}): size each step for the "
+                         f"current speed (Simulation.time_step(max speed), as advance_frame does every frame)")
+            else:
+                cause = self.likely_cause(rule, None, dt, stats.max_speed)
+            return SimulationError(f"{where}; likely cause: {cause}")
+        return SimulationError(f"{where}; check the scene's fluid blocks, velocities and container, or the values "
+                               f"written with set_field")
 
 
 def frame_substeps(frame_dt: float, bound: float) -> int:
