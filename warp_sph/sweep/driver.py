@@ -99,7 +99,7 @@ def run_sweep(cases: list[Case], out: Path, executor, device: str | None = None,
             by_name = {c.name: c for c in todo}
             for o in executor.map(run_case, tasks):
                 row = o.result if o.result is not None else _failed_row(by_name[o.key], out / o.key, o.error)
-                row["attempts"] = o.attempts
+                row.update(attempts=o.attempts, submitted=o.submitted, received=o.received)
                 summary.add(row)
                 finished += 1
                 if bar.enabled and bar.tty:  # the case's line replaces the bar, which is drawn again below it

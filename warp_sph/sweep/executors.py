@@ -227,13 +227,31 @@ class DaskExecutor:
                              else _one_line(exc))
                 f.release()
                 yield Outcome(key, result, error, i["attempt"], i["submitted"], time.time())
-        except BaseException:
+        except BaseException as e:
             # Ctrl-C, or the consumer stopped: cancel what is left before the cluster closes
             try:
                 self.client.cancel(list(futures), force=True)
             except Exception:  # noqa: BLE001
                 pass
+            if isinstance(e, KeyboardInterrupt):
+                self._stop_local_workers()
             raise
+
+    def _stop_local_workers(self) -> None:
+        """Kill the LocalCluster's worker processes (a running case stops at once instead of the
+        cluster's close waiting for it; its run folder stays consistent: every file of a run is
+        written atomically, and a re-run continues it from its latest checkpoint). Dask cannot stop
+        a task running on an external cluster's worker: that case finishes there, unrecorded."""
+        import signal
+
+        for nanny in (self.cluster.workers.values() if self.cluster is not None else ()):
+            proc = getattr(getattr(nanny, "process", None), "process", None)
+            try:
+                nanny.auto_restart = False
+                if proc is not None and proc.pid:
+                    os.kill(proc.pid, signal.SIGKILL)
+            except (OSError, AttributeError):
+                pass
 
 
 def make_executor(workers: int | None = None, scheduler: str | None = None, log: Callable = print):

@@ -18,11 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-#: the fields of a summary row, in order (sweep.jsonl holds one row per case)
+#: the fields of a summary row, in order (sweep.jsonl holds one row per case); submitted, started,
+#: finished, received: wall-clock times [s since the epoch] (started/finished where the case ran,
+#: submitted/received on the client)
 ROW_KEYS = ("case", "params", "scene", "status", "error", "folder", "fluid_particles", "frames", "steps",
             "simulated_time", "wall_time", "wall_per_simulated_second", "step_wall_per_simulated_second",
             "density_error_mean", "density_error_max", "front", "peak_rss_bytes", "peak_rss_scope",
-            "host", "pid", "attempts", "started", "finished")
+            "host", "pid", "attempts", "submitted", "started", "finished", "received")
 
 
 # --------------------------------------------------------------------------------------------
