@@ -29,9 +29,10 @@ def executor_cases(particle_radius: float = 0.05, frames: int = 49):
                                                    "output.surface=false"], frames=frames)
 
 
-def scheduler_overhead(rows: list[dict]) -> list[float]:
-    """Per case [s]: started - max(submitted, end of the previous case on the same worker process)
-    + (received - finished). Rows need submitted, started, finished, received, host and pid."""
+def overhead_parts(rows: list[dict]) -> list[tuple[float, float]]:
+    """Per case (dispatch, result) [s]: dispatch = started - max(submitted, end of the previous case
+    on the same worker process), result = received - finished. Rows need submitted, started,
+    finished, received, host and pid (one machine's clock)."""
     out = []
     by_worker: dict[tuple, list[dict]] = {}
     for r in rows:
@@ -40,9 +41,14 @@ def scheduler_overhead(rows: list[dict]) -> list[float]:
         prev_end = None
         for r in sorted(seq, key=lambda r: r["started"]):
             ready = r["submitted"] if prev_end is None else max(r["submitted"], prev_end)
-            out.append(max(0.0, r["started"] - ready) + max(0.0, r["received"] - r["finished"]))
+            out.append((max(0.0, r["started"] - ready), max(0.0, r["received"] - r["finished"])))
             prev_end = r["finished"]
     return out
+
+
+def scheduler_overhead(rows: list[dict]) -> list[float]:
+    """Per case [s]: dispatch + result latency (``overhead_parts``)."""
+    return [a + b for a, b in overhead_parts(rows)]
 
 
 _COMPARED = ("status", "fluid_particles", "frames", "steps", "simulated_time", "density_error_mean",
@@ -88,6 +94,8 @@ def measure(workers: int = 2, particle_radius: float = 0.05, frames: int = 49, r
                                "cluster_start_seconds": started_s, "cases_window_seconds": window,
                                "ratio": dask_s / serial_s, "ratio_cases_window": window / serial_s,
                                "overhead_per_case_mean": sum(over) / len(over), "overhead_per_case_max": max(over),
+                               "overhead_dispatch": [a for a, _ in overhead_parts(rows)],
+                               "overhead_result": [b for _, b in overhead_parts(rows)],
                                "case_seconds_serial": [serial[c.name]["finished"] - serial[c.name]["started"] for c in cases],
                                "worker_processes": len({(r["host"], r["pid"]) for r in rows}),
                                "results_identical": same, "load_average_before": load0,

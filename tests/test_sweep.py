@@ -273,7 +273,31 @@ def test_ctrl_c_cancels_cleanly_and_a_rerun_resumes(tmp_path):
     done = _rows(out) if (out / "sweep.jsonl").is_file() else {}
     assert len(done) < 3
     r = subprocess.run(cmd[:-3] + ["--no-progress"], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
     rows = _rows(out)
     assert {x["status"] for x in rows.values()} == {"completed"} and len(rows) == 3
     assert all(x["frames"] == 25 for x in rows.values())
+
+
+def test_leftovers_of_a_killed_run_are_cleared_and_other_files_refused(tmp_path):
+    from warp_sph.scene import load_scene
+    from warp_sph.sweep.runs import folder_state
+
+    scene = load_scene("dam_break", TINY)
+    f = tmp_path / "case"
+    assert folder_state(f, scene, 3) == "empty"
+    (f / "frames").mkdir(parents=True)
+    (f / "frames" / ".frame_000001.npz.abc.tmp.npz").write_bytes(b"")
+    (f / "dam_break.usdc").write_bytes(b"")
+    assert folder_state(f, scene, 3) == "leftovers"  # killed before its run.json
+    (f / "notes.txt").write_text("mine")
+    assert folder_state(f, scene, 3) == "other"
+    (f / "notes.txt").unlink()
+    _sweep([Case("case", "dam_break", TINY, {}, 3)], tmp_path, SerialExecutor())
+    row = _rows(tmp_path)["case"]
+    assert row["status"] == "completed" and row["frames"] == 3
+    assert folder_state(f, scene, 3) == "complete" and folder_state(f, scene, 5) == "incomplete"
+    assert folder_state(f, load_scene("dam_break", TINY + ["solver=pbf"]), 3) == "other"
+    # more frames than the complete run: it continues from its latest checkpoint
+    _sweep([Case("case", "dam_break", TINY, {}, 5)], tmp_path, SerialExecutor())
+    assert _rows(tmp_path)["case"]["frames"] == 5 and folder_state(f, scene, 5) == "complete"

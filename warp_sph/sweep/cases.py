@@ -138,12 +138,15 @@ def case_name(params: dict[str, str], scene: str | None = None) -> str:
 def _scene_ref(scene: str, base: Path | None) -> str:
     """A built-in name stays a name; a path becomes absolute (relative to ``base``), so workers on
     other machines find it on the shared file system."""
+    from ..scene.description import _resolve
+
     text = str(scene)
     if text.endswith(".toml") or "/" in text or "\\" in text:
         p = Path(text).expanduser()
         if not p.is_absolute():
             p = (base or Path.cwd()) / p
-        return str(p.resolve())
+        text = str(p.resolve())
+    _resolve(text)  # SceneError (exit status 2) for a scene that is neither a file nor built in
     return text
 
 
@@ -248,7 +251,7 @@ def load_sweep_file(path: str, frames: int | None = None, fixed: list[str] | Non
             cases.append(Case(name=case_name(combo, default_scene if len(scenes) > 1 else None),
                               scene=_scene_ref(default_scene, base),
                               overrides=sweep_fixed + [f"{k}={v}" for k, v in combo.items()],
-                              params=dict(combo), frames=sweep_frames))
+                              params={k: _value_label(v) for k, v in combo.items()}, frames=sweep_frames))
     listed = data.get("case", [])
     if not isinstance(listed, list):
         raise SweepError(f"{p}: case: expected an array of tables ([[case]])")
@@ -261,7 +264,7 @@ def load_sweep_file(path: str, frames: int | None = None, fixed: list[str] | Non
             raise SweepError(f"{where}.{bad[0]}: unknown key; expected name, scene, set, frames")
         own = _overrides_from_table(c.get("set"), f"{where}.set")
         scene = str(c.get("scene", default_scene))
-        params = {o.split("=", 1)[0]: o.split("=", 1)[1] for o in own}
+        params = {o.split("=", 1)[0]: _value_label(o.split("=", 1)[1]) for o in own}
         name = c.get("name") or case_name(params, scene if len(scenes) > 1 else None)
         if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9._+=,-]+", name) or name in (".", ".."):
             raise SweepError(f"{where}.name = {name!r}: expected letters, digits and . _ + - = ,")

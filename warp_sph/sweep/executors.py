@@ -160,7 +160,7 @@ class DaskExecutor:
             # whose worker dies is handed back at once (allowed_failures=0) and submitted again
             # here, once; no memory limit (a case's arrays are not Dask data to spill or pause on)
             self.cluster = d.LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                          dashboard_address=None, silence_logs=level, memory_limit=0,
+                                          dashboard_address=":0", silence_logs=level, memory_limit=0,
                                           env={"WARP_SPH_CPU_THREADS": str(threads)},
                                           preload=["warp_sph.sweep.local_worker"],
                                           scheduler_kwargs={"allowed_failures": 0})

@@ -102,14 +102,15 @@ def requested_frames(case: dict, scene) -> int:
 
 def folder_state(folder: Path, scene, frames: int) -> str:
     """"empty" (nothing there), "complete" (a completed run of this scene and frame count),
-    "incomplete" (a run of this scene that did not finish), "other" (anything else)."""
+    "incomplete" (a run of this scene that did not finish), "leftovers" (files of a run killed
+    before it wrote run.json), "other" (anything else)."""
     from ..io import run_folder as rf
 
     folder = Path(folder)
     if not folder.exists() or (folder.is_dir() and not any(folder.iterdir())):
         return "empty"
     if not rf.is_run_folder(folder):
-        return "other"
+        return "leftovers" if _run_leftovers(folder) is not None else "other"
     try:
         info = rf.read_run_json(folder)
     except Exception:  # noqa: BLE001 - an unreadable run.json (killed mid-write is impossible: atomic)
@@ -119,6 +120,35 @@ def folder_state(folder: Path, scene, frames: int) -> str:
     if info.get("status") == "completed" and info.get("frames_requested") == frames:
         return "complete"
     return "incomplete"
+
+
+_RUN_SUBFOLDERS = {"frames": (".npz",), "checkpoints": (".npz",), "mesh": (".obj", ".ply", ".vtk")}
+
+
+def _run_leftovers(folder: Path) -> list[Path] | None:
+    """The files of a run killed before it wrote its run.json (the USD stage, frames, checkpoints,
+    mesh files, temporary files of atomic writes), or None when the folder holds anything else."""
+    files = []
+    for p in Path(folder).iterdir():
+        if p.is_dir() and p.name in _RUN_SUBFOLDERS:
+            for q in p.iterdir():
+                if not (q.is_file() and (q.suffix in _RUN_SUBFOLDERS[p.name] or q.name.startswith("."))):
+                    return None
+                files.append(q)
+        elif p.is_file() and (p.suffix == ".usdc" or p.name.startswith(".")):
+            files.append(p)
+        else:
+            return None
+    return files
+
+
+def _clear_leftovers(folder: Path) -> None:
+    for p in _run_leftovers(folder) or []:
+        p.unlink()
+    for name in _RUN_SUBFOLDERS:
+        d = Path(folder) / name
+        if d.is_dir() and not any(d.iterdir()):
+            d.rmdir()
 
 
 def _front(folder: Path, scene, info: dict) -> float | None:
@@ -196,9 +226,12 @@ def run_case(task: dict) -> dict:
         if state == "complete":
             row["status"] = "completed"
         else:
+            if state == "leftovers":  # killed before its run.json: start again
+                _clear_leftovers(folder)
             folder.parent.mkdir(parents=True, exist_ok=True)
             quiet = dict(progress=False, log=lambda *a, **k: None)
-            if state == "incomplete" and rf.latest_checkpoint(folder) is not None:
+            cp = rf.latest_checkpoint(folder) if state == "incomplete" else None
+            if cp is not None and int(np.load(cp)["frame"]) <= frames:  # continue it (bitwise, on the CPU)
                 runner.run(None, device=task.get("device"), frames=frames, resume=folder, **quiet)
             else:
                 runner.run(scene, out=folder, device=task.get("device"), frames=frames, overwrite=True, **quiet)
