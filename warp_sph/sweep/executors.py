@@ -109,7 +109,7 @@ class SerialExecutor:
 
 def _import_distributed():
     try:
-        import dask  # noqa: F401
+        import dask  # noqa: F401 - both halves of the extra
         import distributed
     except ImportError:
         raise MissingExtraError(f"--workers and --scheduler need Dask's distributed scheduler: {INSTALL_HINT}") from None
@@ -158,12 +158,17 @@ class DaskExecutor:
             self.threads = threads
             # processes, one thread each, Warp pinned before the worker imports warp_sph; a task
             # whose worker dies is handed back at once (allowed_failures=0) and submitted again
-            # here, once; no memory limit (a case's arrays are not Dask data to spill or pause on)
-            self.cluster = d.LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                          dashboard_address=":0", silence_logs=level, memory_limit=0,
-                                          env={"WARP_SPH_CPU_THREADS": str(threads)},
-                                          preload=["warp_sph.sweep.local_worker"],
-                                          scheduler_kwargs={"allowed_failures": 0})
+            # here, once; no memory limit (a case's arrays are not Dask data to spill or pause on);
+            # a worker gets its next case only when it is free (saturation 1.0), so a long case
+            # never waits in one worker's queue while another worker idles
+            import dask
+
+            with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
+                self.cluster = d.LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                              dashboard_address=":0", silence_logs=level, memory_limit=0,
+                                              env={"WARP_SPH_CPU_THREADS": str(threads)},
+                                              preload=["warp_sph.sweep.local_worker"],
+                                              scheduler_kwargs={"allowed_failures": 0})
             self.client = d.Client(self.cluster)
         else:
             self.threads = 1
@@ -200,13 +205,16 @@ class DaskExecutor:
         futures = {}
         info: dict[str, dict] = {}
 
-        def submit(key: str, arg, attempt: int):
-            f = self.client.submit(task, arg, key=f"{key}#{attempt}", pure=False)
+        tasks = list(tasks)
+
+        def submit(key: str, arg, attempt: int, priority: int):
+            # Dask runs the highest priority first: the tasks in the order given, a retry before the rest
+            f = self.client.submit(task, arg, key=f"{key}#{attempt}", pure=False, priority=priority)
             futures[f] = key
             info[key] = {"arg": arg, "attempt": attempt, "submitted": info.get(key, {}).get("submitted", time.time())}
             return f
 
-        pending = d.as_completed([submit(k, a, 1) for k, a in tasks])
+        pending = d.as_completed([submit(k, a, 1, len(tasks) - n) for n, (k, a) in enumerate(tasks)])
         try:
             for f in pending:
                 key = futures.pop(f)
@@ -219,7 +227,7 @@ class DaskExecutor:
                     exc = f.exception()
                     if isinstance(exc, d.KilledWorker) and i["attempt"] == 1:
                         self.log(f"{key}: its worker died; running it once more")
-                        pending.add(submit(key, i["arg"], 2))
+                        pending.add(submit(key, i["arg"], 2, len(tasks) + 1))
                         f.release()
                         continue
                     result = None
