@@ -301,3 +301,15 @@ def test_leftovers_of_a_killed_run_are_cleared_and_other_files_refused(tmp_path)
     # more frames than the complete run: it continues from its latest checkpoint
     _sweep([Case("case", "dam_break", TINY, {}, 5)], tmp_path, SerialExecutor())
     assert _rows(tmp_path)["case"]["frames"] == 5 and folder_state(f, scene, 5) == "complete"
+
+
+def test_a_started_executor_is_closed_by_the_with_that_started_it(monkeypatch):
+    ex = DaskExecutor(workers=1)
+    calls = []
+    monkeypatch.setattr(ex, "start", lambda: (calls.append("start"), setattr(ex, "client", object())))
+    monkeypatch.setattr(ex, "close", lambda: (calls.append("close"), setattr(ex, "client", None)))
+    with ex:
+        with ex:  # e.g. run_sweep inside a block that started the cluster
+            pass
+        assert calls == ["start"] and ex.client is not None
+    assert calls == ["start", "close"] and ex.client is None

@@ -132,19 +132,19 @@ class DaskExecutor:
         self.cluster = None
         self.client = None
         self.threads = 1
-        self._entered_start = False
+        self._started_here: list[bool] = []  # per open ``with``: whether it started the cluster
 
     # --- life cycle --------------------------------------------------------------------------
     def __enter__(self):
         """Starts the cluster (or connects) unless started already; the ``with`` block that
         started it closes it, so one started executor can serve several sweeps."""
-        self._entered_start = self.client is None
-        if self._entered_start:
+        self._started_here.append(self.client is None)
+        if self._started_here[-1]:
             self.start()
         return self
 
     def __exit__(self, *exc):
-        if self._entered_start:
+        if self._started_here.pop():
             self.close()
         return False
 
