@@ -128,9 +128,8 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
     kernel = get_smoothing_kernel(scene.smoothing_kernel)
     r = float(scene.particle_radius)
     d = 2.0 * r
-    h_per_d = scene.h_per_spacing if scene.h_per_spacing else kernel.default_h_per_spacing
-    h = h_per_d * d
-    support = kernel.support_radius(h)
+    h = scene.smoothing_length
+    support = scene.support_radius
     rho0 = float(scene.material.rest_density)
     mass = calibrated_mass(kernel.name, h, d, rho0)
     bias = lattice_sum(kernel.name, h, d) * d**3 - 1.0
