@@ -27,16 +27,16 @@ KINDS = ("sweep", "scaling", "splishsplash", "surface", "matrix", "executors")
 
 
 def solver_names() -> tuple[str, ...]:
-    """Every solver a benchmark list covers. The one place benchmarks read the solver names: when
-    the solver registry (warp_sph/methods) lands, this returns its names."""
-    from warp_sph.scene.description import SOLVERS
+    """Every solver a benchmark list covers: the solver registry's names (the one place benchmarks
+    read them)."""
+    from warp_sph.methods.registry import solver_names as registered
 
-    return tuple(SOLVERS)
+    return registered()
 
 
 def scene_names() -> tuple[str, ...]:
     """The built-in scenes, sorted by name."""
-    from warp_sph.scene.description import list_scenes
+    from warp_sph.scene import list_scenes
 
     return tuple(name for name, _ in list_scenes())
 

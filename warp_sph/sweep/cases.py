@@ -138,7 +138,7 @@ def case_name(params: dict[str, str], scene: str | None = None) -> str:
 def _scene_ref(scene: str, base: Path | None) -> str:
     """A built-in name stays a name; a path becomes absolute (relative to ``base``), so workers on
     other machines find it on the shared file system."""
-    from ..scene.description import _resolve
+    from ..scene.load import _resolve
 
     text = str(scene)
     if text.endswith(".toml") or "/" in text or "\\" in text:

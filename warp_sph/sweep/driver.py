@@ -22,7 +22,7 @@ def plan(cases: list[Case], out: Path, previous: dict[str, dict]) -> tuple[list[
     of the same scene and frame count keeps its previous row (or one made from its run.json); a case
     whose scene does not load (a bad value) fails here, without a run."""
     from ..core.errors import SceneError
-    from ..scene.description import load_scene
+    from ..scene import load_scene
 
     todo, done = [], {}
     for c in cases:

@@ -213,7 +213,7 @@ def run_case(task: dict) -> dict:
             if hasattr(wp.config, "log_level"):
                 wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
         from ..run import runner
-        from ..scene.description import load_scene
+        from ..scene import load_scene
 
         scene = load_scene(case["scene"], overrides=list(case["overrides"]))
         frames = requested_frames(case, scene)
