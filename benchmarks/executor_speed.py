@@ -97,6 +97,9 @@ def measure(workers: int = 2, particle_radius: float = 0.05, frames: int = 49, r
                                "overhead_dispatch": [a for a, _ in overhead_parts(rows)],
                                "overhead_result": [b for _, b in overhead_parts(rows)],
                                "case_seconds_serial": [serial[c.name]["finished"] - serial[c.name]["started"] for c in cases],
+                               "case_seconds_local_cluster": [dask[c.name]["finished"] - dask[c.name]["started"]
+                                                              for c in cases],
+                               "case_worker": [dask[c.name]["pid"] for c in cases],
                                "worker_processes": len({(r["host"], r["pid"]) for r in rows}),
                                "results_identical": same, "load_average_before": load0,
                                "load_average_after": host_info()["load_average"]}}
