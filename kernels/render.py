@@ -338,11 +338,12 @@ def trace_mesh(
     mesh_indices: wp.array(dtype=wp.int32),
     vertex_normal: wp.array(dtype=wp.vec3),
     has_mesh: int,
-    surface_color: wp.vec3,
+    face_color: wp.array(dtype=wp.vec3),
     # Out:
     image_out: wp.array2d(dtype=wp.vec3),
 ):
-    """One ray per pixel against the surface mesh; smooth vertex normals, shaded two-sided."""
+    """One ray per pixel against the mesh (fluid surface and obstacles, a colour per triangle);
+    smooth vertex normals, shaded two-sided."""
     py, px = wp.tid()
     origin = camera.position
     direction = camera_ray(camera, px, py)
@@ -367,5 +368,5 @@ def trace_mesh(
             if wp.dot(n, direction) > 0.0:  # two-sided: shade the side facing the camera
                 n = -n
             p = origin + hit_t * direction
-            color = blinn_phong(light, surface_color, p, n, origin)
+            color = blinn_phong(light, face_color[f], p, n, origin)
     image_out[py, px] = composite(camera, scenery, origin, direction, hit, hit_t, color)

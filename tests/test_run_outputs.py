@@ -179,12 +179,31 @@ def assert_same_run(a: Path, b: Path) -> None:
 
 def test_resume_reproduces_uninterrupted_run(reference, tmp_path):
     out = tmp_path / "resumed"
-    run_small(out, 5, threaded_export=False)  # checkpoints 1 and 4; frame 5 is recomputed after the resume
-    assert rf.latest_checkpoint(out).name == "checkpoint_000004.npz"
+    run_small(out, 5, threaded_export=False)  # checkpoints 1, 4 and the final one, 5
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == \
+        ["checkpoint_000001.npz", "checkpoint_000004.npz", "checkpoint_000005.npz"]
+    rf.checkpoint_path(out, 5).unlink()  # as if stopped before it: frame 5 is recomputed after the resume
     info = runner.run(None, frames=FRAMES, resume=out, progress=False, device="cpu", log=quiet)
     assert info["status"] == "completed"
     assert_same_run(reference, out)
     assert_blender_ready(usd_path(out), FRAMES)
+
+
+def test_finished_run_is_complete_or_extended(reference, tmp_path):
+    """--resume of a finished run simulates nothing ("already complete"); with --frames beyond its
+    end it continues from the final checkpoint, and equals the longer uninterrupted run."""
+    out = tmp_path / "finished"
+    run_small(out, 5)
+    before = {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+    said = []
+    info = runner.run(None, resume=out, progress=False, device="cpu", log=said.append)
+    assert any("already complete" in line for line in said), said
+    assert info["status"] == "completed" and len(info["frames"]) == 5
+    assert {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()} == before
+    said.clear()
+    runner.run(None, frames=FRAMES, resume=out, progress=False, device="cpu", log=said.append)
+    assert any("resuming" in line and "from frame 5" in line for line in said), said
+    assert_same_run(reference, out)
 
 
 def test_resume_errors(tmp_path):
@@ -192,8 +211,8 @@ def test_resume_errors(tmp_path):
         runner.run(None, resume=tmp_path, progress=False, log=quiet)
     out = tmp_path / "nocp"
     run_small(out, 2, extra=["output.checkpoint_every=0"])
-    with pytest.raises(OutputError, match="no checkpoint"):
-        runner.run(None, resume=out, progress=False, log=quiet)
+    with pytest.raises(OutputError, match="no checkpoint"):  # complete with 2 frames; a third needs one
+        runner.run(None, resume=out, frames=3, progress=False, log=quiet)
 
 
 def test_sigkill_then_resume(reference, tmp_path):

@@ -5,7 +5,11 @@ Scripting entry points::
     import warp_sph as ws
     sim = ws.Simulation(ws.load_scene("dam_break"))
     sim.advance_frame()
+
+Warp runs quietly (warnings only, no banner or module-load lines); ``WARP_SPH_VERBOSE=1`` or
+``warp_sph.set_verbose(True)`` shows everything.
 """
+from .core.device import apply_log_level as _apply_log_level, set_verbose
 from .core.errors import OutputError, SceneError, SimulationError, StepGraphError, WarpSphError
 from .scene.description import Scene, list_scenes, load_scene, parameter_table_markdown, scene_from_dict
 from .run.simulation import FrameStatistics, Simulation
@@ -13,6 +17,8 @@ from .core.smoothing import SMOOTHING_KERNELS, SmoothingKernel, calibrated_mass,
 from .core.step_graph import Stage, StepGraph
 
 __version__ = "0.1.0"
+
+_apply_log_level()
 
 
 def run(scene, out=None, **kwargs):
@@ -28,5 +34,5 @@ __all__ = [
     "FrameStatistics", "OutputError", "Scene", "SceneError", "SimulationError", "Simulation",
     "SMOOTHING_KERNELS", "SmoothingKernel", "Stage", "StepGraph", "StepGraphError", "WarpSphError",
     "calibrated_mass", "get_smoothing_kernel", "list_scenes", "load_scene", "parameter_table_markdown",
-    "run", "scene_from_dict",
+    "run", "scene_from_dict", "set_verbose",
 ]

@@ -26,6 +26,7 @@ DEFAULT_SIZE = (640, 360)
 PARTICLE_COLOR = (0.16, 0.42, 0.78)  # water blue, linear [0, 1]
 FAST_PARTICLE_COLOR = (0.80, 0.92, 1.00)  # foam white-blue for the fastest particles
 SURFACE_COLOR = (0.22, 0.50, 0.85)
+OBSTACLE_COLOR = (0.62, 0.58, 0.52)  # stone grey for obstacles in surface previews
 BACKGROUND = (0.93, 0.94, 0.96)
 SURFACE_PRIM = "/sph/surface"
 
@@ -307,16 +308,31 @@ def render_mesh(
     *,
     color=SURFACE_COLOR,
     light: Light | None = None,
+    solids: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+    solid_color=OBSTACLE_COLOR,
 ) -> np.ndarray:
     """Ray trace a triangle mesh (smooth normals, two-sided); returns an (H, W, 3) uint8 image.
 
     vertices: (V, 3) [m]; triangles: (T, 3) vertex indices; container as in ``render_particles``.
+    solids: obstacle meshes (vertices [m], triangles) drawn flat-shaded in ``solid_color``.
     """
     width, height = _check_size(size)
     v = np.ascontiguousarray(np.asarray(vertices, dtype=np.float32).reshape(-1, 3))
     tri = np.ascontiguousarray(np.asarray(triangles, dtype=np.int32).reshape(-1, 3))
     if len(tri) and (tri.min() < 0 or tri.max() >= len(v)):
         raise PreviewError(f"triangle indices must lie in [0, {len(v)}), got [{tri.min()}, {tri.max()}]")
+    colors = [np.tile(np.asarray(color, dtype=np.float32), (len(tri), 1))]
+    for sv, st in solids:  # unshared vertices per triangle: vertex normals = face normals (flat)
+        sv = np.asarray(sv, dtype=np.float32).reshape(-1, 3)
+        st = np.asarray(st, dtype=np.int64).reshape(-1, 3)
+        if len(st) == 0:
+            continue
+        if st.min() < 0 or st.max() >= len(sv):
+            raise PreviewError(f"obstacle triangle indices must lie in [0, {len(sv)})")
+        tri = np.concatenate([tri, (len(v) + np.arange(3 * len(st), dtype=np.int32)).reshape(-1, 3)])
+        v = np.concatenate([v, sv[st.reshape(-1)]])
+        colors.append(np.tile(np.asarray(solid_color, dtype=np.float32), (len(st), 1)))
+    face_colors = np.ascontiguousarray(np.concatenate(colors)) if len(tri) else np.zeros((1, 3), np.float32)
     device = wp.get_device(device)
     cam = _camera_struct(camera, (width, height))
     has_mesh = int(len(tri) > 0)
@@ -330,6 +346,7 @@ def render_mesh(
         indices = wp.zeros(3, dtype=wp.int32, device=device)
         normals = wp.zeros(1, dtype=wp.vec3, device=device)
         mesh_id = wp.uint64(0)
+    face_color = wp.array(face_colors, dtype=wp.vec3, device=device)
     image = wp.empty((height, width), dtype=wp.vec3, device=device)
     wp.launch(
         render.trace_mesh,
@@ -342,7 +359,7 @@ def render_mesh(
             indices,
             normals,
             has_mesh,
-            wp.vec3(*color),
+            face_color,
         ],
         outputs=[image],
         device=device,
@@ -449,6 +466,19 @@ class _SurfaceReader:
                 f"{self.path} has no surface mesh at {SURFACE_PRIM} (was the run made without surface export?)"
             )
         self.mesh = UsdGeom.Mesh(prim)
+        self._geom = UsdGeom
+        parent = self.stage.GetPrimAtPath(SURFACE_PRIM).GetParent()
+        #: obstacle meshes beside the surface (the container is drawn as the box outline)
+        self.solid_prims = [p for p in parent.GetChildren() if p.IsA(UsdGeom.Mesh)
+                            and p.GetName() not in ("surface", "container")]
+
+    def _world(self, prim, points: np.ndarray, time) -> np.ndarray:
+        """Points of ``prim`` in world coordinates [m] (a run far from the origin writes them
+        relative to /sph's translate), in float64 until the renderer takes them."""
+        m = np.asarray(self._geom.XformCache(time).GetLocalToWorldTransform(prim), dtype=np.float64)
+        if np.array_equal(m, np.eye(4)):
+            return points
+        return points.astype(np.float64) @ m[:3, :3] + m[3, :3]
 
     def frame(self, frame: int) -> tuple[np.ndarray, np.ndarray]:
         points_attr = self.mesh.GetPointsAttr()
@@ -458,7 +488,20 @@ class _SurfaceReader:
         points = np.asarray(points_attr.Get(time) or [], dtype=np.float32).reshape(-1, 3)
         counts = np.asarray(self.mesh.GetFaceVertexCountsAttr().Get(time) or [], dtype=np.int64)
         indices = np.asarray(self.mesh.GetFaceVertexIndicesAttr().Get(time) or [], dtype=np.int64)
-        return points, _triangulate(counts, indices)
+        return self._world(self.mesh.GetPrim(), points, time), _triangulate(counts, indices)
+
+    def solids(self, frame: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Obstacle meshes (world vertices [m], triangles) at ``frame``."""
+        out = []
+        time = self._usd.TimeCode(frame)
+        for prim in self.solid_prims:
+            mesh = self._geom.Mesh(prim)
+            points = np.asarray(mesh.GetPointsAttr().Get(time) or [], dtype=np.float32).reshape(-1, 3)
+            counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(time) or [], dtype=np.int64)
+            indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(time) or [], dtype=np.int64)
+            if len(points) and len(counts):
+                out.append((self._world(prim, points, time), _triangulate(counts, indices)))
+        return out
 
 
 def _triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
@@ -555,7 +598,8 @@ def preview_run(
     for frame in frames:
         if surface is not None:
             vertices, triangles = surface.frame(frame)
-            image = render_mesh(vertices, triangles, camera, size, container, device, light=light)
+            image = render_mesh(vertices, triangles, camera, size, container, device, light=light,
+                                solids=surface.solids(frame))
         else:
             x, v = _load_frame(run_dir, frame)
             colors = _speed_colors(v, speed_scale, len(x))

@@ -89,8 +89,10 @@ class Simulation:
         from .preflight import check_memory
         from ..scene.sampling import sample_scene
 
+        from ..core.device import resolve_device
+
         self.scene = scene
-        self.device = wp.get_device(device)
+        self.device = resolve_device(device)  # quiet Warp start-up; a bad name is a one-line error
         check_memory(scene, self.device)
         self.sampled = sample_scene(scene)
         self.model, self.state = build_model(scene, self.sampled, self.device)

@@ -732,7 +732,7 @@ def list_scenes() -> list[tuple[str, str]]:
         try:
             with open(path, "rb") as f:
                 desc = tomllib.load(f).get("description", "")
-        except (OSError, tomllib.TOMLDecodeError):
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
             desc = "(unreadable)"
         out.append((path.stem, str(desc)))
     return out
@@ -762,12 +762,18 @@ def load_scene(name_or_path: str, overrides: list[str] | dict | None = None) -> 
     """
     path = _resolve(name_or_path)
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: malformed TOML: {exc}") from None
+        raw = path.read_bytes()
     except OSError as exc:
         raise SceneError(f"{path}: cannot read: {exc.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:  # a binary file, or Latin-1 text: TOML is UTF-8
+        raise SceneError(f"{path}: not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at offset {exc.start}); "
+                         "a scene is a TOML text file in UTF-8") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: malformed TOML: {exc}") from None
     data = apply_overrides(data, overrides, str(path))
     return scene_from_dict(data, source=str(path), base_dir=path.parent)
 
