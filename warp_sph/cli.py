@@ -56,13 +56,13 @@ def _print_summary(info: dict) -> None:
     usd = sorted(out.glob("*.usdc"))
     print(f"{info['status']}: {len(frames)} frames, {steps} steps, {info['simulated_time']:.3f} s simulated "
           f"in {info['wall_time']:.1f} s wall ({info['fluid_particles']} fluid, {info['boundary_particles']} boundary particles)")
-    if info.get("threaded_export", True):
-        export = (f"export {info['export_time']:.1f} s on a background thread beside the simulation, "
-                  f"{info.get('export_wait_time', 0.0):.1f} s of it waited for")
-    else:
-        export = f"export {info['export_time']:.1f} s"
     print(f"density error: mean {100 * mean:.3f} %, max {100 * err:.3f} % (largest of any frame); "
-          f"{info['sim_time_per_step_ms']:.2f} ms per step of simulation; {export}")
+          f"{info['sim_time_per_step_ms']:.2f} ms per simulation step")
+    if info.get("threaded_export", True):
+        print(f"export: {info['export_time']:.1f} s on a background thread while simulating; the simulation "
+              f"waited {info.get('export_wait_time', 0.0):.1f} s of it")
+    else:
+        print(f"export: {info['export_time']:.1f} s")
     print(f"output: {out}" + (f"  (Blender: File > Import > USD, {usd[0].name})" if usd else ""))
 
 

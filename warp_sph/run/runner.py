@@ -255,12 +255,14 @@ class _ExportThread:
 
     def check(self):
         if self.error is not None:
+            self.reported = True
             raise self.error
 
     def finish(self):
         self.q.put(None)
         self.thread.join()
-        self.check()
+        if not getattr(self, "reported", False):  # raised once only (a submit may have raised it)
+            self.check()
 
 
 def _checkpoint_info(sim: Simulation, frame: int, frame_log: list[dict], digest: str = "") -> dict:
@@ -503,7 +505,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             if not failing:
                 raise errors[0]
             for exc in errors:  # the first error is the one reported
-                log(f"warp-sph: also: {exc}")
+                print(f"warp-sph: also: {exc}", file=sys.stderr)
     return run_info
 
 
