@@ -23,7 +23,7 @@ if not _os.path.isdir(_os.path.join(_here, "kernels")) and _os.path.isfile(_os.p
 
 from .core.device import apply_log_level as _apply_log_level, set_verbose  # noqa: E402
 from .core.errors import OutputError, SceneError, SimulationError, StepGraphError, WarpSphError
-from .scene.description import Scene, list_scenes, load_scene, parameter_table_markdown, scene_from_dict
+from .scene import Scene, list_scenes, load_scene, parameter_table_markdown, scene_from_dict
 from .run.simulation import FrameStatistics, Simulation
 from .core.smoothing import SMOOTHING_KERNELS, SmoothingKernel, calibrated_mass, get_smoothing_kernel
 from .core.step_graph import Stage, StepGraph

@@ -114,9 +114,6 @@ class StepGraph:
                 writers[f] = s.name
                 available.add(f)
 
-    def fields_written(self) -> set[str]:
-        return {f for s in self.stages for f in s.writes}
-
     # --- execution -------------------------------------------------------------------------
     def run(self, sim, dt: float) -> None:
         for s in self.stages:
@@ -155,10 +152,3 @@ class StepGraph:
                 "ms_per_call": per_call,
             })
         return out
-
-    def describe(self) -> str:
-        lines = []
-        for s in self.stages:
-            lines.append(f"{s.name}: reads {', '.join(s.reads) or '-'}; writes {', '.join(s.writes) or '-'}"
-                         + (f"; updates {', '.join(s.updates)}" if s.updates else ""))
-        return "\n".join(lines)

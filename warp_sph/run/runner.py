@@ -275,7 +275,7 @@ def _checkpoint_info(sim: Simulation, frame: int, frame_log: list[dict], digest:
     """
     s = sim.state
     last = sim.last_frame.max_speed if sim.last_frame else 0.0
-    extra = sim.solver.checkpoint_arrays(sim) if hasattr(sim.solver, "checkpoint_arrays") else {}
+    extra = sim.solver.checkpoint_arrays()
     extra = {k: (a.numpy() if isinstance(a, wp.array) else np.asarray(a)) for k, a in extra.items()}
     v = versions()
     return dict(step=np.int64(s.step), frame=np.int64(frame), state_frame=np.int64(s.frame),
@@ -328,7 +328,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     Nothing is created before the scene, the device and the folder are known to be usable, and a
     start that fails before its first frame removes what it created.
     """
-    from ..scene.description import scene_from_dict
+    from ..scene import scene_from_dict
 
     t_start = time.perf_counter()
     device = resolve_device(device)  # a bad --device is one line, before any folder exists
@@ -370,9 +370,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         sim.state.step = int(cp["step"])
         sim.state.frame = int(cp["state_frame"])
         sim.state.time = float(cp["time"])
-        if hasattr(sim.solver, "restore_arrays"):
-            sim.solver.restore_arrays(sim, cp)
-        sim._refresh_density()
+        sim.solver.restore_arrays(cp)
+        sim.refresh_density()
         sim.last_frame = sim.statistics()
         sim.last_frame.max_speed = float(cp["last_max_speed"])
         if "frame_log" in cp:
@@ -413,7 +412,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
 
     run_info = {
         "scene": scene.to_dict(), "versions": versions(), "device": str(sim.device),
-        "model": sim.model.summary(), "fluid_particles": sim.model.fluid_count,
+        "model": sim.summary(), "fluid_particles": sim.model.fluid_count,
         "boundary_particles": sim.model.boundary_count, "frames_requested": total,
         "fps": scene.fps, "step_graph": [{"stage": s.name, "reads": list(s.reads), "writes": list(s.writes),
                                          "updates": list(s.updates), "doc": s.doc} for s in sim.graph.stages],
