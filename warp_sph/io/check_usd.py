@@ -632,7 +632,7 @@ def run(path: str, min_frames: int = 0) -> Report:
     return rep
 
 
-def print_human(rep: Report, out=None):
+def print_human(rep: Report, out=None, strict: bool = False):
     out = out or sys.stdout
     d = rep.to_dict()
     s = d["stage"]
@@ -680,7 +680,7 @@ def print_human(rep: Report, out=None):
         print(f"  WARNING: {m}", file=out)
     for m in d["errors"]:
         print(f"  ERROR: {m}", file=out)
-    verdict = "OK" if d["ok"] else "FAILED"
+    verdict = "OK" if d["ok"] and not (strict and d["n_warnings"]) else "FAILED" + (" (--strict)" if d["ok"] else "")
     print(f"{verdict}: {d['n_errors']} error(s), {d['n_warnings']} warning(s)", file=out)
 
 
@@ -699,7 +699,7 @@ def main(argv=None) -> int:
         json.dump(rep.to_dict(), sys.stdout, indent=1, default=str)
         sys.stdout.write("\n")
     else:
-        print_human(rep)
+        print_human(rep, strict=args.strict)
     if not rep.stage.get("opened"):
         return 2
     if rep.errors or (args.strict and rep.warnings):
