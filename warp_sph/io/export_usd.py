@@ -37,7 +37,6 @@ double-precision ``xformOp:translate`` = origin (Blender: the "sph" empty sits a
 from __future__ import annotations
 
 import os
-import struct
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -46,6 +45,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from ..core.errors import OutputError
 from . import run_folder as rf
+from .crate_guard import crate_tail, restore_crate_tail
 
 _RESERVED = ("particles", "surface")
 
@@ -83,50 +83,6 @@ def _extent(points: np.ndarray, pad: float) -> Vt.Vec3fArray:
     if len(points) == 0:
         return _vec3f(np.zeros((2, 3)))
     return _vec3f(np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad]))
-
-
-_CRATE_MAGIC = b"PXR-USDC"
-_CRATE_HEADER = 88  # bootstrap: magic, version, table-of-contents offset, reserved
-
-
-def _crate_tail(path: str) -> tuple[bytes, int, bytes] | None:
-    """(header, offset, bytes from offset to the end) of a crate file: what its next Save
-    overwrites (the structural sections and the table of contents); None if not crate."""
-    try:
-        with open(path, "rb") as f:
-            header = f.read(_CRATE_HEADER)
-            if len(header) < 24 or header[:8] != _CRATE_MAGIC:
-                return None
-            toc = struct.unpack_from("<q", header, 16)[0]
-            f.seek(toc)
-            (count,) = struct.unpack("<Q", f.read(8))
-            if not 0 < count < 64:
-                return None
-            table = f.read(32 * count)
-            starts = [struct.unpack_from("<q", table, 32 * i + 16)[0] for i in range(count)]
-            offset = min(starts + [toc])
-            f.seek(offset)
-            return header, offset, f.read()
-    except (OSError, struct.error, ValueError):
-        return None
-
-
-def _restore_crate_tail(path: str, saved: tuple[bytes, int, bytes]) -> bool:
-    """Write back what ``_crate_tail`` read: the file is again as of its last good Save. Writes
-    only over bytes the file already has, then truncates, so it needs no free space."""
-    header, offset, tail = saved
-    try:
-        with open(path, "r+b") as f:
-            f.seek(offset)
-            f.write(tail)
-            f.truncate(offset + len(tail))
-            f.seek(0)
-            f.write(header)
-            f.flush()
-            os.fsync(f.fileno())
-        return True
-    except OSError:
-        return False
 
 
 def _first_line(exc: BaseException) -> str:
@@ -339,7 +295,7 @@ class UsdWriter:
         new_bytes: size of the values set since the last Save [bytes] (the Save writes these, the
         time-sample tables and the structural sections again).
         """
-        saved = _crate_tail(self.path)
+        saved = crate_tail(self.path)
         if saved is None:  # a new file, or a text layer (.usda, rewritten whole)
             old = os.path.getsize(self.path) if os.path.isfile(self.path) else 0
             needed = new_bytes + old + (1 << 16)
@@ -356,7 +312,7 @@ class UsdWriter:
             self.stage.Save()
         except Exception as exc:  # pxr's Tf.ErrorException (e.g. "No space left on device")
             self._failed = True
-            restored = saved is not None and _restore_crate_tail(self.path, saved)
+            restored = saved is not None and restore_crate_tail(self.path, saved)
             free = rf.free_bytes(Path(self.path))
             raise OutputError(f"cannot save {self.path} ({rf.format_bytes(free)} free): {_first_line(exc)}; "
                               + (f"the file keeps frames up to {self._last_saved()}" if restored else

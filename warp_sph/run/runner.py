@@ -12,10 +12,8 @@ one bit for bit (tests/test_run_outputs.py).
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import math
-import platform
 import queue
 import sys
 import threading
@@ -28,30 +26,13 @@ import warp as wp
 from ..io import run_folder as rf
 from ..core.device import resolve_device
 from ..core.errors import OutputError, SimulationError, WarpSphError
+from .checkpoints import check_checkpoint, checkpoint_info, scene_hash, versions
 from .preflight import preflight_checks
 from .simulation import Simulation
 
-#: version of the checkpoint layout (``_checkpoint_info``); another one is refused on resume
-CHECKPOINT_FORMAT = 2
 #: scenes whose float32 world coordinates would round positions by more than this fraction of the
 #: particle radius are exported relative to their origin (USD) and recorded in float64 (frames)
 WORLD_FLOAT32_TOLERANCE = 0.01
-
-
-def versions() -> dict:
-    import numpy
-
-    from .. import __version__
-
-    out = {"warp_sph": __version__, "warp": wp.__version__, "numpy": numpy.__version__,
-           "python": platform.python_version(), "platform": platform.platform()}
-    try:
-        from pxr import Usd
-
-        out["usd"] = ".".join(str(v) for v in Usd.GetVersion())
-    except Exception:
-        pass
-    return out
 
 
 class Progress:
@@ -142,7 +123,7 @@ class Exporter:
     def snapshot(self, checkpoint: dict | None = None) -> dict:
         """Device copies of what a frame export needs (taken on the simulation thread).
 
-        checkpoint: the host part of a checkpoint (``_checkpoint_info``) to write after the frame.
+        checkpoint: the host part of a checkpoint (``checkpoints.checkpoint_info``) to write after the frame.
         """
         f = self.sim.fields
         snap = {"x": wp.clone(f["particle_x"]), "v": wp.clone(f["particle_v"]),
@@ -222,12 +203,6 @@ def world_float32_error(sim: Simulation) -> float:
     return float(np.abs(corners).max()) * 2.0**-24
 
 
-def scene_hash(scene_dict: dict) -> str:
-    """sha256 of a scene (``Scene.to_dict()`` or run.json's ``scene``), independent of key order."""
-    canonical = json.dumps(json.loads(rf.to_json(scene_dict)), sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(canonical.encode()).hexdigest()
-
-
 class _ExportThread:
     """Runs Exporter.write on a worker thread, at most ``depth`` frames behind; re-raises its errors."""
 
@@ -263,55 +238,6 @@ class _ExportThread:
         self.thread.join()
         if not getattr(self, "reported", False):  # raised once only (a submit may have raised it)
             self.check()
-
-
-def _checkpoint_info(sim: Simulation, frame: int, frame_log: list[dict], digest: str = "") -> dict:
-    """Host part of a checkpoint of ``frame`` (positions and velocities come from the frame's snapshot).
-
-    Holds the step count, frame, time, the max speed that sizes the next substep, any arrays the
-    solver carries between steps, and the per-frame statistics so far (run.json may lag behind);
-    and what it belongs to (``check_checkpoint``): the layout version, ``digest`` (scene_hash of
-    run.json's scene), the particle counts, the solver and the software versions.
-    """
-    s = sim.state
-    last = sim.last_frame.max_speed if sim.last_frame else 0.0
-    extra = sim.solver.checkpoint_arrays()
-    extra = {k: (a.numpy() if isinstance(a, wp.array) else np.asarray(a)) for k, a in extra.items()}
-    v = versions()
-    return dict(step=np.int64(s.step), frame=np.int64(frame), state_frame=np.int64(s.frame),
-                time=np.float64(s.time), last_max_speed=np.float64(last),
-                frame_log=np.array(rf.to_json(frame_log)),
-                checkpoint_format=np.int64(CHECKPOINT_FORMAT), scene_hash=np.array(digest or scene_hash(sim.scene.to_dict())),
-                fluid_count=np.int64(sim.model.fluid_count), boundary_count=np.int64(sim.model.boundary_count),
-                solver=np.array(sim.scene.solver), warp_sph_version=np.array(v["warp_sph"]),
-                warp_version=np.array(v["warp"]), **extra)
-
-
-def check_checkpoint(cp: dict, path: Path, run_scene: dict, sim: Simulation, log=print) -> None:
-    """Refuse (OutputError, one line) a checkpoint that belongs to another scene, particle count,
-    solver or checkpoint layout than the run it is in; report other software versions."""
-    m = sim.model
-    n = len(cp["particle_x_local"])
-    if n != m.fluid_count:
-        raise OutputError(f"{path}: holds {n} fluid particles, the scene of run.json has {m.fluid_count}; "
-                          "the checkpoint belongs to another scene")
-    fmt = int(cp["checkpoint_format"]) if "checkpoint_format" in cp else 1
-    if fmt > CHECKPOINT_FORMAT:
-        raise OutputError(f"{path}: checkpoint layout {fmt} is newer than this warp-sph reads "
-                          f"({CHECKPOINT_FORMAT}); resume with the version that wrote it")
-    if "scene_hash" in cp and str(cp["scene_hash"]) != scene_hash(run_scene):
-        raise OutputError(f"{path}: written for another scene than the one in run.json (scene hash "
-                          f"{str(cp['scene_hash'])[:12]} vs {scene_hash(run_scene)[:12]}); was run.json edited?")
-    for key, want in (("fluid_count", m.fluid_count), ("boundary_count", m.boundary_count)):
-        if key in cp and int(cp[key]) != want:
-            raise OutputError(f"{path}: {key.replace('_', ' ')} {int(cp[key])}, the scene of run.json has {want}")
-    if "solver" in cp and str(cp["solver"]) != sim.scene.solver:
-        raise OutputError(f"{path}: written by the {str(cp['solver'])} solver, the scene uses {sim.scene.solver}")
-    now = versions()
-    for key, name in (("warp_sph_version", "warp_sph"), ("warp_version", "warp")):
-        if key in cp and str(cp[key]) != now[name]:
-            log(f"note: {path.name} was written with {name} {str(cp[key])}, this is {now[name]}: the resumed "
-                "frames may differ in the last bits from an uninterrupted run")
 
 
 def run(scene, out: Path | None = None, device: str | None = None, frames: int | None = None,
@@ -402,7 +328,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         t0 = time.perf_counter()
         checkpoint = None
         if checkpoint_every > 0 and ((frame - 1) % checkpoint_every == 0 or frame == total):
-            checkpoint = _checkpoint_info(sim, frame, frame_log, digest)
+            checkpoint = checkpoint_info(sim, frame, frame_log, digest)
         snap = exporter.snapshot(checkpoint)
         if worker is not None:
             worker.submit(frame, t, snap)
