@@ -27,8 +27,9 @@ that no longer opens (and the next Save crashed the process). So before each Sav
 checks the free space against the bytes the Save will write (the new samples, the rewritten
 time-sample tables and sections) and refuses with one line when they do not fit; and it keeps a
 copy of the header and those last bytes, which it writes back when a Save fails anyway (a race
-with another writer): the file then holds every frame of the last good Save. Cost: one small
-read per frame (tests/test_disk_full.py; measured in notes/firsthour.md).
+with another writer): the file then holds every frame of the last good Save (``crate_guard``;
+tests/test_disk_full.py). Cost: a ~1 kB read and a statvfs per frame, 25-95 us against 11-32 ms
+for the frame's write_frame at 6,859 particles and a 25k-vertex surface (2-core VM).
 
 A scene far from the origin (``origin``): float32 world coordinates would lose up to
 |x| 2^-24 (4.9e-4 m at 1e4 m), so points are written relative to ``origin`` and /sph carries a
