@@ -379,6 +379,24 @@ def test_checkpoint_of_another_scene_is_refused(workdir, capsys):
     assert snapshot(workdir) == before
 
 
+def test_checkpoint_of_another_version_is_refused(workdir, capsys):
+    """A checkpoint written by another warp-sph or Warp version is refused (a resume is bitwise only with
+    the versions that started the run), naming the version to install; nothing changes."""
+    import numpy as np
+
+    out = run_with_usd(workdir, capsys)
+    path = out / "checkpoints" / "checkpoint_000008.npz"
+    with np.load(path) as f:
+        data = dict(f)
+    data["warp_version"] = np.array("0.0.1")
+    np.savez(path, **data)
+    before = snapshot(workdir)
+    code, err = run_cli(["run", "--resume", str(out), "--frames", "12", "--no-progress"], capsys)
+    assert code == 2
+    assert re.search(r"checkpoint_000008\.npz: written with warp 0\.0\.1, this is .*install warp==0\.0\.1", error_line(err))
+    assert snapshot(workdir) == before
+
+
 @pytest.mark.parametrize("damage", ["truncated", "random_bytes", "empty_run_json", "run_json_list", "nan"])
 def test_damaged_resume_input_is_one_line(damage, workdir, capsys):
     import numpy as np

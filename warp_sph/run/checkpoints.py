@@ -70,7 +70,7 @@ def checkpoint_info(sim, frame: int, frame_log: list[dict], digest: str = "") ->
 
 def check_checkpoint(cp: dict, path: Path, run_scene: dict, sim, log=print) -> None:
     """Refuse (OutputError, one line) a checkpoint that belongs to another scene, particle count,
-    solver or checkpoint layout than the run it is in; report other software versions."""
+    solver, checkpoint layout or warp-sph / Warp version than the run it is in."""
     m = sim.model
     n = len(cp["particle_x_local"])
     if n != m.fluid_count:
@@ -91,5 +91,6 @@ def check_checkpoint(cp: dict, path: Path, run_scene: dict, sim, log=print) -> N
     now = versions()
     for key, name in (("warp_sph_version", "warp_sph"), ("warp_version", "warp")):
         if key in cp and str(cp[key]) != now[name]:
-            log(f"note: {path.name} was written with {name} {str(cp[key])}, this is {now[name]}: the resumed "
-                "frames may differ in the last bits from an uninterrupted run")
+            raise OutputError(f"{path}: written with {name} {str(cp[key])}, this is {now[name]}; a resume continues "
+                              f"bit for bit only with the versions that started the run: install {name}=="
+                              f"{str(cp[key])} to resume it, or run the scene again from the start")
