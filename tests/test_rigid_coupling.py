@@ -189,3 +189,25 @@ def test_fibonacci_sphere_count_and_spread():
     x, n = fibonacci_sphere(1.0, 0.1)
     assert len(x) == round(4 * math.pi / 0.01)
     np.testing.assert_allclose(x.mean(axis=0), 0.0, atol=2e-3)  # evenly spread
+
+
+def test_inset_samples_lie_on_the_inset_surface(tmp_path):
+    """Samples on the surface moved inward by the inset (box, sphere, and a box given as a mesh file)."""
+    d, inset = 0.02, 0.015
+    h = np.array([0.1, 0.06, 0.04])
+    box = body_geometry(Body(shape="box", size=tuple(2 * h), position=(0, 0, 0), density=500.0))
+    sphere = body_geometry(Body(shape="sphere", radius=0.1, position=(0, 0, 0), density=500.0))
+    verts, tris = box_mesh(h)
+    path = tmp_path / "box.obj"
+    path.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in verts) + "".join(f"f {a} {b} {c}\n" for a, b, c in tris + 1))
+    mesh = body_geometry(Body(shape="mesh", file=str(path), position=(0, 0, 0), density=500.0))
+    for geo in (box, mesh):
+        s = sample_body(geo, d, "cubic", d, inset=inset, device="cpu")
+        ratio = np.abs(s.local_x) / (h - inset)
+        np.testing.assert_allclose(ratio.max(axis=1), 1.0, atol=1e-9)  # every sample on a face of the inset box
+        assert s.count > 100
+    s = sample_body(sphere, d, "cubic", d, inset=inset, device="cpu")
+    np.testing.assert_allclose(np.linalg.norm(s.local_x, axis=1), 0.1 - inset, rtol=1e-12)
+    from warp_sph.core.errors import SceneError
+    with pytest.raises(SceneError, match="too thin"):
+        sample_body(box, d, "cubic", d, inset=0.04, device="cpu")
