@@ -15,10 +15,10 @@ def test_parameter_table_is_current():
 
 
 def test_every_parameter_documented_in_readme():
-    from warp_sph.scene import PARAMETERS
+    from warp_sph.scene import all_parameters
 
     text = README.read_text()
-    for p in PARAMETERS:
+    for p in all_parameters():
         assert f"`{p.path}`" in text, p.path
 
 

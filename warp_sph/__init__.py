@@ -7,7 +7,7 @@ Scripting entry points::
     sim.advance_frame()
 """
 from .core.errors import OutputError, SceneError, SimulationError, StepGraphError, WarpSphError
-from .scene.description import Scene, list_scenes, load_scene, parameter_table_markdown, scene_from_dict
+from .scene import Scene, list_scenes, load_scene, parameter_table_markdown, scene_from_dict
 from .run.simulation import FrameStatistics, Simulation
 from .core.smoothing import SMOOTHING_KERNELS, SmoothingKernel, calibrated_mass, get_smoothing_kernel
 from .core.step_graph import Stage, StepGraph

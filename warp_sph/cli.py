@@ -24,7 +24,7 @@ def _quiet_warp():
 
 def _cmd_run(args) -> int:
     from .run import runner
-    from .scene.description import load_scene
+    from .scene import load_scene
 
     _quiet_warp()
     if args.resume:
@@ -60,7 +60,7 @@ def _print_summary(info: dict) -> None:
 
 
 def _cmd_scenes(args) -> int:
-    from .scene.description import list_scenes
+    from .scene import list_scenes
 
     for name, desc in list_scenes():
         print(f"{name:18s} {desc}")
@@ -68,21 +68,24 @@ def _cmd_scenes(args) -> int:
 
 
 def _cmd_check(args) -> int:
-    from .core.model import build_model
-    from .scene.sampling import sample_scene
-    from .scene.description import load_scene
+    from .run.preflight import preflight_checks, time_step_summary
+    from .run.simulation import Simulation
+    from .scene import load_scene
 
     wp = _quiet_warp()
     scene = load_scene(args.scene, overrides=args.set)
-    sampled = sample_scene(scene)
-    model, _ = build_model(scene, sampled, wp.get_device("cpu"))
-    s = model.summary()
+    sim = Simulation(scene, device=wp.get_device("cpu"))
+    preflight_checks(scene, sim)
+    s = sim.summary()
     print(f"{scene.name}: ok")
     print(f"  {s['fluid_count']} fluid particles, {s['boundary_count']} boundary particles")
-    print(f"  solver {scene.solver}, kernel {s['smoothing_kernel']} (h = {s['smoothing_length']:.4g} m, "
-          f"support {s['support_radius']:.4g} m), mass {s['particle_mass']:.4g} kg")
-    print(f"  speed of sound {s['speed_of_sound']:.3g} m/s, stiffness {s['stiffness']:.4g} Pa, "
-          f"{int(round(scene.duration * scene.fps)) + 1} frames at {scene.fps:g} fps")
+    print(f"  solver {scene.solver}, boundary {scene.boundary}, kernel {s['smoothing_kernel']} "
+          f"(h = {s['smoothing_length']:.4g} m, support {s['support_radius']:.4g} m), mass {s['particle_mass']:.4g} kg")
+    extra = ", ".join(f"{k.replace('_', ' ')} {v:.4g}" for k, v in s["solver"].items()
+                      if isinstance(v, float))
+    print(f"  speed of sound {s['speed_of_sound']:.3g} m/s" + (f", {extra}" if extra else ""))
+    for line in time_step_summary(scene, sim):
+        print(f"  {line}")
     return 0
 
 

@@ -113,9 +113,6 @@ class StepGraph:
                 writers[f] = s.name
                 available.add(f)
 
-    def fields_written(self) -> set[str]:
-        return {f for s in self.stages for f in s.writes}
-
     # --- execution -------------------------------------------------------------------------
     def run(self, sim, dt: float) -> None:
         for s in self.stages:
@@ -141,10 +138,3 @@ class StepGraph:
                 "ms_per_call": 1e3 * t.seconds / t.calls if t.calls else 0.0,
             })
         return out
-
-    def describe(self) -> str:
-        lines = []
-        for s in self.stages:
-            lines.append(f"{s.name}: reads {', '.join(s.reads) or '-'}; writes {', '.join(s.writes) or '-'}"
-                         + (f"; updates {', '.join(s.updates)}" if s.updates else ""))
-        return "\n".join(lines)

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.errors import SceneError
-from ..scene.description import REQUIRED, Param, Vec3
+from ..scene.parameters import REQUIRED, Param
+from ..scene.types import Vec3
 from ..scene.meshes import TriangleMesh, load_triangle_mesh
 
 BODY_SHAPES = ("box", "sphere", "mesh")

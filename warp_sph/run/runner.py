@@ -217,7 +217,7 @@ def _checkpoint_info(sim: Simulation, frame: int, frame_log: list[dict]) -> dict
     """
     s = sim.state
     last = sim.last_frame.max_speed if sim.last_frame else 0.0
-    extra = sim.solver.checkpoint_arrays(sim) if hasattr(sim.solver, "checkpoint_arrays") else {}
+    extra = sim.solver.checkpoint_arrays()
     extra = {k: (a.numpy() if isinstance(a, wp.array) else np.asarray(a)) for k, a in extra.items()}
     return dict(step=np.int64(s.step), frame=np.int64(frame), state_frame=np.int64(s.frame),
                 time=np.float64(s.time), last_max_speed=np.float64(last),
@@ -232,7 +232,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     frames: number of frames to write including the initial one (default duration * fps + 1).
     resume: a run folder to continue from its latest checkpoint (scene and folder come from it).
     """
-    from ..scene.description import scene_from_dict
+    from ..scene import scene_from_dict
 
     t_start = time.perf_counter()
     resume_info = None
@@ -267,9 +267,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         sim.state.step = int(cp["step"])
         sim.state.frame = int(cp["state_frame"])
         sim.state.time = float(cp["time"])
-        if hasattr(sim.solver, "restore_arrays"):
-            sim.solver.restore_arrays(sim, cp)
-        sim._refresh_density()
+        sim.solver.restore_arrays(cp)
+        sim.refresh_density()
         sim.last_frame = sim.statistics()
         sim.last_frame.max_speed = float(cp["last_max_speed"])
         if "frame_log" in cp:
@@ -298,7 +297,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
 
     run_info = {
         "scene": scene.to_dict(), "versions": versions(), "device": str(sim.device),
-        "model": sim.model.summary(), "fluid_particles": sim.model.fluid_count,
+        "model": sim.summary(), "fluid_particles": sim.model.fluid_count,
         "boundary_particles": sim.model.boundary_count, "frames_requested": total,
         "fps": scene.fps, "step_graph": [{"stage": s.name, "reads": list(s.reads), "writes": list(s.writes),
                                          "updates": list(s.updates), "doc": s.doc} for s in sim.graph.stages],
