@@ -93,3 +93,41 @@ def sum_body_wrench(
         total += chunk_wrench[c]
         c += 1
     body_f_out[k] = total
+
+
+@wp.kernel(enable_backward=False)
+def pair_contact_properties(
+    # Model:
+    contact_frequency: float,
+    shape_body: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=float),
+    # State in (Newton's contact buffer):
+    contact_count: wp.array(dtype=int),
+    contact_shape0: wp.array(dtype=int),
+    contact_shape1: wp.array(dtype=int),
+    # Out:
+    contact_stiffness_out: wp.array(dtype=float),
+    contact_damping_out: wp.array(dtype=float),
+):
+    """Per contact point between shapes a and b: k = mu w^2 [N/m], c = mu w [N s/m] with the reduced mass
+    mu = 1 / (1/m_a + 1/m_b) [kg] (a static shape adds 0), so every pair vibrates at w and is damped at
+    ratio 0.5 whatever the two masses (Newton's own rule averages the shapes' ke, kd)."""
+    c = wp.tid()
+    if c >= contact_count[0]:
+        return
+    inv = float(0.0)
+    s = contact_shape0[c]
+    if s >= 0:
+        k = shape_body[s]
+        if k >= 0:
+            inv += body_inv_mass[k]
+    s = contact_shape1[c]
+    if s >= 0:
+        k = shape_body[s]
+        if k >= 0:
+            inv += body_inv_mass[k]
+    reduced = float(0.0)
+    if inv > 0.0:
+        reduced = 1.0 / inv
+    contact_stiffness_out[c] = reduced * contact_frequency * contact_frequency
+    contact_damping_out[c] = reduced * contact_frequency

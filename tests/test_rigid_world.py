@@ -170,3 +170,22 @@ def test_checkpoint_restore_continues_bitwise():
     assert np.array_equal(other.state_arrays()["body_q"], first["body_q"])
     with pytest.raises(ValueError, match="body_q"):
         other.load_state_arrays({k: v for k, v in saved.items() if k != "body_q"})
+
+
+def test_stack_of_unequal_masses_is_stable_at_the_largest_substep():
+    """A 4000 kg/m^3 box resting on a 200 kg/m^3 box on the floor (mass ratio 20), stepped at exactly
+    max_substep: per-contact stiffness from the reduced mass keeps it stable; heights within the
+    contact penetration m_top g / (4 mu w^2) of the stacked heights."""
+    bodies = [Body(shape="box", size=(0.2, 0.2, 0.1), position=(0, 0, 0.06), density=200.0),
+              Body(shape="box", size=(0.2, 0.2, 0.1), position=(0, 0, 0.17), density=4000.0)]
+    world = container_world(bodies, contact_frequency=300.0)
+    assert world.max_substep == pytest.approx(1.0 / (4 * 300.0))
+    dt = world.max_substep
+    assert world.substeps_for(dt) == 1
+    for _ in range(int(1.5 / dt)):
+        world.step(dt)
+    pose = world.poses()
+    depth = 21 * G / (4 * 300.0**2)  # both loads over the light body's reduced mass
+    np.testing.assert_allclose(pose["position"][:, 2], [0.05, 0.15], atol=2 * depth + 1e-4)
+    np.testing.assert_allclose(pose["position"][:, :2], 0.0, atol=1e-4)
+    assert np.abs(pose["velocity"]).max() < 1e-3

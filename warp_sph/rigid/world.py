@@ -8,20 +8,23 @@ whose net acceleration times the SPH step is below 1e-4 m/s never starts to move
 any a < 0.5 m/s^2, e.g. a near-neutral body or a slow current; notes/rigid_newton.md section 3).
 Featherstone has no clamp either but costs more per step and integrates joint coordinates.
 
-Contacts (penalty springs): Newton averages the two shapes' ke, kd, kf and mu. Static shapes carry
-ke = kd = kf = 0 and each body shape twice its own value, so a body touching a wall sees exactly
-k = m w^2 [N/m], c = m w [N s/m] (damping ratio 0.5 per contact point), kf = m w, where w =
-``contact_frequency`` [rad/s]: the resting penetration under its weight is about g / w^2 whatever
-the mass. Two bodies in contact see the sum of both, k = (m1 + m2) w^2. Friction mu is one value
-for every shape (``contact_friction``), so every contact has exactly it.
+Contacts (penalty springs): after each collision detection ``kernels/rigid.py``
+``pair_contact_properties`` writes every contact point's stiffness k = mu w^2 [N/m] and damping
+c = mu w [N s/m] from the reduced mass mu = 1/(1/m_a + 1/m_b) of the two bodies (a static shape adds
+nothing), w = ``contact_frequency`` [rad/s], into Newton's per-contact arrays (``Contacts.
+rigid_contact_stiffness/damping``, which SolverSemiImplicit prefers over the shapes' averaged ke, kd):
+each pair vibrates at w with damping ratio 0.5 per contact point whatever the masses, and a body
+resting on a wall sinks in by about g / w^2. The shapes' own ke, kd (used only if a contact were
+left without a value) are mass-scaled likewise; the friction gain kf = m_min w on every contact
+(m_min the lightest body: the viscous friction regime stays stable for it), and mu is one value for
+every shape (``contact_friction``), so Newton's average gives exactly it.
 
 Sub-steps: explicit penalty contacts are stable while the damping rate times the step stays below
-2: with up to n = 4 contact points per pair, the rigid step is at most 1 / (4 w P), P = 1 for
-bodies only touching static shapes and max (m1 + m2)^2 / (m1 m2) over body pairs otherwise (4 for
-equal masses). ``step(dt)`` runs ceil(dt / max_substep) equal Newton steps with the same wrench;
-collision detection runs once per call, with a detection gap ``contact_gap`` [m] that must cover
-how far bodies move during one call (contact points are stored in body frames, so the penalty
-depth is re-evaluated at every sub-step).
+2; with up to n = 4 contact points per pair the rate is n w, so the rigid step is at most
+1 / (4 w) (a factor 2 of margin). ``step(dt)`` runs ceil(dt / max_substep) equal Newton steps with
+the same wrench; collision detection runs once per call, with a detection gap ``contact_gap`` [m]
+that must cover how far bodies move during one call (contact points are stored in body frames, so
+the penalty depth is re-evaluated at every sub-step).
 
 Frames: the world works in the coordinates it is given (the simulation passes local ones, the
 Model's origin subtracted, so float32 keeps its precision); ``origin`` is added back by the
@@ -37,8 +40,10 @@ import numpy as np
 import warp as wp
 
 from ..core.errors import SceneError
+from ..core.launch import launch
+from ..kernels import rigid as _rigid
 from ..scene.meshes import TriangleMesh, load_triangle_mesh
-from .spec import Body, BodyGeometry, body_geometry, body_name, rotation_quaternion
+from .spec import Body, BodyGeometry, body_geometry, body_name, quat_to_matrix, rotation_quaternion
 
 #: the verified Newton release (pyproject's [rigid] extra pins it)
 NEWTON_VERSION = "1.8.0"
@@ -162,12 +167,13 @@ class RigidWorld:
             else:
                 raise ValueError(f"static collider kind {ob.kind!r}: expected 'box' or 'mesh'")
         self.masses = np.array([g.mass for g in self.geometries], dtype=np.float64)
+        kf = float(self.masses.min()) * w if len(self.masses) else 0.0
         for body, geo, name in zip(bodies, self.geometries, self.names):
             p = np.asarray(body.position, dtype=np.float64) - self.origin
             q = rotation_quaternion(body.rotation)
             k = builder.add_body(xform=wp.transform(wp.vec3(*p), wp.quat(*q)), label=name)
             m = geo.mass
-            cfg = Cfg(density=geo.density, ke=2.0 * m * w * w, kd=2.0 * m * w, kf=2.0 * m * w,
+            cfg = Cfg(density=geo.density, ke=2.0 * m * w * w, kd=2.0 * m * w, kf=2.0 * kf,
                       mu=self.contact_friction, gap=self.contact_gap)
             if geo.shape == "box":
                 h = geo.half_extents
@@ -182,6 +188,11 @@ class RigidWorld:
         self.solver = newton.solvers.SolverSemiImplicit(self.model, angular_damping=0.0)
         self.pipeline = newton.CollisionPipeline(self.model, deterministic=not self.device.is_cpu)
         self.contacts = self.pipeline.contacts()
+        if self.contacts.rigid_contact_stiffness is None:  # per-contact values (see the module docstring)
+            n_max = self.contacts.rigid_contact_max
+            self.contacts.rigid_contact_stiffness = wp.zeros(n_max, dtype=float, device=self.device)
+            self.contacts.rigid_contact_damping = wp.zeros(n_max, dtype=float, device=self.device)
+            self.contacts.rigid_contact_friction = wp.zeros(n_max, dtype=float, device=self.device)  # 0: shape mu
         self.control = self.model.control()
         self.state = self.model.state()
         self._next = self.model.state()
@@ -196,13 +207,8 @@ class RigidWorld:
         self.substeps = 0
 
     def _max_substep(self) -> float:
-        """Largest stable Newton step [s] (module docstring): 1 / (CONTACT_POINTS w P)."""
-        m = self.masses
-        pair = 1.0
-        if len(m) > 1:
-            lo, hi = float(m.min()), float(m.max())
-            pair = (lo + hi) ** 2 / (lo * hi)
-        return 1.0 / (CONTACT_POINTS * self.contact_frequency * pair)
+        """Largest stable Newton step [s] (module docstring): 1 / (CONTACT_POINTS w)."""
+        return 1.0 / (CONTACT_POINTS * self.contact_frequency)
 
     # --- the arrays coupling kernels read (current state; the objects change at every sub-step) ---
     @property
@@ -235,6 +241,11 @@ class RigidWorld:
         n = self.substeps_for(dt)
         h = dt / n
         self.pipeline.collide(self.state, self.contacts)
+        c = self.contacts
+        launch(_rigid.pair_contact_properties, c.rigid_contact_max,
+               [self.contact_frequency, self.model.shape_body, self.model.body_inv_mass, c.rigid_contact_count,
+                c.rigid_contact_shape0, c.rigid_contact_shape1], [c.rigid_contact_stiffness, c.rigid_contact_damping],
+               device=self.device)
         for _ in range(n):
             wp.copy(self.state.body_f, wrench)
             self.solver.step(self.state, self._next, self.control, self.contacts, h)
@@ -249,8 +260,6 @@ class RigidWorld:
         q = self.state.body_q.numpy().astype(np.float64)
         qd = self.state.body_qd.numpy().astype(np.float64)
         com = self.model.body_com.numpy().astype(np.float64)
-        from .spec import quat_to_matrix
-
         pos = np.array([q[k, :3] + quat_to_matrix(q[k, 3:]) @ com[k] for k in range(self.body_count)]).reshape(-1, 3)
         return {"position": pos + self.origin, "orientation": q[:, 3:7], "velocity": qd[:, :3],
                 "angular_velocity": qd[:, 3:6]}
