@@ -103,6 +103,34 @@ def test_blender_imports_run(tmp_path):
         assert frame["container"] == {"verts": 8, "faces": 10}
 
 
+def test_blender_imports_far_run(tmp_path):
+    """A tank 1e4 m from (0, 0, 0): the USD holds points relative to /sph's double translate, and
+    Blender places the 'sph' empty there, so particles land at the recorded world positions."""
+    from warp_sph.run import runner
+    from warp_sph.io import run_folder as rf
+    from warp_sph.scene import load_scene
+
+    far = np.array([1.0e4, -2.0e4, 1.0e4])
+    vec = lambda a: "[" + ",".join(repr(float(v)) for v in a) + "]"  # noqa: E731
+    out = tmp_path / "far"
+    scene = load_scene("dam_break", overrides=[f"particle_radius={RADIUS}", "output.checkpoint_every=0",
+                                                f"container.min={vec(far)}", f"container.max={vec(far + [1.2, 0.6, 1.0])}",
+                                                f"fluid[0].min={vec(far)}", f"fluid[0].max={vec(far + [0.5, 0.6, 0.5])}"])
+    runner.run(scene, out=out, device="cpu", frames=2, progress=False, log=lambda *a: None)
+    got = blender_import(out / "dam_break.usdc")
+    origin = np.asarray(json.loads((out / "run.json").read_text())["model"]["origin"])
+    assert np.allclose(origin, far + [0.6, 0.3, 0.5])
+    sph = np.asarray(got["objects"]["sph"]["matrix_world"])
+    # Blender keeps object matrices in float32: the empty sits at the origin rounded to float32 (one
+    # shift for the whole fluid, 3.9e-4 m here); the positions relative to it are exact
+    assert np.allclose(sph[:3, :3], np.eye(3)) and np.array_equal(sph[:3, 3], origin.astype(np.float32))
+    assert np.allclose(got["objects"]["particles"]["matrix_world"], sph)
+    for f in (1, 2):
+        x = np.load(rf.frame_path(out, f))["x"]
+        local = np.asarray(got["frames"][str(f)]["particles"]["position"], np.float64).reshape(-1, 3)
+        assert np.abs(local + origin - x).max() < 1e-6
+
+
 BODY_PROBE = textwrap.dedent(
     """
     import json, sys

@@ -32,19 +32,25 @@ def pose(name: str, frame: int):
     return p, q
 
 
-def write(path, frames, resume_after=None):
+def write(path, frames, resume_after=None, origin=None):
     rng = np.random.default_rng(0)
-    with UsdWriter(path, FPS, RADIUS, primvars=(), with_surface=False, resume_after_frame=resume_after) as w:
+    with UsdWriter(path, FPS, RADIUS, primvars=(), with_surface=False, resume_after_frame=resume_after,
+                   origin=origin) as w:
         for name, (v, t) in BODIES.items():
             w.add_body(name, v, t)
         for f in frames:
             x = rng.uniform(-1, 1, size=(20, 3)).astype(np.float32)
-            w.write_frame(f, x, np.zeros_like(x), bodies={n: pose(n, f) for n in BODIES})
+            shift = np.zeros(3) if origin is None else np.asarray(origin)
+            w.write_frame(f, x + shift, np.zeros_like(x), bodies={n: (pose(n, f)[0] + shift, pose(n, f)[1])
+                                                                  for n in BODIES})
 
 
-def test_body_prims_and_world_points(tmp_path):
+@pytest.mark.parametrize("origin", [None, (1.0e4, -2.0e4, 5.0e3)])
+def test_body_prims_and_world_points(tmp_path, origin):
+    """World points through /sph's translate (the origin of a far scene) and the body's xform."""
     path = tmp_path / "bodies.usdc"
-    write(path, range(1, 5))
+    write(path, range(1, 5), origin=origin)
+    shift = np.zeros(3) if origin is None else np.asarray(origin)
     stage = Usd.Stage.Open(str(path))
     cache = UsdGeom.XformCache()
     for name, (verts, tris) in BODIES.items():
@@ -61,7 +67,7 @@ def test_body_prims_and_world_points(tmp_path):
             m = np.array(cache.GetLocalToWorldTransform(prim))  # row-vector convention: x' = x M
             world = np.c_[local, np.ones(len(local))] @ m
             p, q = pose(name, f)
-            np.testing.assert_allclose(world[:, :3], local @ quat_to_matrix(q).T + p, atol=1e-6)
+            np.testing.assert_allclose(world[:, :3], local @ quat_to_matrix(q).T + p + shift, atol=1e-6, rtol=0)
     result = subprocess.run([sys.executable, str(checker()), str(path), "--strict"], capture_output=True, text=True,
                             timeout=120)
     assert result.returncode == 0, result.stdout + result.stderr
