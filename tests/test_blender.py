@@ -129,3 +129,61 @@ def test_blender_imports_far_run(tmp_path):
         x = np.load(rf.frame_path(out, f))["x"]
         local = np.asarray(got["frames"][str(f)]["particles"]["position"], np.float64).reshape(-1, 3)
         assert np.abs(local + origin - x).max() < 1e-6
+
+
+BODY_PROBE = textwrap.dedent(
+    """
+    import json, sys
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.usd_import(filepath=sys.argv[1])
+    scene = bpy.context.scene
+    out = {}
+    for f in range(scene.frame_start, scene.frame_end + 1):
+        scene.frame_set(f)
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        for ob in scene.objects:
+            entry = out.setdefault(ob.name, {"type": ob.type, "parent": ob.parent.name if ob.parent else None,
+                                             "constraints": [c.type for c in ob.constraints], "frames": {}})
+            ev = ob.evaluated_get(depsgraph)
+            entry["frames"][f] = {"matrix_world": [list(r) for r in ev.matrix_world],
+                                  "verts": len(ev.data.vertices) if ob.type == "MESH" else 0}
+    print("PROBE-JSON " + json.dumps(out))
+    """
+)
+
+
+def test_blender_plays_rigid_bodies(tmp_path):
+    """Bodies written with UsdWriter.add_body play in stock Blender: one mesh object per body under the
+    'bodies' empty, a Transform Cache constraint, and at every frame the exported pose as its matrix."""
+    from warp_sph.io.export_usd import UsdWriter
+    from warp_sph.rigid.spec import box_mesh, quat_to_matrix, rotation_quaternion, sphere_mesh
+
+    bodies = {"crate": box_mesh([0.2, 0.1, 0.05]), "ball": sphere_mesh(0.1, 2)}
+
+    def pose(k, f):
+        return np.array([0.1 * f, -0.05 * f * k, 1.0 - 0.02 * f * f]), rotation_quaternion((10.0 * f, 25.0 * k, -7.0 * f))
+
+    path = tmp_path / "bodies.usdc"
+    with UsdWriter(path, 24.0, RADIUS, primvars=(), with_surface=False) as writer:
+        for name, (verts, tris) in bodies.items():
+            writer.add_body(name, verts, tris)
+        for f in range(1, FRAMES + 1):
+            x = np.zeros((4, 3), np.float32)
+            writer.write_frame(f, x, x, bodies={n: pose(k, f) for k, n in enumerate(bodies)})
+    proc = subprocess.run([sys.executable, "-c", BODY_PROBE, str(path)], capture_output=True, text=True, timeout=300)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("PROBE-JSON ")]
+    assert proc.returncode == 0 and lines, proc.stdout[-2000:] + proc.stderr[-2000:]
+    got = json.loads(lines[-1][len("PROBE-JSON "):])
+    assert got["bodies"]["type"] == "EMPTY" and got["bodies"]["parent"] == "sph"
+    for k, (name, (verts, _)) in enumerate(bodies.items()):
+        ob = got[name]
+        assert ob["type"] == "MESH" and ob["parent"] == "bodies" and ob["constraints"] == ["TRANSFORM_CACHE"]
+        for f in range(1, FRAMES + 1):
+            frame = ob["frames"][str(f)]
+            matrix = np.asarray(frame["matrix_world"])
+            p, q = pose(k, f)
+            assert frame["verts"] == len(verts)
+            np.testing.assert_allclose(matrix[:3, :3], quat_to_matrix(q), atol=1e-6)
+            np.testing.assert_allclose(matrix[:3, 3], p, atol=1e-6)

@@ -27,7 +27,7 @@ def test_non_editable_install_in_fresh_venv(tmp_path):
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     code = (
-        "import warp_sph, warp_sph.kernels.smoothing as k, warp_sph.kernels.density;"
+        "import warp_sph, warp_sph.kernels.smoothing as k, warp_sph.kernels.density, warp_sph.rigid;"
         "from warp_sph.scene import load_scene, list_scenes;"
         "s = load_scene('dam_break'); o = load_scene('obstacle');"
         "import os; assert 'site-packages' in warp_sph.__file__, warp_sph.__file__;"

@@ -15,6 +15,10 @@ Layout (notes/usd_blender.md section 2), one ``.usdc`` file for the whole run:
                            --strict; Blender adds a Mesh Sequence Cache that reads the same mesh).
                            Crate shares equal values only within one Save, so each frame costs
                            12 B per static vertex (the 8-vertex container: ~0.1 kB per frame).
+    /sph/bodies/<name>     moving rigid bodies (``add_body``): Mesh whose points are in the body frame
+                           (origin at the centre of mass), written like a static mesh, and whose
+                           xformOp:translate (centre of mass [m]) and xformOp:orient (quatf) are
+                           time-sampled every frame: Blender plays them with a Transform Cache.
 
 Frame f is written at time code f (1 = the initial state; ``first_frame`` for a re-export of a
 frame range). The stage is saved after every frame: crate saves append, so memory stays flat and a crash (even SIGKILL) leaves every frame written
@@ -48,7 +52,8 @@ from ..core.errors import OutputError
 from . import run_folder as rf
 from .crate_guard import crate_tail, restore_crate_tail
 
-_RESERVED = ("particles", "surface")
+_RESERVED = ("particles", "surface", "bodies")
+_BODIES = "/sph/bodies"
 
 
 def container_box_mesh(lower, upper, open_top: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -354,6 +359,76 @@ class UsdWriter:
                 if value is None:
                     raise OutputError(f"{self.path}: static mesh {prim.GetPath()} has no default {attr.GetName()}")
                 self._statics.append((attr, value))
+        self._bodies = {}
+        bodies = stage.GetPrimAtPath(_BODIES)
+        for prim in bodies.GetChildren() if bodies.IsValid() else ():
+            self._bind_body(prim)
+
+    # -- moving rigid bodies ---------------------------------------------------------------------
+    def add_body(self, name: str, vertices: np.ndarray, triangles: np.ndarray) -> None:
+        """Declare a moving rigid body /sph/bodies/<name>: its closed surface in the body frame
+        (vertices (V, 3) [m] about the centre of mass, triangles (T, 3) wound CCW seen from outside).
+        Every later ``write_frame`` needs its pose. Call before the first frame; on a resumed file the
+        body must already be there (same vertex count) and this only checks it."""
+        if self.stage is None:
+            raise OutputError(f"{self.path}: add_body after close")
+        if not Sdf.Path.IsValidIdentifier(name):
+            raise ValueError(f"body name {name!r} is not a valid USD identifier")
+        verts = np.asarray(vertices, dtype=np.float32).reshape(-1, 3)
+        tris = np.asarray(triangles, dtype=np.int32).reshape(-1, 3)
+        if len(tris) == 0 or tris.min() < 0 or tris.max() >= len(verts):
+            raise ValueError(f"body {name!r}: no triangles, or triangle indices out of range")
+        if name in self._bodies:
+            if len(self._bodies[name]["points"][1]) != len(verts):
+                raise OutputError(f"{self.path}: body {name!r} has another vertex count in the file")
+            return
+        if self.last_frame >= self.first_frame:
+            raise ValueError(f"body {name!r}: add bodies before the first frame is written")
+        UsdGeom.Xform.Define(self.stage, _BODIES)
+        mesh = UsdGeom.Mesh.Define(self.stage, f"{_BODIES}/{name}")
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        mesh.CreatePointsAttr(_vec3f(verts))
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(tris.reshape(-1))))
+        mesh.CreateExtentAttr(_extent(verts, 0.0))
+        mesh.AddTranslateOp()
+        mesh.AddOrientOp()
+        self.stage.Save()
+        self._bind_body(mesh.GetPrim())
+
+    def _bind_body(self, prim) -> None:
+        mesh = UsdGeom.Mesh(prim)
+        ops = {op.GetOpType(): op for op in mesh.GetOrderedXformOps()}
+        if not prim.IsA(UsdGeom.Mesh) or set(ops) != {UsdGeom.XformOp.TypeTranslate, UsdGeom.XformOp.TypeOrient}:
+            raise OutputError(f"{self.path}: {prim.GetPath()} is not a warp-sph body (a Mesh with translate and orient)")
+        entry = {"translate": ops[UsdGeom.XformOp.TypeTranslate], "orient": ops[UsdGeom.XformOp.TypeOrient]}
+        for key, attr in (("points", mesh.GetPointsAttr()), ("extent", mesh.GetExtentAttr())):
+            entry[key] = (attr, attr.Get(Usd.TimeCode.Default()))
+        self._bodies[prim.GetName()] = entry
+
+    def _body_poses(self, bodies) -> dict:
+        """{name: (Gf.Vec3d, Gf.Quatf)} checked before anything of the frame is written."""
+        bodies = dict(bodies or {})
+        if set(bodies) != set(self._bodies):
+            raise ValueError(f"write_frame needs exactly the poses of bodies {sorted(self._bodies)}; got {sorted(bodies)}")
+        out = {}
+        for name, (position, quaternion) in bodies.items():
+            p = np.asarray(position, dtype=np.float64).reshape(3)
+            q = np.asarray(quaternion, dtype=np.float64).reshape(4)
+            if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q)) and np.linalg.norm(q) > 0.0):
+                raise ValueError(f"body {name!r}: pose {p.tolist()}, {q.tolist()} is not finite")
+            if self.origin is not None:  # /sph carries the origin: the body's translate is relative to it
+                p = p - self.origin
+            out[name] = (Gf.Vec3d(*p), Gf.Quatf(float(q[3]), float(q[0]), float(q[1]), float(q[2])).GetNormalized())
+        return out
+
+    def _write_bodies(self, poses: dict, t: Usd.TimeCode) -> None:
+        for name, (translate, orient) in poses.items():
+            entry = self._bodies[name]
+            entry["translate"].Set(translate, t)
+            entry["orient"].Set(orient, t)
+            for attr, value in (entry["points"], entry["extent"]):
+                attr.Set(value, t)
 
     # -- frames --------------------------------------------------------------------------------
     def write_frame(
@@ -363,6 +438,7 @@ class UsdWriter:
         particle_v: np.ndarray | None = None,
         primvars: Mapping[str, np.ndarray] | None = None,
         surface: tuple[np.ndarray, np.ndarray] | None = None,
+        bodies: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
     ) -> None:
         """Write frame ``frame`` (time code; 1 = initial state) and save the stage.
 
@@ -373,6 +449,8 @@ class UsdWriter:
             primvars: one (N,) float array per declared primvar name (e.g. density [kg/m^3]).
             surface: (vertices (V, 3) [m], triangles (T, 3)); None or empty arrays write an empty
                 surface for this frame (required sample, so every frame has one).
+            bodies: {name: (centre of mass [m] (3,), world coordinates, orientation quaternion
+                (x, y, z, w))} for exactly the bodies declared with ``add_body``.
         """
         if self.stage is None or self._failed:
             raise OutputError(f"{self.path}: write_frame after close" if self.stage is None else
@@ -385,6 +463,7 @@ class UsdWriter:
         primvars = dict(primvars or {})
         if set(primvars) != set(self.primvar_names):
             raise ValueError(f"write_frame needs exactly the primvars {sorted(self.primvar_names)}; got {sorted(primvars)}")
+        bodies = self._body_poses(bodies)
         t = Usd.TimeCode(frame)
         self._points.Set(_vec3f(x), t)
         self._points_extent.Set(_extent(x, self.particle_radius), t)
@@ -414,6 +493,7 @@ class UsdWriter:
             self._mesh_extent.Set(_extent(verts, 0.0), t)
         for attr, value in self._statics:
             attr.Set(value, t)
+        self._write_bodies(bodies, t)
         self.stage.SetEndTimeCode(frame)
         new_bytes = x.nbytes + 64 + (0 if self._velocities is None else x.nbytes) + 4 * n * len(self._primvars) \
             + (verts.nbytes + 2 * tris.nbytes if self.with_surface else 0) \
