@@ -245,7 +245,8 @@ def test_workers_without_the_extra_is_a_one_line_error(monkeypatch, capsys, tmp_
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
     assert err[-1] == ("warp-sph: error: --workers and --scheduler need Dask's distributed scheduler: "
-                       "pip install 'warp-sph[distributed]'")
+                       "pip install -e '.[distributed]' in the warp-sph checkout (into the environment warp-sph "
+                       "runs in, e.g. .venv/bin/pip)")
     assert not (tmp_path / "o").exists()
 
 

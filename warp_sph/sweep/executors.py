@@ -28,7 +28,7 @@ from typing import Callable, Iterable, Iterator
 
 from ..core.errors import WarpSphError
 
-INSTALL_HINT = "pip install 'warp-sph[distributed]'"
+INSTALL_HINT = "pip install -e '.[distributed]' in the warp-sph checkout (into the environment warp-sph runs in, e.g. .venv/bin/pip)"
 
 
 class MissingExtraError(WarpSphError):

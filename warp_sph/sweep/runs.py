@@ -206,13 +206,10 @@ def run_case(task: dict) -> dict:
     scoped = reset_peak_rss()
     scene = None
     try:
-        import warp as wp
-
-        if os.environ.get("WARP_SPH_VERBOSE", "") == "":
-            wp.config.quiet = True
-            if hasattr(wp.config, "log_level"):
-                wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
+        from ..core.device import init_warp
         from ..run import runner
+
+        init_warp()  # quiet, once per process
         from ..scene import load_scene
 
         scene = load_scene(case["scene"], overrides=list(case["overrides"]))

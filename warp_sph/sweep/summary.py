@@ -166,7 +166,7 @@ class SweepSummary:
         if png is not None:
             lines += [f"![speed against accuracy]({png.name})", ""]
         elif _pyplot() is None:
-            lines += ["> Plot skipped: matplotlib is not installed (`pip install 'warp-sph[plots]'`).", ""]
+            lines += ["> Plot skipped: matplotlib is not installed (the `plots` extra: `pip install -e '.[plots]'`).", ""]
         lines += ["*step wall / sim s*: stepping wall time per simulated second (setup, kernel loading and "
                   "exports excluded); *wall / sim s* the whole run's; *mean ρ err*: mean over frames of the "
                   "mean compression max(ρ/ρ0 − 1, 0); *max ρ err*: the largest ρ/ρ0 − 1; *front*: the 99.9th "
