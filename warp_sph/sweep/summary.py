@@ -106,19 +106,23 @@ def plot_tradeoff(rows: list[dict], path: Path, title: str) -> Path | None:
 class SweepSummary:
     """Rows of one sweep (in case order) and the files made from them.
 
-    page_every: seconds between rewrites of the page and plot while cases finish (the JSON lines
-    are rewritten after every case); ``close()`` writes both.
+    page_every / plot_every: seconds between rewrites of the page and of its plot while cases
+    finish (the JSON lines are rewritten after every case; matplotlib is slow to start, and the
+    client's time between cases is time a LocalCluster's scheduler, in this process, shares);
+    ``close()`` writes all of them.
     """
 
     def __init__(self, out: Path, case_names: list[str], command: str = "", executor: str = "",
-                 page_every: float = 5.0):
+                 page_every: float = 5.0, plot_every: float = 30.0):
         self.out = Path(out)
         self.order = list(case_names)
         self.command = command
         self.executor = executor
         self.rows: dict[str, dict] = {}
         self.page_every = page_every
+        self.plot_every = plot_every
         self._page_at = 0.0
+        self._plot_at = None  # never drawn
 
     def add(self, row: dict) -> None:
         self.rows[row["case"]] = _clean({k: row.get(k) for k in ROW_KEYS} | {k: v for k, v in row.items()
@@ -141,7 +145,7 @@ class SweepSummary:
 
     def close(self) -> Path:
         self.write_rows()
-        return self.write_page()
+        return self.write_page(plot=True)
 
     def counts(self) -> dict[str, int]:
         out: dict[str, int] = {}
@@ -149,12 +153,19 @@ class SweepSummary:
             out[r["status"]] = out.get(r["status"], 0) + 1
         return out
 
-    def write_page(self) -> Path:
+    def write_page(self, plot: bool | None = None) -> Path:
+        """The page; its plot too when ``plot``, or (None) when the last one is ``plot_every`` old."""
         from ..io.run_folder import atomic_write_bytes
 
         self._page_at = time.monotonic()
         rows = self.ordered()
-        png = plot_tradeoff(rows, self.out / PLOT, f"{self.out.name}: {len(rows)} cases")
+        if plot is None:
+            plot = self._plot_at is not None and time.monotonic() - self._plot_at >= self.plot_every
+            plot = plot or (self._plot_at is None and len(rows) > 0)
+        png = self.out / PLOT if (self.out / PLOT).is_file() else None
+        if plot:
+            self._plot_at = time.monotonic()
+            png = plot_tradeoff(rows, self.out / PLOT, f"{self.out.name}: {len(rows)} cases")
         done = self.counts()
         lines = [f"# Sweep: {self.out.name}", ""]
         if self.command:
