@@ -158,6 +158,10 @@ def _cmd_sweep(args) -> int:
     _quiet_warp()
     if args.frames is not None and args.frames < 1:
         raise SweepError(f"--frames {args.frames}: expected >= 1")
+    if args.device and args.scheduler is None:  # the workers of an external cluster may have other devices
+        from .core.device import resolve_device
+
+        resolve_device(args.device)
     if is_sweep_file(args.scene):
         if args.param:
             raise SweepError(f"{args.scene} is a sweep file: put the --param lists in its [sweep] param table")
