@@ -220,3 +220,66 @@ def smooth_normals_step(
     if length > 0.0:
         acc = acc / length
     vertex_normal_out[v] = acc
+
+
+@wp.kernel(enable_backward=False)
+def volume_terms(
+    tid_offset: int,
+    # In:
+    vertex_x: wp.array(dtype=wp.vec3),
+    triangles: wp.array(dtype=wp.vec3i),
+    # Out: per triangle 6 x its signed volume term x_a . (x_b x x_c) [m^3], relative to ``origin`` = x of
+    # vertex 0 (so float32 keeps its precision)
+    triangle_volume_out: wp.array(dtype=float),
+):
+    t = wp.tid() + tid_offset
+    tri = triangles[t]
+    o = vertex_x[0]
+    triangle_volume_out[t] = wp.dot(vertex_x[tri[0]] - o, wp.cross(vertex_x[tri[1]] - o, vertex_x[tri[2]] - o))
+
+
+@wp.kernel(enable_backward=False)
+def weighted_vertex_area(
+    tid_offset: int,
+    # In:
+    vertex_x: wp.array(dtype=wp.vec3),
+    vertex_weight: wp.array(dtype=float),
+    triangles: wp.array(dtype=wp.vec3i),
+    vertex_face_start: wp.array(dtype=wp.int32),
+    vertex_face_count: wp.array(dtype=wp.int32),
+    vertex_face: wp.array(dtype=wp.int32),
+    # Out: w_v A_v, A_v = a third of the area of the faces around v [m^2]; and the unit normal
+    weighted_area_out: wp.array(dtype=float),
+    vertex_normal_out: wp.array(dtype=wp.vec3),
+):
+    v = wp.tid() + tid_offset
+    acc = wp.vec3(0.0)
+    s = vertex_face_start[v]
+    while s < vertex_face_start[v] + vertex_face_count[v]:
+        tri = triangles[vertex_face[s]]
+        a = vertex_x[tri[0]]
+        acc += wp.cross(vertex_x[tri[1]] - a, vertex_x[tri[2]] - a)
+        s += 1
+    length = wp.length(acc)
+    n = wp.vec3(0.0)
+    if length > 0.0:
+        n = acc / length
+    vertex_normal_out[v] = n
+    # sum of face areas = sum |cross| / 2 >= |sum cross| / 2 (equal on a flat fan): good enough for a weight
+    weighted_area_out[v] = vertex_weight[v] * length / 6.0
+
+
+@wp.kernel(enable_backward=False)
+def offset_along_normals(
+    tid_offset: int,
+    # Parameters: offset per unit weight [m]
+    offset: float,
+    # In:
+    vertex_weight: wp.array(dtype=float),
+    vertex_normal: wp.array(dtype=wp.vec3),
+    # In/out:
+    vertex_x_io: wp.array(dtype=wp.vec3),
+):
+    """x_v += offset w_v n_v: gives back the volume smoothing took, where it took it."""
+    v = wp.tid() + tid_offset
+    vertex_x_io[v] = vertex_x_io[v] + (offset * vertex_weight[v]) * vertex_normal[v]

@@ -103,8 +103,10 @@ class Exporter:
         if o.surface and (o.usd or o.mesh_sequence):
             from ..surface.reconstruction import SurfaceReconstructor, surface_settings
 
+            # split_threads off: it runs beside the simulation, which keeps every core busy
             self.surface = SurfaceReconstructor(m.smoothing.name, m.smoothing_length, m.particle_radius,
-                                                device=sim.device, **surface_settings(o, m.particle_radius))
+                                                device=sim.device, split_threads=False,
+                                                **surface_settings(o, m.particle_radius))
         if o.usd:
             from ..io.reexport import scene_static_meshes
             from ..io.export_usd import UsdWriter

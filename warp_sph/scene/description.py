@@ -209,12 +209,13 @@ PARAMETERS: tuple[Param, ...] = (
     # f = (1 - r^2/R^2)^4 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
     # the bulk); on a rest lattice the 0.6 level lies 1.0 r beyond the last particle layer (ripple
     # 0.002 r), splashsurf's default level. Cells of 0.5 r are splashsurf's usual cube size; the
-    # cost grows with the surface area / cell^2 (sparse narrow band), so 0.75 r is the default.
+    # cost grows with the surface area / cell^2 (sparse narrow band). Defaults: the default dam break's
+    # USD at 25 MB instead of 104 MB, frame 13 as smooth as at 0.5 r (benchmarks/results/surface_*).
     _P("output", "table", "-", {}, "what a run writes"),
     _P("output.usd", "bool", "-", True, "write a USD stage (points, and the surface mesh if surface)"),
     _P("output.surface", "bool", "-", True, "reconstruct the fluid surface (marching cubes)"),
-    _P("output.surface_cell_per_radius", "float", "-", 0.75, "surface grid cell size / r (0.75: "
-       "2x cheaper than 0.5 and, once smoothed, no visible difference in a render)", gt=0.0, le=4.0),
+    _P("output.surface_cell_per_radius", "float", "-", 1.0, "surface grid cell size / r (1.0: once "
+       "smoothed and decimated, no visible difference from 0.5 in a render, 4x cheaper)", gt=0.0, le=4.0),
     _P("output.surface_method", "str", "-", "marching_cubes", "iso-surface extraction: marching cubes "
        "on the sparse narrow band (Warp's case table)", choices=("marching_cubes",)),
     _P("output.surface_iso", "float", "-", 0.6, "iso level of Phi = sum_j f_j/rho~_j (1 inside the "
@@ -222,9 +223,14 @@ PARAMETERS: tuple[Param, ...] = (
     _P("output.surface_spray_neighbors", "int", "-", 5, "particles with fewer fluid neighbours than "
        "this within the kernel support are spray: written as points to /sph/spray, left out of the "
        "surface (0: no spray)", ge=0),
-    _P("output.surface_smoothing_iterations", "int", "-", 15, "feature-weighted Taubin smoothing "
-       "steps of the surface (removes the particle-scale bumps, keeps the volume; 0: raw marching "
-       "cubes)", ge=0),
+    _P("output.surface_smoothing_iterations", "int", "-", 15, "feature-weighted Laplacian smoothing "
+       "steps of the surface, volume restored after them (removes the particle-scale ridges, keeps "
+       "droplets and thin sheets; 0: raw marching cubes)", ge=0),
+    _P("output.surface_decimation_error", "float", "-", 0.1, "decimate the smoothed surface by edge "
+       "collapses that keep each merged vertex within this rms distance of the faces it replaces, in "
+       "particle radii (0: no decimation)", ge=0.0),
+    _P("output.surface_triangle_budget", "int", "-", 0, "decimate until the surface has at most this "
+       "many triangles per frame, within the error bound if one is set (0: no budget)", ge=0),
     _P("output.surface_normal_smoothing_iterations", "int", "-", 10, "one-ring averaging steps of "
        "the surface's vertex normals", ge=0),
     _P("output.surface_normals", "bool", "-", True, "write vertex normals (primvars:normals: smooth "
@@ -353,11 +359,13 @@ class OutputParams:
 
     usd: bool = True
     surface: bool = True
-    surface_cell_per_radius: float = 0.75
+    surface_cell_per_radius: float = 1.0
     surface_method: str = "marching_cubes"
     surface_iso: float = 0.6
     surface_spray_neighbors: int = 5
     surface_smoothing_iterations: int = 15
+    surface_decimation_error: float = 0.1
+    surface_triangle_budget: int = 0
     surface_normal_smoothing_iterations: int = 10
     surface_normals: bool = True
     mesh_sequence: str = ""

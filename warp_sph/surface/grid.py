@@ -25,12 +25,14 @@ block within the support radius of a particle as band (exact everywhere; ``band_
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 import warp as wp
 
 from ..core.errors import SimulationError
-from ..core.launch import LIGHT_MIN_RANGE, launch
+from ..core import launch as _launch_module
+from ..core.launch import LIGHT_MIN_RANGE
 from ..core.smoothing import get_smoothing_kernel
 from ..kernels import surface_grid as _dev
 
@@ -39,6 +41,23 @@ BAND_RADIUS_R = 2.5
 BAND_RADIUS_CELLS = 2.0
 #: fewest blocks per CPU thread in block-parallel kernels
 BLOCK_MIN_RANGE = 8
+
+_policy = threading.local()
+
+
+def split_launches(enabled: bool) -> None:
+    """Whether surface kernels launched from the calling thread split over CPU threads (default on).
+    The run's export thread turns it off: the simulation keeps the cores busy, and its share of the
+    thread pool would make the export wait behind the simulation's work."""
+    _policy.split = bool(enabled)
+
+
+def launch(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = _launch_module.MIN_RANGE) -> None:
+    """``warp_sph.core.launch.launch`` for the surface kernels, without splitting where
+    :func:`split_launches` turned it off for this thread."""
+    if not getattr(_policy, "split", True):
+        min_range = 1 << 30
+    _launch_module.launch(kernel, dim, inputs, outputs, device=device, min_range=min_range)
 
 
 def lattice_weighted_count(support_radius: float, spacing: float) -> float:
@@ -61,7 +80,7 @@ class _Buffers:
     def get(self, name: str, n: int, dtype, width: int | None = None) -> wp.array:
         n = max(int(n), 1)
         a = self._arrays.get(name)
-        if a is None or a.shape[0] < n or a.dtype != dtype:
+        if a is None or a.shape[0] < n:
             cap = max(n, int(1.5 * (a.shape[0] if a is not None else 0)))
             shape = cap if width is None else (cap, width)
             a = wp.empty(shape, dtype=dtype, device=self.device)

@@ -11,9 +11,8 @@ import numpy as np
 import warp as wp
 
 from ..core.errors import SimulationError
-from ..core.launch import launch
 from ..kernels import surface_marching as _dev
-from .grid import BLOCK_MIN_RANGE, SparseGrid
+from .grid import BLOCK_MIN_RANGE, SparseGrid, launch
 
 
 class MarchingCubes:

@@ -31,18 +31,20 @@ import numpy as np
 import warp as wp
 
 from ..core.errors import SceneError
-from .grid import SparseGrid
+from .grid import SparseGrid, split_launches
 from .marching import MarchingCubes
 from .smoothing import SMOOTHING_SCHEMES, MeshSmoother, splashsurf_normalization
 
 #: default grid cell size per particle radius (scene key ``output.surface_cell_per_radius``)
-DEFAULT_CELL_PER_RADIUS = 0.75
+DEFAULT_CELL_PER_RADIUS = 1.0
 #: default iso level of Phi (scene key ``output.surface_iso``)
 DEFAULT_ISO_LEVEL = 0.6
 #: default spray threshold: neighbours within the kernel support (``output.surface_spray_neighbors``)
 DEFAULT_SPRAY_NEIGHBORS = 5
 #: default smoothing iterations (``output.surface_smoothing_iterations``)
 DEFAULT_SMOOTHING_ITERATIONS = 15
+#: default decimation error bound [r] (``output.surface_decimation_error``; 0: no decimation)
+DEFAULT_DECIMATION_ERROR = 0.1
 #: default normal smoothing iterations (``output.surface_normal_smoothing_iterations``)
 DEFAULT_NORMAL_SMOOTHING_ITERATIONS = 10
 
@@ -83,14 +85,16 @@ class SurfaceReconstructor:
         normal_smoothing_iterations: one-ring averaging steps of the vertex normals.
         normals: compute vertex normals.
         decimation: None, or a :class:`~warp_sph.surface.decimation.Decimator` applied after smoothing.
+        split_threads: split kernels over the CPU threads (off for a reconstruction running beside
+            the simulation, which keeps the cores busy).
     """
 
     def __init__(self, smoothing: str, h: float, particle_radius: float, cell_size: float,
                  iso_level: float = DEFAULT_ISO_LEVEL, device="cpu", *,
                  spray_neighbors: int = DEFAULT_SPRAY_NEIGHBORS,
-                 smoothing_iterations: int = DEFAULT_SMOOTHING_ITERATIONS, smoothing_scheme: str = "taubin",
+                 smoothing_iterations: int = DEFAULT_SMOOTHING_ITERATIONS, smoothing_scheme: str = "laplacian",
                  normal_smoothing_iterations: int = DEFAULT_NORMAL_SMOOTHING_ITERATIONS, normals: bool = True,
-                 decimation=None):
+                 decimation=None, split_threads: bool = True):
         if not (h > 0.0 and particle_radius > 0.0 and cell_size > 0.0):
             raise SceneError(f"surface reconstruction needs h, particle_radius and cell_size > 0; got h={h}, "
                              f"particle_radius={particle_radius}, cell_size={cell_size}")
@@ -110,6 +114,7 @@ class SurfaceReconstructor:
         self.normal_smoothing_iterations = int(normal_smoothing_iterations)
         self.with_normals = bool(normals)
         self.decimation = decimation
+        self.split_threads = bool(split_threads)
         self.grid = SparseGrid(smoothing, h, particle_radius, cell_size, spray_neighbors=spray_neighbors,
                                device=self.device)
         self.support_radius = self.grid.support_radius
@@ -132,6 +137,7 @@ class SurfaceReconstructor:
                              {"raw_triangles": 0, "band_fallback": 0})
         if n == 0:
             return empty
+        split_launches(self.split_threads)
         grid, mc = self.grid, self.marching
         t = time.perf_counter()
         grid.build(particle_x)
@@ -166,7 +172,7 @@ class SurfaceReconstructor:
         if self.smoothing_iterations > 0 and len(triangles):
             conn = sm.connectivity.build(len(vertex_x), triangles)
             w = sm.weights(grid, vertex_x, vertex_block)
-            vertex_x = sm.smooth(vertex_x, w, conn, self.smoothing_iterations, self.smoothing_scheme)
+            vertex_x = sm.smooth(vertex_x, w, conn, self.smoothing_iterations, self.smoothing_scheme, triangles)
             t = self._tick(timings, "smoothing", t)
         if self.decimation is not None and len(triangles):
             vertex_x, triangles = self.decimation.decimate(vertex_x, triangles)
@@ -197,12 +203,12 @@ def surface_settings(output, particle_radius: float) -> dict:
     ``OutputParams`` or its dict form), except the kernel and device."""
     get = output.get if isinstance(output, dict) else (lambda k, d=None: getattr(output, k, d))
     budget = int(get("surface_triangle_budget", 0) or 0)
-    error = float(get("surface_decimation_error", 0.0) or 0.0)
+    error = float(get("surface_decimation_error", DEFAULT_DECIMATION_ERROR) or 0.0)
     decimation = None
     if budget or error:
         from .decimation import Decimator
 
-        decimation = Decimator(max_error=error * particle_radius, triangle_budget=budget)
+        decimation = Decimator(max_error=error * particle_radius, triangle_budget=budget, length_scale=particle_radius)
     return dict(
         cell_size=float(get("surface_cell_per_radius", DEFAULT_CELL_PER_RADIUS)) * particle_radius,
         iso_level=float(get("surface_iso", DEFAULT_ISO_LEVEL)),

@@ -13,14 +13,14 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..core.launch import LIGHT_MIN_RANGE, launch
+from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_smoothing as _dev
-from .grid import SparseGrid
+from .grid import SparseGrid, launch
 
 #: Taubin's pass band pair (lambda, mu): k_PB = 1/lambda + 1/mu ~ 0.11
 TAUBIN_LAMBDA = 0.5
 TAUBIN_MU = -0.53
-SMOOTHING_SCHEMES = ("taubin", "laplacian")
+SMOOTHING_SCHEMES = ("laplacian", "taubin")
 
 
 class MeshConnectivity:
@@ -99,20 +99,46 @@ class MeshSmoother:
                                   grid.weighted_count, grid.inv_kernel_sum], [w], device=self.device)
         return w[:n]
 
+    def _volume(self, x: wp.array, triangles: wp.array) -> float:
+        nt = len(triangles)
+        terms = self._get("vol", nt, float)[:nt]
+        launch(_dev.volume_terms, nt, [x, triangles], [terms], device=self.device, min_range=LIGHT_MIN_RANGE)
+        return float(wp.utils.array_sum(terms)) / 6.0
+
     def smooth(self, vertex_x: wp.array, weight: wp.array, conn: MeshConnectivity, iterations: int,
-               scheme: str = "taubin") -> wp.array:
-        """``iterations`` weighted smoothing steps (Taubin: a lambda and a mu step each); returns the
-        smoothed positions (a new array; ``vertex_x`` is left unchanged)."""
+               scheme: str = "laplacian", triangles: wp.array | None = None) -> wp.array:
+        """``iterations`` weighted smoothing steps; returns the smoothed positions (a new array;
+        ``vertex_x`` is left unchanged). "laplacian": x <- x + w (mean(one ring) - x), then, when
+        ``triangles`` are given, every vertex moves by delta w_v along its normal with the one delta
+        that gives back the enclosed volume (Laplacian steps shrink convex parts). "taubin": a
+        lambda and a mu step per iteration (keeps the volume, but passes waves longer than ~10 edges)."""
         n = len(vertex_x)
         a = self._get("xa", n, wp.vec3)[:n]
         b = self._get("xb", n, wp.vec3)[:n]
         wp.copy(a, vertex_x)
+        restore = scheme == "laplacian" and triangles is not None and len(triangles) > 0 and iterations > 0
+        if restore:
+            volume0 = self._volume(a, triangles)
         betas = [TAUBIN_LAMBDA, TAUBIN_MU] if scheme == "taubin" else [1.0]
         for _ in range(int(iterations)):
             for beta in betas:
                 launch(_dev.laplacian_step, n, [beta, a, weight, conn.face_start, conn.neighbors, conn.neighbor_count],
                        [b], device=self.device, min_range=LIGHT_MIN_RANGE // 4)
                 a, b = b, a
+        if restore:
+            # V(delta) ~ V1 + delta sum_v w_v A_v: solve for V(delta) = V0 (two Newton steps)
+            area = self._get("warea", n, float)[:n]
+            normal = self._get("wnormal", n, wp.vec3)[:n]
+            for _ in range(2):
+                volume1 = self._volume(a, triangles)
+                launch(_dev.weighted_vertex_area, n, [a, weight, triangles, conn.face_start, conn.face_count,
+                                                      conn.faces], [area, normal], device=self.device,
+                       min_range=LIGHT_MIN_RANGE // 4)
+                wa = float(wp.utils.array_sum(area))
+                if not wa > 0.0:
+                    break
+                launch(_dev.offset_along_normals, n, [(volume0 - volume1) / wa, weight, normal], [a],
+                       device=self.device, min_range=LIGHT_MIN_RANGE // 4)
         return a
 
     def normals(self, vertex_x: wp.array, triangles: wp.array, conn: MeshConnectivity, iterations: int) -> wp.array:
