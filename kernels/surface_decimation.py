@@ -3,7 +3,7 @@ in parallel rounds of independent collapses.
 
 Each round: every edge gets the cost of collapsing it into one vertex, Q(p) = p^T (Q_a + Q_b) p
 (Q: the planes of the faces around a vertex, accumulated over earlier collapses; the cost is the
-mean squared distance from them), at the better of the quadric's optimum and the edge midpoint;
+sum of the squared distances from them), at the better of the quadric's optimum and the edge midpoint;
 edges that would make the mesh non-manifold (link condition), turn a face too far or leave a vertex
 of valence < 3 are skipped. Edges are ordered by cost bucket (factors of 8), randomly within a bucket; an edge
 collapses when it comes first for both its ends and before the first edge of every neighbour of
@@ -29,11 +29,10 @@ def plane_quadric(a: wp.vec3, b: wp.vec3, c: wp.vec3) -> wp.mat44:
 
 @wp.func
 def quadric_cost(q: wp.mat44, x: wp.vec3) -> float:
-    """Mean squared distance [m^2] of x from the planes summed in q (their count is the trace of the
-    upper 3x3 block: each plane adds |n|^2 = 1)."""
+    """Sum of the squared distances [m^2] of x from the planes summed in q (Garland & Heckbert): a
+    bound e^2 on it keeps x within e of every one of them."""
     p = wp.vec4(x[0], x[1], x[2], 1.0)
-    planes = wp.max(q[0, 0] + q[1, 1] + q[2, 2], 1.0)
-    return wp.max(wp.dot(p, q * p), 0.0) / planes
+    return wp.max(wp.dot(p, q * p), 0.0)
 
 
 @wp.kernel(enable_backward=False)
@@ -96,6 +95,27 @@ def keeps_faces(
     return True
 
 
+@wp.func
+def edge_slot(
+    face_start: wp.array(dtype=wp.int32),
+    neighbors: wp.array(dtype=wp.int32),
+    neighbor_count: wp.array(dtype=wp.int32),
+    v: int,
+    u: int,
+) -> int:
+    """Slot of neighbour u in v's (sorted) neighbour list; -1 if absent."""
+    base = 2 * face_start[v]
+    s = base
+    while s < base + neighbor_count[v]:
+        w = neighbors[s]
+        if w == u:
+            return s
+        if w > u:
+            return -1
+        s += 1
+    return -1
+
+
 @wp.kernel(enable_backward=False)
 def edge_costs(
     tid_offset: int,
@@ -106,8 +126,9 @@ def edge_costs(
     face_start: wp.array(dtype=wp.int32),
     neighbors: wp.array(dtype=wp.int32),
     neighbor_count: wp.array(dtype=wp.int32),
-    # Out: per neighbour slot of v (edges to u > v only; BLOCKED otherwise) the cost [m^2: mean
-    # squared distance from the planes the merged vertex stands for] and the merged vertex [m]
+    # Out: per neighbour slot of v the cost of the edge [m^2: summed squared distance from the planes the
+    # merged vertex stands for] (computed by the lower end, which also writes the upper end's slot) and,
+    # at the lower end's slot, the merged vertex [m]
     edge_cost_out: wp.array(dtype=float),
     edge_x_out: wp.array(dtype=wp.vec3),
 ):
@@ -159,29 +180,11 @@ def edge_costs(
                         if c_opt < cost:
                             cost = c_opt
                             pos = opt
-        edge_cost_out[s] = cost
-        edge_x_out[s] = pos
+        if u > v:  # the lower end writes both slots of the edge (its own and u's slot for v)
+            edge_cost_out[s] = cost
+            edge_x_out[s] = pos
+            edge_cost_out[edge_slot(face_start, neighbors, neighbor_count, u, v)] = cost
         s += 1
-
-
-@wp.func
-def edge_slot(
-    face_start: wp.array(dtype=wp.int32),
-    neighbors: wp.array(dtype=wp.int32),
-    neighbor_count: wp.array(dtype=wp.int32),
-    v: int,
-    u: int,
-) -> int:
-    """Slot of the edge {v, u} (stored at its lower end)."""
-    lo = wp.min(v, u)
-    hi = wp.max(v, u)
-    base = 2 * face_start[lo]
-    s = base
-    while s < base + neighbor_count[lo]:
-        if neighbors[s] == hi:
-            return s
-        s += 1
-    return -1
 
 
 @wp.func
@@ -221,7 +224,7 @@ def vertex_best_edge(
     edge_cost: wp.array(dtype=float),
     locked: wp.array(dtype=wp.int32),
     # Out: per vertex its first edge by priority (``edge_key``) to an unlocked vertex: key, cost, other
-    # end (-1: none, or v locked), slot
+    # end (-1: none, or v locked), slot in v's list (holds the merged vertex when v is the lower end)
     best_key_out: wp.array(dtype=wp.int64),
     best_cost_out: wp.array(dtype=float),
     best_other_out: wp.array(dtype=wp.int32),
@@ -240,9 +243,7 @@ def vertex_best_edge(
     while s < end:
         u = neighbors[s]
         slot = s
-        if u < v:
-            slot = edge_slot(face_start, neighbors, neighbor_count, u, v)
-        c = edge_cost[slot]
+        c = edge_cost[s]
         if c < BLOCKED and locked[u] == 0:
             k = edge_key(c, cost_scale, u, v)
             if best_u < 0 or key_less(k, u, v, best_k, best_u, v):

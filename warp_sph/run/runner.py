@@ -169,7 +169,11 @@ class Exporter:
             rf.atomic_save_npz(rf.frame_path(self.out, frame), x=x_world, v=v, density=rho, time=np.float64(t))
         surface = spray = None
         if self.surface is not None:
-            mesh = self.surface.reconstruct(snap["x"])
+            # from the recorded (float32 world) positions, re-localised as `warp-sph export` does, so a
+            # re-export with the same settings gives this very surface (decimation amplifies 1-ulp input
+            # differences into different collapses)
+            x_local = (x_world.astype(np.float64) - m.origin).astype(np.float32)
+            mesh = self.surface.reconstruct(wp.array(x_local, dtype=wp.vec3, device=self.sim.device))
             surface = (m.to_world(mesh.vertices).astype(np.float32), mesh.triangles, mesh.normals)
             spray = (x_world[mesh.spray], v[mesh.spray])
             for k, sec in mesh.timings.items():

@@ -206,7 +206,7 @@ PARAMETERS: tuple[Param, ...] = (
        gt=0.0, shapes=("mesh",)),
     _P("obstacles[].translate", "vec3", "m", (0.0, 0.0, 0.0), "translation of the mesh", shapes=("mesh",)),
     # output. Surface (warp_sph/surface/reconstruction.py): Phi = sum_j f_j / rho~_j with
-    # f = (1 - r^2/R^2)^4 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
+    # f = (1 - r^2/R^2)^5 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
     # the bulk); on a rest lattice the 0.6 level lies 1.0 r beyond the last particle layer (ripple
     # 0.002 r), splashsurf's default level. Cells of 0.5 r are splashsurf's usual cube size; the
     # cost grows with the surface area / cell^2 (sparse narrow band). Defaults: the default dam break's

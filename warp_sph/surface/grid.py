@@ -113,7 +113,9 @@ class SparseGrid:
         self.cell_size = float(np.float32(cell_size))
         self.spray_neighbors = int(spray_neighbors)
         self.device = wp.get_device(device)
-        self.band_radius = BAND_RADIUS_R * self.particle_radius + BAND_RADIUS_CELLS * self.cell_size
+        # (never wider than the support: a band that wide is the exact classification)
+        self.band_radius = min(BAND_RADIUS_R * self.particle_radius + BAND_RADIUS_CELLS * self.cell_size,
+                               self.support_radius)
         reach = max(self.support_radius, self.band_radius)
         self.block_nodes = max(4, int(math.ceil(reach / self.cell_size - 1e-6)))
         self.lattice_count = lattice_weighted_count(self.support_radius, 2.0 * self.particle_radius)

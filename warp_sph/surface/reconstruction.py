@@ -87,6 +87,8 @@ class SurfaceReconstructor:
         decimation: None, or a :class:`~warp_sph.surface.decimation.Decimator` applied after smoothing.
         split_threads: split kernels over the CPU threads (off for a reconstruction running beside
             the simulation, which keeps the cores busy).
+        narrow_band: evaluate Phi only near surface particles (off: on every block within the support
+            radius of a particle; the same mesh, slower: tests/test_surface.py).
     """
 
     def __init__(self, smoothing: str, h: float, particle_radius: float, cell_size: float,
@@ -94,7 +96,7 @@ class SurfaceReconstructor:
                  spray_neighbors: int = DEFAULT_SPRAY_NEIGHBORS,
                  smoothing_iterations: int = DEFAULT_SMOOTHING_ITERATIONS, smoothing_scheme: str = "laplacian",
                  normal_smoothing_iterations: int = DEFAULT_NORMAL_SMOOTHING_ITERATIONS, normals: bool = True,
-                 decimation=None, split_threads: bool = True):
+                 decimation=None, split_threads: bool = True, narrow_band: bool = True):
         if not (h > 0.0 and particle_radius > 0.0 and cell_size > 0.0):
             raise SceneError(f"surface reconstruction needs h, particle_radius and cell_size > 0; got h={h}, "
                              f"particle_radius={particle_radius}, cell_size={cell_size}")
@@ -115,6 +117,7 @@ class SurfaceReconstructor:
         self.with_normals = bool(normals)
         self.decimation = decimation
         self.split_threads = bool(split_threads)
+        self.narrow_band = bool(narrow_band)
         self.grid = SparseGrid(smoothing, h, particle_radius, cell_size, spray_neighbors=spray_neighbors,
                                device=self.device)
         self.support_radius = self.grid.support_radius
@@ -148,7 +151,7 @@ class SurfaceReconstructor:
             empty.spray = spray
             empty.stats.update(stats)
             return empty
-        exact = False
+        exact = not self.narrow_band
         while True:
             consistent = grid.classify(exact=exact)
             t = self._tick(timings, "band", t)
