@@ -148,9 +148,14 @@ def count_cells(
             lk = int(0)
             while lk < bsz:
                 s0 = (k * bsz * bsz + li * bsz + lj) * bsz + lk
-                sx = node_slot(meshed_upper, k, li + 1, lj, lk, bsz)
-                sy = node_slot(meshed_upper, k, li, lj + 1, lk, bsz)
-                sz = node_slot(meshed_upper, k, li, lj, lk + 1, bsz)
+                interior = li < bsz - 1 and lj < bsz - 1 and lk < bsz - 1  # all 8 corners in this block
+                sx = s0 + bsz * bsz
+                sy = s0 + bsz
+                sz = s0 + 1
+                if not interior:
+                    sx = node_slot(meshed_upper, k, li + 1, lj, lk, bsz)
+                    sy = node_slot(meshed_upper, k, li, lj + 1, lk, bsz)
+                    sz = node_slot(meshed_upper, k, li, lj, lk + 1, bsz)
                 v0 = field[s0] >= iso_level
                 vx = slot_value(field, sx) >= iso_level
                 vy = slot_value(field, sy) >= iso_level
@@ -170,10 +175,19 @@ def count_cells(
                         inexact += 1
                 nv += int(mask & 1) + int((mask >> 1) & 1) + int((mask >> 2) & 1)
                 # corners in the order of the case table: (0,0,0) (1,0,0) (1,1,0) (0,1,0) (0,0,1) (1,0,1) (1,1,1) (0,1,1)
-                v2 = slot_value(field, node_slot(meshed_upper, k, li + 1, lj + 1, lk, bsz)) >= iso_level
-                v5 = slot_value(field, node_slot(meshed_upper, k, li + 1, lj, lk + 1, bsz)) >= iso_level
-                v6 = slot_value(field, node_slot(meshed_upper, k, li + 1, lj + 1, lk + 1, bsz)) >= iso_level
-                v7 = slot_value(field, node_slot(meshed_upper, k, li, lj + 1, lk + 1, bsz)) >= iso_level
+                s2 = sx + bsz
+                s5 = sx + 1
+                s6 = sx + bsz + 1
+                s7 = sy + 1
+                if not interior:
+                    s2 = node_slot(meshed_upper, k, li + 1, lj + 1, lk, bsz)
+                    s5 = node_slot(meshed_upper, k, li + 1, lj, lk + 1, bsz)
+                    s6 = node_slot(meshed_upper, k, li + 1, lj + 1, lk + 1, bsz)
+                    s7 = node_slot(meshed_upper, k, li, lj + 1, lk + 1, bsz)
+                v2 = slot_value(field, s2) >= iso_level
+                v5 = slot_value(field, s5) >= iso_level
+                v6 = slot_value(field, s6) >= iso_level
+                v7 = slot_value(field, s7) >= iso_level
                 case = int(v0) | (int(vx) << 1) | (int(v2) << 2) | (int(vy) << 3)
                 case = case | (int(vz) << 4) | (int(v5) << 5) | (int(v6) << 6) | (int(v7) << 7)
                 nt += (tri_range[case + 1] - tri_range[case]) / 3

@@ -171,7 +171,7 @@ def test_sphere_watertight_outward_volume_curvature(device):
     assert abs(mean_curvature_radius(v, t) / radius - 1.0) < 0.03  # measured -0.6 % (raw mesh: -51 %)
     center = v.astype(np.float64).mean(0)
     radial = np.linalg.norm(v - center, axis=1)
-    assert radial.std() < 0.25 * RADIUS  # measured 0.14 r
+    assert radial.std() < 0.3 * RADIUS  # the decimation bound (0.3 r); measured 0.26 r (0.13 r undecimated)
     outward = np.einsum("ij,ij->i", frame.normals, (v - center) / radial[:, None])
     assert np.all(outward > 0.9)
 

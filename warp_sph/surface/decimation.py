@@ -4,8 +4,9 @@
 Device code: ``kernels/surface_decimation.py``. Every round rebuilds the connectivity, costs each
 edge, collapses the edges that are cheaper than every edge around them, and drops the two faces of
 each collapsed edge; it stops when the mesh has at most ``triangle_budget`` triangles, when no edge
-is cheaper than ``max_error``^2 (the merged vertex lies within ``max_error`` of every original face
-plane it stands for, in the root mean square), or after ``max_rounds``. Collapses keep the mesh closed and manifold (link
+is cheaper than ``max_error``^2 (the squared distances of the merged vertex from the planes of all the
+original faces it stands for sum to at most max_error^2, so it lies within max_error of each), or
+after ``max_rounds``. Collapses keep the mesh closed and manifold (link
 condition) and turn no face by more than ``max_turn_deg``.
 """
 from __future__ import annotations
@@ -28,8 +29,9 @@ class Decimator:
     """Edge-collapse decimation of closed triangle meshes on the device.
 
     Args:
-        max_error: largest root-mean-square distance [m] of a merged vertex from the planes of the
-            faces it replaces (0: no bound, then ``triangle_budget`` alone stops it).
+        max_error: bound [m] on the summed squared distances (squared) of a merged vertex from the
+            planes of the original faces it replaces (0: no bound, then ``triangle_budget`` alone
+            stops it).
         triangle_budget: stop once the mesh has at most this many triangles (0: no budget).
         length_scale: a length [m] of the mesh's finest detail (the particle radius); costs below
             (1e-3 length_scale)^2 share the first priority bucket (default: max_error).
