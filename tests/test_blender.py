@@ -111,10 +111,12 @@ def test_blender_imports_run(tmp_path):
             assert frame[name] == {"verts": verts, "faces": faces}, (name, f)
         # the vertex normals primvar arrives as custom normals: each corner shows its vertex's normal
         normals = np.asarray(stage.GetAttributeAtPath("/sph/surface.primvars:normals").Get(f))
-        got = frame["surface_normals"]
-        assert got["custom"]
-        corner = np.asarray(got["corner_normals"])
-        assert np.allclose(corner, normals[np.asarray(got["corner_vertex"])], atol=2e-3)
+        imported = frame["surface_normals"]
+        assert imported["custom"]
+        corner = np.asarray(imported["corner_normals"])
+        err = np.linalg.norm(corner - normals[np.asarray(imported["corner_vertex"])], axis=1)
+        # Blender stores custom normals in its own compressed form: measured 7e-5 (99 %), 1.5e-3 (max)
+        assert np.percentile(err, 99) < 1e-3 and err.max() < 5e-3, np.sort(err)[-5:]
         spray = stage.GetAttributeAtPath("/sph/spray.points").Get(f)
         assert frame["spray"]["points"] == len(spray) >= 1
         assert frame["container"] == {"verts": 8, "faces": 10}
