@@ -5,8 +5,8 @@ Device code: ``kernels/surface_decimation.py``. Every round rebuilds the connect
 edge, collapses the edges that are cheaper than every edge around them, and drops the two faces of
 each collapsed edge; it stops when the mesh has at most ``triangle_budget`` triangles, when no edge
 is cheaper than ``max_error``^2 (the squared distances of the merged vertex from the planes of all the
-original faces it stands for sum to at most max_error^2, so it lies within max_error of each), or
-after ``max_rounds``. Collapses keep the mesh closed and manifold (link
+original faces it stands for sum to at most max_error^2, so it lies within max_error of each), after
+a round that merged under 1 % of the vertices, or after ``max_rounds``. Collapses keep the mesh closed and manifold (link
 condition) and turn no face by more than ``max_turn_deg``.
 """
 from __future__ import annotations
@@ -23,6 +23,8 @@ from .grid import launch
 from .smoothing import MeshConnectivity
 
 _RANGE = LIGHT_MIN_RANGE // 8
+#: stop after a round that merges fewer than this fraction of the vertices
+MIN_ROUND_FRACTION = 0.01
 
 
 class Decimator:
@@ -122,10 +124,12 @@ class Decimator:
                                                      best_other], [locked], device=dev, min_range=_RANGE)
             wp.utils.array_scan(collapsed[:nv], collapsed_sum[:nv], inclusive=True)
             ncol = int(collapsed_sum[nv - 1: nv].numpy()[0])
-            import os
-            if os.environ.get("DEC_DEBUG"): print("round", self.rounds, "collapses", ncol, "tris", nt, "blocked", int((blocked.numpy()[:nv] >= 0).sum()))
             if ncol == 0:
                 break
+            # a round that merges under MIN_ROUND_FRACTION of the vertices (~ nt / 2) is the last: the
+            # next ones would cost as much for less (measured at 59k particles: 33 rounds to converge,
+            # the last 16 of them for 5 % of the triangles)
+            last = ncol < MIN_ROUND_FRACTION * 0.5 * nt
             launch(_dev.remap_triangles, nt, [vmap], [tris, alive], device=dev, min_range=LIGHT_MIN_RANGE)
             wp.utils.array_scan(alive[:nt], alive_scan[:nt], inclusive=True)
             n_alive = int(alive_scan[nt - 1: nt].numpy()[0])
@@ -134,6 +138,8 @@ class Decimator:
                    min_range=LIGHT_MIN_RANGE)
             tris, tris_b = out, tris
             nt = n_alive
+            if last:
+                break
             conn = self._conn.build(nv, tris)
         # drop the vertices collapses removed, renumber the triangles
         kept = self._get("kept", nv, wp.int32)
