@@ -226,7 +226,7 @@ PARAMETERS: tuple[Param, ...] = (
     _P("output.surface_smoothing_iterations", "int", "-", 15, "feature-weighted Laplacian smoothing "
        "steps of the surface, volume restored after them (removes the particle-scale ridges, keeps "
        "droplets and thin sheets; 0: raw marching cubes)", ge=0),
-    _P("output.surface_decimation_error", "float", "-", 0.3, "decimate the smoothed surface by edge "
+    _P("output.surface_decimation_error", "float", "-", 0.5, "decimate the smoothed surface by edge "
        "collapses (quadric error) that keep each merged vertex within this distance of the planes of "
        "all the faces it replaces, in particle radii (0: no decimation)", ge=0.0),
     _P("output.surface_triangle_budget", "int", "-", 0, "decimate until the surface has at most this "
@@ -364,7 +364,7 @@ class OutputParams:
     surface_iso: float = 0.6
     surface_spray_neighbors: int = 5
     surface_smoothing_iterations: int = 15
-    surface_decimation_error: float = 0.3
+    surface_decimation_error: float = 0.5
     surface_triangle_budget: int = 0
     surface_normal_smoothing_iterations: int = 10
     surface_normals: bool = True

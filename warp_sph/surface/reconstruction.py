@@ -44,7 +44,7 @@ DEFAULT_SPRAY_NEIGHBORS = 5
 #: default smoothing iterations (``output.surface_smoothing_iterations``)
 DEFAULT_SMOOTHING_ITERATIONS = 15
 #: default decimation error bound [r] (``output.surface_decimation_error``; 0: no decimation)
-DEFAULT_DECIMATION_ERROR = 0.3
+DEFAULT_DECIMATION_ERROR = 0.5
 #: default normal smoothing iterations (``output.surface_normal_smoothing_iterations``)
 DEFAULT_NORMAL_SMOOTHING_ITERATIONS = 10
 
