@@ -420,12 +420,14 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
             st = r.get("stage_ms") or {}
             stages = " / ".join(_fmt(st.get(k)) for k in ("particles", "band", "field", "extraction", "smoothing",
                                                          "decimation", "normals")) if st else ""
+            usd = (f"{_fmt(r.get('usd_write_ms'))} ms, {_fmt(r.get('usd_bytes_per_frame'))} B"
+                   if r.get("usd_write_ms") is not None else "")
             rows.append([_fmt(r.get("fluid_particles")), _fmt(r.get("cell_per_radius")), _fmt(r.get("threads")),
                          r.get("engine", "?"), r.get("variant", "?"), _fmt(r.get("ms")), _fmt(r.get("triangles")),
-                         _fmt(r.get("ratio_to_splashsurf")), stages])
+                         _fmt(r.get("ratio_to_splashsurf")), stages, usd])
         lines += _table(["fluid N", "cell / r", "threads", "engine", "variant", "ms/frame", "triangles",
-                         "x splashsurf", "warp-sph stages [ms]: particles / band / field / extraction / "
-                         "smoothing / decimation / normals"], rows) + [""]
+                         "x splashsurf", "warp-sph stages [ms]: particles (spray split included) / band / field / "
+                         "extraction / smoothing / decimation / normals", "USD write of the frame"], rows) + [""]
         lines += ["Both tools on the same dam-break particles, cell size, iso level 0.6, kernel support and "
                   "thread count, in the same run (benchmarks/surface.py); median of the timed calls, warm. "
                   "*raw*: field and marching cubes (warp-sph: spray split and narrow band included); "

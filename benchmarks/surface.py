@@ -79,10 +79,32 @@ def _time_warp_sph(sim, cell_per_radius: float, variant: str, threads: int, repe
         else:
             os.environ["WARP_SPH_CPU_THREADS"] = old
     stage_ms = {s: 1e3 * statistics.median(t.get(s, 0.0) for t in stages) for s in STAGES}
-    return {"engine": "warp-sph", "ms": statistics.median(times), "ms_all": times, "stage_ms": stage_ms,
+    usd = _time_usd_write(sim, frame, repeats) if variant == "default" else {}
+    return {"engine": "warp-sph", "ms": statistics.median(times), "ms_all": times, "stage_ms": stage_ms, **usd,
             "vertices": len(frame.vertices), "triangles": len(frame.triangles), "spray": int(frame.spray.sum()),
             "band_fallback": frame.stats.get("band_fallback", 0), "band_blocks": frame.stats.get("band_blocks"),
             "meshed_blocks": frame.stats.get("meshed_blocks"), "block_nodes": frame.stats.get("block_nodes")}
+
+
+def _time_usd_write(sim, frame, repeats: int) -> dict:
+    """USD write of one frame (particles, surface with normals, spray) as the run writes it: median
+    time [ms] and bytes (each repeat writes the next frame of a new file)."""
+    from warp_sph.io.export_usd import UsdWriter
+
+    m = sim.model
+    x = m.to_world(sim.fields["particle_x"].numpy()).astype(np.float32)
+    v = sim.fields["particle_v"].numpy()
+    rho = sim.fields["particle_density"].numpy()
+    verts = m.to_world(frame.vertices).astype(np.float32)
+    times, sizes = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        with UsdWriter(Path(tmp) / "bench.usdc", fps=sim.scene.fps, particle_radius=m.particle_radius,
+                       with_normals=True, with_spray=True) as writer:
+            for f in range(1, repeats + 2):
+                writer.write_frame(f, x, v, {"density": rho}, (verts, frame.triangles, frame.normals),
+                                   spray=(x[frame.spray], v[frame.spray]))
+            times, sizes = writer.write_seconds[1:], writer.frame_bytes[1:]  # frame 1 also creates the file
+    return {"usd_write_ms": 1e3 * statistics.median(times), "usd_bytes_per_frame": int(statistics.median(sizes))}
 
 
 def _splashsurf_driver(args: list[str]) -> int:

@@ -225,6 +225,7 @@ def test_surface_bench_tiny(tmp_path):
         assert r["kind"] == "surface" and r["triangles"] > 0 and r["ms"] > 0 and r["threads"] == 1
         assert sum(r["stage_ms"].values()) <= r["ms"] * 1.01
     assert ours["raw"]["stage_ms"]["smoothing"] == 0.0 and ours["pipeline"]["stage_ms"]["smoothing"] > 0.0
+    assert ours["default"]["usd_write_ms"] > 0.0 and ours["default"]["usd_bytes_per_frame"] > 0
     if importlib.util.find_spec("pysplashsurf") is not None:  # measured beside, on the same particles
         theirs = {r["variant"]: r for r in recs if r["engine"] == "splashsurf"}
         assert set(theirs) == {"raw", "pipeline"} and all(r["status"] == "ok" for r in theirs.values())
