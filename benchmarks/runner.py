@@ -143,7 +143,7 @@ def _warm_up(scene, device) -> float:
         dt = warm.time_step(0.0)
         warm.step(dt)
         warm.statistics()
-        warm.solver.step_statistics(warm)
+        warm.solver.step_statistics()
         import warp as wp
 
         wp.synchronize_device(warm.device)
@@ -278,7 +278,7 @@ def run_warp_sph(spec: RunSpec) -> dict:
                     t1 = time.perf_counter()
                     for _ in range(spec.steps):
                         sim.step(dt)
-                        its.append(sim.solver.step_statistics(sim).get("iterations"))  # host values, no sync
+                        its.append(sim.solver.step_statistics().get("iterations"))  # host values, no sync
                     wp.synchronize_device(sim.device)
                     blocks.append((time.perf_counter() - t1, its))
             wall, iterations = min(blocks, key=lambda b: b[0])

@@ -378,6 +378,11 @@ def run_comparison(particle_radius: float = 0.025, frames: int = 25, threads: in
     sampled = sample_scene(sc)
     model, _ = build_model(sc, sampled, wp.get_device("cpu"))
     summary = model.summary()
+    # WCSPH's stiffness as warp-sph's WCSPH derives it (warp_sph.methods.solvers.wcsph)
+    eos = sc.wcsph.equation_of_state
+    summary["equation_of_state"] = eos
+    summary["stiffness"] = (float(sc.wcsph.stiffness) if sc.wcsph.stiffness > 0 else
+                            model.rest_density * model.speed_of_sound * model.speed_of_sound / (7.0 if eos == "tait" else 1.0))
     fx = np.asarray(sampled.fluid_x, dtype=np.float64)
     fmin, fmax = fx.min(axis=0), fx.max(axis=0)
     if splishsplash_gap is not None and sc.container is not None:

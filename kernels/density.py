@@ -3,7 +3,7 @@ import functools
 
 import warp as wp
 
-from .neighbors import NeighborList, neighbor_count, particle_in_cell_order
+from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
 from .smoothing import SMOOTHING_FUNCTIONS
 
 NEIGHBOR_TYPES = {"grid": wp.uint64, "list": NeighborList}
@@ -12,9 +12,14 @@ wp.HashGrid ids, queried per pass) or "list" (``NeighborList`` structs built onc
 
 
 @functools.cache
-def density_kernel(smoothing: str, with_boundary: bool, neighbors: str = "grid"):
-    """rho_i = m sum_j W_ij + sum_b Psi_b W_ib, Psi_b = rho0 V_b [kg/m^3]; one thread per particle."""
+def density_kernel(smoothing: str, boundary_terms=None, neighbors: str = "grid"):
+    """rho_i = m sum_j W_ij + rho0 sum_b density_b(W_ib, V_b) [kg/m^3] (Akinci: density_b = V_b W_ib,
+    report eq. 13); one thread per particle. boundary_terms: the boundary method's ``BoundaryTerms``
+    (None, or one without a density term: fluid only)."""
     value, _ = SMOOTHING_FUNCTIONS[smoothing]
+    with_boundary = boundary_terms is not None and boundary_terms.density is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    density_term = boundary_terms.density if with_boundary else None
     lists = neighbors == "list"
     Neighbors = NEIGHBOR_TYPES[neighbors]
 
@@ -26,6 +31,7 @@ def density_kernel(smoothing: str, with_boundary: bool, neighbors: str = "grid")
         smoothing_length: float,
         support_radius: float,
         rest_density: float,
+        boundary_params: BoundaryParams,
         boundary_neighbors: Neighbors,
         boundary_x: wp.array(dtype=wp.vec3),
         boundary_volume: wp.array(dtype=float),
@@ -59,7 +65,8 @@ def density_kernel(smoothing: str, with_boundary: bool, neighbors: str = "grid")
                 k_end = int(neighbor_count(boundary_neighbors, i))
                 while k < k_end:
                     b = boundary_neighbors.index[i, k]
-                    boundary_sum += boundary_volume[b] * wp.static(value)(wp.length(xi - boundary_x[b]), smoothing_length)
+                    w = wp.static(value)(wp.length(xi - boundary_x[b]), smoothing_length)
+                    boundary_sum += wp.static(density_term)(boundary_params, w, boundary_volume[b])
                     k += 1
             else:
                 bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
@@ -67,7 +74,8 @@ def density_kernel(smoothing: str, with_boundary: bool, neighbors: str = "grid")
                 while wp.hash_grid_query_next(bquery, b):
                     r = wp.length(xi - boundary_x[b])
                     if r < support_radius:
-                        boundary_sum += boundary_volume[b] * wp.static(value)(r, smoothing_length)
+                        boundary_sum += wp.static(density_term)(boundary_params, wp.static(value)(r, smoothing_length),
+                                                                boundary_volume[b])
             rho += rest_density * boundary_sum
         particle_density_out[i] = rho
 

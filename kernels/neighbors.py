@@ -145,8 +145,15 @@ def gather_sorted_points(
     sorted_points_out[k] = points[cell_point[k]]
 
 
+@wp.struct
+class NoBoundaryParams:
+    """Placeholder for kernels specialised without a boundary method."""
+
+    unused: float
+
+
 @functools.cache
-def neighbor_list_kernel(smoothing: str = ""):
+def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
     """Kernel that builds fixed-capacity neighbour lists over a ``CellGrid`` (one thread per query
     point, in the order ``query_order``); with ``smoothing`` it also sums the density of the same
     pairs (the WCSPH density pass fused into the search, report eq. 7/13).
@@ -155,10 +162,10 @@ def neighbor_list_kernel(smoothing: str = ""):
     in cell order; the count is exact, entries past the capacity are dropped and max_count_out[i]
     keeps the largest such count of particle i (cleared by the host after reading it).
 
-    Density (``smoothing``) over the listed pairs [kg/m^3]: the fluid launch writes
-    density_out[i] = weight_scale sum_j W_ij (weight_scale = m); the boundary launch
-    (``boundary_term``, after it) adds weight_scale sum_b w_b W_ib (weight_scale = rho0,
-    w_b = sorted_weight[k] = Akinci V_b in cell order).
+    Density (``smoothing``) over the listed pairs [kg/m^3]: the fluid launch (no ``boundary_terms``)
+    writes density_out[i] = weight_scale sum_j W_ij (weight_scale = m); the boundary launch (with the
+    boundary method's ``BoundaryTerms``, after it) adds weight_scale sum_b density(W_ib, w_b)
+    (weight_scale = rho0, w_b = sorted_weight[k] = the boundary volume V_b in cell order).
 
     cell_mask (``use_mask``): 0 for cells with no point of the searched set within one cell, so
     a query there finds nothing without visiting any cell (the boundary lists of the interior).
@@ -168,6 +175,9 @@ def neighbor_list_kernel(smoothing: str = ""):
     cells extend to infinity here, matching the clamping of out-of-grid points."""
     with_density = bool(smoothing)
     value = SMOOTHING_FUNCTIONS[smoothing or "cubic"][0]
+    boundary_density = with_density and boundary_terms is not None and boundary_terms.density is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    density_term = boundary_terms.density if boundary_density else None
 
     @wp.kernel(enable_backward=False, module="unique")
     def build_neighbor_list(
@@ -186,7 +196,7 @@ def neighbor_list_kernel(smoothing: str = ""):
         # Density sum (with ``smoothing``):
         smoothing_length: float,
         weight_scale: float,
-        boundary_term: int,
+        boundary_params: BoundaryParams,
         # Query points (threads in the order ``query_order``):
         query_order: wp.array(dtype=wp.int32),
         query_x: wp.array(dtype=wp.vec3),
@@ -242,8 +252,8 @@ def neighbor_list_kernel(smoothing: str = ""):
                             n += 1
                             if wp.static(with_density):
                                 w = wp.static(value)(wp.sqrt(dd), smoothing_length)
-                                if boundary_term != 0:
-                                    w *= sorted_weight[k]
+                                if wp.static(boundary_density):
+                                    w = wp.static(density_term)(boundary_params, w, sorted_weight[k])
                                 total += w
                         k += 1
         neighbor_count_out[i] = n
@@ -251,7 +261,7 @@ def neighbor_list_kernel(smoothing: str = ""):
             max_count_out[i] = wp.max(max_count_out[i], n)
         if wp.static(with_density):
             rho = weight_scale * total
-            if boundary_term != 0:
+            if wp.static(boundary_density):
                 rho = density_out[i] + rho
             density_out[i] = rho
 

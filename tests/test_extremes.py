@@ -145,7 +145,7 @@ def _pair(separation, velocity=(0.0, 0.0, 0.0), **kw):
     x = np.array([o - [separation / 2, 0, 0], o + [separation / 2, 0, 0]])
     sim.set_field("particle_x", x)
     sim.set_field("particle_v", np.array([velocity, np.negative(velocity)]))
-    sim._refresh_density()
+    sim.refresh_density()
     return sim
 
 
@@ -177,7 +177,7 @@ def test_compressed_cluster_conserves_momentum():
     rng = np.random.default_rng(1)
     x = c + 0.7 * (x - c) + rng.uniform(-0.05, 0.05, x.shape) * 0.1
     sim.set_field("particle_x", x)
-    sim._refresh_density()
+    sim.refresh_density()
     s = frames(sim, 3)[-1]
     assert s.kinetic_energy > 1e-3  # it did expand
     v = sim.get_field("particle_v").astype(np.float64)
@@ -197,7 +197,7 @@ def test_coincident_particles(boundary):
     if boundary != "none":
         x[2] = sim.get_field("boundary_x")[0]  # a corner wall particle
     sim.set_field("particle_x", x)
-    sim._refresh_density()
+    sim.refresh_density()
     sim.check_health(sim.statistics())
     for _ in range(5):
         sim.step(1e-4)
@@ -264,7 +264,7 @@ def test_wcsph_stiffness_extremes(factor, max_density_error):
 
 @pytest.mark.parametrize("iterations", [1, 100])
 def test_pbf_iterations(iterations):
-    pytest.importorskip("warp_sph.methods.pbf")
+    pytest.importorskip("warp_sph.methods.solvers.pbf")
     sim = Simulation(dam(solver="pbf", pbf={"min_iterations": iterations, "max_iterations": iterations}))
     stats = frames(sim, 6)
     assert all(s.non_finite == 0 and s.outside == 0 for s in stats)

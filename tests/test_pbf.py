@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sph_oracle import SUPPORT, W, grad_W
-from warp_sph.methods.pbf import PbfSolver, rest_denominator
+from warp_sph.methods.solvers.pbf import rest_denominator
 from warp_sph.scene import load_scene, scene_from_dict
 from warp_sph.run.simulation import Simulation
 from warp_sph.core.smoothing import lattice_offsets
@@ -88,7 +88,7 @@ def prepared(kernel="cubic", tensile=False, seed=0):
     lo = x.min(0)
     x = lo + 0.92 * (x - lo) + rng.uniform(-0.1, 0.1, x.shape) * m.spacing  # 8 % compressed, towards the floor
     sim.set_field("particle_x", m.to_world(x))
-    sim.solver.restore_arrays(sim, {})  # x* = x
+    sim.solver.restore_arrays({})  # x* = x
     stage(sim, "neighbors").run(sim, 0.0)
     stage(sim, "density").run(sim, 0.0)
     return sim, m.to_local(sim.get_field("particle_x")).astype(np.float64)
@@ -125,7 +125,7 @@ def test_position_correction_stage(tensile):
     dx += dx_b
     sim.fields["boundary_force"].zero_()
     dt = 2e-3
-    sim.solver.run_correction(sim, dt)
+    sim.solver.correction(dt)
     got = sim.get_field("position_correction")
     scale = np.abs(dx).max()
     np.testing.assert_allclose(got, dx, rtol=2e-3, atol=2e-3 * scale)
@@ -140,12 +140,12 @@ def test_position_correction_stage(tensile):
 def test_graph_and_time_step():
     sim = Simulation(pbf_scene(material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.2},
                                pbf={"vorticity": 0.01}))
-    assert sim.graph.names() == ["predict", "neighbors", "density", "solve", "update", "viscosity", "xsph",
-                                 "vorticity"]
+    assert sim.graph.names() == ["stabilize", "predict", "neighbors", "density", "solve", "update", "viscosity",
+                                 "xsph", "vorticity"]
     bare = Simulation(pbf_scene(container=False, gravity=[0.0, 0.0, 0.0]))
-    assert bare.graph.names() == ["predict", "neighbors", "density", "solve", "update"]
+    assert bare.graph.names() == ["stabilize", "predict", "neighbors", "density", "solve", "update"]
     m = sim.model
-    dt = sim.solver.time_step_bound(sim, 2.0, 1 / 24)
+    dt = min(b.seconds for b in sim.time_step_bounds(2.0))
     assert dt == pytest.approx(min(0.4 * m.spacing / (2.0 + 9.81 / 24), 0.125 * (m.support_radius / 2) ** 2 / 1e-3))
     for _ in range(3):  # every optional stage runs
         sim.step(2e-3)
@@ -217,14 +217,9 @@ def test_dam_break_coarse():
     assert 0.5 < st.max_speed < 1.5 * math.sqrt(2 * 9.81 * 1.0)
 
 
-def with_solver(sim, solver):
-    """sim with its PBF solver replaced (a new step graph)."""
-    from warp_sph.core.step_graph import StepGraph
-
-    sim.solver = solver
-    sim.graph = StepGraph(solver.stages(sim), {"particle_x", "particle_v", "boundary_x", "boundary_volume",
-                                               "boundary_grid"})
-    sim._refresh_density()
+def with_solver(sim, **options):
+    """sim with a PBF solver of these options (a new step graph)."""
+    sim.set_solver("pbf", **options)
     return sim
 
 
@@ -235,7 +230,7 @@ def test_neighbor_modes_agree():
     for lists, mode in ((True, "margin"), (True, "rebuild"), (False, "rebuild"), (False, "margin")):
         sim = with_solver(Simulation(pbf_scene(material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.2},
                                                pbf={"vorticity": 0.01})),
-                          PbfSolver(neighbor_mode=mode, lists=lists))
+                          neighbor_mode=mode, lists=lists)
         for _ in range(5):
             sim.step(4e-3)
         res.append(sim.get_field("particle_x"))
@@ -249,7 +244,7 @@ def test_lists_margin_rebuilds_only_on_drift():
     default one about once per step, and both agree."""
     res, builds = [], []
     for margin in (0.2, 1e-4):
-        sim = with_solver(Simulation(block_on_floor(nx=8, ny=8, nz=6)), PbfSolver(margin=margin))
+        sim = with_solver(Simulation(block_on_floor(nx=8, ny=8, nz=6)), margin=margin)
         sim.solver.last_drift = 0.0
         start = sim.solver.grid_builds
         iterations = 0

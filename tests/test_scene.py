@@ -6,7 +6,7 @@ import pytest
 
 from warp_sph.core.errors import SceneError
 from warp_sph.scene import (
-    PARAMETERS,
+    all_parameters,
     Scene,
     list_scenes,
     load_scene,
@@ -79,7 +79,7 @@ def test_defaults_resolved(tmp_path):
     assert s.obstacles == []
     # every table parameter has a value in to_dict
     d = s.to_dict()
-    for p in PARAMETERS:
+    for p in all_parameters():
         if p.kind in ("table", "tables", "table_or_false") or "[]" in p.path or p.default is None:
             continue
         section, _, key = p.path.rpartition(".")
@@ -188,7 +188,7 @@ def test_text_file_that_is_not_a_mesh(tmp_path, suffix):
 def test_mesh_path_resolves_against_scene_folder(tmp_path, monkeypatch):
     sub = tmp_path / "sub"
     (sub / "m").mkdir(parents=True)
-    (sub / "m" / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (sub / "m" / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
     path = write(sub, "[[obstacles]]\nshape = 'mesh'\nfile = 'm/tri.obj'\n" + MINIMAL)
     monkeypatch.chdir(tmp_path)
     s = load_scene(str(path))
@@ -232,9 +232,9 @@ def test_to_dict_round_trip(name):
 def test_parameter_table_lists_every_parameter():
     table = parameter_table_markdown()
     rows = {line.split("|")[1].strip().strip("`"): line for line in table.splitlines()[2:]}
-    assert len(rows) == len(PARAMETERS)
+    assert len(rows) == len(all_parameters())
     assert all(line.count("|") == 7 for line in table.splitlines())  # six cells, no stray pipes
-    for p in PARAMETERS:
+    for p in all_parameters():
         row = rows[p.path]
         cells = [c.strip() for c in row.split("|")[1:-1]]
         assert cells[2] == p.unit, p.path
@@ -243,4 +243,7 @@ def test_parameter_table_lists_every_parameter():
     assert rows["material.rest_density"].split("|")[3].strip() == "kg/m^3"
     assert rows["gravity"].split("|")[4].strip() == "[0, 0, -9.81]"
     assert rows["fluid[].min"].split("|")[4].strip() == "required"
-    assert '"wcsph", "pbf"' in rows["solver"]
+    from warp_sph.methods import registry
+
+    assert ", ".join(f'"{n}"' for n in registry.solver_names()) in rows["solver"]
+    assert set(registry.solver_names()) >= {"wcsph", "pbf"}

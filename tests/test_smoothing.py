@@ -3,6 +3,8 @@ import numpy as np
 import pytest
 import warp as wp
 
+from warp_sph.kernels.neighbors import NoBoundaryParams
+
 from sph_oracle import W as W_ref, grad_W as grad_ref
 from warp_sph.core import smoothing
 from warp_sph.kernels import density as density_dev
@@ -145,8 +147,9 @@ def test_rest_lattice_density(name, device):
     grid.build(x)
     rho = wp.zeros(len(g), dtype=float, device=device)
     empty = wp.zeros(0, dtype=wp.vec3, device=device)
-    wp.launch(density_dev.density_kernel(name, False), dim=len(g),
-              inputs=[0, m, h, k.support_radius(h), rho0, wp.uint64(0), empty, wp.zeros(0, dtype=float, device=device), grid.id, x],
+    wp.launch(density_dev.density_kernel(name, None), dim=len(g),
+              inputs=[0, m, h, k.support_radius(h), rho0, NoBoundaryParams(), wp.uint64(0), empty,
+                      wp.zeros(0, dtype=float, device=device), grid.id, x],
               outputs=[rho], device=device)
     centre = np.argmin(np.linalg.norm(g - g.mean(0), axis=1))
     assert rho.numpy()[centre] == pytest.approx(rho0, rel=1e-3)

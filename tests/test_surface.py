@@ -22,7 +22,7 @@ DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 
 def defaults(**overrides) -> dict:
     """The scene defaults (output.surface_*), as the run uses them."""
-    from warp_sph.scene.description import OutputParams
+    from warp_sph.scene import OutputParams
 
     kw = surface_settings(OutputParams(), RADIUS)
     kw.update(overrides)

@@ -13,7 +13,7 @@ END = "<!-- END parameter table -->"
 
 
 def render(readme: str) -> str:
-    from .scene.description import parameter_table_markdown
+    from .scene import parameter_table_markdown
 
     head, sep, rest = readme.partition(BEGIN)
     if not sep:

@@ -54,6 +54,8 @@ def launch(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = M
     device = wp.get_device(device)
     threads = min(cpu_threads(), dim // max(min_range, 1)) if device.is_cpu else 1
     key = (kernel, device.alias)
+    if getattr(kernel, "is_generic", False):  # one overload per argument type: each is loaded once
+        key += tuple(getattr(a, "dtype", type(a)) for a in (*inputs, *outputs))
     if threads <= 1 or key not in _loaded:
         # the first launch also loads the module, from this thread only
         wp.launch(kernel, dim=dim, inputs=[0, *inputs], outputs=list(outputs), device=device)

@@ -15,6 +15,7 @@ import warp as wp
 from .errors import SceneError
 from ..kernels import density as _density_dev
 from ..neighbors import NeighborGrid
+from .launch import launch
 from .smoothing import SmoothingKernel, calibrated_mass, get_smoothing_kernel, lattice_sum
 
 
@@ -33,15 +34,15 @@ class Model:
     lattice_bias: float           # d^3 sum_lattice W - 1 before calibration [-]
     gravity: np.ndarray           # g [m/s^2], shape (3,)
     origin: np.ndarray            # local origin [m], float64 shape (3,)
-    reference_speed: float        # expected max speed sqrt(2 |g| H) [m/s]
-    speed_of_sound: float         # c_s [m/s]
-    stiffness: float              # K [Pa]: linear p = K (rho/rho0 - 1), Tait p = K ((rho/rho0)^7 - 1)
-    equation_of_state: str        # "linear" | "tait"
+    reference_speed: float        # expected max speed max(sqrt(2 |g| H), |v0|) [m/s]
+    reference_speed_source: str   # what set it: the fall height or a block's initial velocity
+    speed_of_sound: float         # c_s [m/s]: WCSPH's stiffness, the Akinci friction and the penalty force
     viscosity: float              # kinematic nu [m^2/s]
     xsph: float                   # XSPH factor [-]
     boundary_friction: float      # Akinci sigma [-]
-    boundary_method: str          # "akinci2012" | "penalty" | "none"
+    boundary_method: str          # the scene's boundary method, "none" without boundary particles
     boundary_x: wp.array          # boundary particle positions (local) [m], shape (boundary_count,)
+    boundary_v: wp.array          # boundary particle velocities [m/s] (0: static walls), shape (boundary_count,)
     boundary_volume: wp.array     # Akinci V_b = 1/sum_k W_bk [m^3], shape (boundary_count,)
     boundary_grid: NeighborGrid | None
     container_lo: np.ndarray | None  # container box in local coordinates [m]
@@ -70,8 +71,6 @@ class Model:
             "particle_mass": self.particle_mass,
             "lattice_bias_before_calibration": self.lattice_bias,
             "speed_of_sound": self.speed_of_sound,
-            "stiffness": self.stiffness,
-            "equation_of_state": self.equation_of_state,
             "reference_speed": self.reference_speed,
             "boundary_method": self.boundary_method,
             "origin": [float(v) for v in self.origin],
@@ -91,10 +90,14 @@ class State:
     frame: int = 0
 
 
-def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_lo) -> tuple[float, float]:
-    """(reference speed, c_s): v_ref = max(sqrt(2 |g| H), max|v0|), c_s = factor * v_ref (Becker &
-    Teschner 2007: |drho|/rho0 ~ v^2/c^2, so factor 10 keeps density errors near 1 %).
-    H is the height of the fluid above the container floor (or the fluid's own height)."""
+def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_lo,
+                    fluid_block: np.ndarray | None = None) -> tuple[float, float, str]:
+    """(reference speed, c_s, what set v_ref): v_ref = max(sqrt(2 |g| H), max|v0|), H the height of the fluid above the
+    container floor (or the fluid's own height). c_s, the fluid's (artificial) speed of sound, comes from
+    the ``wcsph`` section: sqrt(k / rho0) (linear) or sqrt(7 B / rho0) (Tait) when ``wcsph.stiffness`` is
+    set, else ``wcsph.speed_of_sound``, else factor * v_ref (Becker & Teschner 2007: |drho|/rho0 ~
+    v^2/c^2, so factor 10 keeps density errors near 1 %). WCSPH's pressure, the Akinci friction
+    (report eq. 24) and the penalty force scale with it."""
     g = np.asarray(scene.gravity, dtype=np.float64)
     gnorm = float(np.linalg.norm(g))
     if gnorm > 0 and len(fluid_x):
@@ -110,9 +113,24 @@ def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_l
     else:
         height = float(np.ptp(fluid_x[:, 2])) + 2 * scene.particle_radius if len(fluid_x) else 1.0
     g_ref = gnorm if gnorm > 0 else 9.81
-    v_ref = max(math.sqrt(2.0 * g_ref * height), float(np.linalg.norm(fluid_v, axis=1).max()) if len(fluid_v) else 0.0)
-    c_s = scene.wcsph.speed_of_sound if scene.wcsph.speed_of_sound > 0 else scene.wcsph.speed_of_sound_factor * v_ref
-    return v_ref, c_s
+    fall = math.sqrt(2.0 * g_ref * height)
+    speeds = np.linalg.norm(fluid_v.astype(np.float64), axis=1) if len(fluid_v) else np.zeros(1)
+    v_ref = max(fall, float(speeds.max()))
+    if v_ref > fall:
+        k = int(np.argmax(speeds))
+        block = int(fluid_block[k]) if fluid_block is not None and len(fluid_block) > k else 0
+        source = f"fluid[{block}].velocity"
+    else:
+        source = f"the fall height H = {height:.3g} m (sqrt(2 g H))"
+    w = scene.sections.get("wcsph")
+    rho0 = float(scene.material.rest_density)
+    if w is not None and w.stiffness > 0:
+        c_s = math.sqrt((7.0 if w.equation_of_state == "tait" else 1.0) * float(w.stiffness) / rho0)
+    elif w is not None and w.speed_of_sound > 0:
+        c_s = float(w.speed_of_sound)
+    else:
+        c_s = (w.speed_of_sound_factor if w is not None else 10.0) * v_ref
+    return v_ref, c_s, source
 
 
 def build_model(scene, sampled, device) -> tuple[Model, State]:
@@ -120,9 +138,8 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
     kernel = get_smoothing_kernel(scene.smoothing_kernel)
     r = float(scene.particle_radius)
     d = 2.0 * r
-    h_per_d = scene.h_per_spacing if scene.h_per_spacing else kernel.default_h_per_spacing
-    h = h_per_d * d
-    support = kernel.support_radius(h)
+    h = scene.smoothing_length
+    support = scene.support_radius
     rho0 = float(scene.material.rest_density)
     mass = calibrated_mass(kernel.name, h, d, rho0)
     bias = lattice_sum(kernel.name, h, d) * d**3 - 1.0
@@ -141,31 +158,27 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         lo = hi = None
         origin = 0.5 * (fluid_x.min(axis=0) + fluid_x.max(axis=0))
 
-    v_ref, c_s = _speed_of_sound(scene, fluid_x, fluid_v, lo)
-    eos = scene.wcsph.equation_of_state
-    if scene.wcsph.stiffness > 0:
-        stiffness = float(scene.wcsph.stiffness)
-    else:
-        stiffness = rho0 * c_s * c_s / (7.0 if eos == "tait" else 1.0)
+    v_ref, c_s, v_source = _speed_of_sound(scene, fluid_x, fluid_v, lo, getattr(sampled, "fluid_block", None))
 
     boundary_method = scene.boundary if len(boundary_x) else "none"
     bx = wp.array((boundary_x - origin).astype(np.float32), dtype=wp.vec3, device=device)
+    bv = wp.zeros(len(boundary_x), dtype=wp.vec3, device=device)
     bvol = wp.zeros(len(boundary_x), dtype=float, device=device)
     bgrid = None
     if len(boundary_x):
         bgrid = NeighborGrid(support, device=device)
         bgrid.build(bx)
-        wp.launch(_density_dev.boundary_volume_kernel(kernel.name), dim=len(boundary_x),
-                  inputs=[float(h), float(support), bgrid.id, bx], outputs=[bvol], device=device)
+        launch(_density_dev.boundary_volume_kernel(kernel.name), len(boundary_x),
+               [float(h), float(support), bgrid.id, bx], [bvol], device=device)
 
     model = Model(
         device=device, smoothing=kernel, rest_density=rho0, particle_radius=r, spacing=d,
         smoothing_length=h, support_radius=support, particle_mass=mass, lattice_bias=bias,
         gravity=np.asarray(scene.gravity, dtype=np.float32), origin=origin,
-        reference_speed=v_ref, speed_of_sound=c_s, stiffness=stiffness, equation_of_state=eos,
+        reference_speed=v_ref, reference_speed_source=v_source, speed_of_sound=c_s,
         viscosity=float(scene.material.viscosity), xsph=float(scene.material.xsph),
         boundary_friction=float(scene.material.boundary_friction), boundary_method=boundary_method,
-        boundary_x=bx, boundary_volume=bvol, boundary_grid=bgrid,
+        boundary_x=bx, boundary_v=bv, boundary_volume=bvol, boundary_grid=bgrid,
         container_lo=None if lo is None else (lo - origin), container_hi=None if hi is None else (hi - origin),
         fluid_count=len(fluid_x), boundary_count=len(boundary_x),
     )

@@ -19,6 +19,7 @@ import warp as wp
 
 from .errors import SceneError
 from ..kernels import smoothing as _dev
+from .launch import launch
 
 
 @dataclass(frozen=True)
@@ -43,11 +44,6 @@ class SmoothingKernel:
     def default_smoothing_length(self, spacing: float) -> float:
         """Default smoothing length h [m] for particle spacing d [m]."""
         return self.default_h_per_spacing * spacing
-
-    @property
-    def functions(self):
-        """(value, gradient) ``@wp.func`` pair."""
-        return _dev.SMOOTHING_FUNCTIONS[self.name]
 
 
 SMOOTHING_KERNELS: dict[str, SmoothingKernel] = {
@@ -75,7 +71,7 @@ def evaluate(name: str, offsets: np.ndarray, h: float, device="cpu") -> tuple[np
     w = wp.zeros(n, dtype=float, device=device)
     g = wp.zeros(n, dtype=wp.vec3, device=device)
     if n:
-        wp.launch(_dev.evaluate_kernel(name), dim=n, inputs=[x, float(h)], outputs=[w, g], device=device)
+        launch(_dev.evaluate_kernel(name), n, [x, float(h)], [w, g], device=device)
     return w.numpy(), g.numpy()
 
 

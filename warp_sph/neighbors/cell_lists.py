@@ -109,6 +109,7 @@ class NeighborLists:
         self._no_mask = wp.zeros(1, dtype=wp.uint8, device=device)
         self._no_weight = wp.zeros(1, dtype=float, device=device)
         self._no_density = wp.zeros(1, dtype=float, device=device)
+        self._no_params = _dev.NoBoundaryParams()
         if boundary_x is not None and boundary_x.shape[0]:
             bc = self.boundary_cells = CellGrid(search_radius, lo, hi, boundary_x.shape[0], cells_per_radius,
                                                 device=device)
@@ -142,16 +143,18 @@ class NeighborLists:
 
     def build_lists(self, particle_x: wp.array, density_out: wp.array | None = None, smoothing: str = "",
                     smoothing_length: float = 0.0, particle_mass: float = 0.0, rest_density: float = 0.0,
-                    boundary_density: bool = True) -> None:
+                    boundary_terms=None, boundary_params=None) -> None:
         """Both lists for the positions ``particle_x`` [m] that ``sort`` was given; with ``density_out``
-        also rho_i = m sum_j W_ij [+ rho0 sum_b V_b W_ib with ``boundary_density``] [kg/m^3] over the
-        same pairs (``smoothing`` kernel name, h [m], m [kg], rho0 [kg/m^3]; the boundary term needs
+        also rho_i = m sum_j W_ij [+ rho0 sum_b density_b(W_ib, V_b) with a boundary method's
+        ``boundary_terms`` that has a density term, and its ``boundary_params``] [kg/m^3] over the same
+        pairs (``smoothing`` kernel name, h [m], m [kg], rho0 [kg/m^3]; the boundary term needs
         ``boundary_volume``)."""
-        from ..kernels import neighbors as _dev
         from ..core.launch import launch
+        from ..kernels import neighbors as _dev
 
         with_density = density_out is not None
-        boundary_density = with_density and boundary_density and self.boundary_cells is not None
+        boundary_density = (with_density and self.boundary_cells is not None and boundary_terms is not None
+                            and boundary_terms.density is not None)
         if boundary_density and self._boundary_weight is self._no_weight:
             raise ValueError("NeighborLists: the boundary density term needs boundary_volume")
         kernel = _dev.neighbor_list_kernel(smoothing if with_density else "")
@@ -160,18 +163,29 @@ class NeighborLists:
         fc = self.fluid_cells
         launch(kernel, n,
                [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, self._no_weight,
-                self._no_mask, 0, self.search_radius, float(smoothing_length), float(particle_mass), 0,
+                self._no_mask, 0, self.search_radius, float(smoothing_length), float(particle_mass), self._no_params,
                 fc.cell_point, particle_x],
                [self.fluid.count, self.fluid.index, self._max_count, density], device=self.device)
         bc = self.boundary_cells
         if bc is not None:
             mask = self._boundary_mask
-            kernel = _dev.neighbor_list_kernel(smoothing if boundary_density else "")
+            if boundary_density:
+                kernel = _dev.neighbor_list_kernel(smoothing, boundary_terms)
+                params = boundary_params
+            else:
+                kernel = _dev.neighbor_list_kernel("")
+                params = self._no_params
             launch(kernel, n,
                    [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, self._boundary_weight,
                     self._no_mask if mask is None else mask, int(mask is not None), self.search_radius,
-                    float(smoothing_length), float(rest_density), 1, fc.cell_point, particle_x],
+                    float(smoothing_length), float(rest_density), params, fc.cell_point, particle_x],
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
+
+    @property
+    def boundary_mask(self):
+        """uint8 per cell of the boundary grid: 0 where no boundary particle is within one cell (the fluid
+        there skips the boundary search); None when the cells are smaller than the search radius."""
+        return self._boundary_mask if self.boundary_cells is not None else None
 
     @property
     def capacities(self) -> tuple[int, int]:
@@ -192,3 +206,42 @@ class NeighborLists:
             self._allocate(self.fluid, new)
         if self.boundary_cells is not None and new > bcap:
             self._allocate(self.boundary, new)
+
+
+def simulation_neighbor_lists(sim, margin: float = 0.0) -> NeighborLists:
+    """The simulation's per-step neighbour lists (created on first use, workspace field ``neighbor_lists``).
+
+    Their dense cell grid covers the container, the boundary and the initial fluid, padded by two
+    support radii (by a quarter of the extent without a container); particles beyond it stay exact.
+    margin [m]: the search radius is H_s + margin (lists that stay complete while particles move
+    by up to margin / 2); the capacities grow with the searched volume. Lists of another search
+    radius are replaced.
+    """
+    import math
+
+    import numpy as np
+
+    lists = sim.fields.get("neighbor_lists")
+    if lists is not None and not math.isclose(lists.search_radius, sim.model.support_radius + margin, rel_tol=1e-6):
+        lists = None  # another search radius (a solver swapped in): new lists replace the old ones
+    if lists is None:
+        m = sim.model
+        x = sim.state.particle_x.numpy()
+        boxes = [x.min(axis=0), x.max(axis=0)]
+        if m.boundary_count:
+            bx = m.boundary_x.numpy()
+            boxes += [bx.min(axis=0), bx.max(axis=0)]
+        if m.container_lo is not None:
+            boxes += [m.container_lo, m.container_hi]
+        lo = np.min(boxes, axis=0).astype(np.float64)
+        hi = np.max(boxes, axis=0).astype(np.float64)
+        pad = 2.0 * m.support_radius + (0.0 if m.container_lo is not None else 0.25 * float(np.max(hi - lo)))
+        radius = m.support_radius + margin
+        volume = (radius / m.support_radius) ** 3
+        with_boundary = m.boundary_count > 0
+        lists = NeighborLists(radius, lo - pad, hi + pad, m.fluid_count,
+                              m.boundary_x if with_boundary else None,
+                              fluid_capacity=int(math.ceil(64 * volume)), boundary_capacity=int(math.ceil(48 * volume)),
+                              device=m.device, boundary_volume=m.boundary_volume if with_boundary else None)
+        sim.fields["neighbor_lists"] = lists
+    return lists

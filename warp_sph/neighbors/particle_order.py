@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..core.launch import LIGHT_MIN_RANGE, launch
 from ..kernels import neighbors as _dev
 from .cell_lists import CellGrid
 
@@ -71,7 +72,7 @@ class CellOrder:
         wp.copy(self.order, grid.cell_point, count=n)
         for a in self._fields():
             t = self._tmp(a)
-            wp.launch(_dev.gather_by_order, n, inputs=[0, self.order, a], outputs=[t], device=a.device)
+            launch(_dev.gather_by_order, n, [self.order, a], [t], device=a.device, min_range=LIGHT_MIN_RANGE)
             wp.copy(a, t)
         return True
 
@@ -80,6 +81,6 @@ class CellOrder:
         n = self.sim.model.fluid_count
         for a in self._fields():
             t = self._tmp(a)
-            wp.launch(_dev.scatter_by_order, n, inputs=[0, self.order, a], outputs=[t], device=a.device)
+            launch(_dev.scatter_by_order, n, [self.order, a], [t], device=a.device, min_range=LIGHT_MIN_RANGE)
             wp.copy(a, t)
 

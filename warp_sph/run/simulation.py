@@ -21,23 +21,12 @@ import warp as wp
 
 from ..core.errors import SceneError
 from ..kernels import diagnostics as _diag
+from ..kernels import neighbors as _neighbors_dev
 from ..core.launch import launch
 from ..core.model import build_model
 from ..neighbors import GRID_DIM, NeighborGrid
 from ..core.step_graph import StepGraph
 from .watchdog import MAX_RETRIES, Watchdog, frame_substeps
-
-
-def _solver_for(name: str):
-    if name == "wcsph":
-        from ..methods.wcsph import WcsphSolver
-
-        return WcsphSolver()
-    if name == "pbf":
-        from ..methods.pbf import PbfSolver
-
-        return PbfSolver()
-    raise SceneError(f"unknown solver {name!r}; expected 'wcsph' or 'pbf'")
 
 
 def _fluid_grid_dim(model, fluid_x) -> int:
@@ -85,39 +74,77 @@ class FrameStatistics:
 class Simulation:
     """A scene turned into Model + State + step graph. ``device`` is a Warp device name or None."""
 
-    def __init__(self, scene, device: str | None = None):
+    def __init__(self, scene, device: str | None = None, solver_options: dict | None = None):
+        from ..methods import registry
         from .preflight import check_memory
-        from ..scene.sampling import sample_scene
+
+        from ..core.device import resolve_device
 
         self.scene = scene
-        self.device = wp.get_device(device)
+        self.device = resolve_device(device)  # quiet Warp start-up; a bad name is a one-line error
+        solver_cls = registry.solver(scene.solver)
+        boundary_cls = registry.boundary(scene.boundary)
         check_memory(scene, self.device)
-        self.sampled = sample_scene(scene)
+        self.sampled = boundary_cls.sample(scene)
         self.model, self.state = build_model(scene, self.sampled, self.device)
         self.fields: dict[str, object] = {
             "particle_x": self.state.particle_x,
             "particle_v": self.state.particle_v,
         }
-        inputs = {"particle_x", "particle_v"}
-        if self.model.boundary_method != "none":
+        self._inputs = {"particle_x", "particle_v"}
+        if self.model.boundary_count:
             self.fields.update(boundary_x=self.model.boundary_x, boundary_volume=self.model.boundary_volume,
                                boundary_grid=self.model.boundary_grid)
-            inputs |= {"boundary_x", "boundary_volume", "boundary_grid"}
+            self._inputs |= {"boundary_x", "boundary_volume", "boundary_grid"}
+            #: the boundary method (``warp_sph.methods.boundary.BoundaryMethod``); None without boundary particles
+            self.boundary = boundary_cls(self)
+            self.boundary_terms = self.boundary.terms()
+            self.boundary_params = self.boundary.params()
+        else:
+            self.boundary = None
+            self.boundary_terms = None
+            self.boundary_params = _neighbors_dev.NoBoundaryParams()
         self.fluid_grid = NeighborGrid(self.model.support_radius, device=self.device,
                                        dim=_fluid_grid_dim(self.model, self.sampled.fluid_x))
         self.fields["fluid_grid"] = self.fluid_grid
-        self.solver = _solver_for(scene.solver)
-        self.graph = StepGraph(self.solver.stages(self), inputs, device=self.device,
-                               synchronize_timing=self.device.is_cuda)
-        self._solver_stage_names = set(self.graph.names())
         self._stats = wp.zeros(_diag.STAT_COUNT, dtype=float, device=self.device)
         self.frame_dt = 1.0 / float(scene.fps)
         self.last_frame: FrameStatistics | None = None
-        self._refresh_density()
+        self.solver = None
+        self.graph = None
+        self.set_solver(solver_cls.name, **(solver_options or {}))
         self.watchdog = Watchdog(self)
         #: sort the per-particle fields into cell order for each frame (``warp_sph.neighbors.particle_order``)
         self.cell_order = True
         self._cell_order = None
+
+    def set_solver(self, name: str | None = None, **options) -> None:
+        """Use solver ``name`` (default: the scene's) with constructor ``options`` (e.g. ``lists=False``
+        for the hash-grid variant): a new step graph (stages inserted by hand are dropped) and the
+        density refreshed. The scene's section of that solver holds its settings."""
+        from ..methods import registry
+
+        cls = registry.solver(name or self.scene.solver)
+        if self.boundary is not None:
+            refusal = cls.refuses_boundary(type(self.boundary))
+            if refusal:
+                raise SceneError(f"solver {cls.name!r} does not work with boundary {self.boundary.name!r}: {refusal}")
+        solver = cls(self, **options)
+        stages = solver.stages()
+        self.solver = solver
+        self.graph = StepGraph(stages, self._inputs | set(solver.carried_fields()), device=self.device,
+                               synchronize_timing=self.device.is_cuda)
+        #: names of the solver's own stages (the watchdog tells them apart from stages a user inserted)
+        self.solver_stage_names = set(self.graph.names())
+        self.refresh_density()
+
+    def summary(self) -> dict:
+        """The model's constants, the solver's (``solver``) and the boundary method's (``boundary``)."""
+        out = self.model.summary()
+        out["solver"] = {"name": self.solver.name, **self.solver.summary()}
+        if self.boundary is not None:
+            out["boundary"] = {"name": self.boundary.name, **self.boundary.summary()}
+        return out
 
     # --- fields ----------------------------------------------------------------------------
     def allocate(self, name: str, dtype) -> wp.array:
@@ -147,10 +174,10 @@ class Simulation:
         a.assign(wp.array(values.astype(np.float32), dtype=a.dtype, device=self.device))
 
     # --- stepping --------------------------------------------------------------------------
-    def _refresh_density(self) -> None:
-        for s in self.graph.stages:
-            if s.name in ("neighbors", "density"):
-                s.run(self, 0.0)
+    def refresh_density(self) -> None:
+        """Recompute the density (and the solver's values of it) at the current positions, e.g. after
+        ``set_field("particle_x", ...)``; the statistics and the next step read it."""
+        self.solver.refresh_density()
 
     def step(self, dt: float) -> None:
         """One substep of dt seconds through every stage of the graph."""
@@ -158,14 +185,23 @@ class Simulation:
         self.state.step += 1
         self.state.time += dt
 
+    def time_step_bounds(self, speed: float) -> list:
+        """Every bound of the step [s] at flow speed ``speed`` [m/s]: the solver's and the boundary
+        method's (``warp_sph.methods.solver.TimeStepBound``), tightest first."""
+        bounds = list(self.solver.time_step_bounds(speed))
+        if self.boundary is not None:
+            bounds += self.boundary.time_step_bounds(speed)
+        return sorted(bounds, key=lambda b: b.seconds)
+
     def time_step(self, max_speed: float) -> float:
-        """Substep bound [s] for the next frame: the solver's CFL bounds clamped to [dt_min, dt_max],
-        or the scene's fixed_dt; times the watchdog's retry factor (1 unless a frame was retried)."""
+        """Substep bound [s] for the next frame: the tightest of ``time_step_bounds`` clamped to
+        [dt_min, dt_max], or the scene's fixed_dt; times the watchdog's retry factor (1 unless a frame
+        was retried)."""
         t = self.scene.time
         if t.fixed_dt > 0:
             dt = float(t.fixed_dt)
         else:
-            dt = self.solver.time_step_bound(self, max_speed, self.frame_dt)
+            dt = min(b.seconds for b in self.time_step_bounds(max_speed))
             dt = float(min(max(dt, t.dt_min), t.dt_max))
         return dt * self.watchdog.dt_scale
 
@@ -191,10 +227,8 @@ class Simulation:
             with self.in_cell_order():
                 for _ in range(n):
                     self.step(dt)
-                    solver_stats.append(self.solver.step_statistics(self))
-                finish = getattr(self.solver, "finish_frame", None)
-                if finish is not None:
-                    finish(self)  # e.g. PBF: the density at the frame's positions, for the statistics
+                    solver_stats.append(self.solver.step_statistics())
+                self.solver.finish_frame()  # e.g. PBF: the density at the frame's positions, for the statistics
             if self._grow_neighbor_lists():
                 wd.restore()  # neighbours were dropped: redo the frame with the larger lists
                 continue

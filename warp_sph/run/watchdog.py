@@ -98,17 +98,17 @@ class Watchdog:
         wp.copy(self._x0, s.particle_x)
         wp.copy(self._v0, s.particle_v)
         self._start = (s.time, s.step, s.frame)
-        solver = self.sim.solver
-        if self.mode == "retry" and hasattr(solver, "checkpoint_arrays"):
-            self._extra = solver.checkpoint_arrays(self.sim)
+        if self.mode == "retry":
+            self._extra = {k: wp.clone(a) if isinstance(a, wp.array) else a
+                           for k, a in self.sim.solver.checkpoint_arrays().items()}
 
     def restore(self) -> None:
         s = self.sim.state
         wp.copy(s.particle_x, self._x0)
         wp.copy(s.particle_v, self._v0)
         s.time, s.step, s.frame = self._start
-        if self._extra and hasattr(self.sim.solver, "restore_arrays"):
-            self.sim.solver.restore_arrays(self.sim, self._extra)
+        if self._extra:
+            self.sim.solver.restore_arrays(self._extra)
 
     # --- rules -------------------------------------------------------------------------------
     def read(self) -> dict:
@@ -147,7 +147,7 @@ class Watchdog:
         if self._start is None:
             return None
         self.restore()
-        sim._refresh_density()
+        sim.refresh_density()
         acc = sim.fields.get("particle_acceleration")
         if acc is not None:
             acc.zero_()
@@ -191,34 +191,30 @@ class Watchdog:
             pass
         return " (" + ", ".join(parts) + ")" if parts else ""
 
-    def likely_cause(self, rule: str, stage: str | None, dt: float, max_speed: float) -> str:
-        """A sentence naming the likely cause and what to change."""
+    def likely_cause(self, rule: str, stage: str | None, dt: float, speed: float) -> str:
+        """A sentence naming the likely cause and what to change. ``speed`` [m/s] is the flow speed the
+        frame's step was sized for, so the quoted bound is the one the step was checked against."""
         sim = self.sim
         m = sim.model
         t = sim.scene.time
-        known = {"neighbors", "density", "xsph", "pressure", "forces", "integrate"}
-        own = getattr(sim, "_solver_stage_names", known)
-        if stage is not None and stage not in own:
+        if stage is not None and stage not in sim.solver_stage_names:
             return f"stage {stage!r} is not one of the {sim.scene.solver} solver's own stages: check that stage"
-        from .preflight import time_step_bounds
-
-        bounds = time_step_bounds(sim, max(max_speed, m.reference_speed))
-        name, bound = min(bounds.items(), key=lambda kv: kv[1])
-        if dt > 1.01 * bound:
+        tight = sim.time_step_bounds(speed)[0]
+        if dt > 1.01 * tight.seconds:
             fix = ("lower time.fixed_dt, or set it to 0 for adaptive steps" if t.fixed_dt > 0 else
-                   "lower time.dt_min" if dt >= t.dt_min * 0.999 else "lower time.cfl")
-            return (f"time step too large: dt = {dt:.3g} s is {dt / bound:.2g}x the {name} bound "
-                    f"{bound:.3g} s; {fix}")
-        if sim.scene.solver == "wcsph" and max_speed > 0.3 * m.speed_of_sound:
-            return (f"stiffness too low: the flow reached {max_speed:.3g} m/s, {max_speed / m.speed_of_sound:.2g}x "
-                    f"the speed of sound c_s = {m.speed_of_sound:.3g} m/s; raise wcsph.speed_of_sound_factor")
+                   f"lower time.dt_min below {tight.seconds:.3g} s")
+            return (f"time step too large: dt = {dt:.3g} s is {dt / tight.seconds:.2g}x the {tight.name} bound "
+                    f"{tight.seconds:.3g} s ({tight.formula}); {fix}")
+        hint = sim.solver.instability_hint(rule, stage)
+        if hint:
+            return hint
         if rule == "outside":
             return ("particles passed through a wall: the boundary is too soft or the step too large for the "
                     "impact speed; lower time.cfl" + (", or use boundary = 'akinci2012'" if m.boundary_method == "penalty" else ""))
         if rule == "dense":
-            return ("the fluid compressed to twice its rest density: stiffness too low for the scene; raise "
-                    "wcsph.speed_of_sound_factor (WCSPH) or the PBF iterations")
-        return (f"time step or stiffness at the edge of stability (dt = {dt:.3g} s, {name} bound {bound:.3g} s); "
+            return "the fluid compressed to twice its rest density: the pressure solve is too weak for the scene"
+        return (f"a value left its valid range with dt = {dt:.3g} s within the {tight.name} bound {tight.seconds:.3g} s: "
+                f"check the values of {', '.join(tight.keys) or 'the scene'} and the fluid's initial state; "
                 f"lower time.cfl or set time.on_instability = 'retry'")
 
     def error(self, stats, n: int, dt: float, retries: int, start_speed: float) -> SimulationError:

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..core.errors import SceneError
 from .meshes import load_triangle_mesh, points_inside, sample_surface
-from .description import FluidBlock, Scene
+from .types import FluidBlock, Scene
 
 #: Points this close (relative to d) are one point (overlapping fluid blocks, shared boundary).
 DUPLICATE_DISTANCE = 0.5

@@ -1,0 +1,1 @@
+"""Boundary methods, one module each (imported and registered by ``warp_sph.methods.registry``)."""

@@ -1,0 +1,47 @@
+"""Akinci et al. 2012 boundary particles (report eq. 13-16, 22-24); device terms in ``kernels/akinci2012.py``.
+
+One layer of boundary particles on walls and obstacles, each with the volume V_b = 1 / sum_k W_bk of
+its own layer (eq. 15, computed once in ``warp_sph.core.model``). The fluid sees them in its density
+(rho0 sum_b V_b W_ib, eq. 13), in the pressure force (eq. 16, or mirrored) and, with
+``material.boundary_friction`` sigma > 0, in the friction force (eq. 22-24).
+"""
+from __future__ import annotations
+
+from ...kernels import akinci2012 as _dev
+from ..boundary import BoundaryMethod
+from ..registry import register_boundary
+from ..solver import TimeStepBound
+
+
+@register_boundary
+class Akinci2012(BoundaryMethod):
+    name = "akinci2012"
+    title = "Akinci et al. 2012 boundary particles (density, pressure and friction)"
+    contributes_density = True
+
+    def terms(self):
+        return _dev.AKINCI2012_FRICTION if self.model.boundary_friction > 0.0 else _dev.AKINCI2012
+
+    def params(self):
+        m = self.model
+        p = _dev.AkinciParams()
+        p.rest_density = m.rest_density
+        p.friction = m.boundary_friction
+        p.smoothing_length = m.smoothing_length
+        p.speed_of_sound = m.speed_of_sound
+        p.eps_h2 = 0.01 * m.smoothing_length * m.smoothing_length
+        return p
+
+    def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
+        """Explicit friction acts like a viscosity nu = sigma h c_s / 20 (10 nu m / rho of the viscosity
+        form against Psi_b nu_b = m sigma h c_s / (2 rho) of eq. 24), so it needs the viscous bound
+        0.0625 (H_s/2)^2 / nu."""
+        m = self.model
+        if m.boundary_friction <= 0.0:
+            return []
+        nu = m.boundary_friction * m.smoothing_length * m.speed_of_sound / 20.0
+        length = 0.5 * m.support_radius
+        return [TimeStepBound("boundary friction", 0.0625 * length * length / nu,
+                              f"0.0625 (H_s/2)^2 / nu_f with nu_f = sigma h c_s / 20 = {nu:.3g} m^2/s "
+                              f"(sigma = {m.boundary_friction:g}, h = {m.smoothing_length:.4g} m, "
+                              f"c_s = {m.speed_of_sound:.4g} m/s)", ("material.boundary_friction",))]

@@ -1,0 +1,124 @@
+"""The pressure-solver interface: what a solver (WCSPH, PBF, DFSPH, ...) provides, and nothing more.
+
+A solver is one host module in ``warp_sph/methods/solvers/`` with a ``Solver`` subclass decorated with
+``@register_solver``, and one kernels module of the same name in ``kernels/``. The simulation, the
+runner, the watchdog, pre-flight and the benchmarks use only what this class declares:
+
+- class attributes: ``name`` (the scene's ``solver`` value and the name of its scene section),
+  ``title``, ``parameters`` (the rows of its section: keys, units, defaults, valid ranges; the
+  typed settings object is ``scene.section(name)``, also ``self.config``), ``iterative``;
+- ``validate(scene, fail)``: cross-checks of its settings, before anything is built;
+- ``refuses_boundary(boundary_cls)``: a reason to refuse a boundary method, or None;
+- ``stages()``: the step graph's stages (``warp_sph.core.step_graph.Stage``), each declaring the
+  fields it reads, writes and updates; per-particle arrays live in the workspace (``sim.allocate``);
+- ``time_step_bounds(speed)``: the named bounds [s] of the adaptive step (``TimeStepBound``);
+- ``step_statistics()`` (per substep, host values only) and ``finish_frame()`` (once per frame);
+- ``carried_fields()``: workspace fields that outlive a substep; ``refresh_density()``;
+- ``checkpoint_arrays()`` / ``restore_arrays(arrays)``: what a resume needs beyond x and v;
+- ``instability_hint(rule, stage)``: the likely cause of a watchdog finding in its own terms.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+from ..scene.parameters import Param
+
+
+@dataclass(frozen=True)
+class TimeStepBound:
+    """One bound of the adaptive step: ``seconds`` [s], the ``formula`` with the numbers that went into
+    it (for messages), and the scene keys that set it (``keys``, for advice)."""
+
+    name: str
+    seconds: float
+    formula: str
+    keys: tuple[str, ...] = ()
+
+
+class MethodBase:
+    """What solvers and boundary methods share: a name, a title, a scene section of parameters."""
+
+    name: ClassVar[str] = ""
+    title: ClassVar[str] = ""
+    #: one line for the section's row of the parameter table (default: "<title> settings")
+    section_doc: ClassVar[str] = ""
+    parameters: ClassVar[tuple[Param, ...]] = ()
+    _config_classes: ClassVar[dict] = {}
+
+    @classmethod
+    def config_class(cls):
+        """The dataclass of this method's scene section, generated once from ``parameters``."""
+        key = (cls, cls.parameters)
+        made = MethodBase._config_classes.get(key)
+        if made is None:
+            from ..scene.types import section_class
+
+            made = MethodBase._config_classes[key] = section_class(cls.name, cls.parameters, doc=cls.title)
+        return made
+
+    @classmethod
+    def validate(cls, scene, fail) -> None:
+        """Cross-checks of the method's settings in ``scene``; call ``fail(keypath, message)`` to refuse."""
+
+
+class Solver(MethodBase):
+    """Base class of the pressure solvers (see the module docstring). ``sim`` is the Simulation."""
+
+    #: True when the solver iterates and reports ``iterations`` in ``step_statistics``
+    iterative: ClassVar[bool] = False
+
+    def __init__(self, sim, **options: Any):
+        if options:
+            raise TypeError(f"solver {self.name!r} takes no options, got {', '.join(options)}")
+        self.sim = sim
+        self.model = sim.model
+        self.config = sim.scene.sections.get(self.name)
+
+    @classmethod
+    def refuses_boundary(cls, boundary_cls) -> str | None:
+        """A reason why this solver cannot work with ``boundary_cls``, or None (it can)."""
+        return None
+
+    def stages(self) -> list:
+        """The stages of one substep, in order."""
+        raise NotImplementedError
+
+    def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
+        """The solver's bounds of the step at flow speed ``speed`` [m/s]."""
+        raise NotImplementedError
+
+    def carried_fields(self) -> tuple[str, ...]:
+        """Workspace fields that outlive a substep (inputs of the step graph besides x and v), e.g. the
+        last density pass a solver's next step reads."""
+        return ()
+
+    def refresh_density(self) -> None:
+        """Recompute the density (and the solver's per-particle values of it) at the current positions:
+        after construction, a resume or a change of positions from outside."""
+        for stage in self.sim.graph.stages:
+            if stage.name in ("neighbors", "density"):
+                stage.run(self.sim, 0.0)
+
+    def step_statistics(self) -> dict[str, float]:
+        """Host-side figures of the last substep (iterations, errors); mean and max per frame go to run.json."""
+        return {}
+
+    def finish_frame(self) -> None:
+        """Called once after a frame's substeps (e.g. a density pass at the frame's positions)."""
+
+    def checkpoint_arrays(self) -> dict[str, Any]:
+        """Arrays (wp.array or NumPy) a resume needs besides positions and velocities, by name."""
+        return {}
+
+    def restore_arrays(self, arrays: Mapping[str, Any]) -> None:
+        """Restore what ``checkpoint_arrays`` saved (after the state's x and v were restored)."""
+
+    def instability_hint(self, rule: str, stage: str | None) -> str | None:
+        """The likely cause of a watchdog finding (rule: "non_finite", "outside", "fast", "dense") in
+        this solver's terms, with the scene key to change; None when the generic advice applies."""
+        return None
+
+    def summary(self) -> dict:
+        """Constants of this solver for run.json (``model.solver``) and ``warp-sph check``."""
+        return {}

@@ -1,0 +1,432 @@
+"""Position-based fluids (Macklin & Mueller 2013; seed report section 4.5, eq. 17-20); kernels in
+``kernels/pbf.py`` (neighbour lists) and ``kernels/pbf_hash_grid.py`` (the reference variant).
+
+Step: [stabilize x] -> predict (v += dt g, x* = x + dt v) -> neighbours on x* -> density and lambda at
+x* -> solve (iterations of a density pass and a Jacobi correction dx, eq. 18, as in SPlisHSPlasH: until
+the average density error mean(max(rho/rho0 - 1, 0)) of the iteration's density pass is below
+``pbf.target_density_error``, between ``min_iterations`` and ``max_iterations``) -> update
+(v = (x* - x)/dt, x = x*) -> [viscosity and the boundary method's force] -> [XSPH] -> [vorticity].
+
+Why the report's solver exploded (physics notes 4.4): dx ~ C grad C / |grad C|^2, so a denominator
+sum_k |grad_k C_i|^2 that is too small gives a correction that is too large. Here grad C uses
+V = m/rho0 (report eq. 20 with consistent units), and the relaxation epsilon is dimensionless:
+eps = relaxation * D0, with D0 the denominator of an interior particle of a rest lattice, computed
+once on the host from the same kernel (``rest_denominator``).
+
+Neighbours: lists built once per step on x* with the search radius H_s + margin
+(``warp_sph.neighbors.NeighborLists``), read by every solver iteration and by viscosity, XSPH and
+vorticity, rebuilt only when a particle drifted farther than margin / 2; or the reference hash-grid
+variant, rebuilt before every density pass or queried with H_s + margin. Sums and maxima over the
+particles are reduced in a fixed order (bitwise reproducible on any thread count).
+"""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...core.smoothing import evaluate, get_smoothing_kernel, lattice_offsets
+from ...core.step_graph import Stage
+from ...kernels import pbf as _pbf
+from ...kernels import pbf_hash_grid as _pbf_grid
+from ...kernels import reduction as _reduce
+from ...neighbors.cell_lists import simulation_neighbor_lists
+from ...scene.parameters import Param
+from ..registry import register_solver
+from ..solver import Solver, TimeStepBound
+from ..viscosity import viscous_bounds, viscous_stage
+from ..vorticity import vorticity_stage
+from ..xsph import xsph_stage
+
+#: default search margin of the neighbour lists [spacings d]: lists hold pairs within H_s + margin
+#: and are rebuilt once a particle moved more than margin / 2 during the solve
+LIST_MARGIN = 0.2
+
+
+def rest_denominator(smoothing: str, h: float, spacing: float, particle_mass: float, rest_density: float) -> float:
+    """D0 = |grad_i C_i|^2 + sum_j |grad_j C_i|^2 [1/m^2] for an interior particle of a perfect
+    cubic lattice at spacing d, with grad_j C_i = -(m/rho0) grad W_ij (physics notes 4.4; cubic
+    h = d, m = rho0 d^3: d^2 D0 = 0.425)."""
+    kernel = get_smoothing_kernel(smoothing)
+    offsets = lattice_offsets(spacing, kernel.support_radius(h))
+    _, g = evaluate(smoothing, offsets, h)
+    g = g.astype(np.float64) * (particle_mass / rest_density)
+    return float(np.dot(g.sum(0), g.sum(0)) + np.sum(g * g))
+
+
+@register_solver
+class PbfSolver(Solver):
+    """Iterative position-based pressure solver. Time step: velocity CFL
+    dt <= cfl d / (v_max + |g| frame_dt) and, with viscosity, the viscous bound.
+
+    lists: neighbour lists built on x* once per step with the search radius H_s + margin and read by
+    every pass of the step; rebuilt when a particle of x* drifted more than margin / 2 from where they
+    were built (then no pair closer than H_s can be missing). ``lists=False``: hash-grid queries in
+    every pass (the reference variant), grid rebuilt before every density pass ("rebuild") or
+    queried with H_s + margin and rebuilt once a particle drifted more than the margin ("margin").
+    neighbor_mode "rebuild" with lists: rebuilt before every density pass, no margin.
+    margin [spacings d]; max_step [particle radii] caps |dx_i| per iteration (0: off).
+    """
+
+    name = "pbf"
+    title = "position-based fluids (Macklin & Mueller 2013)"
+    section_doc = "position-based fluids settings"
+    iterative = True
+    parameters = (
+        Param("pbf.target_density_error", "float", "-", 0.005, "stop iterating when the average density error "
+              "(fraction of rho0) is below this", gt=0.0, lt=1.0),
+        Param("pbf.max_iterations", "int", "-", 50, "most constraint iterations per substep", ge=1, le=10000),
+        Param("pbf.min_iterations", "int", "-", 2, "fewest constraint iterations per substep", ge=0, le=10000),
+        Param("pbf.relaxation", "float", "-", 1e-4, "constraint-force mixing epsilon, relative to the "
+              "rest-lattice denominator sum_k (grad_k C)^2; about 5 under-relaxes the Jacobi solve so that fluid "
+              "at rest settles (with viscosity 2e-3 m^2/s a resting block holds speeds below 1e-3 m/s); the "
+              "small default applies each correction in full: fewer iterations in violent flows", ge=0.0, le=1e6),
+        Param("pbf.tensile_correction", "bool", "-", False, "artificial pressure s_corr against clustering"),
+        Param("pbf.tensile_k", "float", "-", 0.1, "s_corr strength k", ge=0.0, le=10.0),
+        Param("pbf.tensile_n", "int", "-", 4, "s_corr exponent n", ge=1, le=16),
+        Param("pbf.tensile_dq", "float", "-", 0.2, "s_corr reference distance dq in smoothing lengths h",
+              gt=0.0, lt=2.0),
+        Param("pbf.vorticity", "float", "-", 0.0, "vorticity confinement strength epsilon", ge=0.0, le=100.0),
+    )
+
+    @classmethod
+    def validate(cls, scene, fail) -> None:
+        p = scene.section(cls.name)
+        if p.min_iterations > p.max_iterations:
+            fail("pbf.min_iterations", f"expected <= pbf.max_iterations ({p.max_iterations}), got {p.min_iterations}")
+
+    def __init__(self, sim, neighbor_mode: str | None = None, margin: float | None = None, max_step: float = 0.5,
+                 lists: bool = True):
+        super().__init__(sim)
+        if neighbor_mode is None:
+            neighbor_mode = "margin" if lists else "rebuild"
+        if neighbor_mode not in ("rebuild", "margin"):
+            raise ValueError(f"neighbor_mode must be 'rebuild' or 'margin', got {neighbor_mode!r}")
+        m, p = self.model, self.config
+        self.lists = bool(lists)
+        self.neighbor_mode = neighbor_mode
+        self.margin_per_spacing = float(LIST_MARGIN if margin is None and lists else 0.25 if margin is None else margin)
+        self.max_step_per_radius = max_step  # trust region: |dx_i| per iteration <= this * r (0: off)
+        self.max_step = max_step * m.particle_radius if max_step > 0 else 1e30
+        self.stabilize_factor = 2.0  # pre-stabilise when the error at x exceeds this times the target
+        self.trace = False  # record (density error, largest |dx|) per iteration in last_trace
+        # figures of the last step, read by step_statistics and tests (host values, no device read)
+        self.last_iterations = 0
+        self.last_density_error = 0.0
+        self.last_max_correction = 0.0
+        self.last_error_sum = 0.0             # sum of C_i of the last density pass [-]
+        self.last_iteration_correction = 0.0  # largest |dx_i| of the last correction [m]
+        self.last_drift = 0.0                 # largest distance of x* from where neighbours were searched [m]
+        self.last_stabilization = 0
+        self.last_trace = None
+        self.grid_builds = 0
+        self.rest_denominator = rest_denominator(m.smoothing.name, m.smoothing_length, m.spacing, m.particle_mass,
+                                                 m.rest_density)
+        self.epsilon = float(p.relaxation) * self.rest_denominator
+        w_dq, _ = evaluate(m.smoothing.name, np.array([[p.tensile_dq * m.smoothing_length, 0.0, 0.0]]),
+                           m.smoothing_length)
+        self.tensile_inv_w = 1.0 / float(w_dq[0])
+        self.tensile_scale = 1.0 / self.rest_denominator
+        self.margin = self.margin_per_spacing * m.spacing if neighbor_mode == "margin" else 0.0
+        if self.lists:
+            self.query_radius = m.support_radius  # pairs are filtered by H_s; the lists hold H_s + margin
+            self.allowed_drift = 0.5 * self.margin  # two particles may each move margin / 2 towards each other
+        else:
+            self.query_radius = m.support_radius + self.margin
+            self.allowed_drift = self.margin  # the query point is current, only the grid's points are old
+        self._density_is_current = True
+
+    # --- workspace -------------------------------------------------------------------------
+    def _allocate(self) -> None:
+        sim, m = self.sim, self.model
+        n, dev = m.fluid_count, m.device
+        sim.fields["predicted_x"] = wp.clone(sim.fields["particle_x"])  # x* = x until the first step
+        for name, dtype in (("particle_density", float), ("particle_lambda", float), ("pbf_constraint", float),
+                            ("pbf_correction_size", float), ("position_correction", wp.vec3),
+                            ("boundary_force", wp.vec3), ("particle_acceleration", wp.vec3),
+                            ("pbf_neighbor_x", wp.vec3)):
+            sim.allocate(name, dtype)
+        chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
+        self._error_partial = wp.zeros(chunks, dtype=float, device=dev)
+        self._correction_partial = wp.zeros((chunks, 2), dtype=float, device=dev)
+        terms = sim.boundary_terms
+        tensile = bool(self.config.tensile_correction)
+        if self.lists:
+            self.nl = simulation_neighbor_lists(sim, self.margin)
+            self._density_kernel = _pbf.density_lambda_pairs_kernel(m.smoothing.name, terms, tensile)
+            self._correction_kernel = _pbf.correction_pairs_kernel(self._with_boundary_gradient, tensile)
+            pairs = _pbf.PairCache()
+            pairs.count = wp.zeros(n, dtype=wp.int32, device=dev)
+            pairs.boundary_gradient = wp.zeros(n, dtype=wp.vec3, device=dev)
+            sim.fields["pbf_pairs"] = pairs
+            self._pairs_capacity = 0
+        else:
+            self.nl = None
+            self._density_kernel = _pbf_grid.density_lambda_kernel(m.smoothing.name, terms)
+            self._correction_kernel = _pbf_grid.correction_kernel(m.smoothing.name, terms, tensile)
+
+    @property
+    def _with_boundary_gradient(self) -> bool:
+        terms = self.sim.boundary_terms
+        return terms is not None and terms.gradient is not None
+
+    def _pair_cache(self):
+        """The PairCache, with rows as long as the fluid lists (which grow on overflow)."""
+        pairs = self.sim.fields["pbf_pairs"]
+        capacity = self.nl.capacities[0]
+        if capacity != self._pairs_capacity:
+            n, dev = max(self.model.fluid_count, 1), self.model.device
+            pairs.index = wp.zeros((n, capacity), dtype=wp.int32, device=dev)
+            pairs.gradient = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
+            pairs.value = wp.zeros((n, capacity) if self.config.tensile_correction else (1, 1), dtype=float, device=dev)
+            self._pairs_capacity = capacity
+        return pairs
+
+    def _neighbor_args(self):
+        """(boundary_neighbors, fluid_neighbors) kernel arguments."""
+        if self.lists:
+            return self.nl.boundary, self.nl.fluid
+        return self.model.boundary_grid_id, self.sim.fluid_grid.id
+
+    # --- passes ----------------------------------------------------------------------------
+    def build_neighbors(self) -> None:
+        """Neighbours of the current x*; remember where they were searched."""
+        f = self.sim.fields
+        x = f["predicted_x"]
+        if self.lists:
+            self.nl.build(x)
+        else:
+            self.sim.fluid_grid.build(x)
+        self.grid_builds += 1
+        wp.copy(f["pbf_neighbor_x"], x)
+        self.last_drift = 0.0
+
+    def refresh_neighbors(self) -> None:
+        """After a correction: rebuild where the neighbours may be incomplete."""
+        if self.neighbor_mode == "rebuild" or self.last_drift > self.allowed_drift:
+            self.build_neighbors()
+
+    def density_pass(self) -> None:
+        """Density, C and lambda at x* (eq. 7/13, 17, 19); the sum of C_i read once (``last_error_sum``)."""
+        m, f = self.model, self.sim.fields
+        bn, fn = self._neighbor_args()
+        params = self.sim.boundary_params
+        if self.lists:
+            launch(self._density_kernel, m.fluid_count,
+                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon, params,
+                    bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"]],
+                   [f["particle_density"], f["particle_lambda"], f["pbf_constraint"], self._pair_cache()],
+                   device=m.device)
+        else:
+            launch(self._density_kernel, m.fluid_count,
+                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
+                    self.query_radius, params, bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"]],
+                   [f["particle_density"], f["particle_lambda"], f["pbf_constraint"]], device=m.device)
+        # sum of C_i in a fixed order: chunk sums on the device, their sum on the host (one read)
+        launch(_reduce.sum_chunks, self._error_partial.shape[0], [_reduce.REDUCE_CHUNK, f["pbf_constraint"]],
+               [self._error_partial], device=m.device)
+        self.last_error_sum = float(self._error_partial.numpy().sum(dtype=np.float64))
+
+    def correction(self, dt: float) -> None:
+        """One Jacobi correction of x* (eq. 18), capped at ``max_step``; wall reaction m dx_b / dt^2."""
+        m, f, p = self.model, self.sim.fields, self.config
+        bn, fn = self._neighbor_args()
+        inv_dt2 = 1.0 / (dt * dt) if dt > 0 else 0.0
+        tensile = (float(p.tensile_k), int(p.tensile_n), self.tensile_inv_w, self.tensile_scale)
+        if self.lists:
+            launch(self._correction_kernel, m.fluid_count,
+                   [m.particle_mass, *tensile, inv_dt2, self.max_step, fn, f["pbf_pairs"], f["particle_lambda"]],
+                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"]], device=m.device)
+        else:
+            launch(self._correction_kernel, m.fluid_count,
+                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
+                    *tensile, inv_dt2, self.max_step, self.sim.boundary_params, bn, m.boundary_x, m.boundary_volume,
+                    fn, f["predicted_x"], f["particle_lambda"]],
+                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"]], device=m.device)
+        launch(_pbf.apply_correction, m.fluid_count, [f["position_correction"]], [f["predicted_x"]], device=m.device,
+               min_range=LIGHT_MIN_RANGE)
+        launch(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
+               [_reduce.REDUCE_CHUNK, f["pbf_correction_size"], f["predicted_x"], f["pbf_neighbor_x"]],
+               [self._correction_partial], device=m.device)
+        s = self._correction_partial.numpy().max(axis=0)  # one read
+        self.last_iteration_correction = float(s[0])
+        self.last_drift = float(s[1])
+
+    # --- stages ----------------------------------------------------------------------------
+    def run_stabilize(self, sim, dt) -> None:
+        """Pre-stabilisation (Macklin et al. 2014, section 4.4): an error already present at x (an
+        over-dense start, or a step that hit max_iterations) is projected out of x itself, without
+        turning into velocity; ``last_error_sum`` is the last density pass, at x."""
+        f, n = sim.fields, self.model.fluid_count
+        target, max_it = float(self.config.target_density_error), int(self.config.max_iterations)
+        self.last_stabilization = 0
+        self.last_max_correction = 0.0
+        if self.last_error_sum / n <= self.stabilize_factor * target:
+            return
+        # re-evaluate at x (the last pass may belong to another state, e.g. a watchdog retry)
+        wp.copy(f["predicted_x"], f["particle_x"])
+        self.build_neighbors()
+        self.density_pass()
+        err = self.last_error_sum / n
+        it = 0
+        while err > target and it < max_it:
+            self.correction(0.0)
+            it += 1
+            self.refresh_neighbors()
+            self.density_pass()
+            err = self.last_error_sum / n
+            self.last_max_correction = max(self.last_max_correction, self.last_iteration_correction)
+        wp.copy(f["particle_x"], f["predicted_x"])
+        self.last_stabilization = it
+
+    def run_predict(self, sim, dt) -> None:
+        m, f = self.model, sim.fields
+        launch(_pbf.predict_positions, m.fluid_count, [wp.vec3(*m.gravity), float(dt), f["particle_x"]],
+               [f["particle_v"], f["predicted_x"], f["boundary_force"]], device=m.device, min_range=LIGHT_MIN_RANGE)
+
+    def run_neighbors(self, sim, dt) -> None:
+        self.build_neighbors()
+
+    def run_density(self, sim, dt) -> None:
+        self.density_pass()
+
+    def run_solve(self, sim, dt) -> None:
+        """Iterations as in SPlisHSPlasH: each one is a density pass (the "density" stage for the first)
+        and a correction; the stop test reads the error of the iteration's density pass, so it costs no
+        extra pass after the last correction (``finish_frame`` measures x)."""
+        n = self.model.fluid_count
+        target = float(self.config.target_density_error)
+        min_it, max_it = int(self.config.min_iterations), int(self.config.max_iterations)
+        it = 0
+        err = self.last_error_sum / n  # from the "density" stage
+        largest = 0.0
+        trace = [] if self.trace else None
+        while it < max_it and (it < min_it or err > target):
+            if it > 0:
+                self.refresh_neighbors()
+                self.density_pass()
+                err = self.last_error_sum / n
+            self.correction(dt)
+            it += 1
+            largest = max(largest, self.last_iteration_correction)
+            if trace is not None:
+                trace.append((err, self.last_iteration_correction))
+        self.last_iterations = it
+        self.last_density_error = err
+        self.last_max_correction = max(largest, self.last_max_correction)
+        self.last_trace = trace
+        self._density_is_current = it == 0
+        if self._needs_exact_grid and self.last_drift > 0:
+            self.build_neighbors()  # later stages query the grid with the plain support radius
+
+    def run_update(self, sim, dt) -> None:
+        m, f = self.model, sim.fields
+        launch(_pbf.update_velocity, m.fluid_count, [wp.vec3(*m.gravity), 1.0 / dt, f["predicted_x"]],
+               [f["particle_v"], f["particle_x"], f["particle_acceleration"]], device=m.device,
+               min_range=LIGHT_MIN_RANGE)
+
+    def stages(self) -> list[Stage]:
+        sim, m, p = self.sim, self.model, self.config
+        self._allocate()
+        nb = "neighbor_lists" if self.lists else "fluid_grid"
+        with_boundary = self._with_boundary_gradient
+        boundary_reads = (("boundary_x", "boundary_volume") + (() if self.lists else ("boundary_grid",))
+                          if with_boundary else ())
+        passes = ("particle_density", "particle_lambda", "pbf_constraint") + (("pbf_pairs",) if self.lists else ())
+        correction = ("predicted_x", "position_correction", "pbf_correction_size", "boundary_force")
+        if self.lists:
+            nl = self.nl
+            neighbor_doc = (f"neighbour lists on x* within H_s + {self.margin / m.spacing:.3g} d = {nl.search_radius:.4g} m "
+                            f"(capacities {nl.capacities}), rebuilt "
+                            + ("before every density pass" if self.neighbor_mode == "rebuild"
+                               else f"when x* drifts > {self.allowed_drift / m.spacing:.3g} d"))
+        else:
+            neighbor_doc = f"wp.HashGrid on x*, radius H_s = {m.support_radius:.4g} m ({self.neighbor_mode})"
+        target = float(p.target_density_error)
+        stages = [
+            Stage("stabilize", self.run_stabilize, reads=("particle_x",) + boundary_reads,
+                  updates=("particle_x", nb, "pbf_neighbor_x") + passes + correction,
+                  doc=f"when the last density pass read a mean error > {self.stabilize_factor:g}x the target: "
+                      "project it out of x with density passes and corrections at dt = 0 (no velocity)"),
+            Stage("predict", self.run_predict, reads=("particle_x",), updates=("particle_v", "predicted_x",
+                                                                              "boundary_force"),
+                  doc="v += dt g; x* = x + dt v; the step's boundary force starts at 0"),
+            Stage("neighbors", self.run_neighbors, reads=("predicted_x",), updates=(nb, "pbf_neighbor_x"),
+                  doc=neighbor_doc),
+            Stage("density", self.run_density, reads=(nb, "predicted_x") + boundary_reads, updates=passes,
+                  doc="density at x* (eq. 7" + (f" + {sim.boundary_terms.name} boundary" if with_boundary else "")
+                      + "), C (eq. 17), lambda (eq. 19)"),
+            Stage("solve", self.run_solve, reads=("particle_lambda",) + boundary_reads,
+                  updates=(nb, "pbf_neighbor_x") + passes + correction,
+                  doc=f"iterations of [density pass +] Jacobi correction (eq. 18) until the pass reads mean C < "
+                      f"{target:g} ({p.min_iterations}-{p.max_iterations} iterations), eps = {p.relaxation:g} D0"
+                      + (", s_corr" if p.tensile_correction else "")),
+            Stage("update", self.run_update, reads=("predicted_x",), updates=("particle_v", "particle_x",
+                                                                              "particle_acceleration"),
+                  doc="v = (x* - x)/dt; x = x*"),
+        ]
+        after = [viscous_stage(sim, "particle_x", self.lists)]
+        if m.xsph > 0.0:
+            after.append(xsph_stage(sim, self.lists))
+        if p.vorticity > 0.0:
+            after.append(vorticity_stage(sim, float(p.vorticity), self.lists))
+        after = [s for s in after if s is not None]
+        # the grid variant queries H_s + margin during the solve; stages after it query H_s on a current grid
+        self._needs_exact_grid = not self.lists and self.neighbor_mode == "margin" and bool(after)
+        return stages + after
+
+    def carried_fields(self) -> tuple[str, ...]:
+        """Workspace fields that outlive a step (read by the next step's stabilisation check and stages)."""
+        nb = "neighbor_lists" if self.lists else "fluid_grid"
+        return ("predicted_x", nb, "pbf_neighbor_x", "particle_density", "particle_lambda", "pbf_constraint",
+                "position_correction", "pbf_correction_size", "boundary_force", "particle_acceleration") + (
+            ("pbf_pairs",) if self.lists else ())
+
+    # --- interface -------------------------------------------------------------------------
+    def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
+        m = self.model
+        cfl = self.sim.scene.time.cfl
+        g = float(np.linalg.norm(m.gravity))
+        frame_dt = self.sim.frame_dt
+        v = max(speed + g * frame_dt, 1e-12)
+        return [TimeStepBound("velocity CFL", cfl * m.spacing / v,
+                              f"cfl d / (v + |g| frame_dt) with cfl = {cfl:g}, d = {m.spacing:.4g} m, v = {speed:.3g} m/s, "
+                              f"|g| frame_dt = {g * frame_dt:.3g} m/s", ("time.cfl",))] + viscous_bounds(m)
+
+    def step_statistics(self) -> dict[str, float]:
+        # density_error: the average error of the last iteration's density pass, before its correction
+        return {"iterations": float(self.last_iterations), "density_error": self.last_density_error,
+                "max_correction": self.last_max_correction, "stabilization_iterations": float(self.last_stabilization)}
+
+    def finish_frame(self) -> None:
+        """Density, lambda and error at the frame's positions x (= x*) for the statistics and the next
+        step's stabilisation test: one pass per frame, not per step."""
+        if not self._density_is_current:
+            self.refresh_neighbors()
+            self.density_pass()
+            self._density_is_current = True
+
+    def restore_arrays(self, arrays) -> None:
+        """x* = x after the state was restored (the density refresh reads x*)."""
+        wp.copy(self.sim.fields["predicted_x"], self.sim.fields["particle_x"])
+
+    def refresh_density(self) -> None:
+        """Density, lambda and C at the current positions (x* = x), e.g. after a resume."""
+        wp.copy(self.sim.fields["predicted_x"], self.sim.fields["particle_x"])
+        self.build_neighbors()
+        self.density_pass()
+        self._density_is_current = True
+
+    def instability_hint(self, rule: str, stage: str | None) -> str | None:
+        p = self.config
+        if rule in ("outside", "dense") and self.last_iterations >= int(p.max_iterations):
+            return (f"the solve stopped at pbf.max_iterations = {p.max_iterations} with the density error "
+                    f"{100 * self.last_density_error:.3g} % above the target: raise pbf.max_iterations or lower time.cfl")
+        if p.tensile_correction and rule in ("non_finite", "fast"):
+            return (f"the tensile correction (pbf.tensile_k = {p.tensile_k:g}, pbf.tensile_n = {p.tensile_n}) may "
+                    "dominate the pressure: lower pbf.tensile_k or set pbf.tensile_correction = false")
+        return None
+
+    def summary(self) -> dict:
+        return {"rest_denominator": self.rest_denominator, "epsilon": self.epsilon,
+                "search_radius": self.nl.search_radius if self.nl is not None else self.query_radius}

@@ -1,0 +1,152 @@
+"""Weakly compressible SPH (Becker & Teschner 2007); kernels in ``kernels/wcsph.py``.
+
+Step: neighbours -> density (eq. 7/13) -> [XSPH, eq. 21] -> pressure (eq. 9 or Tait) ->
+forces (eq. 10, the boundary method's terms, viscosity, gravity) -> semi-implicit Euler (eq. 11).
+"""
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...core.step_graph import Stage
+from ...kernels import integrate as _integrate
+from ...kernels import wcsph as _wcsph
+from ...scene.parameters import Param
+from ..density import density_stage, neighbors_stage
+from ..registry import register_solver
+from ..solver import Solver, TimeStepBound
+from ..viscosity import viscous_bounds
+from ..xsph import xsph_stage
+
+EQUATIONS_OF_STATE = ("linear", "tait")
+
+
+@register_solver
+class WcsphSolver(Solver):
+    """Explicit WCSPH. Time step: acoustic CFL dt <= cfl (H_s/2) / (c_s + v_max) and, with viscosity,
+    the viscous bound (``methods.viscosity``). Stiffness K [Pa]: ``wcsph.stiffness``, or rho0 c_s^2
+    (linear) / rho0 c_s^2 / 7 (Tait) from the model's speed of sound c_s.
+
+    lists: neighbour lists built once per step and read by density, XSPH and forces (default), or
+    hash-grid queries in every pass (``lists=False``, the reference variant)."""
+
+    name = "wcsph"
+    title = "weakly compressible SPH (Becker & Teschner 2007)"
+    section_doc = "weakly compressible SPH settings"
+    parameters = (
+        Param("wcsph.equation_of_state", "str", "-", "linear", "p = k (rho/rho0 - 1) (linear) or "
+              "p = B ((rho/rho0)^7 - 1) (Tait, Becker & Teschner 2007)", choices=EQUATIONS_OF_STATE),
+        Param("wcsph.speed_of_sound", "float", "m/s", 0.0, "speed of sound c_s (0: derived from "
+              "speed_of_sound_factor); also sets the Akinci friction and the penalty force", ge=0.0),
+        Param("wcsph.speed_of_sound_factor", "float", "-", 10.0, "c_s = factor * sqrt(2 g H_fluid) when "
+              "speed_of_sound is 0 (factor 10 keeps the density error near 1 %)", gt=0.0),
+        Param("wcsph.stiffness", "float", "Pa", 0.0, "stiffness k (linear) or B (Tait); 0: derived "
+              "from c_s, k = rho0 c_s^2 or B = rho0 c_s^2 / 7; when > 0 it sets c_s = sqrt(k / rho0) or "
+              "sqrt(7 B / rho0) (the time step follows it)", ge=0.0),
+        Param("wcsph.boundary_pressure", "str", "-", "eq16", "pressure term of Akinci boundary particles: "
+              "'eq16' (report eq. 16, p_i/rho_i^2: energy-consistent, but layers near a wall read 15-70 % over "
+              "rho0 g depth) or 'mirrored' (p_i/rho_i^2 + p_i/rho0^2, as SPlisHSPlasH: hydrostatic profile within "
+              "4 %, but not energy-consistent: it can add energy in violent flows)", choices=("eq16", "mirrored")),
+    )
+
+    def __init__(self, sim, lists: bool = True):
+        super().__init__(sim)
+        self.lists = bool(lists)
+        m = self.model
+        c_s = m.speed_of_sound
+        eos = self.config.equation_of_state
+        self.stiffness = float(self.config.stiffness) if self.config.stiffness > 0 else (
+            m.rest_density * c_s * c_s / (7.0 if eos == "tait" else 1.0))
+
+    def stages(self) -> list[Stage]:
+        sim, m = self.sim, self.model
+        n = m.fluid_count
+        sim.allocate("particle_pressure", float)
+        sim.allocate("particle_acceleration", wp.vec3)
+        sim.allocate("boundary_force", wp.vec3)
+        terms, params = sim.boundary_terms, sim.boundary_params
+        with_boundary = terms is not None
+        mirrored = self.config.boundary_pressure == "mirrored"
+        pressure_kernel = _wcsph.pressure_kernel(self.config.equation_of_state)
+        force_kernel = _wcsph.acceleration_kernel(m.smoothing.name, terms, m.viscosity > 0.0, mirrored,
+                                                  "list" if self.lists else "grid")
+        gravity = wp.vec3(*m.gravity)
+        neighbors = "neighbor_lists" if self.lists else "fluid_grid"
+        stiffness = self.stiffness
+
+        def run_pressure(sim, dt):
+            launch(pressure_kernel, n, [m.rest_density, stiffness, sim.fields["particle_density"]],
+                   [sim.fields["particle_pressure"]], device=m.device, min_range=LIGHT_MIN_RANGE)
+
+        def run_forces(sim, dt):
+            f = sim.fields
+            if self.lists:
+                nl = f["neighbor_lists"]
+                bn, fn = nl.boundary, nl.fluid
+            else:
+                bn, fn = m.boundary_grid_id, sim.fluid_grid.id
+            launch(force_kernel, n,
+                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, gravity, m.viscosity,
+                    params, bn, m.boundary_x, m.boundary_v, m.boundary_volume,
+                    fn, f["particle_x"], f["particle_v"], f["particle_density"], f["particle_pressure"]],
+                   [f["particle_acceleration"], f["boundary_force"]], device=m.device)
+
+        def run_integrate(sim, dt):
+            f = sim.fields
+            launch(_integrate.integrate_symplectic_euler, n, [f["particle_acceleration"], float(dt)],
+                   [f["particle_v"], f["particle_x"]], device=m.device, min_range=LIGHT_MIN_RANGE)
+
+        boundary_reads = (("boundary_x", "boundary_volume") + (() if self.lists else ("boundary_grid",))
+                          if with_boundary else ())
+        terms_doc = ["pressure (eq. 10)"]
+        if with_boundary:
+            terms_doc.append(f"{terms.name} boundary" + (" (mirrored pressure)" if mirrored and terms.pressure else ""))
+        if m.viscosity > 0.0:
+            terms_doc.append("viscosity")
+        terms_doc.append("gravity")
+        stages = [neighbors_stage(sim, self.lists), density_stage(sim, self.lists)]
+        if m.xsph > 0.0:
+            stages.append(xsph_stage(sim, self.lists))
+        stages += [
+            Stage("pressure", run_pressure, reads=("particle_density",), writes=("particle_pressure",),
+                  doc=f"{self.config.equation_of_state} equation of state, K = {stiffness:.4g} Pa"),
+            Stage("forces", run_forces,
+                  reads=(neighbors, "particle_x", "particle_v", "particle_density", "particle_pressure") + boundary_reads,
+                  writes=("particle_acceleration", "boundary_force"), doc=" + ".join(terms_doc)),
+            Stage("integrate", run_integrate, reads=("particle_acceleration",), updates=("particle_v", "particle_x"),
+                  doc="semi-implicit Euler (eq. 11)"),
+        ]
+        return stages
+
+    def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
+        m = self.model
+        cfl = self.sim.scene.time.cfl
+        length = 0.5 * m.support_radius
+        keys = ("wcsph.stiffness",) if self.config.stiffness > 0 else (
+            ("wcsph.speed_of_sound",) if self.config.speed_of_sound > 0 else ("wcsph.speed_of_sound_factor",))
+        acoustic = TimeStepBound("acoustic CFL", cfl * length / (m.speed_of_sound + speed),
+                                 f"cfl (H_s/2)/(c_s + v) with cfl = {cfl:g}, H_s/2 = {length:.4g} m, "
+                                 f"c_s = {m.speed_of_sound:.4g} m/s, v = {speed:.3g} m/s", keys + ("time.cfl",))
+        return [acoustic] + viscous_bounds(m)
+
+    def instability_hint(self, rule: str, stage: str | None) -> str | None:
+        m = self.model
+        speed = self.sim.last_frame.max_speed if self.sim.last_frame else 0.0
+        if speed > 0.3 * m.speed_of_sound:
+            return (f"stiffness too low: the flow reached {speed:.3g} m/s, {speed / m.speed_of_sound:.2g}x the speed "
+                    f"of sound c_s = {m.speed_of_sound:.3g} m/s; raise wcsph.speed_of_sound_factor")
+        if rule == "dense":
+            return ("the fluid compressed to twice its rest density: the stiffness is too low for the scene; raise "
+                    "wcsph.speed_of_sound_factor")
+        return None
+
+    def summary(self) -> dict:
+        return {"stiffness": self.stiffness, "equation_of_state": self.config.equation_of_state,
+                "acoustic_period": 2.0 * self.model.support_radius / max(self.model.speed_of_sound, 1e-30)}
+
+    @staticmethod
+    def speed_of_sound_from_stiffness(stiffness: float, rest_density: float, equation_of_state: str) -> float:
+        """c_s [m/s] of an equation of state: sqrt(k / rho0) (linear), sqrt(7 B / rho0) (Tait)."""
+        return math.sqrt((7.0 if equation_of_state == "tait" else 1.0) * stiffness / rest_density)

@@ -1,0 +1,278 @@
+"""The scene parameter table: every key declared once, with its type, unit, default and valid range.
+
+The core rows are here; each registered method (a solver or boundary, ``warp_sph.methods``) adds the
+rows of its own section (``pbf.max_iterations``, ...). ``all_parameters()`` is the whole table in the
+order the README shows it. That table drives validation, defaults, ``--set`` overrides, the typed
+section classes (``warp_sph.scene.types``) and the README table (``parameter_table_markdown``).
+
+Key paths: ``particle_radius`` (top level), ``material.rest_density`` (a table), ``fluid[0].max``
+(an element of an array of tables; in the table written ``fluid[].max``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from ..core.smoothing import SMOOTHING_KERNELS
+
+MESH_SEQUENCE_FORMATS = ("", "obj", "ply", "vtk")
+PARTICLE_PRIMVARS = ("density", "pressure")
+FLUID_SHAPES = ("box", "sphere")
+OBSTACLE_SHAPES = ("box", "mesh")
+TABLE_KINDS = ("table", "tables", "table_or_false")
+
+
+class _Required:
+    def __repr__(self):
+        return "required"
+
+
+REQUIRED: Any = _Required()
+
+
+@dataclass(frozen=True)
+class Param:
+    """Definition of one scene parameter.
+
+    path: key path; ``a.b`` for a key of table ``a``, ``a[].b`` for a key of array of tables ``a``.
+    kind: "float", "int", "bool", "str", "vec3", "str_list", "table", "tables" or "table_or_false".
+    unit: SI unit, "-" for dimensionless.
+    default: value when absent (REQUIRED: must be given; None: optional, meaning in ``doc``).
+    gt/ge/lt/le: numeric bounds; choices: allowed strings.
+    shapes: for fluid/obstacle keys, the shapes that use the key (None: every shape).
+    """
+
+    path: str
+    kind: str
+    unit: str
+    default: Any
+    doc: str
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+    le: float | None = None
+    choices: tuple[str, ...] | None = None
+    shapes: tuple[str, ...] | None = None
+    default_text: str | None = None
+
+    @property
+    def section(self) -> str:
+        return self.path.rpartition(".")[0]
+
+    @property
+    def key(self) -> str:
+        return self.path.rpartition(".")[2]
+
+    def expected(self) -> str:
+        """What a valid value looks like, in words (used in error messages and the README)."""
+        if self.choices is not None:
+            opts = ", ".join(repr(c) for c in self.choices)
+            return f"a list of strings from {opts}" if self.kind == "str_list" else f"one of {opts}"
+        base = {
+            "float": "a finite number",
+            "int": "an integer",
+            "bool": "true or false",
+            "str": "a string",
+            "vec3": "a list of 3 finite numbers",
+            "table": "a table",
+            "tables": "an array of tables ([[...]])",
+            "table_or_false": "a table or false",
+        }[self.kind]
+        bounds = self.range_text()
+        return f"{base} {bounds}" if bounds else base
+
+    def range_text(self) -> str:
+        parts = []
+        if self.gt is not None:
+            parts.append(f"> {self.gt:g}")
+        if self.ge is not None:
+            parts.append(f">= {self.ge:g}")
+        if self.lt is not None:
+            parts.append(f"< {self.lt:g}")
+        if self.le is not None:
+            parts.append(f"<= {self.le:g}")
+        return " and ".join(parts)
+
+
+_P = Param
+
+#: Rows before the method sections.
+_HEAD = (
+    _P("name", "str", "-", "", "scene name (default: the file name without .toml); files of the run are named "
+       "after it, with characters other than letters, digits, '-' and '_' replaced by '_'"),
+    _P("description", "str", "-", "", "one-line description"),
+    _P("particle_radius", "float", "m", 0.025, "particle radius r; the lattice spacing is d = 2r", gt=0.0),
+    _P("smoothing_kernel", "str", "-", "cubic", "smoothing kernel W (Liu & Liu 2010)",
+       choices=tuple(SMOOTHING_KERNELS)),
+    _P("h_per_spacing", "float", "-", None, "smoothing length h / d (absent: the kernel's default: "
+       "1 for cubic and quadric, 2/3 for quintic, i.e. support 2d)", gt=0.0, le=4.0, default_text="kernel default"),
+)
+_AFTER_METHODS = (
+    _P("boundary_gap", "float", "-", None, "initial distance from the boundary particles to the nearest fluid "
+       "particle centres, in spacings d (absent: the gap at which the first layer next to one Akinci wall "
+       "layer is at rest density, physics notes section 7: cubic 1.10, quadric 1.08, quintic 1.03)",
+       ge=0.5, le=3.0, default_text="auto"),
+    _P("gravity", "vec3", "m/s^2", (0.0, 0.0, -9.81), "gravitational acceleration (Z is up)"),
+    _P("duration", "float", "s", 2.0, "simulated time", gt=0.0),
+    _P("fps", "float", "1/s", 24.0, "output frames per second of simulated time", gt=0.0),
+    # material
+    _P("material", "table", "-", {}, "fluid material"),
+    _P("material.rest_density", "float", "kg/m^3", 1000.0, "rest density rho0 (water 1000; 1e-3..1e5 covers "
+       "every liquid and keeps float32 sums exact)", ge=1e-3, le=1e5),
+    _P("material.viscosity", "float", "m^2/s", 0.0, "kinematic viscosity, explicit (SPlisHSPlasH "
+       "'standard' form); needs dt <= 0.0625 (H_s/2)^2 / nu", ge=0.0),
+    _P("material.xsph", "float", "-", 0.0, "XSPH velocity smoothing factor (report eq. 21)", ge=0.0, le=1.0),
+    _P("material.boundary_friction", "float", "-", 0.0, "Akinci boundary friction sigma (report eq. 22-24); "
+       "explicit: needs dt <= 0.0625 (H_s/2)^2 / nu_b with nu_b = sigma h c_s / (2 rho0)", ge=0.0),
+)
+#: Rows after the method sections.
+_TAIL = (
+    # time
+    _P("time", "table", "-", {}, "time stepping"),
+    _P("time.cfl", "float", "-", 0.4, "CFL number lambda of the adaptive step", gt=0.0, le=1.0),
+    _P("time.dt_min", "float", "s", 1e-6, "smallest adaptive step", gt=0.0),
+    _P("time.dt_max", "float", "s", 5e-3, "largest adaptive step", gt=0.0),
+    _P("time.fixed_dt", "float", "s", 0.0, "fixed step (0: adaptive)", ge=0.0),
+    _P("time.on_instability", "str", "-", "stop", "when the watchdog finds a non-finite value or an "
+       "escaped particle: 'stop' with an error (frames so far are kept) or 'retry' the frame with "
+       "half the time step", choices=("stop", "retry")),
+    _P("time.max_steps", "int", "-", 10_000_000, "refuse a run that would take more substeps than this "
+       "(estimated before the first step from the time-step bounds at the scene's reference speed)", ge=1),
+    # container
+    _P("container", "table_or_false", "-", {}, "box of boundary-particle walls (six faces); "
+       "'container = false': no walls", default_text="box"),
+    _P("container.min", "vec3", "m", (0.0, 0.0, 0.0), "lower corner of the container"),
+    _P("container.max", "vec3", "m", (4.0, 1.5, 3.0), "upper corner of the container"),
+    # fluid blocks
+    _P("fluid", "tables", "-", REQUIRED, "fluid blocks ([[fluid]]), at least one"),
+    _P("fluid[].shape", "str", "-", "box", "block shape", choices=FLUID_SHAPES),
+    _P("fluid[].min", "vec3", "m", REQUIRED, "lower corner of a box block", shapes=("box",)),
+    _P("fluid[].max", "vec3", "m", REQUIRED, "upper corner of a box block", shapes=("box",)),
+    _P("fluid[].center", "vec3", "m", REQUIRED, "centre of a sphere block", shapes=("sphere",)),
+    _P("fluid[].radius", "float", "m", REQUIRED, "radius of a sphere block", gt=0.0, shapes=("sphere",)),
+    _P("fluid[].velocity", "vec3", "m/s", (0.0, 0.0, 0.0), "initial velocity"),
+    _P("fluid[].spacing_scale", "float", "-", 1.0, "lattice spacing / d; < 1 starts the block "
+       "over-dense (compressed)", ge=0.5, le=2.0),
+    # obstacles
+    _P("obstacles", "tables", "-", [], "static obstacles ([[obstacles]]), sampled as boundary particles",
+       default_text="none"),
+    _P("obstacles[].shape", "str", "-", "box", "obstacle shape", choices=OBSTACLE_SHAPES),
+    _P("obstacles[].min", "vec3", "m", REQUIRED, "lower corner of a box obstacle", shapes=("box",)),
+    _P("obstacles[].max", "vec3", "m", REQUIRED, "upper corner of a box obstacle", shapes=("box",)),
+    _P("obstacles[].file", "str", "-", REQUIRED, "closed triangle mesh (.obj .stl .ply .usd .usda .usdc); "
+       "relative to the scene file", shapes=("mesh",)),
+    _P("obstacles[].scale", "float", "-", 1.0, "uniform scale of the mesh (x -> scale x + translate)",
+       gt=0.0, shapes=("mesh",)),
+    _P("obstacles[].translate", "vec3", "m", (0.0, 0.0, 0.0), "translation of the mesh", shapes=("mesh",)),
+    # output. Surface (warp_sph/surface/reconstruction.py): Phi = sum_j f_j / rho~_j with
+    # f = (1 - r^2/R^2)^5 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
+    # the bulk); on a rest lattice the 0.6 level lies 1.0 r beyond the last particle layer (ripple
+    # 0.007 r), splashsurf's default level. Cells of 0.5 r are splashsurf's usual cube size; the
+    # cost grows with the surface area / cell^2 (sparse narrow band). Defaults: the default dam break's
+    # USD at 28.6 MB instead of 104 MB, frame 13 as smooth as at 0.5 r (benchmarks/results/surface_*).
+    _P("output", "table", "-", {}, "what a run writes"),
+    _P("output.usd", "bool", "-", True, "write a USD stage (points, and the surface mesh if surface)"),
+    _P("output.surface", "bool", "-", True, "reconstruct the fluid surface (marching cubes)"),
+    _P("output.surface_cell_per_radius", "float", "-", 1.0, "surface grid cell size / r (1.0: once "
+       "smoothed and decimated, no visible difference from 0.5 in a render, 4x cheaper)", ge=0.1, le=4.0),
+    _P("output.surface_method", "str", "-", "marching_cubes", "iso-surface extraction: marching cubes "
+       "on the sparse narrow band (Warp's case table)", choices=("marching_cubes",)),
+    _P("output.surface_iso", "float", "-", 0.6, "iso level of Phi = sum_j f_j/rho~_j (1 inside the "
+       "fluid; 0.6 lies 1.0 r beyond the last particle layer, splashsurf's default)", gt=0.0, lt=1.0),
+    _P("output.surface_spray_neighbors", "int", "-", 5, "particles with fewer fluid neighbours than "
+       "this within the kernel support are spray: written as points to /sph/spray, left out of the "
+       "surface (0: no spray)", ge=0),
+    _P("output.surface_smoothing_iterations", "int", "-", 15, "feature-weighted Laplacian smoothing "
+       "steps of the surface, volume restored after them (removes the particle-scale ridges, keeps "
+       "droplets and thin sheets; 0: raw marching cubes)", ge=0),
+    _P("output.surface_decimation_error", "float", "-", 0.5, "decimate the smoothed surface by edge "
+       "collapses (quadric error) that keep each merged vertex within this distance of the planes of "
+       "all the faces it replaces, in particle radii (0: no decimation)", ge=0.0),
+    _P("output.surface_triangle_budget", "int", "-", 0, "decimate until the surface has at most this "
+       "many triangles per frame, within the error bound if one is set (0: no budget)", ge=0),
+    _P("output.surface_normal_smoothing_iterations", "int", "-", 10, "one-ring averaging steps of "
+       "the surface's vertex normals", ge=0),
+    _P("output.surface_normals", "bool", "-", True, "write vertex normals (primvars:normals: smooth "
+       "shading in Blender without modifiers)"),
+    _P("output.mesh_sequence", "str", "-", "", "also write one surface mesh file per frame "
+       "('' for none; needs output.surface = true)", choices=MESH_SEQUENCE_FORMATS),
+    _P("output.particle_primvars", "str_list", "-", ("density",), "per-particle fields written to USD",
+       choices=PARTICLE_PRIMVARS),
+    _P("output.checkpoint_every", "int", "-", 10, "write a checkpoint every this many frames "
+       "(0: never)", ge=0),
+    _P("output.record_frames", "bool", "-", True, "record per-frame diagnostics in run.json"),
+)
+
+
+def _method_rows() -> tuple[Param, ...]:
+    """The ``solver`` and ``boundary`` rows (choices from the registry) and every method's section."""
+    from ..methods import registry
+
+    solvers = registry.solvers()
+    boundaries = registry.boundaries()
+    rows = [
+        _P("solver", "str", "-", registry.DEFAULT_SOLVER, "pressure solver: " + "; ".join(
+            f"{name}: {cls.title}" for name, cls in solvers.items()), choices=tuple(solvers)),
+        _P("boundary", "str", "-", registry.DEFAULT_BOUNDARY, "boundary handling: " + "; ".join(
+            f"{name}: {cls.title}" for name, cls in boundaries.items()), choices=tuple(boundaries)),
+    ]
+    for name, cls in list(solvers.items()) + list(boundaries.items()):
+        if cls.parameters:
+            rows.append(_P(name, "table", "-", {}, cls.section_doc or f"{cls.title} settings"))
+            rows.extend(cls.parameters)
+    return tuple(rows)
+
+
+def all_parameters() -> tuple[Param, ...]:
+    """Every scene parameter, core and registered methods, in table order."""
+    return _HEAD + _method_rows() + _AFTER_METHODS + _TAIL
+
+
+def core_parameters() -> tuple[Param, ...]:
+    """The rows that do not belong to a method's section."""
+    return _HEAD + _AFTER_METHODS + _TAIL
+
+
+def by_section(params: tuple[Param, ...]) -> dict[str, dict[str, Param]]:
+    """{section: {key: Param}} ("" for the top level)."""
+    out: dict[str, dict[str, Param]] = {}
+    for p in params:
+        out.setdefault(p.section, {})[p.key] = p
+    return out
+
+
+def _default_text(p: Param) -> str:
+    if p.default_text is not None:
+        return p.default_text
+    if p.default is REQUIRED:
+        return "required"
+    if p.kind in ("table", "tables"):
+        return ""
+    d = p.default
+    if isinstance(d, bool):
+        return "true" if d else "false"
+    if isinstance(d, str):
+        return f'"{d}"'
+    if isinstance(d, (list, tuple)):
+        return "[" + ", ".join(f'"{x}"' if isinstance(x, str) else f"{x:g}" for x in d) + "]"
+    if isinstance(d, float):
+        return f"{d:g}"
+    return str(d)
+
+
+def parameter_table_markdown() -> str:
+    """The scene parameters as a Markdown table: key, type, unit, default, valid values, meaning."""
+    kinds = {"float": "float", "int": "int", "bool": "bool", "str": "string", "vec3": "[x, y, z]",
+             "str_list": "list of strings", "table": "table", "tables": "array of tables",
+             "table_or_false": "table or false"}
+    lines = ["| key | type | unit | default | valid | description |", "|---|---|---|---|---|---|"]
+    for p in all_parameters():
+        if p.choices is not None:
+            valid = ", ".join(f'"{c}"' for c in p.choices)
+        else:
+            valid = p.range_text()
+        if p.shapes is not None:
+            valid = (valid + "; " if valid else "") + f"shape {', '.join(p.shapes)}"
+        doc = p.doc.replace("|", "\\|")
+        lines.append(f"| `{p.path}` | {kinds[p.kind]} | {p.unit} | {_default_text(p)} | {valid} | {doc} |")
+    return "\n".join(lines) + "\n"

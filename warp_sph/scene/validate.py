@@ -1,0 +1,231 @@
+"""Scene validation: a TOML-shaped dict -> a typed ``Scene``, or a ``SceneError`` naming the file, the
+key path (``fluid[1].min``) and what was expected, before any kernel runs.
+
+Checks every value against its parameter row (type, range, choices), unknown keys, required keys,
+shape-specific keys, and the cross-checks between values: boxes with max > min, fluid inside the
+container, obstacles closed and not entirely outside the container, a mesh sequence only with a
+surface, each method's own cross-checks (``Solver.validate``) and the solver x boundary pairing.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import SceneError
+from ..core.smoothing import get_smoothing_kernel
+from ..methods import registry
+from .meshes import load_triangle_mesh, open_edge_count
+from .parameters import REQUIRED, TABLE_KINDS, Param, all_parameters, by_section
+from .types import CORE_SECTIONS, Container, Scene
+
+
+def _short(value) -> str:
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+class Validator:
+    """Validates one scene dict; ``fail`` raises SceneError("<source>: <keypath>: <message>")."""
+
+    def __init__(self, source: str, base_dir: Path | None):
+        self.source = source
+        self.base_dir = base_dir
+        self.params = by_section(all_parameters())
+
+    def fail(self, keypath: str, message: str):
+        raise SceneError(f"{self.source}: {keypath}: {message}")
+
+    def bad(self, param: Param, keypath: str, value):
+        self.fail(keypath, f"expected {param.expected()}, got {_short(value)}")
+
+    # one value -----------------------------------------------------------------------------
+    def number(self, param: Param, value, keypath: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.bad(param, keypath, value)
+        value = float(value)
+        if not math.isfinite(value):
+            self.bad(param, keypath, value)
+        return value
+
+    def value(self, param: Param, value, keypath: str):
+        kind = param.kind
+        if value is None and param.default is None:
+            return None
+        if kind == "float":
+            v = self.number(param, value, keypath)
+        elif kind == "int":
+            if isinstance(value, bool) or not isinstance(value, int):
+                self.bad(param, keypath, value)
+            v = value
+        elif kind == "bool":
+            if not isinstance(value, bool):
+                self.bad(param, keypath, value)
+            return value
+        elif kind == "str":
+            if not isinstance(value, str) or (param.choices is not None and value not in param.choices):
+                self.bad(param, keypath, value)
+            return value
+        elif kind == "vec3":
+            if not isinstance(value, (list, tuple)) or len(value) != 3:
+                self.bad(param, keypath, value)
+            return tuple(self.number(param, x, keypath) for x in value)
+        elif kind == "str_list":
+            if not isinstance(value, (list, tuple)) or any(
+                not isinstance(x, str) or x not in param.choices for x in value
+            ):
+                self.bad(param, keypath, value)
+            return list(dict.fromkeys(value))
+        else:  # pragma: no cover - tables are handled by the caller
+            raise AssertionError(kind)
+        if ((param.gt is not None and not v > param.gt) or (param.ge is not None and not v >= param.ge)
+                or (param.lt is not None and not v < param.lt) or (param.le is not None and not v <= param.le)):
+            self.bad(param, keypath, value)
+        return v
+
+    # one table -----------------------------------------------------------------------------
+    def table(self, raw, section: str, keypath: str, shape_key: bool = False) -> dict:
+        params = {k: p for k, p in self.params.get(section, {}).items() if p.kind not in TABLE_KINDS}
+        if not isinstance(raw, dict):
+            self.fail(keypath, f"expected a table, got {_short(raw)}")
+        for k in raw:
+            if k not in params:
+                self.fail(f"{keypath}.{k}", f"unknown key; expected one of {', '.join(params)}")
+        shape = None
+        if shape_key:
+            shape = self.value(params["shape"], raw.get("shape", params["shape"].default), f"{keypath}.shape")
+        out = {}
+        for k, p in params.items():
+            kp = f"{keypath}.{k}"
+            if p.shapes is not None and shape not in p.shapes:
+                if k in raw:
+                    self.fail(kp, f"not used by shape {shape!r} (used by {', '.join(map(repr, p.shapes))})")
+                out[k] = None
+            elif k in raw:
+                out[k] = self.value(p, raw[k], kp)
+            elif p.default is REQUIRED:
+                self.fail(kp, f"missing; expected {p.expected()}" + (f" for shape {shape!r}" if shape else ""))
+            else:
+                out[k] = copy.copy(list(p.default) if isinstance(p.default, (list, tuple)) and p.kind == "str_list"
+                                   else p.default)
+        return out
+
+    def box(self, lo, hi, keypath: str):
+        if not all(a < b for a, b in zip(lo, hi)):
+            self.fail(f"{keypath}.max", f"expected every component > {keypath}.min {list(lo)}, got {list(hi)}")
+
+    # the scene -----------------------------------------------------------------------------
+    def scene(self, data) -> Scene:
+        if not isinstance(data, dict):
+            raise SceneError(f"{self.source}: expected a table of scene parameters, got {_short(data)}")
+        top = self.params[""]
+        for k in data:
+            if k not in top:
+                self.fail(k, f"unknown key; expected one of {', '.join(top)}")
+        values: dict[str, Any] = {}
+        for k, p in top.items():
+            if p.kind in TABLE_KINDS:
+                continue
+            values[k] = self.value(p, data[k], k) if k in data else p.default
+        if not values["name"]:
+            stem = Path(self.source).stem if self.source.endswith(".toml") else ""
+            values["name"] = stem or "scene"
+        try:
+            get_smoothing_kernel(values["smoothing_kernel"])
+        except SceneError as exc:
+            self.fail("smoothing_kernel", str(exc))
+        for section in ("material", "time", "output"):
+            values[section] = CORE_SECTIONS[section](**self.table(data.get(section, {}), section, section))
+        sections = {}
+        for name, cls in registry.methods_with_parameters().items():
+            sections[name] = cls.config_class()(**self.table(data.get(name, {}), name, name))
+        values["sections"] = sections
+        raw = data.get("container", {})
+        if raw is False or raw is None:
+            values["container"] = None
+        elif raw is True:
+            values["container"] = Container()
+        else:
+            c = Container(**self.table(raw, "container", "container"))
+            self.box(c.min, c.max, "container")
+            values["container"] = c
+        values["fluid"] = self.blocks(data, "fluid", required=True)
+        values["obstacles"] = self.blocks(data, "obstacles", required=False)
+        scene = Scene(**values, source=self.source)
+        self.cross_checks(scene)
+        return scene
+
+    def blocks(self, data, name: str, required: bool) -> list:
+        raw = data.get(name, [])
+        if isinstance(raw, dict):
+            raw = [raw]
+        if not isinstance(raw, list) or any(not isinstance(b, dict) for b in raw):
+            self.fail(name, f"expected an array of tables ([[{name}]]), got {_short(raw)}")
+        if required and not raw:
+            self.fail(name, f"expected at least one [[{name}]] block")
+        cls = CORE_SECTIONS[f"{name}[]"]
+        out = []
+        for i, b in enumerate(raw):
+            kp = f"{name}[{i}]"
+            block = cls(**self.table(b, f"{name}[]", kp, shape_key=True))
+            if block.shape == "box":
+                self.box(block.min, block.max, kp)
+            if name == "obstacles" and block.shape == "mesh":
+                self.mesh_obstacle(block, kp)
+            out.append(block)
+        return out
+
+    def mesh_obstacle(self, block, kp: str) -> None:
+        path = Path(block.file).expanduser()
+        if not path.is_absolute():
+            path = (self.base_dir or Path.cwd()) / path
+        path = path.resolve()
+        try:
+            mesh = load_triangle_mesh(path)
+        except SceneError as exc:
+            self.fail(f"{kp}.file", str(exc))
+        holes = open_edge_count(mesh)
+        if holes:
+            self.fail(f"{kp}.file", f"mesh {str(path)!r} is not closed ({holes} edges belong to one triangle only); "
+                      "obstacles need a closed surface (the inside test and the wall sampling assume one)")
+        block.file = str(path)
+
+    def cross_checks(self, scene: Scene) -> None:
+        time = scene.time
+        if time.dt_min > time.dt_max:
+            self.fail("time.dt_min", f"expected <= time.dt_max ({time.dt_max:g}), got {time.dt_min:g}")
+        o = scene.output
+        if o.mesh_sequence and not o.surface:
+            self.fail("output.mesh_sequence", f"{o.mesh_sequence!r} needs output.surface = true (the sequence holds "
+                      "the reconstructed surface); set output.surface = true or output.mesh_sequence = ''")
+        c = scene.container
+        if c is not None:
+            tol = 1e-9 * max(1.0, *map(abs, tuple(c.min) + tuple(c.max)))
+            for i, block in enumerate(scene.fluid):
+                lo, hi = block.bounds()
+                if any(a < cl - tol for a, cl in zip(lo, c.min)) or any(b > ch + tol for b, ch in zip(hi, c.max)):
+                    what = "sphere" if block.shape == "sphere" else "box"
+                    self.fail(f"fluid[{i}]", f"{what} {list(lo)}..{list(hi)} is not inside the container "
+                              f"{list(c.min)}..{list(c.max)}")
+            for i, ob in enumerate(scene.obstacles):
+                lo, hi = _obstacle_bounds(ob)
+                if np.any(hi < np.asarray(c.min)) or np.any(lo > np.asarray(c.max)):
+                    self.fail(f"obstacles[{i}]", f"lies entirely outside the container {list(c.min)}..{list(c.max)} "
+                              f"(its bounds {lo.round(6).tolist()}..{hi.round(6).tolist()}); move it inside or remove it")
+        solver = registry.solver(scene.solver)
+        boundary = registry.boundary(scene.boundary)
+        refusal = solver.refuses_boundary(boundary)
+        if refusal:
+            self.fail("boundary", f"{scene.boundary!r} does not work with solver {scene.solver!r}: {refusal}")
+        for name, cls in registry.methods_with_parameters().items():
+            cls.validate(scene, self.fail)
+
+
+def _obstacle_bounds(ob) -> tuple[np.ndarray, np.ndarray]:
+    if ob.shape == "box":
+        return np.asarray(ob.min, dtype=float), np.asarray(ob.max, dtype=float)
+    lo, hi = load_triangle_mesh(ob.file).transformed(ob.scale, ob.translate).bounds
+    return lo, hi
