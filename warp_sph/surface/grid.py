@@ -1,7 +1,8 @@
 """Sparse narrow-band grid of the fluid surface: which particles are spray, which blocks of grid
 nodes can hold the iso-surface, and the colour field Phi on those blocks only.
 
-Device code: ``kernels/surface_grid.py``. One call of :meth:`SparseGrid.build`:
+Device code: ``kernels/surface_grid.py`` (the field: ``field.py``, ``kernels/surface_field.py``).
+One call of :meth:`SparseGrid.build`:
 
 1. particle bounds (one host read), grid origin and block size B (nodes per block edge, so that
    a block edge B c >= max(support radius, band radius));
@@ -225,50 +226,18 @@ class SparseGrid:
                [self.particle_flag, self.inv_kernel_sum], device=dev, min_range=LIGHT_MIN_RANGE)
 
     def classify(self, exact: bool = False) -> bool:
-        """Band, inside and outside blocks (module docstring) and the meshed blocks: band blocks and
-        the ghost blocks below them. exact: every block within the support radius of a particle is
-        band. Returns False when an inside block touches an outside one (the band missed part of the
-        surface: classify again with exact=True)."""
-        dev = self.device
-        n_cand = self.candidate_count
-        self.exact = bool(exact)
-        self.block_class = self._buf.get("bclass", n_cand, wp.int32)
-        meshed = self._buf.get("bmeshed", n_cand, wp.int32)
-        contact = self._buf.get("bcontact", n_cand, wp.int32)
-        scan = self._buf.get("bscan", n_cand, wp.int32)
-        launch(_dev.classify_blocks, n_cand,
-               [wp.vec3(*self.grid_origin), self.cell_size, self.block_nodes, self.band_radius, self.support_radius,
-                int(exact), self.block_coord, self.block_neighbor, self.block_start, self.block_count, self.sorted_x,
-                self.particle_flag],
-               [self.block_class], device=dev, min_range=BLOCK_MIN_RANGE)
-        meshed.zero_()
-        contact.zero_()
-        launch(_dev.mark_meshed_blocks, n_cand, [self.block_class, self.block_neighbor], [meshed, contact],
-               device=dev, min_range=BLOCK_MIN_RANGE)
-        wp.utils.array_scan(meshed[:n_cand], scan[:n_cand], inclusive=True)
-        n_meshed = int(scan[n_cand - 1: n_cand].numpy()[0])
-        self.meshed_count = n_meshed
-        self.block_state = self._buf.get("bstate", n_cand, wp.int32)
-        self.meshed_block = self._buf.get("meshed", n_meshed, wp.int32)
-        self.meshed_band = self._buf.get("mband", n_meshed, wp.int32)
-        launch(_dev.compact_meshed, n_cand, [self.block_class, meshed, scan],
-               [self.block_state, self.meshed_block, self.meshed_band], device=dev, min_range=BLOCK_MIN_RANGE)
-        self.meshed_upper = self._buf.get("mupper", n_meshed, wp.int32, width=8)
-        launch(_dev.meshed_upper_neighbors, n_meshed, [self.meshed_block, self.block_neighbor, self.block_state],
-               [self.meshed_upper], device=dev, min_range=BLOCK_MIN_RANGE)
-        return exact or not bool(contact.numpy()[:n_cand].any())
+        """Band, inside and outside blocks and the meshed blocks (``band.py``); False when the band
+        missed part of the surface (classify again with exact=True)."""
+        from .band import classify
+
+        return classify(self, exact)
 
     def compute_field(self) -> wp.array:
         """Phi on the nodes of the meshed blocks: B^3 values per block (``field``); ghost blocks hold
-        1 (inside) or 0 (outside)."""
-        b = self.block_nodes
-        self.field = self._buf.get("field", self.meshed_count * b**3, float)
-        launch(_dev.splat_band, self.meshed_count * self.slabs,
-               [self.support_radius, wp.vec3(*self.grid_origin), self.cell_size, b, self.slabs,
-                self.meshed_block, self.block_class, self.block_coord, self.block_neighbor, self.block_start,
-                self.block_count, self.sorted_x, self.inv_kernel_sum],
-               [self.field], device=self.device, min_range=max(1, BLOCK_MIN_RANGE * self.slabs))
-        return self.field
+        1 (inside) or 0 (outside). See ``field.py``."""
+        from .field import compute_field
+
+        return compute_field(self)
 
     # -- host views ------------------------------------------------------------------------------
     def spray_mask(self) -> np.ndarray:
