@@ -142,6 +142,42 @@ def test_advice_for_a_particle_through_the_wall_is_stiffness_not_the_step():
     assert "raise wcsph.speed_of_sound to at least" in text and "halving it does not help" in text
 
 
+@pytest.mark.parametrize("approach", [1.0, -1.0])
+def test_artificial_viscosity_pair_matches_numpy_oracle(approach):
+    """Two isolated particles (under-dense: no pressure): a_i = -m Pi_ij grad W_ij with
+    Pi_ij = -nu (v_ij . x_ij) / (|x_ij|^2 + 0.01 h^2), nu = 2 alpha h c_s / (rho_i + rho_j), only when
+    approaching (Monaghan 1992); receding pairs feel nothing."""
+    from sph_oracle import grad_W
+
+    d = 0.1
+    scene = {"name": "pair", "particle_radius": d / 2, "fps": 30.0, "container": False, "gravity": [0, 0, 0],
+             "fluid": [{"shape": "box", "min": [0, 0, 0], "max": [2 * d, d, d]}],
+             "wcsph": {"artificial_viscosity": 0.5, "speed_of_sound": 20.0}, "output": NO_OUTPUT}
+    sim = Simulation(scene_from_dict(scene))
+    m = sim.model
+    x = np.array([m.origin - [0.06, 0.01, 0.0], m.origin + [0.06, 0.01, 0.0]])
+    v = approach * np.array([[1.0, 0.2, -0.3], [-1.0, -0.2, 0.3]])
+    sim.set_field("particle_x", x)
+    sim.set_field("particle_v", v)
+    sim.refresh_density()
+    for stage in sim.graph.stages:
+        if stage.name in ("pressure", "forces"):
+            stage.run(sim, 1e-4)
+    a = sim.fields["particle_acceleration"].numpy().astype(np.float64)
+    rho = sim.get_field("particle_density").astype(np.float64)
+    assert (rho < m.rest_density).all()
+    h = m.smoothing_length
+    x_ij, v_ij = x[0] - x[1], v[0] - v[1]
+    vx = float(v_ij @ x_ij)
+    nu = 2 * 0.5 * h * 20.0 / (rho[0] + rho[1])
+    pi = -nu * min(vx, 0.0) / (x_ij @ x_ij + 0.01 * h * h)
+    expected = -m.particle_mass * pi * grad_W("cubic", x_ij, h)
+    if approach > 0:
+        assert np.linalg.norm(expected) > 1.0
+    np.testing.assert_allclose(a[0], expected, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(a[1], -expected, rtol=1e-4, atol=1e-5)
+
+
 # --------------------------------------------------------------------------------------------
 # impact at 14 m/s (issue #15 item 18)
 # --------------------------------------------------------------------------------------------

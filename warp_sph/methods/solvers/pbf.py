@@ -487,7 +487,8 @@ class PbfSolver(Solver):
         p = self.config
         if rule in ("outside", "dense") and self.last_iterations >= int(p.max_iterations):
             return (f"the solve stopped at pbf.max_iterations = {p.max_iterations} with the density error "
-                    f"{100 * self.last_density_error:.3g} % above the target: raise pbf.max_iterations or lower time.cfl")
+                    f"{100 * self.last_density_error:.3g} % above the target: raise pbf.max_iterations, or lower "
+                    f"pbf.target_iterations (now {p.target_iterations:g}) or time.cfl for smaller steps")
         if p.tensile_correction and rule in ("non_finite", "fast"):
             return (f"the tensile correction (pbf.tensile_k = {p.tensile_k:g}, pbf.tensile_n = {p.tensile_n}) may "
                     "dominate the pressure: lower pbf.tensile_k or set pbf.tensile_correction = false")
