@@ -1,0 +1,450 @@
+"""Divergence-free SPH (Bender & Koschier 2015, 2017) in SPlisHSPlasH's current form (>= 2.12).
+
+Notation (research note ``dfsph.md`` section 0): V = m / rho0 [m^3] the rest volume of a fluid
+particle, g_ij = grad_i W(x_i - x_j) [1/m^4], G_ij = V g_ij [1/m] (the pair cache), the boundary
+method's gradient term gb_ib (Akinci: V_b g_ib) [1/m]; rho_hat = rho / rho0;
+
+    s_i       = sum_j G_ij + sum_b gb_ib                                   [1/m]
+    D_i       = |s_i|^2 + sum_j |G_ij|^2      (fluid j only: walls do not move)   [1/m^2]
+    f_i       = 1 / D_i  (0 when D_i d^2 <= 1e-6: a nearly isolated particle)      [m^2]
+    delta_i(u)= sum_j (u_i - u_j) . G_ij + sum_b (u_i - u_b) . gb_ib           [1/s or 1/s^2]
+                (the compression rate of a velocity field u: D rho_hat_i / Dt = delta_i(v);
+                for accelerations u_b = 0)
+    a_i(P)    = -sum_j (P_i + P_j) G_ij - P_i sum_b gb_ib = -P_i s_i - sum_j P_j G_ij   [m/s^2]
+                (P = p / rho^2 rho0 [m^2/s^2]; a wall mirrors the particle's own P)
+
+A solve makes delta (divergence solve) or the predicted density (density solve) vanish with
+Jacobi sweeps, relaxation omega (0.5):
+
+    (A P)_i = scale delta_i(a(P)),   residual r_i = b_i - (A P)_i,
+    P_i    <- max(0, P_i - omega f_i r_i / scale),   A_ii = -scale D_i,
+    divergence: scale = dt,   b_i = -delta_i(v),                        error e_i = max(-r_i, 0) [1/s]
+    density:    scale = dt^2, b_i = (1 - rho_hat_i) - dt delta_i(v*),   error e_i = max(-r_i, 0) [-]
+
+The error counts compression only and is measured with P before the sweep's update; particles with
+fewer neighbours than a threshold (20 of 26 on a cubic lattice) leave the divergence error.
+
+Every kernel that loops over neighbours reads the ``DfsphPairs`` cache filled once per step by the
+factor kernel from the neighbour lists; the iterations evaluate no smoothing kernel. Kernels taking
+``tid_offset`` are split over CPU cores and write only their own particle (no atomics); sums over
+the particles are chunk sums in a fixed order (``kernels/reduction.py``) finished by one thread
+(``solve_control``), so results are bitwise reproducible for any thread count. The iteration
+kernels take the solve's ``control`` array and return at once when it says the solve is done, so
+a device can run blocks of iterations between host reads.
+"""
+import functools
+
+import warp as wp
+
+from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
+from .smoothing import SMOOTHING_FUNCTIONS
+
+# slots of a solve's control array (float64)
+CONTROL_DONE = 0        # 1 once the stop test passed or max_iterations ran
+CONTROL_ITERATIONS = 1  # iterations run
+CONTROL_ERROR = 2       # mean error of the last iteration (before its update) [-] or [1/s]
+CONTROL_COUNT = 3
+
+
+@wp.struct
+class DfsphPairs:
+    """What the solves need of the step's positions, filled by the factor kernel (lists only).
+
+    count[i]: fluid neighbours j != i closer than the support radius; index[i, k]: neighbour j;
+    gradient[i, k] = V grad_i W_ij [1/m] (rows as long as the fluid list's capacity);
+    gradient_sum[i] = s_i [1/m]; boundary_gradient[i] = sum_b gb_ib [1/m];
+    boundary_velocity[i] = sum_b v_b . gb_ib [1/s]; active[i] = 1 when particle i has at least the
+    threshold of fluid + boundary neighbours (its divergence error counts), else 0.
+    """
+
+    count: wp.array(dtype=wp.int32)
+    index: wp.array2d(dtype=wp.int32)
+    gradient: wp.array2d(dtype=wp.vec3)
+    gradient_sum: wp.array(dtype=wp.vec3)
+    boundary_gradient: wp.array(dtype=wp.vec3)
+    boundary_velocity: wp.array(dtype=float)
+    active: wp.array(dtype=wp.int32)
+
+
+@functools.cache
+def factor_kernel(smoothing: str, boundary_terms, neighbors: str = "list"):
+    """Pair cache, factor f_i, divergence source b_i = -delta_i(v) and the divergence solve's warm
+    start, over the neighbour lists (``neighbors`` = "list": the only variant, the solves read the
+    cache). boundary_terms: the boundary method's ``BoundaryTerms`` (its gradient term; None or
+    without one: fluid only). Warm start: P^v_i = warm_start P~^v_i / dt where delta_i(v) > 0 and
+    i is active, else 0 (P~^v = P^v dt of the last step [m^2/s]). Also: the compression
+    max(rho_hat_i - 1, 0) [-] (the stabilisation test reads its mean); the solves' acceleration
+    scratch and the boundary force cleared."""
+    if neighbors != "list":
+        raise ValueError(f"DFSPH reads a pair cache built from neighbour lists; got neighbours {neighbors!r}")
+    _, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    with_boundary = boundary_terms is not None and boundary_terms.gradient is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    gradient_term = boundary_terms.gradient if with_boundary else None
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_factor(
+        tid_offset: int,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        factor_floor: float,
+        neighbor_threshold: int,
+        boundary_params: BoundaryParams,
+        boundary_neighbors: NeighborList,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_v: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # Warm start:
+        warm_start: float,
+        inv_dt: float,
+        # State in:
+        fluid_neighbors: NeighborList,
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
+        particle_density: wp.array(dtype=float),
+        divergence_warm: wp.array(dtype=float),
+        # Out:
+        pairs_out: DfsphPairs,
+        factor_out: wp.array(dtype=float),
+        divergence_source_out: wp.array(dtype=float),
+        divergence_pressure_out: wp.array(dtype=float),
+        acceleration_out: wp.array(dtype=wp.vec3),
+        compression_out: wp.array(dtype=float),
+        boundary_force_out: wp.array(dtype=wp.vec3),
+    ):
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        xi = particle_x[i]
+        vi = particle_v[i]
+        h = smoothing_length
+        support2 = support_radius * support_radius
+        volume = particle_mass / rest_density
+        s = wp.vec3(0.0)
+        sq = float(0.0)
+        div = float(0.0)
+        n = int(0)
+        k = int(0)
+        k_end = int(neighbor_count(fluid_neighbors, i))
+        while k < k_end:
+            j = fluid_neighbors.index[i, k]
+            if j != i:
+                x_ij = xi - particle_x[j]
+                if wp.dot(x_ij, x_ij) < support2:
+                    g = volume * wp.static(gradient)(x_ij, h)
+                    s += g
+                    sq += wp.dot(g, g)
+                    div += wp.dot(vi - particle_v[j], g)
+                    pairs_out.index[i, n] = j
+                    pairs_out.gradient[i, n] = g
+                    n += 1
+            k += 1
+        sb = wp.vec3(0.0)
+        bvel = float(0.0)
+        nb = int(0)
+        if wp.static(with_boundary):
+            k = int(0)
+            k_end = int(neighbor_count(boundary_neighbors, i))
+            while k < k_end:
+                b = boundary_neighbors.index[i, k]
+                x_ib = xi - boundary_x[b]
+                if wp.dot(x_ib, x_ib) < support2:
+                    gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), boundary_volume[b])
+                    sb += gb
+                    bvel += wp.dot(boundary_v[b], gb)
+                    nb += 1
+                k += 1
+        s += sb
+        div += wp.dot(vi, sb) - bvel
+        d = wp.dot(s, s) + sq
+        f = float(0.0)
+        if d > factor_floor:
+            f = 1.0 / d
+        active = int(0)
+        if n + nb >= neighbor_threshold:
+            active = 1
+        p = float(0.0)
+        if div > 0.0 and active == 1:
+            p = warm_start * divergence_warm[i] * inv_dt
+        pairs_out.count[i] = n
+        pairs_out.gradient_sum[i] = s
+        pairs_out.boundary_gradient[i] = sb
+        pairs_out.boundary_velocity[i] = bvel
+        pairs_out.active[i] = active
+        factor_out[i] = f
+        divergence_source_out[i] = -div
+        divergence_pressure_out[i] = p
+        acceleration_out[i] = wp.vec3(0.0)
+        compression_out[i] = wp.max(particle_density[i] / rest_density - 1.0, 0.0)
+        boundary_force_out[i] = wp.vec3(0.0)
+
+    return compute_factor
+
+
+@wp.func
+def pair_pressure_acceleration(pairs: DfsphPairs, pressure: wp.array(dtype=float), i: int) -> wp.vec3:
+    """a_i(P) = -P_i s_i - sum_j P_j G_ij [m/s^2] from the pair cache."""
+    a = -pressure[i] * pairs.gradient_sum[i]
+    k = int(0)
+    k_end = int(pairs.count[i])
+    while k < k_end:
+        a -= pressure[pairs.index[i, k]] * pairs.gradient[i, k]
+        k += 1
+    return a
+
+
+@wp.kernel(enable_backward=False)
+def pressure_acceleration(
+    tid_offset: int,
+    # In:
+    fluid_neighbors: NeighborList,
+    pairs: DfsphPairs,
+    pressure: wp.array(dtype=float),
+    control: wp.array(dtype=wp.float64),
+    # Out:
+    acceleration_out: wp.array(dtype=wp.vec3),
+):
+    """First pass of a Jacobi sweep: a_i(P) [m/s^2]; nothing once ``control`` says done."""
+    if control[CONTROL_DONE] != wp.float64(0.0):
+        return
+    i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+    acceleration_out[i] = pair_pressure_acceleration(pairs, pressure, i)
+
+
+@wp.kernel(enable_backward=False)
+def jacobi_update(
+    tid_offset: int,
+    # In:
+    fluid_neighbors: NeighborList,
+    pairs: DfsphPairs,
+    factor: wp.array(dtype=float),
+    source: wp.array(dtype=float),
+    acceleration: wp.array(dtype=wp.vec3),
+    scale: float,
+    relaxation: float,
+    active_only: int,
+    complementarity: int,
+    control: wp.array(dtype=wp.float64),
+    # In/out:
+    pressure: wp.array(dtype=float),
+    # Out:
+    error_out: wp.array(dtype=float),
+):
+    """Second pass of a Jacobi sweep: (A P)_i = scale delta_i(a), r_i = b_i - (A P)_i, error
+    max(-r_i, 0) (0 for inactive particles when ``active_only``), P_i <- max(0, P_i - omega f_i r_i /
+    scale). Reads only its own P_i, so P is updated in place."""
+    if control[CONTROL_DONE] != wp.float64(0.0):
+        return
+    i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+    ai = acceleration[i]
+    div = wp.dot(ai, pairs.gradient_sum[i])
+    k = int(0)
+    k_end = int(pairs.count[i])
+    while k < k_end:
+        div -= wp.dot(acceleration[pairs.index[i, k]], pairs.gradient[i, k])
+        k += 1
+    r = source[i] - scale * div
+    p = pressure[i]
+    e = wp.max(-r, 0.0)
+    if complementarity != 0 and p > 0.0:
+        e = wp.abs(r)
+    if active_only != 0 and pairs.active[i] == 0:
+        e = 0.0
+    error_out[i] = e
+    pressure[i] = wp.max(p - relaxation * factor[i] * r / scale, 0.0)
+
+
+@wp.kernel(enable_backward=False)
+def error_chunks(
+    chunk: int,
+    # In:
+    error: wp.array(dtype=float),
+    control: wp.array(dtype=wp.float64),
+    # Out:
+    partial_out: wp.array(dtype=float),
+):
+    """partial_out[k] = sum of error over chunk k, in index order; nothing once done."""
+    if control[CONTROL_DONE] != wp.float64(0.0):
+        return
+    k = wp.tid()
+    lo = k * chunk
+    hi = wp.min(lo + chunk, error.shape[0])
+    s = float(0.0)
+    for i in range(lo, hi):
+        s += error[i]
+    partial_out[k] = s
+
+
+@wp.kernel(enable_backward=False)
+def solve_control(
+    # In:
+    partial: wp.array(dtype=float),
+    count: int,
+    target: float,
+    min_iterations: int,
+    max_iterations: int,
+    # In/out:
+    control: wp.array(dtype=wp.float64),
+):
+    """One thread: mean error = sum(partial) / count (float64, fixed order); iterations += 1; done
+    when (error <= target and iterations >= min_iterations) or iterations >= max_iterations."""
+    if control[CONTROL_DONE] != wp.float64(0.0):
+        return
+    s = wp.float64(0.0)
+    for k in range(partial.shape[0]):
+        s += wp.float64(partial[k])
+    err = s / wp.float64(wp.max(count, 1))
+    it = control[CONTROL_ITERATIONS] + wp.float64(1.0)
+    control[CONTROL_ITERATIONS] = it
+    control[CONTROL_ERROR] = err
+    if (err <= wp.float64(target) and it >= wp.float64(min_iterations)) or it >= wp.float64(max_iterations):
+        control[CONTROL_DONE] = wp.float64(1.0)
+
+
+@wp.kernel(enable_backward=False)
+def reset_control(control_out: wp.array(dtype=wp.float64)):
+    """A solve starts: not done, no iterations, no error."""
+    for k in range(CONTROL_COUNT):
+        control_out[k] = wp.float64(0.0)
+
+
+@wp.kernel(enable_backward=False)
+def finish_divergence(
+    tid_offset: int,
+    # Model:
+    particle_mass: float,
+    dt: float,
+    # In:
+    fluid_neighbors: NeighborList,
+    pairs: DfsphPairs,
+    pressure: wp.array(dtype=float),
+    # State in/out:
+    particle_v: wp.array(dtype=wp.vec3),
+    boundary_force: wp.array(dtype=wp.vec3),
+    # Out:
+    divergence_warm_out: wp.array(dtype=float),
+):
+    """After the divergence solve: v_i += dt a_i(P^v) [m/s]; the walls' force on i,
+    -m P^v_i sum_b gb_ib [N], added to the boundary force; P~^v_i = P^v_i dt kept for the next
+    step's warm start [m^2/s]."""
+    i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+    p = pressure[i]
+    particle_v[i] = particle_v[i] + dt * pair_pressure_acceleration(pairs, pressure, i)
+    boundary_force[i] = boundary_force[i] - (particle_mass * p) * pairs.boundary_gradient[i]
+    divergence_warm_out[i] = p * dt
+
+
+@wp.kernel(enable_backward=False)
+def density_source(
+    tid_offset: int,
+    # Model:
+    rest_density: float,
+    gravity: wp.vec3,
+    dt: float,
+    warm_start: float,
+    # In:
+    fluid_neighbors: NeighborList,
+    pairs: DfsphPairs,
+    particle_density: wp.array(dtype=float),
+    particle_v: wp.array(dtype=wp.vec3),
+    # In/out:
+    pressure: wp.array(dtype=float),
+    # Out:
+    source_out: wp.array(dtype=float),
+):
+    """Source of the density solve for the predicted velocities v* = v + dt g:
+    b_i = (1 - rho_hat_i) - dt delta_i(v*) [-] (a uniform dt g cancels in the fluid pairs and
+    enters only the boundary term). Warm start, in place: P_i <- warm_start P_i (the last step's P
+    [m^2/s^2]) where the predicted density rho_hat_i + dt delta_i(v*) exceeds 1, else 0."""
+    i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+    vi = particle_v[i]
+    div = wp.dot(vi + dt * gravity, pairs.boundary_gradient[i]) - pairs.boundary_velocity[i]
+    k = int(0)
+    k_end = int(pairs.count[i])
+    while k < k_end:
+        div += wp.dot(vi - particle_v[pairs.index[i, k]], pairs.gradient[i, k])
+        k += 1
+    deficit = 1.0 - particle_density[i] / rest_density
+    b = deficit - dt * div
+    source_out[i] = b
+    p = float(0.0)
+    if b < 0.0:
+        p = warm_start * pressure[i]
+    pressure[i] = p
+
+
+@wp.kernel(enable_backward=False)
+def integrate(
+    tid_offset: int,
+    # Model:
+    particle_mass: float,
+    rest_density: float,
+    gravity: wp.vec3,
+    dt: float,
+    # In:
+    fluid_neighbors: NeighborList,
+    pairs: DfsphPairs,
+    pressure: wp.array(dtype=float),
+    particle_density: wp.array(dtype=float),
+    # State in/out:
+    particle_v: wp.array(dtype=wp.vec3),
+    particle_x: wp.array(dtype=wp.vec3),
+    boundary_force: wp.array(dtype=wp.vec3),
+    # Out:
+    particle_pressure_out: wp.array(dtype=float),
+    particle_acceleration_out: wp.array(dtype=wp.vec3),
+):
+    """After the density solve: a_i = g + a_i(P); v_i += dt a_i; x_i += dt v_i (symplectic Euler)
+    [m/s^2, m/s, m]; the walls' force -m P_i sum_b gb_ib added to the boundary force [N]; the
+    pressure p_i = P_i rho_i^2 / rho0 [Pa]. Reads no position of another particle, so x is
+    updated in place."""
+    i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+    p = pressure[i]
+    a = gravity + pair_pressure_acceleration(pairs, pressure, i)
+    v = particle_v[i] + dt * a
+    particle_v[i] = v
+    particle_x[i] = particle_x[i] + dt * v
+    boundary_force[i] = boundary_force[i] - (particle_mass * p) * pairs.boundary_gradient[i]
+    rho = particle_density[i]
+    particle_pressure_out[i] = p * rho * rho / rest_density
+    particle_acceleration_out[i] = a
+
+
+@wp.kernel(enable_backward=False)
+def stabilize_source(
+    tid_offset: int,
+    # Model:
+    rest_density: float,
+    # In:
+    fluid_neighbors: NeighborList,
+    particle_density: wp.array(dtype=float),
+    # Out:
+    source_out: wp.array(dtype=float),
+    pressure_out: wp.array(dtype=float),
+):
+    """Source of a position correction at rest: b_i = 1 - rho_hat_i [-], P_i = 0."""
+    i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+    source_out[i] = 1.0 - particle_density[i] / rest_density
+    pressure_out[i] = 0.0
+
+
+@wp.kernel(enable_backward=False)
+def shift_positions(
+    tid_offset: int,
+    # In:
+    fluid_neighbors: NeighborList,
+    pairs: DfsphPairs,
+    pressure: wp.array(dtype=float),
+    max_shift: float,
+    # State in/out:
+    particle_x: wp.array(dtype=wp.vec3),
+):
+    """Position correction without velocity: x_i += a_i(P) [m] (P solved with scale 1, so P is in
+    m^2), its length capped at ``max_shift`` [m]."""
+    i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+    dx = pair_pressure_acceleration(pairs, pressure, i)
+    size = wp.length(dx)
+    if size > max_shift:
+        dx = dx * (max_shift / size)
+    particle_x[i] = particle_x[i] + dx
