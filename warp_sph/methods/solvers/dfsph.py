@@ -26,13 +26,14 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ...core.launch import launch
+from ...core.launch import LIGHT_MIN_RANGE, launch
 from ...core.smoothing import get_smoothing_kernel, lattice_offsets
 from ...core.step_graph import Stage
 from ...kernels import dfsph as _dfsph
 from ...kernels import reduction as _reduce
+from ...neighbors.cell_lists import simulation_neighbor_lists
 from ...scene.parameters import Param
-from ..density import density_stage, neighbors_stage
+from ..density import neighbors_stage
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
 from ..viscosity import viscous_bounds, viscous_stage
@@ -112,8 +113,6 @@ class DfsphSolver(Solver):
         target = float(self.config.target_density_error)
         self.stabilize_threshold = max(STABILIZE_FACTOR * target, STABILIZE_FLOOR)
         self.max_shift = 0.5 * m.particle_radius
-        import os
-        self.complementarity = bool(int(os.environ.get("DFSPH_LCP", "0")))
         # figures of the last step (host values, read by step_statistics and tests)
         self.last_iterations = 0
         self.last_density_error = 0.0        # mean predicted over-density of the last sweep [-]
@@ -136,25 +135,32 @@ class DfsphSolver(Solver):
         chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
         self._partial = wp.zeros(chunks, dtype=float, device=dev)
         self._control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=dev)
-        pairs = _dfsph.DfsphPairs()
+        self._zero_control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=dev)
         size = max(n, 1)
-        pairs.count = wp.zeros(size, dtype=wp.int32, device=dev)
-        pairs.gradient_sum = wp.zeros(size, dtype=wp.vec3, device=dev)
-        pairs.boundary_gradient = wp.zeros(size, dtype=wp.vec3, device=dev)
-        pairs.boundary_velocity = wp.zeros(size, dtype=float, device=dev)
-        pairs.active = wp.zeros(size, dtype=wp.int32, device=dev)
+        pairs = _dfsph.DfsphPairs()
+        for name, dtype in (("offset", wp.int32), ("count", wp.int32), ("gradient_sum", wp.vec3),
+                            ("boundary_gradient", wp.vec3), ("boundary_velocity", float), ("active", wp.int32)):
+            setattr(pairs, name, wp.zeros(size, dtype=dtype, device=dev))
         sim.fields["dfsph_pairs"] = pairs
+        self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle
+        self._square_sum = wp.zeros(size, dtype=float, device=dev)  # sum_j |G_ij|^2 (fluid part of D_i)
         self._pairs_capacity = 0
-        self._factor_kernel = _dfsph.factor_kernel(m.smoothing.name, sim.boundary_terms)
+        self._search = _dfsph.fluid_search_kernel(m.smoothing.name)
+        terms = sim.boundary_terms
+        self._boundary_factor = _dfsph.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0)
+        self._no_volume = wp.zeros(1, dtype=float, device=dev)
+        self._no_mask = wp.zeros(1, dtype=wp.uint8, device=dev)
 
     def _pairs(self):
-        """The pair cache, with rows as long as the fluid lists (which grow on overflow)."""
+        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): a padded row per
+        particle for the search and the compressed rows the solves read."""
         pairs = self.sim.fields["dfsph_pairs"]
         capacity = self.nl.capacities[0]
         if capacity != self._pairs_capacity:
             n, dev = max(self.model.fluid_count, 1), self.model.device
-            pairs.index = wp.zeros((n, capacity), dtype=wp.int32, device=dev)
-            pairs.gradient = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
+            pairs.index = wp.zeros(n * capacity, dtype=wp.int32, device=dev)
+            pairs.gradient = wp.zeros(n * capacity, dtype=wp.vec3, device=dev)
+            self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
             self._pairs_capacity = capacity
         return pairs
 
@@ -163,18 +169,39 @@ class DfsphSolver(Solver):
         return self.sim.fields["neighbor_lists"]
 
     # --- passes ----------------------------------------------------------------------------
-    def factor_pass(self, dt: float) -> None:
-        """Pair cache, f_i, divergence source and warm start at the current x (one pass over the lists)."""
+    def search(self, dt: float) -> None:
+        """The step's one search at the current x (the fluid sorted into cells by the "neighbors" stage):
+        neighbour lists, density, pair cache, factor, divergence source and warm start."""
         m, f = self.model, self.sim.fields
         nl = self.nl
-        warm = float(self.config.warm_start)
-        launch(self._factor_kernel, m.fluid_count,
-               [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor,
-                self.neighbor_threshold, self.sim.boundary_params, nl.boundary, m.boundary_x, m.boundary_v,
-                m.boundary_volume, warm, 1.0 / dt if dt > 0 else 0.0, nl.fluid, f["particle_x"], f["particle_v"],
-                f["particle_density"], f["dfsph_divergence_warm"]],
-               [self._pairs(), f["dfsph_factor"], f["dfsph_divergence_source"], f["dfsph_divergence_pressure"],
-                f["dfsph_acceleration"], f["dfsph_error"], f["boundary_force"]], device=m.device)
+        n, dev = m.fluid_count, m.device
+        pairs = self._pairs()
+        fc = nl.fluid_cells
+        launch(self._search, n,
+               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.particle_mass,
+                m.smoothing_length, m.support_radius, m.rest_density, f["particle_x"], f["particle_v"]],
+               [nl.fluid.count, nl.fluid.index, nl.max_count, self._pair_rows, self._room, f["particle_density"],
+                pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
+        bc = nl.boundary_cells
+        if bc is not None:
+            mask = nl.boundary_mask
+            grid = [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, nl.boundary_weight,
+                    self._no_mask if mask is None else mask, int(mask is not None)]
+        else:
+            grid = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), pairs.offset, pairs.offset, m.boundary_x, self._no_volume,
+                    self._no_mask, 0]
+        launch(self._boundary_factor, n,
+               grid + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor, self.neighbor_threshold,
+                       self.sim.boundary_params, m.boundary_v, float(self.config.warm_start),
+                       1.0 / dt if dt > 0 else 0.0, fc.cell_point, f["particle_x"], f["particle_v"],
+                       f["dfsph_divergence_warm"], nl.fluid.count, self._square_sum, f["particle_density"],
+                       pairs.gradient_sum, f["dfsph_divergence_source"]],
+               [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient, pairs.boundary_velocity,
+                pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"], f["dfsph_acceleration"],
+                f["dfsph_error"], f["boundary_force"]], device=dev)
+        wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
+        launch(_dfsph.compact_pairs, n, [nl.fluid.index, self._pair_rows, self._room, pairs.offset],
+               [pairs.count, pairs.index, pairs.gradient], device=dev, min_range=LIGHT_MIN_RANGE)
 
     def mean_error(self) -> float:
         """Mean of the per-particle ``dfsph_error`` [-], summed in a fixed order (one read)."""
@@ -203,8 +230,7 @@ class DfsphSolver(Solver):
             block = min(block, max_iterations - launched)
             for _ in range(block):
                 launch(_dfsph.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev)
-                launch(_dfsph.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only),
-                                                   int(self.complementarity), control],
+                launch(_dfsph.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only), control],
                        [p, err], device=dev)
                 launch(_dfsph.error_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, err, control], [partial], device=dev)
                 launch(_dfsph.solve_control, 1, [partial, n, float(target), int(min_iterations), int(max_iterations)],
@@ -216,8 +242,8 @@ class DfsphSolver(Solver):
             block = self.check_every
 
     # --- stages ----------------------------------------------------------------------------
-    def run_factor(self, sim, dt) -> None:
-        self.factor_pass(dt)
+    def run_search(self, sim, dt) -> None:
+        self.search(dt)
 
     def run_stabilize(self, sim, dt) -> None:
         """When the mean over-density at x exceeds ``stabilize_threshold`` (a compressed start, a step
@@ -243,8 +269,7 @@ class DfsphSolver(Solver):
             launch(_dfsph.shift_positions, m.fluid_count, [fn, pairs, f["dfsph_divergence_pressure"], self.max_shift],
                    [f["particle_x"]], device=m.device)
             self._neighbors.run(sim, dt)
-            self._density.run(sim, dt)
-            self.factor_pass(dt)
+            self.search(dt)
             err = self.mean_error()
             rounds += 1
         self.last_stabilization = rounds
@@ -285,26 +310,24 @@ class DfsphSolver(Solver):
     def stages(self) -> list[Stage]:
         sim, m, p = self.sim, self.model, self.config
         self._neighbors = neighbors_stage(sim, True)
-        self._density = density_stage(sim, True)  # creates the neighbour lists
+        simulation_neighbor_lists(sim)
         self._allocate()
         self._pairs()
-        self._zero_control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=m.device)
         terms = sim.boundary_terms
         with_boundary = terms is not None and terms.gradient is not None
         boundary_reads = ("boundary_x", "boundary_volume") if with_boundary else ()
-        factor_out = ("dfsph_pairs", "dfsph_factor", "dfsph_divergence_source", "dfsph_divergence_pressure",
-                      "dfsph_acceleration", "dfsph_error", "boundary_force")
-        factor_reads = ("neighbor_lists", "particle_x", "particle_v", "particle_density", "dfsph_divergence_warm")
-        nl_doc = f"pair cache V grad W_ij over the lists (capacity {self.nl.capacities[0]})"
+        search_out = ("neighbor_lists", "particle_density", "dfsph_pairs", "dfsph_factor", "dfsph_divergence_source",
+                      "dfsph_divergence_pressure", "dfsph_acceleration", "dfsph_error", "boundary_force")
+        search_reads = ("neighbor_cells", "particle_x", "particle_v", "dfsph_divergence_warm")
         wall = f" + {terms.name} boundary" if with_boundary else ""
         stages = [
             self._neighbors,
-            self._density,
-            Stage("factor", self.run_factor, reads=factor_reads + boundary_reads, writes=factor_out,
-                  doc=f"{nl_doc}; f_i = 1/(|s_i|^2 + sum_j |V grad W_ij|^2){wall}; divergence source -delta(v); "
-                      f"warm start {p.warm_start:g} P~v/dt"),
+            Stage("density", self.run_search, reads=search_reads + boundary_reads, writes=search_out,
+                  doc=f"one search within H_s (list capacities {self.nl.capacities}): neighbour lists, density (eq. 7"
+                      f"{wall}), pair cache V grad W_ij in compressed rows, f_i = 1/(|s_i|^2 + sum_j |V grad W_ij|^2), "
+                      f"divergence source -delta(v), warm start {p.warm_start:g} P~v/dt"),
             Stage("stabilize", self.run_stabilize, reads=("particle_v", "dfsph_divergence_warm") + boundary_reads,
-                  updates=("particle_x", "neighbor_cells", "neighbor_lists", "particle_density") + factor_out,
+                  updates=("particle_x", "neighbor_cells") + search_out,
                   doc=f"when the mean over-density at x exceeds {self.stabilize_threshold:g}: density solves at rest "
                       "and capped shifts of x (no velocity)"),
         ]
