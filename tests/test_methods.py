@@ -151,7 +151,7 @@ def _arrays(value):
             out[f".{holder_name}.index"] = holder.index
     if not out:  # a struct of arrays (PBF's PairCache, DFSPH's DfsphPairs)
         for attr in ("count", "index", "gradient", "value", "boundary_gradient", "gradient_sum", "boundary_velocity",
-                     "active"):
+                     "active", "offset"):
             a = getattr(value, attr, None)
             if isinstance(a, wp.array):
                 out[f".{attr}"] = a
