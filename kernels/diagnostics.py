@@ -6,13 +6,10 @@ STAT_MAX_SPEED = 0          # max |v| [m/s]
 STAT_SUM_COMPRESSION = 1    # sum max(rho/rho0 - 1, 0) [-]
 STAT_MAX_DENSITY_ERROR = 2  # max (rho/rho0 - 1) [-]
 STAT_MIN_DENSITY_ERROR = 3  # min (rho/rho0 - 1) [-]
-STAT_NON_FINITE = 4         # particles with a non-finite position, velocity, density or acceleration
-STAT_OUTSIDE = 5            # particles outside the container (grown by a tolerance)
-STAT_KINETIC_ENERGY = 6     # sum 1/2 m |v|^2 [J]
-STAT_POTENTIAL_ENERGY = 7   # sum -m g.x [J]
-STAT_MAX_ACCELERATION = 8   # max |a| [m/s^2]
-STAT_FIRST_BAD = 9          # kept for compatibility; the watch array holds exact indices
-STAT_COUNT = 10
+STAT_KINETIC_ENERGY = 4     # sum 1/2 m |v|^2 [J]
+STAT_POTENTIAL_ENERGY = 5   # sum -m g.x [J]
+STAT_MAX_ACCELERATION = 6   # max |a| [m/s^2]
+STAT_COUNT = 7
 
 # slots of the watch array (int): counts of particles breaking a watchdog rule and the smallest
 # index of one of them (INDEX_NONE when none); exact for any particle count, unlike float slots.
@@ -34,12 +31,9 @@ def reset_statistics(stats_out: wp.array(dtype=float), watch_out: wp.array(dtype
     stats_out[STAT_SUM_COMPRESSION] = 0.0
     stats_out[STAT_MAX_DENSITY_ERROR] = -1.0e30
     stats_out[STAT_MIN_DENSITY_ERROR] = 1.0e30
-    stats_out[STAT_NON_FINITE] = 0.0
-    stats_out[STAT_OUTSIDE] = 0.0
     stats_out[STAT_KINETIC_ENERGY] = 0.0
     stats_out[STAT_POTENTIAL_ENERGY] = 0.0
     stats_out[STAT_MAX_ACCELERATION] = 0.0
-    stats_out[STAT_FIRST_BAD] = 1.0e30
     for k in range(WATCH_COUNT // 2):
         watch_out[2 * k] = 0
         watch_out[2 * k + 1] = INDEX_NONE
@@ -74,8 +68,6 @@ def accumulate_statistics(
     a = particle_acceleration[i]
     s = wp.dot(x, x) + wp.dot(v, v) + rho + wp.dot(a, a)
     if not wp.isfinite(s):
-        wp.atomic_add(stats_out, STAT_NON_FINITE, 1.0)
-        wp.atomic_min(stats_out, STAT_FIRST_BAD, float(i))
         wp.atomic_add(watch_out, WATCH_NON_FINITE, 1)
         wp.atomic_min(watch_out, WATCH_FIRST_NON_FINITE, i)
         return
@@ -90,7 +82,6 @@ def accumulate_statistics(
     wp.atomic_add(stats_out, STAT_POTENTIAL_ENERGY, -particle_mass * wp.dot(gravity, x))
     if check_container != 0:
         if x[0] < container_lo[0] or x[1] < container_lo[1] or x[2] < container_lo[2] or x[0] > container_hi[0] or x[1] > container_hi[1] or x[2] > container_hi[2]:
-            wp.atomic_add(stats_out, STAT_OUTSIDE, 1.0)
             wp.atomic_add(watch_out, WATCH_OUTSIDE, 1)
             wp.atomic_min(watch_out, WATCH_FIRST_OUTSIDE, i)
     if speed > speed_limit:

@@ -258,10 +258,14 @@ def trace_particles(
     cell_start: wp.array(dtype=wp.int32),
     cell_count: wp.array(dtype=wp.int32),
     cell_particles: wp.array(dtype=wp.int32),
+    solid_mesh: wp.uint64,
+    has_solid: int,
+    solid_color: wp.vec3,
     # Out:
     image_out: wp.array2d(dtype=wp.vec3),
 ):
-    """One ray per pixel against the spheres, marched through the grid cells (3D-DDA)."""
+    """One ray per pixel against the spheres, marched through the grid cells (3D-DDA), and against
+    the obstacle mesh (flat-shaded, two-sided) when there is one."""
     py, px = wp.tid()
     origin = camera.position
     direction = camera_ray(camera, px, py)
@@ -326,6 +330,15 @@ def trace_particles(
         p = origin + best_t * direction
         normal = (p - particle_x[best_i]) / particle_radius  # s_n of eq. 4
         color = blinn_phong(light, particle_color[best_i], p, normal, origin)
+    if has_solid != 0:
+        q = wp.mesh_query_ray(solid_mesh, origin, direction, best_t)
+        if q.result and q.t < best_t:
+            hit = 1
+            best_t = q.t
+            n = wp.normalize(q.normal)
+            if wp.dot(n, direction) > 0.0:
+                n = -n
+            color = blinn_phong(light, solid_color, origin + best_t * direction, n, origin)
     image_out[py, px] = composite(camera, scenery, origin, direction, hit, best_t, color)
 
 
@@ -338,11 +351,12 @@ def trace_mesh(
     mesh_indices: wp.array(dtype=wp.int32),
     vertex_normal: wp.array(dtype=wp.vec3),
     has_mesh: int,
-    surface_color: wp.vec3,
+    face_color: wp.array(dtype=wp.vec3),
     # Out:
     image_out: wp.array2d(dtype=wp.vec3),
 ):
-    """One ray per pixel against the surface mesh; smooth vertex normals, shaded two-sided."""
+    """One ray per pixel against the mesh (fluid surface and obstacles, a colour per triangle);
+    smooth vertex normals, shaded two-sided."""
     py, px = wp.tid()
     origin = camera.position
     direction = camera_ray(camera, px, py)
@@ -367,5 +381,5 @@ def trace_mesh(
             if wp.dot(n, direction) > 0.0:  # two-sided: shade the side facing the camera
                 n = -n
             p = origin + hit_t * direction
-            color = blinn_phong(light, surface_color, p, n, origin)
+            color = blinn_phong(light, face_color[f], p, n, origin)
     image_out[py, px] = composite(camera, scenery, origin, direction, hit, hit_t, color)

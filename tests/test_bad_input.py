@@ -223,3 +223,216 @@ def test_load_scene_errors(text, pattern, tmp_path):
     with pytest.raises(SceneError, match=pattern) as err:
         load_scene(str(path))
     assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+# -- first-hour findings (issue 15) ------------------------------------------------------------------
+WITH_USD = GOOD.replace("usd = false\nsurface = false\n", "usd = true\nsurface = true\ncheckpoint_every = 3\n") \
+    .replace("duration = 0.05", "duration = 0.35")  # 8 frames at 20 fps
+
+
+def test_binary_or_latin1_scene_file(workdir, capsys):
+    """A scene file that is not UTF-8 text (binary junk, a Latin-1 byte) is a one-line SceneError."""
+    cases = {"latin1.toml": GOOD.replace('name = "tiny"', 'name = "caf\xe9"').encode("latin-1"),
+             "binary.toml": bytes(range(256)) * 4,
+             "utf16.toml": GOOD.encode("utf-16")}
+    for name, data in cases.items():
+        (workdir / name).write_bytes(data)
+        before = snapshot(workdir)
+        code, err = run_cli(["run", str(workdir / name), "--out", str(workdir / "out"), "--no-progress"], capsys)
+        assert code == 2, err
+        line = error_line(err)
+        assert name in line and ("UTF-8" in line or "malformed TOML" in line), line
+        assert snapshot(workdir) == before
+        code, err = run_cli(["check", str(workdir / name)], capsys)
+        assert code == 2 and name in error_line(err)
+
+
+@pytest.mark.parametrize("device", ["gpu7", "cuda:0", "cuda", "CPU", ""])
+def test_bad_device_is_one_line_and_creates_nothing(device, workdir, capsys):
+    import warp as wp
+
+    if device.startswith("cuda") and wp.get_cuda_device_count() > 0:
+        device = "cuda:99"  # a device this machine does not have either
+    scene = write(workdir, "scene.toml", GOOD)
+    before = snapshot(workdir)
+    code, err = run_cli(["run", str(scene), "--device", device, "--no-progress"], capsys)
+    assert code == 2
+    line = error_line(err)
+    assert f"--device {device}" in line and "available: cpu" in line, line
+    assert not (workdir / "runs").exists() and snapshot(workdir) == before
+
+
+def test_failed_start_removes_what_it_created(workdir, capsys, monkeypatch):
+    """A start that fails once the folder exists (here: the USD cannot be created) removes the run
+    folder it made (runs/ included); in a folder that existed it removes only its own files."""
+    from warp_sph.io import export_usd
+
+    def refuse(self, *args, **kwargs):
+        raise export_usd.OutputError("cannot create USD file (simulated)")
+
+    monkeypatch.setattr(export_usd.UsdWriter, "_create", refuse)
+    scene = write(workdir, "scene.toml", WITH_USD)
+    before = snapshot(workdir)
+    code, err = run_cli(["run", str(scene), "--no-progress"], capsys)
+    assert code == 2 and "simulated" in error_line(err)
+    assert not (workdir / "runs").exists() and snapshot(workdir) == before
+    kept = workdir / "kept"
+    kept.mkdir()
+    code, err = run_cli(["run", str(scene), "--out", str(kept), "--no-progress"], capsys)
+    assert code == 2 and kept.is_dir() and list(kept.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", ["../precious", "../../x", "/tmp/abs", "a/b\\c", "..", ".hidden", "tank v2"])
+def test_scene_name_never_places_files_outside_the_run(name, workdir, capsys):
+    """The scene name becomes file names only after sanitising: nothing is written beside or
+    above the run folder, whatever the name says."""
+    out = workdir / "out"
+    out.mkdir()
+    (out / "precious.usdc").write_bytes(b"the user's own USD")
+    (workdir / "x").mkdir()
+    text = WITH_USD.replace('name = "tiny"', f"name = {name!r}".replace("'", '"').replace("\\", "\\\\"))
+    scene = write(workdir, "scene.toml", text)
+    before = snapshot(workdir)
+    code, err = run_cli(["run", str(scene), "--out", str(out / "run"), "--no-progress", "--frames", "2"], capsys)
+    assert code == 0, err
+    code, err = run_cli(["run", str(scene), "--no-progress", "--frames", "2"], capsys)  # default folder
+    assert code == 0, err
+    after = snapshot(workdir)
+    for path, digest in before.items():
+        assert after.get(path) == digest, f"{path} changed"
+    new = sorted(set(after) - set(before))
+    assert new and all(p.startswith(("out/run/", "runs/")) for p in new), new
+    (usd,) = [p for p in new if p.startswith("out/run/") and p.endswith(".usdc")]
+    assert "/" not in usd[len("out/run/"):]
+    (default_run,) = {p.split("/")[1] for p in new if p.startswith("runs/")}
+    assert not default_run.startswith(".") and default_run not in ("", "..")
+
+
+def run_with_usd(workdir: Path, capsys, out_name="run", frames=8, text=None) -> Path:
+    scene = write(workdir, "scene.toml", text or WITH_USD)
+    out = workdir / out_name
+    code, err = run_cli(["run", str(scene), "--out", str(out), "--no-progress", "--frames", str(frames)], capsys)
+    assert code == 0, err
+    return out
+
+
+def test_overwrite_removes_only_run_files(workdir, capsys):
+    out = run_with_usd(workdir, capsys, frames=3)
+    (out / "frames" / "my_extra.json").write_text("{}")
+    (out / "checkpoints" / "notes.txt").write_text("mine")
+    (out / "other.usdc").write_bytes(b"another USD of mine")
+    (out / "frames" / "frame_12.npz").write_bytes(b"not one of ours (6 digits)")
+    mine = {p: (out / p).read_bytes() for p in ("frames/my_extra.json", "checkpoints/notes.txt", "other.usdc",
+                                                "frames/frame_12.npz")}
+    scene = workdir / "scene.toml"
+    code, err = run_cli(["run", str(scene), "--out", str(out), "--no-progress", "--frames", "2", "--overwrite"],
+                        capsys)
+    assert code == 0, err
+    for p, data in mine.items():
+        assert (out / p).read_bytes() == data, p
+    assert sorted(p.name for p in (out / "frames").glob("frame_??????.npz")) == ["frame_000001.npz", "frame_000002.npz"]
+
+
+def test_refused_resume_changes_nothing(workdir, capsys):
+    """With the USD gone, a resume is refused, and every frame after the checkpoint is still there;
+    a resume that proceeds removes only the frames after its checkpoint, and says so."""
+    out = run_with_usd(workdir, capsys)
+    (out / "checkpoints" / "checkpoint_000008.npz").unlink()  # latest is now 7; frame 8 comes after it
+    usd = out / "tiny.usdc"
+    moved = workdir / "tiny.usdc.bak"
+    usd.rename(moved)
+    before = snapshot(workdir)
+    code, err = run_cli(["run", "--resume", str(out), "--frames", "10", "--no-progress"], capsys)
+    assert code == 2 and "does not exist" in error_line(err)
+    assert snapshot(workdir) == before and (out / "frames" / "frame_000008.npz").is_file()
+    moved.rename(usd)
+    code = main(["run", "--resume", str(out), "--frames", "10", "--no-progress"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "from frame 7" in captured.out and "removed 1 files of frames 8..8" in captured.out, captured.out
+    assert (out / "frames" / "frame_000008.npz").is_file()  # written again
+
+
+def test_checkpoint_of_another_scene_is_refused(workdir, capsys):
+    """A checkpoint with another particle count, or a run.json whose scene was edited, is refused
+    before anything changes."""
+    import json
+    import shutil
+
+    out = run_with_usd(workdir, capsys)
+    small = run_with_usd(workdir, capsys, out_name="small", frames=2,
+                         text=WITH_USD.replace("max = [0.4, 0.6, 0.4]", "max = [0.2, 0.6, 0.2]"))
+    shutil.copy(small / "checkpoints" / "checkpoint_000002.npz", out / "checkpoints" / "checkpoint_000009.npz")
+    before = snapshot(workdir)
+    code, err = run_cli(["run", "--resume", str(out), "--frames", "12", "--no-progress"], capsys)
+    assert code == 2
+    assert re.search(r"checkpoint_000009\.npz: holds \d+ fluid particles, the scene of run.json has \d+",
+                     error_line(err))
+    assert snapshot(workdir) == before
+    (out / "checkpoints" / "checkpoint_000009.npz").unlink()
+    info = json.loads((out / "run.json").read_text())
+    info["scene"]["material"]["viscosity"] = 0.01  # same particles, another scene
+    (out / "run.json").write_text(json.dumps(info))
+    before = snapshot(workdir)
+    code, err = run_cli(["run", "--resume", str(out), "--frames", "12", "--no-progress"], capsys)
+    assert code == 2 and "written for another scene than the one in run.json" in error_line(err)
+    assert snapshot(workdir) == before
+
+
+def test_checkpoint_of_another_version_is_refused(workdir, capsys):
+    """A checkpoint written by another warp-sph or Warp version is refused (a resume is bitwise only with
+    the versions that started the run), naming the version to install; nothing changes."""
+    import numpy as np
+
+    out = run_with_usd(workdir, capsys)
+    path = out / "checkpoints" / "checkpoint_000008.npz"
+    with np.load(path) as f:
+        data = dict(f)
+    data["warp_version"] = np.array("0.0.1")
+    np.savez(path, **data)
+    before = snapshot(workdir)
+    code, err = run_cli(["run", "--resume", str(out), "--frames", "12", "--no-progress"], capsys)
+    assert code == 2
+    assert re.search(r"checkpoint_000008\.npz: written with warp 0\.0\.1, this is .*install warp==0\.0\.1", error_line(err))
+    assert snapshot(workdir) == before
+
+
+@pytest.mark.parametrize("damage", ["truncated", "random_bytes", "empty_run_json", "run_json_list", "nan"])
+def test_damaged_resume_input_is_one_line(damage, workdir, capsys):
+    import numpy as np
+
+    out = run_with_usd(workdir, capsys, frames=5)
+    cp = out / "checkpoints" / "checkpoint_000005.npz"
+    if damage == "truncated":
+        cp.write_bytes(cp.read_bytes()[: cp.stat().st_size // 2])
+    elif damage == "random_bytes":
+        cp.write_bytes(np.random.default_rng(0).bytes(4096))
+    elif damage == "empty_run_json":
+        (out / "run.json").write_text("{}")
+    elif damage == "run_json_list":
+        (out / "run.json").write_text("[1, 2]")
+    else:
+        data = dict(np.load(cp))
+        data["particle_v"][0, 0] = np.nan
+        np.savez(cp, **data)
+    before = snapshot(workdir)
+    code, err = run_cli(["run", "--resume", str(out), "--frames", "9", "--no-progress"], capsys)
+    assert code == 2
+    line = error_line(err)
+    assert ("checkpoint_000005.npz" in line) if damage in ("truncated", "random_bytes", "nan") else ("run.json" in line)
+    assert snapshot(workdir) == before
+
+
+@pytest.mark.parametrize("args,pattern", [
+    (["--size", "axb"], r"--size 'axb': expected WxH"),
+    (["--size", "0x10"], r"--size '0x10'"),
+    (["--size", "640"], r"--size '640'"),
+    (["--frames", "a:b"], r"--frames 'a:b': expected A:B"),
+    (["--frames", "5:2"], r"--frames '5:2'"),
+    (["--camera", "1,2,3"], r"--camera '1,2,3': expected px,py,pz,tx,ty,tz"),
+    (["--camera", "1,2,3,4,5,x"], r"--camera"),
+])
+def test_preview_bad_arguments(args, pattern, workdir, capsys):
+    code, err = run_cli(["preview", str(workdir)] + args, capsys)
+    assert code == 2
+    assert re.search(pattern, error_line(err)), err

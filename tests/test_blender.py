@@ -101,3 +101,89 @@ def test_blender_imports_run(tmp_path):
             faces = len(stage.GetAttributeAtPath(f"/sph/{name}.faceVertexCounts").Get(f))
             assert frame[name] == {"verts": verts, "faces": faces}, (name, f)
         assert frame["container"] == {"verts": 8, "faces": 10}
+
+
+def test_blender_imports_far_run(tmp_path):
+    """A tank 1e4 m from (0, 0, 0): the USD holds points relative to /sph's double translate, and
+    Blender places the 'sph' empty there, so particles land at the recorded world positions."""
+    from warp_sph.run import runner
+    from warp_sph.io import run_folder as rf
+    from warp_sph.scene import load_scene
+
+    far = np.array([1.0e4, -2.0e4, 1.0e4])
+    vec = lambda a: "[" + ",".join(repr(float(v)) for v in a) + "]"  # noqa: E731
+    out = tmp_path / "far"
+    scene = load_scene("dam_break", overrides=[f"particle_radius={RADIUS}", "output.checkpoint_every=0",
+                                                f"container.min={vec(far)}", f"container.max={vec(far + [1.2, 0.6, 1.0])}",
+                                                f"fluid[0].min={vec(far)}", f"fluid[0].max={vec(far + [0.5, 0.6, 0.5])}"])
+    runner.run(scene, out=out, device="cpu", frames=2, progress=False, log=lambda *a: None)
+    got = blender_import(out / "dam_break.usdc")
+    origin = np.asarray(json.loads((out / "run.json").read_text())["model"]["origin"])
+    assert np.allclose(origin, far + [0.6, 0.3, 0.5])
+    sph = np.asarray(got["objects"]["sph"]["matrix_world"])
+    # Blender keeps object matrices in float32: the empty sits at the origin rounded to float32 (one
+    # shift for the whole fluid, 3.9e-4 m here); the positions relative to it are exact
+    assert np.allclose(sph[:3, :3], np.eye(3)) and np.array_equal(sph[:3, 3], origin.astype(np.float32))
+    assert np.allclose(got["objects"]["particles"]["matrix_world"], sph)
+    for f in (1, 2):
+        x = np.load(rf.frame_path(out, f))["x"]
+        local = np.asarray(got["frames"][str(f)]["particles"]["position"], np.float64).reshape(-1, 3)
+        assert np.abs(local + origin - x).max() < 1e-6
+
+
+BODY_PROBE = textwrap.dedent(
+    """
+    import json, sys
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.usd_import(filepath=sys.argv[1])
+    scene = bpy.context.scene
+    out = {}
+    for f in range(scene.frame_start, scene.frame_end + 1):
+        scene.frame_set(f)
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        for ob in scene.objects:
+            entry = out.setdefault(ob.name, {"type": ob.type, "parent": ob.parent.name if ob.parent else None,
+                                             "constraints": [c.type for c in ob.constraints], "frames": {}})
+            ev = ob.evaluated_get(depsgraph)
+            entry["frames"][f] = {"matrix_world": [list(r) for r in ev.matrix_world],
+                                  "verts": len(ev.data.vertices) if ob.type == "MESH" else 0}
+    print("PROBE-JSON " + json.dumps(out))
+    """
+)
+
+
+def test_blender_plays_rigid_bodies(tmp_path):
+    """Bodies written with UsdWriter.add_body play in stock Blender: one mesh object per body under the
+    'bodies' empty, a Transform Cache constraint, and at every frame the exported pose as its matrix."""
+    from warp_sph.io.export_usd import UsdWriter
+    from warp_sph.rigid.spec import box_mesh, quat_to_matrix, rotation_quaternion, sphere_mesh
+
+    bodies = {"crate": box_mesh([0.2, 0.1, 0.05]), "ball": sphere_mesh(0.1, 2)}
+
+    def pose(k, f):
+        return np.array([0.1 * f, -0.05 * f * k, 1.0 - 0.02 * f * f]), rotation_quaternion((10.0 * f, 25.0 * k, -7.0 * f))
+
+    path = tmp_path / "bodies.usdc"
+    with UsdWriter(path, 24.0, RADIUS, primvars=(), with_surface=False) as writer:
+        for name, (verts, tris) in bodies.items():
+            writer.add_body(name, verts, tris)
+        for f in range(1, FRAMES + 1):
+            x = np.zeros((4, 3), np.float32)
+            writer.write_frame(f, x, x, bodies={n: pose(k, f) for k, n in enumerate(bodies)})
+    proc = subprocess.run([sys.executable, "-c", BODY_PROBE, str(path)], capture_output=True, text=True, timeout=300)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("PROBE-JSON ")]
+    assert proc.returncode == 0 and lines, proc.stdout[-2000:] + proc.stderr[-2000:]
+    got = json.loads(lines[-1][len("PROBE-JSON "):])
+    assert got["bodies"]["type"] == "EMPTY" and got["bodies"]["parent"] == "sph"
+    for k, (name, (verts, _)) in enumerate(bodies.items()):
+        ob = got[name]
+        assert ob["type"] == "MESH" and ob["parent"] == "bodies" and ob["constraints"] == ["TRANSFORM_CACHE"]
+        for f in range(1, FRAMES + 1):
+            frame = ob["frames"][str(f)]
+            matrix = np.asarray(frame["matrix_world"])
+            p, q = pose(k, f)
+            assert frame["verts"] == len(verts)
+            np.testing.assert_allclose(matrix[:3, :3], quat_to_matrix(q), atol=1e-6)
+            np.testing.assert_allclose(matrix[:3, 3], p, atol=1e-6)

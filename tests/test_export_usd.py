@@ -1,4 +1,6 @@
 """USD writer (layout of notes/usd_blender.md section 2), resume, crash safety; mesh sequences."""
+import contextlib
+import io
 import json
 import os
 import signal
@@ -6,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 import time
+import types
 from pathlib import Path
 
 import meshio
@@ -14,20 +17,13 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from warp_sph.core.errors import OutputError
+from warp_sph.io import check_usd
 from warp_sph.io.export_mesh import MeshSequenceWriter
 from warp_sph.io.export_usd import UsdWriter, container_box_mesh
 
 FPS = 24.0
 RADIUS = 0.02
 N_PARTICLES = 64
-
-
-def checker_path() -> Path | None:
-    env = os.environ.get("WARP_SPH_CHECK_USD")
-    for candidate in ([Path(env)] if env else []) + [Path(__file__).resolve().parents[2] / "shared" / "tools" / "check_usd.py"]:
-        if candidate.is_file():
-            return candidate
-    return None
 
 
 def frame_data(frame: int, n: int = N_PARTICLES):
@@ -112,10 +108,11 @@ def test_layout_and_roundtrip(tmp_path):
 
 
 def run_checker(path, *args):
-    checker = checker_path()
-    if checker is None:
-        pytest.skip("check_usd.py not found (set WARP_SPH_CHECK_USD)")
-    return subprocess.run([sys.executable, str(checker), str(path), *args], capture_output=True, text=True, timeout=120)
+    """warp_sph.io.check_usd on ``path`` (in this process): returncode, stdout, stderr."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = check_usd.main([str(path), *args])
+    return types.SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
 
 
 def test_check_usd_strict(tmp_path):

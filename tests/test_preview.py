@@ -223,6 +223,38 @@ def test_missing_pillow_names_the_extra(tmp_path, monkeypatch):
     import sys
 
     monkeypatch.setitem(sys.modules, "PIL", None)  # makes `from PIL import Image` raise ImportError
-    with pytest.raises(PreviewError, match=r"warp-sph\[preview\]"):
+    with pytest.raises(PreviewError, match=r"warp-sph\[preview\].*pip install -e '\.\[preview\]'"):
         save_png(np.zeros((4, 4, 3), np.uint8), tmp_path / "x.png")
     assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("mode", ["surface", "particles"])
+def test_preview_shows_obstacles(tmp_path, mode):
+    """The obstacle scene's cylinder (in the USD and the scene) is drawn, in stone grey."""
+    image_module = pytest.importorskip("PIL.Image")
+    from warp_sph.preview.render_run import _load_frame, _speed_colors, _SurfaceReader
+    from warp_sph.run import runner
+    from warp_sph.scene import load_scene
+
+    out = tmp_path / "obstacle"
+    runner.run(load_scene("obstacle", ["particle_radius=0.05", "output.checkpoint_every=0"]), out=out,
+               device="cpu", frames=2, progress=False, log=lambda *a: None)
+    scene = json.loads((out / "run.json").read_text())["scene"]
+    box = scene["container"]
+    size = (160, 90)
+    camera = auto_camera(np.asarray(box["min"]), np.asarray(box["max"]), aspect=size[0] / size[1])
+    (png,) = preview_run(out, frames=[2], mode=mode, camera=camera, size=size)
+    with image_module.open(png) as im:
+        picture = np.asarray(im)
+    if mode == "surface":
+        vertices, triangles = _SurfaceReader(out).frame(2)
+        without = render_mesh(vertices, triangles, camera, size, (box["min"], box["max"]))
+    else:
+        x, v = _load_frame(out, 2)
+        speed = float(np.percentile(np.linalg.norm(v, axis=1), 99.0))
+        without = render_particles(x, scene["particle_radius"], camera, size, (box["min"], box["max"]),
+                                   _speed_colors(v, speed, len(x)))
+    changed = np.any(picture != without, axis=2)
+    assert changed.sum() > 0.01 * size[0] * size[1], changed.sum()
+    pixels = picture[changed].astype(float)
+    assert np.median(pixels[:, 0] - pixels[:, 2]) > 0  # red over blue: stone, not water

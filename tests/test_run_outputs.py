@@ -1,11 +1,14 @@
-"""What a real run leaves in its folder: a Blender-ready USD (checked like check_usd.py does, and by
-it when it is beside the checkout), checkpoints a resumed run continues bit for bit, a USD that
+"""What a real run leaves in its folder: a Blender-ready USD (checked here and by the shipped
+``warp_sph.io.check_usd --strict``), checkpoints a resumed run continues bit for bit, a USD that
 survives SIGKILL, and re-exports from the recorded frames (``warp-sph export``).
 
 All runs are a small dam break (particle_radius 0.05 m: 729 fluid particles) on the CPU.
 """
+import contextlib
+import io
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -18,32 +21,23 @@ import pytest
 from pxr import Usd, UsdGeom
 
 from warp_sph.run import runner
+from warp_sph.io import check_usd
 from warp_sph.io import run_folder as rf
 from warp_sph.cli import main as cli_main
 from warp_sph.core.errors import OutputError, WarpSphError
 from warp_sph.io.reexport import export_run, parse_frame_range
-from warp_sph.scene import load_scene
+from warp_sph.scene import list_scenes, load_scene
 
 SMALL = ["particle_radius=0.05", "output.checkpoint_every=3"]
 FRAMES = 7
 
 
-def checker_path() -> Path | None:
-    env = os.environ.get("WARP_SPH_CHECK_USD")
-    for candidate in ([Path(env)] if env else []) + [Path(__file__).resolve().parents[2] / "shared" / "tools" / "check_usd.py"]:
-        if candidate.is_file():
-            return candidate
-    return None
-
-
 def run_checker_strict(path: Path) -> None:
-    """check_usd.py --strict must pass (a no-op where the shared checker is not beside the checkout)."""
-    checker = checker_path()
-    if checker is None:
-        return
-    result = subprocess.run([sys.executable, str(checker), str(path), "--strict"], capture_output=True, text=True,
-                            timeout=120)
-    assert result.returncode == 0, result.stdout + result.stderr
+    """warp_sph.io.check_usd --strict (the checker shipped with the package) passes."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = check_usd.main([str(path), "--strict"])
+    assert code == 0, out.getvalue()
 
 
 def quiet(*args, **kwargs):
@@ -123,8 +117,6 @@ def assert_blender_ready(path: Path, frames: int, first: int = 1, radius: float 
 
 # -- the USD of a run ---------------------------------------------------------------------------
 def test_run_usd_passes_check_usd_strict(reference):
-    if checker_path() is None:
-        pytest.skip("shared/tools/check_usd.py not beside the checkout (set WARP_SPH_CHECK_USD)")
     run_checker_strict(usd_path(reference))
 
 
@@ -179,12 +171,31 @@ def assert_same_run(a: Path, b: Path) -> None:
 
 def test_resume_reproduces_uninterrupted_run(reference, tmp_path):
     out = tmp_path / "resumed"
-    run_small(out, 5, threaded_export=False)  # checkpoints 1 and 4; frame 5 is recomputed after the resume
-    assert rf.latest_checkpoint(out).name == "checkpoint_000004.npz"
+    run_small(out, 5, threaded_export=False)  # checkpoints 1, 4 and the final one, 5
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == \
+        ["checkpoint_000001.npz", "checkpoint_000004.npz", "checkpoint_000005.npz"]
+    rf.checkpoint_path(out, 5).unlink()  # as if stopped before it: frame 5 is recomputed after the resume
     info = runner.run(None, frames=FRAMES, resume=out, progress=False, device="cpu", log=quiet)
     assert info["status"] == "completed"
     assert_same_run(reference, out)
     assert_blender_ready(usd_path(out), FRAMES)
+
+
+def test_finished_run_is_complete_or_extended(reference, tmp_path):
+    """--resume of a finished run simulates nothing ("already complete"); with --frames beyond its
+    end it continues from the final checkpoint, and equals the longer uninterrupted run."""
+    out = tmp_path / "finished"
+    run_small(out, 5)
+    before = {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+    said = []
+    info = runner.run(None, resume=out, progress=False, device="cpu", log=said.append)
+    assert any("already complete" in line for line in said), said
+    assert info["status"] == "completed" and len(info["frames"]) == 5
+    assert {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()} == before
+    said.clear()
+    runner.run(None, frames=FRAMES, resume=out, progress=False, device="cpu", log=said.append)
+    assert any("resuming" in line and "from frame 5" in line for line in said), said
+    assert_same_run(reference, out)
 
 
 def test_resume_errors(tmp_path):
@@ -192,8 +203,8 @@ def test_resume_errors(tmp_path):
         runner.run(None, resume=tmp_path, progress=False, log=quiet)
     out = tmp_path / "nocp"
     run_small(out, 2, extra=["output.checkpoint_every=0"])
-    with pytest.raises(OutputError, match="no checkpoint"):
-        runner.run(None, resume=out, progress=False, log=quiet)
+    with pytest.raises(OutputError, match="no checkpoint"):  # complete with 2 frames; a third needs one
+        runner.run(None, resume=out, frames=3, progress=False, log=quiet)
 
 
 def test_sigkill_then_resume(reference, tmp_path):
@@ -300,3 +311,109 @@ def test_export_default_location_and_errors(reference, tmp_path, capsys):
     assert parse_frame_range(":2", [1, 2, 3]) == [1, 2]
     info = json.loads((reference / "run.json").read_text())
     assert info["status"] == "completed"  # exports leave the run itself alone
+
+
+# -- every built-in scene, default outputs ----------------------------------------------------------
+@pytest.mark.parametrize("name", [n for n, _ in list_scenes()])
+def test_builtin_scene_with_default_outputs(name, tmp_path, monkeypatch):
+    """Each built-in scene as shipped (USD, surface, recorded frames, checkpoints on) writes a USD
+    that passes check_usd --strict, with its container and obstacles, and re-exports."""
+    monkeypatch.chdir(tmp_path)
+    scene = load_scene(name)
+    info = runner.run(scene, device="cpu", frames=2, progress=False, log=quiet)
+    out = Path(info["out"])
+    assert out == Path("runs") / name and info["status"] == "completed"
+    path = usd_path(out)
+    run_checker_strict(path)
+    stage = Usd.Stage.Open(str(path))
+    names = {p.GetName() for p in stage.GetPrimAtPath("/sph").GetChildren()}
+    assert ("container" in names) == (scene.container is not None), names
+    assert {f"obstacle_{i}" for i in range(len(scene.obstacles or []))} <= names
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["checkpoint_000001.npz", "checkpoint_000002.npz"]
+    exported = export_run(out, fmt="usd", frames="2:2")
+    run_checker_strict(exported)
+
+
+# -- file modes ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("umask", [0o022, 0o027, 0o002])
+def test_files_follow_the_umask(umask, tmp_path):
+    """run.json, frames, checkpoints, the USD, mesh files and exports get 0666 & ~umask, as any
+    file the user's programs create (mkstemp alone gives 0600)."""
+    old = os.umask(umask)
+    try:
+        out = tmp_path / "run"
+        run_small(out, 2, extra=['output.mesh_sequence="obj"'])
+        export_run(out, fmt="obj", frames="2:2")
+        export_run(out, fmt="usd", frames="1:2")
+        files = [p for p in out.rglob("*") if p.is_file()]
+        assert {p.suffix for p in files} >= {".json", ".npz", ".usdc", ".obj"}
+        for p in files:
+            assert (p.stat().st_mode & 0o777) == 0o666 & ~umask, (p, oct(p.stat().st_mode & 0o777))
+    finally:
+        os.umask(old)
+
+
+# -- a scene far from the origin -----------------------------------------------------------------------
+FAR = np.array([1.0e4, -2.0e4, 1.0e4])
+
+
+def _shifted(offset) -> list[str]:
+    lo, hi = np.array([0.0, 0.0, 0.0]) + offset, np.array([1.2, 0.6, 1.0]) + offset
+    flo, fhi = lo, np.array([0.5, 0.6, 0.5]) + offset
+    vec = lambda a: "[" + ",".join(repr(float(v)) for v in a) + "]"  # noqa: E731
+    return [f"container.min={vec(lo)}", f"container.max={vec(hi)}", f"fluid[0].min={vec(flo)}",
+            f"fluid[0].max={vec(fhi)}", "output.checkpoint_every=0"]
+
+
+def test_far_from_origin_keeps_positions(tmp_path):
+    """The same tank at 1e4 m: statistics equal, and recorded frames and USD points (through the
+    /sph translate) give the world positions to 1e-6 m (float32 world coordinates: 4.9e-4 m)."""
+    said = []
+    near = runner.run(load_scene("dam_break", overrides=SMALL + _shifted(np.zeros(3))), out=tmp_path / "near",
+                      device="cpu", frames=3, progress=False, log=quiet)
+    far = runner.run(load_scene("dam_break", overrides=SMALL + _shifted(FAR)), out=tmp_path / "far",
+                     device="cpu", frames=3, progress=False, log=said.append)
+    assert any("float64" in line for line in said), said
+    for a, b in zip(near["frames"], far["frames"]):
+        assert a["steps"] == b["steps"]
+        assert a["density_error_max"] == pytest.approx(b["density_error_max"], abs=1e-5)
+    far_stage = Usd.Stage.Open(str(usd_path(tmp_path / "far")))
+    near_stage = Usd.Stage.Open(str(usd_path(tmp_path / "near")))
+    run_checker_strict(usd_path(tmp_path / "far"))
+    cache = UsdGeom.XformCache(3)
+    m = np.asarray(cache.GetLocalToWorldTransform(far_stage.GetPrimAtPath("/sph/particles")))
+    assert np.allclose(m[:3, :3], np.eye(3)) and np.allclose(m[3, :3], FAR + [0.6, 0.3, 0.5])
+    for f in (1, 3):
+        xn = np.load(rf.frame_path(tmp_path / "near", f))["x"].astype(np.float64)
+        xf = np.load(rf.frame_path(tmp_path / "far", f))["x"]
+        assert xf.dtype == np.float64
+        assert np.abs(xf - FAR - xn).max() < 1e-6
+        pf = np.asarray(far_stage.GetAttributeAtPath("/sph/particles.points").Get(f), dtype=np.float64) + m[3, :3]
+        pn = np.asarray(near_stage.GetAttributeAtPath("/sph/particles.points").Get(f), dtype=np.float64)
+        assert np.abs(pf - FAR - pn).max() < 1e-6
+    # a re-export keeps the origin, and so does the container mesh
+    exported = export_run(tmp_path / "far", fmt="usd", out=tmp_path / "far.usdc")
+    run_checker_strict(exported)
+    stage = Usd.Stage.Open(str(exported))
+    m2 = np.asarray(UsdGeom.XformCache(2).GetLocalToWorldTransform(stage.GetPrimAtPath("/sph/container")))
+    box = np.asarray(stage.GetAttributeAtPath("/sph/container.points").Get(2), dtype=np.float64) + m2[3, :3]
+    assert np.allclose(box.min(0), FAR, atol=1e-9) and np.allclose(box.max(0), FAR + [1.2, 0.6, 1.0], atol=1e-9)
+
+
+# -- progress bar and summary agree ------------------------------------------------------------------
+def test_progress_shows_the_summary_error(tmp_path, capsys):
+    """The radial expansion is compressed at frame 1 only: the bar's figure is the largest error of
+    any frame so far, as in the summary, not the last frame's (negative) one."""
+    info = runner.run(load_scene("radial_expansion", overrides=["particle_radius=0.05"]), out=tmp_path / "r",
+                      device="cpu", frames=4, progress=True, log=quiet)
+    err = capsys.readouterr().err
+    shown = [float(v) for v in re.findall(r"max density error\s+(-?[\d.]+) %", err)]
+    assert shown, err
+    worst = max(f["density_error_max"] for f in info["frames"])
+    assert info["frames"][-1]["density_error_max"] < worst
+    assert shown[-1] == pytest.approx(100 * worst, abs=0.006)
+    cli_main_out = io.StringIO()
+    from warp_sph.cli import _print_summary
+    with contextlib.redirect_stdout(cli_main_out):
+        _print_summary(info)
+    assert f"max {100 * worst:.3f} %" in cli_main_out.getvalue()

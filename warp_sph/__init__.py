@@ -5,7 +5,23 @@ Scripting entry points::
     import warp_sph as ws
     sim = ws.Simulation(ws.load_scene("dam_break"))
     sim.advance_frame()
+
+Warp runs quietly (warnings only, no banner or module-load lines); ``WARP_SPH_VERBOSE=1`` or
+``warp_sph.set_verbose(True)`` shows everything.
 """
+import os as _os
+
+# A source checkout keeps the device code, scenes and benchmarks beside this folder (kernels/,
+# scenes/, benchmarks/; pyproject.toml maps them to warp_sph.kernels, ...). When Python imports
+# warp_sph from a checkout (a script or ``python -m pytest`` run there, with warp-sph installed
+# elsewhere or not at all), look for those subpackages in the checkout too.
+_here = _os.path.dirname(_os.path.abspath(__file__))
+_root = _os.path.dirname(_here)
+if not _os.path.isdir(_os.path.join(_here, "kernels")) and _os.path.isfile(_os.path.join(_root, "kernels", "__init__.py")) \
+        and _os.path.isfile(_os.path.join(_root, "pyproject.toml")):
+    __path__.append(_root)  # noqa: F821 (the package's own search path)
+
+from .core.device import apply_log_level as _apply_log_level, set_verbose  # noqa: E402
 from .core.errors import OutputError, SceneError, SimulationError, StepGraphError, WarpSphError
 from .scene import Scene, list_scenes, load_scene, parameter_table_markdown, scene_from_dict
 from .run.simulation import FrameStatistics, Simulation
@@ -13,6 +29,8 @@ from .core.smoothing import SMOOTHING_KERNELS, SmoothingKernel, calibrated_mass,
 from .core.step_graph import Stage, StepGraph
 
 __version__ = "0.1.0"
+
+_apply_log_level()
 
 
 def run(scene, out=None, **kwargs):
@@ -28,5 +46,5 @@ __all__ = [
     "FrameStatistics", "OutputError", "Scene", "SceneError", "SimulationError", "Simulation",
     "SMOOTHING_KERNELS", "SmoothingKernel", "Stage", "StepGraph", "StepGraphError", "WarpSphError",
     "calibrated_mass", "get_smoothing_kernel", "list_scenes", "load_scene", "parameter_table_markdown",
-    "run", "scene_from_dict",
+    "run", "scene_from_dict", "set_verbose",
 ]

@@ -2,23 +2,25 @@
 
 Errors the user can act on print one line (``warp-sph: error: ...``) and exit with status 2;
 no traceback. Ctrl-C stops a run and keeps every frame written so far (exit status 130).
+Warp is quiet (no banner, no module-load lines, no "no CUDA driver" note) unless ``--verbose``
+or ``WARP_SPH_VERBOSE=1``; its warnings always print.
 """
 from __future__ import annotations
 
 import argparse
-import os
+import math
 import sys
 import warnings
 from pathlib import Path
 
 
 def _quiet_warp():
+    """Start Warp quietly (``warp_sph.core.device``) and return the module."""
     import warp as wp
 
-    if os.environ.get("WARP_SPH_VERBOSE", "") == "":
-        wp.config.quiet = True
-        if hasattr(wp.config, "log_level"):  # warp >= 1.19 reads this instead of quiet
-            wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
+    from .core.device import init_warp
+
+    init_warp()
     return wp
 
 
@@ -54,8 +56,13 @@ def _print_summary(info: dict) -> None:
     usd = sorted(out.glob("*.usdc"))
     print(f"{info['status']}: {len(frames)} frames, {steps} steps, {info['simulated_time']:.3f} s simulated "
           f"in {info['wall_time']:.1f} s wall ({info['fluid_particles']} fluid, {info['boundary_particles']} boundary particles)")
-    print(f"density error: mean {100 * mean:.3f} %, max {100 * err:.3f} %; "
-          f"{info['sim_time_per_step_ms']:.2f} ms/step; export {info['export_time']:.1f} s")
+    print(f"density error: mean {100 * mean:.3f} %, max {100 * err:.3f} % (largest of any frame); "
+          f"{info['sim_time_per_step_ms']:.2f} ms per simulation step")
+    if info.get("threaded_export", True):
+        print(f"export: {info['export_time']:.1f} s on a background thread while simulating; the simulation "
+              f"waited {info.get('export_wait_time', 0.0):.1f} s of it")
+    else:
+        print(f"export: {info['export_time']:.1f} s")
     print(f"output: {out}" + (f"  (Blender: File > Import > USD, {usd[0].name})" if usd else ""))
 
 
@@ -103,22 +110,39 @@ def _cmd_export(args) -> int:
 def _cmd_preview(args) -> int:
     from .preview.render_run import Camera, preview_run
 
-    _quiet_warp()
+    from .core.errors import WarpSphError
+
     frames = None
     if args.frame is not None:
         frames = [args.frame]
     elif args.frames:
-        a, _, b = args.frames.partition(":")
-        frames = list(range(int(a), int(b) + 1))
+        a, sep, b = args.frames.partition(":")
+        try:
+            frames = list(range(int(a), int(b if sep else a) + 1))
+        except ValueError:
+            raise WarpSphError(f"--frames {args.frames!r}: expected A:B (two frame numbers) or A") from None
+        if not frames:
+            raise WarpSphError(f"--frames {args.frames!r}: the first frame is after the last")
     camera = None
     if args.camera:
-        vals = [float(v) for v in args.camera.split(",")]
-        if len(vals) != 6:
-            raise SystemExit("warp-sph: error: --camera takes px,py,pz,tx,ty,tz")
+        try:
+            vals = [float(v) for v in args.camera.split(",")]
+        except ValueError:
+            vals = []
+        if len(vals) != 6 or not all(math.isfinite(v) for v in vals):
+            raise WarpSphError(f"--camera {args.camera!r}: expected px,py,pz,tx,ty,tz (six numbers [m])")
         camera = Camera(position=tuple(vals[:3]), target=tuple(vals[3:]))
-    w, _, h = args.size.partition("x")
+    w, sep, h = args.size.lower().partition("x")
+    try:
+        size = (int(w), int(h))
+    except ValueError:
+        size = (0, 0)
+    if not sep or size[0] < 1 or size[1] < 1 or max(size) > 16384:
+        raise WarpSphError(f"--size {args.size!r}: expected WxH, two whole numbers of pixels from 1 to 16384, "
+                           "e.g. 640x360")
+    _quiet_warp()
     paths = preview_run(Path(args.run), frames=frames, mode="surface" if args.surface else "particles",
-                        camera=camera, size=(int(w), int(h)), out=Path(args.out) if args.out else None,
+                        camera=camera, size=size, out=Path(args.out) if args.out else None,
                         gif=args.gif)
     for p in paths:
         print(p)
@@ -129,14 +153,20 @@ def _cmd_bench(args) -> int:
     from .benchmarks.runner import main as bench_main
 
     _quiet_warp()
-    return bench_main(args.bench_args)
+    return bench_main(list(args.bench_args))
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="warp-sph", description="SPH fluid simulation in NVIDIA Warp, exported to USD for Blender.")
+    p = argparse.ArgumentParser(prog="warp-sph", description="SPH fluid simulation in NVIDIA Warp, exported to USD for Blender.",
+                                epilog="Each command has its own --help (warp-sph run --help). --verbose (before or "
+                                       "after the command) shows Warp's own start-up and kernel-loading messages.")
+    p.add_argument("--verbose", action="store_true", help="show Warp's start-up and module-load messages")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
+                        help="show Warp's start-up and module-load messages")
     sub = p.add_subparsers(dest="command")
 
-    r = sub.add_parser("run", help="simulate a scene (default: dam_break) into a run folder")
+    r = sub.add_parser("run", parents=[common], help="simulate a scene (default: dam_break) into a run folder")
     r.add_argument("scene", nargs="?", default="dam_break", help="built-in scene name or path to a .toml file (default: dam_break)")
     r.add_argument("--out", help="output folder (default: runs/<scene>, or runs/<scene>-N if that holds a run)")
     r.add_argument("--frames", type=int, help="frames to write including the initial one (default: duration * fps + 1)")
@@ -149,15 +179,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.set_defaults(func=_cmd_run)
 
-    s = sub.add_parser("scenes", help="list the built-in scenes")
+    s = sub.add_parser("scenes", parents=[common], help="list the built-in scenes")
     s.set_defaults(func=_cmd_scenes)
 
-    c = sub.add_parser("check", help="validate a scene (and sample it) without running")
+    c = sub.add_parser("check", parents=[common], help="validate a scene (and sample it) without running")
     c.add_argument("scene")
     c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     c.set_defaults(func=_cmd_check)
 
-    e = sub.add_parser("export", help="re-export a run's recorded frames (surface, USD or mesh sequence) without simulating")
+    e = sub.add_parser("export", parents=[common], help="re-export a run's recorded frames (surface, USD or mesh sequence) without simulating")
     e.add_argument("run", help="run folder")
     e.add_argument("--format", default="usd", choices=["usd", "obj", "ply", "vtk"])
     e.add_argument("--out", help="output file (usd) or folder (meshes); default inside the run folder under export/")
@@ -167,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--overwrite", action="store_true", help="replace existing export files")
     e.set_defaults(func=_cmd_export)
 
-    v = sub.add_parser("preview", help="render frames of a run to PNG (and GIF), headless")
+    v = sub.add_parser("preview", parents=[common], help="render frames of a run to PNG (and GIF), headless")
     v.add_argument("run", help="run folder")
     g = v.add_mutually_exclusive_group()
     g.add_argument("--frame", type=int, help="one frame (default: the last)")
@@ -182,7 +212,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.set_defaults(func=_cmd_preview)
 
     b = sub.add_parser("bench", help="benchmarks: speed and accuracy (see warp-sph bench --help)", add_help=False)
-    b.add_argument("bench_args", nargs=argparse.REMAINDER)
+    b.add_argument("bench_args", nargs=argparse.REMAINDER)  # main() passes everything after "bench" through
     b.set_defaults(func=_cmd_bench)
     return p
 
@@ -200,11 +230,25 @@ def main(argv=None) -> int:
     from .core.errors import WarpSphError
 
     warnings.showwarning = _show_warning
+    argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    if "bench" in argv:  # everything after "bench" is the benchmark runner's (its own --help included)
+        i = argv.index("bench")
+        head = argv[:i]
+        if all(a == "--verbose" for a in head):
+            args = parser.parse_args(head + ["bench"])
+            args.bench_args = argv[i + 1:]
+        else:
+            args = parser.parse_args(argv)
+    else:
+        args = parser.parse_args(argv)
     if not getattr(args, "command", None):
         parser.print_help()
         return 2
+    if getattr(args, "verbose", False):
+        from .core.device import set_verbose
+
+        set_verbose(True)
     try:
         return args.func(args)
     except WarpSphError as e:

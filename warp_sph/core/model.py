@@ -34,7 +34,8 @@ class Model:
     lattice_bias: float           # d^3 sum_lattice W - 1 before calibration [-]
     gravity: np.ndarray           # g [m/s^2], shape (3,)
     origin: np.ndarray            # local origin [m], float64 shape (3,)
-    reference_speed: float        # expected max speed sqrt(2 |g| H) [m/s]
+    reference_speed: float        # expected max speed max(sqrt(2 |g| H), |v0|) [m/s]
+    reference_speed_source: str   # what set it: the fall height or a block's initial velocity
     speed_of_sound: float         # c_s [m/s]: WCSPH's stiffness, the Akinci friction and the penalty force
     viscosity: float              # kinematic nu [m^2/s]
     xsph: float                   # XSPH factor [-]
@@ -89,8 +90,9 @@ class State:
     frame: int = 0
 
 
-def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_lo) -> tuple[float, float]:
-    """(reference speed, c_s): v_ref = max(sqrt(2 |g| H), max|v0|), H the height of the fluid above the
+def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_lo,
+                    fluid_block: np.ndarray | None = None) -> tuple[float, float, str]:
+    """(reference speed, c_s, what set v_ref): v_ref = max(sqrt(2 |g| H), max|v0|), H the height of the fluid above the
     container floor (or the fluid's own height). c_s, the fluid's (artificial) speed of sound, comes from
     the ``wcsph`` section: sqrt(k / rho0) (linear) or sqrt(7 B / rho0) (Tait) when ``wcsph.stiffness`` is
     set, else ``wcsph.speed_of_sound``, else factor * v_ref (Becker & Teschner 2007: |drho|/rho0 ~
@@ -111,7 +113,15 @@ def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_l
     else:
         height = float(np.ptp(fluid_x[:, 2])) + 2 * scene.particle_radius if len(fluid_x) else 1.0
     g_ref = gnorm if gnorm > 0 else 9.81
-    v_ref = max(math.sqrt(2.0 * g_ref * height), float(np.linalg.norm(fluid_v, axis=1).max()) if len(fluid_v) else 0.0)
+    fall = math.sqrt(2.0 * g_ref * height)
+    speeds = np.linalg.norm(fluid_v.astype(np.float64), axis=1) if len(fluid_v) else np.zeros(1)
+    v_ref = max(fall, float(speeds.max()))
+    if v_ref > fall:
+        k = int(np.argmax(speeds))
+        block = int(fluid_block[k]) if fluid_block is not None and len(fluid_block) > k else 0
+        source = f"fluid[{block}].velocity"
+    else:
+        source = f"the fall height H = {height:.3g} m (sqrt(2 g H))"
     w = scene.sections.get("wcsph")
     rho0 = float(scene.material.rest_density)
     if w is not None and w.stiffness > 0:
@@ -120,7 +130,7 @@ def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_l
         c_s = float(w.speed_of_sound)
     else:
         c_s = (w.speed_of_sound_factor if w is not None else 10.0) * v_ref
-    return v_ref, c_s
+    return v_ref, c_s, source
 
 
 def build_model(scene, sampled, device) -> tuple[Model, State]:
@@ -128,9 +138,8 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
     kernel = get_smoothing_kernel(scene.smoothing_kernel)
     r = float(scene.particle_radius)
     d = 2.0 * r
-    h_per_d = scene.h_per_spacing if scene.h_per_spacing else kernel.default_h_per_spacing
-    h = h_per_d * d
-    support = kernel.support_radius(h)
+    h = scene.smoothing_length
+    support = scene.support_radius
     rho0 = float(scene.material.rest_density)
     mass = calibrated_mass(kernel.name, h, d, rho0)
     bias = lattice_sum(kernel.name, h, d) * d**3 - 1.0
@@ -149,7 +158,7 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         lo = hi = None
         origin = 0.5 * (fluid_x.min(axis=0) + fluid_x.max(axis=0))
 
-    v_ref, c_s = _speed_of_sound(scene, fluid_x, fluid_v, lo)
+    v_ref, c_s, v_source = _speed_of_sound(scene, fluid_x, fluid_v, lo, getattr(sampled, "fluid_block", None))
 
     boundary_method = scene.boundary if len(boundary_x) else "none"
     bx = wp.array((boundary_x - origin).astype(np.float32), dtype=wp.vec3, device=device)
@@ -166,7 +175,7 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         device=device, smoothing=kernel, rest_density=rho0, particle_radius=r, spacing=d,
         smoothing_length=h, support_radius=support, particle_mass=mass, lattice_bias=bias,
         gravity=np.asarray(scene.gravity, dtype=np.float32), origin=origin,
-        reference_speed=v_ref, speed_of_sound=c_s,
+        reference_speed=v_ref, reference_speed_source=v_source, speed_of_sound=c_s,
         viscosity=float(scene.material.viscosity), xsph=float(scene.material.xsph),
         boundary_friction=float(scene.material.boundary_friction), boundary_method=boundary_method,
         boundary_x=bx, boundary_v=bv, boundary_volume=bvol, boundary_grid=bgrid,

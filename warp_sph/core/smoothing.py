@@ -45,11 +45,6 @@ class SmoothingKernel:
         """Default smoothing length h [m] for particle spacing d [m]."""
         return self.default_h_per_spacing * spacing
 
-    @property
-    def functions(self):
-        """(value, gradient) ``@wp.func`` pair."""
-        return _dev.SMOOTHING_FUNCTIONS[self.name]
-
 
 SMOOTHING_KERNELS: dict[str, SmoothingKernel] = {
     "cubic": SmoothingKernel("cubic", 2.0, 1.0, "cubic spline, Monaghan & Lattanzio 1985 (Liu & Liu 2010)"),

@@ -7,12 +7,13 @@ the final name.
 from __future__ import annotations
 
 import os
-import tempfile
+from pathlib import Path
 
 import meshio
 import numpy as np
 
 from ..core.errors import OutputError
+from . import run_folder as rf
 
 #: format name -> meshio file_format
 MESH_FORMATS = {"obj": "obj", "ply": "ply", "vtk": "vtk"}
@@ -41,24 +42,31 @@ class MeshSequenceWriter:
         return os.path.join(self.folder, f"surface_{int(frame):06d}.{self.fmt}")
 
     def write_frame(self, frame: int, vertices: np.ndarray, triangles: np.ndarray) -> str:
-        """Write one frame's surface: vertices (V, 3) [m], triangles (T, 3) (CCW from outside).
+        """Write one frame's surface: vertices (V, 3) [m] (float32, or float64 kept as such),
+        triangles (T, 3) (CCW from outside).
 
         Returns the path written. An empty surface gives a valid file with no faces.
         """
-        verts = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
+        verts = np.asarray(vertices)  # float64 kept (a scene far from the origin), else float32
+        verts = np.ascontiguousarray(verts, dtype=np.float64 if verts.dtype == np.float64 else np.float32).reshape(-1, 3)
         tris = np.ascontiguousarray(triangles, dtype=np.int32).reshape(-1, 3)
         if len(tris) and (tris.min() < 0 or tris.max() >= len(verts)):
             raise ValueError(f"triangle indices out of range 0..{len(verts) - 1}")
         # an empty surface gets no cell block (meshio's VTK writer fails on an empty one)
         mesh = meshio.Mesh(verts, [("triangle", tris)] if len(tris) else [])
         final = self.path(frame)
-        fd, tmp = tempfile.mkstemp(prefix=f".surface_{int(frame):06d}.", suffix=f".{self.fmt}.tmp", dir=self.folder)
-        os.close(fd)
+        try:
+            fd, tmp = rf._mkstemp(Path(final), ".tmp")  # the umask's mode, like every run file
+            os.close(fd)
+        except OSError as exc:
+            raise rf.write_error(Path(final), exc) from None
         try:
             meshio.write(tmp, mesh, file_format=MESH_FORMATS[self.fmt])
             os.replace(tmp, final)
-        except BaseException:
+        except BaseException as exc:
             if os.path.exists(tmp):
                 os.remove(tmp)
+            if isinstance(exc, OSError):
+                raise rf.write_error(Path(final), exc) from None
             raise
         return final

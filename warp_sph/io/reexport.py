@@ -44,7 +44,7 @@ def scene_static_meshes(scene: dict) -> list[tuple[str, np.ndarray, np.ndarray]]
 
     out = []
     c = scene.get("container")
-    if c is not None:
+    if isinstance(c, dict):  # ``container = false`` (radial_expansion): no walls, no mesh
         out.append(("container", *container_box_mesh(c["min"], c["max"], open_top=True)))
     for i, ob in enumerate(scene.get("obstacles") or []):
         name = f"obstacle_{i}"
@@ -66,6 +66,16 @@ def scene_static_meshes(scene: dict) -> list[tuple[str, np.ndarray, np.ndarray]]
             tris = tris[:, ::-1]
         out.append((name, verts.astype(np.float32), np.ascontiguousarray(tris, dtype=np.int32)))
     return out
+
+
+def _far_from_origin(frame_file: Path) -> bool:
+    """A run recorded far from (0, 0, 0) stores x in float64 (``runner.world_float32_error``):
+    its USD re-export is then written relative to the origin too."""
+    try:
+        with np.load(frame_file) as data:
+            return data["x"].dtype == np.float64
+    except (OSError, KeyError, ValueError):
+        return False
 
 
 def recorded_frames(run_dir: Path) -> dict[int, Path]:
@@ -157,7 +167,7 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
         raise WarpSphError(f"unknown export format {fmt!r}; expected one of {', '.join(EXPORT_FORMATS)}")
     info = rf.read_run_json(run_dir)
     scene = info.get("scene") or {}
-    name = scene.get("name") or "run"
+    name = rf.safe_name(scene.get("name") or "run")  # a file name inside the output folder, whatever the scene says
     files = recorded_frames(run_dir)
     wanted = parse_frame_range(frames, files)
     if fmt == "usd" and wanted != list(range(wanted[0], wanted[-1] + 1)):
@@ -195,9 +205,10 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
 
         primvars = tuple(n for n in (scene.get("output") or {}).get("particle_primvars", ("density",))
                          if n == "density")  # pressure is not recorded
+        far = float(np.abs(origin).max()) > 0.0 and _far_from_origin(files[wanted[0]])
         usd = UsdWriter(target, fps=float(info.get("fps") or scene.get("fps") or 24.0), particle_radius=radius,
                         static_meshes=scene_static_meshes(scene), primvars=primvars, with_surface=True,
-                        overwrite=overwrite, first_frame=wanted[0])
+                        overwrite=overwrite, first_frame=wanted[0], origin=origin if far else None)
     else:
         from .export_mesh import MeshSequenceWriter
 
@@ -206,6 +217,7 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
         for frame in wanted:
             try:
                 with np.load(files[frame]) as data:
+                    x_dtype = data["x"].dtype  # float64 where the run lies far from (0, 0, 0)
                     x_world = np.asarray(data["x"], dtype=np.float64).reshape(-1, 3)
                     v = np.asarray(data["v"], dtype=np.float32).reshape(-1, 3)
                     rho = np.asarray(data["density"], dtype=np.float32).reshape(-1)
@@ -213,12 +225,12 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
                 raise OutputError(f"{files[frame]}: unreadable recorded frame ({exc})") from None
             x_local = wp.array((x_world - origin).astype(np.float32), dtype=wp.vec3, device=device)
             verts, tris = surface.extract(x_local, wp.array(rho, dtype=float, device=device))
-            verts = (verts.astype(np.float64) + origin).astype(np.float32)
+            verts = verts.astype(np.float64) + origin  # world [m]; float32 on writing unless far
+            data_far = x_dtype == np.float64
             if usd is not None:
-                usd.write_frame(frame, x_world.astype(np.float32), v,
-                                primvars={n: rho for n in usd.primvar_names}, surface=(verts, tris))
+                usd.write_frame(frame, x_world, v, primvars={n: rho for n in usd.primvar_names}, surface=(verts, tris))
             else:
-                mesh_writer.write_frame(frame, verts, tris)
+                mesh_writer.write_frame(frame, verts if data_far else verts.astype(np.float32), tris)
     finally:
         if usd is not None:
             usd.close()

@@ -11,10 +11,12 @@ Layout of DIR:
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
 import tempfile
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -23,17 +25,107 @@ from ..core.errors import OutputError
 
 RUN_JSON = "run.json"
 
+#: file names a run (or ``warp-sph preview``) writes inside its folder; ``--overwrite`` removes
+#: only these (plus the USD named in the previous run.json), never anything else
+RUN_FILE_PATTERNS = {
+    "frames": re.compile(r"frame_\d{6}\.npz"),
+    "checkpoints": re.compile(r"checkpoint_\d{6}\.npz"),
+    "mesh": re.compile(r"surface_\d{6}\.(obj|ply|vtk)"),
+    "preview": re.compile(r"(particles|surface)(_\d{6}\.png|\.gif)"),
+}
+#: temporary files of the atomic writes below (left behind only by a crash during a write)
+_TEMP_PATTERN = re.compile(r"\.(frame|checkpoint|surface|particles|run)[A-Za-z0-9_.]*\.tmp(\.npz)?")
+
+
+def safe_name(name: str) -> str:
+    """A file name made from a scene name: letters, digits, '.', '_' and '-' kept, every other
+    character (path separators included) replaced by '_', no leading dot; "scene" if nothing is
+    left. ``"../precious"`` -> ``"precious"``, ``"my tank/v2"`` -> ``"my_tank_v2"``."""
+    text = re.sub(r"[^A-Za-z0-9._-]", "_", str(name)).lstrip("._")
+    return text[:120] or "scene"
+
+
+def _umask() -> int:
+    """The process umask, read without changing it (Linux /proc); else set and restored."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _mkstemp(path: Path, suffix: str) -> tuple[int, str]:
+    """A temporary file beside ``path`` with the mode a plain ``open()`` would give (0666 & ~umask;
+    mkstemp alone gives 0600)."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    try:
+        os.fchmod(fd, 0o666 & ~_umask())
+    except (OSError, AttributeError):
+        pass
+    return fd, tmp
+
+
+def free_bytes(path: Path) -> int | None:
+    """Bytes free to this user on the file system holding ``path`` (its nearest existing folder)."""
+    p = Path(path)
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        st = os.statvfs(p)
+    except (OSError, AttributeError):
+        return None
+    return st.f_bavail * st.f_frsize
+
+
+def format_bytes(n: float | None) -> str:
+    if n is None:
+        return "unknown"
+    for unit in ("B", "kB", "MB", "GB"):
+        if abs(n) < 1000.0 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000.0
+    return f"{n:.1f} TB"
+
+
+def write_error(path: Path, exc: OSError) -> OutputError:
+    """A one-line OutputError for a failed write: the path and, for a full disk, the free space."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return OutputError(f"no space left on device writing {path} ({format_bytes(free_bytes(path))} free); "
+                           "free some space, then continue with --resume")
+    return OutputError(f"cannot write {path}: {exc.strerror or exc}")
+
+
+def check_free_space(path: Path, needed: int, what: str) -> None:
+    """Raise OutputError before writing ``needed`` bytes at ``path`` when the disk has fewer free."""
+    free = free_bytes(path)
+    if free is not None and free < needed:
+        raise OutputError(f"no space left on device for {what} in {Path(path).parent}: needs about "
+                          f"{format_bytes(needed)}, {format_bytes(free)} free; free some space, then "
+                          "continue with --resume")
+
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file and a rename: ``path`` holds either its
+    old or its new content, never a part. Raises OutputError (one line) when the write fails."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        fd, tmp = _mkstemp(path, ".tmp")
+    except OSError as exc:
+        raise write_error(path, exc) from None
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise write_error(path, exc) from None
         raise
 
 
@@ -46,16 +138,27 @@ def atomic_write_json(path: Path, obj) -> None:
     atomic_write_bytes(path, to_json(obj, indent=1).encode())
 
 
+def npz_bytes(**arrays) -> int:
+    """Size of ``np.savez(**arrays)`` [bytes] (uncompressed zip: data + about 300 B per array)."""
+    return sum(np.asarray(a).nbytes + 300 for a in arrays.values()) + 100
+
+
 def atomic_save_npz(path: Path, **arrays) -> None:
+    """``np.savez`` through a temporary file and a rename (see atomic_write_bytes)."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.npz", dir=path.parent)
-    os.close(fd)
+    try:
+        fd, tmp = _mkstemp(path, ".tmp.npz")
+        os.close(fd)
+    except OSError as exc:
+        raise write_error(path, exc) from None
     try:
         np.savez(tmp, **arrays)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise write_error(path, exc) from None
         raise
 
 
@@ -73,19 +176,22 @@ def is_run_folder(path: Path) -> bool:
     return (Path(path) / RUN_JSON).is_file()
 
 
-def prepare_run_folder(out: Path | None, scene_name: str, overwrite: bool) -> Path:
-    """Choose and create the output folder.
+def choose_run_folder(out: Path | None, scene_name: str, overwrite: bool) -> Path:
+    """Choose the output folder and check it can be used; changes nothing on disk.
 
-    Default (out None): runs/<scene>, or runs/<scene>-2, -3 ... when that holds a run already.
+    Default (out None): runs/<name>, or runs/<name>-2, -3 ... when that holds something already,
+    where <name> is ``safe_name(scene_name)``: a scene name never places a run outside runs/.
     An explicit folder must be new or empty; one holding a previous run is reused only with
-    overwrite=True (its run files are replaced); a non-empty folder that is not a run is refused.
+    overwrite=True (``clear_run`` then removes that run's files and nothing else); a non-empty
+    folder that is not a run is refused.
     """
     if out is None:
-        base = Path("runs") / scene_name
+        name = safe_name(scene_name)
+        base = Path("runs") / name
         out = base
         k = 2
-        while out.exists() and any(out.iterdir()):
-            out = base.with_name(f"{scene_name}-{k}")
+        while out.exists() and (not out.is_dir() or any(out.iterdir())):
+            out = base.with_name(f"{name}-{k}")
             k += 1
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -96,28 +202,92 @@ def prepare_run_folder(out: Path | None, scene_name: str, overwrite: bool) -> Pa
         if not overwrite:
             raise OutputError(f"output folder {out} holds a previous run; pass --overwrite to replace it "
                               f"or --resume {out} to continue it")
-        _clear_run(out)
+    return out
+
+
+def create_run_folder(out: Path) -> list[Path]:
+    """Create ``out`` (and missing parents) and check it is writable. Returns the folders created,
+    outermost first, so that a start that fails can remove them again (``remove_new_folders``)."""
+    out = Path(out)
+    created = []
+    p = out
+    while not p.exists() and p != p.parent:
+        created.append(p)
+        p = p.parent
+    created.reverse()
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".write_test"
         probe.write_bytes(b"")
         probe.unlink()
     except OSError as e:
+        remove_new_folders(created)
         raise OutputError(f"cannot write to output folder {out}: {e.strerror or e}") from None
+    return created
+
+
+def remove_new_folders(created: list[Path]) -> None:
+    """Remove the folders ``create_run_folder`` made, innermost first, where they are empty."""
+    for d in reversed(created):
+        try:
+            d.rmdir()
+        except OSError:
+            return
+
+
+def prepare_run_folder(out: Path | None, scene_name: str, overwrite: bool) -> Path:
+    """choose_run_folder + clear_run (with overwrite) + create_run_folder, in one call."""
+    out = choose_run_folder(out, scene_name, overwrite)
+    if is_run_folder(out):
+        clear_run(out)
+    create_run_folder(out)
     return out
 
 
-def _clear_run(out: Path) -> None:
-    """Remove the files a previous run wrote (and nothing else)."""
-    for sub in ("frames", "checkpoints", "mesh", "preview"):
+def run_files(out: Path) -> list[Path]:
+    """The files of the run in ``out`` that a run writes: run.json, the USD named after the scene
+    of its run.json, frames, checkpoints, mesh files, previews and temporary files of
+    interrupted writes. Anything else in the folder is the user's."""
+    out = Path(out)
+    found = []
+    if (out / RUN_JSON).is_file():
+        found.append(out / RUN_JSON)
+        try:
+            info = json.loads((out / RUN_JSON).read_text())
+            name = info["scene"]["name"]
+        except (OSError, ValueError, KeyError, TypeError):
+            name = None
+        if isinstance(name, str):
+            usd = out / f"{safe_name(name)}.usdc"
+            if usd.is_file():
+                found.append(usd)
+    found += [p for p in sorted(out.iterdir()) if p.is_file() and _TEMP_PATTERN.fullmatch(p.name)]
+    for sub, pattern in RUN_FILE_PATTERNS.items():
         d = out / sub
         if d.is_dir():
-            for f in d.iterdir():
-                if f.is_file() and (f.suffix in (".npz", ".obj", ".ply", ".vtk", ".png", ".gif", ".json")):
-                    f.unlink()
-    for f in out.iterdir():
-        if f.is_file() and (f.name == RUN_JSON or f.suffix == ".usdc"):
-            f.unlink()
+            found += [p for p in sorted(d.iterdir())
+                      if p.is_file() and (pattern.fullmatch(p.name) or _TEMP_PATTERN.fullmatch(p.name))]
+    return found
+
+
+def clear_run(out: Path) -> list[Path]:
+    """Remove the files a previous run wrote (``run_files``) and nothing else; returns them."""
+    removed = run_files(out)
+    for p in removed:
+        p.unlink()
+    for sub in RUN_FILE_PATTERNS:
+        d = Path(out) / sub
+        if d.is_dir() and not any(d.iterdir()):
+            d.rmdir()
+    return removed
+
+
+def remove_files(paths) -> None:
+    for p in paths:
+        try:
+            Path(p).unlink()
+        except FileNotFoundError:
+            pass
 
 
 def frame_path(out: Path, frame: int) -> Path:
@@ -130,7 +300,8 @@ def checkpoint_path(out: Path, frame: int) -> Path:
 
 def latest_checkpoint(out: Path) -> Path | None:
     d = Path(out) / "checkpoints"
-    cps = sorted(d.glob("checkpoint_*.npz")) if d.is_dir() else []
+    cps = sorted(p for p in d.glob("checkpoint_*.npz") if RUN_FILE_PATTERNS["checkpoints"].fullmatch(p.name)) \
+        if d.is_dir() else []
     return cps[-1] if cps else None
 
 
@@ -140,25 +311,66 @@ def _frame_number(path: Path) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def truncate_run(out: Path, frame: int) -> list[Path]:
-    """Remove recorded frames, checkpoints and mesh-sequence files after ``frame`` (before a resume
-    from the checkpoint of ``frame``: what a run wrote beyond it is written again). Returns them."""
-    removed = []
-    for sub, suffixes in (("frames", (".npz",)), ("checkpoints", (".npz",)), ("mesh", (".obj", ".ply", ".vtk"))):
+def files_after(out: Path, frame: int) -> list[Path]:
+    """Recorded frames, checkpoints and mesh-sequence files of frames after ``frame``: what a resume
+    from the checkpoint of ``frame`` writes again."""
+    found = []
+    for sub in ("frames", "checkpoints", "mesh"):
         d = Path(out) / sub
         for p in sorted(d.iterdir()) if d.is_dir() else []:
             n = _frame_number(p)
-            if p.is_file() and p.suffix in suffixes and n is not None and n > frame:
-                p.unlink()
-                removed.append(p)
+            if p.is_file() and RUN_FILE_PATTERNS[sub].fullmatch(p.name) and n is not None and n > frame:
+                found.append(p)
+    return found
+
+
+def truncate_run(out: Path, frame: int) -> list[Path]:
+    """Remove ``files_after(out, frame)`` (before a resume from the checkpoint of ``frame``).
+    Returns them."""
+    removed = files_after(out, frame)
+    remove_files(removed)
     return removed
 
 
 def read_run_json(out: Path) -> dict:
+    """run.json of a run folder; OutputError (one line) when it is missing, unreadable or holds no scene."""
     p = Path(out) / RUN_JSON
     if not p.is_file():
         raise OutputError(f"{out} is not a warp-sph run folder (no {RUN_JSON})")
     try:
-        return json.loads(p.read_text())
-    except json.JSONDecodeError as e:
+        info = json.loads(p.read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise OutputError(f"{p}: unreadable JSON ({e})") from None
+    if not isinstance(info, dict) or not isinstance(info.get("scene"), dict):
+        raise OutputError(f"{p}: not a warp-sph run.json (it holds no 'scene' table)")
+    return info
+
+
+#: arrays every checkpoint holds: name -> (dtype kind, trailing shape)
+CHECKPOINT_ARRAYS = {"particle_x_local": ("f", (3,)), "particle_v": ("f", (3,)), "step": ("i", ()),
+                     "frame": ("i", ()), "state_frame": ("i", ()), "time": ("f", ()), "last_max_speed": ("f", ())}
+
+
+def load_checkpoint(path: Path) -> dict:
+    """Every array of a checkpoint file, checked for the keys, shapes and finite values a resume
+    needs; OutputError (one line, naming the file) otherwise. Nothing is pickled or executed."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            cp = {k: data[k] for k in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as exc:
+        raise OutputError(f"{path}: unreadable checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else 'truncated?'}); "
+                          "remove it to resume from an earlier one") from None
+    for key, (kind, shape) in CHECKPOINT_ARRAYS.items():
+        a = cp.get(key)
+        if a is None:
+            raise OutputError(f"{path}: not a warp-sph checkpoint (no {key!r}); remove it to resume from an earlier one")
+        ok = a.dtype.kind in (kind, "i", "u") if kind == "f" else a.dtype.kind in ("i", "u")
+        if not ok or (a.shape[1:] != shape if shape else a.shape != ()):
+            raise OutputError(f"{path}: checkpoint array {key!r} has dtype {a.dtype} and shape {a.shape}, "
+                              f"expected {'float' if kind == 'f' else 'integer'} of shape {('N',) + shape if shape else ()}")
+        if kind == "f" and not np.all(np.isfinite(a)):
+            raise OutputError(f"{path}: checkpoint array {key!r} holds non-finite values")
+    if len(cp["particle_x_local"]) != len(cp["particle_v"]):
+        raise OutputError(f"{path}: {len(cp['particle_x_local'])} positions but {len(cp['particle_v'])} velocities")
+    return cp

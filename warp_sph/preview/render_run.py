@@ -26,6 +26,7 @@ DEFAULT_SIZE = (640, 360)
 PARTICLE_COLOR = (0.16, 0.42, 0.78)  # water blue, linear [0, 1]
 FAST_PARTICLE_COLOR = (0.80, 0.92, 1.00)  # foam white-blue for the fastest particles
 SURFACE_COLOR = (0.22, 0.50, 0.85)
+OBSTACLE_COLOR = (0.62, 0.58, 0.52)  # stone grey for obstacles in surface previews
 BACKGROUND = (0.93, 0.94, 0.96)
 SURFACE_PRIM = "/sph/surface"
 
@@ -243,12 +244,15 @@ def render_particles(
     device="cpu",
     *,
     light: Light | None = None,
+    solids: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+    solid_color=OBSTACLE_COLOR,
 ) -> np.ndarray:
     """Ray trace particles as spheres; returns an (H, W, 3) uint8 RGB image, row 0 at the top.
 
     particle_x: positions [m], shape (N, 3); radius: sphere radius [m]; container: (lo, hi) [m]
     drawn as faint edges and a gridded floor, or None; colors: (N, 3) or (3,) RGB, floats in
-    [0, 1] or integers in [0, 255], default water blue.
+    [0, 1] or integers in [0, 255], default water blue; solids: obstacle meshes (vertices [m],
+    triangles) drawn flat-shaded in ``solid_color``.
     """
     width, height = _check_size(size)
     x = np.ascontiguousarray(np.asarray(particle_x, dtype=np.float32).reshape(-1, 3))
@@ -262,6 +266,17 @@ def render_particles(
     particle_x_wp = wp.array(x, dtype=wp.vec3, device=device) if len(x) else wp.zeros(1, dtype=wp.vec3, device=device)
     particle_color = wp.array(colors_host if len(x) else np.zeros((1, 3)), dtype=wp.vec3, device=device)
     grid = _SphereGrid(particle_x_wp, x, float(radius), device)
+    solid_v = [np.asarray(v, dtype=np.float32).reshape(-1, 3) for v, t in solids if len(t)]
+    solid_t = [np.asarray(t, dtype=np.int32).reshape(-1, 3) for v, t in solids if len(t)]
+    has_solid = int(len(solid_t) > 0)
+    if has_solid:
+        offsets = np.cumsum([0] + [len(v) for v in solid_v[:-1]])
+        solid_mesh = wp.Mesh(points=wp.array(np.concatenate(solid_v), dtype=wp.vec3, device=device),
+                             indices=wp.array(np.concatenate([t + o for t, o in zip(solid_t, offsets)]).reshape(-1),
+                                              dtype=wp.int32, device=device))
+        solid_id = solid_mesh.id
+    else:
+        solid_id = wp.uint64(0)
     image = wp.empty((height, width), dtype=wp.vec3, device=device)
     wp.launch(
         render.trace_particles,
@@ -279,6 +294,9 @@ def render_particles(
             grid.cell_start,
             grid.cell_count,
             grid.cell_particles,
+            solid_id,
+            has_solid,
+            wp.vec3(*solid_color),
         ],
         outputs=[image],
         device=device,
@@ -307,16 +325,31 @@ def render_mesh(
     *,
     color=SURFACE_COLOR,
     light: Light | None = None,
+    solids: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+    solid_color=OBSTACLE_COLOR,
 ) -> np.ndarray:
     """Ray trace a triangle mesh (smooth normals, two-sided); returns an (H, W, 3) uint8 image.
 
     vertices: (V, 3) [m]; triangles: (T, 3) vertex indices; container as in ``render_particles``.
+    solids: obstacle meshes (vertices [m], triangles) drawn flat-shaded in ``solid_color``.
     """
     width, height = _check_size(size)
     v = np.ascontiguousarray(np.asarray(vertices, dtype=np.float32).reshape(-1, 3))
     tri = np.ascontiguousarray(np.asarray(triangles, dtype=np.int32).reshape(-1, 3))
     if len(tri) and (tri.min() < 0 or tri.max() >= len(v)):
         raise PreviewError(f"triangle indices must lie in [0, {len(v)}), got [{tri.min()}, {tri.max()}]")
+    colors = [np.tile(np.asarray(color, dtype=np.float32), (len(tri), 1))]
+    for sv, st in solids:  # unshared vertices per triangle: vertex normals = face normals (flat)
+        sv = np.asarray(sv, dtype=np.float32).reshape(-1, 3)
+        st = np.asarray(st, dtype=np.int64).reshape(-1, 3)
+        if len(st) == 0:
+            continue
+        if st.min() < 0 or st.max() >= len(sv):
+            raise PreviewError(f"obstacle triangle indices must lie in [0, {len(sv)})")
+        tri = np.concatenate([tri, (len(v) + np.arange(3 * len(st), dtype=np.int32)).reshape(-1, 3)])
+        v = np.concatenate([v, sv[st.reshape(-1)]])
+        colors.append(np.tile(np.asarray(solid_color, dtype=np.float32), (len(st), 1)))
+    face_colors = np.ascontiguousarray(np.concatenate(colors)) if len(tri) else np.zeros((1, 3), np.float32)
     device = wp.get_device(device)
     cam = _camera_struct(camera, (width, height))
     has_mesh = int(len(tri) > 0)
@@ -330,6 +363,7 @@ def render_mesh(
         indices = wp.zeros(3, dtype=wp.int32, device=device)
         normals = wp.zeros(1, dtype=wp.vec3, device=device)
         mesh_id = wp.uint64(0)
+    face_color = wp.array(face_colors, dtype=wp.vec3, device=device)
     image = wp.empty((height, width), dtype=wp.vec3, device=device)
     wp.launch(
         render.trace_mesh,
@@ -342,7 +376,7 @@ def render_mesh(
             indices,
             normals,
             has_mesh,
-            wp.vec3(*color),
+            face_color,
         ],
         outputs=[image],
         device=device,
@@ -355,7 +389,8 @@ def _pil():
         from PIL import Image
     except ImportError as err:
         raise PreviewError(
-            "writing preview images needs Pillow, the optional extra: pip install warp-sph[preview]"
+            "writing preview images needs Pillow, the optional extra warp-sph[preview]: in the checkout, "
+            "pip install -e '.[preview]' (into the environment warp-sph runs in, e.g. .venv/bin/pip)"
         ) from err
     return Image
 
@@ -440,15 +475,38 @@ class _SurfaceReader:
         files = sorted(p for ext in ("usdc", "usd", "usda") for p in run_dir.glob(f"*.{ext}"))
         if not files:
             raise PreviewError(f"surface preview needs the run's USD file, none found in {run_dir}")
-        self.path = files[0]
+        try:  # the run's own file (named after its scene) before any other USD in the folder
+            from ..io.run_folder import safe_name
+
+            own = run_dir / f"{safe_name(json.loads((run_dir / 'run.json').read_text())['scene']['name'])}.usdc"
+        except (OSError, ValueError, KeyError, TypeError):
+            own = None
+        self.path = own if own is not None and own.is_file() else files[0]
         self._usd = Usd
-        self.stage = Usd.Stage.Open(str(self.path))
+        try:
+            self.stage = Usd.Stage.Open(str(self.path))
+        except Exception as exc:  # pxr's Tf.ErrorException: a damaged file
+            lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+            raise PreviewError(f"{self.path} does not open: {lines[0] if lines else exc}") from None
         prim = self.stage.GetPrimAtPath(SURFACE_PRIM)
         if not prim or not prim.IsValid():
             raise PreviewError(
                 f"{self.path} has no surface mesh at {SURFACE_PRIM} (was the run made without surface export?)"
             )
         self.mesh = UsdGeom.Mesh(prim)
+        self._geom = UsdGeom
+        parent = self.stage.GetPrimAtPath(SURFACE_PRIM).GetParent()
+        #: obstacle meshes beside the surface (the container is drawn as the box outline)
+        self.solid_prims = [p for p in parent.GetChildren() if p.IsA(UsdGeom.Mesh)
+                            and p.GetName() not in ("surface", "container")]
+
+    def _world(self, prim, points: np.ndarray, time) -> np.ndarray:
+        """Points of ``prim`` in world coordinates [m] (a run far from the origin writes them
+        relative to /sph's translate), in float64 until the renderer takes them."""
+        m = np.asarray(self._geom.XformCache(time).GetLocalToWorldTransform(prim), dtype=np.float64)
+        if np.array_equal(m, np.eye(4)):
+            return points
+        return points.astype(np.float64) @ m[:3, :3] + m[3, :3]
 
     def frame(self, frame: int) -> tuple[np.ndarray, np.ndarray]:
         points_attr = self.mesh.GetPointsAttr()
@@ -458,7 +516,39 @@ class _SurfaceReader:
         points = np.asarray(points_attr.Get(time) or [], dtype=np.float32).reshape(-1, 3)
         counts = np.asarray(self.mesh.GetFaceVertexCountsAttr().Get(time) or [], dtype=np.int64)
         indices = np.asarray(self.mesh.GetFaceVertexIndicesAttr().Get(time) or [], dtype=np.int64)
-        return points, _triangulate(counts, indices)
+        return self._world(self.mesh.GetPrim(), points, time), _triangulate(counts, indices)
+
+    def first_time(self) -> float:
+        times = self.mesh.GetPointsAttr().GetTimeSamples()
+        return float(times[0]) if times else 1.0
+
+    def solids(self, frame: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Obstacle meshes (world vertices [m], triangles) at ``frame``."""
+        out = []
+        time = self._usd.TimeCode(frame)
+        for prim in self.solid_prims:
+            mesh = self._geom.Mesh(prim)
+            points = np.asarray(mesh.GetPointsAttr().Get(time) or [], dtype=np.float32).reshape(-1, 3)
+            counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(time) or [], dtype=np.int64)
+            indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(time) or [], dtype=np.int64)
+            if len(points) and len(counts):
+                out.append((self._world(prim, points, time), _triangulate(counts, indices)))
+        return out
+
+
+def _obstacles(run_dir: Path, scene: dict, surface) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The run's obstacle meshes in world coordinates [m]: from its USD (where they were written)
+    when there is one, else from the scene in run.json (mesh files loaded again)."""
+    if surface is None:
+        try:
+            surface = _SurfaceReader(run_dir)
+        except PreviewError:
+            surface = None
+    if surface is not None:
+        return surface.solids(surface.first_time())
+    from ..io.reexport import scene_static_meshes
+
+    return [(v, t) for name, v, t in scene_static_meshes(scene) if name != "container"]
 
 
 def _triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
@@ -527,6 +617,7 @@ def preview_run(
     out_dir = Path(out) if out is not None else run_dir / "preview"
 
     surface = _SurfaceReader(run_dir) if mode == "surface" else None
+    solids = _obstacles(run_dir, scene, surface)
 
     def load(frame):
         if surface is not None:
@@ -555,11 +646,13 @@ def preview_run(
     for frame in frames:
         if surface is not None:
             vertices, triangles = surface.frame(frame)
-            image = render_mesh(vertices, triangles, camera, size, container, device, light=light)
+            image = render_mesh(vertices, triangles, camera, size, container, device, light=light,
+                                solids=solids)
         else:
             x, v = _load_frame(run_dir, frame)
             colors = _speed_colors(v, speed_scale, len(x))
-            image = render_particles(x, radius, camera, size, container, colors, device, light=light)
+            image = render_particles(x, radius, camera, size, container, colors, device, light=light,
+                                     solids=solids)
         written.append(save_png(image, out_dir / f"{mode}_{frame:06d}.png"))
         if gif:
             images.append(image)

@@ -67,16 +67,20 @@ def time_step_bounds(sim, speed: float | None = None) -> dict[str, float]:
     return {b.name: b.seconds for b in sim.time_step_bounds(v)}
 
 
-def _step_estimate(scene, sim) -> tuple[float, int, object]:
-    """(dt [s], substeps for the whole run, the tightest bound) at the reference speed."""
+def _step_estimate(scene, sim) -> tuple[float, float, object]:
+    """(dt [s], substeps for the whole run (a float, may be huge), the tightest bound) at the reference
+    speed; dt is what the run would take (fixed, or the bound clamped to dt_min..dt_max)."""
     t = scene.time
     bound = sim.time_step_bounds(sim.model.reference_speed)[0]
     dt = float(t.fixed_dt) if t.fixed_dt > 0 else min(max(bound.seconds, t.dt_min), t.dt_max)
+    return dt, _substeps(scene, dt), bound
+
+
+def _substeps(scene, dt: float) -> float:
+    """Substeps of the whole run at step dt [s]: whole substeps per frame, times the frames."""
     frame_dt = 1.0 / float(scene.fps)
-    per_frame = max(1, math.ceil(frame_dt / dt - 1e-9)) if dt > 0 else math.inf
-    frames = scene.duration * scene.fps
-    steps = per_frame * frames
-    return dt, int(min(steps, 2**62)) if math.isfinite(steps) else 2**62, bound
+    per_frame = max(1.0, math.ceil(frame_dt / dt - 1e-9)) if dt > 0 else math.inf
+    return per_frame * scene.duration * scene.fps
 
 
 def time_step_summary(scene, sim) -> list[str]:
@@ -85,7 +89,7 @@ def time_step_summary(scene, sim) -> list[str]:
     lines = [f"time-step bound {b.name}: {b.seconds:.4g} s ({b.formula})" for b in sim.time_step_bounds(v)]
     dt, steps, _ = _step_estimate(scene, sim)
     frames = int(round(scene.duration * scene.fps)) + 1
-    lines.append(f"{frames} frames at {scene.fps:g} fps; about {steps:,} substeps of {dt:.4g} s at the reference "
+    lines.append(f"{frames} frames at {scene.fps:g} fps; about {steps:,.0f} substeps of {dt:.4g} s at the reference "
                  f"speed {v:.3g} m/s (adaptive steps follow the flow)")
     return lines
 
@@ -159,59 +163,87 @@ def available_device_memory(device) -> int | None:
     return int(free) if free else None
 
 
-def estimate_particle_counts(scene) -> tuple[int, int]:
-    """(fluid, boundary) particle counts estimated from the scene's geometry, without sampling:
-    block volume / (s d)^3 and wall or obstacle area / d^2."""
+def particle_count_contributions(scene) -> list[tuple[str, str, int]]:
+    """[(key path, "fluid" | "boundary", particles)] estimated from the scene's geometry without
+    sampling: a block's volume / (s d)^3, a wall's or obstacle's area / d^2."""
     d = scene.spacing
-    fluid = 0.0
-    for b in scene.fluid:
+    out = []
+    for i, b in enumerate(scene.fluid):
         step = b.spacing_scale * d
-        if b.shape == "sphere":
-            vol = 4.0 / 3.0 * math.pi * b.radius**3
-        else:
-            vol = float(np.prod(np.subtract(b.max, b.min)))
-        fluid += vol / step**3
-    area = 0.0
-    boxes = []
+        vol = 4.0 / 3.0 * math.pi * b.radius**3 if b.shape == "sphere" else float(np.prod(np.subtract(b.max, b.min)))
+        out.append((f"fluid[{i}]", "fluid", int(min(vol / step**3, 2**62))))
+
+    def box_area(lo, hi):
+        e = np.subtract(hi, lo)
+        return 2.0 * (e[0] * e[1] + e[1] * e[2] + e[0] * e[2])
+
     if scene.container is not None:
-        boxes.append((scene.container.min, scene.container.max))
-    for ob in scene.obstacles:
+        out.append(("container", "boundary", int(min(box_area(scene.container.min, scene.container.max) / d**2, 2**62))))
+    for i, ob in enumerate(scene.obstacles):
         if ob.shape == "box":
-            boxes.append((ob.min, ob.max))
+            area = box_area(ob.min, ob.max)
         else:
             try:
                 from ..scene.meshes import load_triangle_mesh
 
                 mesh = load_triangle_mesh(ob.file).transformed(ob.scale, ob.translate)
                 a, b, c = mesh.triangle_corners()
-                area += 0.5 * float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
+                area = 0.5 * float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
             except Exception:
-                pass
-    for lo, hi in boxes:
-        e = np.subtract(hi, lo)
-        area += 2.0 * (e[0] * e[1] + e[1] * e[2] + e[0] * e[2])
-    return int(fluid), int(area / d**2)
+                area = 0.0
+        out.append((f"obstacles[{i}]", "boundary", int(min(area / d**2, 2**62))))
+    return out
+
+
+def estimate_particle_counts(scene) -> tuple[int, int]:
+    """(fluid, boundary) particle counts estimated from the scene's geometry, without sampling."""
+    parts = particle_count_contributions(scene)
+    return (sum(n for _, kind, n in parts if kind == "fluid"), sum(n for _, kind, n in parts if kind == "boundary"))
+
+
+def _surface_bytes(scene, fluid_count: int) -> int:
+    o = scene.output
+    if not (o.surface and (o.usd or o.mesh_sequence)):
+        return 0
+    cell = o.surface_cell_per_radius * scene.particle_radius
+    if scene.container is not None:
+        volume = float(np.prod(np.subtract(scene.container.max, scene.container.min)))
+    else:  # free fluid: its volume grown 8x (a block expanding to twice its size)
+        volume = 8.0 * fluid_count * scene.spacing**3
+    return int(min(SURFACE_BYTES_PER_CELL * volume / cell**3, 2**62))
 
 
 def estimate_memory(scene, fluid_count: int, boundary_count: int) -> dict[str, int]:
     """{"device": bytes, "host": bytes} a run of ``scene`` needs at its peak (rough, conservative).
     On the CPU both live in host memory."""
     device = (DEVICE_BYTES_PER_FLUID * fluid_count + DEVICE_BYTES_PER_BOUNDARY * boundary_count
-              + HASH_GRID_BYTES)
+              + HASH_GRID_BYTES + _surface_bytes(scene, fluid_count))
     host = HOST_BYTES_PER_FLUID * fluid_count + HOST_BYTES_PER_BOUNDARY * boundary_count
-    o = scene.output
-    if o.surface and (o.usd or o.mesh_sequence):
-        cell = o.surface_cell_per_radius * scene.particle_radius
-        if scene.container is not None:
-            volume = float(np.prod(np.subtract(scene.container.max, scene.container.min)))
-        else:  # free fluid: its volume grown 8x (a block expanding to twice its size)
-            volume = 8.0 * fluid_count * scene.spacing**3
-        device += int(SURFACE_BYTES_PER_CELL * volume / cell**3)
     return {"device": int(device), "host": int(host)}
 
 
 def _gib(n: float) -> str:
     return f"{n / 2**30:.3g} GiB" if n >= 2**28 else f"{n / 2**20:.3g} MiB"
+
+
+def _largest_cost(scene, fluid: int, boundary: int) -> tuple[str, str]:
+    """(key path, advice) of what needs the most memory: a fluid block, a wall, an obstacle or the surface grid."""
+    per = {"fluid": DEVICE_BYTES_PER_FLUID + HOST_BYTES_PER_FLUID,
+           "boundary": DEVICE_BYTES_PER_BOUNDARY + HOST_BYTES_PER_BOUNDARY}
+    parts = [(n * per[kind], key, kind, n) for key, kind, n in particle_count_contributions(scene)]
+    surface = _surface_bytes(scene, fluid)
+    cost, key, kind, n = max(parts) if parts else (0, "particle_radius", "fluid", fluid)
+    if surface > cost:
+        return ("output.surface_cell_per_radius",
+                f"the surface grid at {scene.output.surface_cell_per_radius:g} r cells needs {_gib(surface)}; "
+                "raise output.surface_cell_per_radius")
+    if key.startswith("obstacles"):
+        return key, (f"{key} needs about {n:,} boundary particles at spacing d = {scene.spacing:g} m; check its "
+                     "size (scale, min/max) or raise particle_radius")
+    if key == "container":
+        return key, (f"the container walls need about {n:,} boundary particles at spacing d = {scene.spacing:g} m; "
+                     "shrink the container or raise particle_radius")
+    return "particle_radius", f"{key} needs about {n:,} fluid particles; raise particle_radius or shrink the fluid blocks"
 
 
 def _memory_verdict(scene, fluid: int, boundary: int, device, estimated: bool) -> tuple[str, str] | None:
@@ -236,10 +268,12 @@ def _memory_verdict(scene, fluid: int, boundary: int, device, estimated: bool) -
     ratio, pool, n, avail = worst
     # memory scales as 1/r^3: the radius that would fit in half the available memory
     r_fit = scene.particle_radius * max(ratio / MEMORY_WARN, 1.0) ** (1.0 / 3.0)
-    text = (f"{count} need about {_gib(n)} of {pool} memory, {100 * ratio:.0f} % of the {_gib(avail)} available")
+    text = f"{count} need about {_gib(n)} of {pool} memory, {100 * ratio:.0f} % of the {_gib(avail)} available"
     if ratio > 1.0:
-        return "refuse", (f"{scene.source}: particle_radius: {text}; raise particle_radius to about "
-                          f"{r_fit:.3g} m (memory scales as 1/r^3) or shrink the fluid blocks")
+        key, advice = _largest_cost(scene, fluid, boundary)
+        if key == "particle_radius":
+            advice += f" (particle_radius about {r_fit:.3g} m would fit; memory scales as 1/r^3)"
+        return "refuse", f"{scene.source}: {key}: {text}; {advice}"
     if ratio > MEMORY_WARN:
         return "warn", f"{text}; the run may swap or fail (particle_radius {r_fit:.3g} m would halve that)"
     return None
@@ -289,28 +323,36 @@ def preflight_checks(scene, sim, warn: bool = True) -> list[str]:
     bounds = sim.time_step_bounds(m.reference_speed)
     tight = bounds[0]
     bound = tight.seconds
+    uses_speed = "v = " in tight.formula
+    source = (f"; the reference speed v_ref = {m.reference_speed:.3g} m/s comes from {m.reference_speed_source}"
+              if uses_speed else "")
+    keys = list(tight.keys) + ([m.reference_speed_source] if uses_speed and "velocity" in m.reference_speed_source
+                               else [])
+    set_by = f"; set by {', '.join(tight.keys)}" if tight.keys else ""
+    at_bound = _substeps(scene, bound)
     if t.fixed_dt > 0 and t.fixed_dt > bound * (1.0 + 1e-6):
         raise SceneError(
             f"{src}: time.fixed_dt: {t.fixed_dt:.4g} s is {t.fixed_dt / bound:.3g}x the {tight.name} time-step bound "
-            f"{bound:.4g} s ({tight.formula}, at the scene's reference speed); set time.fixed_dt <= {bound:.4g} "
-            f"or 0 for adaptive steps, which that bound clamps")
+            f"{bound:.4g} s ({tight.formula}, at the scene's reference speed{set_by}){source}; set time.fixed_dt <= "
+            f"{bound:.4g} or 0 for adaptive steps, which that bound clamps")
     if t.fixed_dt == 0 and t.dt_min > bound * (1.0 + 1e-6):
+        fix = (f"check {', '.join(keys) or 'those values'}: at that bound the run would need {at_bound:.3g} "
+               f"substeps, more than time.max_steps = {t.max_steps:,}" if at_bound > t.max_steps
+               else f"lower time.dt_min to {bound:.4g} or less")
         raise SceneError(
-            f"{src}: time.dt_min: {t.dt_min:.4g} s is above the {tight.name} time-step bound {bound:.4g} s "
-            f"({tight.formula}); lower time.dt_min to {bound:.4g} or less")
+            f"{src}: the {tight.name} time-step bound {bound:.4g} s ({tight.formula}{set_by}) is below time.dt_min = "
+            f"{t.dt_min:.4g} s{source}; {fix}")
     dt, steps, _ = _step_estimate(scene, sim)
     if steps > t.max_steps:
-        cost = measured_step_cost(sim) if steps < 2**62 else float("nan")
+        cost = measured_step_cost(sim)
         wall = steps * cost * m.fluid_count
         why = (f"time.fixed_dt = {t.fixed_dt:.4g} s" if t.fixed_dt > 0 else
-               f"dt = {dt:.4g} s from the {tight.name} bound ({tight.formula}"
-               + (f"; set by {', '.join(tight.keys)}" if tight.keys else "") + ")")
+               f"dt = {dt:.4g} s from the {tight.name} bound ({tight.formula}{set_by})")
         raise SceneError(
             f"{src}: the run needs about {steps:.3g} substeps ({why}, duration {scene.duration:g} s), more than "
-            f"time.max_steps = {t.max_steps:,}"
-            + (f"; at {1e9 * cost:.3g} ns per particle-step measured here that is {_duration_text(wall)}"
-               if math.isfinite(cost) else "")
-            + "; check those values, or raise time.max_steps to run it anyway")
+            f"time.max_steps = {t.max_steps:,}; at {1e9 * cost:.3g} ns per particle-step measured here that is "
+            f"{_duration_text(wall)}{source if t.fixed_dt == 0 else ''}; check those values, or raise time.max_steps "
+            "to run it anyway")
 
     # fluid removed by sampling -----------------------------------------------------------------
     before, after = _removed_fluid(scene, sim)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import platform
 import queue
 import sys
 import threading
@@ -25,25 +24,15 @@ import numpy as np
 import warp as wp
 
 from ..io import run_folder as rf
+from ..core.device import resolve_device
 from ..core.errors import OutputError, SimulationError, WarpSphError
+from .checkpoints import check_checkpoint, checkpoint_info, scene_hash, versions
 from .preflight import preflight_checks
 from .simulation import Simulation
 
-
-def versions() -> dict:
-    import numpy
-
-    from .. import __version__
-
-    out = {"warp_sph": __version__, "warp": wp.__version__, "numpy": numpy.__version__,
-           "python": platform.python_version(), "platform": platform.platform()}
-    try:
-        from pxr import Usd
-
-        out["usd"] = ".".join(str(v) for v in Usd.GetVersion())
-    except Exception:
-        pass
-    return out
+#: scenes whose float32 world coordinates would round positions by more than this fraction of the
+#: particle radius are exported relative to their origin (USD) and recorded in float64 (frames)
+WORLD_FLOAT32_TOLERANCE = 0.01
 
 
 class Progress:
@@ -96,6 +85,9 @@ class Exporter:
         self.out = Path(out)
         o = sim.scene.output
         self.record = bool(o.record_frames)
+        # far from (0, 0, 0): exact world positions need float64 (frames, meshes) or the USD origin
+        self.far = world_float32_error(sim) > WORLD_FLOAT32_TOLERANCE * sim.model.particle_radius
+        self.usd_path = usd_file(self.out, sim.scene.name)
         self.usd = None
         self.surface = None
         self.mesh_writer = None
@@ -114,10 +106,11 @@ class Exporter:
             statics = [] if resume_after_frame is not None else scene_static_meshes(sim.scene.to_dict())
             self.primvars = tuple(n for n in o.particle_primvars
                                   if n == "density" or (n == "pressure" and "particle_pressure" in sim.fields))
-            self.usd = UsdWriter(self.out / f"{sim.scene.name}.usdc", fps=sim.scene.fps,
+            self.usd = UsdWriter(self.usd_path, fps=sim.scene.fps,
                                  particle_radius=m.particle_radius, static_meshes=statics,
                                  primvars=self.primvars, with_surface=self.surface is not None,
-                                 resume_after_frame=resume_after_frame, overwrite=True)
+                                 resume_after_frame=resume_after_frame, overwrite=False,
+                                 origin=m.origin if self.far else None)
         if o.mesh_sequence and self.surface is not None:
             from ..io.export_mesh import MeshSequenceWriter
 
@@ -130,7 +123,7 @@ class Exporter:
     def snapshot(self, checkpoint: dict | None = None) -> dict:
         """Device copies of what a frame export needs (taken on the simulation thread).
 
-        checkpoint: the host part of a checkpoint (``_checkpoint_info``) to write after the frame.
+        checkpoint: the host part of a checkpoint (``checkpoints.checkpoint_info``) to write after the frame.
         """
         f = self.sim.fields
         snap = {"x": wp.clone(f["particle_x"]), "v": wp.clone(f["particle_v"]),
@@ -144,17 +137,20 @@ class Exporter:
     def write(self, frame: int, t: float, snap: dict) -> None:
         t0 = time.perf_counter()
         m = self.sim.model
-        x_world = m.to_world(snap["x"].numpy()).astype(np.float32)
+        world = np.float64 if self.far else np.float32
+        x_world = m.to_world(snap["x"].numpy())  # float64
         v = snap["v"].numpy()
         rho = snap["density"].numpy()
-        if self.record:
-            rf.atomic_save_npz(rf.frame_path(self.out, frame), x=x_world, v=v, density=rho, time=np.float64(t))
         surface = None
         if self.surface is not None:
             verts, tris = self.surface.extract(snap["x"], snap["density"])
-            surface = (m.to_world(verts).astype(np.float32), tris)
-            if self.mesh_writer is not None:
-                self.mesh_writer.write_frame(frame, *surface)
+            surface = (m.to_world(verts), tris)
+        self._check_space(frame, len(x_world), surface, "checkpoint" in snap)
+        if self.record:
+            rf.atomic_save_npz(rf.frame_path(self.out, frame), x=x_world.astype(world), v=v, density=rho,
+                               time=np.float64(t))
+        if surface is not None and self.mesh_writer is not None:
+            self.mesh_writer.write_frame(frame, surface[0].astype(world), surface[1])
         if self.usd is not None:
             primvars = {}
             for name in self.primvars:
@@ -169,9 +165,42 @@ class Exporter:
                                particle_v=v, **snap["checkpoint"])
         self.seconds += time.perf_counter() - t0
 
+    def _check_space(self, frame: int, n: int, surface, checkpoint: bool) -> None:
+        """Refuse a frame (one line, nothing of it written) when the disk cannot hold its files: the
+        recorded frame, mesh file, USD samples and checkpoint [bytes, generous estimates]."""
+        per_particle = (40 if self.record else 0) + (32 if self.usd is not None else 0) + (28 if checkpoint else 0)
+        need = n * per_particle + (1 << 16)
+        if surface is not None:
+            verts, tris = surface[0].shape[0], surface[1].shape[0]
+            if self.usd is not None:
+                need += 12 * verts + 16 * tris
+            if self.mesh_writer is not None:
+                need += 80 * verts + 40 * tris  # text OBJ: ~3 x 25 characters per vertex
+        rf.check_free_space(self.out / "run.json", need, f"frame {frame}")
+
     def close(self) -> None:
         if self.usd is not None:
             self.usd.close()
+
+
+def usd_file(out: Path, scene_name: str) -> Path:
+    """The run's USD: ``out/<safe_name(scene name)>.usdc``, always inside ``out``."""
+    return Path(out) / f"{rf.safe_name(scene_name)}.usdc"
+
+
+def world_float32_error(sim: Simulation) -> float:
+    """Largest rounding of a position [m] stored as float32 world coordinates: half an ulp at the
+    largest |x| of the container (or the fluid's initial bounds, doubled about their centre,
+    without one), |x| 2^-24."""
+    m = sim.model
+    if m.container_lo is not None:
+        corners = np.stack([m.container_lo, m.container_hi]).astype(np.float64) + m.origin
+    else:
+        x = np.asarray(sim.sampled.fluid_x, dtype=np.float64)
+        lo, hi = x.min(axis=0), x.max(axis=0)
+        c, half = 0.5 * (lo + hi), (hi - lo)
+        corners = np.stack([c - half, c + half])
+    return float(np.abs(corners).max()) * 2.0**-24
 
 
 class _ExportThread:
@@ -201,27 +230,14 @@ class _ExportThread:
 
     def check(self):
         if self.error is not None:
+            self.reported = True
             raise self.error
 
     def finish(self):
         self.q.put(None)
         self.thread.join()
-        self.check()
-
-
-def _checkpoint_info(sim: Simulation, frame: int, frame_log: list[dict]) -> dict:
-    """Host part of a checkpoint of ``frame`` (positions and velocities come from the frame's snapshot).
-
-    Holds the step count, frame, time, the max speed that sizes the next substep, any arrays the
-    solver carries between steps, and the per-frame statistics so far (run.json may lag behind).
-    """
-    s = sim.state
-    last = sim.last_frame.max_speed if sim.last_frame else 0.0
-    extra = sim.solver.checkpoint_arrays()
-    extra = {k: (a.numpy() if isinstance(a, wp.array) else np.asarray(a)) for k, a in extra.items()}
-    return dict(step=np.int64(s.step), frame=np.int64(frame), state_frame=np.int64(s.frame),
-                time=np.float64(s.time), last_max_speed=np.float64(last),
-                frame_log=np.array(rf.to_json(frame_log)), **extra)
+        if not getattr(self, "reported", False):  # raised once only (a submit may have raised it)
+            self.check()
 
 
 def run(scene, out: Path | None = None, device: str | None = None, frames: int | None = None,
@@ -231,24 +247,35 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
 
     frames: number of frames to write including the initial one (default duration * fps + 1).
     resume: a run folder to continue from its latest checkpoint (scene and folder come from it).
+        Every check comes first (run.json, checkpoint, USD): a refused resume changes nothing; one
+        that proceeds removes the files of frames after the checkpoint and says so. A finished
+        run is reported as complete unless ``frames`` asks for more.
+
+    Nothing is created before the scene, the device and the folder are known to be usable, and a
+    start that fails before its first frame removes what it created.
     """
     from ..scene import scene_from_dict
 
     t_start = time.perf_counter()
+    device = resolve_device(device)  # a bad --device is one line, before any folder exists
     resume_info = None
     if resume is not None:
         out = Path(resume)
         info = rf.read_run_json(out)
-        cp = rf.latest_checkpoint(out)
-        if cp is None:
-            raise OutputError(f"{out}: no checkpoint to resume from")
         scene = scene_from_dict(info["scene"], source=str(out / rf.RUN_JSON))
         frames = frames or info.get("frames_requested")
-        resume_info = (info, np.load(cp))
+        total = frames if frames is not None else int(round(scene.duration * scene.fps)) + 1
+        done = len(info.get("frames") or [])
+        if info.get("status") == "completed" and done >= total:
+            log(f"{out}: already complete ({done} frames); --frames N with N > {done} extends it")
+            return info
+        cp_path = rf.latest_checkpoint(out)
+        if cp_path is None:
+            raise OutputError(f"{out}: no checkpoint to resume from")
+        resume_info = (info, cp_path, rf.load_checkpoint(cp_path))
     else:
-        out = rf.prepare_run_folder(out, scene.name, overwrite)
-
-    total = frames if frames is not None else int(round(scene.duration * scene.fps)) + 1
+        out = rf.choose_run_folder(out, scene.name, overwrite)
+        total = frames if frames is not None else int(round(scene.duration * scene.fps)) + 1
     if total < 1:
         raise WarpSphError(f"--frames must be >= 1, got {total}")
     sim = Simulation(scene, device=device)
@@ -256,8 +283,10 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
 
     frame_log: list[dict] = []
     start_frame = 1
+    created: list[Path] = []
     if resume_info is not None:
-        info, cp = resume_info
+        info, cp_path, cp = resume_info
+        check_checkpoint(cp, cp_path, info["scene"], sim, log=log)
         start_frame = int(cp["frame"])
         if total < start_frame:
             raise WarpSphError(f"{out}: its latest checkpoint is frame {start_frame}; resume with --frames >= {start_frame} "
@@ -275,10 +304,22 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             frame_log = json.loads(str(cp["frame_log"]))
         else:
             frame_log = [f for f in info.get("frames", []) if f["frame"] <= start_frame]
-        rf.truncate_run(out, start_frame)
-        log(f"resuming {out} from frame {start_frame} (step {sim.state.step})")
+        # the USD is checked (and cut back to the checkpoint) before any frame file is removed
+        exporter = Exporter(sim, out, resume_after_frame=start_frame)
+        dropped = rf.truncate_run(out, start_frame)
+        later = sorted({rf._frame_number(p) for p in dropped})
+        log(f"resuming {out} from frame {start_frame} (step {sim.state.step})"
+            + (f"; removed {len(dropped)} files of frames {later[0]}..{later[-1]} written after it" if later else ""))
+    else:
+        if rf.is_run_folder(out):  # --overwrite (choose_run_folder refused it otherwise)
+            rf.clear_run(out)
+        created = rf.create_run_folder(out)
+        try:
+            exporter = Exporter(sim, out)
+        except BaseException:
+            _discard_start(out, created, usd_file(out, scene.name))
+            raise
 
-    exporter = Exporter(sim, out, resume_after_frame=start_frame if resume_info is not None else None)
     worker = _ExportThread(exporter) if threaded_export else None
     checkpoint_every = int(scene.output.checkpoint_every)
     export_wait = [0.0]  # seconds the simulation thread spent on exports (snapshot, queue, drain)
@@ -286,8 +327,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     def export(frame, t):
         t0 = time.perf_counter()
         checkpoint = None
-        if checkpoint_every > 0 and (frame - 1) % checkpoint_every == 0:
-            checkpoint = _checkpoint_info(sim, frame, frame_log)
+        if checkpoint_every > 0 and ((frame - 1) % checkpoint_every == 0 or frame == total):
+            checkpoint = checkpoint_info(sim, frame, frame_log, digest)
         snap = exporter.snapshot(checkpoint)
         if worker is not None:
             worker.submit(frame, t, snap)
@@ -303,6 +344,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
                                          "updates": list(s.updates), "doc": s.doc} for s in sim.graph.stages],
         "frames": frame_log, "status": "running", "out": str(out),
     }
+    if resume_info is not None:
+        run_info["scene"] = resume_info[0]["scene"]  # as stored: checkpoints hash it
+    digest = scene_hash(run_info["scene"])
 
     def save_info(status):
         run_info["status"] = status
@@ -312,12 +356,23 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["stage_times"] = sim.graph.timing_table()
         run_info["export_time"] = exporter.seconds
         run_info["export_wait_time"] = export_wait[0]
-        sim_seconds = sum(t["seconds"] for t in run_info["stage_times"])
-        run_info["sim_time_per_step_ms"] = 1e3 * sim_seconds / max(1, sum(f["steps"] for f in run_info["frames"]))
+        run_info["threaded_export"] = worker is not None
+        # per step of this session, the first step apart: its stages load (or compile) the kernels
+        rows = run_info["stage_times"]
+        steps_here = max((t["calls"] for t in rows), default=0)
+        run_info["first_step_time"] = sum(t["first_call_seconds"] for t in rows)
+        steady = sum(t["seconds"] - t["first_call_seconds"] for t in rows)
+        run_info["sim_time_per_step_ms"] = 1e3 * (steady / (steps_here - 1) if steps_here > 1
+                                                  else run_info["first_step_time"])
         rf.atomic_write_json(out / rf.RUN_JSON, run_info)
 
+    if exporter.far:
+        log(f"note: the scene lies up to {world_float32_error(sim) * 2.0**24:.4g} m from (0, 0, 0), where float32 "
+            f"world coordinates round positions by up to {world_float32_error(sim):.2g} m; the USD holds points "
+            "relative to /sph's double-precision translate and recorded frames keep x in float64")
     bar = Progress(total, enabled=progress)
     status = "failed"
+    started = resume_info is not None
     try:
         if resume_info is None:
             stats = sim.statistics()
@@ -328,6 +383,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             frame_log.append(d)
             export(1, 0.0)
             save_info("running")
+            started = True
         for frame in range(start_frame + 1, total + 1):
             stats = sim.advance_frame()
             sim.check_health(stats)
@@ -336,7 +392,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             frame_log.append(d)
             export(frame, sim.state.time)
             save_info("running")
-            bar.update(frame, f"{stats.steps} steps/frame  max err {100 * stats.density_error_max:5.2f}%")
+            # the same figure as the summary: the largest density error of any frame so far
+            worst = max(f["density_error_max"] for f in frame_log)
+            bar.update(frame, f"{stats.steps} steps/frame  max density error {100 * worst:.2f} %")
         status = "completed"
     except KeyboardInterrupt:
         status = "interrupted"
@@ -346,12 +404,43 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         raise
     finally:
         bar.close()
+        failing = status != "completed"  # an exception is on its way out
+        errors: list[BaseException] = []
+        if worker is not None:
+            t0 = time.perf_counter()
+            try:
+                worker.finish()  # re-raises an export error (disk full, ...)
+            except BaseException as exc:
+                errors.append(exc)
+            export_wait[0] += time.perf_counter() - t0
         try:
-            if worker is not None:
-                t0 = time.perf_counter()
-                worker.finish()
-                export_wait[0] += time.perf_counter() - t0
-        finally:
             exporter.close()
-            save_info(status)
+        except BaseException as exc:
+            errors.append(exc)
+        if errors and status == "completed":
+            status = "failed"
+        if started:
+            try:
+                save_info(status)
+            except BaseException as exc:
+                errors.append(exc)
+        if not started and (failing or errors):
+            _discard_start(out, created, usd_file(out, scene.name))
+        if errors:
+            if not failing:
+                raise errors[0]
+            for exc in errors:  # the first error is the one reported
+                print(f"warp-sph: also: {exc}", file=sys.stderr)
     return run_info
+
+
+def _discard_start(out: Path, created: list[Path], usd: Path) -> None:
+    """Remove what a start that failed before its first frame wrote: the run's own files and the
+    folders it created (a folder that existed before stays, and so does any other file)."""
+    rf.remove_files([usd] + rf.run_files(out))
+    for sub in ("frames", "checkpoints", "mesh"):
+        try:
+            (Path(out) / sub).rmdir()
+        except OSError:
+            pass
+    rf.remove_new_folders(created)

@@ -78,8 +78,10 @@ class Simulation:
         from ..methods import registry
         from .preflight import check_memory
 
+        from ..core.device import resolve_device
+
         self.scene = scene
-        self.device = wp.get_device(device)
+        self.device = resolve_device(device)  # quiet Warp start-up; a bad name is a one-line error
         solver_cls = registry.solver(scene.solver)
         boundary_cls = registry.boundary(scene.boundary)
         check_memory(scene, self.device)

@@ -1,0 +1,140 @@
+"""Pre-flight and validation name the right cause (first-hour issue items 12-15): the speed of sound
+follows an explicit stiffness, absurd step counts are refused with the measured cost, each extreme
+value is blamed on its own key, and scenes that cannot be what the user meant are refused."""
+import math
+import re
+
+import numpy as np
+import pytest
+
+from warp_sph.core.errors import SceneError
+from warp_sph.run.preflight import preflight_checks
+from warp_sph.run.simulation import Simulation
+from warp_sph.scene import load_scene, scene_from_dict
+
+
+def small(**extra):
+    d = {"particle_radius": 0.05, "container": {"min": [0, 0, 0], "max": [1.0, 0.5, 1.0]},
+         "fluid": [{"min": [0, 0, 0], "max": [0.4, 0.5, 0.4]}], "output": {"usd": False}, "duration": 0.5}
+    for k, v in extra.items():
+        d[k] = {**d.get(k, {}), **v} if isinstance(v, dict) else v
+    return scene_from_dict(d)
+
+
+def refusal(scene) -> str:
+    with pytest.raises(SceneError) as info:
+        preflight_checks(scene, Simulation(scene), warn=False)
+    return str(info.value)
+
+
+# --- item 12: the speed of sound follows the stiffness actually used ------------------------------------
+@pytest.mark.parametrize("eos, factor", [("linear", 1.0), ("tait", 7.0)])
+def test_speed_of_sound_follows_explicit_stiffness(eos, factor):
+    sim = Simulation(small(wcsph={"stiffness": 1e8, "equation_of_state": eos}))
+    c = math.sqrt(factor * 1e8 / 1000.0)
+    assert sim.model.speed_of_sound == pytest.approx(c, rel=1e-12)
+    assert sim.solver.stiffness == 1e8
+    acoustic = next(b for b in sim.time_step_bounds(0.0) if b.name == "acoustic CFL")
+    assert acoustic.seconds == pytest.approx(0.4 * 0.5 * sim.model.support_radius / c, rel=1e-9)
+    assert "wcsph.stiffness" in acoustic.keys
+
+
+def test_stiff_explicit_stiffness_runs_without_gaining_energy():
+    """Before the fix the step ignored the stiffness: energy rose from 5.0 to 9.6 J/kg (issue item 12)."""
+    sim = Simulation(small(wcsph={"stiffness": 1e8}))
+    e0 = None
+    for _ in range(6):
+        st = sim.advance_frame()
+        e = st.kinetic_energy + st.potential_energy
+        e0 = e if e0 is None else e0
+        assert st.outside == 0 and st.non_finite == 0
+        assert e <= e0 + 1e-3 * abs(e0) + 1e-6
+
+
+# --- item 13: absurd step counts --------------------------------------------------------------------------
+def test_tiny_fixed_step_is_refused_with_the_measured_cost():
+    msg = refusal(small(time={"fixed_dt": 1e-30}))
+    assert "time.fixed_dt = 1e-30 s" in msg and "time.max_steps" in msg
+    assert re.search(r"ns per particle-step measured here that is more than a century", msg), msg
+
+
+def test_endless_duration_is_refused():
+    msg = refusal(small(duration=1e30))
+    assert "duration 1e+30 s" in msg and "time.max_steps" in msg
+
+
+def test_max_steps_lets_a_long_run_through():
+    scene = small(duration=0.5, time={"max_steps": 10})
+    assert "time.max_steps = 10" in refusal(scene)
+    ok = small(duration=0.5, time={"max_steps": 1_000_000})
+    assert preflight_checks(ok, Simulation(ok), warn=False) == []
+
+
+# --- item 14: each extreme value blamed on its own key -------------------------------------------------------
+@pytest.mark.parametrize("override, key", [
+    ({"material": {"rest_density": 1e-300}}, r"material\.rest_density: expected a finite number >= 0\.001"),
+    ({"pbf": {"tensile_n": 1000}}, r"pbf\.tensile_n: expected an integer >= 1 and <= 16"),
+    ({"output": {"surface_cell_per_radius": 1e-3}}, r"output\.surface_cell_per_radius: expected a finite number >= 0\.1"),
+])
+def test_extreme_values_refused_at_validation(override, key):
+    with pytest.raises(SceneError, match=key):
+        small(**override)
+
+
+@pytest.mark.parametrize("override, key", [
+    ({"wcsph": {"stiffness": 1e30}}, "wcsph.stiffness"),
+    ({"material": {"boundary_friction": 1e30}}, "material.boundary_friction"),
+    ({"fluid": None}, "fluid[0].velocity"),
+])
+def test_extreme_values_blamed_on_their_key(override, key):
+    if "fluid" in override:
+        scene = small(fluid=[{"min": [0, 0, 0], "max": [0.4, 0.5, 0.4], "velocity": [1e30, 0, 0]}])
+    else:
+        scene = small(**override)
+    with np.errstate(all="raise"):  # no NumPy overflow warning on the way
+        msg = refusal(scene)
+    assert key in msg and "time.max_steps" in msg, msg
+    assert "lower time.dt_min" not in msg  # the old advice, which blamed the step
+
+
+def test_huge_obstacle_blamed_on_the_obstacle(tmp_path):
+    mesh = tmp_path / "tet.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    scene = small(obstacles=[{"shape": "mesh", "file": str(mesh), "scale": 1e30}])
+    with pytest.raises(SceneError, match=r"obstacles\[0\]: .*obstacles\[0\] needs about .* boundary particles"):
+        Simulation(scene)
+
+
+def test_quoted_bound_is_the_one_the_step_used():
+    """The watchdog's cause names the bound at the speed the frame's step was sized for (the default step at
+    rest was 8 % over the bound the message quoted)."""
+    sim = Simulation(small())
+    speed = 0.3
+    dt = sim.time_step(speed)
+    tight = sim.time_step_bounds(speed)[0]
+    assert dt <= tight.seconds * (1 + 1e-12)
+    cause = sim.watchdog.likely_cause("non_finite", None, dt, speed)
+    assert "time step too large" not in cause
+
+
+# --- item 15: scenes that cannot be what the user meant --------------------------------------------------------
+def test_open_obstacle_mesh_refused(tmp_path):
+    mesh = tmp_path / "open.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(SceneError, match=r"obstacles\[0\]\.file: mesh .* is not closed \(3 edges"):
+        small(obstacles=[{"shape": "mesh", "file": str(mesh), "scale": 0.1}])
+
+
+def test_obstacle_outside_the_container_refused():
+    with pytest.raises(SceneError, match=r"obstacles\[0\]: lies entirely outside the container"):
+        small(obstacles=[{"min": [2, 2, 2], "max": [3, 3, 3]}])
+
+
+def test_mesh_sequence_without_surface_refused():
+    with pytest.raises(SceneError, match=r"output\.mesh_sequence: 'obj' needs output\.surface = true"):
+        small(output={"mesh_sequence": "obj", "surface": False})
+
+
+def test_builtin_obstacle_scene_still_loads():
+    assert load_scene("obstacle").obstacles[0].shape == "mesh"
+
