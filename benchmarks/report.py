@@ -177,6 +177,95 @@ def plot_tradeoff(records: list[dict], path: Path, title: str) -> Path | None:
     return path
 
 
+def plot_adaptive(records: list[dict], path: Path, title: str) -> Path | None:
+    """Speed (wall and CPU seconds per simulated second) against the mean density error of an adaptive
+    comparison: warp-sph circles, SPlisHSPlasH triangles, the Pareto front over both engines in red."""
+    plt = _pyplot()
+    ok = [r for r in records if r.get("status") == "ok" and _m(r, SPEED_KEY) is not None
+          and _m(r, "density_error_mean_avg") is not None]
+    if plt is None or not ok:
+        return None
+    panels = [(SPEED_KEY, "wall seconds per simulated second")]
+    if all(_m(r, "cpu_per_simulated_second") is not None for r in ok):
+        panels.append(("cpu_per_simulated_second", "CPU seconds per simulated second (all threads)"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.4 * len(panels), 4.4), squeeze=False)
+    for ax, (key, xlabel) in zip(axes[0], panels):
+        pts = [(float(_m(r, key)), 100.0 * float(_m(r, "density_error_mean_avg")), r) for r in ok]
+        front = M.pareto_front([p[0] for p in pts], [p[1] for p in pts])
+        for engine, marker, color in (("warp-sph", "o", "C0"), ("splishsplash", "^", "C1")):
+            sel = [(c, e, f) for (c, e, r), f in zip(pts, front) if r.get("engine") == engine]
+            if sel:
+                ax.scatter([c for c, _, _ in sel], [e for _, e, _ in sel], marker=marker, color=color, zorder=3,
+                           edgecolors=["C3" if f else color for _, _, f in sel], linewidths=1.8,
+                           label="warp-sph" if engine == "warp-sph" else "SPlisHSPlasH")
+        for c, e, r in pts:
+            case = (r.get("params") or {}).get("case") or (r.get("params") or {}).get("solver", "?")
+            ax.annotate(case, (c, e), fontsize=7, xytext=(4, 3), textcoords="offset points")
+        fp = sorted((c, e) for (c, e, _), f in zip(pts, front) if f)
+        if fp:
+            ax.step([p[0] for p in fp], [p[1] for p in fp], where="post", color="C3", lw=1, label="Pareto front")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel(xlabel + " (lower is faster)")
+        ax.set_ylabel("mean density error (time average) [%]")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def adaptive_section(records: list[dict], results_dir: Path, rel: str) -> list[str]:
+    """The adaptive-step comparisons (``warp-sph bench splishsplash --adaptive``): per resolution a table,
+    the DFSPH ratios and one speed/accuracy plot."""
+    from .splishsplash import adaptive_ratios
+
+    by_radius: dict[float, list[dict]] = {}
+    for r in records:
+        p = r.get("params") or {}
+        if p.get("mode") == "adaptive":
+            by_radius.setdefault(float(p.get("particle_radius") or 0.0), []).append(r)
+    if not by_radius:
+        return []
+    lines = ["## Side by side with SPlisHSPlasH, each with its own adaptive step", "",
+             "Each engine with its defaults and its own CFL step (SPlisHSPlasH: cflMethod 1, cflFactor 1, 5 ms cap; "
+             "warp-sph: time.cfl 0.4 against the last frame's top speed plus |g| frame_dt), Akinci 2012 wall "
+             "particles in both, the same fluid lattice. *mean ρ err* is each engine's own density at the frames "
+             "(mean of max(ρ/ρ0 − 1, 0)); SPlisHSPlasH's mass is 0.8 (2r)³ρ0 (its lattice settles into 80 % of "
+             "the sampled volume), warp-sph calibrates its mass so that the lattice reads ρ0. *CPU s / sim s* "
+             "counts every thread of the process: on a shared machine it is the steadier measure of work.", ""]
+    for radius in sorted(by_radius, reverse=True):
+        recs = latest(by_radius[radius])
+        n = max((r.get("fluid_particles") or 0) for r in recs)
+        lines += [f"### {n:,} fluid particles (r = {radius:g} m)", ""] + _section_head(recs)
+        rows = []
+        for r in sorted(recs, key=lambda r: (_m(r, SPEED_KEY) is None, _m(r, SPEED_KEY) or 0)):
+            p = r.get("params") or {}
+            rows.append([r.get("engine", "?"), p.get("case") or p.get("solver", "?"), r.get("status", "?"),
+                         _fmt(r.get("threads")), _fmt(r.get("fluid_particles")), _fmt(_m(r, "simulated_seconds")),
+                         _fmt(_m(r, "steps")), _fmt(_m(r, "dt_mean"), 1e3), _fmt(_m(r, "solver_iterations_mean")),
+                         _fmt(_m(r, "divergence_iterations_mean")), _fmt(_m(r, SPEED_KEY)),
+                         _fmt(_m(r, "cpu_per_simulated_second")), _fmt(_m(r, "density_error_mean_avg"), 100),
+                         _fmt(_m(r, "density_error_max"), 100)])
+        lines += _table(["engine", "case", "status", "threads", "fluid N", "sim s", "steps", "mean dt [ms]",
+                         "iterations/step", "divergence it./step", "wall s / sim s", "CPU s / sim s", "mean ρ err %",
+                         "max ρ err %"], rows) + [""]
+        ratios = adaptive_ratios(recs)
+        if ratios:
+            lines += _table(["SPlisHSPlasH case", "its threads", "warp-sph dfsph / it (wall)", "(CPU)",
+                             "warp-sph mean ρ err %", "its mean ρ err %"],
+                            [[q["case"], _fmt(q["threads"]), _fmt(q["ratio"]), _fmt(q.get("cpu_ratio")),
+                              _fmt(q["ours_error"], 100), _fmt(q["ref_error"], 100)] for q in ratios]) + [""]
+        png = plot_adaptive(recs, results_dir / f"splishsplash_adaptive_{n}.png",
+                            f"dam break, {n:,} fluid particles: speed against accuracy (each engine's adaptive step)")
+        if png:
+            lines += [f"![speed against accuracy, {n} particles]({rel}/{png.name})", ""]
+        lines += _failures(recs) + [""]
+    return lines
+
+
 def plot_series(records: list[dict], keys: list[tuple[str, str, float]], path: Path, title: str) -> Path | None:
     """Per-frame series (front, density error, energy, ...) of every run against time."""
     plt = _pyplot()
@@ -367,7 +456,8 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     # the latest comparison at each resolution (fluid particle count), smallest first
     by_size: dict[int, list[dict]] = {}
     for r in data.get("splishsplash", []):
-        by_size.setdefault(int(r.get("fluid_particles") or 0), []).append(r)
+        if (r.get("params") or {}).get("mode") != "adaptive":
+            by_size.setdefault(int(r.get("fluid_particles") or 0), []).append(r)
     if by_size:
         lines += ["## Side by side with SPlisHSPlasH", ""]
     for size in sorted(by_size):
@@ -410,6 +500,9 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
             lines += [f"![speed against accuracy]({rel}/{png.name})", ""]
         lines += _failures([r for r in sph if r.get("engine") != "splishsplash"]) + [""]
 
+    adaptive = adaptive_section(data.get("splishsplash", []), results_dir, rel)
+    lines += adaptive
+
     surf = latest(data.get("surface", []))
     if surf:
         lines += ["## Surface reconstruction", ""] + _section_head(surf)
@@ -425,7 +518,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                   "triangles) of one `SurfaceReconstructor.extract` call, median of 3, warm. splashsurf "
                   "times are the reference numbers from the issue (cube size 0.5 r), not rerun here.", ""]
 
-    if not (sweeps or by_solver or by_size or surf):
+    if not (sweeps or by_solver or by_size or adaptive or surf):
         lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]
     md_path.parent.mkdir(parents=True, exist_ok=True)
     md_path.write_text("\n".join(lines).rstrip() + "\n")

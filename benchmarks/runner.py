@@ -265,6 +265,8 @@ def run_warp_sph(spec: RunSpec) -> dict:
 
         status = "ok"
         wall = 0.0
+        cpu = 0.0  # process CPU seconds of the frames (all threads): a load-independent measure of work
+        extra_series: dict[str, list] = {}
         steps = 0
         iterations = None
         if spec.steps > 0:
@@ -294,13 +296,20 @@ def run_warp_sph(spec: RunSpec) -> dict:
             observe(None, 0.0)
             for _ in range(spec.frames):
                 t1 = time.perf_counter()
+                c1 = time.process_time()
                 try:
                     stats = sim.advance_frame()
                     wall += time.perf_counter() - t1
+                    cpu += time.process_time() - c1
                     steps += stats.steps
                     sim.check_health(stats)
+                    for key in ("divergence_iterations",):
+                        v = (stats.solver or {}).get(key, {}).get("mean")
+                        if v is not None:
+                            extra_series.setdefault(key, []).append(v)
                 except SimulationError as e:
                     wall += time.perf_counter() - t1
+                    cpu += time.process_time() - c1
                     status, record["error"] = "unstable", str(e)
                     break
                 observe(stats, wall)
@@ -333,6 +342,13 @@ def run_warp_sph(spec: RunSpec) -> dict:
             its = [i for i in series["solver_iterations"] if i is not None]
             if its:
                 met["solver_iterations_mean"] = float(np.mean(its))
+            if extra_series.get("divergence_iterations"):
+                met["divergence_iterations_mean"] = float(np.mean(extra_series["divergence_iterations"]))
+            if simulated > 0:
+                met["cpu_seconds"] = cpu
+                met["cpu_per_simulated_second"] = cpu / simulated
+            if steps:
+                met["dt_mean"] = simulated / steps
             if hydro and state["hydro"] is not None:
                 h = state["hydro"]
                 met["pressure_error_mean_abs"] = h["mean_abs"]
@@ -492,8 +508,10 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
     from . import splishsplash as S
 
     invocation = _now()
+    if args.adaptive:
+        return _splishsplash_adaptive(args, argv, invocation, log)
     records = S.run_comparison(
-        particle_radius=args.particle_radius, frames=args.frames, threads=args.threads,
+        particle_radius=args.particle_radius, frames=args.frames, threads=args.threads or 1,
         solvers=[s.strip() for s in args.solvers.split(",") if s.strip()],
         dt={"wcsph": args.dt_wcsph, "pbf": args.dt_pbf, "dfsph": args.dt_dfsph},
         device=args.device, isolate=not args.in_process, skip_warp_sph=args.skip_warp_sph,
@@ -507,6 +525,39 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
     for q in speed_ratios(records):
         log(f"{q['solver']}: warp-sph time / SPlisHSPlasH time = {q['ratio']:.2f} "
             f"(SPlisHSPlasH on {q['threads']} threads); mean density error {100 * (q['ours_error'] or 0):.3f} % "
+            f"vs {100 * (q['ref_error'] or 0):.3f} %")
+    return _finish(out, args, records, log)
+
+
+def parse_resolutions(text: str) -> list[tuple[float, float]]:
+    """'0.025:1.0,0.0125:0.3' -> [(0.025, 1.0), (0.0125, 0.3)]: particle radius [m] and simulated seconds."""
+    out = []
+    for item in _split_values(text):
+        r, sep, d = item.partition(":")
+        try:
+            out.append((float(r), float(d) if sep else 1.0))
+        except ValueError:
+            raise SystemExit(f"warp-sph bench splishsplash: --resolutions {text!r}: expected RADIUS:SECONDS,... "
+                             "e.g. 0.025:1.0,0.0125:0.3") from None
+        if out[-1][0] <= 0 or out[-1][1] <= 0:
+            raise SystemExit(f"warp-sph bench splishsplash: --resolutions {text!r}: radius and seconds must be > 0")
+    return out
+
+
+def _splishsplash_adaptive(args, argv: list[str], invocation: str, log) -> int:
+    from . import splishsplash as S
+
+    resolutions = parse_resolutions(args.resolutions) if args.resolutions else list(S.ADAPTIVE_RESOLUTIONS)
+    records = S.run_adaptive(resolutions, threads=args.threads or 2, device=args.device, isolate=not args.in_process,
+                             skip_warp_sph=args.skip_warp_sph, warp_sph_overrides=args.warp_sph_set, log=log)
+    _stamp(records, _command_text(argv), invocation)
+    out = Path(args.out) if args.out else RESULTS_DIR
+    path = _append_records(out, "splishsplash", records)
+    log(f"wrote {len(records)} records to {path}")
+    for q in S.adaptive_ratios(records):
+        log(f"{q['fluid_particles']} particles: warp-sph dfsph / SPlisHSPlasH {q['case']} = {q['ratio']:.2f} wall"
+            + (f", {q['cpu_ratio']:.2f} CPU" if q.get("cpu_ratio") else "")
+            + f" (SPlisHSPlasH on {q['threads']} threads); mean density error {100 * (q['ours_error'] or 0):.3f} % "
             f"vs {100 * (q['ref_error'] or 0):.3f} %")
     return _finish(out, args, records, log)
 
@@ -593,7 +644,15 @@ def build_parser() -> argparse.ArgumentParser:
     x = sub.add_parser("splishsplash", help="the same dam break in warp-sph and SPlisHSPlasH (pysplishsplash)")
     x.add_argument("--particle-radius", type=float, default=0.025)
     x.add_argument("--frames", type=int, default=25, help="frames at 24 fps (default 25: about 1 s)")
-    x.add_argument("--threads", type=int, default=1, help="OMP_NUM_THREADS for SPlisHSPlasH (default 1)")
+    x.add_argument("--threads", type=int, default=None,
+                   help="OMP_NUM_THREADS for SPlisHSPlasH (default 1; 2 with --adaptive)")
+    x.add_argument("--adaptive", action="store_true",
+                   help="each engine's own adaptive step (SPlisHSPlasH cflMethod 1) and defaults: every warp-sph "
+                        "solver and SPlisHSPlasH's DFSPH, IISPH, PBF and WCSPH (stiffness 50,000) at each "
+                        "--resolutions; one speed/accuracy plot per resolution")
+    x.add_argument("--resolutions", default=None, metavar="R:S,...",
+                   help="with --adaptive: particle radius [m] and simulated seconds per resolution "
+                        "(default 0.025:1.0,0.0125:0.3: 6,859 particles for 1 s, 59,319 for 0.3 s)")
     x.add_argument("--solvers", default="wcsph,pbf,dfsph", help="wcsph,pbf (both engines), dfsph (SPlisHSPlasH only)")
     x.add_argument("--dt-wcsph", type=float, default=None, help="fixed step for WCSPH [s] (default: CFL 0.4 bound)")
     x.add_argument("--dt-pbf", type=float, default=None, help="fixed step for PBF [s] (default 0.002 * r/0.025)")

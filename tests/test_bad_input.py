@@ -213,7 +213,7 @@ def test_check_command_reports_bad_scene(workdir, capsys):
 
 @pytest.mark.parametrize("text,pattern", [
     ("particle_radius = = 1", r"malformed TOML"),
-    ('solver = "dfsph"\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n', r"solver: expected one of"),
+    ('solver = "iisph"\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n', r"solver: expected one of"),
     ("particle_radius = nan\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n", r"particle_radius"),
     ("[material]\nviscosity = -0.1\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n", r"material\.viscosity"),
     ("fluid = []\n", r"expected at least one \[\[fluid\]\] block"),
