@@ -470,10 +470,12 @@ def block_on_floor(nx=6, ny=6, nz=4, **kw):
 @pytest.mark.slow
 def test_block_at_rest_stays_at_rest_for_ten_thousand_steps():
     """T7: a 6x6x4 block on the floor between walls (dt = 2 ms) settles, then holds max |v| < 1e-3 m/s
-    for 10^4 steps. Without dissipation the lattice's rearrangement under its own weight keeps
-    sloshing at ~0.15 m/s (DFSPH adds no damping of its own); with viscosity 5e-3 m^2/s and XSPH 0.1
-    it settled after 9,000 steps and kept falling to 6e-5 m/s (measured)."""
-    sim = Simulation(block_on_floor(material={"viscosity": 5e-3, "xsph": 0.1}))
+    for 10^4 steps. Measured: without dissipation the lattice's rearrangement under its own weight keeps
+    sloshing at ~0.15 m/s (DFSPH adds no damping of its own), so viscosity 5e-3 m^2/s and XSPH 0.1 damp
+    it; once settled, the solves leave a period-3-step jitter whose size follows the density target:
+    1-3e-3 m/s at the default 5e-4, 5-8e-4 m/s at 1e-4 (SPlisHSPlasH's default maxError 0.01 %), which
+    this test uses. Settling took 16,000 steps (surface particles creep along the walls)."""
+    sim = Simulation(block_on_floor(material={"viscosity": 5e-3, "xsph": 0.1}, dfsph={"target_density_error": 1e-4}))
 
     def window_max(steps):
         largest = 0.0
@@ -486,7 +488,7 @@ def test_block_at_rest_stays_at_rest_for_ten_thousand_steps():
     settle = 0
     while window_max(1000) >= 1e-3:
         settle += 1000
-        assert settle < 20_000, "the block did not settle within 20,000 steps"
+        assert settle < 25_000, "the block did not settle within 25,000 steps"
     x_settled = sim.get_field("particle_x").copy()
     assert window_max(10_000) < 1e-3
     # creep: measured 6.2 mm = 0.12 d over the 20 s (surface particles sliding at ~3e-4 m/s)
