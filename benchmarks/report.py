@@ -206,6 +206,9 @@ def plot_adaptive(records: list[dict], path: Path, title: str) -> Path | None:
             ax.step([p[0] for p in fp], [p[1] for p in fp], where="post", color="C3", lw=1, label="Pareto front")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        from matplotlib.ticker import NullFormatter
+
+        ax.xaxis.set_minor_formatter(NullFormatter())  # decade labels only: minor ones overlap
         ax.set_xlabel(xlabel + " (lower is faster)")
         ax.set_ylabel("mean density error (time average) [%]")
         ax.grid(True, which="both", alpha=0.3)

@@ -2,10 +2,11 @@
 in ``kernels/dfsph.py``, equations there and in the research note ``dfsph.md``.
 
 Step (one dt per substep):
-  neighbours and density at x (the shared stages: one list build with the density summed over the
-  same pairs) -> factor f_i = 1/D_i, the pair cache G_ij = V grad W_ij and the divergence source,
-  once per step -> [stabilise: only when the fluid at x is over-dense far beyond the target, e.g. a
-  compressed start, project the excess out of x without velocity] -> divergence solve: Jacobi
+  the fluid sorted into cells (the shared "neighbors" stage) -> one search at x ("density"): the
+  neighbour lists the shared stages read, the density, the factor f_i = 1/D_i, the pair cache
+  G_ij = V grad W_ij in compressed rows and the divergence source -> [stabilise: only when the fluid
+  at x is over-dense far beyond the target, e.g. a compressed start, project the excess out of x
+  without velocity] -> divergence solve: Jacobi
   sweeps on P^v until the mean positive compression rate is below target_divergence_error / dt,
   v += dt a(P^v) -> [viscosity and the boundary method's force] -> [XSPH] -> density source for
   v* = v + dt g -> density solve: Jacobi sweeps on P until the mean predicted over-density is below
