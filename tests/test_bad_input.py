@@ -91,8 +91,10 @@ CASES = {
                      r"fluid\[0\]\.max: expected every component >"),
     "unknown_key": (GOOD.replace('name = "tiny"', 'name = "tiny"\nparticle_radios = 0.05'), [],
                     r"particle_radios: unknown key"),
-    "fixed_dt_above_bound": (None, ["--set", "time.fixed_dt=0.004"],
+    "fixed_dt_above_bound": (None, ["--set", "solver=wcsph", "--set", "time.fixed_dt=0.004"],
                              r"time\.fixed_dt: 0\.004 s is .*x the acoustic CFL time-step bound"),
+    "fixed_dt_above_velocity_bound": (None, ["--set", "time.fixed_dt=0.02"],
+                                      r"time\.fixed_dt: 0\.02 s is .*x the velocity CFL time-step bound"),
     "unknown_scene": ("__builtin__:no_such_scene", [], r"no such scene file or built-in scene"),
     "missing_file": ("__path__:missing.toml", [], r"missing.toml: scene file not found"),
 }

@@ -560,7 +560,7 @@ def test_resume_is_bitwise_equal_and_needs_the_warm_start(tmp_path):
     stats = info["frames"][-1]["solver"]
     assert {"iterations", "divergence_iterations", "density_error", "divergence_error"} <= set(stats)
     resumed = tmp_path / "resumed"
-    run_small(resumed, 5, extra=extra, threaded_export=False)  # checkpoints 1, 4 and the final one, 5
+    run_small(resumed, 5, extra=extra)  # checkpoints 1, 4 and the final one, 5 (written on the export thread)
     rf.checkpoint_path(resumed, 5).unlink()  # as if stopped before it: frame 5 is recomputed after the resume
     cp = rf.latest_checkpoint(resumed)
     assert cp.name == "checkpoint_000004.npz"

@@ -7,6 +7,7 @@ from warp_sph.scene import list_scenes, load_scene
 from warp_sph.run.simulation import Simulation
 
 NO_OUTPUT = ["output.usd=false", "output.surface=false"]
+WCSPH = NO_OUTPUT + ["solver=wcsph"]  # the scenes' default solver is DFSPH; these checks are WCSPH's
 
 
 def layer_pressure_profile(sim, n_layers=12):
@@ -32,7 +33,7 @@ def test_hydrostatic_tank_akinci():
     """After settling: time- and layer-averaged p(depth) = rho0 g depth below 2h from the surface
     (mean error <= 5 %), bottom wall load = weight within 2 %, nobody leaves in 10^4 steps,
     volume sum m/max(rho, rho0) within 1 %."""
-    sim = Simulation(load_scene("hydrostatic", NO_OUTPUT))
+    sim = Simulation(load_scene("hydrostatic", WCSPH))
     m = sim.model
     g = float(np.linalg.norm(m.gravity))
     weight = m.particle_mass * m.fluid_count * g
@@ -64,7 +65,7 @@ def test_hydrostatic_tank_akinci():
 
 
 def test_hydrostatic_tank_penalty_keeps_particles_inside():
-    sim = Simulation(load_scene("hydrostatic", NO_OUTPUT + ["boundary=penalty"]))
+    sim = Simulation(load_scene("hydrostatic", WCSPH + ["boundary=penalty"]))
     m = sim.model
     for _ in range(24):
         stats = sim.advance_frame()
@@ -77,7 +78,7 @@ def test_hydrostatic_tank_penalty_keeps_particles_inside():
 def test_radial_expansion_symmetric():
     """The report's dense cube in vacuum: expands radially, symmetric, centre of mass fixed,
     total momentum ~ 0."""
-    sim = Simulation(load_scene("radial_expansion", NO_OUTPUT))
+    sim = Simulation(load_scene("radial_expansion", WCSPH))
     m = sim.model
     x0 = sim.get_field("particle_x")
     c0 = x0.mean(axis=0)
