@@ -197,6 +197,8 @@ def run_warp_sph(spec: RunSpec) -> dict:
 
         status = "ok"
         wall = 0.0
+        cpu = 0.0  # process CPU seconds of the frames (all threads): a load-independent measure of work
+        extra_series: dict[str, list] = {}
         steps = 0
         iterations = None
         if spec.steps > 0:
@@ -226,13 +228,20 @@ def run_warp_sph(spec: RunSpec) -> dict:
             observe(None, 0.0)
             for _ in range(spec.frames):
                 t1 = time.perf_counter()
+                c1 = time.process_time()
                 try:
                     stats = sim.advance_frame()
                     wall += time.perf_counter() - t1
+                    cpu += time.process_time() - c1
                     steps += stats.steps
                     sim.check_health(stats)
+                    for key in ("divergence_iterations",):
+                        v = (stats.solver or {}).get(key, {}).get("mean")
+                        if v is not None:
+                            extra_series.setdefault(key, []).append(v)
                 except SimulationError as e:
                     wall += time.perf_counter() - t1
+                    cpu += time.process_time() - c1
                     status, record["error"] = "unstable", str(e)
                     break
                 observe(stats, wall)
@@ -266,6 +275,13 @@ def run_warp_sph(spec: RunSpec) -> dict:
             if its:
                 met["solver_iterations_mean"] = float(np.mean(its))
                 met["solver_iterations_max"] = float(max(i for i in series["solver_iterations_max"] if i is not None))
+            if extra_series.get("divergence_iterations"):
+                met["divergence_iterations_mean"] = float(np.mean(extra_series["divergence_iterations"]))
+            if simulated > 0:
+                met["cpu_seconds"] = cpu
+                met["cpu_per_simulated_second"] = cpu / simulated
+            if steps:
+                met["dt_mean"] = simulated / steps
             if hydro and state["hydro"] is not None:
                 h = state["hydro"]
                 met["pressure_error_mean_abs"] = h["mean_abs"]

@@ -83,6 +83,49 @@ def plot_tradeoff(records: list[dict], path: Path, title: str) -> Path | None:
     return path
 
 
+def plot_adaptive(records: list[dict], path: Path, title: str) -> Path | None:
+    """Speed (wall and CPU seconds per simulated second) against the mean density error of an adaptive
+    comparison: warp-sph circles, SPlisHSPlasH triangles, the Pareto front over both engines in red."""
+    plt = _pyplot()
+    ok = [r for r in records if r.get("status") == "ok" and _m(r, SPEED_KEY) is not None
+          and _m(r, "density_error_mean_avg") is not None]
+    if plt is None or not ok:
+        return None
+    panels = [(SPEED_KEY, "wall seconds per simulated second")]
+    if all(_m(r, "cpu_per_simulated_second") is not None for r in ok):
+        panels.append(("cpu_per_simulated_second", "CPU seconds per simulated second (all threads)"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.4 * len(panels), 4.4), squeeze=False)
+    for ax, (key, xlabel) in zip(axes[0], panels):
+        pts = [(float(_m(r, key)), 100.0 * float(_m(r, "density_error_mean_avg")), r) for r in ok]
+        front = M.pareto_front([p[0] for p in pts], [p[1] for p in pts])
+        for engine, marker, color in (("warp-sph", "o", "C0"), ("splishsplash", "^", "C1")):
+            sel = [(c, e, f) for (c, e, r), f in zip(pts, front) if r.get("engine") == engine]
+            if sel:
+                ax.scatter([c for c, _, _ in sel], [e for _, e, _ in sel], marker=marker, color=color, zorder=3,
+                           edgecolors=["C3" if f else color for _, _, f in sel], linewidths=1.8,
+                           label="warp-sph" if engine == "warp-sph" else "SPlisHSPlasH")
+        for c, e, r in pts:
+            case = (r.get("params") or {}).get("case") or (r.get("params") or {}).get("solver", "?")
+            ax.annotate(case, (c, e), fontsize=7, xytext=(4, 3), textcoords="offset points")
+        fp = sorted((c, e) for (c, e, _), f in zip(pts, front) if f)
+        if fp:
+            ax.step([p[0] for p in fp], [p[1] for p in fp], where="post", color="C3", lw=1, label="Pareto front")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        from matplotlib.ticker import NullFormatter
+
+        ax.xaxis.set_minor_formatter(NullFormatter())  # decade labels only: minor ones overlap
+        ax.set_xlabel(xlabel + " (lower is faster)")
+        ax.set_ylabel("mean density error (time average) [%]")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_series(records: list[dict], keys: list[tuple[str, str, float]], path: Path, title: str) -> Path | None:
     """Per-frame series (front, density error, energy, ...) of every run against time."""
     plt = _pyplot()

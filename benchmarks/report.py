@@ -16,7 +16,7 @@ from pathlib import Path
 
 from . import executor_speed, matrix
 from . import metrics as M
-from .plots import SPEED_KEY, Figures, plot_scaling, plot_series, plot_tradeoff
+from .plots import SPEED_KEY, Figures, plot_adaptive, plot_scaling, plot_series, plot_tradeoff
 from .records import host_info
 
 
@@ -153,6 +153,55 @@ def speed_ratios(records: list[dict]) -> list[dict]:
     return out
 
 
+def adaptive_section(records: list[dict], figures: Figures, rel: str) -> list[str]:
+    """The adaptive-step comparisons (``warp-sph bench splishsplash --adaptive``): per resolution a table,
+    the DFSPH ratios and one speed/accuracy plot."""
+    from .splishsplash import adaptive_ratios
+
+    by_radius: dict[float, list[dict]] = {}
+    for r in records:
+        p = r.get("params") or {}
+        if p.get("mode") == "adaptive":
+            by_radius.setdefault(float(p.get("particle_radius") or 0.0), []).append(r)
+    if not by_radius:
+        return []
+    lines = ["## Side by side with SPlisHSPlasH, each with its own adaptive step", "",
+             "Each engine with its defaults and its own CFL step (SPlisHSPlasH: cflMethod 1, cflFactor 1, 5 ms cap; "
+             "warp-sph: time.cfl 0.4 against the last frame's top speed plus |g| frame_dt), Akinci 2012 wall "
+             "particles in both, the same fluid lattice. *mean ρ err* is each engine's own density at the frames "
+             "(mean of max(ρ/ρ0 − 1, 0)); SPlisHSPlasH's mass is 0.8 (2r)³ρ0 (its lattice settles into 80 % of "
+             "the sampled volume), warp-sph calibrates its mass so that the lattice reads ρ0. *CPU s / sim s* "
+             "counts every thread of the process: on a shared machine it is the steadier measure of work.", ""]
+    for radius in sorted(by_radius, reverse=True):
+        recs = latest(by_radius[radius])
+        n = max((r.get("fluid_particles") or 0) for r in recs)
+        lines += [f"### {n:,} fluid particles (r = {radius:g} m)", ""] + _section_head(recs)
+        rows = []
+        for r in sorted(recs, key=lambda r: (_m(r, SPEED_KEY) is None, _m(r, SPEED_KEY) or 0)):
+            p = r.get("params") or {}
+            rows.append([r.get("engine", "?"), p.get("case") or p.get("solver", "?"), r.get("status", "?"),
+                         _fmt(r.get("threads")), _fmt(r.get("fluid_particles")), _fmt(_m(r, "simulated_seconds")),
+                         _fmt(_m(r, "steps")), _fmt(_m(r, "dt_mean"), 1e3), _fmt(_m(r, "solver_iterations_mean")),
+                         _fmt(_m(r, "divergence_iterations_mean")), _fmt(_m(r, SPEED_KEY)),
+                         _fmt(_m(r, "cpu_per_simulated_second")), _fmt(_m(r, "density_error_mean_avg"), 100),
+                         _fmt(_m(r, "density_error_max"), 100)])
+        lines += _table(["engine", "case", "status", "threads", "fluid N", "sim s", "steps", "mean dt [ms]",
+                         "iterations/step", "divergence it./step", "wall s / sim s", "CPU s / sim s", "mean ρ err %",
+                         "max ρ err %"], rows) + [""]
+        ratios = adaptive_ratios(recs)
+        if ratios:
+            lines += _table(["SPlisHSPlasH case", "its threads", "warp-sph dfsph / it (wall)", "(CPU)",
+                             "warp-sph mean ρ err %", "its mean ρ err %"],
+                            [[q["case"], _fmt(q["threads"]), _fmt(q["ratio"]), _fmt(q.get("cpu_ratio")),
+                              _fmt(q["ours_error"], 100), _fmt(q["ref_error"], 100)] for q in ratios]) + [""]
+        png = figures.get(f"splishsplash_adaptive_{n}.png", recs, lambda p, recs=recs, n=n: plot_adaptive(
+            recs, p, f"dam break, {n:,} fluid particles: speed against accuracy (each engine's adaptive step)"))
+        if png:
+            lines += [f"![speed against accuracy, {n} particles]({rel}/{png.name})", ""]
+        lines += _failures(recs) + [""]
+    return lines
+
+
 def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> Path:
     """Regenerate the Markdown report (and PNG plots in results_dir) from the JSON lines."""
     from .records import report_path
@@ -251,7 +300,8 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     # the latest comparison at each resolution (fluid particle count), smallest first
     by_size: dict[int, list[dict]] = {}
     for r in data.get("splishsplash", []):
-        by_size.setdefault(int(r.get("fluid_particles") or 0), []).append(r)
+        if (r.get("params") or {}).get("mode") != "adaptive":
+            by_size.setdefault(int(r.get("fluid_particles") or 0), []).append(r)
     if by_size:
         lines += ["## Side by side with SPlisHSPlasH", ""]
     for size in sorted(by_size):
@@ -295,6 +345,9 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
             lines += [f"![speed against accuracy]({rel}/{png.name})", ""]
         lines += _failures([r for r in sph if r.get("engine") != "splishsplash"]) + [""]
 
+    adaptive = adaptive_section(data.get("splishsplash", []), figures, rel)
+    lines += adaptive
+
     surf = latest(data.get("surface", []))
     if surf:
         lines += ["## Surface reconstruction", ""] + _section_head(surf)
@@ -326,7 +379,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     execs = latest(data.get("executors", []))
     lines += executor_speed.section(execs, _fmt, _section_head)
 
-    if not (sweeps or by_solver or by_size or surf or mat or execs):
+    if not (sweeps or by_solver or by_size or adaptive or surf or mat or execs):
         lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]
     figures.save()
     md_path.parent.mkdir(parents=True, exist_ok=True)

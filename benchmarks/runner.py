@@ -149,8 +149,10 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
     from .report import speed_ratios
 
     invocation = now()
+    if args.adaptive:
+        return _splishsplash_adaptive(args, argv, invocation, log)
     records = S.run_comparison(
-        particle_radius=args.particle_radius, frames=args.frames, threads=args.threads,
+        particle_radius=args.particle_radius, frames=args.frames, threads=args.threads or 1,
         solvers=[s.strip() for s in args.solvers.split(",") if s.strip()],
         dt={"wcsph": args.dt_wcsph, "pbf": args.dt_pbf, "dfsph": args.dt_dfsph},
         device=args.device, isolate=not args.in_process, skip_warp_sph=args.skip_warp_sph,
@@ -159,6 +161,36 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
     for q in speed_ratios(records):
         log(f"{q['solver']}: warp-sph time / SPlisHSPlasH time = {q['ratio']:.2f} "
             f"(SPlisHSPlasH on {q['threads']} threads); mean density error {100 * (q['ours_error'] or 0):.3f} % "
+            f"vs {100 * (q['ref_error'] or 0):.3f} %")
+    return _finish(out, args, records, log)
+
+
+def parse_resolutions(text: str) -> list[tuple[float, float]]:
+    """'0.025:1.0,0.0125:0.3' -> [(0.025, 1.0), (0.0125, 0.3)]: particle radius [m] and simulated seconds."""
+    out = []
+    for item in [v.strip() for v in text.split(",") if v.strip()]:
+        r, sep, d = item.partition(":")
+        try:
+            out.append((float(r), float(d) if sep else 1.0))
+        except ValueError:
+            raise SystemExit(f"warp-sph bench splishsplash: --resolutions {text!r}: expected RADIUS:SECONDS,... "
+                             "e.g. 0.025:1.0,0.0125:0.3") from None
+        if out[-1][0] <= 0 or out[-1][1] <= 0:
+            raise SystemExit(f"warp-sph bench splishsplash: --resolutions {text!r}: radius and seconds must be > 0")
+    return out
+
+
+def _splishsplash_adaptive(args, argv: list[str], invocation: str, log) -> int:
+    from . import splishsplash as S
+
+    resolutions = parse_resolutions(args.resolutions) if args.resolutions else list(S.ADAPTIVE_RESOLUTIONS)
+    records = S.run_adaptive(resolutions, threads=args.threads or 2, device=args.device, isolate=not args.in_process,
+                             skip_warp_sph=args.skip_warp_sph, warp_sph_overrides=args.warp_sph_set, log=log)
+    out = _save("splishsplash", records, args, argv, invocation, log)
+    for q in S.adaptive_ratios(records):
+        log(f"{q['fluid_particles']} particles: warp-sph dfsph / SPlisHSPlasH {q['case']} = {q['ratio']:.2f} wall"
+            + (f", {q['cpu_ratio']:.2f} CPU" if q.get("cpu_ratio") else "")
+            + f" (SPlisHSPlasH on {q['threads']} threads); mean density error {100 * (q['ours_error'] or 0):.3f} % "
             f"vs {100 * (q['ref_error'] or 0):.3f} %")
     return _finish(out, args, records, log)
 
@@ -271,7 +303,15 @@ def build_parser() -> argparse.ArgumentParser:
     x = sub.add_parser("splishsplash", help="the same dam break in warp-sph and SPlisHSPlasH (pysplishsplash)")
     x.add_argument("--particle-radius", type=float, default=0.025)
     x.add_argument("--frames", type=int, default=25, help="frames at 24 fps (default 25: about 1 s)")
-    x.add_argument("--threads", type=int, default=1, help="OMP_NUM_THREADS for SPlisHSPlasH (default 1)")
+    x.add_argument("--threads", type=int, default=None,
+                   help="OMP_NUM_THREADS for SPlisHSPlasH (default 1; 2 with --adaptive)")
+    x.add_argument("--adaptive", action="store_true",
+                   help="each engine's own adaptive step (SPlisHSPlasH cflMethod 1) and defaults: every warp-sph "
+                        "solver and SPlisHSPlasH's DFSPH, IISPH, PBF and WCSPH (stiffness 50,000) at each "
+                        "--resolutions; one speed/accuracy plot per resolution")
+    x.add_argument("--resolutions", default=None, metavar="R:S,...",
+                   help="with --adaptive: particle radius [m] and simulated seconds per resolution "
+                        "(default 0.025:1.0,0.0125:0.3: 6,859 particles for 1 s, 59,319 for 0.3 s)")
     x.add_argument("--solvers", default="wcsph,pbf,dfsph", help="wcsph,pbf (both engines), dfsph (SPlisHSPlasH only)")
     x.add_argument("--dt-wcsph", type=float, default=None, help="fixed step for WCSPH [s] (default: CFL 0.4 bound)")
     x.add_argument("--dt-pbf", type=float, default=None, help="fixed step for PBF [s] (default 0.002 * r/0.025)")

@@ -33,7 +33,27 @@ import numpy as np
 GL_PRELOAD = "/lib/x86_64-linux-gnu/libGLdispatch.so.0"
 
 #: SPlisHSPlasH scene-file codes (its scene-file documentation).
-SIMULATION_METHODS = {"wcsph": 0, "pbf": 2, "dfsph": 4}
+SIMULATION_METHODS = {"wcsph": 0, "pbf": 2, "iisph": 3, "dfsph": 4}
+#: its TimeStep class per method (the driver records the class it got, the report checks it)
+TIME_STEP_CLASSES = {"wcsph": "TimeStepWCSPH", "pbf": "TimeStepPBF", "iisph": "TimeStepIISPH", "dfsph": "TimeStepDFSPH"}
+
+#: Adaptive-step comparison (``run_adaptive``): SPlisHSPlasH's methods as users run them, each with its
+#: own defaults (label, method, TimeStep parameters set beside the defaults). WCSPH's default
+#: stiffness is for its example scenes' scale; 50,000 keeps the dam break at ~1 % compression.
+#: DFSPH also runs with maxError 0.05 %, the value of its DamBreakModel.json scene.
+ADAPTIVE_SPLISHSPLASH = (
+    ("dfsph", "dfsph", {}),
+    ("dfsph maxError=0.05", "dfsph", {"MAX_ERROR": 0.05}),
+    ("iisph", "iisph", {}),
+    ("pbf", "pbf", {}),
+    ("wcsph stiffness=50000", "wcsph", {"STIFFNESS": 50000.0}),
+)
+#: SPlisHSPlasH's CFL settings in the adaptive comparison: cflMethod 1 (the velocity CFL step), the
+#: cflFactor 1 and 5 ms cap of its example scenes, 1 ms initial step
+ADAPTIVE_CFL = {"cflMethod": 1, "cflFactor": 1.0, "cflMaxTimeStepSize": 0.005, "cflMinTimeStepSize": 1e-4,
+                "timeStepSize": 0.001}
+#: (particle radius [m], simulated seconds) of the adaptive comparison: 6,859 and 59,319 fluid particles
+ADAPTIVE_RESOLUTIONS = ((0.025, 1.0), (0.0125, 0.3))
 BOUNDARY_AKINCI2012 = 0
 KERNEL_CUBIC = 0
 
@@ -116,12 +136,15 @@ def time_step_values(scene: dict, model: dict, solver: str) -> dict:
     raise ValueError(f"unknown solver {solver!r}")
 
 
-def scene_json(scene: dict, model: dict, fluid_min, fluid_max, solver: str, dt: float, box_obj: str) -> dict:
+def scene_json(scene: dict, model: dict, fluid_min, fluid_max, solver: str, dt: float, box_obj: str,
+               adaptive: bool = False, time_step: dict | None = None) -> dict:
     """SPlisHSPlasH scene (JSON structure) for a warp-sph scene dict with a box container and box fluid.
 
     model: warp-sph ``Model.summary()`` (stiffness, equation of state); fluid_min/max: corners of
     warp-sph's sampled fluid lattice (particle centres) [m], Z-up. SPlisHSPlasH fills a block
     start..end with particles at start + d, ..., end - d, so start/end are the lattice corners -/+ d.
+    adaptive: its CFL step (``ADAPTIVE_CFL``) instead of the fixed step dt; time_step: the method's
+    parameters by TimeStep name (default: ``time_step_values``, warp-sph's settings).
     """
     d = 2.0 * float(scene["particle_radius"])
     g = to_y_up(scene["gravity"])
@@ -135,8 +158,10 @@ def scene_json(scene: dict, model: dict, fluid_min, fluid_max, solver: str, dt: 
         "numberOfStepsPerRenderUpdate": 1,
         "enableVTKExport": False, "enablePartioExport": False,
     }
-    ts = time_step_values(scene, model, solver)
-    block = {"wcsph": "WCSPH", "pbf": "PBF", "dfsph": "DFSPH"}[solver]
+    if adaptive:
+        conf.update(ADAPTIVE_CFL)
+    ts = time_step_values(scene, model, solver) if time_step is None else time_step
+    block = {"wcsph": "WCSPH", "pbf": "PBF", "dfsph": "DFSPH", "iisph": "IISPH"}[solver]
     conf[block] = {_JSON_KEYS[k]: (bool(v) if isinstance(v, bool) else v) for k, v in ts.items()}
     lo = np.minimum(to_y_up(np.asarray(fluid_min) - d), to_y_up(np.asarray(fluid_max) + d))
     hi = np.maximum(to_y_up(np.asarray(fluid_min) - d), to_y_up(np.asarray(fluid_max) + d))
@@ -195,15 +220,23 @@ def _series_from_frames(x_y_up, v_y_up, rho, t, steps, mass, rest_density, gravi
 
 
 def run_splishsplash_case(scene_dict: dict, model: dict, fluid_min, fluid_max, solver: str, dt: float,
-                          frames: int, threads: int, timeout: float | None = None) -> dict:
-    """One SPlisHSPlasH case; returns a benchmark record (status "failed" with the reason on error)."""
+                          frames: int, threads: int, timeout: float | None = None, adaptive: bool = False,
+                          time_step: dict | None = None, label: str | None = None) -> dict:
+    """One SPlisHSPlasH case; returns a benchmark record (status "failed" with the reason on error).
+    adaptive: its CFL step (dt is then only the initial step); time_step: the method's parameters by
+    TimeStep name (default: warp-sph's settings, ``time_step_values``); label: the case's name."""
     from . import metrics as M
     from .records import SCHEMA, host_info, now as _now
 
-    params = {"engine": "splishsplash", "solver": solver, "dt": dt, "particle_radius": scene_dict["particle_radius"]}
+    params = {"engine": "splishsplash", "solver": solver, "dt": None if adaptive else dt,
+              "particle_radius": scene_dict["particle_radius"]}
+    if adaptive:
+        params.update(mode="adaptive", case=label or solver, parameters=dict(time_step or {}))
     record = {"schema": SCHEMA, "kind": "splishsplash", "name": "splishsplash", "engine": "splishsplash",
-              "label": f"splishsplash {solver}", "params": params, "date": _now(), "host": host_info(),
+              "label": f"splishsplash {label or solver}", "params": params, "date": _now(), "host": host_info(),
               "threads": threads, "device": "cpu", "device_name": "CPU", "scene": scene_dict, "status": "failed"}
+    if time_step is None:
+        time_step = time_step_values(scene_dict, model, solver)
     ok, version = available()
     if not ok:
         record["status"] = "skipped"
@@ -214,11 +247,12 @@ def run_splishsplash_case(scene_dict: dict, model: dict, fluid_min, fluid_max, s
         tmp = Path(tmp)
         c = scene_dict["container"]
         (tmp / "box.obj").write_text(box_obj_text(to_y_up(c["min"]), to_y_up(c["max"])))
-        sj = scene_json(scene_dict, model, fluid_min, fluid_max, solver, dt, str(tmp / "box.obj"))
+        sj = scene_json(scene_dict, model, fluid_min, fluid_max, solver, dt, str(tmp / "box.obj"), adaptive=adaptive,
+                        time_step=time_step)
         (tmp / "scene.json").write_text(json.dumps(sj, indent=1))
         record["splishsplash_scene"] = sj
         cfg = {"scene_file": str(tmp / "scene.json"), "output_dir": str(tmp / "out"), "fps": scene_dict["fps"],
-               "frames": frames, "dt": dt, "time_step": time_step_values(scene_dict, model, solver)}
+               "frames": frames, "dt": dt, "time_step": time_step}
         (tmp / "config.json").write_text(json.dumps(cfg))
         cmd = [sys.executable, str(Path(__file__).resolve().with_name("splishsplash_driver.py")), str(tmp / "config.json"),
                str(tmp / "out.npz")]
@@ -244,10 +278,21 @@ def run_splishsplash_case(scene_dict: dict, model: dict, fluid_min, fluid_max, s
            "simulated_seconds": info["simulated_seconds"], "steps": info["steps"], "frames": len(series["time"]) - 1}
     met.update(M.speed_metrics(info["wall_seconds"], info["simulated_seconds"], info["steps"], n))
     met.update(acc)
+    if info.get("cpu_seconds") is not None and info["simulated_seconds"] > 0:
+        met["cpu_seconds"] = info["cpu_seconds"]
+        met["cpu_per_simulated_second"] = info["cpu_seconds"] / info["simulated_seconds"]
+    if info["steps"]:
+        met["dt_mean"] = info["simulated_seconds"] / info["steps"]
+    if adaptive and info.get("time_step_class") != TIME_STEP_CLASSES.get(solver):
+        record["error"] = f"SPlisHSPlasH ran {info.get('time_step_class')}, expected {TIME_STEP_CLASSES.get(solver)}"
+        return M.nan_to_none(record)
     its = [float(i) for i in data["iterations"][1:] if np.isfinite(i)]
     series["solver_iterations"] = [None] + its if its else [None] * len(series["time"])
     if its:
         met["solver_iterations_mean"] = float(np.mean(its))
+    its_v = [float(i) for i in data["iterations_v"][1:] if np.isfinite(i)] if "iterations_v" in data.files else []
+    if its_v:
+        met["divergence_iterations_mean"] = float(np.mean(its_v))
     record["metrics"] = met
     record["series"] = series
     record["status"] = "ok"
@@ -335,3 +380,95 @@ def run_comparison(particle_radius: float = 0.025, frames: int = 25, threads: in
         print_row(r, log)
         records.append(r)
     return records
+
+
+def run_adaptive(resolutions=ADAPTIVE_RESOLUTIONS, threads: int = 2, warp_sph_solvers=None,
+                 splishsplash_cases=ADAPTIVE_SPLISHSPLASH, device=None, isolate: bool = True,
+                 skip_warp_sph: bool = False, scene: str = "dam_break", warp_sph_overrides: list[str] | None = None,
+                 log=print) -> list[dict]:
+    """The dam break with each engine's own adaptive step, as users run them: every registered warp-sph
+    solver with its defaults (the scene's CFL bound), and SPlisHSPlasH's methods (``splishsplash_cases``)
+    with its CFL step (``ADAPTIVE_CFL``: cflMethod 1) and their defaults, at each (particle radius [m],
+    simulated seconds) of ``resolutions``. Records carry wall and CPU seconds per simulated second and
+    the mean density error (each engine's own densities at the frames, mean of max(rho/rho0 - 1, 0)).
+
+    Like with like: the same box (Akinci 2012 wall particles in both), the same fluid lattice (the
+    SPlisHSPlasH block is placed on warp-sph's sampled positions), the same radius and rest density.
+    What differs is each engine's own convention: SPlisHSPlasH's particle mass is 0.8 (2r)^3 rho0 (its
+    lattice starts at rho/rho0 ~ 0.8 and settles into 80 % of the sampled volume), warp-sph's mass is
+    calibrated so that the lattice reads rho0; each reports its error against its own rho0.
+    threads: OMP_NUM_THREADS of SPlisHSPlasH; warp-sph splits kernels over WARP_SPH_CPU_THREADS (default:
+    every core this process may use).
+    """
+    import warp as wp
+
+    from warp_sph.core.model import build_model
+    from warp_sph.methods import registry
+    from warp_sph.scene import load_scene
+    from warp_sph.scene.sampling import sample_scene
+
+    from .cases import RunSpec, run_specs
+    from .records import print_row
+
+    solvers = list(warp_sph_solvers or registry.solver_names())
+    records = []
+    ok, why = available()
+    if not ok:
+        log(f"SPlisHSPlasH: not run: {why}")
+    for radius, duration in resolutions:
+        sc = load_scene(scene, overrides=[f"particle_radius={radius}"])
+        frames = max(1, int(math.ceil(float(duration) * float(sc.fps) - 1e-9)))
+        if not skip_warp_sph:
+            for s in solvers:
+                # a solver's section goes to that solver's run only; other keys to every run
+                own = [o for o in warp_sph_overrides or () if o.split("=", 1)[0].split(".", 1)[0] not in
+                       (set(registry.solver_names()) - {s})]
+                spec = RunSpec(scene=scene, overrides=[f"particle_radius={radius}", f"solver={s}", *own],
+                               frames=frames, device=device, kind="splishsplash", name="splishsplash",
+                               params={"engine": "warp-sph", "solver": s, "mode": "adaptive", "case": s,
+                                       "particle_radius": radius, **({"overrides": " ".join(own)} if own else {})})
+                r = run_specs([spec], isolate=isolate, log=log)[0]
+                r["label"] = f"warp-sph {s}" + (f" ({', '.join(own)})" if own else "")
+                from warp_sph.core.launch import cpu_threads
+
+                r["threads"] = cpu_threads()
+                records.append(r)
+        sampled = sample_scene(sc)
+        model, _ = build_model(sc, sampled, wp.get_device("cpu"))
+        summary = model.summary()
+        fx = np.asarray(sampled.fluid_x, dtype=np.float64)
+        for label, method, values in splishsplash_cases:
+            log(f"SPlisHSPlasH {label} (r = {radius} m, {frames} frames, CFL step, OMP_NUM_THREADS={threads})")
+            r = run_splishsplash_case(sc.to_dict(), summary, fx.min(axis=0), fx.max(axis=0), method,
+                                      ADAPTIVE_CFL["timeStepSize"], frames, threads, adaptive=True,
+                                      time_step=dict(values), label=label)
+            print_row(r, log)
+            records.append(r)
+    return records
+
+
+def adaptive_ratios(records: list[dict]) -> list[dict]:
+    """Per resolution: warp-sph DFSPH against each SPlisHSPlasH DFSPH case of an adaptive comparison:
+    the ratio of wall (and CPU) seconds per simulated second and both mean density errors."""
+    ok = [r for r in records if r.get("status") == "ok" and (r.get("params") or {}).get("mode") == "adaptive"]
+    out = []
+    for n in sorted({r.get("fluid_particles") for r in ok if r.get("engine") == "warp-sph"} - {None}):
+        ours = [r for r in ok if r.get("engine") == "warp-sph" and r.get("fluid_particles") == n
+                and (r.get("params") or {}).get("solver") == "dfsph"]
+        if not ours:
+            continue
+        mo = ours[-1]["metrics"]
+        for ref in ok:
+            p = ref.get("params") or {}
+            if ref.get("engine") != "splishsplash" or p.get("solver") != "dfsph":
+                continue
+            if abs((p.get("particle_radius") or 0) - (ours[-1]["params"].get("particle_radius") or 0)) > 1e-12:
+                continue
+            mr = ref["metrics"]
+            row = {"fluid_particles": n, "case": p.get("case", "dfsph"), "threads": ref.get("threads"),
+                   "ratio": mo["wall_per_simulated_second"] / mr["wall_per_simulated_second"],
+                   "ours_error": mo.get("density_error_mean_avg"), "ref_error": mr.get("density_error_mean_avg")}
+            if mo.get("cpu_per_simulated_second") and mr.get("cpu_per_simulated_second"):
+                row["cpu_ratio"] = mo["cpu_per_simulated_second"] / mr["cpu_per_simulated_second"]
+            out.append(row)
+    return out

@@ -25,7 +25,8 @@ def driver_main(argv: list[str]) -> int:
     base = sph.Exec.SimulatorBase()
     base.init(useGui=False, sceneFile=cfg["scene_file"], outputDir=cfg["output_dir"], useCache=False,
               initialPause=False, stopAt=stop)
-    rec = {"x": [], "v": [], "rho": [], "t": [], "steps": [], "iterations": [], "cb": 0.0}
+    rec = {"x": [], "v": [], "rho": [], "t": [], "steps": [], "iterations": [], "iterations_v": [], "cb": 0.0,
+           "cb_cpu": 0.0}
     state = {"steps": 0, "next": frame_dt}
 
     def grab(t):
@@ -39,9 +40,12 @@ def driver_main(argv: list[str]) -> int:
         rec["steps"].append(state["steps"])
         its = state.pop("its", [])
         rec["iterations"].append(float(np.mean(its)) if its else np.nan)
+        its_v = state.pop("its_v", [])
+        rec["iterations_v"].append(float(np.mean(its_v)) if its_v else np.nan)
 
     def on_step():
         c0 = time.perf_counter()
+        p0 = time.process_time()
         state["steps"] += 1
         if state["steps"] == 1:  # boundary models exist only once the run has started
             sim = sph.Simulation.getCurrent()
@@ -51,15 +55,17 @@ def driver_main(argv: list[str]) -> int:
         t = sph.TimeManager.getCurrent().getTime()
         state["time"] = t
         ts = sph.Simulation.getCurrent().getTimeStep()
-        if hasattr(ts, "SOLVER_ITERATIONS"):
-            try:
-                state.setdefault("its", []).append(ts.getValueUInt(ts.SOLVER_ITERATIONS))
-            except Exception:
-                pass
+        for key, name in (("its", "SOLVER_ITERATIONS"), ("its_v", "SOLVER_ITERATIONS_V")):
+            if hasattr(ts, name):
+                try:
+                    state.setdefault(key, []).append(ts.getValueUInt(getattr(ts, name)))
+                except Exception:
+                    pass
         if t >= state["next"] - 1e-9 * frame_dt:
             grab(t)
             state["next"] += frame_dt
         rec["cb"] += time.perf_counter() - c0
+        rec["cb_cpu"] += time.process_time() - p0
 
     base.setTimeStepCB(on_step)
     t0 = time.perf_counter()
@@ -90,14 +96,16 @@ def driver_main(argv: list[str]) -> int:
             "boundary_handling": str(sim.getBoundaryHandlingMethod())}
     grab(0.0)
     t1 = time.perf_counter()
+    c1 = time.process_time()
     base.runSimulation()
     wall = time.perf_counter() - t1 - rec["cb"]
+    cpu = time.process_time() - c1 - rec["cb_cpu"]
     base.cleanup()
-    info.update(setup_seconds=setup, wall_seconds=wall, steps=state["steps"],
+    info.update(setup_seconds=setup, wall_seconds=wall, cpu_seconds=cpu, steps=state["steps"],
                 simulated_seconds=float(state.get("time", 0.0)))
     np.savez(out, x=np.stack(rec["x"]), v=np.stack(rec["v"]), rho=np.stack(rec["rho"]),
              t=np.asarray(rec["t"]), steps=np.asarray(rec["steps"]), iterations=np.asarray(rec["iterations"]),
-             info=json.dumps(info))
+             iterations_v=np.asarray(rec["iterations_v"]), info=json.dumps(info))
     return 0
 
 

@@ -91,8 +91,10 @@ CASES = {
                      r"fluid\[0\]\.max: expected every component >"),
     "unknown_key": (GOOD.replace('name = "tiny"', 'name = "tiny"\nparticle_radios = 0.05'), [],
                     r"particle_radios: unknown key"),
-    "fixed_dt_above_bound": (None, ["--set", "time.fixed_dt=0.004"],
+    "fixed_dt_above_bound": (None, ["--set", "solver=wcsph", "--set", "time.fixed_dt=0.004"],
                              r"time\.fixed_dt: 0\.004 s is .*x the acoustic CFL time-step bound"),
+    "fixed_dt_above_velocity_bound": (None, ["--set", "time.fixed_dt=0.02"],
+                                      r"time\.fixed_dt: 0\.02 s is .*x the velocity CFL time-step bound"),
     "unknown_scene": ("__builtin__:no_such_scene", [], r"no such scene file or built-in scene"),
     "missing_file": ("__path__:missing.toml", [], r"missing.toml: scene file not found"),
 }
@@ -213,7 +215,7 @@ def test_check_command_reports_bad_scene(workdir, capsys):
 
 @pytest.mark.parametrize("text,pattern", [
     ("particle_radius = = 1", r"malformed TOML"),
-    ('solver = "dfsph"\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n', r"solver: expected one of"),
+    ('solver = "iisph"\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n', r"solver: expected one of"),
     ("particle_radius = nan\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n", r"particle_radius"),
     ("[material]\nviscosity = -0.1\n[[fluid]]\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n", r"material\.viscosity"),
     ("fluid = []\n", r"expected at least one \[\[fluid\]\] block"),

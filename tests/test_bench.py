@@ -423,3 +423,65 @@ def test_executor_benchmark_runs_both_executors(tmp_path):
     assert m["ratio"] == pytest.approx(m["local_cluster_seconds"] / m["serial_seconds"])
     assert 0 <= m["overhead_per_case_mean"] <= m["overhead_per_case_max"]
     assert len(m["case_seconds_serial"]) == 8
+# --- adaptive-step comparison (warp-sph bench splishsplash --adaptive) ------------------------------
+def test_adaptive_splishsplash_scene_uses_its_cfl_step_and_method_defaults():
+    scene = {"particle_radius": 0.025, "gravity": (0.0, 0.0, -9.81), "material": {"rest_density": 1000.0}}
+    sj = S.scene_json(scene, {}, (0.055,) * 3, (0.955,) * 3, "iisph", 1e-3, "/tmp/box.obj", adaptive=True,
+                      time_step={})
+    c = sj["Configuration"]
+    assert c["cflMethod"] == 1 and c["cflFactor"] == 1.0 and c["cflMaxTimeStepSize"] == 0.005
+    assert c["simulationMethod"] == 3 and c["IISPH"] == {}  # its defaults: nothing set
+    cases = {label: (method, values) for label, method, values in S.ADAPTIVE_SPLISHSPLASH}
+    assert cases["wcsph stiffness=50000"] == ("wcsph", {"STIFFNESS": 50000.0})
+    assert {m for m, _ in cases.values()} == {"dfsph", "iisph", "pbf", "wcsph"}
+    sj = S.scene_json(scene, {}, (0.055,) * 3, (0.955,) * 3, "wcsph", 1e-3, "/tmp/box.obj", adaptive=True,
+                      time_step={"STIFFNESS": 50000.0})
+    assert sj["Configuration"]["WCSPH"] == {"stiffness": 50000.0}
+    assert B.parse_resolutions("0.025:1.0,0.0125:0.3") == [(0.025, 1.0), (0.0125, 0.3)]
+    with pytest.raises(SystemExit, match="RADIUS:SECONDS"):
+        B.parse_resolutions("0.025:x")
+
+
+def test_adaptive_ratios_and_report_section(tmp_path):
+    """warp-sph DFSPH over each SPlisHSPlasH DFSPH case of the same radius, and the report's section."""
+    import json
+
+    from warp_sph.benchmarks.report import write_report
+
+    def rec(engine, case, solver, wall, cpu, err, n=6859, r=0.025):
+        return {"schema": REC.SCHEMA, "kind": "splishsplash", "engine": engine, "status": "ok", "threads": 2,
+                "label": f"{engine} {case}", "fluid_particles": n, "invocation": "2026-01-01T00:00:00",
+                "params": {"engine": engine, "solver": solver, "mode": "adaptive", "case": case, "particle_radius": r},
+                "metrics": {"wall_per_simulated_second": wall, "cpu_per_simulated_second": cpu,
+                            "density_error_mean_avg": err, "simulated_seconds": 1.0, "steps": 300}}
+
+    records = [rec("warp-sph", "dfsph", "dfsph", 3.0, 5.0, 5e-4), rec("warp-sph", "pbf", "pbf", 6.0, 9.0, 1.3e-3),
+               rec("splishsplash", "dfsph", "dfsph", 12.0, 10.0, 2e-4),
+               rec("splishsplash", "dfsph maxError=0.05", "dfsph", 6.0, 5.0, 5.4e-4),
+               rec("splishsplash", "iisph", "iisph", 9.0, 8.0, 7e-4)]
+    ratios = {q["case"]: q for q in S.adaptive_ratios(records)}
+    assert set(ratios) == {"dfsph", "dfsph maxError=0.05"}
+    assert ratios["dfsph maxError=0.05"]["ratio"] == pytest.approx(0.5)
+    assert ratios["dfsph"]["cpu_ratio"] == pytest.approx(0.5) and ratios["dfsph"]["ref_error"] == 2e-4
+    with open(tmp_path / "splishsplash.jsonl", "w") as f:
+        for r in records:
+            f.write(json.dumps(r) + "\n")
+    text = write_report(tmp_path, log=lambda *a: None).read_text()
+    assert "## Side by side with SPlisHSPlasH, each with its own adaptive step" in text
+    assert "### 6,859 fluid particles" in text and "dfsph maxError=0.05" in text
+    assert "## Side by side with SPlisHSPlasH\n" not in text  # adaptive records stay out of the fixed-step section
+
+
+def test_adaptive_warp_sph_runs_record_cpu_time_and_iterations():
+    """Every registered solver runs with its defaults and its own step; DFSPH records both solves."""
+    records = S.run_adaptive([(0.1, 0.1)], splishsplash_cases=(), isolate=False, log=lambda *a: None)
+    from warp_sph.methods import registry
+
+    assert [r["params"]["solver"] for r in records] == list(registry.solver_names())
+    for r in records:
+        assert r["status"] == "ok", r.get("error")
+        m = r["metrics"]
+        assert m["cpu_per_simulated_second"] > 0 and m["dt_mean"] > 0 and r["params"]["mode"] == "adaptive"
+        assert not any(o.startswith("time.fixed_dt") for o in r["spec"]["overrides"])
+    dfsph = next(r for r in records if r["params"]["solver"] == "dfsph")
+    assert dfsph["metrics"]["solver_iterations_mean"] >= 2 and dfsph["metrics"]["divergence_iterations_mean"] >= 1

@@ -29,6 +29,7 @@ def make_scene(base: dict, **kw):
         else:
             d[k] = v
     d.setdefault("output", {"usd": False, "surface": False})
+    d.setdefault("solver", "wcsph")  # these extremes are WCSPH's (the default solver until DFSPH); others are named
     return scene_from_dict(d)
 
 

@@ -149,8 +149,9 @@ def _arrays(value):
         if holder is not None and hasattr(holder, "count"):
             out[f".{holder_name}.count"] = holder.count
             out[f".{holder_name}.index"] = holder.index
-    if not out:  # a struct of arrays (PBF's PairCache)
-        for attr in ("count", "index", "gradient", "value", "boundary_gradient"):
+    if not out:  # a struct of arrays (PBF's PairCache, DFSPH's DfsphPairs)
+        for attr in ("count", "index", "gradient", "value", "boundary_gradient", "gradient_sum", "boundary_velocity",
+                     "active", "offset"):
             a = getattr(value, attr, None)
             if isinstance(a, wp.array):
                 out[f".{attr}"] = a
@@ -184,6 +185,10 @@ CONFIGS |= {
     "pbf-penalty": dict(solver="pbf", boundary="penalty"),
     "pbf-grid": dict(solver="pbf", material={"xsph": 0.05}, options={"lists": False, "neighbor_mode": "margin"}),
     "pbf-stabilize": dict(solver="pbf", compressed=True),
+    "dfsph": dict(solver="dfsph", material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.3}),
+    "dfsph-penalty": dict(solver="dfsph", boundary="penalty", material={"viscosity": 1e-3}),
+    "dfsph-no-divergence": dict(solver="dfsph", dfsph={"divergence_solve": False}),
+    "dfsph-stabilize": dict(solver="dfsph", compressed=True),
 }
 
 

@@ -18,6 +18,8 @@ def small(**extra):
          "fluid": [{"min": [0, 0, 0], "max": [0.4, 0.5, 0.4]}], "output": {"usd": False}, "duration": 0.5}
     for k, v in extra.items():
         d[k] = {**d.get(k, {}), **v} if isinstance(v, dict) else v
+    if "wcsph" in extra:  # WCSPH's settings are tested with WCSPH (the default solver is DFSPH)
+        d.setdefault("solver", "wcsph")
     return scene_from_dict(d)
 
 

@@ -41,7 +41,8 @@ def test_scripting_example_runs(capsys, tmp_path):
     script.write_text(code)
     namespace = runpy.run_path(str(script))
     sim = namespace["sim"]
-    assert sim.graph.names()[-2:] == ["swirl", "integrate"]
+    names = sim.graph.names()
+    assert names[-4:] == ["swirl", "source", "pressure", "integrate"]
     assert sim.state.frame == 3
     x = namespace["x"]
     assert np.isfinite(x).all() and x.shape == (sim.model.fluid_count, 3)

@@ -63,12 +63,13 @@ def test_defaults_resolved(tmp_path):
     assert s.name == "scene"
     assert s.particle_radius == 0.025
     assert s.smoothing_kernel == "cubic" and s.h_per_spacing is None
-    assert s.solver == "wcsph" and s.boundary == "akinci2012"
+    assert s.solver == "dfsph" and s.boundary == "akinci2012"
     assert s.boundary_gap is None and 1.05 * s.spacing < s.wall_gap < 1.15 * s.spacing
     assert s.gravity == (0.0, 0.0, -9.81)
     assert s.material.rest_density == 1000.0 and s.material.viscosity == 0.0
     assert s.wcsph.equation_of_state == "linear" and s.wcsph.speed_of_sound_factor == 10.0
     assert s.pbf.max_iterations == 50 and s.pbf.min_iterations == 2 and s.pbf.tensile_correction is False
+    assert s.dfsph.target_density_error == 5e-4 and s.dfsph.warm_start == 0.5 and s.dfsph.divergence_solve is True
     assert s.time.cfl == 0.4 and s.time.dt_max == 5e-3 and s.time.fixed_dt == 0.0
     assert s.container.max == (4.0, 1.5, 3.0)
     assert s.output.usd is True and s.output.particle_primvars == ["density"]

@@ -7,6 +7,7 @@ from warp_sph.scene import list_scenes, load_scene
 from warp_sph.run.simulation import Simulation
 
 NO_OUTPUT = ["output.usd=false", "output.surface=false"]
+WCSPH = NO_OUTPUT + ["solver=wcsph"]  # the scenes' default solver is DFSPH; these checks are WCSPH's
 
 
 def layer_pressure_profile(sim, n_layers=12):
@@ -34,7 +35,7 @@ def test_hydrostatic_tank_akinci():
     volume sum m/max(rho, rho0) within 1 %. With the mirrored wall pressure (SPlisHSPlasH), whose
     profile this checks: it never comes to rest (it is not energy-consistent; the scene itself uses
     eq16, tests/test_robust.py), but its time-averaged profile is hydrostatic within 5 %."""
-    sim = Simulation(load_scene("hydrostatic", NO_OUTPUT + ["wcsph.boundary_pressure=mirrored", "material.xsph=0"]))
+    sim = Simulation(load_scene("hydrostatic", WCSPH + ["wcsph.boundary_pressure=mirrored", "material.xsph=0"]))
     m = sim.model
     g = float(np.linalg.norm(m.gravity))
     weight = m.particle_mass * m.fluid_count * g
@@ -66,7 +67,7 @@ def test_hydrostatic_tank_akinci():
 
 
 def test_hydrostatic_tank_penalty_keeps_particles_inside():
-    sim = Simulation(load_scene("hydrostatic", NO_OUTPUT + ["boundary=penalty"]))
+    sim = Simulation(load_scene("hydrostatic", WCSPH + ["boundary=penalty"]))
     m = sim.model
     for _ in range(24):
         stats = sim.advance_frame()
@@ -79,7 +80,7 @@ def test_hydrostatic_tank_penalty_keeps_particles_inside():
 def test_radial_expansion_symmetric():
     """The report's dense cube in vacuum: expands radially, symmetric, centre of mass fixed,
     total momentum ~ 0."""
-    sim = Simulation(load_scene("radial_expansion", NO_OUTPUT))
+    sim = Simulation(load_scene("radial_expansion", WCSPH))
     m = sim.model
     x0 = sim.get_field("particle_x")
     c0 = x0.mean(axis=0)

@@ -11,6 +11,7 @@ def small_scene(**kw):
     d = {
         "name": "stage_test",
         "particle_radius": 0.05,
+        "solver": "wcsph",
         "container": {"min": [0.0, 0.0, 0.0], "max": [0.8, 0.6, 0.8]},
         "fluid": [{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.6, 0.5, 0.5]}],
         "material": {"viscosity": 0.01, "xsph": 0.1, "boundary_friction": 0.3},

@@ -14,7 +14,7 @@ import pkgutil
 
 from ..core.errors import SceneError
 
-DEFAULT_SOLVER = "wcsph"
+DEFAULT_SOLVER = "dfsph"
 DEFAULT_BOUNDARY = "akinci2012"
 #: table names a method section may not take
 RESERVED_SECTIONS = frozenset({"material", "time", "container", "fluid", "obstacles", "output", "name",

@@ -182,6 +182,18 @@ class NeighborLists:
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
 
     @property
+    def boundary_weight(self):
+        """Boundary volume V_b per boundary particle in the boundary grid's cell order [m^3] (a
+        one-value placeholder without boundary volumes)."""
+        return self._boundary_weight if self.boundary_cells is not None else self._no_weight
+
+    @property
+    def max_count(self):
+        """Per fluid particle: the largest neighbour count that did not fit since the last ``overflow``
+        (a search kernel of its own writes it as ``build_lists`` does)."""
+        return self._max_count
+
+    @property
     def boundary_mask(self):
         """uint8 per cell of the boundary grid: 0 where no boundary particle is within one cell (the fluid
         there skips the boundary search); None when the cells are smaller than the search radius."""

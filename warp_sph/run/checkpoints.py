@@ -57,7 +57,9 @@ def checkpoint_info(sim, frame: int, frame_log: list[dict], digest: str = "") ->
     s = sim.state
     last = sim.last_frame.max_speed if sim.last_frame else 0.0
     extra = sim.solver.checkpoint_arrays()
-    extra = {k: (a.numpy() if isinstance(a, wp.array) else np.asarray(a)) for k, a in extra.items()}
+    # copies: on the CPU ``numpy()`` is a view of the live array, and a checkpoint is written on the
+    # export thread while the next frame already runs (a solver's carried warm-start values change)
+    extra = {k: np.array(a.numpy() if isinstance(a, wp.array) else a, copy=True) for k, a in extra.items()}
     v = versions()
     return dict(step=np.int64(s.step), frame=np.int64(frame), state_frame=np.int64(s.frame),
                 time=np.float64(s.time), last_max_speed=np.float64(last),

@@ -1,0 +1,414 @@
+"""Divergence-free SPH (Bender & Koschier 2015, 2017) as SPlisHSPlasH >= 2.12 computes it; kernels
+in ``kernels/dfsph.py``, equations there and in the research note ``dfsph.md``.
+
+Step (one dt per substep):
+  the fluid sorted into cells (the shared "neighbors" stage) -> one search at x ("density"): the
+  neighbour lists the shared stages read, the density, the factor f_i = 1/D_i, the pair cache
+  G_ij = V grad W_ij in compressed rows and the divergence source -> [stabilise: only when the fluid
+  at x is over-dense far beyond the target, e.g. a compressed start, project the excess out of x
+  without velocity] -> divergence solve: Jacobi
+  sweeps on P^v until the mean positive compression rate is below target_divergence_error / dt,
+  v += dt a(P^v) -> [viscosity and the boundary method's force] -> [XSPH] -> density source for
+  v* = v + dt g -> density solve: Jacobi sweeps on P until the mean predicted over-density is below
+  target_density_error -> integrate: v = v* + dt a(P), x += dt v.
+
+Both solves start from the last step's values (warm start, carried fields and checkpointed, so a
+resume is bitwise equal): P (a pressure over density, the same at any dt for a resting load) and
+P^v dt (a velocity-level correction), times ``dfsph.warm_start``, only where the particle is being
+compressed. The time step is the velocity CFL bound (no acoustic bound).
+
+Host reads: one read of a three-value control array per check (after the first min_iterations
+sweeps, then every ``check_every`` sweeps: 1 on the CPU, where the read costs nothing; a device can
+run blocks of sweeps between reads because the kernels stop by themselves once the control kernel
+has set its done flag); one read of the mean over-density per step for the stabilisation test.
+"""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...core.smoothing import get_smoothing_kernel, lattice_offsets
+from ...core.step_graph import Stage
+from ...kernels import dfsph as _dfsph
+from ...kernels import reduction as _reduce
+from ...neighbors.cell_lists import simulation_neighbor_lists
+from ...scene.parameters import Param
+from ..density import neighbors_stage
+from ..registry import register_solver
+from ..solver import Solver, TimeStepBound
+from ..viscosity import viscous_bounds, viscous_stage
+from ..xsph import xsph_stage
+
+#: neighbours (fluid + boundary, self excluded) a particle needs for its divergence error to count,
+#: on the cubic lattice with support 2d (26 interior, 17 on a flat free surface; SPlisHSPlasH: 20)
+NEIGHBOR_THRESHOLD_CUBIC = 20
+#: D_i d^2 below this: the particle is nearly isolated and gets no pressure (f_i = 0)
+FACTOR_FLOOR = 1e-6
+#: stabilise when the mean over-density at x exceeds this many times the density target (and 0.1 %)
+STABILIZE_FACTOR = 10.0
+STABILIZE_FLOOR = 1e-3
+#: most stabilisation rounds (each: a density solve at rest, a capped shift, new neighbours)
+STABILIZE_ROUNDS = 20
+
+
+def neighbor_threshold(smoothing: str, h: float, spacing: float) -> int:
+    """SPlisHSPlasH's 20-neighbour rule scaled with the support: round(20/26 N) for N neighbours of an
+    interior particle of a cubic lattice at spacing d (N = 26 for support 2d)."""
+    kernel = get_smoothing_kernel(smoothing)
+    interior = len(lattice_offsets(spacing, kernel.support_radius(h))) - 1
+    return int(round(NEIGHBOR_THRESHOLD_CUBIC * interior / 26.0))
+
+
+@register_solver
+class DfsphSolver(Solver):
+    """Divergence-free SPH: a divergence solve and a density solve per step, both Jacobi on the
+    factor computed once per step (see the module docstring). Time step: velocity CFL
+    dt <= cfl d / (v_max + |g| frame_dt) and, with viscosity, the viscous bound.
+
+    check_every: sweeps between host reads of the stop test (default: 1 on the CPU, 4 elsewhere).
+    """
+
+    name = "dfsph"
+    title = "divergence-free SPH (Bender & Koschier 2015, 2017)"
+    section_doc = "divergence-free SPH settings"
+    iterative = True
+    parameters = (
+        Param("dfsph.target_density_error", "float", "-", 5e-4, "the density solve stops when the mean predicted "
+              "over-density max(rho*/rho0 - 1, 0) is below this (fraction of rho0; SPlisHSPlasH 'maxError' / 100)",
+              gt=0.0, lt=1.0),
+        Param("dfsph.target_divergence_error", "float", "-", 1e-3, "the divergence solve stops when the mean "
+              "positive compression rate times dt, max(D(rho/rho0)/Dt, 0) dt, is below this (fraction of rho0 per "
+              "step; SPlisHSPlasH 'maxErrorV' / 100)", gt=0.0, lt=1.0),
+        Param("dfsph.min_iterations", "int", "-", 2, "fewest density-solve iterations per step", ge=1, le=10000),
+        Param("dfsph.max_iterations", "int", "-", 100, "most density-solve iterations per step", ge=1, le=10000),
+        Param("dfsph.divergence_min_iterations", "int", "-", 1, "fewest divergence-solve iterations per step",
+              ge=1, le=10000),
+        Param("dfsph.divergence_max_iterations", "int", "-", 100, "most divergence-solve iterations per step",
+              ge=1, le=10000),
+        Param("dfsph.divergence_solve", "bool", "-", True, "solve for a divergence-free velocity at the start of "
+              "each step (off: only the density solve, as in IISPH)"),
+        Param("dfsph.warm_start", "float", "-", 0.5, "fraction of the last step's pressures the solves start from "
+              "(where a particle is being compressed; 0: start from zero)", ge=0.0, le=1.0),
+        Param("dfsph.relaxation", "float", "-", 0.5, "Jacobi relaxation omega of both solves (SPlisHSPlasH: 0.5; "
+              "1 overshoots on coupled pairs)", gt=0.0, le=1.0),
+    )
+
+    @classmethod
+    def validate(cls, scene, fail) -> None:
+        p = scene.section(cls.name)
+        if p.min_iterations > p.max_iterations:
+            fail("dfsph.min_iterations", f"expected <= dfsph.max_iterations ({p.max_iterations}), got {p.min_iterations}")
+        if p.divergence_min_iterations > p.divergence_max_iterations:
+            fail("dfsph.divergence_min_iterations", f"expected <= dfsph.divergence_max_iterations "
+                 f"({p.divergence_max_iterations}), got {p.divergence_min_iterations}")
+
+    def __init__(self, sim, check_every: int | None = None):
+        super().__init__(sim)
+        m = self.model
+        self.check_every = int(check_every) if check_every else (1 if m.device.is_cpu else 4)
+        if self.check_every < 1:
+            raise ValueError(f"check_every must be >= 1, got {check_every}")
+        self.neighbor_threshold = neighbor_threshold(m.smoothing.name, m.smoothing_length, m.spacing)
+        self.factor_floor = FACTOR_FLOOR / (m.spacing * m.spacing)
+        target = float(self.config.target_density_error)
+        self.stabilize_threshold = max(STABILIZE_FACTOR * target, STABILIZE_FLOOR)
+        self.max_shift = 0.5 * m.particle_radius
+        # figures of the last step (host values, read by step_statistics and tests)
+        self.last_iterations = 0
+        self.last_density_error = 0.0        # mean predicted over-density of the last sweep [-]
+        self.last_divergence_iterations = 0
+        self.last_divergence_error = 0.0     # mean positive compression rate of the last sweep times dt [-]
+        self.last_start_error = 0.0          # mean over-density at x at the start of the step [-]
+        self.last_stabilization = 0          # stabilisation rounds of the last step
+        self.solves = 0                      # solves run (tests count them)
+
+    # --- workspace -------------------------------------------------------------------------
+    def _allocate(self) -> None:
+        sim, m = self.sim, self.model
+        n, dev = m.fluid_count, m.device
+        for name, dtype in (("particle_density", float), ("dfsph_factor", float), ("dfsph_divergence_source", float),
+                            ("dfsph_divergence_pressure", float), ("dfsph_divergence_warm", float),
+                            ("dfsph_density_source", float), ("dfsph_pressure", float), ("dfsph_error", float),
+                            ("dfsph_acceleration", wp.vec3), ("boundary_force", wp.vec3),
+                            ("particle_acceleration", wp.vec3), ("particle_pressure", float)):
+            sim.allocate(name, dtype)
+        chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
+        self._partial = wp.zeros(chunks, dtype=float, device=dev)
+        self._control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=dev)
+        self._zero_control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=dev)
+        size = max(n, 1)
+        pairs = _dfsph.DfsphPairs()
+        for name, dtype in (("offset", wp.int32), ("count", wp.int32), ("gradient_sum", wp.vec3),
+                            ("boundary_gradient", wp.vec3), ("boundary_velocity", float), ("active", wp.int32)):
+            setattr(pairs, name, wp.zeros(size, dtype=dtype, device=dev))
+        sim.fields["dfsph_pairs"] = pairs
+        self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle
+        self._square_sum = wp.zeros(size, dtype=float, device=dev)  # sum_j |G_ij|^2 (fluid part of D_i)
+        self._pairs_capacity = 0
+        self._search = _dfsph.fluid_search_kernel(m.smoothing.name)
+        terms = sim.boundary_terms
+        self._boundary_factor = _dfsph.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0)
+        self._no_volume = wp.zeros(1, dtype=float, device=dev)
+        self._no_mask = wp.zeros(1, dtype=wp.uint8, device=dev)
+
+    def _pairs(self):
+        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): a padded row per
+        particle for the search and the compressed rows the solves read."""
+        pairs = self.sim.fields["dfsph_pairs"]
+        capacity = self.nl.capacities[0]
+        if capacity != self._pairs_capacity:
+            n, dev = max(self.model.fluid_count, 1), self.model.device
+            pairs.index = wp.zeros(n * capacity, dtype=wp.int32, device=dev)
+            pairs.gradient = wp.zeros(n * capacity, dtype=wp.vec3, device=dev)
+            self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
+            self._pairs_capacity = capacity
+        return pairs
+
+    @property
+    def nl(self):
+        return self.sim.fields["neighbor_lists"]
+
+    # --- passes ----------------------------------------------------------------------------
+    def search(self, dt: float) -> None:
+        """The step's one search at the current x (the fluid sorted into cells by the "neighbors" stage):
+        neighbour lists, density, pair cache, factor, divergence source and warm start."""
+        m, f = self.model, self.sim.fields
+        nl = self.nl
+        n, dev = m.fluid_count, m.device
+        pairs = self._pairs()
+        fc = nl.fluid_cells
+        launch(self._search, n,
+               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.particle_mass,
+                m.smoothing_length, m.support_radius, m.rest_density, f["particle_x"], f["particle_v"]],
+               [nl.fluid.count, nl.fluid.index, nl.max_count, self._pair_rows, self._room, f["particle_density"],
+                pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
+        bc = nl.boundary_cells
+        if bc is not None:
+            mask = nl.boundary_mask
+            grid = [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, nl.boundary_weight,
+                    self._no_mask if mask is None else mask, int(mask is not None)]
+        else:
+            grid = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), pairs.offset, pairs.offset, m.boundary_x, self._no_volume,
+                    self._no_mask, 0]
+        launch(self._boundary_factor, n,
+               grid + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor, self.neighbor_threshold,
+                       self.sim.boundary_params, m.boundary_v, float(self.config.warm_start),
+                       1.0 / dt if dt > 0 else 0.0, fc.cell_point, f["particle_x"], f["particle_v"],
+                       f["dfsph_divergence_warm"], nl.fluid.count, self._square_sum, f["particle_density"],
+                       pairs.gradient_sum, f["dfsph_divergence_source"]],
+               [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient, pairs.boundary_velocity,
+                pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"], f["dfsph_acceleration"],
+                f["dfsph_error"], f["boundary_force"]], device=dev)
+        wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
+        launch(_dfsph.compact_pairs, n, [nl.fluid.index, self._pair_rows, self._room, pairs.offset],
+               [pairs.count, pairs.index, pairs.gradient], device=dev, min_range=LIGHT_MIN_RANGE)
+
+    def mean_error(self) -> float:
+        """Mean of the per-particle ``dfsph_error`` [-], summed in a fixed order (one read)."""
+        n = self.model.fluid_count
+        launch(_dfsph.error_chunks, self._partial.shape[0], [_reduce.REDUCE_CHUNK, self.sim.fields["dfsph_error"],
+                                                             self._zero_control], [self._partial], device=self.model.device)
+        return float(self._partial.numpy().sum(dtype=np.float64)) / max(n, 1)
+
+    def solve(self, pressure: str, source: str, scale: float, target: float, min_iterations: int,
+              max_iterations: int, active_only: bool) -> tuple[int, float]:
+        """Jacobi sweeps on the workspace field ``pressure`` for the field ``source`` (see
+        ``kernels/dfsph.py``) until the mean error is at most ``target`` after at least
+        ``min_iterations`` sweeps, or ``max_iterations`` ran. Returns (iterations, mean error of the
+        last sweep)."""
+        m, f = self.model, self.sim.fields
+        n, dev = m.fluid_count, m.device
+        fn, pairs = self.nl.fluid, f["dfsph_pairs"]
+        control, partial = self._control, self._partial
+        acc, err, p, b, fac = f["dfsph_acceleration"], f["dfsph_error"], f[pressure], f[source], f["dfsph_factor"]
+        omega = float(self.config.relaxation)
+        launch(_dfsph.reset_control, 1, [], [control], device=dev)
+        launched = 0
+        block = max(1, min_iterations)
+        self.solves += 1
+        while True:
+            block = min(block, max_iterations - launched)
+            for _ in range(block):
+                launch(_dfsph.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev)
+                launch(_dfsph.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only), control],
+                       [p, err], device=dev)
+                launch(_dfsph.error_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, err, control], [partial], device=dev)
+                launch(_dfsph.solve_control, 1, [partial, n, float(target), int(min_iterations), int(max_iterations)],
+                       [control], device=dev)
+            launched += block
+            c = control.numpy()  # the one read per check
+            if c[_dfsph.CONTROL_DONE] != 0.0 or launched >= max_iterations:
+                return int(c[_dfsph.CONTROL_ITERATIONS]), float(c[_dfsph.CONTROL_ERROR])
+            block = self.check_every
+
+    # --- stages ----------------------------------------------------------------------------
+    def run_search(self, sim, dt) -> None:
+        self.search(dt)
+
+    def run_stabilize(self, sim, dt) -> None:
+        """When the mean over-density at x exceeds ``stabilize_threshold`` (a compressed start, a step
+        that hit max_iterations): rounds of a density solve at rest (b = 1 - rho_hat, scale 1) and a
+        position shift x += a(P) capped at half a particle radius, with new neighbours, density and
+        factor after each, until the over-density is below the density target; no velocity results."""
+        f = sim.fields
+        m = self.model
+        err = self.mean_error()
+        self.last_start_error = err
+        self.last_stabilization = 0
+        if err <= self.stabilize_threshold:
+            return
+        p = self.config
+        target = float(p.target_density_error)
+        rounds = 0
+        while err > target and rounds < STABILIZE_ROUNDS:
+            fn, pairs = self.nl.fluid, f["dfsph_pairs"]
+            launch(_dfsph.stabilize_source, m.fluid_count, [m.rest_density, fn, f["particle_density"]],
+                   [f["dfsph_divergence_source"], f["dfsph_divergence_pressure"]], device=m.device)
+            self.solve("dfsph_divergence_pressure", "dfsph_divergence_source", 1.0, target, int(p.min_iterations),
+                       int(p.max_iterations), False)
+            launch(_dfsph.shift_positions, m.fluid_count, [fn, pairs, f["dfsph_divergence_pressure"], self.max_shift],
+                   [f["particle_x"]], device=m.device)
+            self._neighbors.run(sim, dt)
+            self.search(dt)
+            err = self.mean_error()
+            rounds += 1
+        self.last_stabilization = rounds
+
+    def run_divergence(self, sim, dt) -> None:
+        m, f, p = self.model, sim.fields, self.config
+        it, err = self.solve("dfsph_divergence_pressure", "dfsph_divergence_source", dt,
+                             float(p.target_divergence_error) / dt, int(p.divergence_min_iterations),
+                             int(p.divergence_max_iterations), True)
+        self.last_divergence_iterations = it
+        self.last_divergence_error = err * dt
+        launch(_dfsph.finish_divergence, m.fluid_count,
+               [m.particle_mass, float(dt), self.nl.fluid, f["dfsph_pairs"], f["dfsph_divergence_pressure"]],
+               [f["particle_v"], f["boundary_force"], f["dfsph_divergence_warm"]], device=m.device)
+
+    def run_source(self, sim, dt) -> None:
+        m, f = self.model, sim.fields
+        launch(_dfsph.density_source, m.fluid_count,
+               [m.rest_density, wp.vec3(*m.gravity), float(dt), float(self.config.warm_start), self.nl.fluid,
+                f["dfsph_pairs"], f["particle_density"], f["particle_v"]],
+               [f["dfsph_pressure"], f["dfsph_density_source"]], device=m.device)
+
+    def run_pressure(self, sim, dt) -> None:
+        p = self.config
+        it, err = self.solve("dfsph_pressure", "dfsph_density_source", dt * dt, float(p.target_density_error),
+                             int(p.min_iterations), int(p.max_iterations), False)
+        self.last_iterations = it
+        self.last_density_error = err
+
+    def run_integrate(self, sim, dt) -> None:
+        m, f = self.model, sim.fields
+        launch(_dfsph.integrate, m.fluid_count,
+               [m.particle_mass, m.rest_density, wp.vec3(*m.gravity), float(dt), self.nl.fluid, f["dfsph_pairs"],
+                f["dfsph_pressure"], f["particle_density"]],
+               [f["particle_v"], f["particle_x"], f["boundary_force"], f["particle_pressure"],
+                f["particle_acceleration"]], device=m.device)
+
+    def stages(self) -> list[Stage]:
+        sim, m, p = self.sim, self.model, self.config
+        self._neighbors = neighbors_stage(sim, True)
+        simulation_neighbor_lists(sim)
+        self._allocate()
+        self._pairs()
+        terms = sim.boundary_terms
+        with_boundary = terms is not None and terms.gradient is not None
+        boundary_reads = ("boundary_x", "boundary_volume") if with_boundary else ()
+        search_out = ("neighbor_lists", "particle_density", "dfsph_pairs", "dfsph_factor", "dfsph_divergence_source",
+                      "dfsph_divergence_pressure", "dfsph_acceleration", "dfsph_error", "boundary_force")
+        search_reads = ("neighbor_cells", "particle_x", "particle_v", "dfsph_divergence_warm")
+        wall = f" + {terms.name} boundary" if with_boundary else ""
+        stages = [
+            self._neighbors,
+            Stage("density", self.run_search, reads=search_reads + boundary_reads, writes=search_out,
+                  doc=f"one search within H_s (list capacities {self.nl.capacities}): neighbour lists, density (eq. 7"
+                      f"{wall}), pair cache V grad W_ij in compressed rows, f_i = 1/(|s_i|^2 + sum_j |V grad W_ij|^2), "
+                      f"divergence source -delta(v), warm start {p.warm_start:g} P~v/dt"),
+            Stage("stabilize", self.run_stabilize, reads=("particle_v", "dfsph_divergence_warm") + boundary_reads,
+                  updates=("particle_x", "neighbor_cells") + search_out,
+                  doc=f"when the mean over-density at x exceeds {self.stabilize_threshold:g}: density solves at rest "
+                      "and capped shifts of x (no velocity)"),
+        ]
+        if p.divergence_solve:
+            stages.append(Stage(
+                "divergence", self.run_divergence,
+                reads=("neighbor_lists", "dfsph_pairs", "dfsph_factor", "dfsph_divergence_source"),
+                updates=("dfsph_divergence_pressure", "dfsph_acceleration", "dfsph_error", "particle_v",
+                         "boundary_force", "dfsph_divergence_warm"),
+                doc=f"Jacobi sweeps (omega {p.relaxation:g}) until mean max(D rho/Dt, 0) dt < "
+                    f"{p.target_divergence_error:g} ({p.divergence_min_iterations}-{p.divergence_max_iterations}); "
+                    "v += dt a(P^v)"))
+        after = [viscous_stage(sim, "particle_x", True)]
+        if m.xsph > 0.0:
+            after.append(xsph_stage(sim, True))
+        stages += [s for s in after if s is not None]
+        stages += [
+            Stage("source", self.run_source,
+                  reads=("neighbor_lists", "dfsph_pairs", "particle_density", "particle_v"),
+                  writes=("dfsph_density_source",), updates=("dfsph_pressure",),
+                  doc=f"b = (1 - rho/rho0) - dt delta(v + dt g); warm start {p.warm_start:g} P where compressing"),
+            Stage("pressure", self.run_pressure,
+                  reads=("neighbor_lists", "dfsph_pairs", "dfsph_factor", "dfsph_density_source"),
+                  updates=("dfsph_pressure", "dfsph_acceleration", "dfsph_error"),
+                  doc=f"Jacobi sweeps (omega {p.relaxation:g}) until the mean predicted over-density < "
+                      f"{p.target_density_error:g} ({p.min_iterations}-{p.max_iterations})"),
+            Stage("integrate", self.run_integrate,
+                  reads=("neighbor_lists", "dfsph_pairs", "dfsph_pressure", "particle_density"),
+                  writes=("particle_pressure", "particle_acceleration"),
+                  updates=("particle_v", "particle_x", "boundary_force"),
+                  doc="v += dt (g + a(P)); x += dt v; p = P rho^2 / rho0"),
+        ]
+        return stages
+
+    def carried_fields(self) -> tuple[str, ...]:
+        """The warm-start values: P of the density solve and P^v dt of the divergence solve."""
+        return ("dfsph_pressure", "dfsph_divergence_warm")
+
+    # --- interface -------------------------------------------------------------------------
+    def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
+        m = self.model
+        cfl = self.sim.scene.time.cfl
+        g = float(np.linalg.norm(m.gravity))
+        frame_dt = self.sim.frame_dt
+        v = max(speed + g * frame_dt, 1e-12)
+        return [TimeStepBound("velocity CFL", cfl * m.spacing / v,
+                              f"cfl d / (v + |g| frame_dt) with cfl = {cfl:g}, d = {m.spacing:.4g} m, v = {speed:.3g} m/s, "
+                              f"|g| frame_dt = {g * frame_dt:.3g} m/s", ("time.cfl",))] + viscous_bounds(m)
+
+    def step_statistics(self) -> dict[str, float]:
+        return {"iterations": float(self.last_iterations), "density_error": self.last_density_error,
+                "divergence_iterations": float(self.last_divergence_iterations),
+                "divergence_error": self.last_divergence_error,
+                "stabilization_rounds": float(self.last_stabilization)}
+
+    def finish_frame(self) -> None:
+        """The density at the frame's positions (for the statistics and the watchdog)."""
+        self.refresh_density()
+
+    def checkpoint_arrays(self) -> dict:
+        f = self.sim.fields
+        return {"dfsph_pressure": f["dfsph_pressure"], "dfsph_divergence_warm": f["dfsph_divergence_warm"]}
+
+    def restore_arrays(self, arrays) -> None:
+        f = self.sim.fields
+        for name in ("dfsph_pressure", "dfsph_divergence_warm"):
+            if name in arrays:
+                a = arrays[name]
+                f[name].assign(a if isinstance(a, wp.array) else wp.array(np.asarray(a), dtype=float, device=self.model.device))
+            else:
+                f[name].zero_()
+
+    def instability_hint(self, rule: str, stage: str | None) -> str | None:
+        p = self.config
+        if rule in ("outside", "dense", "fast") and self.last_iterations >= int(p.max_iterations):
+            return (f"the density solve stopped at dfsph.max_iterations = {p.max_iterations} with the predicted density "
+                    f"error {100 * self.last_density_error:.3g} % above the target: raise dfsph.max_iterations or lower "
+                    "time.cfl")
+        return None
+
+    def summary(self) -> dict:
+        return {"neighbor_threshold": self.neighbor_threshold, "stabilize_threshold": self.stabilize_threshold,
+                "check_every": self.check_every}
