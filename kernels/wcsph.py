@@ -45,7 +45,7 @@ def pressure_kernel(equation_of_state: str):
 
 @functools.cache
 def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mirrored_pressure: bool,
-                        neighbors: str = "grid"):
+                        neighbors: str = "grid", write_pressure_term: bool = False):
     """a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij (eq. 10)
              + 10 nu sum_j (2m/(rho_i+rho_j)) (v_ij . x_ij)/(|x_ij|^2 + 0.01 h^2) grad W_ij  (viscosity)
              + sum_b [pressure_b(grad W_ib, V_b, (p/rho^2)_b) + force_b(x_ib, v_ib, ...)] + g    [m/s^2]
@@ -54,6 +54,8 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
     The wall's p/rho^2 is p_i/rho_i^2 (report eq. 16) or, ``mirrored_pressure``, p_i/rho_i^2 + p_i/rho0^2
     (SPlisHSPlasH). Also writes the force of the boundary on each particle [N] (its negative sums to
     the wall load). neighbors: "grid" or "list" (see ``density.NEIGHBOR_TYPES``).
+    write_pressure_term: also write the wall's p/rho^2 of each particle to ``boundary_pressure_term_out``
+    [m^5/(kg s^2)] (moving bodies gather their force from it; otherwise the array is not touched).
     """
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
     lists = neighbors == "list"
@@ -111,6 +113,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         # Out:
         particle_acceleration_out: wp.array(dtype=wp.vec3),
         boundary_force_out: wp.array(dtype=wp.vec3),
+        boundary_pressure_term_out: wp.array(dtype=float),
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
@@ -122,6 +125,8 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         p_rho2_b = p_rho2_i
         if wp.static(mirrored_pressure):
             p_rho2_b = p_rho2_i + particle_pressure[i] / (rest_density * rest_density)
+        if wp.static(write_pressure_term):
+            boundary_pressure_term_out[i] = p_rho2_b
         h = smoothing_length
         eps_h2 = 0.01 * h * h
         a = wp.vec3(0.0)

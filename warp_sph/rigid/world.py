@@ -200,6 +200,7 @@ class RigidWorld:
         self.control = self.model.control()
         self.state = self.model.state()
         self._next = self.model.state()
+        self._primary = self.state  # after every step the current state is this object again
         qd = np.zeros((self.body_count, 6), dtype=np.float32)
         for k, body in enumerate(bodies):
             qd[k, :3] = body.velocity
@@ -214,7 +215,7 @@ class RigidWorld:
         """Largest stable Newton step [s] (module docstring): 1 / (CONTACT_POINTS w)."""
         return 1.0 / (CONTACT_POINTS * self.contact_frequency)
 
-    # --- the arrays coupling kernels read (current state; the objects change at every sub-step) ---
+    # --- the arrays coupling kernels read (the same objects after every ``step``) -------------------
     @property
     def body_q(self) -> wp.array:
         """Poses of the body origins (= centres of mass), (p [m], q xyzw), local frame."""
@@ -254,6 +255,9 @@ class RigidWorld:
             wp.copy(self.state.body_f, wrench)
             self.solver.step(self.state, self._next, self.control, self.contacts, h)
             self.state, self._next = self._next, self.state
+        if self.state is not self._primary:  # keep the arrays a caller holds (``body_q`` ...) current
+            self._primary.assign(self.state)
+            self.state, self._next = self._primary, self.state
         self.steps += 1
         self.substeps += n
 
