@@ -143,7 +143,7 @@ def pair_contact_properties(
 def body_particle_force_kernel(smoothing: str, boundary_terms):
     """Force of the fluid on each moving boundary particle b [N], one thread per b, no atomics:
 
-        F_b = -sum_i m [pressure(params, grad_i W_ib, V_b, term_i) + force(params, x_ib, v_i - v_b, grad_i W_ib, V_b, rho_i)]
+        F_b = -sum_i m [pressure(params, grad_i W_ib, V_b, term_i) + force(params, b, x_ib, v_i - v_b, grad_i W_ib, V_b, rho_i)]
 
     over the fluid particles i with |x_i - x_b| < H_s: exactly the negative of the boundary terms the
     fluid kernels add to m a_i for the pair (i, b) (``kernels/boundary.py``; the pressure term is
@@ -215,7 +215,7 @@ def body_particle_force_kernel(smoothing: str, boundary_terms):
                         if wp.static(with_pressure):
                             a = wp.static(pressure_term)(boundary_params, grad, vol, boundary_pressure_term[i])
                         if wp.static(with_force):
-                            a += wp.static(force_term)(boundary_params, x_ib, particle_v[i] - vb, grad, vol,
+                            a += wp.static(force_term)(boundary_params, b, x_ib, particle_v[i] - vb, grad, vol,
                                                        particle_density[i])
                         f -= particle_mass * a
                     s += 1

@@ -78,7 +78,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         return a
 
     @wp.func(module="unique")
-    def boundary_pair(params: BoundaryParams, x_ib: wp.vec3, v_ib: wp.vec3, volume_b: float, p_rho2_b: float,
+    def boundary_pair(params: BoundaryParams, b: int, x_ib: wp.vec3, v_ib: wp.vec3, volume_b: float, p_rho2_b: float,
                       rho_i: float, h: float) -> wp.vec3:
         """Acceleration of i by boundary particle b: the method's pressure and force terms."""
         grad = wp.static(gradient)(x_ib, h)
@@ -86,7 +86,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         if wp.static(with_pressure):
             a = wp.static(pressure_term)(params, grad, volume_b, p_rho2_b)
         if wp.static(with_force):
-            a += wp.static(force_term)(params, x_ib, v_ib, grad, volume_b, rho_i)
+            a += wp.static(force_term)(params, b, x_ib, v_ib, grad, volume_b, rho_i)
         return a
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -157,7 +157,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
                 k_end = int(neighbor_count(boundary_neighbors, i))
                 while k < k_end:
                     b = boundary_neighbors.index[i, k]
-                    a_boundary += boundary_pair(boundary_params, xi - boundary_x[b], vi - boundary_v[b],
+                    a_boundary += boundary_pair(boundary_params, b, xi - boundary_x[b], vi - boundary_v[b],
                                                 boundary_volume[b], p_rho2_b, rho_i, h)
                     k += 1
             else:
@@ -166,7 +166,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
                 while wp.hash_grid_query_next(bquery, b):
                     x_ib = xi - boundary_x[b]
                     if wp.length(x_ib) < support_radius:
-                        a_boundary += boundary_pair(boundary_params, x_ib, vi - boundary_v[b], boundary_volume[b],
+                        a_boundary += boundary_pair(boundary_params, b, x_ib, vi - boundary_v[b], boundary_volume[b],
                                                     p_rho2_b, rho_i, h)
         boundary_force_out[i] = particle_mass * a_boundary
         particle_acceleration_out[i] = a + a_boundary + gravity

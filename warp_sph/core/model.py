@@ -53,6 +53,14 @@ class Model:
     #: [static_boundary_count, boundary_count), belong to moving rigid bodies, body after body
     static_boundary_count: int = 0
     boundary_body: wp.array | None = None  # per boundary particle: -1 static, else the body index [-]
+    #: Akinci sigma per boundary particle [-] when a body has its own ``fluid_friction`` (else None: every
+    #: particle has ``boundary_friction``)
+    boundary_particle_friction: wp.array | None = None
+    max_boundary_friction: float = -1.0  # the largest sigma of any boundary particle [-] (< 0: boundary_friction)
+
+    def __post_init__(self):
+        if self.max_boundary_friction < 0.0:
+            self.max_boundary_friction = self.boundary_friction
 
     @property
     def boundary_grid_id(self):
@@ -197,6 +205,8 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         launch(_density_dev.boundary_volume_kernel(kernel.name), len(boundary_x),
                [float(h), float(support), bgrid.id, bx], [bvol], device=device)
     body_of = None
+    particle_friction = None
+    max_friction = -1.0
     if len(body_x):  # moving bodies after the static particles; their volumes from their own samples
         samples = sampled.body_samples
         bx = wp.array(np.concatenate([bx.numpy(), (body_x - origin).astype(np.float32)]), dtype=wp.vec3, device=device)
@@ -207,6 +217,12 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
                                           + [np.full(s.count, k, np.int32) for k, s in enumerate(samples)]),
                            dtype=wp.int32, device=device)
         boundary_x = np.concatenate([boundary_x, body_x])
+        sigma0 = float(scene.material.boundary_friction)
+        sigmas = [sigma0 if b.fluid_friction is None else float(b.fluid_friction) for b in scene.bodies]
+        max_friction = max([sigma0] + sigmas)
+        if any(s != sigma0 for s in sigmas):  # a body with its own friction: sigma per particle
+            particle_friction = wp.array(np.concatenate([np.full(static_count, sigma0, np.float32)] + [
+                np.full(s.count, sig, np.float32) for s, sig in zip(samples, sigmas)]), dtype=float, device=device)
 
     model = Model(
         device=device, smoothing=kernel, rest_density=rho0, particle_radius=r, spacing=d,
@@ -218,7 +234,7 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         boundary_x=bx, boundary_v=bv, boundary_volume=bvol, boundary_grid=bgrid,
         container_lo=None if lo is None else (lo - origin), container_hi=None if hi is None else (hi - origin),
         fluid_count=len(fluid_x), boundary_count=len(boundary_x), static_boundary_count=static_count,
-        boundary_body=body_of,
+        boundary_body=body_of, boundary_particle_friction=particle_friction, max_boundary_friction=max_friction,
     )
     state = State(
         particle_x=wp.array((fluid_x - origin).astype(np.float32), dtype=wp.vec3, device=device),

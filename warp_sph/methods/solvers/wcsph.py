@@ -102,7 +102,7 @@ class WcsphSolver(Solver):
                    [f["particle_v"], f["particle_x"]], device=m.device, min_range=LIGHT_MIN_RANGE)
 
         boundary_reads = (("boundary_x", "boundary_volume") + (() if self.lists else ("boundary_grid",))
-                          if with_boundary else ())
+                          + (("boundary_v",) if bodies else ()) if with_boundary else ())
         terms_doc = ["pressure (eq. 10)"]
         if with_boundary:
             terms_doc.append(f"{terms.name} boundary" + (" (mirrored pressure)" if mirrored and terms.pressure else ""))
