@@ -22,25 +22,13 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+# shared with warp-sph sweep's summary (warp_sph/sweep/runs.py), which may not import the benchmarks
+from warp_sph.sweep.runs import pareto_front, surge_front  # noqa: F401  (re-exported)
+
 
 # --------------------------------------------------------------------------------------------
 # Accuracy
 # --------------------------------------------------------------------------------------------
-def surge_front(x: np.ndarray, wall: float = 0.0, axis: int = 0, quantile: float = 0.999) -> float:
-    """Dam-break surge-front position [m]: the ``quantile`` of the particles' coordinate along
-    ``axis`` (default: the 99.9th percentile of x, so the outermost 0.1 % of particles, single
-    splashes, are ignored: the smallest value with at least that fraction of particles at or behind
-    it, no interpolation into the outliers), measured from the wall at coordinate ``wall`` [m].
-
-    x: positions [m], shape (n, 3) (or (n,) coordinates along ``axis``).
-    """
-    x = np.asarray(x, dtype=np.float64)
-    coord = x[:, axis] if x.ndim == 2 else x
-    if coord.size == 0:
-        return float("nan")
-    return float(np.quantile(coord, quantile, method="inverted_cdf") - wall)
-
-
 def density_error_stats(density: np.ndarray, rest_density: float) -> dict:
     """Density error of one state, as ``FrameStatistics`` defines it.
 
@@ -226,24 +214,8 @@ def device_memory(device) -> dict:
 
 
 # --------------------------------------------------------------------------------------------
-# Pareto front
+# JSON
 # --------------------------------------------------------------------------------------------
-def pareto_front(cost: Sequence[float], error: Sequence[float]) -> list[bool]:
-    """Which points are Pareto-optimal when both cost and error are to be minimised: no other point is
-    at least as good in both and better in one. NaN points are never on the front."""
-    c = np.asarray(cost, dtype=np.float64)
-    e = np.asarray(error, dtype=np.float64)
-    ok = np.isfinite(c) & np.isfinite(e)
-    out = []
-    for i in range(len(c)):
-        if not ok[i]:
-            out.append(False)
-            continue
-        dominated = np.any(ok & (c <= c[i]) & (e <= e[i]) & ((c < c[i]) | (e < e[i])))
-        out.append(not bool(dominated))
-    return out
-
-
 def nan_to_none(value):
     """JSON has no NaN: floats that are not finite become None, recursively."""
     if isinstance(value, float):

@@ -2,7 +2,9 @@
 
 Every number in the report comes from ``<results>/<kind>.jsonl``; for each kind (and each sweep
 name) the latest invocation is shown. Plots need matplotlib (``pip install matplotlib``, the
-``plots`` extra); without it the report says so and keeps the tables.
+``plots`` extra). ``<results>/plots.json`` notes which records each plot was drawn from, so that a
+report rebuilt without matplotlib still links the plots of sections whose records did not change
+(and drops only those it would have to redraw).
 """
 from __future__ import annotations
 
@@ -12,17 +14,11 @@ import math
 import os
 from pathlib import Path
 
+from . import executor_speed, matrix
 from . import metrics as M
+from .plots import SPEED_KEY, Figures, plot_scaling, plot_series, plot_tradeoff
+from .records import host_info
 
-#: Accuracy metrics plotted against speed: (key in record metrics, axis label, scale).
-ACCURACY_METRICS = (
-    ("density_error_mean_avg", "mean density error (time average) [%]", 100.0),
-    ("density_error_max", "max density error [%]", 100.0),
-    ("volume_drift_max_abs", "max |volume drift| [%]", 100.0),
-    ("energy_change_final", "total energy change / (M g h_com) [-]", 1.0),
-    ("pressure_error_mean_abs", "hydrostatic pressure error (layer mean |err|) [%]", 100.0),
-)
-SPEED_KEY = "wall_per_simulated_second"
 
 
 def load_records(results_dir: Path) -> dict[str, list[dict]]:
@@ -118,120 +114,6 @@ def _failures(records: list[dict]) -> list[str]:
 
 
 # --------------------------------------------------------------------------------------------
-# Plots
-# --------------------------------------------------------------------------------------------
-def _pyplot():
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        return plt
-    except ImportError:
-        return None
-
-
-def _short_label(label: str) -> str:
-    """'scene=dam_break solver=pbf smoothing_kernel=cubic time.cfl=0.4' -> 'pbf cubic cfl=0.4'."""
-    parts = []
-    for tok in label.split():
-        k, sep, v = tok.partition("=")
-        if not sep:
-            parts.append(tok)
-        elif k in ("solver", "smoothing_kernel", "engine"):
-            parts.append(v)
-        elif k != "scene":
-            parts.append(f"{k.rpartition('.')[2]}={v}")
-    return " ".join(parts)
-
-
-def plot_tradeoff(records: list[dict], path: Path, title: str) -> Path | None:
-    """Speed against each accuracy metric present, Pareto front marked; None if nothing to plot."""
-    plt = _pyplot()
-    ok = [r for r in records if r.get("status") in ("ok", "time_limit") and _m(r, SPEED_KEY) is not None]
-    present = [(k, lab, s) for k, lab, s in ACCURACY_METRICS if any(_m(r, k) is not None for r in ok)]
-    if plt is None or not ok or not present:
-        return None
-    fig, axes = plt.subplots(1, len(present), figsize=(4.6 * len(present), 4.2), squeeze=False)
-    for ax, (key, label, scale) in zip(axes[0], present):
-        pts = [(float(_m(r, SPEED_KEY)), abs(float(_m(r, key))) * scale, r["label"]) for r in ok if _m(r, key) is not None]
-        cost = [p[0] for p in pts]
-        err = [p[1] for p in pts]
-        front = M.pareto_front(cost, err)
-        ax.scatter(cost, err, c=["C3" if f else "C0" for f in front], zorder=3)
-        for c, e, lab in pts:
-            ax.annotate(_short_label(lab), (c, e), fontsize=6, xytext=(3, 3), textcoords="offset points")
-        fp = sorted((c, e) for (c, e, _), f in zip(pts, front) if f)
-        if fp:
-            ax.step([p[0] for p in fp], [p[1] for p in fp], where="post", color="C3", lw=1, label="Pareto front")
-            ax.legend(fontsize=7)
-        ax.set_xscale("log")
-        ax.set_xlabel("wall seconds per simulated second (lower is faster)")
-        ax.set_ylabel(("|" + label + "|") if key == "energy_change_final" else label)
-        ax.grid(True, alpha=0.3)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def plot_series(records: list[dict], keys: list[tuple[str, str, float]], path: Path, title: str) -> Path | None:
-    """Per-frame series (front, density error, energy, ...) of every run against time."""
-    plt = _pyplot()
-    ok = [r for r in records if r.get("series") and r["series"].get("time")]
-    if plt is None or not ok:
-        return None
-    fig, axes = plt.subplots(1, len(keys), figsize=(4.6 * len(keys), 4.0), squeeze=False)
-    for ax, (key, label, scale) in zip(axes[0], keys):
-        for r in ok:
-            t = r["series"]["time"]
-            y = r["series"].get(key)
-            if not y:
-                continue
-            pts = [(a, b * scale) for a, b in zip(t, y) if b is not None]
-            if pts:
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], label=r["label"], lw=1)
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel(label)
-        ax.grid(True, alpha=0.3)
-    axes[0][0].legend(fontsize=6)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def plot_scaling(records: list[dict], path: Path) -> Path | None:
-    plt = _pyplot()
-    ok = [r for r in records if r.get("status") == "ok" and r.get("fluid_particles")]
-    if plt is None or not ok:
-        return None
-    ok.sort(key=lambda r: r["fluid_particles"])
-    n = [r["fluid_particles"] for r in ok]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    axes[0].plot(n, [_m(r, "ns_per_particle_step") for r in ok], "o-")
-    axes[0].set_ylabel("time per particle-step [ns]")
-    axes[1].plot(n, [_m(r, "bytes_per_particle") for r in ok], "o-", label="arrays + hash grids")
-    axes[1].plot(n, [_m(r, "rss_growth_per_particle") for r in ok], "s--", label="process RSS growth")
-    if any(_m(r, "device_pool_peak_bytes") for r in ok):
-        axes[1].plot(n, [(_m(r, "device_pool_peak_bytes") or 0) / r["fluid_particles"] for r in ok], "^:",
-                     label="device pool peak")
-    axes[1].set_ylabel("bytes per fluid particle")
-    axes[1].legend(fontsize=7)
-    for ax in axes:
-        ax.set_xscale("log")
-        ax.set_xlabel("fluid particles N")
-        ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-# --------------------------------------------------------------------------------------------
 # The report
 # --------------------------------------------------------------------------------------------
 def _machine(records: list[dict]) -> str:
@@ -273,21 +155,22 @@ def speed_ratios(records: list[dict]) -> list[dict]:
 
 def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> Path:
     """Regenerate the Markdown report (and PNG plots in results_dir) from the JSON lines."""
-    from .runner import RESULTS_DIR
+    from .records import report_path
 
     results_dir = Path(results_dir)
     if md_path is None:
-        md_path = results_dir.parent / "RESULTS.md" if results_dir.resolve() == RESULTS_DIR else results_dir / "RESULTS.md"
+        md_path = report_path(results_dir)
     data = load_records(results_dir)
-    plt = _pyplot()
+    figures = Figures(results_dir)
     rel = os.path.relpath(results_dir, md_path.parent)
     cpu = _host_line()
     lines = ["# warp-sph benchmark results", "",
              "Generated by `warp-sph bench report` from the JSON lines in "
              f"`{rel}/` on {_dt.datetime.now().astimezone().isoformat(timespec='seconds')} "
              f"(report written on: {cpu}). Do not edit by hand: rerun the commands below.", ""]
-    if plt is None:
-        lines += ["> Plots skipped: matplotlib is not installed (`pip install matplotlib`, or the `plots` extra).", ""]
+    if not figures.can_draw:
+        lines += ["> Plots not redrawn: matplotlib is not installed (`pip install matplotlib`, or the `plots` extra); "
+                  "plots of sections whose results did not change are kept.", ""]
     lines += ["Metrics (benchmarks/metrics.py): *wall s / sim s* is stepping wall time per simulated second "
               "(setup and kernel compilation excluded); *mean ρ err* the time average over frames of the "
               "mean compression max(ρ/ρ0 − 1, 0); *max ρ err* the largest ρ/ρ0 − 1 seen; *vol drift* "
@@ -310,14 +193,15 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
         for s in scenes:
             sr = [r for r in recs if ((r.get("params") or {}).get("scene") or (r.get("scene") or {}).get("name")) == s]
             lines += [f"### {s}", ""] + sweep_table(sr) + [""]
-            png = plot_tradeoff(sr, results_dir / f"sweep_{name}_{s}_tradeoff.png", f"{name}: {s}")
+            png = figures.get(f"sweep_{name}_{s}_tradeoff.png", sr, lambda p: plot_tradeoff(sr, p, f"{name}: {s}"))
             if png:
                 lines += [f"![speed against accuracy, {s}]({rel}/{png.name})", ""]
             keys = [("front", "surge front [m]", 1.0), ("density_error_mean", "mean density error [%]", 100.0),
                     ("total_energy", "total energy [J]", 1.0)]
             if any((r.get("series") or {}).get("pressure_error_mean_abs") for r in sr):
                 keys[0] = ("pressure_error_mean_abs", "pressure error [%]", 100.0)
-            png = plot_series(sr, keys, results_dir / f"sweep_{name}_{s}_series.png", f"{name}: {s} over time")
+            png = figures.get(f"sweep_{name}_{s}_series.png", sr,
+                              lambda p: plot_series(sr, keys, p, f"{name}: {s} over time"))
             if png:
                 lines += [f"![series, {s}]({rel}/{png.name})", ""]
             st = stage_table(sr)
@@ -356,7 +240,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                           f"({_fmt(min(cost))} to {_fmt(max(cost))} ns).", ""]
         stem = "scaling" + ("" if solver == "wcsph" else f"_{solver}") + "".join(
             "_" + "".join(c if c.isalnum() else "_" for c in o) for o in extra)
-        png = plot_scaling(scaling, results_dir / f"{stem}.png")
+        png = figures.get(f"{stem}.png", scaling, lambda p: plot_scaling(scaling, p))
         if png:
             lines += [f"![scaling, {solver}]({rel}/{png.name})", ""]
         st = stage_table(scaling)
@@ -400,12 +284,13 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                   "walls; SPlisHSPlasH's particle mass is 0.8 d³ρ0 (warp-sph calibrates its mass to a rest "
                   "lattice), and it samples the walls with its own sampler (benchmarks/splishsplash.py).", ""]
         ok = [r for r in sph if r.get("status") == "ok"]
-        png = plot_series(ok, [("front", "surge front [m]", 1.0), ("density_error_mean", "mean density error [%]", 100.0),
-                               ("density_error_max", "max density error [%]", 100.0)],
-                          results_dir / f"splishsplash_series{suffix}.png", "warp-sph and SPlisHSPlasH over time")
+        png = figures.get(f"splishsplash_series{suffix}.png", ok, lambda p: plot_series(
+            ok, [("front", "surge front [m]", 1.0), ("density_error_mean", "mean density error [%]", 100.0),
+                 ("density_error_max", "max density error [%]", 100.0)], p, "warp-sph and SPlisHSPlasH over time"))
         if png:
             lines += [f"![warp-sph and SPlisHSPlasH]({rel}/{png.name})", ""]
-        png = plot_tradeoff(ok, results_dir / f"splishsplash_tradeoff{suffix}.png", "warp-sph and SPlisHSPlasH")
+        png = figures.get(f"splishsplash_tradeoff{suffix}.png", ok,
+                          lambda p: plot_tradeoff(ok, p, "warp-sph and SPlisHSPlasH"))
         if png:
             lines += [f"![speed against accuracy]({rel}/{png.name})", ""]
         lines += _failures([r for r in sph if r.get("engine") != "splishsplash"]) + [""]
@@ -425,15 +310,19 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                   "triangles) of one `SurfaceReconstructor.extract` call, median of 3, warm. splashsurf "
                   "times are the reference numbers from the issue (cube size 0.5 r), not rerun here.", ""]
 
-    if not (sweeps or by_solver or by_size or surf):
+    mat = latest(data.get("matrix", []))
+    lines += matrix.section(mat, _fmt, _section_head)
+    execs = latest(data.get("executors", []))
+    lines += executor_speed.section(execs, _fmt, _section_head)
+
+    if not (sweeps or by_solver or by_size or surf or mat or execs):
         lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]
+    figures.save()
     md_path.parent.mkdir(parents=True, exist_ok=True)
     md_path.write_text("\n".join(lines).rstrip() + "\n")
     return md_path
 
 
 def _host_line() -> str:
-    from .runner import host_info
-
     h = host_info()
     return f"{h['cpu_model'] or 'unknown CPU'}, {h['nproc']} CPUs"

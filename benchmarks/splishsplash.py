@@ -15,8 +15,8 @@ threads, warp-sph's CPU backend runs each kernel on one thread.
 
 ``pysplishsplash`` 2.19 imports only with ``LD_PRELOAD=/lib/x86_64-linux-gnu/libGLdispatch.so.0``
 (its GUI libraries), so each SPlisHSPlasH case runs in a subprocess with that environment:
-``python splishsplash.py drive CONFIG.json OUT.npz``. This module's top level imports only the
-standard library and NumPy so the driver does not load Warp.
+``python splishsplash_driver.py CONFIG.json OUT.npz`` (``splishsplash_driver.py``, which imports no
+Warp).
 """
 from __future__ import annotations
 
@@ -26,7 +26,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -156,97 +155,6 @@ def scene_json(scene: dict, model: dict, fluid_min, fluid_max, solver: str, dt: 
 
 
 # --------------------------------------------------------------------------------------------
-# The driver (runs inside the LD_PRELOAD subprocess)
-# --------------------------------------------------------------------------------------------
-def driver_main(argv: list[str]) -> int:
-    """drive CONFIG.json OUT.npz: simulate, record positions/velocities/densities per frame."""
-    cfg = json.loads(Path(argv[0]).read_text())
-    out = Path(argv[1])
-    import pysplishsplash as sph
-
-    frame_dt = 1.0 / float(cfg["fps"])
-    frames = int(cfg["frames"])
-    stop = frames * frame_dt + 0.5 * float(cfg["dt"])
-    base = sph.Exec.SimulatorBase()
-    base.init(useGui=False, sceneFile=cfg["scene_file"], outputDir=cfg["output_dir"], useCache=False,
-              initialPause=False, stopAt=stop)
-    rec = {"x": [], "v": [], "rho": [], "t": [], "steps": [], "iterations": [], "cb": 0.0}
-    state = {"steps": 0, "next": frame_dt}
-
-    def grab(t):
-        sim = sph.Simulation.getCurrent()
-        f = sim.getFluidModel(0)
-        n = f.numActiveParticles()
-        rec["x"].append(np.array(np.asarray(f.getFieldBuffer("position"))[:n], dtype=np.float32))
-        rec["v"].append(np.array(np.asarray(f.getFieldBuffer("velocity"))[:n], dtype=np.float32))
-        rec["rho"].append(np.array(np.asarray(f.getFieldBuffer("density"))[:n], dtype=np.float32))
-        rec["t"].append(t)
-        rec["steps"].append(state["steps"])
-        its = state.pop("its", [])
-        rec["iterations"].append(float(np.mean(its)) if its else np.nan)
-
-    def on_step():
-        c0 = time.perf_counter()
-        state["steps"] += 1
-        if state["steps"] == 1:  # boundary models exist only once the run has started
-            sim = sph.Simulation.getCurrent()
-            info["boundary_models"] = int(sim.numberOfBoundaryModels())
-            if info["boundary_models"]:
-                info["boundary_particles"] = int(sim.getBoundaryModel(0).numberOfParticles())
-        t = sph.TimeManager.getCurrent().getTime()
-        state["time"] = t
-        ts = sph.Simulation.getCurrent().getTimeStep()
-        if hasattr(ts, "SOLVER_ITERATIONS"):
-            try:
-                state.setdefault("its", []).append(ts.getValueUInt(ts.SOLVER_ITERATIONS))
-            except Exception:
-                pass
-        if t >= state["next"] - 1e-9 * frame_dt:
-            grab(t)
-            state["next"] += frame_dt
-        rec["cb"] += time.perf_counter() - c0
-
-    base.setTimeStepCB(on_step)
-    t0 = time.perf_counter()
-    base.initSimulation()
-    setup = time.perf_counter() - t0
-    sim = sph.Simulation.getCurrent()
-    f = sim.getFluidModel(0)
-    ts = sim.getTimeStep()
-    applied = {}
-    for name, value in (cfg.get("time_step") or {}).items():
-        pid = getattr(ts, name)
-        if isinstance(value, bool):
-            ts.setValueBool(pid, value)
-            applied[name] = bool(ts.getValueBool(pid))
-        elif isinstance(value, int):
-            try:
-                ts.setValueUInt(pid, value)
-                applied[name] = int(ts.getValueUInt(pid))
-            except Exception:
-                ts.setValueInt(pid, value)
-                applied[name] = int(ts.getValueInt(pid))
-        else:
-            ts.setValueFloat(pid, float(value))
-            applied[name] = float(ts.getValueFloat(pid))
-    info = {"time_step_parameters": applied, "time_step_class": type(ts).__name__, "fluid_particles": int(f.numActiveParticles()),
-            "mass": float(f.getMass(0)), "rest_density": float(f.getDensity0()),
-            "simulation_method": int(sim.getSimulationMethod()),
-            "boundary_handling": str(sim.getBoundaryHandlingMethod())}
-    grab(0.0)
-    t1 = time.perf_counter()
-    base.runSimulation()
-    wall = time.perf_counter() - t1 - rec["cb"]
-    base.cleanup()
-    info.update(setup_seconds=setup, wall_seconds=wall, steps=state["steps"],
-                simulated_seconds=float(state.get("time", 0.0)))
-    np.savez(out, x=np.stack(rec["x"]), v=np.stack(rec["v"]), rho=np.stack(rec["rho"]),
-             t=np.asarray(rec["t"]), steps=np.asarray(rec["steps"]), iterations=np.asarray(rec["iterations"]),
-             info=json.dumps(info))
-    return 0
-
-
-# --------------------------------------------------------------------------------------------
 # The comparison (parent process)
 # --------------------------------------------------------------------------------------------
 def _series_from_frames(x_y_up, v_y_up, rho, t, steps, mass, rest_density, gravity, floor, wall_x) -> tuple[dict, dict]:
@@ -290,7 +198,7 @@ def run_splishsplash_case(scene_dict: dict, model: dict, fluid_min, fluid_max, s
                           frames: int, threads: int, timeout: float | None = None) -> dict:
     """One SPlisHSPlasH case; returns a benchmark record (status "failed" with the reason on error)."""
     from . import metrics as M
-    from .runner import SCHEMA, _now, host_info
+    from .records import SCHEMA, host_info, now as _now
 
     params = {"engine": "splishsplash", "solver": solver, "dt": dt, "particle_radius": scene_dict["particle_radius"]}
     record = {"schema": SCHEMA, "kind": "splishsplash", "name": "splishsplash", "engine": "splishsplash",
@@ -312,7 +220,8 @@ def run_splishsplash_case(scene_dict: dict, model: dict, fluid_min, fluid_max, s
         cfg = {"scene_file": str(tmp / "scene.json"), "output_dir": str(tmp / "out"), "fps": scene_dict["fps"],
                "frames": frames, "dt": dt, "time_step": time_step_values(scene_dict, model, solver)}
         (tmp / "config.json").write_text(json.dumps(cfg))
-        cmd = [sys.executable, str(Path(__file__).resolve()), "drive", str(tmp / "config.json"), str(tmp / "out.npz")]
+        cmd = [sys.executable, str(Path(__file__).resolve().with_name("splishsplash_driver.py")), str(tmp / "config.json"),
+               str(tmp / "out.npz")]
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=_env(threads))
         except subprocess.TimeoutExpired:
@@ -372,7 +281,7 @@ def run_comparison(particle_radius: float = 0.025, frames: int = 25, threads: in
     from warp_sph.scene.sampling import sample_scene
     from warp_sph.scene import load_scene
 
-    from .runner import RunSpec, run_specs
+    from .cases import RunSpec, run_specs
 
     sc = load_scene(scene, overrides=[f"particle_radius={particle_radius}"])
     sampled = sample_scene(sc)
@@ -421,15 +330,8 @@ def run_comparison(particle_radius: float = 0.025, frames: int = 25, threads: in
         r["params"]["fluid_gap"] = "warp-sph" if splishsplash_gap is None else f"{splishsplash_gap:g} d"
         if splishsplash_gap is not None:
             r["label"] += f" (fluid {splishsplash_gap:g} d from the walls)"
-        from .runner import _print_row
+        from .records import print_row
 
-        _print_row(r, log)
+        print_row(r, log)
         records.append(r)
     return records
-
-
-if __name__ == "__main__":
-    if len(sys.argv) >= 2 and sys.argv[1] == "drive":
-        sys.exit(driver_main(sys.argv[2:]))
-    print("usage: splishsplash.py drive CONFIG.json OUT.npz (internal; use 'warp-sph bench splishsplash')")
-    sys.exit(2)

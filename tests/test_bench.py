@@ -2,11 +2,14 @@
 is right on a configuration whose answer is known."""
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from warp_sph.benchmarks import cases as C
 from warp_sph.benchmarks import metrics as M
+from warp_sph.benchmarks import records as REC
 from warp_sph.benchmarks import report as R
 from warp_sph.benchmarks import runner as B
 from warp_sph.benchmarks import splishsplash as S
@@ -104,12 +107,14 @@ def test_array_bytes_and_nan_to_none():
 
 # --- sweep parsing -----------------------------------------------------------------------------
 def test_parse_and_expand_params():
-    assert B.parse_param("solver=wcsph,pbf") == ("solver", ["wcsph", "pbf"])
-    assert B.parse_param("gravity=[0,0,-9.81],[0,0,-5]") == ("gravity", ["[0,0,-9.81]", "[0,0,-5]"])
-    combos = B.expand_sweep({"solver": ["wcsph", "pbf"], "time.cfl": ["0.2", "0.4", "0.8"]})
+    from warp_sph.sweep.cases import SweepError, expand_product, parse_param
+
+    assert parse_param("solver=wcsph,pbf") == ("solver", ["wcsph", "pbf"])
+    assert parse_param("gravity=[0,0,-9.81],[0,0,-5]") == ("gravity", ["[0,0,-9.81]", "[0,0,-5]"])
+    combos = expand_product({"solver": ["wcsph", "pbf"], "time.cfl": ["0.2", "0.4", "0.8"]})
     assert len(combos) == 6 and combos[0] == {"solver": "wcsph", "time.cfl": "0.2"}
-    with pytest.raises(ValueError):
-        B.parse_param("solver")
+    with pytest.raises(SweepError):
+        parse_param("solver")
 
 
 # --- the runner on a tiny case ----------------------------------------------------------------------
@@ -121,7 +126,7 @@ def test_sweep_writes_json_lines_and_table(tmp_path):
     assert len(lines) == 2
     for line in lines:
         r = json.loads(line)  # valid JSON, no NaN
-        assert r["schema"] == B.SCHEMA and r["status"] == "ok", r.get("error")
+        assert r["schema"] == REC.SCHEMA and r["status"] == "ok", r.get("error")
         assert r["command"].startswith("warp-sph bench sweep")
         assert r["scene"]["particle_radius"] == 0.1
         assert r["fluid_particles"] > 0 and r["versions"]["warp"]
@@ -139,9 +144,9 @@ def test_sweep_writes_json_lines_and_table(tmp_path):
 
 
 def test_hydrostatic_run_reports_pressure_error(tmp_path):
-    spec = B.RunSpec(scene="hydrostatic", overrides=["particle_radius=0.05"], frames=1, name="t",
+    spec = C.RunSpec(scene="hydrostatic", overrides=["particle_radius=0.05"], frames=1, name="t",
                      params={"scene": "hydrostatic"})
-    r = B.run_warp_sph(spec)
+    r = C.run_warp_sph(spec)
     assert r["status"] == "ok", r.get("error")
     assert r["metrics"]["pressure_error_mean_abs"] is not None
     assert r["pressure_profile"]["depth"]
@@ -166,12 +171,12 @@ def test_scaling_records_time_and_memory(tmp_path):
 
 
 def test_failed_case_is_a_record_not_a_crash(tmp_path):
-    r = B.run_warp_sph(B.RunSpec(scene="dam_break", overrides=["particle_radius=-1"], frames=1))
+    r = C.run_warp_sph(C.RunSpec(scene="dam_break", overrides=["particle_radius=-1"], frames=1))
     assert r["status"] == "failed" and "particle_radius" in r["error"]
 
 
 def test_report_from_json_lines_only(tmp_path):
-    rec = {"schema": B.SCHEMA, "kind": "sweep", "name": "quick", "label": "solver=wcsph", "status": "ok",
+    rec = {"schema": REC.SCHEMA, "kind": "sweep", "name": "quick", "label": "solver=wcsph", "status": "ok",
            "invocation": "2020-01-01T00:00:00", "command": "warp-sph bench sweep --preset quick",
            "host": {"nproc": 2, "cpu_model": "Test CPU"}, "fluid_particles": 10,
            "params": {"scene": "dam_break", "solver": "wcsph"},
@@ -202,7 +207,7 @@ def test_splishsplash_scene_matches_the_warp_sph_scene():
 
 
 def test_isolated_run_in_a_fresh_process():
-    r = B._run_isolated(B.RunSpec(scene="dam_break", overrides=["particle_radius=0.1"], frames=1,
+    r = C.run_isolated(C.RunSpec(scene="dam_break", overrides=["particle_radius=0.1"], frames=1,
                                   params={"scene": "dam_break"}))
     assert r["status"] == "ok", r.get("error")
     assert r["metrics"]["peak_rss_bytes"] > 0
@@ -236,3 +241,173 @@ def test_speed_ratio_against_splishsplash():
     (q,) = speed_ratios(records)
     assert q["solver"] == "wcsph" and q["ratio"] == pytest.approx(0.75)
     assert q["ours_error"] == 0.001 and q["ref_error"] == 0.005
+
+
+# --- where results go (issue #15, item 25) -------------------------------------------------------------
+def _snapshot(folder):
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_quick_and_adhoc_runs_leave_the_committed_results_alone(tmp_path, monkeypatch):
+    """`bench sweep --preset quick` used to rewrite the committed RESULTS.md and results/sweep.jsonl;
+    quick and ad-hoc runs now go to runs/bench in the working directory, and the committed page
+    changes only with --publish."""
+    pkg = tmp_path / "pkg"
+    committed = pkg / "results"
+    committed.mkdir(parents=True)
+    (committed / "sweep.jsonl").write_text("")
+    (pkg / "RESULTS.md").write_text("# the committed page\n")
+    for mod in (REC, B, R):  # the committed results folder, wherever the code reads it from
+        if hasattr(mod, "RESULTS_DIR"):
+            monkeypatch.setattr(mod, "RESULTS_DIR", committed.resolve())
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    before = _snapshot(pkg)
+    assert B.main(["sweep", "--preset", "quick", "--in-process"]) == 0
+    assert B.main(["sweep", "--set", "particle_radius=0.1", "--frames", "1", "--in-process", "--name", "mine"]) == 0
+    assert B.main(["report"]) == 0
+    assert _snapshot(pkg) == before
+    mine = work / "runs" / "bench"
+    assert len((mine / "sweep.jsonl").read_text().splitlines()) == 6
+    page = (mine / "RESULTS.md").read_text()
+    assert "## Sweep: quick" in page and "## Sweep: mine" in page
+    # asked to: --publish writes the committed results and page
+    assert B.main(["sweep", "--set", "particle_radius=0.1", "--frames", "1", "--in-process", "--publish"]) == 0
+    assert len((committed / "sweep.jsonl").read_text().splitlines()) == 1
+    assert "## Sweep: custom" in (pkg / "RESULTS.md").read_text()
+
+
+def test_report_without_matplotlib_keeps_the_plots_of_sections_it_did_not_rerun(tmp_path, monkeypatch):
+    """Without matplotlib a rebuilt report used to drop every plot link; now it drops only the links of
+    plots whose records changed since they were drawn."""
+    from warp_sph.benchmarks import plots as P
+
+    def rec(name, invocation, speed):
+        return {"schema": REC.SCHEMA, "kind": "sweep", "name": name, "label": "solver=wcsph", "status": "ok",
+                "invocation": invocation, "command": f"warp-sph bench sweep --name {name}",
+                "host": {"nproc": 2, "cpu_model": "Test CPU"}, "fluid_particles": 10,
+                "params": {"scene": "dam_break", "solver": "wcsph"},
+                "metrics": {"wall_per_simulated_second": speed, "density_error_mean_avg": 0.01},
+                "series": {"time": [0.0, 0.1], "front": [0.5, 0.6], "density_error_mean": [0, 0.01],
+                           "total_energy": [1, 1]}}
+
+    def fake_plot(records, path, *a):  # as matplotlib would: a file, its path
+        Path(path).write_bytes(b"png of " + json.dumps([r["invocation"] for r in records]).encode())
+        return Path(path)
+
+    lines = [rec("a", "2020-01-01T00:00:00", 3.0), rec("b", "2020-01-01T00:00:00", 4.0)]
+    (tmp_path / "sweep.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    monkeypatch.setattr(P, "_pyplot", lambda: object())
+    monkeypatch.setattr(R, "plot_tradeoff", lambda recs, path, title: fake_plot(recs, path))
+    monkeypatch.setattr(R, "plot_series", lambda recs, keys, path, title: fake_plot(recs, path))
+    md = R.write_report(tmp_path).read_text()
+    assert "(./sweep_a_dam_break_tradeoff.png)" in md and "(./sweep_b_dam_break_tradeoff.png)" in md
+    # a new run of sweep b only, report rebuilt without matplotlib
+    with open(tmp_path / "sweep.jsonl", "a") as f:
+        f.write(json.dumps(rec("b", "2021-01-01T00:00:00", 5.0)) + "\n")
+    monkeypatch.setattr(P, "_pyplot", lambda: None)
+    monkeypatch.setattr(R, "plot_tradeoff", lambda *a: None)
+    monkeypatch.setattr(R, "plot_series", lambda *a: None)
+    md = R.write_report(tmp_path).read_text()
+    a, b = md.split("## Sweep: b")
+    assert "(./sweep_a_dam_break_tradeoff.png)" in a and "(./sweep_a_dam_break_series.png)" in a
+    assert ".png)" not in b  # b's plots show the old run: not linked
+    assert "matplotlib is not installed" in md
+
+
+# --- module structure (issue #16) ------------------------------------------------------------------------
+def _benchmark_imports() -> dict[str, set[str]]:
+    import ast
+
+    folder = Path(R.__file__).parent
+    names = {p.stem for p in folder.glob("*.py")}
+    graph = {}
+    for p in folder.glob("*.py"):
+        deps = set()
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                if node.module:
+                    deps.add(node.module.split(".")[0])
+                else:
+                    deps.update(a.name for a in node.names)
+        graph[p.stem] = deps & names
+    return graph
+
+
+def test_benchmarks_have_no_import_cycle_and_the_core_does_not_import_them():
+    graph = _benchmark_imports()
+    assert not any("runner" in deps for deps in graph.values())  # runner.py is only the command line
+    state = {}
+
+    def visit(n, path):
+        assert state.get(n) != "open", f"import cycle: {' -> '.join(path + [n])}"
+        if state.get(n) == "done":
+            return
+        state[n] = "open"
+        for d in sorted(graph[n]):
+            visit(d, path + [n])
+        state[n] = "done"
+
+    for n in graph:
+        visit(n, [])
+    import ast
+
+    root = Path(R.__file__).resolve().parents[1] / "warp_sph"
+    if not root.is_dir():  # an installed copy: the package is the parent of benchmarks
+        root = Path(R.__file__).resolve().parents[1]
+    for p in root.rglob("*.py"):
+        if "benchmarks" in p.parts:
+            continue
+        tree = ast.parse(p.read_text())
+        top = [n for n in tree.body if isinstance(n, (ast.Import, ast.ImportFrom))]
+        for node in ast.walk(tree):
+            mods = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                    [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            if any("benchmarks" in m for m in mods):
+                assert p.name == "cli.py" and node not in top, f"{p} imports the benchmarks"
+
+
+def test_benchmark_solver_lists_come_from_one_function():
+    from warp_sph.methods import registry
+
+    assert REC.solver_names() == registry.solver_names() and set(REC.solver_names()) >= {"wcsph", "pbf"}
+    from warp_sph.benchmarks.matrix import matrix_specs
+
+    specs = matrix_specs(scenes=["dam_break"], radii=[0.1], frames=1)
+    assert [s.params["solver"] for s in specs] == list(REC.solver_names())
+
+
+# --- executors -----------------------------------------------------------------------------------------
+def test_scheduler_overhead_of_known_timestamps():
+    from warp_sph.benchmarks.executor_speed import scheduler_overhead
+
+    rows = [  # worker 1: two cases back to back; worker 2: one case
+        {"host": "h", "pid": 1, "submitted": 0.0, "started": 0.3, "finished": 2.0, "received": 2.1},
+        {"host": "h", "pid": 1, "submitted": 0.0, "started": 2.2, "finished": 3.0, "received": 3.05},
+        {"host": "h", "pid": 2, "submitted": 1.0, "started": 1.5, "finished": 4.0, "received": 4.0},
+    ]
+    assert sorted(scheduler_overhead(rows)) == pytest.approx(sorted([0.3 + 0.1, 0.2 + 0.05, 0.5 + 0.0]))
+
+
+def test_bench_scaling_on_a_local_cluster(tmp_path):
+    argv = ["scaling", "--radii", "0.1,0.07", "--steps", "2", "--repeats", "1", "--out", str(tmp_path),
+            "--in-process", "--workers", "2", "--no-report"]
+    assert B.main(argv) == 0
+    recs = [json.loads(x) for x in (tmp_path / "scaling.jsonl").read_text().splitlines()]
+    assert [r["params"]["particle_radius"] for r in recs] == [0.1, 0.07]  # in the order asked, not finished
+    assert [r["status"] for r in recs] == ["ok", "ok"]
+    assert all(r["host"]["warp_sph_cpu_threads"] == "1" for r in recs)  # each worker pinned to one thread
+
+
+def test_executor_benchmark_runs_both_executors(tmp_path):
+    from warp_sph.benchmarks.executor_speed import measure
+
+    (rec,) = measure(workers=2, particle_radius=0.1, frames=3, repeats=1, log=lambda *a: None)
+    m = rec["metrics"]
+    assert rec["status"] == "ok", rec.get("error")
+    assert m["results_identical"] is True and m["worker_processes"] == 2
+    assert m["serial_seconds"] > 0 and m["local_cluster_seconds"] > m["cases_window_seconds"] > 0
+    assert m["ratio"] == pytest.approx(m["local_cluster_seconds"] / m["serial_seconds"])
+    assert 0 <= m["overhead_per_case_mean"] <= m["overhead_per_case_max"]
+    assert len(m["case_seconds_serial"]) == 8

@@ -9,7 +9,7 @@ import pytest
 
 from warp_sph.cli import _print_summary, build_parser, main
 
-COMMANDS = ["run", "scenes", "check", "export", "preview", "bench"]
+COMMANDS = ["run", "scenes", "check", "export", "preview", "sweep", "bench"]
 
 
 def _subcommands() -> list[str]:

@@ -1,4 +1,4 @@
-"""Command line: ``warp-sph run | scenes | check | export | preview | bench``.
+"""Command line: ``warp-sph run | scenes | check | export | preview | sweep | bench``.
 
 Errors the user can act on print one line (``warp-sph: error: ...``) and exit with status 2;
 no traceback. Ctrl-C stops a run and keeps every frame written so far (exit status 130).
@@ -149,6 +149,40 @@ def _cmd_preview(args) -> int:
     return 0
 
 
+def _cmd_sweep(args) -> int:
+    import shlex
+
+    from .sweep import build_cases, is_sweep_file, load_sweep_file, make_executor, parse_param, run_sweep
+    from .sweep.cases import SweepError
+
+    _quiet_warp()
+    if args.frames is not None and args.frames < 1:
+        raise SweepError(f"--frames {args.frames}: expected >= 1")
+    if args.device and args.scheduler is None:  # the workers of an external cluster may have other devices
+        from .core.device import resolve_device
+
+        resolve_device(args.device)
+    if is_sweep_file(args.scene):
+        if args.param:
+            raise SweepError(f"{args.scene} is a sweep file: put the --param lists in its [sweep] param table")
+        cases = load_sweep_file(args.scene, frames=args.frames, fixed=args.set)
+    else:
+        cases = build_cases(args.scene, dict(parse_param(p) for p in args.param), fixed=args.set, frames=args.frames)
+    out = Path(args.out) if args.out else Path("runs") / f"sweep-{Path(args.scene).stem}"
+    executor = make_executor(workers=args.workers, scheduler=args.scheduler)
+    command = "warp-sph " + " ".join(shlex.quote(a) for a in (args.argv or []))
+    try:
+        summary = run_sweep(cases, out, executor, device=args.device, progress=not args.no_progress, command=command)
+    except KeyboardInterrupt:
+        print(f"\nwarp-sph: interrupted; the cases finished so far are kept in {out}; run the same command "
+              "again to resume", file=sys.stderr)
+        return 130
+    counts = summary.counts()
+    print(f"{len(summary.rows)} cases: " + ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
+          + f"; summary {out / 'sweep.jsonl'}, results page {out / 'sweep.md'}")
+    return 0 if set(counts) <= {"completed"} else 1
+
+
 def _cmd_bench(args) -> int:
     from .benchmarks.runner import main as bench_main
 
@@ -211,6 +245,28 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--out", help="output folder (default: RUN/preview)")
     v.set_defaults(func=_cmd_preview)
 
+    w = sub.add_parser("sweep", help="run the product of --param values (or a TOML sweep file), in this process "
+                       "or on Dask", description="Each case is an ordinary run folder DIR/<case>; DIR/sweep.jsonl "
+                       "and the results page DIR/sweep.md are written as cases finish. A re-run skips complete "
+                       "cases; Ctrl-C cancels cleanly (exit status 130).")
+    w.add_argument("scene", help="built-in scene name, scene .toml path, or a sweep .toml file ([sweep] / [[case]])")
+    w.add_argument("--param", action="append", default=[], metavar="KEY=V1,V2,...",
+                   help="scene key path and the values to sweep (TOML value text), e.g. solver=wcsph,pbf (repeatable; "
+                        "the cases are the product)")
+    w.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override applied to every case (repeatable)")
+    w.add_argument("--frames", type=int, default=None, help="frames per case including the initial one "
+                   "(default: the scene's duration * fps + 1)")
+    w.add_argument("--out", help="sweep folder (default: runs/sweep-<scene>); re-running into it resumes")
+    g = w.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, nargs="?", const=0, default=None, metavar="N",
+                   help="run on a Dask LocalCluster of N worker processes (default N: the cores), one thread each; "
+                        "needs the distributed extra (pip install -e '.[distributed]')")
+    g.add_argument("--scheduler", metavar="tcp://HOST:8786", help="submit to an existing Dask cluster "
+                   "(workers need warp-sph installed and DIR on a shared file system)")
+    w.add_argument("--device", default=None, help="Warp device of every case: cpu or cuda:0 (default: Warp's default)")
+    w.add_argument("--no-progress", action="store_true", help="no progress bar")
+    w.set_defaults(func=_cmd_sweep)
+
     b = sub.add_parser("bench", help="benchmarks: speed and accuracy (see warp-sph bench --help)", add_help=False)
     b.add_argument("bench_args", nargs=argparse.REMAINDER)  # main() passes everything after "bench" through
     b.set_defaults(func=_cmd_bench)
@@ -242,6 +298,7 @@ def main(argv=None) -> int:
             args = parser.parse_args(argv)
     else:
         args = parser.parse_args(argv)
+    args.argv = argv
     if not getattr(args, "command", None):
         parser.print_help()
         return 2

@@ -38,8 +38,9 @@ WORLD_FLOAT32_TOLERANCE = 0.01
 class Progress:
     """A one-line progress bar with ETA on stderr (plain lines every few seconds when not a TTY)."""
 
-    def __init__(self, total: int, enabled: bool = True, stream=None):
+    def __init__(self, total: int, enabled: bool = True, stream=None, unit: str = "frames"):
         self.total = max(total, 1)
+        self.unit = unit
         self.enabled = enabled
         self.stream = stream or sys.stderr
         self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
@@ -64,7 +65,7 @@ class Progress:
         filled = int(width * done / self.total)
         bar = "#" * filled + "-" * (width - filled)
         eta_s = f"{eta:6.0f}s" if math.isfinite(eta) else "     ?s"
-        line = f"[{bar}] {done}/{self.total} frames  {elapsed:6.1f}s elapsed  ETA {eta_s}  {info}"
+        line = f"[{bar}] {done}/{self.total} {self.unit}  {elapsed:6.1f}s elapsed  ETA {eta_s}  {info}"
         if self.tty:
             self.stream.write("\r" + line[:160].ljust(160))
         else:
