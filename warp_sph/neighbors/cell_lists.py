@@ -124,6 +124,10 @@ class NeighborLists:
             self._moving_volume = boundary_volume[self.moving_start:] if boundary_volume is not None else None
             self._moving_weight = (wp.zeros(k, dtype=float, device=device) if boundary_volume is not None
                                    else self._no_weight)
+            # cells near a moving particle (cells >= the search radius: one cell of growth covers a query)
+            mc = self.moving_cells
+            self._moving_mask = (wp.zeros(mc.cell_count, dtype=wp.uint8, device=device)
+                                 if mc.cell_size >= self.search_radius else None)
             self.update_moving(boundary_x)
             boundary_x = boundary_x[: self.moving_start] if self.moving_start else None
         if boundary_x is not None and boundary_x.shape[0]:
@@ -156,9 +160,14 @@ class NeighborLists:
         mc = self.moving_cells
         if mc is None:
             return
-        mc.build(boundary_x[self.moving_start:])
+        moving_x = boundary_x[self.moving_start:]
+        mc.build(moving_x)
         if self._moving_volume is not None:
             launch(_dev.gather_by_order, mc.count, [mc.cell_point, self._moving_volume], [self._moving_weight],
+                   device=self.device, min_range=LIGHT_MIN_RANGE)
+        if self._moving_mask is not None:
+            self._moving_mask.zero_()
+            launch(_dev.mark_near_cells, mc.count, [mc.lo, mc.inv_cell_size, mc.dims, moving_x], [self._moving_mask],
                    device=self.device, min_range=LIGHT_MIN_RANGE)
 
     def _allocate(self, lists, capacity: int) -> None:
@@ -219,9 +228,11 @@ class NeighborLists:
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
         mc = self.moving_cells
         if mc is not None:  # the moving particles after the static ones (the lists then hold both)
+            mask = self._moving_mask
             launch(kernel, n,
                    [mc.lo, mc.inv_cell_size, mc.dims, mc.cell_start, mc.cell_point, mc.sorted_x, self._moving_weight,
-                    self._no_mask, 0, self.moving_start, int(bc is not None), self.search_radius,
+                    self._no_mask if mask is None else mask, int(mask is not None), self.moving_start,
+                    int(bc is not None), self.search_radius,
                     float(smoothing_length), float(rest_density), params, fc.cell_point, particle_x],
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
 

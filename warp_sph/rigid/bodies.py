@@ -7,8 +7,9 @@ SPlisHSPlasH does it):
    (``kernels/rigid.py``), the exact negative of what the boundary terms gave the fluid for each pair.
 2. ``bodies``, after the solver's last stage: the forces summed on the device into one wrench per
    body (force, torque about the centre of mass), Newton's step under that wrench, gravity and
-   contacts (``RigidWorld``), the particles placed at the new poses with their rigid velocities, and
-   the moving particles' cell grid rebuilt (``NeighborLists.update_moving``).
+   contacts (``RigidWorld``; collision detection at a cadence, ``plan_frame``), the particles placed
+   at the new poses with their rigid velocities, and the moving particles' cell grid and mask
+   rebuilt (``NeighborLists.update_moving``).
 
 The fluid of the next substep sees the bodies where this substep left them (weak coupling).
 Workspace fields: ``body_q`` (poses, Newton's layout), ``body_qd`` (COM velocity, angular velocity),
@@ -58,6 +59,9 @@ class SimulationBodies:
         sim.fields.update(body_q=self.world.body_q, body_qd=self.world.body_qd, body_f=self.wrench,
                           body_particle_force=self.force, boundary_v=m.boundary_v)
         self.inputs = {"body_q", "body_qd", "boundary_v", "moving_boundary_grid"}
+        #: Newton's collision detection runs every this many substeps (``plan_frame``; 1 outside frames)
+        self.detect_every = 1
+        self._since = 1
         #: fields that are not one value per fluid particle (never sorted into cell order)
         self.unsorted = {"body_particle_force", "boundary_v"}
         self.place()
@@ -114,14 +118,30 @@ class SimulationBodies:
                      writes=("body_f",), updates=("body_q", "body_qd", "boundary_x", "boundary_v", "moving_boundary_grid"),
                      doc=f"{len(self.names)} bodies: wrench (force, torque about the centre of mass) summed in a fixed "
                          f"order -> Newton SolverSemiImplicit (contacts at w = {self.world.contact_frequency:.4g} rad/s, "
-                         f"steps <= {self.world.max_substep:.3g} s) -> boundary particles placed -> their cells rebuilt")
+                         f"steps <= {self.world.max_substep:.3g} s; detected while no body can have moved half the gap "
+                         f"{self.world.contact_gap:.3g} m) -> boundary particles placed -> their cells rebuilt")
 
     # --- stepping --------------------------------------------------------------------------------
+    def plan_frame(self, dt: float, speed: float) -> None:
+        """Collision detection for a frame of substeps dt [s] that starts at the largest speed ``speed``
+        [m/s] (fluid or body): at the frame's first substep, then every ``detect_every`` substeps, so that
+        no body moves more than half the detection gap between two detections: detect_every =
+        floor(gap / 2 / (v dt)) with the speed bound v = 2 speed + |g| frame_dt (a body at most doubles
+        the frame's top speed, or falls for a frame). WCSPH (dt ~ 0.04 d / v at c_s = 10 v) detects about
+        every 12 substeps, PBF about every substep. Every frame starts with a detection, so a resume or a
+        retried frame replays bit for bit."""
+        g = float(np.linalg.norm(self.sim.model.gravity))
+        v = 2.0 * float(speed) + g * self.sim.frame_dt
+        self.detect_every = max(1, int(0.5 * self.world.contact_gap / max(v * float(dt), 1e-30)))
+        self._since = self.detect_every
+
     def step(self, dt: float) -> None:
         """Wrench from ``body_particle_force``, Newton step of dt [s], particles placed at the new poses."""
         m = self.sim.model
         self.particles.wrench(self.world.body_q, self.world.body_com, m.boundary_x, self.force, self.wrench)
-        self.world.step(dt, self.wrench)
+        detect = self._since >= self.detect_every
+        self._since = 1 if detect else self._since + 1
+        self.world.step(dt, self.wrench, detect=detect)
         self.place()
 
     def place(self) -> None:
@@ -175,6 +195,7 @@ class SimulationBodies:
         if not state:
             raise SceneError("bodies: the checkpoint holds no rigid-body state (written by a run without bodies?)")
         self.world.load_state_arrays(state)
+        self._since = self.detect_every
         self.place()
 
     def save(self) -> dict:
@@ -187,6 +208,7 @@ class SimulationBodies:
             if isinstance(a, wp.array):
                 wp.copy(a, saved[name])
         self.world.steps, self.world.substeps = saved["_counters"]
+        self._since = self.detect_every  # the next substep detects contacts again
         self.place()
 
     def summary(self) -> dict:

@@ -210,6 +210,7 @@ class RigidWorld:
         self.max_substep = self._max_substep()
         self.steps = 0
         self.substeps = 0
+        self.detections = 0  # collision detections so far
 
     def _max_substep(self) -> float:
         """Largest stable Newton step [s] (module docstring): 1 / (CONTACT_POINTS w)."""
@@ -236,21 +237,26 @@ class RigidWorld:
         """Newton steps per ``step(dt)``."""
         return max(1, math.ceil(dt / self.max_substep - 1e-9))
 
-    def step(self, dt: float, body_f: wp.array | None = None) -> None:
+    def step(self, dt: float, body_f: wp.array | None = None, detect: bool = True) -> None:
         """Advance dt [s] under gravity, contacts and the external wrench ``body_f`` (per body
         (F [N], tau [N m]), world frame, torque about the centre of mass; None: no wrench), held
-        constant over ``substeps_for(dt)`` equal Newton steps; contacts are detected once."""
+        constant over ``substeps_for(dt)`` equal Newton steps; contacts are detected once, or (``detect``
+        False) the last detection's contacts are kept: their points live in the body frames, so their
+        depths follow the bodies, and they hold every pair that was within ``contact_gap`` then (the
+        caller keeps the motion since that detection below the gap)."""
         if self.body_count == 0:
             return
         wrench = self._zero_wrench if body_f is None else body_f
         n = self.substeps_for(dt)
         h = dt / n
-        self.pipeline.collide(self.state, self.contacts)
-        c = self.contacts
-        launch(_rigid.pair_contact_properties, c.rigid_contact_max,
-               [self.contact_frequency, self.model.shape_body, self.model.body_inv_mass, c.rigid_contact_count,
-                c.rigid_contact_shape0, c.rigid_contact_shape1], [c.rigid_contact_stiffness, c.rigid_contact_damping],
-               device=self.device)
+        if detect or not self.detections:
+            self.pipeline.collide(self.state, self.contacts)
+            c = self.contacts
+            launch(_rigid.pair_contact_properties, c.rigid_contact_max,
+                   [self.contact_frequency, self.model.shape_body, self.model.body_inv_mass, c.rigid_contact_count,
+                    c.rigid_contact_shape0, c.rigid_contact_shape1], [c.rigid_contact_stiffness, c.rigid_contact_damping],
+                   device=self.device)
+            self.detections += 1
         for _ in range(n):
             wp.copy(self.state.body_f, wrench)
             self.solver.step(self.state, self._next, self.control, self.contacts, h)

@@ -244,6 +244,8 @@ class Simulation:
             bound = self.time_step(max_speed)
             n = frame_substeps(self.frame_dt, bound)
             dt = self.frame_dt / n
+            if self.bodies is not None:
+                self.bodies.plan_frame(dt, max_speed)
             solver_stats = []
             with self.in_cell_order():
                 for _ in range(n):
