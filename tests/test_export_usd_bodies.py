@@ -2,7 +2,6 @@
 with body-frame points and time-sampled translate/orient, valid for check_usd.py --strict, resumable."""
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest

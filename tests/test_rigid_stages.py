@@ -4,7 +4,6 @@ the centre of mass) Newton receives, the particles placed at the new poses; and 
 pairing with the fluid's own boundary force."""
 import numpy as np
 import pytest
-import warp as wp
 
 from sph_oracle import grad_W
 from warp_sph.core.step_graph import Stage
