@@ -167,7 +167,7 @@ _TAIL = (
     _P("obstacles[].translate", "vec3", "m", (0.0, 0.0, 0.0), "translation of the mesh", shapes=("mesh",)),
     # moving rigid bodies (warp_sph.rigid): Akinci 2012 two-way coupling, dynamics by Newton
     _P("bodies", "tables", "-", [], "moving rigid bodies ([[bodies]]), two-way coupled with the fluid "
-       "(Akinci et al. 2012) and stepped by Newton; need pip install 'warp-sph[rigid]'", default_text="none"),
+       "(Akinci et al. 2012) and stepped by Newton; needs pip install 'warp-sph[rigid]'", default_text="none"),
     _P("bodies[].name", "str", "-", "", "name of the body in the USD file and run.json (default: body<index>); "
        "letters, digits and '_', not starting with a digit"),
     _P("bodies[].shape", "str", "-", "box", "body shape", choices=BODY_SHAPES),
@@ -180,8 +180,10 @@ _TAIL = (
     _P("bodies[].position", "vec3", "m", REQUIRED, "initial position of the centre of mass"),
     _P("bodies[].rotation", "vec3", "deg", (0.0, 0.0, 0.0), "initial orientation as Euler angles about X, "
        "then Y, then Z (Blender's XYZ rotation mode)"),
-    _P("bodies[].density", "float", "kg/m^3", None, "density (give density or mass, not both)", gt=0.0, le=1e6),
-    _P("bodies[].mass", "float", "kg", None, "mass (give density or mass, not both)", gt=0.0),
+    _P("bodies[].density", "float", "kg/m^3", None, "density (give density or mass, not both)", gt=0.0, le=1e6,
+       default_text="density or mass"),
+    _P("bodies[].mass", "float", "kg", None, "mass (give density or mass, not both)", gt=0.0,
+       default_text="density or mass"),
     _P("bodies[].velocity", "vec3", "m/s", (0.0, 0.0, 0.0), "initial velocity of the centre of mass"),
     _P("bodies[].angular_velocity", "vec3", "rad/s", (0.0, 0.0, 0.0), "initial angular velocity (world axes)"),
     _P("bodies[].fluid_friction", "float", "-", None, "Akinci boundary friction sigma between this body and "
