@@ -209,3 +209,42 @@ def test_mesh_body_must_be_closed(tmp_path):
 def test_hash_grid_variant_refuses_bodies():
     with pytest.raises(SceneError, match=r"hash-grid variant \(lists=False\) cannot move bodies"):
         Simulation(scene_from_dict(scene_dict(output={"usd": False})), solver_options={"lists": False})
+
+
+def test_scene_with_bodies_and_no_newton_names_the_install_command(monkeypatch, tmp_path, capsys):
+    """Validation refuses a scene with bodies when Newton does not import: one line with the command,
+    exit status 2 from the CLI, before anything is sampled or built."""
+    import sys
+
+    from warp_sph.cli import main
+
+    monkeypatch.setitem(sys.modules, "newton", None)  # `import newton` raises ImportError
+    with pytest.raises(SceneError, match=r"bodies: .*pip install 'warp-sph\[rigid\]'") as err:
+        scene_from_dict(scene_dict())
+    assert "\n" not in str(err.value)
+    path = tmp_path / "scene.toml"
+    path.write_text('particle_radius = 0.03\n[container]\nmin = [0, 0, 0]\nmax = [0.6, 0.6, 0.6]\n'
+                    '[[fluid]]\nmin = [0, 0, 0]\nmax = [0.6, 0.6, 0.24]\n'
+                    '[[bodies]]\nsize = [0.2, 0.2, 0.2]\nposition = [0.3, 0.3, 0.4]\ndensity = 500.0\n')
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err_text = capsys.readouterr().err
+    assert "pip install 'warp-sph[rigid]'" in err_text and not (tmp_path / "out").exists()
+
+
+def test_a_solver_without_the_coupling_term_refuses_bodies():
+    """A registered solver that does not name body_coupling_after is refused at validation, in one line."""
+    from warp_sph.methods import registry
+    from warp_sph.methods.solver import Solver
+
+    class NoCoupling(Solver):
+        name = "nocoupling"
+        title = "a solver without the boundary pressure term (a test solver)"
+
+    registry.register_solver(NoCoupling)
+    try:
+        with pytest.raises(SceneError, match=r"bodies: solver 'nocoupling' with boundary 'akinci2012' cannot move "
+                                             r"bodies: the nocoupling solver does not provide the wall pressure term"):
+            scene_from_dict(scene_dict(solver="nocoupling"))
+        scene_from_dict({k: v for k, v in scene_dict(solver="nocoupling").items() if k != "bodies"})  # fine without
+    finally:
+        registry.unregister("nocoupling")
