@@ -248,3 +248,19 @@ def test_a_solver_without_the_coupling_term_refuses_bodies():
         scene_from_dict({k: v for k, v in scene_dict(solver="nocoupling").items() if k != "bodies"})  # fine without
     finally:
         registry.unregister("nocoupling")
+
+
+def test_export_keeps_the_bodies(reference, tmp_path):
+    """warp-sph export of a run with bodies writes them again, at the poses of the run (same samples)."""
+    from warp_sph.io.reexport import export_run
+
+    path = export_run(reference, fmt="usd", out=tmp_path / "again.usdc")
+    (original,) = sorted(reference.glob("*.usdc"))
+    a, b = Usd.Stage.Open(str(original)), Usd.Stage.Open(str(path))
+    for name in ("crate", "ball"):
+        for attr in ("xformOp:translate", "xformOp:orient", "points"):
+            pa = a.GetAttributeAtPath(f"/sph/bodies/{name}.{attr}")
+            pb = b.GetAttributeAtPath(f"/sph/bodies/{name}.{attr}")
+            assert pa.GetTimeSamples() == pb.GetTimeSamples()
+            for t in pa.GetTimeSamples():
+                assert np.array_equal(np.asarray(pa.Get(t)), np.asarray(pb.Get(t))), (name, attr, t)
