@@ -47,7 +47,7 @@ from .spec import Body, BodyGeometry, body_geometry, body_name, quat_to_matrix, 
 
 #: the verified Newton release (pyproject's [rigid] extra pins it)
 NEWTON_VERSION = "1.8.0"
-INSTALL_HINT = "pip install 'warp-sph[rigid]'"
+INSTALL_HINT = "pip install 'warp-sph[rigid]' (in a source checkout: pip install -e '.[rigid]')"
 #: contact points per body pair assumed by the sub-step bound
 CONTACT_POINTS = 4
 #: mesh-triangle candidate pairs per collision pass (Newton's own estimate is at least 10^6: with the

@@ -167,7 +167,7 @@ _TAIL = (
     _P("obstacles[].translate", "vec3", "m", (0.0, 0.0, 0.0), "translation of the mesh", shapes=("mesh",)),
     # moving rigid bodies (warp_sph.rigid): Akinci 2012 two-way coupling, dynamics by Newton
     _P("bodies", "tables", "-", [], "moving rigid bodies ([[bodies]]), two-way coupled with the fluid "
-       "(Akinci et al. 2012) and stepped by Newton; needs pip install 'warp-sph[rigid]'", default_text="none"),
+       "(Akinci et al. 2012) and stepped by Newton (the rigid extra)", default_text="none"),
     _P("bodies[].name", "str", "-", "", "name of the body in the USD file and run.json (default: body<index>); "
        "letters, digits and '_', not starting with a digit"),
     _P("bodies[].shape", "str", "-", "box", "body shape", choices=BODY_SHAPES),
@@ -192,7 +192,8 @@ _TAIL = (
     _P("rigid.contact_friction", "float", "-", 0.5, "Coulomb friction coefficient of every body contact "
        "(body-body, body-wall, body-obstacle)", ge=0.0, le=10.0),
     _P("rigid.contact_frequency", "float", "rad/s", 0.0, "contact stiffness as the angular frequency w of a "
-       "body pair on its contact spring (0: sqrt(|g| / (0.01 r)), a resting body sinks in by 1 % of r); "
+       "body pair on its contact spring (0: sqrt(g / (0.01 r)) with g the magnitude of gravity: a resting body sinks "
+       "in by 1 % of r); "
        "Newton steps are at most 1 / (4 w)", ge=0.0, le=1e5, default_text="auto"),
     # output. Surface defaults, measured on a flat free surface of a rest lattice (cubic kernel,
     # h = d, calibrated mass): Phi = 0.85 at the last layer's centres, 0.50 at r beyond them (where
