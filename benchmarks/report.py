@@ -300,15 +300,26 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
         lines += ["## Surface reconstruction", ""] + _section_head(surf)
         rows = []
         for r in surf:
-            rows.append([_fmt(r.get("particle_radius")), _fmt(r.get("time")), _fmt(r.get("fluid_particles")),
-                         _fmt(r.get("cell_per_radius")), r.get("method", "?"), _fmt(r.get("ms")),
-                         _fmt(r.get("triangles")), _fmt(r.get("splashsurf_ms_1_thread")),
-                         _fmt(r.get("splashsurf_ms_2_threads"))])
-        lines += _table(["radius [m]", "t [s]", "fluid N", "cell / r", "method", "ms/frame", "triangles",
-                         "splashsurf 1 thread [ms]", "splashsurf 2 threads [ms]"], rows) + [""]
-        lines += ["ms/frame: field splatting + extraction + host clean-up (welding, winding, degenerate "
-                  "triangles) of one `SurfaceReconstructor.extract` call, median of 3, warm. splashsurf "
-                  "times are the reference numbers from the issue (cube size 0.5 r), not rerun here.", ""]
+            if r.get("status") != "ok":
+                continue
+            st = r.get("stage_ms") or {}
+            stages = " / ".join(_fmt(st.get(k)) for k in ("particles", "band", "field", "extraction", "smoothing",
+                                                         "decimation", "normals")) if st else ""
+            usd = (f"{_fmt(r.get('usd_write_ms'))} ms, {_fmt(r.get('usd_bytes_per_frame'))} B"
+                   if r.get("usd_write_ms") is not None else "")
+            rows.append([_fmt(r.get("fluid_particles")), _fmt(r.get("cell_per_radius")), _fmt(r.get("threads")),
+                         r.get("engine", "?"), r.get("variant", "?"), _fmt(r.get("ms")), _fmt(r.get("triangles")),
+                         _fmt(r.get("ratio_to_splashsurf")), stages, usd])
+        lines += _table(["fluid N", "cell / r", "threads", "engine", "variant", "ms/frame", "triangles",
+                         "x splashsurf", "warp-sph stages [ms]: particles (spray split included) / band / field / "
+                         "extraction / smoothing / decimation / normals", "USD write of the frame"], rows) + [""]
+        lines += ["Both tools on the same dam-break particles, cell size, iso level 0.6, kernel support and "
+                  "thread count, in the same run (benchmarks/surface.py); median of the timed calls, warm. "
+                  "*raw*: field and marching cubes (warp-sph: spray split and narrow band included); "
+                  "*pipeline*: raw + 25 weighted smoothing steps + normals + 10 normal smoothing steps "
+                  "(splashsurf: with mesh cleanup); *default*: warp-sph's run settings (its cell size, "
+                  "smoothing and decimation). *x splashsurf*: warp-sph time / splashsurf time of the same "
+                  "variant.", ""]
 
     mat = latest(data.get("matrix", []))
     lines += matrix.section(mat, _fmt, _section_head)

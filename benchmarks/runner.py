@@ -174,7 +174,8 @@ def cmd_surface(args, argv: list[str], log=print) -> int:
     if len(times) == 1:
         times = times * len(radii)
     records = run_surface_bench(radii=radii, times=times, cells=[float(v) for v in args.cell.split(",")],
-                                methods=args.method.split(","), device=args.device, log=log)
+                                threads=[int(v) for v in args.threads.split(",")], repeats=args.repeats,
+                                splashsurf=not args.no_splashsurf, device=args.device, log=log)
     for r in records:
         r.update(host=host_info(), versions=versions(), date=now())
     out = _save("surface", records, args, argv, now(), log)
@@ -302,12 +303,16 @@ def build_parser() -> argparse.ArgumentParser:
     common(x)
     x.set_defaults(func=cmd_splishsplash)
 
-    u = sub.add_parser("surface", help="surface reconstruction time per frame on dam-break particles")
+    u = sub.add_parser("surface", help="surface reconstruction time per frame on dam-break particles, warp-sph "
+                       "and splashsurf (pysplashsurf, optional) side by side")
     common(u)
-    u.add_argument("--radius", default="0.025", help="particle radii [m], comma separated (default 0.025: 6,859 particles)")
+    u.add_argument("--radius", default="0.025", help="particle radii [m], comma separated (default 0.025: 6,859 "
+                   "particles; 0.0125: 59,319)")
     u.add_argument("--time", default="0.3", help="simulated time [s] of the particles, per radius or one for all (default 0.3)")
-    u.add_argument("--cell", default="0.5,0.75", help="cell sizes per particle radius (default 0.5,0.75)")
-    u.add_argument("--method", default="marching_cubes,surface_nets", help="extraction methods (default both)")
+    u.add_argument("--cell", default="0.5", help="cell sizes per particle radius (default 0.5)")
+    u.add_argument("--threads", default="1,2", help="CPU thread counts, the same for both tools (default 1,2)")
+    u.add_argument("--repeats", type=int, default=5, help="timed calls per case, the median counts (default 5)")
+    u.add_argument("--no-splashsurf", action="store_true", help="warp-sph only")
     u.set_defaults(func=cmd_surface)
 
     b = sub.add_parser("bodies", help="a scene with moving rigid bodies against the same bodies as static obstacles: "

@@ -218,13 +218,25 @@ def test_surface_bench_tiny(tmp_path):
     from warp_sph.benchmarks.runner import main
 
     out = tmp_path / "res"
-    assert main(["surface", "--radius", "0.1", "--time", "0", "--cell", "1.0", "--method", "surface_nets",
+    assert main(["surface", "--radius", "0.1", "--time", "0", "--cell", "1.0", "--threads", "1", "--repeats", "1",
                  "--out", str(out)]) == 0
-    lines = (out / "surface.jsonl").read_text().splitlines()
+    import importlib.util
     import json
 
-    rec = json.loads(lines[-1])
-    assert rec["kind"] == "surface" and rec["triangles"] > 0 and rec["ms"] > 0
+    recs = [json.loads(line) for line in (out / "surface.jsonl").read_text().splitlines()]
+    ours = {r["variant"]: r for r in recs if r["engine"] == "warp-sph"}
+    assert set(ours) == {"raw", "pipeline", "default"}
+    for r in ours.values():
+        assert r["kind"] == "surface" and r["triangles"] > 0 and r["ms"] > 0 and r["threads"] == 1
+        assert sum(r["stage_ms"].values()) <= r["ms"] * 1.01
+    assert ours["raw"]["stage_ms"]["smoothing"] == 0.0 and ours["pipeline"]["stage_ms"]["smoothing"] > 0.0
+    assert ours["default"]["usd_write_ms"] > 0.0 and ours["default"]["usd_bytes_per_frame"] > 0
+    if importlib.util.find_spec("pysplashsurf") is not None:  # measured beside, on the same particles
+        theirs = {r["variant"]: r for r in recs if r["engine"] == "splashsurf"}
+        assert set(theirs) == {"raw", "pipeline"} and all(r["status"] == "ok" for r in theirs.values())
+        assert ours["raw"]["splashsurf_ms"] == theirs["raw"]["ms"]
+        # same cell, level and support: meshes of comparable size (marching cubes on both sides)
+        assert 0.5 < ours["raw"]["triangles"] / theirs["raw"]["triangles"] < 2.0
     assert "## Surface reconstruction" in (out / "RESULTS.md").read_text()
 
 

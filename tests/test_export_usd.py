@@ -254,3 +254,51 @@ def test_mesh_sequence(tmp_path, fmt):
     assert sorted(os.listdir(tmp_path / "meshes")) == [f"surface_000007.{fmt}", f"surface_000008.{fmt}"]
     with pytest.raises(ValueError):
         MeshSequenceWriter(tmp_path, "stl")
+
+
+def _normals(verts):
+    n = np.asarray(verts, np.float64) - np.asarray(verts, np.float64).mean(0)
+    return (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
+
+
+def test_spray_normals_and_bytes_per_frame(tmp_path):
+    """/sph/spray holds the spray points (a 1e-4 r placeholder on a frame without spray), the surface
+    carries vertex normals, and the writer reports each frame's bytes."""
+    path = tmp_path / "spray.usdc"
+    spray_counts = {1: 3, 2: 0, 3: 5}
+    with UsdWriter(path, FPS, RADIUS, with_normals=True, with_spray=True) as writer:
+        for f, k in spray_counts.items():
+            x, v, rho, (verts, tris) = frame_data(f)
+            writer.write_frame(f, x, v, {"density": rho}, (verts, tris, _normals(verts)), spray=(x[:k], v[:k]))
+        assert len(writer.frame_bytes) == 3 and all(b > 0 for b in writer.frame_bytes)
+        assert abs(sum(writer.frame_bytes) - os.path.getsize(path)) < 2048  # the header of frame 1's file
+    stage = Usd.Stage.Open(str(path))
+    spray = UsdGeom.Points(stage.GetPrimAtPath("/sph/spray"))
+    surface = UsdGeom.Mesh(stage.GetPrimAtPath("/sph/surface"))
+    for f, k in spray_counts.items():
+        x, v, _, (verts, _) = frame_data(f)
+        pts = np.asarray(spray.GetPointsAttr().Get(f))
+        width = float(spray.GetWidthsAttr().Get(f)[0])
+        if k:
+            assert np.array_equal(pts, x[:k]) and width == pytest.approx(2 * RADIUS)
+            assert np.array_equal(np.asarray(spray.GetVelocitiesAttr().Get(f)), v[:k])
+        else:  # one invisible point at the lowest particle, at rest
+            assert np.array_equal(pts, x[np.argmin(x[:, 2])][None]) and width == pytest.approx(1e-4 * RADIUS)
+            assert np.all(np.asarray(spray.GetVelocitiesAttr().Get(f)) == 0.0)
+        lo, hi = np.asarray(spray.GetExtentAttr().Get(f))
+        assert np.all(lo <= pts.min(0) - width / 2 + 1e-7) and np.all(hi >= pts.max(0) + width / 2 - 1e-7)
+        normals = UsdGeom.PrimvarsAPI(surface).GetPrimvar("normals")
+        assert normals.GetInterpolation() == UsdGeom.Tokens.vertex
+        assert np.array_equal(np.asarray(normals.Get(f)), _normals(verts))
+    with pytest.raises(ValueError, match="normals"):
+        with UsdWriter(tmp_path / "bad.usdc", FPS, RADIUS, with_normals=True) as writer:
+            x, v, rho, surface = frame_data(1)
+            writer.write_frame(1, x, v, {"density": rho}, surface)
+    result = run_checker(path, "--strict")
+    assert result.returncode == 0, result.stdout + result.stderr
+    # resuming keeps the layout; a writer without spray cannot resume a file with it
+    with UsdWriter(path, FPS, RADIUS, with_normals=True, with_spray=True, resume_after_frame=2) as writer:
+        x, v, rho, (verts, tris) = frame_data(7)
+        writer.write_frame(3, x, v, {"density": rho}, (verts, tris, _normals(verts)), spray=None)
+    with pytest.raises(OutputError, match="spray"):
+        UsdWriter(path, FPS, RADIUS, with_normals=True, resume_after_frame=2)

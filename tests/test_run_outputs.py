@@ -83,7 +83,7 @@ def assert_blender_ready(path: Path, frames: int, first: int = 1, radius: float 
     assert stage.GetDefaultPrim().GetPath() == "/sph"
     times = [float(t) for t in range(first, first + frames)]
     gprims = [p for p in stage.Traverse() if p.IsA(UsdGeom.Points) or p.IsA(UsdGeom.Mesh)]
-    assert {"particles", "surface", "container"} <= {p.GetName() for p in gprims}
+    assert {"particles", "surface", "spray", "container"} <= {p.GetName() for p in gprims}
     for prim in gprims:
         g = UsdGeom.PointBased(prim)
         assert [float(t) for t in g.GetPointsAttr().GetTimeSamples()] == times, prim.GetPath()
@@ -92,15 +92,21 @@ def assert_blender_ready(path: Path, frames: int, first: int = 1, radius: float 
             pts = np.asarray(g.GetPointsAttr().Get(t), dtype=np.float64).reshape(-1, 3)
             assert np.all(np.isfinite(pts)), (prim.GetPath(), t)
             lo, hi = np.asarray(g.GetExtentAttr().Get(t), dtype=np.float64)
-            if len(pts):
-                pad = radius if prim.IsA(UsdGeom.Points) else 0.0
-                assert np.all(lo <= pts.min(0) - pad + 1e-5) and np.all(hi >= pts.max(0) + pad - 1e-5)
+            pad = 0.0
             if prim.IsA(UsdGeom.Points):
                 widths = np.asarray(UsdGeom.Points(prim).GetWidthsAttr().Get(t))
-                assert len(widths) == 1 and widths[0] == pytest.approx(2 * radius)
+                # spray: 2 r, or one 1e-4 r placeholder point on a frame without spray (export_usd.py)
+                allowed = [2 * radius, 1e-4 * radius] if prim.GetName() == "spray" else [2 * radius]
+                assert len(widths) == 1 and min(abs(widths[0] - w) for w in allowed) < 1e-6 * radius
+                pad = 0.5 * float(widths[0])
                 v = np.asarray(UsdGeom.Points(prim).GetVelocitiesAttr().Get(t))
                 assert v.shape == pts.shape and np.all(np.isfinite(v))
-            else:
+            if len(pts):
+                assert np.all(lo <= pts.min(0) - pad + 1e-5) and np.all(hi >= pts.max(0) + pad - 1e-5)
+            if prim.GetName() == "surface":  # vertex normals: unit, one per point
+                n = np.asarray(UsdGeom.PrimvarsAPI(prim).GetPrimvar("normals").Get(t), dtype=np.float64).reshape(-1, 3)
+                assert n.shape == pts.shape and np.allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-4)
+            if prim.IsA(UsdGeom.Mesh):
                 mesh = UsdGeom.Mesh(prim)
                 assert mesh.GetSubdivisionSchemeAttr().Get() == UsdGeom.Tokens.none
                 counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(t))
@@ -260,10 +266,11 @@ def test_export_usd_finer_surface(reference, tmp_path):
         for attr in ("/sph/particles.points", "/sph/particles.velocities", "/sph/particles.primvars:density"):
             assert np.array_equal(np.asarray(fine.GetAttributeAtPath(attr).Get(f)),
                                   np.asarray(run_stage.GetAttributeAtPath(attr).Get(f))), (attr, f)
-        # the run's surface cell is 0.75 r: a 0.5 r grid gives about (0.75 / 0.5)^2 = 2.25x the triangles
+        # the run's surface cell is 1.0 r: a 0.5 r grid gives about 4x the raw triangles, and decimation
+        # (same error bound) keeps more of the finer mesh's detail
         n_run = len(run_stage.GetAttributeAtPath("/sph/surface.faceVertexIndices").Get(f))
         n_fine = len(fine.GetAttributeAtPath("/sph/surface.faceVertexIndices").Get(f))
-        assert 1.8 < n_fine / n_run < 2.8
+        assert n_fine / n_run > 2.0
     with pytest.raises(OutputError, match="overwrite"):
         export_run(reference, fmt="usd", out=out, frames="2:4")
     export_run(reference, fmt="usd", out=out, frames="3:3", overwrite=True)
@@ -277,10 +284,13 @@ def test_export_same_settings_reproduces_run_surface(reference, tmp_path):
     for f in (1, 2):
         va = np.asarray(a.GetAttributeAtPath("/sph/surface.points").Get(f))
         vb = np.asarray(b.GetAttributeAtPath("/sph/surface.points").Get(f))
+        # the run meshes the recorded float32 world positions re-localised as the export does: same input,
+        # same (deterministic) pipeline, so the same surface, spray and normals
         assert len(va) == len(vb), (len(va), len(vb))
-        # recorded frames are float32 world positions: re-localising them perturbs inputs by ~1 ulp, which
-        # marching cubes can amplify where the field is flat near the iso level (measured 3e-5 m at r = 0.05)
-        assert np.abs(va - vb).max() < 0.01 * 0.05, np.abs(va - vb).max(axis=0)
+        assert np.array_equal(va, vb)
+        for attr in ("/sph/surface.faceVertexIndices", "/sph/surface.primvars:normals", "/sph/spray.points"):
+            assert np.array_equal(np.asarray(a.GetAttributeAtPath(attr).Get(f)),
+                                  np.asarray(b.GetAttributeAtPath(attr).Get(f))), (attr, f)
 
 
 @pytest.mark.parametrize("fmt", ["obj", "ply", "vtk"])

@@ -8,7 +8,14 @@ Layout (notes/usd_blender.md section 2), one ``.usdc`` file for the whole run:
     /sph/particles         Points: points, velocities, extent (+/- r), primvars:<name> (vertex)
                            time-sampled every frame, in stable particle order; widths = 2 r (constant)
     /sph/surface           Mesh (subdivisionScheme none): points, faceVertexCounts,
-                           faceVertexIndices (CCW seen from outside), extent, every frame
+                           faceVertexIndices (CCW seen from outside), extent, and primvars:normals
+                           (vertex interpolation: smooth shading in Blender without modifiers), every frame
+    /sph/spray             Points: the spray particles (few neighbours, not in the surface mesh): points,
+                           velocities, extent (+/- width / 2), widths (constant interpolation, one value
+                           per frame: 2 r); the count changes per frame. A frame without spray holds one
+                           point 1e-4 r wide at the lowest particle (under the water, below a pixel in
+                           any render), because an empty Points sample is flagged by USD checkers
+                           (check_usd.py --strict) and some importers
     /sph/<name>            static meshes (container walls, obstacles): topology as default values;
                            points and extent as default values *and* one (equal) time sample per
                            frame, so every Points/Mesh prim spans the frame range (check_usd.py
@@ -42,6 +49,7 @@ double-precision ``xformOp:translate`` = origin (Blender: the "sph" empty sits a
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -52,7 +60,7 @@ from ..core.errors import OutputError
 from . import run_folder as rf
 from .crate_guard import crate_tail, restore_crate_tail
 
-_RESERVED = ("particles", "surface", "bodies")
+_RESERVED = ("particles", "surface", "spray", "bodies")
 _BODIES = "/sph/bodies"
 
 
@@ -115,6 +123,8 @@ class UsdWriter:
         primvars: names of per-particle float primvars written every frame (e.g. "density").
         with_surface: write /sph/surface.
         with_velocities: write particle velocities [m/s] (Blender 'velocity', motion blur).
+        with_normals: write the surface's vertex normals (primvars:normals) when a frame gives them.
+        with_spray: write /sph/spray (spray particles as their own point set).
         resume_after_frame: k to reopen the existing file, delete every time sample after frame k
             and continue with frame k + 1; None to create a new file.
         overwrite: replace an existing file when creating a new one (otherwise OutputError).
@@ -137,6 +147,8 @@ class UsdWriter:
         resume_after_frame: int | None = None,
         *,
         with_velocities: bool = True,
+        with_normals: bool = False,
+        with_spray: bool = False,
         overwrite: bool = False,
         first_frame: int = 1,
         origin=None,
@@ -151,6 +163,11 @@ class UsdWriter:
         self.primvar_names = tuple(primvars)
         self.with_surface = bool(with_surface)
         self.with_velocities = bool(with_velocities)
+        self.with_normals = bool(with_normals) and self.with_surface
+        self.with_spray = bool(with_spray)
+        #: file size growth [bytes] of each frame written by this writer, and seconds per write
+        self.frame_bytes: list[int] = []
+        self.write_seconds: list[float] = []
         for name in self.primvar_names:
             if not Sdf.Path.IsValidIdentifier(name):
                 raise ValueError(f"primvar name {name!r} is not a valid USD identifier")
@@ -215,6 +232,18 @@ class UsdWriter:
             mesh.CreateFaceVertexCountsAttr()
             mesh.CreateFaceVertexIndicesAttr()
             mesh.CreateExtentAttr()
+            if self.with_normals:
+                UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("normals", Sdf.ValueTypeNames.Normal3fArray,
+                                                        UsdGeom.Tokens.vertex)
+
+        if self.with_spray:
+            spray = UsdGeom.Points.Define(stage, "/sph/spray")
+            spray.CreatePointsAttr()
+            spray.CreateExtentAttr()
+            spray.CreateWidthsAttr()
+            spray.SetWidthsInterpolation(UsdGeom.Tokens.constant)
+            if self.with_velocities:
+                spray.CreateVelocitiesAttr()
 
         for name, verts, tris in static_meshes:
             if not Sdf.Path.IsValidIdentifier(name) or name in _RESERVED:
@@ -267,8 +296,12 @@ class UsdWriter:
         end = stage.GetEndTimeCode()
         if end < k:
             raise OutputError(f"cannot resume after frame {k}: {self.path} ends at frame {end:g}")
-        if self.with_surface != stage.GetPrimAtPath("/sph/surface").IsValid():
-            raise OutputError(f"cannot resume: {self.path} {'lacks' if self.with_surface else 'has'} /sph/surface")
+        for name, wanted in (("surface", self.with_surface), ("spray", getattr(self, "with_spray", None))):
+            if wanted is not None and wanted != stage.GetPrimAtPath(f"/sph/{name}").IsValid():
+                raise OutputError(f"cannot resume: {self.path} {'lacks' if wanted else 'has'} /sph/{name}")
+        if getattr(self, "with_normals", False) and \
+                not UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/sph/surface")).HasPrimvar("normals"):
+            raise OutputError(f"cannot resume: {self.path} has no surface normals (primvars:normals)")
         return stage
 
     @staticmethod
@@ -348,6 +381,13 @@ class UsdWriter:
             self._mesh_counts = mesh.GetFaceVertexCountsAttr()
             self._mesh_indices = mesh.GetFaceVertexIndicesAttr()
             self._mesh_extent = mesh.GetExtentAttr()
+            self._mesh_normals = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("normals").GetAttr() if self.with_normals else None
+        if self.with_spray:
+            spray = UsdGeom.Points(stage.GetPrimAtPath("/sph/spray"))
+            self._spray_points = spray.GetPointsAttr()
+            self._spray_extent = spray.GetExtentAttr()
+            self._spray_widths = spray.GetWidthsAttr()
+            self._spray_velocities = spray.GetVelocitiesAttr() if self.with_velocities else None
         # static meshes: their default points and extent, repeated as a time sample every frame
         self._statics = []
         for prim in stage.GetPrimAtPath("/sph").GetChildren():
@@ -437,8 +477,9 @@ class UsdWriter:
         particle_x: np.ndarray,
         particle_v: np.ndarray | None = None,
         primvars: Mapping[str, np.ndarray] | None = None,
-        surface: tuple[np.ndarray, np.ndarray] | None = None,
+        surface: tuple | None = None,
         bodies: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
+        spray: tuple[np.ndarray, np.ndarray | None] | None = None,
     ) -> None:
         """Write frame ``frame`` (time code; 1 = initial state) and save the stage.
 
@@ -447,14 +488,18 @@ class UsdWriter:
             particle_x: positions [m], (N, 3), in stable particle order.
             particle_v: velocities [m/s], (N, 3); required unless with_velocities=False.
             primvars: one (N,) float array per declared primvar name (e.g. density [kg/m^3]).
-            surface: (vertices (V, 3) [m], triangles (T, 3)); None or empty arrays write an empty
-                surface for this frame (required sample, so every frame has one).
+            surface: (vertices (V, 3) [m], triangles (T, 3)[, normals (V, 3) unit]); None or empty
+                arrays write an empty surface for this frame (required sample, so every frame has one).
             bodies: {name: (centre of mass [m] (3,), world coordinates, orientation quaternion
                 (x, y, z, w))} for exactly the bodies declared with ``add_body``.
+            spray: (positions (S, 3) [m], velocities (S, 3) [m/s] or None) of the spray particles;
+                None or none at all writes the placeholder point (module docstring).
         """
         if self.stage is None or self._failed:
             raise OutputError(f"{self.path}: write_frame after close" if self.stage is None else
                               f"{self.path}: write_frame after a failed save")
+        t_start = time.perf_counter()
+        size_before = os.path.getsize(self.path) if os.path.exists(self.path) else 0
         frame = int(frame)
         if frame != self.last_frame + 1:
             raise ValueError(f"frames must be written in order: expected frame {self.last_frame + 1}, got {frame}")
@@ -487,19 +532,49 @@ class UsdWriter:
                 tris = np.ascontiguousarray(surface[1], dtype=np.int32).reshape(-1, 3)
             if len(tris) and (tris.min() < 0 or tris.max() >= len(verts)):
                 raise ValueError(f"surface triangle indices out of range 0..{len(verts) - 1}")
+            if self._mesh_normals is not None:
+                normals = surface[2] if surface is not None and len(surface) > 2 and surface[2] is not None else None
+                if normals is None:
+                    if len(verts):
+                        raise ValueError("write_frame needs surface normals (the writer was made with_normals=True)")
+                    normals = np.zeros((0, 3), np.float32)
+                normals = np.ascontiguousarray(normals, dtype=np.float32).reshape(-1, 3)
+                if len(normals) != len(verts):
+                    raise ValueError(f"{len(normals)} surface normals for {len(verts)} vertices")
+                self._mesh_normals.Set(_vec3f(normals), t)
             self._mesh_points.Set(_vec3f(verts), t)
             self._mesh_counts.Set(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)), t)
             self._mesh_indices.Set(Vt.IntArray.FromNumpy(tris.reshape(-1)), t)
             self._mesh_extent.Set(_extent(verts, 0.0), t)
+        spray_bytes = 0
+        if self.with_spray:
+            sx = np.zeros((0, 3), np.float32) if spray is None else self._local(spray[0])
+            sv = np.zeros((len(sx), 3), np.float32) if spray is None or spray[1] is None else \
+                np.ascontiguousarray(spray[1], dtype=np.float32).reshape(-1, 3)
+            if len(sv) != len(sx):
+                raise ValueError(f"{len(sv)} spray velocities for {len(sx)} spray particles")
+            width = 2.0 * self.particle_radius
+            if len(sx) == 0:  # placeholder (module docstring): the lowest particle, 1e-4 r wide, at rest
+                sx = x[np.argmin(x[:, 2])][None, :] if n else np.zeros((1, 3), np.float32)
+                sv = np.zeros((1, 3), np.float32)
+                width = 1e-4 * self.particle_radius
+            self._spray_points.Set(_vec3f(sx), t)
+            self._spray_widths.Set(Vt.FloatArray([width]), t)
+            self._spray_extent.Set(_extent(sx, 0.5 * width), t)
+            if self._spray_velocities is not None:
+                self._spray_velocities.Set(_vec3f(sv), t)
+            spray_bytes = 2 * sx.nbytes + 64
         for attr, value in self._statics:
             attr.Set(value, t)
         self._write_bodies(bodies, t)
         self.stage.SetEndTimeCode(frame)
         new_bytes = x.nbytes + 64 + (0 if self._velocities is None else x.nbytes) + 4 * n * len(self._primvars) \
-            + (verts.nbytes + 2 * tris.nbytes if self.with_surface else 0) \
+            + (2 * verts.nbytes + 2 * tris.nbytes if self.with_surface else 0) + spray_bytes \
             + sum(_nbytes(value) for _, value in self._statics)
         self._save(new_bytes)
         self.last_frame = frame
+        self.frame_bytes.append(os.path.getsize(self.path) - size_before)
+        self.write_seconds.append(time.perf_counter() - t_start)
 
     def close(self) -> None:
         """Save and release the stage (idempotent). After a refused or failed save the stage is

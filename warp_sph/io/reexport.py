@@ -155,25 +155,26 @@ def parse_frame_range(frames, available: Iterable[int]) -> list[int]:
 
 
 def _surface_reconstructor(info: dict, cell_per_radius: float | None, iso: float | None, device):
-    from ..surface.reconstruction import DEFAULT_CELL_PER_RADIUS, DEFAULT_ISO_LEVEL, SurfaceReconstructor
+    """The run's surface settings (``scene.output.surface_*``; a run made before a setting existed
+    gets its current default), with ``--surface-cell`` / ``--surface-iso`` applied."""
+    from ..surface.reconstruction import SurfaceReconstructor, surface_settings
 
     model = info.get("model") or {}
-    out_cfg = (info.get("scene") or {}).get("output") or {}
+    out_cfg = dict((info.get("scene") or {}).get("output") or {})
     try:
         kernel = model["smoothing_kernel"]
         h = float(model["smoothing_length"])
-        mass = float(model["particle_mass"])
         r = float(model["particle_radius"])
     except (KeyError, TypeError, ValueError):
         raise OutputError("run.json lacks the model constants of the surface (model.smoothing_kernel, "
-                          "smoothing_length, particle_mass, particle_radius)") from None
-    cell = float(cell_per_radius if cell_per_radius is not None
-                 else out_cfg.get("surface_cell_per_radius", DEFAULT_CELL_PER_RADIUS))
-    level = float(iso if iso is not None else out_cfg.get("surface_iso", DEFAULT_ISO_LEVEL))
-    if not cell > 0.0:
-        raise WarpSphError(f"--surface-cell must be > 0 (cell size / particle radius); got {cell}")
-    return SurfaceReconstructor(kernel, h, mass, r, cell_size=cell * r, iso_level=level, device=device,
-                                method=out_cfg.get("surface_method", "marching_cubes"))
+                          "smoothing_length, particle_radius)") from None
+    if cell_per_radius is not None:
+        if not cell_per_radius > 0.0:
+            raise WarpSphError(f"--surface-cell must be > 0 (cell size / particle radius); got {cell_per_radius}")
+        out_cfg["surface_cell_per_radius"] = float(cell_per_radius)
+    if iso is not None:
+        out_cfg["surface_iso"] = float(iso)
+    return SurfaceReconstructor(kernel, h, r, device=device, **surface_settings(out_cfg, r))
 
 
 def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | None = None,
@@ -240,6 +241,7 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
         far = float(np.abs(origin).max()) > 0.0 and _far_from_origin(files[wanted[0]])
         usd = UsdWriter(target, fps=float(info.get("fps") or scene.get("fps") or 24.0), particle_radius=radius,
                         static_meshes=scene_static_meshes(scene), primvars=primvars, with_surface=True,
+                        with_normals=surface.with_normals, with_spray=surface.grid.spray_neighbors > 0,
                         overwrite=overwrite, first_frame=wanted[0], origin=origin if far else None)
         shapes, body_poses = _body_shapes(scene, info, wanted)
         for body, vertices, triangles in shapes:  # moving rigid bodies at the poses run.json recorded
@@ -259,14 +261,15 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
             except (OSError, KeyError, ValueError) as exc:
                 raise OutputError(f"{files[frame]}: unreadable recorded frame ({exc})") from None
             x_local = wp.array((x_world - origin).astype(np.float32), dtype=wp.vec3, device=device)
-            verts, tris = surface.extract(x_local, wp.array(rho, dtype=float, device=device))
-            verts = verts.astype(np.float64) + origin  # world [m]; float32 on writing unless far
+            mesh = surface.reconstruct(x_local)
+            verts = mesh.vertices.astype(np.float64) + origin  # world [m]; float32 on writing unless far
             data_far = x_dtype == np.float64
             if usd is not None:
-                usd.write_frame(frame, x_world, v, primvars={n: rho for n in usd.primvar_names}, surface=(verts, tris),
+                usd.write_frame(frame, x_world, v, primvars={n: rho for n in usd.primvar_names},
+                                surface=(verts, mesh.triangles, mesh.normals), spray=(x_world[mesh.spray], v[mesh.spray]),
                                 bodies=body_poses.get(frame))
             else:
-                mesh_writer.write_frame(frame, verts if data_far else verts.astype(np.float32), tris)
+                mesh_writer.write_frame(frame, verts if data_far else verts.astype(np.float32), mesh.triangles)
     finally:
         if usd is not None:
             usd.close()

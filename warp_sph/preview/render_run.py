@@ -30,6 +30,7 @@ OBSTACLE_COLOR = (0.62, 0.58, 0.52)  # stone grey for obstacles in surface previ
 BODY_COLOR = (0.78, 0.45, 0.18)  # orange-brown wood for moving rigid bodies
 BACKGROUND = (0.93, 0.94, 0.96)
 SURFACE_PRIM = "/sph/surface"
+SPRAY_PRIM = "/sph/spray"
 
 
 class PreviewError(WarpSphError):
@@ -516,6 +517,8 @@ class _SurfaceReader:
         return points.astype(np.float64) @ m[:3, :3] + m[3, :3]
 
     def frame(self, frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """Surface mesh of ``frame`` [m], with the spray points (/sph/spray) added as small spheres of
+        their width, so the preview shows what a render with a foam material would."""
         points_attr = self.mesh.GetPointsAttr()
         if frame not in {int(round(t)) for t in points_attr.GetTimeSamples()} and points_attr.GetNumTimeSamples():
             raise PreviewError(f"{self.path}: {SURFACE_PRIM} has no surface for frame {frame}")
@@ -523,7 +526,19 @@ class _SurfaceReader:
         points = np.asarray(points_attr.Get(time) or [], dtype=np.float32).reshape(-1, 3)
         counts = np.asarray(self.mesh.GetFaceVertexCountsAttr().Get(time) or [], dtype=np.int64)
         indices = np.asarray(self.mesh.GetFaceVertexIndicesAttr().Get(time) or [], dtype=np.int64)
-        return self._world(self.mesh.GetPrim(), points, time), _triangulate(counts, indices)
+        points = self._world(self.mesh.GetPrim(), points, time)
+        triangles = _triangulate(counts, indices)
+        spray = self.stage.GetPrimAtPath(SPRAY_PRIM)
+        if spray and spray.IsValid():
+            sp = self._geom.Points(spray)
+            centers = np.asarray(sp.GetPointsAttr().Get(time) or [], dtype=np.float32).reshape(-1, 3)
+            widths = np.asarray(sp.GetWidthsAttr().Get(time) or [0.0], dtype=np.float32)
+            if len(centers):
+                sv, st = _sphere_mesh(self._world(spray, centers, time),
+                                      0.5 * (widths if len(widths) == len(centers) else widths[:1]))
+                triangles = np.concatenate([triangles, st + len(points)])
+                points = np.concatenate([points, sv.astype(points.dtype)])
+        return points, triangles
 
     def first_time(self) -> float:
         times = self.mesh.GetPointsAttr().GetTimeSamples()
@@ -584,6 +599,35 @@ def _bodies(meta: dict) -> dict[int, list[tuple[np.ndarray, np.ndarray, tuple]]]
             solids.append((geo.vertices @ R.T + np.asarray(pose["position"]), geo.triangles, BODY_COLOR))
         out[int(record["frame"])] = solids
     return out
+
+
+def _sphere_mesh(centers: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Icospheres (42 vertices, 80 faces each, wound outward) at ``centers`` [m] with ``radii`` [m]."""
+    t = (1.0 + 5.0**0.5) / 2.0
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
+                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], dtype=np.float64)
+    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+                  [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5],
+                  [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    edges = {}
+    verts = list(v)
+    faces = []
+    for a, b, c in f:  # one subdivision: midpoints shared through ``edges``
+        m = []
+        for p, q in ((a, b), (b, c), (c, a)):
+            key = (min(p, q), max(p, q))
+            if key not in edges:
+                edges[key] = len(verts)
+                verts.append(0.5 * (v[p] + v[q]))
+            m.append(edges[key])
+        faces += [[a, m[0], m[2]], [b, m[1], m[0]], [c, m[2], m[1]], m]
+    unit = np.asarray(verts)
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    faces = np.asarray(faces, dtype=np.int64)
+    n = len(centers)
+    pts = centers[:, None, :] + np.broadcast_to(np.asarray(radii, np.float64).reshape(-1, 1, 1), (n, 1, 1)) * unit[None]
+    tris = faces[None] + (np.arange(n) * len(unit))[:, None, None]
+    return pts.reshape(-1, 3), tris.reshape(-1, 3).astype(np.int32)
 
 
 def _triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:

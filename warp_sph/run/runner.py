@@ -94,12 +94,12 @@ class Exporter:
         self.mesh_writer = None
         m = sim.model
         if o.surface and (o.usd or o.mesh_sequence):
-            from ..surface.reconstruction import SurfaceReconstructor
+            from ..surface.reconstruction import SurfaceReconstructor, surface_settings
 
-            self.surface = SurfaceReconstructor(
-                m.smoothing.name, m.smoothing_length, m.particle_mass, m.particle_radius,
-                cell_size=o.surface_cell_per_radius * m.particle_radius, iso_level=o.surface_iso,
-                device=sim.device, method=getattr(o, "surface_method", "marching_cubes"))
+            # split_threads off: it runs beside the simulation, which keeps every core busy
+            self.surface = SurfaceReconstructor(m.smoothing.name, m.smoothing_length, m.particle_radius,
+                                                device=sim.device, split_threads=False,
+                                                **surface_settings(o, m.particle_radius))
         if o.usd:
             from ..io.reexport import scene_static_meshes
             from ..io.export_usd import UsdWriter
@@ -110,6 +110,8 @@ class Exporter:
             self.usd = UsdWriter(self.usd_path, fps=sim.scene.fps,
                                  particle_radius=m.particle_radius, static_meshes=statics,
                                  primvars=self.primvars, with_surface=self.surface is not None,
+                                 with_normals=self.surface is not None and self.surface.with_normals,
+                                 with_spray=self.surface is not None and self.surface.grid.spray_neighbors > 0,
                                  resume_after_frame=resume_after_frame, overwrite=False,
                                  origin=m.origin if self.far else None)
             if sim.bodies is not None:  # mesh prims with a time-sampled transform (a resume only checks them)
@@ -123,6 +125,22 @@ class Exporter:
         if self.record:
             (self.out / "frames").mkdir(exist_ok=True)
         self.seconds = 0.0
+        self.surface_seconds: dict[str, float] = {}  # filled with every stage on the first frame
+        self.surface_counts = {"frames": 0, "triangles": 0, "vertices": 0, "spray": 0, "band_fallback": 0}
+
+    def report(self) -> dict:
+        """Per-frame export figures for run.json: USD bytes per frame, surface stage times [ms],
+        mean triangle, vertex and spray counts."""
+        out = {}
+        if self.usd is not None and self.usd.frame_bytes:
+            b = self.usd.frame_bytes
+            out.update(usd_bytes_per_frame=float(np.mean(b)), usd_bytes_per_frame_max=int(max(b)),
+                       usd_bytes_written=int(sum(b)), usd_write_ms=1e3 * float(np.mean(self.usd.write_seconds)))
+        n = self.surface_counts["frames"]
+        if n:
+            out["surface_ms"] = {k: 1e3 * v / n for k, v in self.surface_seconds.items()}
+            out.update({f"surface_{k}_per_frame": v / n for k, v in self.surface_counts.items() if k != "frames"})
+        return out
 
     def snapshot(self, checkpoint: dict | None = None) -> dict:
         """Device copies of what a frame export needs (taken on the simulation thread).
@@ -147,10 +165,22 @@ class Exporter:
         x_world = m.to_world(snap["x"].numpy())  # float64
         v = snap["v"].numpy()
         rho = snap["density"].numpy()
-        surface = None
+        surface = spray = None
         if self.surface is not None:
-            verts, tris = self.surface.extract(snap["x"], snap["density"])
-            surface = (m.to_world(verts), tris)
+            # from the recorded world positions, re-localised as `warp-sph export` does, so a re-export
+            # with the same settings gives this very surface (decimation amplifies 1-ulp differences)
+            x_local = (x_world.astype(world).astype(np.float64) - m.origin).astype(np.float32)
+            mesh = self.surface.reconstruct(wp.array(x_local, dtype=wp.vec3, device=self.sim.device))
+            surface = (m.to_world(mesh.vertices), mesh.triangles, mesh.normals)
+            spray = (x_world[mesh.spray], v[mesh.spray])
+            for k, sec in mesh.timings.items():
+                self.surface_seconds[k] = self.surface_seconds.get(k, 0.0) + sec
+            c = self.surface_counts
+            c["frames"] += 1
+            c["triangles"] += len(mesh.triangles)
+            c["vertices"] += len(mesh.vertices)
+            c["spray"] += int(mesh.spray.sum())
+            c["band_fallback"] += mesh.stats.get("band_fallback", 0)
         self._check_space(frame, len(x_world), surface, "checkpoint" in snap)
         if self.record:
             rf.atomic_save_npz(rf.frame_path(self.out, frame), x=x_world.astype(world), v=v, density=rho,
@@ -164,7 +194,8 @@ class Exporter:
                     primvars["density"] = rho
                 elif name == "pressure" and "pressure" in snap:
                     primvars["pressure"] = snap["pressure"].numpy()
-            self.usd.write_frame(frame, x_world, v, primvars=primvars, surface=surface, bodies=snap.get("bodies"))
+            self.usd.write_frame(frame, x_world, v, primvars=primvars, surface=surface, spray=spray,
+                                 bodies=snap.get("bodies"))
         if "checkpoint" in snap:  # after the frame's outputs: checkpoint k implies frames <= k are saved
             (self.out / "checkpoints").mkdir(exist_ok=True)
             rf.atomic_save_npz(rf.checkpoint_path(self.out, frame), particle_x_local=snap["x"].numpy(),
@@ -364,6 +395,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["stage_times"] = sim.graph.timing_table()
         run_info["export_time"] = exporter.seconds
         run_info["export_wait_time"] = export_wait[0]
+        run_info["export"] = exporter.report()
         run_info["threaded_export"] = worker is not None
         # per step of this session, the first step apart: its stages load (or compile) the kernels
         rows = run_info["stage_times"]

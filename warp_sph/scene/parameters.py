@@ -195,22 +195,36 @@ _TAIL = (
        "body pair on its contact spring (0: sqrt(g / (0.01 r)) with g the magnitude of gravity: a resting body sinks "
        "in by 1 % of r); "
        "Newton steps are at most 1 / (4 w)", ge=0.0, le=1e5, default_text="auto"),
-    # output. Surface defaults, measured on a flat free surface of a rest lattice (cubic kernel,
-    # h = d, calibrated mass): Phi = 0.85 at the last layer's centres, 0.50 at r beyond them (where
-    # the particles' volume N d^3 ends) and 0.15 at d beyond them (quintic: 0.46-0.49 at r). So iso
-    # 0.5 puts the mesh on the fluid's true boundary and keeps its volume. Phi falls 0.85 -> 0.15
-    # over one spacing; cells of 0.5 r = d/4 put four cells on that ramp (splashsurf's usual
-    # cube size is 0.5 r too); cost grows as 1/cell^3, so previews may use 1.0 or 2.0.
+    # output. Surface (warp_sph/surface/reconstruction.py): Phi = sum_j f_j / rho~_j with
+    # f = (1 - r^2/R^2)^5 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
+    # the bulk); on a rest lattice the 0.6 level lies 1.0 r beyond the last particle layer (ripple
+    # 0.007 r), splashsurf's default level. Cells of 0.5 r are splashsurf's usual cube size; the
+    # cost grows with the surface area / cell^2 (sparse narrow band). Defaults: the default dam break's
+    # USD at 28.6 MB instead of 104 MB, frame 13 as smooth as at 0.5 r (benchmarks/results/surface_*).
     _P("output", "table", "-", {}, "what a run writes"),
     _P("output.usd", "bool", "-", True, "write a USD stage (points, and the surface mesh if surface)"),
     _P("output.surface", "bool", "-", True, "reconstruct the fluid surface (marching cubes)"),
-    _P("output.surface_cell_per_radius", "float", "-", 0.75, "surface grid cell size / r (0.75: "
-       "sphere volume within 0.3 %, 3x cheaper than 0.5)", ge=0.1, le=4.0),
-    _P("output.surface_method", "str", "-", "marching_cubes", "iso-surface extraction: Warp's "
-       "marching cubes, or surface nets (4-5x faster extraction, same quality checks)",
-       choices=("marching_cubes", "surface_nets")),
-    _P("output.surface_iso", "float", "-", 0.5, "iso level of Phi = sum_j m_j/rho_j W_ij (1 inside "
-       "the fluid; 0.5 lies r beyond the last particle layer)", gt=0.0, lt=1.0),
+    _P("output.surface_cell_per_radius", "float", "-", 1.0, "surface grid cell size / r (1.0: once "
+       "smoothed and decimated, no visible difference from 0.5 in a render, 4x cheaper)", ge=0.1, le=4.0),
+    _P("output.surface_method", "str", "-", "marching_cubes", "iso-surface extraction: marching cubes "
+       "on the sparse narrow band (Warp's case table)", choices=("marching_cubes",)),
+    _P("output.surface_iso", "float", "-", 0.6, "iso level of Phi = sum_j f_j/rho~_j (1 inside the "
+       "fluid; 0.6 lies 1.0 r beyond the last particle layer, splashsurf's default)", gt=0.0, lt=1.0),
+    _P("output.surface_spray_neighbors", "int", "-", 5, "particles with fewer fluid neighbours than "
+       "this within the kernel support are spray: written as points to /sph/spray, left out of the "
+       "surface (0: no spray)", ge=0),
+    _P("output.surface_smoothing_iterations", "int", "-", 15, "feature-weighted Laplacian smoothing "
+       "steps of the surface, volume restored after them (removes the particle-scale ridges, keeps "
+       "droplets and thin sheets; 0: raw marching cubes)", ge=0),
+    _P("output.surface_decimation_error", "float", "-", 0.5, "decimate the smoothed surface by edge "
+       "collapses (quadric error) that keep each merged vertex within this distance of the planes of "
+       "all the faces it replaces, in particle radii (0: no decimation)", ge=0.0),
+    _P("output.surface_triangle_budget", "int", "-", 0, "decimate until the surface has at most this "
+       "many triangles per frame, within the error bound if one is set (0: no budget)", ge=0),
+    _P("output.surface_normal_smoothing_iterations", "int", "-", 10, "one-ring averaging steps of "
+       "the surface's vertex normals", ge=0),
+    _P("output.surface_normals", "bool", "-", True, "write vertex normals (primvars:normals: smooth "
+       "shading in Blender without modifiers)"),
     _P("output.mesh_sequence", "str", "-", "", "also write one surface mesh file per frame "
        "('' for none; needs output.surface = true)", choices=MESH_SEQUENCE_FORMATS),
     _P("output.particle_primvars", "str_list", "-", ("density",), "per-particle fields written to USD",

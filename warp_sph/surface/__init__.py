@@ -1,4 +1,6 @@
-"""Fluid surface reconstruction from particles."""
-from .reconstruction import DEFAULT_CELL_PER_RADIUS, DEFAULT_ISO_LEVEL, SurfaceReconstructor
+"""Fluid surface reconstruction from particles (sparse narrow-band grid, marching cubes, smoothing)."""
+from .reconstruction import (DEFAULT_CELL_PER_RADIUS, DEFAULT_ISO_LEVEL, DEFAULT_SPRAY_NEIGHBORS, SurfaceFrame,
+                             SurfaceReconstructor, surface_settings)
 
-__all__ = ["DEFAULT_CELL_PER_RADIUS", "DEFAULT_ISO_LEVEL", "SurfaceReconstructor"]
+__all__ = ["DEFAULT_CELL_PER_RADIUS", "DEFAULT_ISO_LEVEL", "DEFAULT_SPRAY_NEIGHBORS", "SurfaceFrame",
+           "SurfaceReconstructor", "surface_settings"]

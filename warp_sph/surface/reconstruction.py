@@ -1,244 +1,224 @@
-"""Fluid surface reconstruction: splatted colour field on a dense grid + marching cubes.
+"""Fluid surface reconstruction: spray split, colour field on a sparse narrow band, marching cubes,
+feature-weighted smoothing, optional decimation and vertex normals.
 
-Device code: ``kernels/surface.py``. Steps per call of :meth:`SurfaceReconstructor.extract`:
+Stages of :meth:`SurfaceReconstructor.reconstruct` (each timed, ``SurfaceFrame.timings``):
 
-1. bounding box of the particles on the device (atomic min / max), one host read of 6 floats;
-2. a dense grid over that box plus a margin of (support radius + one cell) on every side, so the
-   field is exactly 0 on the outer nodes and every iso-surface closes inside the grid;
-3. the colour field Phi(x) = sum_j (m_j / rho_j) W(|x - x_j|, h) (report eq. 25) splatted from the
-   particles onto the nodes;
-4. the iso-surface Phi = iso_level by ``warp.geometry.IsoSurfaceMarchingCubes`` (or
-   ``IsoSurfaceNets``), in grid-index coordinates;
-5. host post-processing (numpy): outward winding, welding of vertices that sit on a grid node,
-   removal of degenerate and cancelling triangles, unreferenced vertices, and the map from grid
-   units to metres.
+1. ``particles``: particles sorted into blocks of grid nodes; per particle its neighbour count,
+   weighted neighbour count and rho~ (``grid.py``). Spray: fewer than ``spray_neighbors``
+   neighbours within the kernel support; spray is left out of the field and returned as points;
+2. ``band``: the blocks that can hold the surface (within a band radius of surface particles),
+   the "inside" and "outside" blocks, and the ghost blocks below the band (``grid.py``);
+3. ``field``: Phi(x) = sum_j f(|x - x_j| / h) / rho~_j (f the kernel's shape; mass and rest density
+   cancel, ~1 inside, 0 outside) on the band's nodes only;
+4. ``extraction``: marching cubes (``marching.py``), welded by construction (one vertex per
+   crossing edge) and wound outward; where the band missed part of the surface the field is
+   rebuilt exact everywhere within the support (``SurfaceFrame.stats["band_fallback"]``);
+5. ``smoothing``: connectivity, feature weights, ``smoothing_iterations`` Taubin steps
+   (``smoothing.py``); 6. ``decimation`` (``decimation.py``, optional); 7. ``normals``.
 
-Why iso = 0.5: Phi ~ 1 inside the fluid (the mass is calibrated so that sum_j (m/rho0) W_ij = 1
-in a perfect lattice) and 0 outside. For a continuous half-space of fluid, Phi on the boundary
-plane is exactly 1/2 by the symmetry of W; a lattice whose last particle layer lies d/2 inside
-that plane (each particle owns a cube of volume d^3 = m/rho) approximates it, so the half level
-sits at the fluid boundary and encloses the volume N m / rho. Measured (cubic, h = 2r, sphere of
-particles R = 15 r, tests/test_surface.py): iso 0.5 gives the sphere volume within -0.3 %
-(cell 0.5 r), -0.3 % (0.75 r), -0.5 % (1.0 r); iso 0.4 / 0.6 give +5.5 % / -5.8 %.
-
-Why cell = 0.75 r by default: 0.5 r costs ~2-3x more (field and extraction scale with the
-node count) for no measurable volume gain; 1.0 r is faster still but faceted (2 cells per particle
-spacing, where the field varies on the scale of h).
+Why iso 0.6 and this Phi: with rho~ from the same kernel, unclamped and without walls, Phi is 1 in
+the bulk whatever the solver's density, and a flat free surface crosses 0.6 about r beyond the last
+particle layer (splashsurf's default and convention, notes/surface.md). The previous Phi = sum m/rho
+W with the solver's (clamped) density put the 0.5 level exactly on planes of grid nodes for a rest
+lattice, which multiplied triangles there by ~2.5.
 """
 from __future__ import annotations
 
-import math
-import warnings
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
-import warp.geometry
 
-from ..core.errors import SceneError, SimulationError
-from ..kernels import surface as _dev
-from ..core.smoothing import get_smoothing_kernel
+from ..core.errors import SceneError
+from .grid import SparseGrid, split_launches
+from .marching import MarchingCubes
+from .smoothing import SMOOTHING_SCHEMES, MeshSmoother, splashsurf_normalization
 
 #: default grid cell size per particle radius (scene key ``output.surface_cell_per_radius``)
-DEFAULT_CELL_PER_RADIUS = 0.75
+DEFAULT_CELL_PER_RADIUS = 1.0
 #: default iso level of Phi (scene key ``output.surface_iso``)
-DEFAULT_ISO_LEVEL = 0.5
-#: largest dense grid, in nodes, before the cell is coarsened. Marching cubes needs about
-#: 40 B per node (field, per-edge counts, scans and vertex ids), so 2^25 nodes ~ 1.3 GB.
-DEFAULT_MAX_GRID_NODES = 2**25
+DEFAULT_ISO_LEVEL = 0.6
+#: default spray threshold: neighbours within the kernel support (``output.surface_spray_neighbors``)
+DEFAULT_SPRAY_NEIGHBORS = 5
+#: default smoothing iterations (``output.surface_smoothing_iterations``)
+DEFAULT_SMOOTHING_ITERATIONS = 15
+#: default decimation error bound [r] (``output.surface_decimation_error``; 0: no decimation)
+DEFAULT_DECIMATION_ERROR = 0.5
+#: default normal smoothing iterations (``output.surface_normal_smoothing_iterations``)
+DEFAULT_NORMAL_SMOOTHING_ITERATIONS = 10
 
-_METHODS = {
-    "marching_cubes": warp.geometry.IsoSurfaceMarchingCubes,
-    "surface_nets": warp.geometry.IsoSurfaceNets,
-}
+STAGES = ("particles", "band", "field", "extraction", "smoothing", "decimation", "normals")
 
-# a vertex closer than this (grid units, per axis) to a node is snapped onto it and welded
-_SNAP = 1.0e-4
+
+@dataclass
+class SurfaceFrame:
+    """One frame's surface, in the coordinates of the particles given.
+
+    vertices: (V, 3) float32 [m]; triangles: (T, 3) int32, counter-clockwise seen from outside;
+    normals: (V, 3) float32 unit vertex normals, or None; spray: (N,) bool per particle (True: spray,
+    not in the mesh); timings: seconds per stage; stats: counts (band blocks, raw triangles, ...).
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    normals: np.ndarray | None
+    spray: np.ndarray
+    timings: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
 
 
 class SurfaceReconstructor:
-    """Triangle mesh of the fluid surface from particle positions and densities.
+    """Triangle mesh of the fluid surface and the spray particles, from particle positions.
 
     Args:
-        smoothing: smoothing kernel name ("cubic", "quintic", "quadric").
+        smoothing: smoothing kernel name ("cubic", "quintic", "quadric"); Phi uses its shape.
         h: smoothing length [m].
-        particle_mass: particle mass m [kg].
         particle_radius: particle radius r [m] (spacing d = 2 r).
-        cell_size: grid cell edge [m]; default DEFAULT_CELL_PER_RADIUS * r = 0.75 r.
-        iso_level: level of Phi (dimensionless, 0 < iso < 1) taken as the surface; default 0.5.
+        cell_size: grid cell edge [m]; DEFAULT_CELL_PER_RADIUS * r by default in scenes.
+        iso_level: level of Phi taken as the surface, 0 < iso < 1 (default 0.6).
         device: Warp device.
-        method: "marching_cubes" (default) or "surface_nets".
-        max_grid_nodes: beyond this many grid nodes the cell is coarsened (with a warning) so the
-            grid holds at most this many nodes.
+        spray_neighbors: particles with fewer neighbours within the kernel support are spray
+            (0: no spray, every particle is meshed).
+        smoothing_iterations: feature-weighted smoothing iterations (0: raw marching cubes).
+        smoothing_scheme: "taubin" (volume-preserving pair per iteration) or "laplacian" (splashsurf).
+        normal_smoothing_iterations: one-ring averaging steps of the vertex normals.
+        normals: compute vertex normals.
+        decimation: None, or a :class:`~warp_sph.surface.decimation.Decimator` applied after smoothing.
+        split_threads: split kernels over the CPU threads (off for a reconstruction running beside
+            the simulation, which keeps the cores busy).
+        narrow_band: evaluate Phi only near surface particles (off: on every block within the support
+            radius of a particle; the same mesh, slower: tests/test_surface.py).
     """
 
-    def __init__(
-        self,
-        smoothing: str,
-        h: float,
-        particle_mass: float,
-        particle_radius: float,
-        cell_size: float,
-        iso_level: float = DEFAULT_ISO_LEVEL,
-        device="cpu",
-        method: str = "marching_cubes",
-        max_grid_nodes: int = DEFAULT_MAX_GRID_NODES,
-    ):
-        kernel = get_smoothing_kernel(smoothing)
-        if not (h > 0.0 and particle_mass > 0.0 and particle_radius > 0.0 and cell_size > 0.0):
-            raise SceneError(
-                f"surface reconstruction needs h, particle_mass, particle_radius and cell_size > 0; got "
-                f"h={h}, particle_mass={particle_mass}, particle_radius={particle_radius}, cell_size={cell_size}"
-            )
+    def __init__(self, smoothing: str, h: float, particle_radius: float, cell_size: float,
+                 iso_level: float = DEFAULT_ISO_LEVEL, device="cpu", *,
+                 spray_neighbors: int = DEFAULT_SPRAY_NEIGHBORS,
+                 smoothing_iterations: int = DEFAULT_SMOOTHING_ITERATIONS, smoothing_scheme: str = "laplacian",
+                 normal_smoothing_iterations: int = DEFAULT_NORMAL_SMOOTHING_ITERATIONS, normals: bool = True,
+                 decimation=None, split_threads: bool = True, narrow_band: bool = True):
+        if not (h > 0.0 and particle_radius > 0.0 and cell_size > 0.0):
+            raise SceneError(f"surface reconstruction needs h, particle_radius and cell_size > 0; got h={h}, "
+                             f"particle_radius={particle_radius}, cell_size={cell_size}")
         if not 0.0 < iso_level < 1.0:
             raise SceneError(f"surface iso level must lie in (0, 1) (Phi ~ 1 inside the fluid); got {iso_level}")
-        if method not in _METHODS:
-            raise SceneError(f"unknown surface method {method!r}; expected one of {', '.join(_METHODS)}")
-        self.smoothing = smoothing
-        self.h = float(h)
-        self.support_radius = kernel.support_radius(self.h)
-        self.particle_mass = float(particle_mass)
+        if smoothing_scheme not in SMOOTHING_SCHEMES:
+            raise SceneError(f"unknown surface smoothing scheme {smoothing_scheme!r}; expected one of "
+                             f"{', '.join(SMOOTHING_SCHEMES)}")
+        if spray_neighbors < 0 or smoothing_iterations < 0 or normal_smoothing_iterations < 0:
+            raise SceneError("surface spray_neighbors and smoothing iterations must be >= 0")
+        self.device = wp.get_device(device)
+        self.iso_level = float(iso_level)
         self.particle_radius = float(particle_radius)
         self.cell_size = float(cell_size)
-        self.iso_level = float(iso_level)
-        self.device = wp.get_device(device)
-        self.method = method
-        self.max_grid_nodes = int(max_grid_nodes)
-        self._splat = _dev.splat_field_kernel(smoothing)
-        self._bounds = wp.empty(7, dtype=float, device=self.device)
-        self._bounds_init = wp.array([math.inf] * 3 + [-math.inf] * 3 + [0.0], dtype=float, device=self.device)
-        self._field: wp.array | None = None
-        #: grid of the last call: origin [m] (float64), cell size [m], node counts
-        self.grid_origin = np.zeros(3)
-        self.grid_cell_size = self.cell_size
-        self.grid_shape = (0, 0, 0)
+        self.smoothing_iterations = int(smoothing_iterations)
+        self.smoothing_scheme = smoothing_scheme
+        self.normal_smoothing_iterations = int(normal_smoothing_iterations)
+        self.with_normals = bool(normals)
+        self.decimation = decimation
+        self.split_threads = bool(split_threads)
+        self.narrow_band = bool(narrow_band)
+        self.grid = SparseGrid(smoothing, h, particle_radius, cell_size, spray_neighbors=spray_neighbors,
+                               device=self.device)
+        self.support_radius = self.grid.support_radius
+        self.marching = MarchingCubes(self.device)
+        self.smoother = MeshSmoother(smoothing, h, self.support_radius,
+                                     splashsurf_normalization(self.support_radius, particle_radius), self.device)
 
-    # -- steps -------------------------------------------------------------------------------
-    def particle_bounds(self, particle_x: wp.array) -> tuple[np.ndarray, np.ndarray]:
-        """(lower, upper) corners of the particles' bounding box [m], reduced on the device."""
-        wp.copy(self._bounds, self._bounds_init)
-        wp.launch(_dev.particle_bounds, dim=len(particle_x), inputs=[particle_x], outputs=[self._bounds],
-                  device=self.device)
-        bounds = self._bounds.numpy().astype(np.float64)  # the one host read per call
-        if bounds[6] > 0 or not np.all(np.isfinite(bounds[:6])):
-            raise SimulationError(f"surface reconstruction: {int(bounds[6])} particle positions are not finite")
-        return bounds[:3], bounds[3:6]
+    def _tick(self, timings: dict, stage: str, t0: float) -> float:
+        wp.synchronize_device(self.device)
+        t = time.perf_counter()
+        timings[stage] = timings.get(stage, 0.0) + (t - t0)
+        return t
 
-    def _plan_grid(self, lower: np.ndarray, upper: np.ndarray) -> None:
-        """Grid over [lower, upper] + margin (support radius + one cell) on every side.
-
-        Where that grid would exceed ``max_grid_nodes`` the cell is coarsened for this call (with
-        a RuntimeWarning) until it fits, so memory stays bounded whatever the fluid's extent.
-        """
-        cell = self.cell_size
-        requested = None
+    def reconstruct(self, particle_x: wp.array) -> SurfaceFrame:
+        """Surface mesh and spray of the particles at ``particle_x`` [m] (wp.array of vec3, shape (N,))."""
+        n = len(particle_x)
+        timings = {s: 0.0 for s in STAGES}
+        empty = SurfaceFrame(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32),
+                             np.zeros((0, 3), np.float32) if self.with_normals else None, np.zeros(n, bool), timings,
+                             {"raw_triangles": 0, "band_fallback": 0})
+        if n == 0:
+            return empty
+        split_launches(self.split_threads)
+        grid, mc = self.grid, self.marching
+        t = time.perf_counter()
+        grid.build(particle_x)
+        spray = grid.spray_mask()
+        t = self._tick(timings, "particles", t)
+        stats = {"spray": int(spray.sum()), "band_fallback": 0}
+        if spray.all():
+            empty.spray = spray
+            empty.stats.update(stats)
+            return empty
+        exact = not self.narrow_band
         while True:
-            margin = self.support_radius + cell
-            shape = np.ceil((upper - lower + 2.0 * margin) / cell).astype(np.int64) + 1
-            nodes = int(np.prod(shape))
-            if nodes <= self.max_grid_nodes:
+            consistent = grid.classify(exact=exact)
+            t = self._tick(timings, "band", t)
+            inexact = 0
+            if consistent:
+                grid.compute_field()
+                t = self._tick(timings, "field", t)
+                inexact = mc.count(grid, self.iso_level)
+                t = self._tick(timings, "extraction", t)
+            if exact or (consistent and inexact == 0):
                 break
-            requested = requested or nodes
-            cell *= 1.02 * (nodes / self.max_grid_nodes) ** (1.0 / 3.0)
-        if requested is not None:
-            warnings.warn(
-                f"surface grid of {requested:,} nodes exceeds max_grid_nodes={self.max_grid_nodes:,}; "
-                f"cell coarsened from {self.cell_size:.4g} m to {cell:.4g} m for this frame",
-                RuntimeWarning,
-                stacklevel=4,
-            )
-        # float32-representable origin and cell: the device works in float32, the host maps the
-        # mesh back to metres in float64 with exactly the same numbers
-        self.grid_cell_size = float(np.float32(cell))
-        self.grid_origin = (lower - margin).astype(np.float32).astype(np.float64)
-        self.grid_shape = tuple(int(n) for n in shape)
+            exact = True  # the band missed part of the surface: exact everywhere within the support
+            stats["band_fallback"] = 1
+        vertex_x, vertex_block, triangles = mc.extract(grid, self.iso_level)
+        t = self._tick(timings, "extraction", t)
+        stats.update(candidate_blocks=grid.candidate_count, meshed_blocks=grid.meshed_count,
+                     band_blocks=int(grid.meshed_band.numpy()[: grid.meshed_count].sum()),
+                     block_nodes=grid.block_nodes, raw_vertices=len(vertex_x), raw_triangles=len(triangles))
+        sm = self.smoother
+        conn = None
+        if self.smoothing_iterations > 0 and len(triangles):
+            conn = sm.connectivity.build(len(vertex_x), triangles)
+            w = sm.weights(grid, vertex_x, vertex_block)
+            vertex_x = sm.smooth(vertex_x, w, conn, self.smoothing_iterations, self.smoothing_scheme, triangles)
+            t = self._tick(timings, "smoothing", t)
+        if self.decimation is not None and len(triangles):
+            vertex_x, triangles = self.decimation.decimate(vertex_x, triangles)
+            conn = None
+            t = self._tick(timings, "decimation", t)
+        normals = None
+        if self.with_normals:
+            if len(triangles):
+                if conn is None:
+                    conn = sm.connectivity.build(len(vertex_x), triangles)
+                normals = sm.normals(vertex_x, triangles, conn, self.normal_smoothing_iterations).numpy()
+            else:
+                normals = np.zeros((0, 3), np.float32)
+        verts = vertex_x.numpy()
+        tris = triangles.numpy().reshape(-1, 3)
+        t = self._tick(timings, "normals", t)
+        stats.update(vertices=len(verts), triangles=len(tris))
+        return SurfaceFrame(verts, tris, normals, spray, timings, stats)
 
-    def compute_field(self, particle_x: wp.array, particle_density: wp.array) -> wp.array:
-        """Plan the grid around the particles and splat Phi onto its nodes; returns the 3D field.
-
-        Phi(x_node) = sum_j (m / rho_j) W(|x_node - x_j|, h) (report eq. 25), dimensionless.
-        """
-        lower, upper = self.particle_bounds(particle_x)
-        self._plan_grid(lower, upper)
-        if self._field is None or self._field.shape != self.grid_shape:
-            self._field = wp.zeros(self.grid_shape, dtype=float, device=self.device)
-            self._field_flat = self._field.flatten()
-        else:
-            self._field.zero_()
-        wp.launch(
-            self._splat,
-            dim=len(particle_x),
-            inputs=[self.particle_mass, self.h, self.support_radius, particle_x, particle_density,
-                    wp.vec3(*self.grid_origin), self.grid_cell_size, *self.grid_shape],
-            outputs=[self._field_flat],
-            device=self.device,
-        )
-        return self._field
-
-    def extract(self, particle_x: wp.array, particle_density: wp.array) -> tuple[np.ndarray, np.ndarray]:
-        """Surface mesh of the fluid.
-
-        Args:
-            particle_x: positions [m], wp.array of vec3, shape (N,).
-            particle_density: densities [kg/m^3], shape (N,).
-
-        Returns:
-            vertices (V, 3) float32 [m] and triangles (T, 3) int32, wound counter-clockwise seen
-            from outside (outward normals), welded (a closed blob is watertight: every edge in
-            exactly two triangles), without triangles that repeat a vertex or have zero area.
-            No particles give an empty mesh.
-        """
-        if len(particle_x) != len(particle_density):
-            raise ValueError(f"{len(particle_x)} positions but {len(particle_density)} densities")
-        if len(particle_x) == 0:
-            return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)
-        field = self.compute_field(particle_x, particle_density)
-        # grid-index coordinates (node (i, j, k) at (i, j, k)): exact node positions for welding
-        verts, indices = _METHODS[self.method].extract(field, self.iso_level)
-        return self._finish(verts.numpy(), indices.numpy())
-
-    # -- host post-processing ----------------------------------------------------------------
-    def _finish(self, g: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Orient, weld and clean the raw extractor output (grid units) and map it to metres."""
-        # Warp's extractors wind CCW seen from outside where the field is *below* the threshold
-        # inside (signed-distance convention); Phi is above it inside, so reverse every triangle.
-        tris = indices.reshape(-1, 3)[:, ::-1].astype(np.int64)
-        if len(tris) == 0:
-            return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)
-        if self.method == "marching_cubes":
-            # A vertex whose edge parameter is 0 or 1 (up to rounding) sits on a grid node, and the
-            # vertices of the other edges of that node share its position but not its index: snap
-            # them onto the node exactly so the weld below merges them.
-            node = np.rint(g)
-            on_node = np.all(np.abs(g - node) < _SNAP, axis=1)
-            g = np.where(on_node[:, None], node, g)
-        verts = (self.grid_origin + g * self.grid_cell_size).astype(np.float32)  # [m]
-        degenerate = _degenerate(verts, tris)
-        if degenerate.any():
-            # zero-area triangles come from coincident vertices: weld equal positions, then drop the
-            # triangles that now repeat a vertex and the pairs folded onto each other
-            _, first, inverse = np.unique(verts, axis=0, return_index=True, return_inverse=True)
-            tris = first[inverse.reshape(-1)][tris]
-            tris = tris[~_repeats_vertex(tris)]
-            srt = np.sort(tris, axis=1)
-            _, inv, counts = np.unique(srt, axis=0, return_inverse=True, return_counts=True)
-            tris = tris[counts[inv.reshape(-1)] == 1]
-            tris = tris[~_degenerate(verts, tris)]  # collinear leftovers, if any
-        # drop unreferenced vertices
-        used = np.zeros(len(verts), dtype=bool)
-        used[tris.reshape(-1)] = True
-        if used.all():
-            return verts, tris.astype(np.int32)
-        remap = np.cumsum(used, dtype=np.int64) - 1
-        return np.ascontiguousarray(verts[used]), remap[tris].astype(np.int32)
+    def extract(self, particle_x: wp.array) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices (V, 3) float32 [m] and triangles (T, 3) int32 of :meth:`reconstruct`."""
+        frame = self.reconstruct(particle_x)
+        return frame.vertices, frame.triangles
 
 
-def _repeats_vertex(tris: np.ndarray) -> np.ndarray:
-    return (tris[:, 0] == tris[:, 1]) | (tris[:, 1] == tris[:, 2]) | (tris[:, 0] == tris[:, 2])
+def surface_settings(output, particle_radius: float) -> dict:
+    """Keyword arguments of :class:`SurfaceReconstructor` from a scene's ``output`` settings (an
+    ``OutputParams`` or its dict form), except the kernel and device."""
+    get = output.get if isinstance(output, dict) else (lambda k, d=None: getattr(output, k, d))
+    budget = int(get("surface_triangle_budget", 0) or 0)
+    error = float(get("surface_decimation_error", DEFAULT_DECIMATION_ERROR) or 0.0)
+    decimation = None
+    if budget or error:
+        from .decimation import Decimator
 
-
-def _degenerate(verts: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """Triangles that repeat a vertex index or have zero area in the given (float32) coordinates."""
-    v = verts.astype(np.float64)
-    a = v[tris[:, 0]]
-    cross = np.cross(v[tris[:, 1]] - a, v[tris[:, 2]] - a)
-    return _repeats_vertex(tris) | ~np.any(cross != 0.0, axis=1)
+        decimation = Decimator(max_error=error * particle_radius, triangle_budget=budget, length_scale=particle_radius)
+    return dict(
+        cell_size=float(get("surface_cell_per_radius", DEFAULT_CELL_PER_RADIUS)) * particle_radius,
+        iso_level=float(get("surface_iso", DEFAULT_ISO_LEVEL)),
+        spray_neighbors=int(get("surface_spray_neighbors", DEFAULT_SPRAY_NEIGHBORS)),
+        smoothing_iterations=int(get("surface_smoothing_iterations", DEFAULT_SMOOTHING_ITERATIONS)),
+        normal_smoothing_iterations=int(get("surface_normal_smoothing_iterations",
+                                            DEFAULT_NORMAL_SMOOTHING_ITERATIONS)),
+        normals=bool(get("surface_normals", True)),
+        decimation=decimation,
+    )

@@ -1,0 +1,285 @@
+"""Device code of the surface mesh post-processing: connectivity, feature weights, weighted
+Laplacian smoothing of positions, vertex normals and their smoothing.
+
+Feature-weighted smoothing after Loeschner, Boettcher, Jeske & Bender (VMV 2023, as in splashsurf):
+each vertex gets w = smoothstep(n_v / N) from the weighted neighbour count n of the particles
+around it, so vertices near well-supported particles (flat, bulk fluid) are smoothed fully and
+those near thin sheets, jets and droplets (few neighbours) barely move. Host launcher:
+``warp_sph/surface/smoothing.py``.
+"""
+import warp as wp
+
+from .surface_grid import field_kernel, row_range
+
+
+@wp.kernel(enable_backward=False)
+def count_vertex_faces(
+    # In:
+    triangles: wp.array(dtype=wp.vec3i),
+    # Out: faces per vertex (pre-zeroed; atomic, a serial launch on the CPU)
+    vertex_face_count_out: wp.array(dtype=wp.int32),
+):
+    t = wp.tid()
+    tri = triangles[t]
+    for m in range(3):
+        wp.atomic_add(vertex_face_count_out, tri[m], 1)
+
+
+@wp.kernel(enable_backward=False)
+def fill_vertex_faces(
+    # In:
+    triangles: wp.array(dtype=wp.vec3i),
+    vertex_face_start: wp.array(dtype=wp.int32),
+    # Out: cursor per vertex (pre-zeroed) and the faces of each vertex in [start, start + count)
+    vertex_face_cursor_out: wp.array(dtype=wp.int32),
+    vertex_face_out: wp.array(dtype=wp.int32),
+):
+    """Vertex -> face lists (atomic cursors: a serial launch on the CPU; the order of a list is
+    made deterministic afterwards by ``vertex_neighbors``)."""
+    t = wp.tid()
+    tri = triangles[t]
+    for m in range(3):
+        v = tri[m]
+        slot = wp.atomic_add(vertex_face_cursor_out, v, 1)
+        vertex_face_out[vertex_face_start[v] + slot] = t
+
+
+@wp.kernel(enable_backward=False)
+def vertex_neighbors(
+    tid_offset: int,
+    # In:
+    triangles: wp.array(dtype=wp.vec3i),
+    vertex_face_start: wp.array(dtype=wp.int32),
+    vertex_face_count: wp.array(dtype=wp.int32),
+    # Out: sorted faces of each vertex (in place) and its distinct neighbours, sorted, at
+    # [2 start, 2 start + count) (a vertex of k faces has at most 2 k neighbours)
+    vertex_face_io: wp.array(dtype=wp.int32),
+    neighbor_out: wp.array(dtype=wp.int32),
+    neighbor_count_out: wp.array(dtype=wp.int32),
+):
+    v = wp.tid() + tid_offset
+    start = vertex_face_start[v]
+    n = vertex_face_count[v]
+    # insertion sort of the (few) faces: a deterministic order whatever the fill order was
+    a = start + 1
+    while a < start + n:
+        f = vertex_face_io[a]
+        b = a - 1
+        while b >= start and vertex_face_io[b] > f:
+            vertex_face_io[b + 1] = vertex_face_io[b]
+            b -= 1
+        vertex_face_io[b + 1] = f
+        a += 1
+    base = 2 * start
+    count = int(0)
+    s = start
+    while s < start + n:
+        tri = triangles[vertex_face_io[s]]
+        for m in range(3):
+            u = tri[m]
+            if u != v:
+                # insert u into the sorted list unless present
+                b = base + count - 1
+                while b >= base and neighbor_out[b] > u:
+                    b -= 1
+                if b < base or neighbor_out[b] != u:
+                    e = base + count
+                    while e > b + 1:
+                        neighbor_out[e] = neighbor_out[e - 1]
+                        e -= 1
+                    neighbor_out[b + 1] = u
+                    count += 1
+        s += 1
+    neighbor_count_out[v] = count
+
+
+@wp.kernel(enable_backward=False)
+def feature_weights(
+    tid_offset: int,
+    # Model:
+    support_radius: float,
+    weighted_count_normalization: float,
+    # In:
+    vertex_x: wp.array(dtype=wp.vec3),
+    vertex_block: wp.array(dtype=wp.int32),
+    block_neighbor: wp.array2d(dtype=wp.int32),
+    block_start: wp.array(dtype=wp.int32),
+    block_count: wp.array(dtype=wp.int32),
+    sorted_x: wp.array(dtype=wp.vec3),
+    weighted_count: wp.array(dtype=float),
+    inv_kernel_sum: wp.array(dtype=float),
+    # Out: w in [0, 1] per vertex
+    vertex_weight_out: wp.array(dtype=float),
+):
+    """n_v = sum_j V_j n_j f_vj / sum_j V_j f_vj (Shepard-normalised interpolation with the field kernel f,
+    V_j = 1 / rho~_j, spray excluded), x = clamp(n_v / N, 0, 1), w = 6 x^5 - 15 x^4 + 10 x^3."""
+    v = wp.tid() + tid_offset
+    xv = vertex_x[v]
+    c = vertex_block[v]
+    r2max = support_radius * support_radius
+    inv_r2max = 1.0 / r2max
+    num = float(0.0)
+    den = float(0.0)
+    for row in range(9):
+        rng = row_range(block_neighbor, block_start, block_count, c, row)
+        t = rng[0]
+        while t < rng[1]:
+            d = sorted_x[t] - xv
+            r2 = wp.dot(d, d)
+            vol = inv_kernel_sum[t]
+            if r2 < r2max and vol > 0.0:
+                f = vol * field_kernel(r2, inv_r2max)
+                num += f * weighted_count[t]
+                den += f
+            t += 1
+    x = float(0.0)
+    if den > 0.0:
+        x = wp.clamp(num / den / weighted_count_normalization, 0.0, 1.0)
+    vertex_weight_out[v] = x * x * x * (10.0 + x * (6.0 * x - 15.0))
+
+
+
+@wp.kernel(enable_backward=False)
+def laplacian_step(
+    tid_offset: int,
+    # Parameters: step factor (beta = 1 for splashsurf's weighted Laplacian; Taubin's lambda / mu)
+    beta: float,
+    # In:
+    vertex_x: wp.array(dtype=wp.vec3),
+    vertex_weight: wp.array(dtype=float),
+    vertex_face_start: wp.array(dtype=wp.int32),
+    neighbor: wp.array(dtype=wp.int32),
+    neighbor_count: wp.array(dtype=wp.int32),
+    # Out:
+    vertex_x_out: wp.array(dtype=wp.vec3),
+):
+    """x_v <- x_v + beta w_v (mean of the one ring - x_v) (Jacobi: reads one buffer, writes another)."""
+    v = wp.tid() + tid_offset
+    x = vertex_x[v]
+    n = neighbor_count[v]
+    base = 2 * vertex_face_start[v]
+    if n == 0:
+        vertex_x_out[v] = x
+        return
+    acc = wp.vec3(0.0)
+    s = base
+    while s < base + n:
+        acc += vertex_x[neighbor[s]]
+        s += 1
+    vertex_x_out[v] = x + (beta * vertex_weight[v]) * (acc / float(n) - x)
+
+
+@wp.kernel(enable_backward=False)
+def vertex_normals(
+    tid_offset: int,
+    # In:
+    vertex_x: wp.array(dtype=wp.vec3),
+    triangles: wp.array(dtype=wp.vec3i),
+    vertex_face_start: wp.array(dtype=wp.int32),
+    vertex_face_count: wp.array(dtype=wp.int32),
+    vertex_face: wp.array(dtype=wp.int32),
+    # Out: unit area-weighted normals (zero for an isolated vertex)
+    vertex_normal_out: wp.array(dtype=wp.vec3),
+):
+    """n_v = normalize(sum over the faces of v of (x_b - x_a) x (x_c - x_a)) (area weighted)."""
+    v = wp.tid() + tid_offset
+    start = vertex_face_start[v]
+    acc = wp.vec3(0.0)
+    s = start
+    while s < start + vertex_face_count[v]:
+        tri = triangles[vertex_face[s]]
+        a = vertex_x[tri[0]]
+        acc += wp.cross(vertex_x[tri[1]] - a, vertex_x[tri[2]] - a)
+        s += 1
+    length = wp.length(acc)
+    if length > 0.0:
+        acc = acc / length
+    vertex_normal_out[v] = acc
+
+
+@wp.kernel(enable_backward=False)
+def smooth_normals_step(
+    tid_offset: int,
+    # In:
+    vertex_normal: wp.array(dtype=wp.vec3),
+    vertex_face_start: wp.array(dtype=wp.int32),
+    neighbor: wp.array(dtype=wp.int32),
+    neighbor_count: wp.array(dtype=wp.int32),
+    # Out:
+    vertex_normal_out: wp.array(dtype=wp.vec3),
+):
+    """n_v <- normalize(n_v + sum of the one ring's n) (Jacobi)."""
+    v = wp.tid() + tid_offset
+    acc = vertex_normal[v]
+    base = 2 * vertex_face_start[v]
+    s = base
+    while s < base + neighbor_count[v]:
+        acc += vertex_normal[neighbor[s]]
+        s += 1
+    length = wp.length(acc)
+    if length > 0.0:
+        acc = acc / length
+    vertex_normal_out[v] = acc
+
+
+@wp.kernel(enable_backward=False)
+def volume_terms(
+    tid_offset: int,
+    # In:
+    vertex_x: wp.array(dtype=wp.vec3),
+    triangles: wp.array(dtype=wp.vec3i),
+    # Out: per triangle 6 x its signed volume term x_a . (x_b x x_c) [m^3], relative to ``origin`` = x of
+    # vertex 0 (so float32 keeps its precision)
+    triangle_volume_out: wp.array(dtype=float),
+):
+    t = wp.tid() + tid_offset
+    tri = triangles[t]
+    o = vertex_x[0]
+    triangle_volume_out[t] = wp.dot(vertex_x[tri[0]] - o, wp.cross(vertex_x[tri[1]] - o, vertex_x[tri[2]] - o))
+
+
+@wp.kernel(enable_backward=False)
+def weighted_vertex_area(
+    tid_offset: int,
+    # In:
+    vertex_x: wp.array(dtype=wp.vec3),
+    vertex_weight: wp.array(dtype=float),
+    triangles: wp.array(dtype=wp.vec3i),
+    vertex_face_start: wp.array(dtype=wp.int32),
+    vertex_face_count: wp.array(dtype=wp.int32),
+    vertex_face: wp.array(dtype=wp.int32),
+    # Out: w_v A_v, A_v = a third of the area of the faces around v [m^2]; and the unit normal
+    weighted_area_out: wp.array(dtype=float),
+    vertex_normal_out: wp.array(dtype=wp.vec3),
+):
+    v = wp.tid() + tid_offset
+    acc = wp.vec3(0.0)
+    s = vertex_face_start[v]
+    while s < vertex_face_start[v] + vertex_face_count[v]:
+        tri = triangles[vertex_face[s]]
+        a = vertex_x[tri[0]]
+        acc += wp.cross(vertex_x[tri[1]] - a, vertex_x[tri[2]] - a)
+        s += 1
+    length = wp.length(acc)
+    n = wp.vec3(0.0)
+    if length > 0.0:
+        n = acc / length
+    vertex_normal_out[v] = n
+    # sum of face areas = sum |cross| / 2 >= |sum cross| / 2 (equal on a flat fan): good enough for a weight
+    weighted_area_out[v] = vertex_weight[v] * length / 6.0
+
+
+@wp.kernel(enable_backward=False)
+def offset_along_normals(
+    tid_offset: int,
+    # Parameters: offset per unit weight [m]
+    offset: float,
+    # In:
+    vertex_weight: wp.array(dtype=float),
+    vertex_normal: wp.array(dtype=wp.vec3),
+    # In/out:
+    vertex_x_io: wp.array(dtype=wp.vec3),
+):
+    """x_v += offset w_v n_v: gives back the volume smoothing took, where it took it."""
+    v = wp.tid() + tid_offset
+    vertex_x_io[v] = vertex_x_io[v] + (offset * vertex_weight[v]) * vertex_normal[v]
