@@ -8,6 +8,7 @@
     warp-sph bench executors                       # a sweep on the serial executor and on a LocalCluster
     warp-sph bench splishsplash                    # side by side with SPlisHSPlasH (pysplishsplash)
     warp-sph bench surface                         # surface reconstruction per frame
+    warp-sph bench bodies                          # moving rigid bodies against the same static obstacles
     warp-sph bench report                          # RESULTS.md from the JSON lines
 
 Results go to ``runs/bench/`` (JSON lines and ``RESULTS.md``) unless ``--out DIR``; ``--publish``
@@ -213,6 +214,22 @@ def cmd_surface(args, argv: list[str], log=print) -> int:
     return _finish(out, args, records, log)
 
 
+def cmd_bodies(args, argv: list[str], log=print) -> int:
+    from . import bodies as B
+
+    out = _out(args)
+    specs = B.specs(args.scene, args.frames, args.repeats, out / "bodies_as_obstacles", device=args.device,
+                    overrides=args.set)
+    invocation = now()
+    records = _run(specs, args, log)
+    s = B.summary(records)
+    if s:
+        log(f"bodies: {s['bodies_ms']:.3g} ms per step, as static obstacles {s['obstacles_ms']:.3g} ms (fastest of "
+            f"{args.repeats} each): {100 * s['extra']:+.1f} % (goal <= +{100 * B.GOAL:.0f} %: "
+            f"{'met' if s['met'] else 'not met'})")
+    return _finish(_save("bodies", records, args, argv, invocation, log), args, records, log)
+
+
 def _finish(out: Path, args, records: list[dict], log) -> int:
     if not getattr(args, "no_report", False):
         from .report import write_report
@@ -337,6 +354,15 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--repeats", type=int, default=5, help="timed calls per case, the median counts (default 5)")
     u.add_argument("--no-splashsurf", action="store_true", help="warp-sph only")
     u.set_defaults(func=cmd_surface)
+
+    b = sub.add_parser("bodies", help="a scene with moving rigid bodies against the same bodies as static obstacles: "
+                       "cost per step")
+    b.add_argument("--scene", default="floating_bodies", help="scene with [[bodies]] (default: floating_bodies)")
+    b.add_argument("--frames", type=int, default=24, help="frames per run after the initial one (default 24: 1 s)")
+    b.add_argument("--repeats", type=int, default=3,
+                   help="runs of each variant, alternating; the fastest counts (default 3)")
+    common(b)
+    b.set_defaults(func=cmd_bodies)
 
     r = sub.add_parser("report", help="regenerate RESULTS.md, tables and plots from the JSON lines")
     where(r)

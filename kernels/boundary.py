@@ -16,9 +16,10 @@ and one boundary particle b; ``params`` is the method's own ``wp.struct`` of con
     pressure(params, grad_ib, volume_b, p_rho2) -> vec3
         pressure acceleration of i from b [m/s^2] in the symmetric SPH form, given the wall's
         p/rho^2 [m^5/(kg s^2)] (WCSPH: report eq. 16, or mirrored).
-    force(params, x_ib, v_ib, grad_ib, volume_b, rho_i) -> vec3
-        non-pressure acceleration of i from b [m/s^2] (friction, a penalty force); x_ib = x_i - x_b
-        [m], v_ib = v_i - v_b [m/s], rho_i [kg/m^3].
+    force(params, b, x_ib, v_ib, grad_ib, volume_b, rho_i) -> vec3
+        non-pressure acceleration of i from b [m/s^2] (friction, a penalty force); b the boundary
+        particle's index (per-particle constants in ``params``, e.g. a moving body's own friction),
+        x_ib = x_i - x_b [m], v_ib = v_i - v_b [m/s], rho_i [kg/m^3].
 
 ``dissipative``: the force only removes relative motion, so an explicit integrator may clamp it so
 that it never reverses a particle's velocity (friction); a penalty force is not dissipative.

@@ -169,6 +169,9 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
 
     cell_mask (``use_mask``): 0 for cells with no point of the searched set within one cell, so
     a query there finds nothing without visiting any cell (the boundary lists of the interior).
+    index_offset: added to every listed index (the searched set's first index in its arrays);
+    append != 0: the lists already hold neighbours (count per particle), new ones go after them
+    (the moving boundary particles after the static ones); a masked particle then keeps its list.
 
     Rows of cells (fixed y, z) farther than the radius are skipped and each row's x range is trimmed
     to the sphere, so the cells visited hug the sphere (cells may be smaller than the radius). Border
@@ -192,6 +195,8 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
         sorted_weight: wp.array(dtype=float),
         cell_mask: wp.array(dtype=wp.uint8),
         use_mask: int,
+        index_offset: int,
+        append: int,
         search_radius: float,
         # Density sum (with ``smoothing``):
         smoothing_length: float,
@@ -211,7 +216,8 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
         if use_mask != 0:
             c = cell_of(xi, grid_lo, inv_cell_size, grid_dims)
             if cell_mask[c[0] + grid_dims[0] * (c[1] + grid_dims[1] * c[2])] == wp.uint8(0):
-                neighbor_count_out[i] = 0
+                if append == 0:
+                    neighbor_count_out[i] = 0
                 return
         q = (xi - grid_lo) * inv_cell_size
         qr = search_radius * inv_cell_size
@@ -222,6 +228,8 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
         z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
         z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
         n = int(0)
+        if append != 0:
+            n = neighbor_count_out[i]
         total = float(0.0)
         for z in range(z0, z1 + 1):
             dz = float(0.0)  # distance from xi to the slab of cells z (in cells)
@@ -248,7 +256,7 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
                         dd = wp.dot(d, d)
                         if dd < radius2:
                             if n < capacity:
-                                neighbor_index_out[i, n] = cell_point[k]
+                                neighbor_index_out[i, n] = cell_point[k] + index_offset
                             n += 1
                             if wp.static(with_density):
                                 w = wp.static(value)(wp.sqrt(dd), smoothing_length)
@@ -264,8 +272,37 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
             if wp.static(boundary_density):
                 rho = density_out[i] + rho
             density_out[i] = rho
+        # (append: a second searched set, e.g. the moving boundary particles after the static ones, adds
+        # its neighbours after those already listed, with indices index_offset + its own, and its density)
 
     return build_neighbor_list
+
+
+@wp.kernel(enable_backward=False)
+def mark_near_cells(
+    tid_offset: int,
+    # Grid:
+    grid_lo: wp.vec3,
+    inv_cell_size: float,
+    grid_dims: wp.vec3i,
+    # In:
+    points: wp.array(dtype=wp.vec3),
+    # Out (cleared by the caller):
+    cell_mask_out: wp.array(dtype=wp.uint8),
+):
+    """cell_mask = 1 in the cell of every point and its 26 neighbours (the mask of the moving boundary
+    particles, rebuilt when they move). Threads only ever write 1: the result is the same in any order."""
+    c = cell_of(points[wp.tid() + tid_offset], grid_lo, inv_cell_size, grid_dims)
+    for dz in range(-1, 2):
+        z = c[2] + dz
+        if z >= 0 and z < grid_dims[2]:
+            for dy in range(-1, 2):
+                y = c[1] + dy
+                if y >= 0 and y < grid_dims[1]:
+                    for dx in range(-1, 2):
+                        x = c[0] + dx
+                        if x >= 0 and x < grid_dims[0]:
+                            cell_mask_out[x + grid_dims[0] * (y + grid_dims[1] * z)] = wp.uint8(1)
 
 
 # --- Particle order (warp_sph/particle_order.py) ----------------------------------------------

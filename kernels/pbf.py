@@ -56,6 +56,16 @@ def predict_positions(
     boundary_force_out[i] = wp.vec3(0.0)
 
 
+@wp.kernel(enable_backward=False)
+def clear_float(
+    tid_offset: int,
+    # Out:
+    values_out: wp.array(dtype=float),
+):
+    """values = 0 (the per-step boundary pressure term of moving bodies)."""
+    values_out[wp.tid() + tid_offset] = 0.0
+
+
 @wp.func
 def constraint_lambda(ratio: float, grad_i: wp.vec3, grad_sq: float, relaxation_epsilon: float) -> wp.vec2:
     """(C_i, lambda_i) from rho_i/rho0, grad_i C_i and sum_j |grad_j C_i|^2 (eq. 17, 19)."""
@@ -169,11 +179,13 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
 
 
 @functools.cache
-def correction_pairs_kernel(with_boundary: bool, tensile: bool):
+def correction_pairs_kernel(with_boundary: bool, tensile: bool, with_pressure_term: bool = False):
     """Jacobi correction (eq. 18) from a ``PairCache`` of the density pass at the same positions:
     dx_i = sum_j (lambda_i + lambda_j + s_corr_ij) V grad W_ij + lambda_i sum_b V_b grad W_ib, no
     kernel evaluation (the smoothing kernel entered through the cache). Same outputs as
-    ``correction_kernel``."""
+    ``correction_kernel``. with_pressure_term: also add pressure_term_scale lambda_i to
+    ``boundary_pressure_term`` (moving bodies: with scale -1 / (rho0 dt^2) the walls' acceleration
+    lambda_i V_b grad W_ib / dt^2 of i is the Akinci pressure term -rho0 V_b term_i grad W_ib)."""
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_correction_pairs(
@@ -186,6 +198,7 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool):
         tensile_scale: float,
         inv_dt2: float,
         max_step: float,
+        pressure_term_scale: float,
         # State in:
         fluid_neighbors: NeighborList,
         pairs: PairCache,
@@ -194,6 +207,7 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool):
         position_correction_out: wp.array(dtype=wp.vec3),
         boundary_force_out: wp.array(dtype=wp.vec3),
         correction_size_out: wp.array(dtype=float),
+        boundary_pressure_term_out: wp.array(dtype=float),
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         lam_i = particle_lambda[i]
@@ -210,6 +224,8 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool):
             dx_b = lam_i * pairs.boundary_gradient[i]
             dx += dx_b
             boundary_force_out[i] = boundary_force_out[i] + (particle_mass * inv_dt2) * dx_b
+            if wp.static(with_pressure_term):
+                boundary_pressure_term_out[i] = boundary_pressure_term_out[i] + pressure_term_scale * lam_i
         size = wp.length(dx)
         if size > max_step:
             dx = dx * (max_step / size)

@@ -30,7 +30,7 @@ def penalty_weight(q: float) -> float:
 
 
 @wp.func
-def penalty_force(params: PenaltyParams, x_ib: wp.vec3, v_ib: wp.vec3, grad_ib: wp.vec3, volume_b: float,
+def penalty_force(params: PenaltyParams, b: int, x_ib: wp.vec3, v_ib: wp.vec3, grad_ib: wp.vec3, volume_b: float,
                   rho_i: float) -> wp.vec3:
     """a_i = (B_R / 2) weight(r / h_b) x_ib / r^2 [m/s^2] (eq. 12 with equal masses: m_b / (m_i + m_b) = 1/2)."""
     r = wp.length(x_ib)

@@ -260,12 +260,13 @@ def trace_particles(
     cell_particles: wp.array(dtype=wp.int32),
     solid_mesh: wp.uint64,
     has_solid: int,
-    solid_color: wp.vec3,
+    solid_face_color: wp.array(dtype=wp.vec3),
     # Out:
     image_out: wp.array2d(dtype=wp.vec3),
 ):
     """One ray per pixel against the spheres, marched through the grid cells (3D-DDA), and against
-    the obstacle mesh (flat-shaded, two-sided) when there is one."""
+    the solid mesh (obstacles and rigid bodies: flat-shaded, two-sided, one colour per triangle) when
+    there is one."""
     py, px = wp.tid()
     origin = camera.position
     direction = camera_ray(camera, px, py)
@@ -338,7 +339,7 @@ def trace_particles(
             n = wp.normalize(q.normal)
             if wp.dot(n, direction) > 0.0:
                 n = -n
-            color = blinn_phong(light, solid_color, origin + best_t * direction, n, origin)
+            color = blinn_phong(light, solid_face_color[q.face], origin + best_t * direction, n, origin)
     image_out[py, px] = composite(camera, scenery, origin, direction, hit, best_t, color)
 
 

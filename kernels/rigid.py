@@ -8,8 +8,15 @@ the simulation's local frame (the Model's origin subtracted), the same frame New
 
 Forces on bodies are reduced in a fixed order (chunks of consecutive particles summed in index
 order, then each body's chunks in order), so the wrench is bitwise the same for any thread count.
+
+The fluid's force on each moving particle (``body_particle_force_kernel``) mirrors the boundary
+method's terms pair by pair (equal and opposite), so momentum passes between fluid and bodies exactly.
 """
+import functools
+
 import warp as wp
+
+from .smoothing import SMOOTHING_FUNCTIONS
 
 
 @wp.kernel(enable_backward=False)
@@ -50,13 +57,13 @@ def body_wrench_chunks(
     # State in:
     body_q: wp.array(dtype=wp.transform),
     boundary_x: wp.array(dtype=wp.vec3),
-    boundary_particle_force: wp.array(dtype=wp.vec3),
+    body_particle_force: wp.array(dtype=wp.vec3),
     # Out:
     chunk_wrench_out: wp.array(dtype=wp.spatial_vector),
 ):
-    """Per chunk c of one body's moving particles i in [chunk_start[c], chunk_end[c]) (boundary
-    index body_particle_start + i): F_c = sum_i F_b [N], tau_c = sum_i (x_b - x_com) x F_b [N m],
-    summed in index order."""
+    """Per chunk c of one body's moving particles i in [chunk_start[c], chunk_end[c]) (force
+    body_particle_force[i], position boundary_x[body_particle_start + i]): F_c = sum_i F_i [N],
+    tau_c = sum_i (x_i - x_com) x F_i [N m], summed in index order."""
     c = wp.tid()
     k = chunk_body[c]
     x_com = wp.transform_point(body_q[k], body_com[k])
@@ -65,10 +72,9 @@ def body_wrench_chunks(
     i = chunk_start[c]
     end = chunk_end[c]
     while i < end:
-        b = body_particle_start + i
-        f = boundary_particle_force[b]
+        f = body_particle_force[i]
         force += f
-        torque += wp.cross(boundary_x[b] - x_com, f)
+        torque += wp.cross(boundary_x[body_particle_start + i] - x_com, f)
         i += 1
     chunk_wrench_out[c] = wp.spatial_vector(force, torque)
 
@@ -131,3 +137,88 @@ def pair_contact_properties(
         reduced = 1.0 / inv
     contact_stiffness_out[c] = reduced * contact_frequency * contact_frequency
     contact_damping_out[c] = reduced * contact_frequency
+
+
+@functools.cache
+def body_particle_force_kernel(smoothing: str, boundary_terms):
+    """Force of the fluid on each moving boundary particle b [N], one thread per b, no atomics:
+
+        F_b = -sum_i m [pressure(params, grad_i W_ib, V_b, term_i) + force(params, b, x_ib, v_i - v_b, grad_i W_ib, V_b, rho_i)]
+
+    over the fluid particles i with |x_i - x_b| < H_s: exactly the negative of the boundary terms the
+    fluid kernels add to m a_i for the pair (i, b) (``kernels/boundary.py``; the pressure term is
+    skipped when the boundary method has none, and so is the force term). term_i is the solver's
+    ``boundary_pressure_term`` (``warp_sph.methods.solver``). The fluid is found in the cell grid the
+    neighbour lists sorted it into (``CellGrid``), searched within ``search_radius`` (the lists'
+    radius, which covers the drift since the sort) and filtered at the current positions."""
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    with_pressure = boundary_terms.pressure is not None
+    with_force = boundary_terms.force is not None
+    BoundaryParams = boundary_terms.Params
+    pressure_term = boundary_terms.pressure
+    force_term = boundary_terms.force
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def gather_body_particle_force(
+        tid_offset: int,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        boundary_params: BoundaryParams,
+        body_particle_start: int,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_v: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # Fluid cell grid (``CellGrid``):
+        grid_lo: wp.vec3,
+        inv_cell_size: float,
+        grid_dims: wp.vec3i,
+        cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
+        search_radius: float,
+        # State in:
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
+        particle_density: wp.array(dtype=float),
+        boundary_pressure_term: wp.array(dtype=float),
+        # Out:
+        body_particle_force_out: wp.array(dtype=wp.vec3),
+    ):
+        k = wp.tid() + tid_offset
+        b = body_particle_start + k
+        xb = boundary_x[b]
+        vb = boundary_v[b]
+        vol = boundary_volume[b]
+        h = smoothing_length
+        support2 = support_radius * support_radius
+        q = (xb - grid_lo) * inv_cell_size
+        qr = search_radius * inv_cell_size
+        y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
+        y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
+        z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
+        z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
+        x0 = wp.clamp(int(wp.floor(q[0] - qr)), 0, grid_dims[0] - 1)
+        x1 = wp.clamp(int(wp.floor(q[0] + qr)), 0, grid_dims[0] - 1)
+        f = wp.vec3(0.0)
+        for z in range(z0, z1 + 1):
+            for y in range(y0, y1 + 1):
+                row = grid_dims[0] * (y + grid_dims[1] * z)
+                s = cell_start[row + x0]
+                s_end = cell_start[row + x1 + 1]
+                while s < s_end:
+                    i = cell_point[s]
+                    x_ib = particle_x[i] - xb
+                    if wp.dot(x_ib, x_ib) < support2:
+                        grad = wp.static(gradient)(x_ib, h)
+                        a = wp.vec3(0.0)
+                        if wp.static(with_pressure):
+                            a = wp.static(pressure_term)(boundary_params, grad, vol, boundary_pressure_term[i])
+                        if wp.static(with_force):
+                            a += wp.static(force_term)(boundary_params, b, x_ib, particle_v[i] - vb, grad, vol,
+                                                       particle_density[i])
+                        f -= particle_mass * a
+                    s += 1
+        body_particle_force_out[k] = f
+
+    return gather_body_particle_force

@@ -114,7 +114,7 @@ def viscous_kernel(smoothing: str, boundary_terms, with_viscosity: bool, neighbo
                     b = boundary_neighbors.index[i, k]
                     x_ib = xi - boundary_x[b]
                     if wp.length(x_ib) < support_radius:
-                        a_b += wp.static(force_term)(boundary_params, x_ib, vi - boundary_v[b],
+                        a_b += wp.static(force_term)(boundary_params, b, x_ib, vi - boundary_v[b],
                                                      wp.static(gradient)(x_ib, h), boundary_volume[b], rho_i)
                     k += 1
             else:
@@ -123,7 +123,7 @@ def viscous_kernel(smoothing: str, boundary_terms, with_viscosity: bool, neighbo
                 while wp.hash_grid_query_next(bquery, b):
                     x_ib = xi - boundary_x[b]
                     if wp.length(x_ib) < support_radius:
-                        a_b += wp.static(force_term)(boundary_params, x_ib, vi - boundary_v[b],
+                        a_b += wp.static(force_term)(boundary_params, b, x_ib, vi - boundary_v[b],
                                                      wp.static(gradient)(x_ib, h), boundary_volume[b], rho_i)
             dv_b = dt * a_b
             if wp.static(dissipative):

@@ -45,7 +45,8 @@ def pressure_kernel(equation_of_state: str):
 
 @functools.cache
 def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mirrored_pressure: bool,
-                        neighbors: str = "grid", with_artificial_viscosity: bool = False):
+                        neighbors: str = "grid", with_artificial_viscosity: bool = False,
+                        write_pressure_term: bool = False):
     """a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij (eq. 10)
              + 10 nu sum_j (2m/(rho_i+rho_j)) (v_ij . x_ij)/(|x_ij|^2 + 0.01 h^2) grad W_ij  (viscosity)
              + sum_b [pressure_b(grad W_ib, V_b, (p/rho^2)_b) + force_b(x_ib, v_ib, ...)] + g    [m/s^2]
@@ -54,6 +55,8 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
     The wall's p/rho^2 is p_i/rho_i^2 (report eq. 16) or, ``mirrored_pressure``, p_i/rho_i^2 + p_i/rho0^2
     (SPlisHSPlasH). Also writes the force of the boundary on each particle [N] (its negative sums to
     the wall load). neighbors: "grid" or "list" (see ``density.NEIGHBOR_TYPES``).
+    write_pressure_term: also write the wall's p/rho^2 of each particle to ``boundary_pressure_term_out``
+    [m^5/(kg s^2)] (moving bodies gather their force from it; otherwise the array is not touched).
     """
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
     lists = neighbors == "list"
@@ -78,7 +81,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         return a
 
     @wp.func(module="unique")
-    def boundary_pair(params: BoundaryParams, x_ib: wp.vec3, v_ib: wp.vec3, volume_b: float, p_rho2_b: float,
+    def boundary_pair(params: BoundaryParams, b: int, x_ib: wp.vec3, v_ib: wp.vec3, volume_b: float, p_rho2_b: float,
                       rho_i: float, h: float) -> wp.vec3:
         """Acceleration of i by boundary particle b: the method's pressure and force terms."""
         grad = wp.static(gradient)(x_ib, h)
@@ -86,7 +89,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         if wp.static(with_pressure):
             a = wp.static(pressure_term)(params, grad, volume_b, p_rho2_b)
         if wp.static(with_force):
-            a += wp.static(force_term)(params, x_ib, v_ib, grad, volume_b, rho_i)
+            a += wp.static(force_term)(params, b, x_ib, v_ib, grad, volume_b, rho_i)
         return a
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -114,6 +117,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         # Out:
         particle_acceleration_out: wp.array(dtype=wp.vec3),
         boundary_force_out: wp.array(dtype=wp.vec3),
+        boundary_pressure_term_out: wp.array(dtype=float),
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
@@ -125,6 +129,8 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         p_rho2_b = p_rho2_i
         if wp.static(mirrored_pressure):
             p_rho2_b = p_rho2_i + particle_pressure[i] / (rest_density * rest_density)
+        if wp.static(write_pressure_term):
+            boundary_pressure_term_out[i] = p_rho2_b
         h = smoothing_length
         eps_h2 = 0.01 * h * h
         a = wp.vec3(0.0)
@@ -155,7 +161,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
                 k_end = int(neighbor_count(boundary_neighbors, i))
                 while k < k_end:
                     b = boundary_neighbors.index[i, k]
-                    a_boundary += boundary_pair(boundary_params, xi - boundary_x[b], vi - boundary_v[b],
+                    a_boundary += boundary_pair(boundary_params, b, xi - boundary_x[b], vi - boundary_v[b],
                                                 boundary_volume[b], p_rho2_b, rho_i, h)
                     k += 1
             else:
@@ -164,7 +170,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
                 while wp.hash_grid_query_next(bquery, b):
                     x_ib = xi - boundary_x[b]
                     if wp.length(x_ib) < support_radius:
-                        a_boundary += boundary_pair(boundary_params, x_ib, vi - boundary_v[b], boundary_volume[b],
+                        a_boundary += boundary_pair(boundary_params, b, x_ib, vi - boundary_v[b], boundary_volume[b],
                                                     p_rho2_b, rho_i, h)
         boundary_force_out[i] = particle_mass * a_boundary
         particle_acceleration_out[i] = a + a_boundary + gravity

@@ -1,9 +1,7 @@
 """Moving rigid bodies in the USD export (UsdWriter.add_body, write_frame(bodies=...)): a Mesh per body
 with body-frame points and time-sampled translate/orient, valid for check_usd.py --strict, resumable."""
-import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,12 +14,10 @@ FPS, RADIUS = 24.0, 0.02
 BODIES = {"crate": box_mesh([0.2, 0.1, 0.05]), "ball": sphere_mesh(0.1, 2)}
 
 
-def checker() -> Path:
-    env = os.environ.get("WARP_SPH_CHECK_USD")
-    for candidate in ([Path(env)] if env else []) + [Path(__file__).resolve().parents[2] / "shared" / "tools" / "check_usd.py"]:
-        if candidate.is_file():
-            return candidate
-    pytest.skip("check_usd.py not found (set WARP_SPH_CHECK_USD)")
+def check_usd_strict(path) -> subprocess.CompletedProcess:
+    """The checker shipped with warp-sph (``python -m warp_sph.io.check_usd FILE --strict``)."""
+    return subprocess.run([sys.executable, "-m", "warp_sph.io.check_usd", str(path), "--strict"],
+                          capture_output=True, text=True, timeout=120)
 
 
 def pose(name: str, frame: int):
@@ -68,8 +64,7 @@ def test_body_prims_and_world_points(tmp_path, origin):
             world = np.c_[local, np.ones(len(local))] @ m
             p, q = pose(name, f)
             np.testing.assert_allclose(world[:, :3], local @ quat_to_matrix(q).T + p + shift, atol=1e-6, rtol=0)
-    result = subprocess.run([sys.executable, str(checker()), str(path), "--strict"], capture_output=True, text=True,
-                            timeout=120)
+    result = check_usd_strict(path)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "/sph/bodies/crate" in result.stdout and "winding outward" in result.stdout
 
@@ -83,8 +78,7 @@ def test_resume_keeps_bodies(tmp_path):
     assert op.GetTimeSamples() == [1.0, 2.0, 3.0, 4.0]
     q = pose("ball", 4)[1]
     assert op.Get(4) == Gf.Quatf(*map(float, (q[3], q[0], q[1], q[2])))
-    result = subprocess.run([sys.executable, str(checker()), str(path), "--strict"], capture_output=True, text=True,
-                            timeout=120)
+    result = check_usd_strict(path)
     assert result.returncode == 0, result.stdout + result.stderr
 
 

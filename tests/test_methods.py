@@ -190,6 +190,15 @@ CONFIGS |= {
     "dfsph-no-divergence": dict(solver="dfsph", dfsph={"divergence_solve": False}),
     "dfsph-stabilize": dict(solver="dfsph", compressed=True),
 }
+#: a floating box (moving rigid body, two-way coupled): the body_forces and bodies stages join the graph
+BODY = {"bodies": [{"shape": "box", "size": [0.1, 0.1, 0.08], "position": [0.1, 0.1, 0.2], "density": 500.0,
+                    "velocity": [0.1, 0.0, -0.2], "angular_velocity": [0.5, 0.0, 0.0]}]}
+CONFIGS |= {
+    "wcsph-bodies": dict(material={"viscosity": 1e-3, "boundary_friction": 0.3}, **BODY),
+    "wcsph-penalty-bodies": dict(boundary="penalty", **BODY),
+    "pbf-bodies": dict(solver="pbf", material={"xsph": 0.05, "boundary_friction": 0.3}, **BODY),
+    "pbf-penalty-bodies": dict(solver="pbf", boundary="penalty", **BODY),
+}
 
 
 def _restore(sim, snap, names):

@@ -87,8 +87,9 @@ def test_wrench_matches_numpy_and_is_bitwise_ordered(monkeypatch):
     bv = wp.zeros(n, dtype=wp.vec3, device="cpu")
     bp.place(body_q, body_qd, body_com, bx, bv)
     # forces spanning orders of magnitude, so the summation order shows in float32
-    f = (rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-3, 3, size=(n, 1))).astype(np.float32)
-    forces = wp.array(f, dtype=wp.vec3, device="cpu")
+    f = np.zeros((n, 3), np.float32)  # f[start + i]: the force on moving particle i (the kernel reads f[start:])
+    f[start:] = (rng.normal(size=(bp.count, 3)) * 10.0 ** rng.uniform(-3, 3, size=(bp.count, 1))).astype(np.float32)
+    forces = wp.array(f[start:], dtype=wp.vec3, device="cpu")
     out = wp.zeros(len(counts), dtype=wp.spatial_vector, device="cpu")
     bp.wrench(body_q, body_com, bx, forces, out)
     got = out.numpy().astype(np.float64)

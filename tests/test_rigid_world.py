@@ -3,7 +3,6 @@ the container and obstacles, bitwise checkpoint/restore, and the one-line error 
 
 Newton is in the ``test`` extra; its kernels compile once per machine (~1 min on 2 cores, then cached).
 """
-import math
 import sys
 
 import numpy as np
@@ -11,7 +10,7 @@ import pytest
 import warp as wp
 
 from warp_sph.core.errors import SceneError
-from warp_sph.rigid import Body, RigidWorld, StaticCollider, body_geometry
+from warp_sph.rigid import Body, RigidWorld, StaticCollider
 from warp_sph.rigid.spec import box_mesh, quat_to_matrix
 
 G = 9.81

@@ -91,6 +91,10 @@ def _cmd_check(args) -> int:
     extra = ", ".join(f"{k.replace('_', ' ')} {v:.4g}" for k, v in s["solver"].items()
                       if isinstance(v, float))
     print(f"  speed of sound {s['speed_of_sound']:.3g} m/s" + (f", {extra}" if extra else ""))
+    if "bodies" in s:
+        b = s["bodies"]
+        print(f"  {b['count']} rigid bodies ({', '.join(f'{n} {m:.3g} kg' for n, m in zip(b['names'], b['masses']))}; "
+              f"{b['boundary_particles']} of the boundary particles), Newton contacts w = {b['contact_frequency']:.4g} rad/s")
     for line in time_step_summary(scene, sim):
         print(f"  {line}")
     return 0

@@ -44,11 +44,23 @@ class Model:
     boundary_x: wp.array          # boundary particle positions (local) [m], shape (boundary_count,)
     boundary_v: wp.array          # boundary particle velocities [m/s] (0: static walls), shape (boundary_count,)
     boundary_volume: wp.array     # Akinci V_b = 1/sum_k W_bk [m^3], shape (boundary_count,)
-    boundary_grid: NeighborGrid | None
+    boundary_grid: NeighborGrid | None  # hash grid over the static boundary particles
     container_lo: np.ndarray | None  # container box in local coordinates [m]
     container_hi: np.ndarray | None
     fluid_count: int
     boundary_count: int
+    #: boundary particles [0, static_boundary_count) are walls and obstacles (they never move); the rest,
+    #: [static_boundary_count, boundary_count), belong to moving rigid bodies, body after body
+    static_boundary_count: int = 0
+    boundary_body: wp.array | None = None  # per boundary particle: -1 static, else the body index [-]
+    #: Akinci sigma per boundary particle [-] when a body has its own ``fluid_friction`` (else None: every
+    #: particle has ``boundary_friction``)
+    boundary_particle_friction: wp.array | None = None
+    max_boundary_friction: float = -1.0  # the largest sigma of any boundary particle [-] (< 0: boundary_friction)
+
+    def __post_init__(self):
+        if self.max_boundary_friction < 0.0:
+            self.max_boundary_friction = self.boundary_friction
 
     @property
     def boundary_grid_id(self):
@@ -90,19 +102,36 @@ class State:
     frame: int = 0
 
 
+def _body_speeds(scene, body_x: np.ndarray) -> tuple[np.ndarray, float, int]:
+    """(the body particles' world positions (K, 3) [m], the largest initial speed of a body particle
+    bound |v| + |omega| max|x - x_com| [m/s], the index of that body)."""
+    if not len(body_x) or not scene.bodies:
+        return np.zeros((0, 3)), 0.0, -1
+    speeds = []
+    for body in scene.bodies:
+        v = np.asarray(body.velocity, dtype=np.float64)
+        w = np.asarray(body.angular_velocity, dtype=np.float64)
+        c = np.asarray(body.position, dtype=np.float64)
+        reach = float(np.max(np.linalg.norm(body_x - c, axis=1)))  # generous: every particle's distance
+        speeds.append(float(np.linalg.norm(v)) + float(np.linalg.norm(w)) * reach)
+    return body_x, max(speeds), int(np.argmax(speeds))
+
+
 def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_lo,
-                    fluid_block: np.ndarray | None = None) -> tuple[float, float, str]:
+                    fluid_block: np.ndarray | None = None, body_x: np.ndarray | None = None) -> tuple[float, float, str]:
     """(reference speed, c_s, what set v_ref): v_ref = max(sqrt(2 |g| H), max|v0|), H the height of the fluid above the
     container floor (or the fluid's own height). c_s, the fluid's (artificial) speed of sound, comes from
     the ``wcsph`` section: sqrt(k / rho0) (linear) or sqrt(7 B / rho0) (Tait) when ``wcsph.stiffness`` is
     set, else ``wcsph.speed_of_sound``, else factor * v_ref (Becker & Teschner 2007: |drho|/rho0 ~
     v^2/c^2, so factor 10 keeps density errors near 1 %). WCSPH's pressure, the Akinci friction
-    (report eq. 24) and the penalty force scale with it."""
+    (report eq. 24) and the penalty force scale with it. Moving bodies (``body_x``: their particles at
+    t = 0 [m]) count as fluid for H (a body falls into the pool) and with their initial speeds."""
+    body_x, body_speed, fastest = _body_speeds(scene, np.zeros((0, 3)) if body_x is None else body_x)
     g = np.asarray(scene.gravity, dtype=np.float64)
     gnorm = float(np.linalg.norm(g))
     if gnorm > 0 and len(fluid_x):
         up = -g / gnorm
-        heights = fluid_x.astype(np.float64) @ up
+        heights = np.concatenate([fluid_x.astype(np.float64), body_x]) @ up
         floor = heights.min()
         if container_lo is not None:
             corners = np.array([[a, b, c] for a in (container_lo[0], scene.container.max[0])
@@ -115,8 +144,10 @@ def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_l
     g_ref = gnorm if gnorm > 0 else 9.81
     fall = math.sqrt(2.0 * g_ref * height)
     speeds = np.linalg.norm(fluid_v.astype(np.float64), axis=1) if len(fluid_v) else np.zeros(1)
-    v_ref = max(fall, float(speeds.max()))
-    if v_ref > fall:
+    v_ref = max(fall, float(speeds.max()), body_speed)
+    if body_speed > max(fall, float(speeds.max())):
+        source = f"bodies[{fastest}].velocity"
+    elif v_ref > fall:
         k = int(np.argmax(speeds))
         block = int(fluid_block[k]) if fluid_block is not None and len(fluid_block) > k else 0
         source = f"fluid[{block}].velocity"
@@ -158,9 +189,12 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         lo = hi = None
         origin = 0.5 * (fluid_x.min(axis=0) + fluid_x.max(axis=0))
 
-    v_ref, c_s, v_source = _speed_of_sound(scene, fluid_x, fluid_v, lo, getattr(sampled, "fluid_block", None))
+    body_x = np.asarray(getattr(sampled, "body_x", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+    v_ref, c_s, v_source = _speed_of_sound(scene, fluid_x, fluid_v, lo, getattr(sampled, "fluid_block", None),
+                                           body_x)
 
-    boundary_method = scene.boundary if len(boundary_x) else "none"
+    static_count = len(boundary_x)
+    boundary_method = scene.boundary if static_count + len(body_x) else "none"
     bx = wp.array((boundary_x - origin).astype(np.float32), dtype=wp.vec3, device=device)
     bv = wp.zeros(len(boundary_x), dtype=wp.vec3, device=device)
     bvol = wp.zeros(len(boundary_x), dtype=float, device=device)
@@ -170,6 +204,25 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         bgrid.build(bx)
         launch(_density_dev.boundary_volume_kernel(kernel.name), len(boundary_x),
                [float(h), float(support), bgrid.id, bx], [bvol], device=device)
+    body_of = None
+    particle_friction = None
+    max_friction = -1.0
+    if len(body_x):  # moving bodies after the static particles; their volumes from their own samples
+        samples = sampled.body_samples
+        bx = wp.array(np.concatenate([bx.numpy(), (body_x - origin).astype(np.float32)]), dtype=wp.vec3, device=device)
+        bvol = wp.array(np.concatenate([bvol.numpy()] + [s.volume for s in samples]).astype(np.float32), dtype=float,
+                        device=device)
+        bv = wp.zeros(bx.shape[0], dtype=wp.vec3, device=device)
+        body_of = wp.array(np.concatenate([np.full(static_count, -1, np.int32)]
+                                          + [np.full(s.count, k, np.int32) for k, s in enumerate(samples)]),
+                           dtype=wp.int32, device=device)
+        boundary_x = np.concatenate([boundary_x, body_x])
+        sigma0 = float(scene.material.boundary_friction)
+        sigmas = [sigma0 if b.fluid_friction is None else float(b.fluid_friction) for b in scene.bodies]
+        max_friction = max([sigma0] + sigmas)
+        if any(s != sigma0 for s in sigmas):  # a body with its own friction: sigma per particle
+            particle_friction = wp.array(np.concatenate([np.full(static_count, sigma0, np.float32)] + [
+                np.full(s.count, sig, np.float32) for s, sig in zip(samples, sigmas)]), dtype=float, device=device)
 
     model = Model(
         device=device, smoothing=kernel, rest_density=rho0, particle_radius=r, spacing=d,
@@ -180,7 +233,8 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         boundary_friction=float(scene.material.boundary_friction), boundary_method=boundary_method,
         boundary_x=bx, boundary_v=bv, boundary_volume=bvol, boundary_grid=bgrid,
         container_lo=None if lo is None else (lo - origin), container_hi=None if hi is None else (hi - origin),
-        fluid_count=len(fluid_x), boundary_count=len(boundary_x),
+        fluid_count=len(fluid_x), boundary_count=len(boundary_x), static_boundary_count=static_count,
+        boundary_body=body_of, boundary_particle_friction=particle_friction, max_boundary_friction=max_friction,
     )
     state = State(
         particle_x=wp.array((fluid_x - origin).astype(np.float32), dtype=wp.vec3, device=device),

@@ -11,7 +11,8 @@ Inputs, all from the run folder (``run_folder`` describes the layout):
   float32 keeps its precision wherever the scene sits).
 
 Outputs (default under ``DIR/export/``): ``<scene>.usdc`` (particles, surface, container and
-obstacles; the run's frame numbers are kept as time codes) or ``<fmt>/surface_NNNNNN.<fmt>``.
+obstacles, rigid bodies at the poses run.json recorded; the run's frame numbers are kept as time
+codes) or ``<fmt>/surface_NNNNNN.<fmt>``.
 An existing output is never replaced without ``overwrite``.
 """
 from __future__ import annotations
@@ -66,6 +67,37 @@ def scene_static_meshes(scene: dict) -> list[tuple[str, np.ndarray, np.ndarray]]
             tris = tris[:, ::-1]
         out.append((name, verts.astype(np.float32), np.ascontiguousarray(tris, dtype=np.int32)))
     return out
+
+
+def _body_shapes(scene: dict, info: dict, frames: list[int]) -> tuple[list, dict]:
+    """([(name, vertices, triangles)] in the body frames, {frame: {name: (position, quaternion)}}) of the
+    run's rigid bodies, from run.json's scene and per-frame poses; empty when it has none. A body whose
+    mesh file no longer loads, or a frame without poses, leaves the bodies out with a warning."""
+    entries = scene.get("bodies") or []
+    if not entries:
+        return [], {}
+    from ..rigid.spec import Body, body_geometry, body_name
+
+    try:
+        shapes = []
+        for i, entry in enumerate(entries):
+            body = Body(**entry)
+            geo = body_geometry(body)
+            shapes.append((body_name(body, i), geo.vertices, geo.triangles))
+    except (SceneError, OSError, TypeError) as exc:
+        warnings.warn(f"rigid bodies left out of the USD: {exc}", RuntimeWarning, stacklevel=3)
+        return [], {}
+    records = {int(r["frame"]): r.get("bodies") or {} for r in info.get("frames") or []}
+    poses = {}
+    for frame in frames:
+        rec = records.get(frame, {})
+        if any(name not in rec for name, _, _ in shapes):
+            warnings.warn(f"rigid bodies left out of the USD: run.json has no body poses for frame {frame}",
+                          RuntimeWarning, stacklevel=3)
+            return [], {}
+        poses[frame] = {name: (np.asarray(rec[name]["position"]), np.asarray(rec[name]["orientation"]))
+                        for name, _, _ in shapes}
+    return shapes, poses
 
 
 def _far_from_origin(frame_file: Path) -> bool:
@@ -211,6 +243,9 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
                         static_meshes=scene_static_meshes(scene), primvars=primvars, with_surface=True,
                         with_normals=surface.with_normals, with_spray=surface.grid.spray_neighbors > 0,
                         overwrite=overwrite, first_frame=wanted[0], origin=origin if far else None)
+        shapes, body_poses = _body_shapes(scene, info, wanted)
+        for body, vertices, triangles in shapes:  # moving rigid bodies at the poses run.json recorded
+            usd.add_body(body, vertices, triangles)
     else:
         from .export_mesh import MeshSequenceWriter
 
@@ -231,7 +266,8 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
             data_far = x_dtype == np.float64
             if usd is not None:
                 usd.write_frame(frame, x_world, v, primvars={n: rho for n in usd.primvar_names},
-                                surface=(verts, mesh.triangles, mesh.normals), spray=(x_world[mesh.spray], v[mesh.spray]))
+                                surface=(verts, mesh.triangles, mesh.normals), spray=(x_world[mesh.spray], v[mesh.spray]),
+                                bodies=body_poses.get(frame))
             else:
                 mesh_writer.write_frame(frame, verts if data_far else verts.astype(np.float32), mesh.triangles)
     finally:

@@ -10,7 +10,8 @@ boundary method. The host class provides:
 - ``sample(scene)``: the scene's particles, boundary particles included (default: one layer of
   particles on the container's faces and the obstacles' surfaces, ``scene.sampling``);
 - ``terms()``: the compile-time ``BoundaryTerms``; ``params()``: the ``wp.struct`` of its constants;
-- ``time_step_bounds(speed)``: bounds of the step its explicit terms need (friction, a penalty force).
+- ``time_step_bounds(speed)``: bounds of the step its explicit terms need (friction, a penalty force);
+- ``refuses_bodies()``: a reason why it cannot couple moving rigid bodies (default: it can).
 """
 from __future__ import annotations
 
@@ -37,6 +38,13 @@ class BoundaryMethod(MethodBase):
         from ..scene.sampling import sample_scene
 
         return sample_scene(scene)
+
+    @classmethod
+    def refuses_bodies(cls) -> str | None:
+        """A reason why this method cannot couple moving rigid bodies, or None. Bodies see the fluid
+        through the method's pressure and force terms (``kernels/rigid.py``), so every method whose
+        fluid kernels use only those (and density / gradient terms) can couple."""
+        return None
 
     def terms(self):
         """The ``kernels.boundary.BoundaryTerms`` the solver kernels are specialised with."""

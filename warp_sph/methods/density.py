@@ -49,7 +49,8 @@ def density_stage(sim, lists: bool = True) -> Stage:
             nl.build_lists(sim.fields["particle_x"], sim.fields["particle_density"], m.smoothing.name,
                            m.smoothing_length, m.particle_mass, m.rest_density, terms, params)
 
-        return Stage("density", run_lists, reads=("neighbor_cells", "particle_x") + boundary_reads,
+        moving = ("moving_boundary_grid",) if getattr(sim, "bodies", None) is not None else ()
+        return Stage("density", run_lists, reads=("neighbor_cells", "particle_x") + boundary_reads + moving,
                      writes=("neighbor_lists", "particle_density"),
                      doc=f"neighbour lists within H_s (capacities {nl.capacities}) and, over the same pairs, {what}")
     kernel = _density.density_kernel(m.smoothing.name, terms, "grid")

@@ -15,7 +15,20 @@ runner, the watchdog, pre-flight and the benchmarks use only what this class dec
 - ``step_statistics()`` (per substep, host values only) and ``finish_frame()`` (once per frame);
 - ``carried_fields()``: workspace fields that outlive a substep; ``refresh_density()``;
 - ``checkpoint_arrays()`` / ``restore_arrays(arrays)``: what a resume needs beyond x and v;
-- ``instability_hint(rule, stage)``: the likely cause of a watchdog finding in its own terms.
+- ``instability_hint(rule, stage)``: the likely cause of a watchdog finding in its own terms;
+- moving rigid bodies (``warp_sph.rigid``, two-way coupled as Akinci et al. 2012): ``body_coupling_after``
+  and the workspace field ``boundary_pressure_term`` (below); ``refuses_bodies(boundary_cls)``.
+
+Coupling moving bodies. When the scene has bodies (``sim.bodies`` is not None, a compile-time choice:
+scenes without bodies keep their kernels), a solver that couples writes the workspace field
+``boundary_pressure_term`` (one float per fluid particle, ``sim.allocate``): the scalar term_i such
+that the pressure acceleration of fluid particle i due to boundary particle b is
+``terms.pressure(params, grad_i W_ib, V_b, term_i)`` (Akinci: -rho0 V_b term_i grad_i W_ib [m/s^2];
+term_i in m^5/(kg s^2), WCSPH's p/rho^2 of the wall). ``body_coupling_after`` names the stage after
+which that term is final for the substep and particle_x, particle_v and particle_density hold the
+values the boundary terms (pressure and force) were evaluated with; the simulation gathers the
+fluid's force on each moving boundary particle right after it, as the exact negative of those terms
+(``kernels/rigid.py``), and moves the bodies after the solver's last stage.
 """
 from __future__ import annotations
 
@@ -67,6 +80,9 @@ class Solver(MethodBase):
 
     #: True when the solver iterates and reports ``iterations`` in ``step_statistics``
     iterative: ClassVar[bool] = False
+    #: the stage after which the fluid's force on moving bodies is gathered (module docstring); None:
+    #: the solver does not write ``boundary_pressure_term`` and scenes with bodies are refused
+    body_coupling_after: ClassVar[str | None] = None
 
     def __init__(self, sim, **options: Any):
         if options:
@@ -79,6 +95,20 @@ class Solver(MethodBase):
     def refuses_boundary(cls, boundary_cls) -> str | None:
         """A reason why this solver cannot work with ``boundary_cls``, or None (it can)."""
         return None
+
+    @classmethod
+    def refuses_bodies(cls, boundary_cls) -> str | None:
+        """A reason why this solver with ``boundary_cls`` cannot move rigid bodies, or None (it can).
+        Default: refused when ``body_coupling_after`` is None or the boundary method refuses."""
+        if cls.body_coupling_after is None:
+            return (f"the {cls.name} solver does not provide the wall pressure term bodies need "
+                    "(Solver.body_coupling_after); use solver = 'wcsph' or 'pbf'")
+        return boundary_cls.refuses_bodies()
+
+    @property
+    def with_bodies(self) -> bool:
+        """True when the scene has moving rigid bodies: write ``boundary_pressure_term``."""
+        return getattr(self.sim, "bodies", None) is not None
 
     def stages(self) -> list:
         """The stages of one substep, in order."""

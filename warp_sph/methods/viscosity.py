@@ -62,7 +62,8 @@ def viscous_stage(sim, positions_field: str = "particle_x", lists: bool = True, 
                device=m.device, min_range=LIGHT_MIN_RANGE)
 
     terms_doc = (["viscosity"] if with_viscosity else []) + ([f"{terms.name} boundary force"] if with_force else [])
-    boundary_reads = ("boundary_x", "boundary_volume") if with_force else ()
+    moving = getattr(sim, "bodies", None) is not None  # boundary_v is a field: bodies move their particles
+    boundary_reads = ("boundary_x", "boundary_volume") + (("boundary_v",) if moving else ()) if with_force else ()
     return Stage(name, run, reads=("neighbor_lists" if lists else "fluid_grid", positions_field, "particle_density")
                  + boundary_reads, writes=("viscous_dv",), updates=("particle_v", "boundary_force"),
                  doc=" + ".join(terms_doc))

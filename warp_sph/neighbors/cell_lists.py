@@ -94,11 +94,16 @@ class NeighborLists:
     sum the SPH density of the listed pairs (WCSPH: one pass for search and density).
     boundary_volume: Akinci V_b per boundary particle [m^3], needed for that density sum.
     Fluid particles in cells with no boundary particle within one cell skip the boundary search.
+
+    Moving boundary particles (rigid bodies): with ``moving_start`` = S < len(boundary_x), particles
+    [0, S) are static (their grid is built once, as above) and [S, len) move: a second ``CellGrid``
+    (``moving_cells``) over them is rebuilt by ``update_moving`` after they moved (every substep),
+    and the boundary lists hold the static neighbours, then the moving ones (indices S + k).
     """
 
     def __init__(self, search_radius: float, lo, hi, fluid_count: int, boundary_x: wp.array | None = None,
                  fluid_capacity: int = 64, boundary_capacity: int = 48, cells_per_radius: int = 1, device="cpu",
-                 boundary_volume: wp.array | None = None):
+                 boundary_volume: wp.array | None = None, moving_start: int | None = None):
         from ..kernels import neighbors as _dev
 
         self.search_radius = float(search_radius)
@@ -106,10 +111,25 @@ class NeighborLists:
         self.fluid_count = int(fluid_count)
         self.fluid_cells = CellGrid(search_radius, lo, hi, fluid_count, cells_per_radius, device=device)
         self.boundary_cells = None
+        self.moving_cells = None
         self._no_mask = wp.zeros(1, dtype=wp.uint8, device=device)
         self._no_weight = wp.zeros(1, dtype=float, device=device)
         self._no_density = wp.zeros(1, dtype=float, device=device)
         self._no_params = _dev.NoBoundaryParams()
+        total = boundary_x.shape[0] if boundary_x is not None else 0
+        self.moving_start = total if moving_start is None else int(moving_start)
+        if self.moving_start < total:
+            k = total - self.moving_start
+            self.moving_cells = CellGrid(search_radius, lo, hi, k, cells_per_radius, device=device)
+            self._moving_volume = boundary_volume[self.moving_start:] if boundary_volume is not None else None
+            self._moving_weight = (wp.zeros(k, dtype=float, device=device) if boundary_volume is not None
+                                   else self._no_weight)
+            # cells near a moving particle (cells >= the search radius: one cell of growth covers a query)
+            mc = self.moving_cells
+            self._moving_mask = (wp.zeros(mc.cell_count, dtype=wp.uint8, device=device)
+                                 if mc.cell_size >= self.search_radius else None)
+            self.update_moving(boundary_x)
+            boundary_x = boundary_x[: self.moving_start] if self.moving_start else None
         if boundary_x is not None and boundary_x.shape[0]:
             bc = self.boundary_cells = CellGrid(search_radius, lo, hi, boundary_x.shape[0], cells_per_radius,
                                                 device=device)
@@ -124,7 +144,31 @@ class NeighborLists:
         self.fluid = _dev.NeighborList()
         self.boundary = _dev.NeighborList()
         self._allocate(self.fluid, fluid_capacity)
-        self._allocate(self.boundary, boundary_capacity if self.boundary_cells is not None else 0)
+        self._allocate(self.boundary, boundary_capacity if self.has_boundary else 0)
+
+    @property
+    def has_boundary(self) -> bool:
+        """True when there are boundary particles (static or moving) to list."""
+        return self.boundary_cells is not None or self.moving_cells is not None
+
+    def update_moving(self, boundary_x: wp.array) -> None:
+        """Re-sort the moving boundary particles ``boundary_x[moving_start:]`` [m] into their cells (after
+        they moved), with their volumes in that order (a device gather, no host copy)."""
+        from ..core.launch import LIGHT_MIN_RANGE, launch
+        from ..kernels import neighbors as _dev
+
+        mc = self.moving_cells
+        if mc is None:
+            return
+        moving_x = boundary_x[self.moving_start:]
+        mc.build(moving_x)
+        if self._moving_volume is not None:
+            launch(_dev.gather_by_order, mc.count, [mc.cell_point, self._moving_volume], [self._moving_weight],
+                   device=self.device, min_range=LIGHT_MIN_RANGE)
+        if self._moving_mask is not None:
+            self._moving_mask.zero_()
+            launch(_dev.mark_near_cells, mc.count, [mc.lo, mc.inv_cell_size, mc.dims, moving_x], [self._moving_mask],
+                   device=self.device, min_range=LIGHT_MIN_RANGE)
 
     def _allocate(self, lists, capacity: int) -> None:
         n = max(self.fluid_count, 1)
@@ -153,9 +197,9 @@ class NeighborLists:
         from ..kernels import neighbors as _dev
 
         with_density = density_out is not None
-        boundary_density = (with_density and self.boundary_cells is not None and boundary_terms is not None
+        boundary_density = (with_density and self.has_boundary and boundary_terms is not None
                             and boundary_terms.density is not None)
-        if boundary_density and self._boundary_weight is self._no_weight:
+        if boundary_density and self.boundary_cells is not None and self._boundary_weight is self._no_weight:
             raise ValueError("NeighborLists: the boundary density term needs boundary_volume")
         kernel = _dev.neighbor_list_kernel(smoothing if with_density else "")
         density = density_out if with_density else self._no_density
@@ -163,21 +207,32 @@ class NeighborLists:
         fc = self.fluid_cells
         launch(kernel, n,
                [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, self._no_weight,
-                self._no_mask, 0, self.search_radius, float(smoothing_length), float(particle_mass), self._no_params,
-                fc.cell_point, particle_x],
+                self._no_mask, 0, 0, 0, self.search_radius, float(smoothing_length), float(particle_mass),
+                self._no_params, fc.cell_point, particle_x],
                [self.fluid.count, self.fluid.index, self._max_count, density], device=self.device)
+        if not self.has_boundary:
+            return
+        if boundary_density:
+            kernel = _dev.neighbor_list_kernel(smoothing, boundary_terms)
+            params = boundary_params
+        else:
+            kernel = _dev.neighbor_list_kernel("")
+            params = self._no_params
         bc = self.boundary_cells
         if bc is not None:
             mask = self._boundary_mask
-            if boundary_density:
-                kernel = _dev.neighbor_list_kernel(smoothing, boundary_terms)
-                params = boundary_params
-            else:
-                kernel = _dev.neighbor_list_kernel("")
-                params = self._no_params
             launch(kernel, n,
                    [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, self._boundary_weight,
-                    self._no_mask if mask is None else mask, int(mask is not None), self.search_radius,
+                    self._no_mask if mask is None else mask, int(mask is not None), 0, 0, self.search_radius,
+                    float(smoothing_length), float(rest_density), params, fc.cell_point, particle_x],
+                   [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
+        mc = self.moving_cells
+        if mc is not None:  # the moving particles after the static ones (the lists then hold both)
+            mask = self._moving_mask
+            launch(kernel, n,
+                   [mc.lo, mc.inv_cell_size, mc.dims, mc.cell_start, mc.cell_point, mc.sorted_x, self._moving_weight,
+                    self._no_mask if mask is None else mask, int(mask is not None), self.moving_start,
+                    int(bc is not None), self.search_radius,
                     float(smoothing_length), float(rest_density), params, fc.cell_point, particle_x],
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
 
@@ -216,7 +271,7 @@ class NeighborLists:
         new = int(count * 1.5) + 8
         if new > fcap:
             self._allocate(self.fluid, new)
-        if self.boundary_cells is not None and new > bcap:
+        if self.has_boundary and new > bcap:
             self._allocate(self.boundary, new)
 
 
@@ -254,6 +309,7 @@ def simulation_neighbor_lists(sim, margin: float = 0.0) -> NeighborLists:
         lists = NeighborLists(radius, lo - pad, hi + pad, m.fluid_count,
                               m.boundary_x if with_boundary else None,
                               fluid_capacity=int(math.ceil(64 * volume)), boundary_capacity=int(math.ceil(48 * volume)),
-                              device=m.device, boundary_volume=m.boundary_volume if with_boundary else None)
+                              device=m.device, boundary_volume=m.boundary_volume if with_boundary else None,
+                              moving_start=m.static_boundary_count if with_boundary else None)
         sim.fields["neighbor_lists"] = lists
     return lists

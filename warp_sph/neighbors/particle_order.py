@@ -48,9 +48,9 @@ class CellOrder:
 
     def _fields(self) -> list[wp.array]:
         m = self.sim.model
-        skip = {id(m.boundary_x), id(m.boundary_volume)}
-        return [a for a in self.sim.fields.values()
-                if isinstance(a, wp.array) and a.ndim == 1 and a.shape[0] == m.fluid_count and id(a) not in skip]
+        skip = getattr(self.sim, "unsorted_fields", ("boundary_x", "boundary_volume"))
+        return [a for name, a in self.sim.fields.items()
+                if isinstance(a, wp.array) and a.ndim == 1 and a.shape[0] == m.fluid_count and name not in skip]
 
     def _tmp(self, a: wp.array) -> wp.array:
         key = (a.dtype, a.shape[0])

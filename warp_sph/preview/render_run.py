@@ -27,6 +27,7 @@ PARTICLE_COLOR = (0.16, 0.42, 0.78)  # water blue, linear [0, 1]
 FAST_PARTICLE_COLOR = (0.80, 0.92, 1.00)  # foam white-blue for the fastest particles
 SURFACE_COLOR = (0.22, 0.50, 0.85)
 OBSTACLE_COLOR = (0.62, 0.58, 0.52)  # stone grey for obstacles in surface previews
+BODY_COLOR = (0.78, 0.45, 0.18)  # orange-brown wood for moving rigid bodies
 BACKGROUND = (0.93, 0.94, 0.96)
 SURFACE_PRIM = "/sph/surface"
 SPRAY_PRIM = "/sph/spray"
@@ -252,8 +253,8 @@ def render_particles(
 
     particle_x: positions [m], shape (N, 3); radius: sphere radius [m]; container: (lo, hi) [m]
     drawn as faint edges and a gridded floor, or None; colors: (N, 3) or (3,) RGB, floats in
-    [0, 1] or integers in [0, 255], default water blue; solids: obstacle meshes (vertices [m],
-    triangles) drawn flat-shaded in ``solid_color``.
+    [0, 1] or integers in [0, 255], default water blue; solids: obstacle and body meshes (vertices [m],
+    triangles[, RGB colour]) drawn flat-shaded in their colour, default ``solid_color``.
     """
     width, height = _check_size(size)
     x = np.ascontiguousarray(np.asarray(particle_x, dtype=np.float32).reshape(-1, 3))
@@ -267,15 +268,19 @@ def render_particles(
     particle_x_wp = wp.array(x, dtype=wp.vec3, device=device) if len(x) else wp.zeros(1, dtype=wp.vec3, device=device)
     particle_color = wp.array(colors_host if len(x) else np.zeros((1, 3)), dtype=wp.vec3, device=device)
     grid = _SphereGrid(particle_x_wp, x, float(radius), device)
-    solid_v = [np.asarray(v, dtype=np.float32).reshape(-1, 3) for v, t in solids if len(t)]
-    solid_t = [np.asarray(t, dtype=np.int32).reshape(-1, 3) for v, t in solids if len(t)]
+    solids = [s for s in solids if len(s[1])]
+    solid_v = [np.asarray(s[0], dtype=np.float32).reshape(-1, 3) for s in solids]
+    solid_t = [np.asarray(s[1], dtype=np.int32).reshape(-1, 3) for s in solids]
     has_solid = int(len(solid_t) > 0)
+    face_color = np.zeros((1, 3), np.float32)
     if has_solid:
         offsets = np.cumsum([0] + [len(v) for v in solid_v[:-1]])
         solid_mesh = wp.Mesh(points=wp.array(np.concatenate(solid_v), dtype=wp.vec3, device=device),
                              indices=wp.array(np.concatenate([t + o for t, o in zip(solid_t, offsets)]).reshape(-1),
                                               dtype=wp.int32, device=device))
         solid_id = solid_mesh.id
+        face_color = np.concatenate([np.tile(np.asarray(s[2] if len(s) > 2 else solid_color, np.float32), (len(t), 1))
+                                     for s, t in zip(solids, solid_t)])
     else:
         solid_id = wp.uint64(0)
     image = wp.empty((height, width), dtype=wp.vec3, device=device)
@@ -297,7 +302,7 @@ def render_particles(
             grid.cell_particles,
             solid_id,
             has_solid,
-            wp.vec3(*solid_color),
+            wp.array(face_color, dtype=wp.vec3, device=device),
         ],
         outputs=[image],
         device=device,
@@ -332,7 +337,8 @@ def render_mesh(
     """Ray trace a triangle mesh (smooth normals, two-sided); returns an (H, W, 3) uint8 image.
 
     vertices: (V, 3) [m]; triangles: (T, 3) vertex indices; container as in ``render_particles``.
-    solids: obstacle meshes (vertices [m], triangles) drawn flat-shaded in ``solid_color``.
+    solids: obstacle and body meshes (vertices [m], triangles[, RGB colour]) drawn flat-shaded in their
+    colour, default ``solid_color``.
     """
     width, height = _check_size(size)
     v = np.ascontiguousarray(np.asarray(vertices, dtype=np.float32).reshape(-1, 3))
@@ -340,7 +346,8 @@ def render_mesh(
     if len(tri) and (tri.min() < 0 or tri.max() >= len(v)):
         raise PreviewError(f"triangle indices must lie in [0, {len(v)}), got [{tri.min()}, {tri.max()}]")
     colors = [np.tile(np.asarray(color, dtype=np.float32), (len(tri), 1))]
-    for sv, st in solids:  # unshared vertices per triangle: vertex normals = face normals (flat)
+    for solid in solids:  # unshared vertices per triangle: vertex normals = face normals (flat)
+        sv, st = solid[0], solid[1]
         sv = np.asarray(sv, dtype=np.float32).reshape(-1, 3)
         st = np.asarray(st, dtype=np.int64).reshape(-1, 3)
         if len(st) == 0:
@@ -349,7 +356,7 @@ def render_mesh(
             raise PreviewError(f"obstacle triangle indices must lie in [0, {len(sv)})")
         tri = np.concatenate([tri, (len(v) + np.arange(3 * len(st), dtype=np.int32)).reshape(-1, 3)])
         v = np.concatenate([v, sv[st.reshape(-1)]])
-        colors.append(np.tile(np.asarray(solid_color, dtype=np.float32), (len(st), 1)))
+        colors.append(np.tile(np.asarray(solid[2] if len(solid) > 2 else solid_color, dtype=np.float32), (len(st), 1)))
     face_colors = np.ascontiguousarray(np.concatenate(colors)) if len(tri) else np.zeros((1, 3), np.float32)
     device = wp.get_device(device)
     cam = _camera_struct(camera, (width, height))
@@ -566,6 +573,34 @@ def _obstacles(run_dir: Path, scene: dict, surface) -> list[tuple[np.ndarray, np
     return [(v, t) for name, v, t in scene_static_meshes(scene) if name != "container"]
 
 
+def _bodies(meta: dict) -> dict[int, list[tuple[np.ndarray, np.ndarray, tuple]]]:
+    """{frame: [(world vertices [m], triangles, BODY_COLOR), ...]}: each rigid body of the run's scene
+    (its shape in the body frame, ``rigid.spec.body_geometry``) at the pose run.json recorded for the frame."""
+    entries = (meta.get("scene") or {}).get("bodies") or []
+    if not entries:
+        return {}
+    from ..rigid.spec import Body, body_geometry, body_name, quat_to_matrix
+
+    shapes = {}
+    for i, entry in enumerate(entries):
+        try:
+            geo = body_geometry(Body(**entry))
+        except Exception as exc:  # a mesh file moved away since the run
+            raise PreviewError(f"bodies[{i}] of run.json cannot be drawn: {' '.join(str(exc).split())[:160]}") from None
+        shapes[body_name(Body(**entry), i)] = geo
+    out = {}
+    for record in meta.get("frames") or []:
+        solids = []
+        for name, pose in (record.get("bodies") or {}).items():
+            geo = shapes.get(name)
+            if geo is None:
+                continue
+            R = quat_to_matrix(pose["orientation"])
+            solids.append((geo.vertices @ R.T + np.asarray(pose["position"]), geo.triangles, BODY_COLOR))
+        out[int(record["frame"])] = solids
+    return out
+
+
 def _sphere_mesh(centers: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Icospheres (42 vertices, 80 faces each, wound outward) at ``centers`` [m] with ``radii`` [m]."""
     t = (1.0 + 5.0**0.5) / 2.0
@@ -662,6 +697,7 @@ def preview_run(
 
     surface = _SurfaceReader(run_dir) if mode == "surface" else None
     solids = _obstacles(run_dir, scene, surface)
+    bodies = _bodies(meta)  # moving rigid bodies, per frame
 
     def load(frame):
         if surface is not None:
@@ -691,12 +727,12 @@ def preview_run(
         if surface is not None:
             vertices, triangles = surface.frame(frame)
             image = render_mesh(vertices, triangles, camera, size, container, device, light=light,
-                                solids=solids)
+                                solids=solids + bodies.get(frame, []))
         else:
             x, v = _load_frame(run_dir, frame)
             colors = _speed_colors(v, speed_scale, len(x))
             image = render_particles(x, radius, camera, size, container, colors, device, light=light,
-                                     solids=solids)
+                                     solids=solids + bodies.get(frame, []))
         written.append(save_png(image, out_dir / f"{mode}_{frame:06d}.png"))
         if gif:
             images.append(image)

@@ -6,7 +6,8 @@
 - ``coupling``: device launchers that move those particles with the bodies and reduce the fluid's
   forces on them into one wrench per body (``kernels/rigid.py``);
 - ``world``: the Newton model, solver and states (``RigidWorld``); Newton is the optional extra
-  ``pip install 'warp-sph[rigid]'`` and is imported only when a world is built.
+  ``pip install 'warp-sph[rigid]'`` (``pip install -e '.[rigid]'`` in a checkout) and is imported
+  only when a world is built.
 """
 from .coupling import BodyParticles
 from .sampling import BodySamples, sample_body

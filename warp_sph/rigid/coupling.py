@@ -72,14 +72,15 @@ class BodyParticles:
                [boundary_x, boundary_v], device=self.device, min_range=LIGHT_MIN_RANGE)
 
     def wrench(self, body_q: wp.array, body_com: wp.array, boundary_x: wp.array,
-               boundary_particle_force: wp.array, body_f_out: wp.array) -> None:
-        """body_f_out[k] = (sum F_b, sum (x_b - x_com) x F_b) over body k's particles [N, N m]: world frame,
-        torque about the centre of mass, summed in a fixed order (bitwise reproducible)."""
+               body_particle_force: wp.array, body_f_out: wp.array) -> None:
+        """body_f_out[k] = (sum F_i, sum (x_i - x_com) x F_i) over body k's particles [N, N m]: world frame,
+        torque about the centre of mass, summed in a fixed order (bitwise reproducible). F_i =
+        ``body_particle_force[i]`` (one per moving particle), x_i = ``boundary_x[start + i]``."""
         if self.body_count == 0:
             return
         launch(_rigid.body_wrench_chunks, self.chunk_count,
                [self.start, self._chunk_start, self._chunk_end, self._chunk_body, body_com, body_q,
-                boundary_x, boundary_particle_force], [self._chunk_wrench], device=self.device)
+                boundary_x, body_particle_force], [self._chunk_wrench], device=self.device)
         launch(_rigid.sum_body_wrench, self.body_count,
                [self._body_chunk_start, self._body_chunk_end, self._chunk_wrench], [body_f_out],
                device=self.device)

@@ -126,3 +126,23 @@ def sample_body(geometry: BodyGeometry, spacing: float, smoothing: str, smoothin
     vol = akinci_volumes(x, smoothing, smoothing_length, device=device)
     return BodySamples(local_x=np.ascontiguousarray(x, dtype=np.float64),
                        normals=np.ascontiguousarray(n, dtype=np.float32), volume=vol.astype(np.float32))
+
+
+def sample_scene_bodies(scene, device=None) -> tuple[list[BodyGeometry], list[BodySamples], np.ndarray]:
+    """Every ``[[bodies]]`` entry of ``scene`` sampled for the coupling: (geometries, samples in the
+    body frames, their world positions at t = 0 (K, 3) [m] float64, body after body). The samples are
+    inset by wall gap - r (module docstring)."""
+    from .checks import body_inset, posed
+    from .spec import body_geometry
+
+    geometries, samples, world = [], [], []
+    inset = body_inset(scene)
+    for body in scene.bodies:
+        geo = body_geometry(body)
+        s = sample_body(geo, scene.spacing, scene.smoothing_kernel, scene.smoothing_length, inset=inset, device=device)
+        R, c = posed(geo, body)
+        geometries.append(geo)
+        samples.append(s)
+        world.append(s.local_x @ R.T + c)
+    x = np.concatenate(world) if world else np.zeros((0, 3))
+    return geometries, samples, x

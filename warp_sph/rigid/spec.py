@@ -4,8 +4,8 @@ A body's frame has its origin at the centre of mass and the axes of the shape as
 edges, a mesh file's axes); ``position`` places the centre of mass and ``rotation`` turns the body
 about it. Geometry here is host-side NumPy in float64, positions in metres.
 
-``BODY_PARAMETERS`` are the parameter-table rows of ``[[bodies]]`` (same ``Param`` type as
-``scene.description.PARAMETERS``); ``check_body`` is the cross-key check that table rows cannot
+``Body`` is the typed ``[[bodies]]`` entry (generated from its rows in ``scene/parameters.py``, listed
+again here as ``BODY_PARAMETERS``); ``check_body`` is the cross-key check that table rows cannot
 express (exactly one of density and mass; the mesh closed).
 """
 from __future__ import annotations
@@ -16,53 +16,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.errors import SceneError
-from ..scene.parameters import REQUIRED, Param
-from ..scene.types import Vec3
+from ..scene.parameters import BODY_SHAPES, Param, core_parameters
+from ..scene.types import Body
 from ..scene.meshes import TriangleMesh, load_triangle_mesh
 
-BODY_SHAPES = ("box", "sphere", "mesh")
-
-_P = Param
-#: Parameter-table rows of ``[[bodies]]`` (key paths ``bodies[].key``).
-BODY_PARAMETERS: tuple[Param, ...] = (
-    _P("bodies", "tables", "-", [], "moving rigid bodies ([[bodies]]), two-way coupled with the fluid "
-       "(Akinci et al. 2012) and stepped by Newton; needs pip install 'warp-sph[rigid]'"),
-    _P("bodies[].name", "str", "-", "", "name of the body in the USD file and run.json (default: body<index>)"),
-    _P("bodies[].shape", "str", "-", "box", "body shape", choices=BODY_SHAPES),
-    _P("bodies[].size", "vec3", "m", REQUIRED, "edge lengths of a box body", shapes=("box",)),
-    _P("bodies[].radius", "float", "m", REQUIRED, "radius of a sphere body", gt=0.0, shapes=("sphere",)),
-    _P("bodies[].file", "str", "-", REQUIRED, "closed triangle mesh (.obj .stl .ply .usd .usda .usdc); it "
-       "collides as its convex hull, couples to the fluid with its true surface", shapes=("mesh",)),
-    _P("bodies[].scale", "float", "-", 1.0, "uniform scale of the mesh", gt=0.0, shapes=("mesh",)),
-    _P("bodies[].position", "vec3", "m", REQUIRED, "initial position of the centre of mass"),
-    _P("bodies[].rotation", "vec3", "deg", (0.0, 0.0, 0.0), "initial orientation as Euler angles about X, "
-       "then Y, then Z (Blender's XYZ rotation mode)"),
-    _P("bodies[].density", "float", "kg/m^3", None, "density (give density or mass, not both)", gt=0.0),
-    _P("bodies[].mass", "float", "kg", None, "mass (give density or mass, not both)", gt=0.0),
-    _P("bodies[].velocity", "vec3", "m/s", (0.0, 0.0, 0.0), "initial velocity of the centre of mass"),
-    _P("bodies[].angular_velocity", "vec3", "rad/s", (0.0, 0.0, 0.0), "initial angular velocity (world frame)"),
-    _P("bodies[].fluid_friction", "float", "-", None, "Akinci boundary friction sigma between this body and "
-       "the fluid (absent: material.boundary_friction)", ge=0.0, default_text="material.boundary_friction"),
-)
-
-
-@dataclass
-class Body:
-    """One ``[[bodies]]`` entry, SI units (see ``BODY_PARAMETERS``)."""
-
-    name: str = ""
-    shape: str = "box"
-    size: Vec3 | None = None
-    radius: float | None = None
-    file: str | None = None
-    scale: float | None = None
-    position: Vec3 = (0.0, 0.0, 0.0)
-    rotation: Vec3 = (0.0, 0.0, 0.0)
-    density: float | None = None
-    mass: float | None = None
-    velocity: Vec3 = (0.0, 0.0, 0.0)
-    angular_velocity: Vec3 = (0.0, 0.0, 0.0)
-    fluid_friction: float | None = None
+#: Parameter-table rows of ``[[bodies]]`` (key paths ``bodies[].key``) and the ``rigid`` table, declared
+#: with the core rows in ``scene/parameters.py``.
+BODY_PARAMETERS: tuple[Param, ...] = tuple(p for p in core_parameters()
+                                           if p.path == "bodies" or p.path.startswith("bodies[]."))
+RIGID_PARAMETERS: tuple[Param, ...] = tuple(p for p in core_parameters()
+                                            if p.path == "rigid" or p.path.startswith("rigid."))
 
 
 @dataclass

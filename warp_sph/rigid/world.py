@@ -47,7 +47,7 @@ from .spec import Body, BodyGeometry, body_geometry, body_name, quat_to_matrix, 
 
 #: the verified Newton release (pyproject's [rigid] extra pins it)
 NEWTON_VERSION = "1.8.0"
-INSTALL_HINT = "pip install 'warp-sph[rigid]'"
+INSTALL_HINT = "pip install 'warp-sph[rigid]' (in a source checkout: pip install -e '.[rigid]')"
 #: contact points per body pair assumed by the sub-step bound
 CONTACT_POINTS = 4
 #: mesh-triangle candidate pairs per collision pass (Newton's own estimate is at least 10^6: with the
@@ -200,6 +200,7 @@ class RigidWorld:
         self.control = self.model.control()
         self.state = self.model.state()
         self._next = self.model.state()
+        self._primary = self.state  # after every step the current state is this object again
         qd = np.zeros((self.body_count, 6), dtype=np.float32)
         for k, body in enumerate(bodies):
             qd[k, :3] = body.velocity
@@ -209,12 +210,13 @@ class RigidWorld:
         self.max_substep = self._max_substep()
         self.steps = 0
         self.substeps = 0
+        self.detections = 0  # collision detections so far
 
     def _max_substep(self) -> float:
         """Largest stable Newton step [s] (module docstring): 1 / (CONTACT_POINTS w)."""
         return 1.0 / (CONTACT_POINTS * self.contact_frequency)
 
-    # --- the arrays coupling kernels read (current state; the objects change at every sub-step) ---
+    # --- the arrays coupling kernels read (the same objects after every ``step``) -------------------
     @property
     def body_q(self) -> wp.array:
         """Poses of the body origins (= centres of mass), (p [m], q xyzw), local frame."""
@@ -235,25 +237,33 @@ class RigidWorld:
         """Newton steps per ``step(dt)``."""
         return max(1, math.ceil(dt / self.max_substep - 1e-9))
 
-    def step(self, dt: float, body_f: wp.array | None = None) -> None:
+    def step(self, dt: float, body_f: wp.array | None = None, detect: bool = True) -> None:
         """Advance dt [s] under gravity, contacts and the external wrench ``body_f`` (per body
         (F [N], tau [N m]), world frame, torque about the centre of mass; None: no wrench), held
-        constant over ``substeps_for(dt)`` equal Newton steps; contacts are detected once."""
+        constant over ``substeps_for(dt)`` equal Newton steps; contacts are detected once, or (``detect``
+        False) the last detection's contacts are kept: their points live in the body frames, so their
+        depths follow the bodies, and they hold every pair that was within ``contact_gap`` then (the
+        caller keeps the motion since that detection below the gap)."""
         if self.body_count == 0:
             return
         wrench = self._zero_wrench if body_f is None else body_f
         n = self.substeps_for(dt)
         h = dt / n
-        self.pipeline.collide(self.state, self.contacts)
-        c = self.contacts
-        launch(_rigid.pair_contact_properties, c.rigid_contact_max,
-               [self.contact_frequency, self.model.shape_body, self.model.body_inv_mass, c.rigid_contact_count,
-                c.rigid_contact_shape0, c.rigid_contact_shape1], [c.rigid_contact_stiffness, c.rigid_contact_damping],
-               device=self.device)
+        if detect or not self.detections:
+            self.pipeline.collide(self.state, self.contacts)
+            c = self.contacts
+            launch(_rigid.pair_contact_properties, c.rigid_contact_max,
+                   [self.contact_frequency, self.model.shape_body, self.model.body_inv_mass, c.rigid_contact_count,
+                    c.rigid_contact_shape0, c.rigid_contact_shape1], [c.rigid_contact_stiffness, c.rigid_contact_damping],
+                   device=self.device)
+            self.detections += 1
         for _ in range(n):
             wp.copy(self.state.body_f, wrench)
             self.solver.step(self.state, self._next, self.control, self.contacts, h)
             self.state, self._next = self._next, self.state
+        if self.state is not self._primary:  # keep the arrays a caller holds (``body_q`` ...) current
+            self._primary.assign(self.state)
+            self.state, self._next = self._primary, self.state
         self.steps += 1
         self.substeps += n
 

@@ -114,6 +114,9 @@ class Exporter:
                                  with_spray=self.surface is not None and self.surface.grid.spray_neighbors > 0,
                                  resume_after_frame=resume_after_frame, overwrite=False,
                                  origin=m.origin if self.far else None)
+            if sim.bodies is not None:  # mesh prims with a time-sampled transform (a resume only checks them)
+                for name, geo in zip(sim.bodies.names, sim.bodies.geometries):
+                    self.usd.add_body(name, geo.vertices, geo.triangles)
         if o.mesh_sequence and self.surface is not None:
             from ..io.export_mesh import MeshSequenceWriter
 
@@ -151,6 +154,8 @@ class Exporter:
             snap["pressure"] = wp.clone(f["particle_pressure"])
         if checkpoint is not None:
             snap["checkpoint"] = checkpoint
+        if self.sim.bodies is not None:
+            snap["bodies"] = self.sim.bodies.export_poses()
         return snap
 
     def write(self, frame: int, t: float, snap: dict) -> None:
@@ -189,7 +194,8 @@ class Exporter:
                     primvars["density"] = rho
                 elif name == "pressure" and "pressure" in snap:
                     primvars["pressure"] = snap["pressure"].numpy()
-            self.usd.write_frame(frame, x_world, v, primvars=primvars, surface=surface, spray=spray)
+            self.usd.write_frame(frame, x_world, v, primvars=primvars, surface=surface, spray=spray,
+                                 bodies=snap.get("bodies"))
         if "checkpoint" in snap:  # after the frame's outputs: checkpoint k implies frames <= k are saved
             (self.out / "checkpoints").mkdir(exist_ok=True)
             rf.atomic_save_npz(rf.checkpoint_path(self.out, frame), particle_x_local=snap["x"].numpy(),
@@ -328,6 +334,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         sim.state.frame = int(cp["state_frame"])
         sim.state.time = float(cp["time"])
         sim.solver.restore_arrays(cp)
+        if sim.bodies is not None:
+            sim.bodies.restore_arrays(cp)
         sim.refresh_density()
         sim.last_frame = sim.statistics()
         sim.last_frame.max_speed = float(cp["last_max_speed"])

@@ -63,6 +63,8 @@ class FrameStatistics:
     non_finite: int
     outside: int
     max_acceleration: float = 0.0
+    body_speed: float = 0.0     # largest speed of a moving boundary particle (bound) [m/s]
+    bodies: dict = field(default_factory=dict)  # per body: pose, velocities, fluid force (``SimulationBodies``)
     solver: dict = field(default_factory=dict)
     retries: int = 0            # frames retried with a halved step (time.on_instability = "retry")
     watch: dict = field(default_factory=dict)  # watchdog counts and first particle index per rule
@@ -107,6 +109,16 @@ class Simulation:
         self.fluid_grid = NeighborGrid(self.model.support_radius, device=self.device,
                                        dim=_fluid_grid_dim(self.model, self.sampled.fluid_x))
         self.fields["fluid_grid"] = self.fluid_grid
+        #: fields that are not one value per fluid particle (never sorted into cell order)
+        self.unsorted_fields = {"boundary_x", "boundary_volume"}
+        #: the moving rigid bodies (``warp_sph.rigid.bodies.SimulationBodies``); None without [[bodies]]
+        self.bodies = None
+        if scene.bodies:
+            from ..rigid.bodies import SimulationBodies
+
+            self.bodies = SimulationBodies(self)
+            self._inputs |= self.bodies.inputs
+            self.unsorted_fields |= self.bodies.unsorted
         self._stats = wp.zeros(_diag.STAT_COUNT, dtype=float, device=self.device)
         self.frame_dt = 1.0 / float(scene.fps)
         self.last_frame: FrameStatistics | None = None
@@ -130,7 +142,12 @@ class Simulation:
             if refusal:
                 raise SceneError(f"solver {cls.name!r} does not work with boundary {self.boundary.name!r}: {refusal}")
         solver = cls(self, **options)
+        if self.bodies is not None:
+            self.bodies.check_solver(solver)
         stages = solver.stages()
+        if self.bodies is not None:
+            stages = self.bodies.insert_stages(stages, solver)
+            self.bodies.place()  # the neighbour lists exist now: their moving grid is the workspace's
         self.solver = solver
         self.graph = StepGraph(stages, self._inputs | set(solver.carried_fields()), device=self.device,
                                synchronize_timing=self.device.is_cuda)
@@ -139,11 +156,14 @@ class Simulation:
         self.refresh_density()
 
     def summary(self) -> dict:
-        """The model's constants, the solver's (``solver``) and the boundary method's (``boundary``)."""
+        """The model's constants, the solver's (``solver``), the boundary method's (``boundary``) and the
+        rigid bodies' (``bodies``)."""
         out = self.model.summary()
         out["solver"] = {"name": self.solver.name, **self.solver.summary()}
         if self.boundary is not None:
             out["boundary"] = {"name": self.boundary.name, **self.boundary.summary()}
+        if self.bodies is not None:
+            out["bodies"] = self.bodies.summary()
         return out
 
     # --- fields ----------------------------------------------------------------------------
@@ -186,8 +206,8 @@ class Simulation:
         self.state.time += dt
 
     def time_step_bounds(self, speed: float) -> list:
-        """Every bound of the step [s] at flow speed ``speed`` [m/s]: the solver's and the boundary
-        method's (``warp_sph.methods.solver.TimeStepBound``), tightest first."""
+        """Every bound of the step [s] at flow speed ``speed`` [m/s] (fluid and moving bodies): the solver's
+        and the boundary method's (``warp_sph.methods.solver.TimeStepBound``), tightest first."""
         bounds = list(self.solver.time_step_bounds(speed))
         if self.boundary is not None:
             bounds += self.boundary.time_step_bounds(speed)
@@ -216,13 +236,16 @@ class Simulation:
         particle and likely cause (the state is left at the failure).
         """
         wd = self.watchdog
-        max_speed = self.last_frame.max_speed if self.last_frame else self.statistics().max_speed
+        last = self.last_frame if self.last_frame else self.statistics()
+        max_speed = max(last.max_speed, last.body_speed)  # the CFL includes the bodies' particles
         wd.save()
         retries = 0
         while True:
             bound = self.time_step(max_speed)
             n = frame_substeps(self.frame_dt, bound)
             dt = self.frame_dt / n
+            if self.bodies is not None:
+                self.bodies.plan_frame(dt, max_speed)
             solver_stats = []
             with self.in_cell_order():
                 for _ in range(n):
@@ -310,7 +333,9 @@ class Simulation:
         s = self._stats.numpy()
         watch = wd.read()
         n = m.fluid_count
+        bodies, body_speed = self.bodies.frame_record() if self.bodies is not None else ({}, 0.0)
         return FrameStatistics(
+            body_speed=body_speed, bodies=bodies,
             frame=self.state.frame, time=self.state.time, steps=steps, dt_min=dt_min, dt_max=dt_max,
             max_speed=float(s[_diag.STAT_MAX_SPEED]),
             density_error_mean=float(s[_diag.STAT_SUM_COMPRESSION]) / n,

@@ -20,7 +20,8 @@ doubling per clean frame) or the run stops with a SimulationError. Before it sto
 replayed from its start stage by stage, checking after each stage the fields it wrote and the rules
 above, so the error names the first stage, step, time and particle(s) that went wrong, with the
 likely cause. The frame start is kept as device copies of x and v (2 copies per frame, 24 bytes per
-particle; negligible next to the substeps; measured in the issue note).
+particle; negligible next to the substeps; measured in the issue note), and of the rigid bodies'
+Newton state when the scene has bodies.
 """
 from __future__ import annotations
 
@@ -80,6 +81,7 @@ class Watchdog:
         self._v0 = None
         self._start = None      # (time, step, frame) at the frame start
         self._extra = None
+        self._bodies = None
 
     # --- limits ------------------------------------------------------------------------------
     def speed_limit(self, t: float) -> float:
@@ -98,6 +100,7 @@ class Watchdog:
         wp.copy(self._x0, s.particle_x)
         wp.copy(self._v0, s.particle_v)
         self._start = (s.time, s.step, s.frame)
+        self._bodies = self.sim.bodies.save() if self.sim.bodies is not None else None
         if self.mode == "retry":
             self._extra = {k: wp.clone(a) if isinstance(a, wp.array) else a
                            for k, a in self.sim.solver.checkpoint_arrays().items()}
@@ -109,6 +112,8 @@ class Watchdog:
         s.time, s.step, s.frame = self._start
         if self._extra:
             self.sim.solver.restore_arrays(self._extra)
+        if self._bodies is not None:  # the bodies' Newton state and their boundary particles
+            self.sim.bodies.restore(self._bodies)
 
     # --- rules -------------------------------------------------------------------------------
     def read(self) -> dict:

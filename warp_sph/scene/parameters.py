@@ -19,6 +19,7 @@ MESH_SEQUENCE_FORMATS = ("", "obj", "ply", "vtk")
 PARTICLE_PRIMVARS = ("density", "pressure")
 FLUID_SHAPES = ("box", "sphere")
 OBSTACLE_SHAPES = ("box", "mesh")
+BODY_SHAPES = ("box", "sphere", "mesh")
 TABLE_KINDS = ("table", "tables", "table_or_false")
 
 
@@ -164,6 +165,36 @@ _TAIL = (
     _P("obstacles[].scale", "float", "-", 1.0, "uniform scale of the mesh (x -> scale x + translate)",
        gt=0.0, shapes=("mesh",)),
     _P("obstacles[].translate", "vec3", "m", (0.0, 0.0, 0.0), "translation of the mesh", shapes=("mesh",)),
+    # moving rigid bodies (warp_sph.rigid): Akinci 2012 two-way coupling, dynamics by Newton
+    _P("bodies", "tables", "-", [], "moving rigid bodies ([[bodies]]), two-way coupled with the fluid "
+       "(Akinci et al. 2012) and stepped by Newton (the rigid extra)", default_text="none"),
+    _P("bodies[].name", "str", "-", "", "name of the body in the USD file and run.json (default: body<index>); "
+       "letters, digits and '_', not starting with a digit"),
+    _P("bodies[].shape", "str", "-", "box", "body shape", choices=BODY_SHAPES),
+    _P("bodies[].size", "vec3", "m", REQUIRED, "edge lengths of a box body", shapes=("box",)),
+    _P("bodies[].radius", "float", "m", REQUIRED, "radius of a sphere body", gt=0.0, shapes=("sphere",)),
+    _P("bodies[].file", "str", "-", REQUIRED, "closed triangle mesh (.obj .stl .ply .usd .usda .usdc), relative to "
+       "the scene file; it collides as its convex hull and couples to the fluid with its true surface",
+       shapes=("mesh",)),
+    _P("bodies[].scale", "float", "-", 1.0, "uniform scale of the mesh", gt=0.0, shapes=("mesh",)),
+    _P("bodies[].position", "vec3", "m", REQUIRED, "initial position of the centre of mass"),
+    _P("bodies[].rotation", "vec3", "deg", (0.0, 0.0, 0.0), "initial orientation as Euler angles about X, "
+       "then Y, then Z (Blender's XYZ rotation mode)"),
+    _P("bodies[].density", "float", "kg/m^3", None, "density (give density or mass, not both)", gt=0.0, le=1e6,
+       default_text="density or mass"),
+    _P("bodies[].mass", "float", "kg", None, "mass (give density or mass, not both)", gt=0.0,
+       default_text="density or mass"),
+    _P("bodies[].velocity", "vec3", "m/s", (0.0, 0.0, 0.0), "initial velocity of the centre of mass"),
+    _P("bodies[].angular_velocity", "vec3", "rad/s", (0.0, 0.0, 0.0), "initial angular velocity (world axes)"),
+    _P("bodies[].fluid_friction", "float", "-", None, "Akinci boundary friction sigma between this body and "
+       "the fluid (absent: material.boundary_friction)", ge=0.0, default_text="material.boundary_friction"),
+    _P("rigid", "table", "-", {}, "contacts of the rigid bodies (Newton, penalty contacts)"),
+    _P("rigid.contact_friction", "float", "-", 0.5, "Coulomb friction coefficient of every body contact "
+       "(body-body, body-wall, body-obstacle)", ge=0.0, le=10.0),
+    _P("rigid.contact_frequency", "float", "rad/s", 0.0, "contact stiffness as the angular frequency w of a "
+       "body pair on its contact spring (0: sqrt(g / (0.01 r)) with g the magnitude of gravity: a resting body sinks "
+       "in by 1 % of r); "
+       "Newton steps are at most 1 / (4 w)", ge=0.0, le=1e5, default_text="auto"),
     # output. Surface (warp_sph/surface/reconstruction.py): Phi = sum_j f_j / rho~_j with
     # f = (1 - r^2/R^2)^5 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
     # the bulk); on a rest lattice the 0.6 level lies 1.0 r beyond the last particle layer (ripple

@@ -20,13 +20,16 @@ gap at which the first fluid layer over one Akinci wall layer is at rest density
 - Fluid removal: fluid inside an obstacle (box test, mesh winding number) and fluid whose
   centre is closer than g d to any boundary particle are removed; a fluid particle closer than
   d/2 to a particle of an earlier fluid block is removed (overlapping blocks).
+- Moving bodies (``[[bodies]]``, ``warp_sph.rigid.sampling``): their particles sit g d - r below
+  their surface; fluid inside a body or closer than g d to its particles is removed (so the fluid
+  starts r from the true surface, where it rests).
 
 All geometry is NumPy in float64; positions stay float64 until the model subtracts its local
 origin (float32 would round them by 1e-3 m at 10^4 m from the origin); velocities are float32.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -51,6 +54,10 @@ class SampledScene:
     boundary_normals: unit normals pointing into the fluid side (container walls: inward,
         obstacles: outward; edges and corners: the normalised sum), shape (boundary_count, 3), float32.
     boundary_object: -1 for container walls, i for ``scene.obstacles[i]``, shape (boundary_count,), int32.
+    body_geometries, body_samples: per ``[[bodies]]`` entry, its ``rigid.BodyGeometry`` and
+        ``rigid.BodySamples`` (moving boundary particles in the body frame, with their volumes);
+    body_x: those particles' world positions at t = 0, body after body [m], (K, 3) float64.
+        The static boundary arrays above hold the walls and obstacles only.
     particle_radius: r [m]; spacing: d = 2 r [m].
     container_min, container_max: container corners [m], or None without a container.
     """
@@ -65,6 +72,9 @@ class SampledScene:
     spacing: float
     container_min: tuple[float, float, float] | None
     container_max: tuple[float, float, float] | None
+    body_geometries: list = field(default_factory=list)
+    body_samples: list = field(default_factory=list)
+    body_x: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def fluid_count(self) -> int:
@@ -245,6 +255,15 @@ def sample_scene(scene: Scene) -> SampledScene:
     if len(boundary_x):
         grid = PointGrid(boundary_x, gap)
         keep &= grid.nearest_distance(fluid_x, gap) >= gap * (1.0 - _EPS)
+    body_geometries, body_samples, body_x = [], [], np.zeros((0, 3))
+    if scene.bodies:  # moving bodies: fluid inside them, or within the gap of their (inset) particles, goes
+        from ..rigid.checks import inside_body
+        from ..rigid.sampling import sample_scene_bodies
+
+        body_geometries, body_samples, body_x = sample_scene_bodies(scene)
+        for geo, body in zip(body_geometries, scene.bodies):
+            keep &= ~inside_body(geo, body, fluid_x, 0.0)
+        keep &= PointGrid(body_x, gap).nearest_distance(fluid_x, gap) >= gap * (1.0 - _EPS)
     fluid_x, fluid_v, fluid_b = fluid_x[keep], fluid_v[keep], fluid_b[keep]
     if len(fluid_x) == 0:
         raise SceneError(
@@ -262,4 +281,7 @@ def sample_scene(scene: Scene) -> SampledScene:
         spacing=d,
         container_min=tuple(c.min) if c is not None else None,
         container_max=tuple(c.max) if c is not None else None,
+        body_geometries=body_geometries,
+        body_samples=body_samples,
+        body_x=np.ascontiguousarray(body_x, dtype=np.float64),
     )

@@ -56,9 +56,15 @@ Obstacle = section_class("obstacles[]", _CORE["obstacles[]"].values(),
                          doc="A static obstacle sampled on its surface as boundary particles; keys of the other "
                              "shape are None (file: the absolute path after loading).")
 
+Body = section_class("bodies[]", _CORE["bodies[]"].values(),
+                     doc="A moving rigid body (``warp_sph.rigid``); keys of other shapes are None (file: the "
+                         "absolute path after loading).")
+Body.__name__ = Body.__qualname__ = "Body"
+RigidParams = section_class("rigid", _CORE["rigid"].values(), doc="Contacts of the rigid bodies.")
+
 #: core section name -> class (method sections come from the registry)
 CORE_SECTIONS = {"material": Material, "time": TimeParams, "container": Container, "output": OutputParams,
-                 "fluid[]": FluidBlock, "obstacles[]": Obstacle}
+                 "fluid[]": FluidBlock, "obstacles[]": Obstacle, "bodies[]": Body, "rigid": RigidParams}
 
 
 @dataclass
@@ -88,6 +94,8 @@ class Scene:
     container: Any = field(default_factory=Container)
     fluid: list = field(default_factory=list)
     obstacles: list = field(default_factory=list)
+    bodies: list = field(default_factory=list)
+    rigid: Any = field(default_factory=RigidParams)
     output: Any = field(default_factory=OutputParams)
     sections: dict = field(default_factory=dict)
     source: str = field(default="<dict>", compare=False, repr=False)

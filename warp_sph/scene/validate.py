@@ -4,7 +4,8 @@ key path (``fluid[1].min``) and what was expected, before any kernel runs.
 Checks every value against its parameter row (type, range, choices), unknown keys, required keys,
 shape-specific keys, and the cross-checks between values: boxes with max > min, fluid inside the
 container, obstacles closed and not entirely outside the container, a mesh sequence only with a
-surface, each method's own cross-checks (``Solver.validate``) and the solver x boundary pairing.
+surface, each method's own cross-checks (``Solver.validate``) and the solver x boundary pairing,
+rigid bodies (``warp_sph.rigid.checks``: inside the container, no overlap, Newton installed).
 """
 from __future__ import annotations
 
@@ -137,7 +138,7 @@ class Validator:
             get_smoothing_kernel(values["smoothing_kernel"])
         except SceneError as exc:
             self.fail("smoothing_kernel", str(exc))
-        for section in ("material", "time", "output"):
+        for section in ("material", "time", "output", "rigid"):
             values[section] = CORE_SECTIONS[section](**self.table(data.get(section, {}), section, section))
         sections = {}
         for name, cls in registry.methods_with_parameters().items():
@@ -154,6 +155,7 @@ class Validator:
             values["container"] = c
         values["fluid"] = self.blocks(data, "fluid", required=True)
         values["obstacles"] = self.blocks(data, "obstacles", required=False)
+        values["bodies"] = self.blocks(data, "bodies", required=False)
         scene = Scene(**values, source=self.source)
         self.cross_checks(scene)
         return scene
@@ -171,14 +173,14 @@ class Validator:
         for i, b in enumerate(raw):
             kp = f"{name}[{i}]"
             block = cls(**self.table(b, f"{name}[]", kp, shape_key=True))
-            if block.shape == "box":
+            if block.shape == "box" and name != "bodies":
                 self.box(block.min, block.max, kp)
-            if name == "obstacles" and block.shape == "mesh":
-                self.mesh_obstacle(block, kp)
+            if name in ("obstacles", "bodies") and block.shape == "mesh":
+                self.mesh_file(block, kp, name)
             out.append(block)
         return out
 
-    def mesh_obstacle(self, block, kp: str) -> None:
+    def mesh_file(self, block, kp: str, what: str = "obstacles") -> None:
         path = Path(block.file).expanduser()
         if not path.is_absolute():
             path = (self.base_dir or Path.cwd()) / path
@@ -190,7 +192,7 @@ class Validator:
         holes = open_edge_count(mesh)
         if holes:
             self.fail(f"{kp}.file", f"mesh {str(path)!r} is not closed ({holes} edges belong to one triangle only); "
-                      "obstacles need a closed surface (the inside test and the wall sampling assume one)")
+                      f"{what} need a closed surface (the inside test and the wall sampling assume one)")
         block.file = str(path)
 
     def cross_checks(self, scene: Scene) -> None:
@@ -222,6 +224,10 @@ class Validator:
             self.fail("boundary", f"{scene.boundary!r} does not work with solver {scene.solver!r}: {refusal}")
         for name, cls in registry.methods_with_parameters().items():
             cls.validate(scene, self.fail)
+        if scene.bodies:
+            from ..rigid.checks import check_bodies
+
+            check_bodies(scene, self.fail)
 
 
 def _obstacle_bounds(ob) -> tuple[np.ndarray, np.ndarray]:

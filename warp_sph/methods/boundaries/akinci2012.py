@@ -3,9 +3,12 @@
 One layer of boundary particles on walls and obstacles, each with the volume V_b = 1 / sum_k W_bk of
 its own layer (eq. 15, computed once in ``warp_sph.core.model``). The fluid sees them in its density
 (rho0 sum_b V_b W_ib, eq. 13), in the pressure force (eq. 16, or mirrored) and, with
-``material.boundary_friction`` sigma > 0, in the friction force (eq. 22-24).
+``material.boundary_friction`` sigma > 0, in the friction force (eq. 22-24); a moving body's own
+``fluid_friction`` gives its particles their own sigma (a per-particle friction term).
 """
 from __future__ import annotations
+
+import warp as wp
 
 from ...kernels import akinci2012 as _dev
 from ..boundary import BoundaryMethod
@@ -20,7 +23,10 @@ class Akinci2012(BoundaryMethod):
     contributes_density = True
 
     def terms(self):
-        return _dev.AKINCI2012_FRICTION if self.model.boundary_friction > 0.0 else _dev.AKINCI2012
+        m = self.model
+        if m.boundary_particle_friction is not None:  # a moving body with its own fluid_friction
+            return _dev.AKINCI2012_PARTICLE_FRICTION
+        return _dev.AKINCI2012_FRICTION if m.boundary_friction > 0.0 else _dev.AKINCI2012
 
     def params(self):
         m = self.model
@@ -30,6 +36,12 @@ class Akinci2012(BoundaryMethod):
         p.smoothing_length = m.smoothing_length
         p.speed_of_sound = m.speed_of_sound
         p.eps_h2 = 0.01 * m.smoothing_length * m.smoothing_length
+        if m.boundary_particle_friction is not None:
+            p.particle_friction = m.boundary_particle_friction
+        else:
+            if getattr(self, "_no_friction", None) is None:
+                self._no_friction = wp.zeros(1, dtype=float, device=m.device)
+            p.particle_friction = self._no_friction
         return p
 
     def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
@@ -37,11 +49,13 @@ class Akinci2012(BoundaryMethod):
         form against Psi_b nu_b = m sigma h c_s / (2 rho) of eq. 24), so it needs the viscous bound
         0.0625 (H_s/2)^2 / nu."""
         m = self.model
-        if m.boundary_friction <= 0.0:
+        sigma = m.max_boundary_friction
+        if sigma <= 0.0:
             return []
-        nu = m.boundary_friction * m.smoothing_length * m.speed_of_sound / 20.0
+        nu = sigma * m.smoothing_length * m.speed_of_sound / 20.0
         length = 0.5 * m.support_radius
+        keys = ("material.boundary_friction",) + (("bodies[].fluid_friction",) if sigma > m.boundary_friction else ())
         return [TimeStepBound("boundary friction", 0.0625 * length * length / nu,
                               f"0.0625 (H_s/2)^2 / nu_f with nu_f = sigma h c_s / 20 = {nu:.3g} m^2/s "
-                              f"(sigma = {m.boundary_friction:g}, h = {m.smoothing_length:.4g} m, "
-                              f"c_s = {m.speed_of_sound:.4g} m/s)", ("material.boundary_friction",))]
+                              f"(sigma = {sigma:g}, h = {m.smoothing_length:.4g} m, "
+                              f"c_s = {m.speed_of_sound:.4g} m/s)", keys)]

@@ -107,6 +107,9 @@ class PbfSolver(Solver):
 
     name = "pbf"
     title = "position-based fluids (Macklin & Mueller 2013)"
+    #: the walls' correction summed over the step's iterations is its boundary_pressure_term; particle_x
+    #: and particle_v after "update" are what the viscosity stage's boundary force reads
+    body_coupling_after = "update"
     section_doc = "position-based fluids settings"
     iterative = True
     parameters = (
@@ -189,6 +192,9 @@ class PbfSolver(Solver):
                             ("boundary_force", wp.vec3), ("particle_acceleration", wp.vec3),
                             ("pbf_neighbor_x", wp.vec3)):
             sim.allocate(name, dtype)
+        # moving bodies: sum over the step's corrections of -lambda_i / (rho0 dt^2) (``correction``)
+        self._term = sim.allocate("boundary_pressure_term", float) if self.with_bodies else wp.zeros(
+            1, dtype=float, device=dev)
         chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
         self._error_partial = wp.zeros(chunks, dtype=float, device=dev)
         self._correction_partial = wp.zeros((chunks, 2), dtype=float, device=dev)
@@ -197,7 +203,8 @@ class PbfSolver(Solver):
         if self.lists:
             self.nl = simulation_neighbor_lists(sim, self.margin)
             self._density_kernel = _pbf.density_lambda_pairs_kernel(m.smoothing.name, terms, tensile)
-            self._correction_kernel = _pbf.correction_pairs_kernel(self._with_boundary_gradient, tensile)
+            self._correction_kernel = _pbf.correction_pairs_kernel(self._with_boundary_gradient, tensile,
+                                                                   self.with_bodies and self._with_boundary_gradient)
             pairs = _pbf.PairCache()
             pairs.count = wp.zeros(n, dtype=wp.int32, device=dev)
             pairs.boundary_gradient = wp.zeros(n, dtype=wp.vec3, device=dev)
@@ -278,8 +285,10 @@ class PbfSolver(Solver):
         tensile = (float(p.tensile_k), int(p.tensile_n), self.tensile_inv_w, self.tensile_scale)
         if self.lists:
             launch(self._correction_kernel, m.fluid_count,
-                   [m.particle_mass, *tensile, inv_dt2, self.max_step, fn, f["pbf_pairs"], f["particle_lambda"]],
-                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"]], device=m.device)
+                   [m.particle_mass, *tensile, inv_dt2, self.max_step, -inv_dt2 / m.rest_density, fn, f["pbf_pairs"],
+                    f["particle_lambda"]],
+                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"], self._term],
+                   device=m.device)
         else:
             launch(self._correction_kernel, m.fluid_count,
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
@@ -326,6 +335,8 @@ class PbfSolver(Solver):
         m, f = self.model, sim.fields
         launch(_pbf.predict_positions, m.fluid_count, [wp.vec3(*m.gravity), float(dt), f["particle_x"]],
                [f["particle_v"], f["predicted_x"], f["boundary_force"]], device=m.device, min_range=LIGHT_MIN_RANGE)
+        if self.with_bodies:
+            launch(_pbf.clear_float, m.fluid_count, [], [self._term], device=m.device, min_range=LIGHT_MIN_RANGE)
 
     def run_neighbors(self, sim, dt) -> None:
         self.build_neighbors()
@@ -376,7 +387,8 @@ class PbfSolver(Solver):
         boundary_reads = (("boundary_x", "boundary_volume") + (() if self.lists else ("boundary_grid",))
                           if with_boundary else ())
         passes = ("particle_density", "particle_lambda", "pbf_constraint") + (("pbf_pairs",) if self.lists else ())
-        correction = ("predicted_x", "position_correction", "pbf_correction_size", "boundary_force")
+        term = ("boundary_pressure_term",) if self.with_bodies else ()
+        correction = ("predicted_x", "position_correction", "pbf_correction_size", "boundary_force") + term
         if self.lists:
             nl = self.nl
             neighbor_doc = (f"neighbour lists on x* within H_s + {self.margin / m.spacing:.3g} d = {nl.search_radius:.4g} m "
@@ -386,20 +398,22 @@ class PbfSolver(Solver):
         else:
             neighbor_doc = f"wp.HashGrid on x*, radius H_s = {m.support_radius:.4g} m ({self.neighbor_mode})"
         target = float(p.target_density_error)
+        # the lists of moving boundary particles are rebuilt with the fluid's (neighbors, solve, stabilize)
+        moving = ("moving_boundary_grid",) if self.with_bodies else ()
         stages = [
-            Stage("stabilize", self.run_stabilize, reads=("particle_x",) + boundary_reads,
+            Stage("stabilize", self.run_stabilize, reads=("particle_x",) + boundary_reads + moving,
                   updates=("particle_x", nb, "pbf_neighbor_x") + passes + correction,
                   doc=f"when the last density pass read a mean error > {self.stabilize_factor:g}x the target: "
                       "project it out of x with density passes and corrections at dt = 0 (no velocity)"),
             Stage("predict", self.run_predict, reads=("particle_x",), updates=("particle_v", "predicted_x",
-                                                                              "boundary_force"),
+                                                                              "boundary_force") + term,
                   doc="v += dt g; x* = x + dt v; the step's boundary force starts at 0"),
-            Stage("neighbors", self.run_neighbors, reads=("predicted_x",), updates=(nb, "pbf_neighbor_x"),
+            Stage("neighbors", self.run_neighbors, reads=("predicted_x",) + moving, updates=(nb, "pbf_neighbor_x"),
                   doc=neighbor_doc),
             Stage("density", self.run_density, reads=(nb, "predicted_x") + boundary_reads, updates=passes,
                   doc="density at x* (eq. 7" + (f" + {sim.boundary_terms.name} boundary" if with_boundary else "")
                       + "), C (eq. 17), lambda (eq. 19)"),
-            Stage("solve", self.run_solve, reads=("particle_lambda",) + boundary_reads,
+            Stage("solve", self.run_solve, reads=("particle_lambda",) + boundary_reads + moving,
                   updates=(nb, "pbf_neighbor_x") + passes + correction,
                   doc=f"iterations of [density pass +] Jacobi correction (eq. 18) until the pass reads mean C < "
                       f"{target:g} ({p.min_iterations}-{p.max_iterations} iterations), eps = {p.relaxation:g} D0"
@@ -423,7 +437,7 @@ class PbfSolver(Solver):
         nb = "neighbor_lists" if self.lists else "fluid_grid"
         return ("predicted_x", nb, "pbf_neighbor_x", "particle_density", "particle_lambda", "pbf_constraint",
                 "position_correction", "pbf_correction_size", "boundary_force", "particle_acceleration") + (
-            ("pbf_pairs",) if self.lists else ())
+            ("pbf_pairs",) if self.lists else ()) + (("boundary_pressure_term",) if self.with_bodies else ())
 
     # --- interface -------------------------------------------------------------------------
     def time_step_bounds(self, speed: float) -> list[TimeStepBound]:

@@ -42,6 +42,7 @@ class WcsphSolver(Solver):
 
     name = "wcsph"
     title = "weakly compressible SPH (Becker & Teschner 2007)"
+    body_coupling_after = "forces"  # the wall's p/rho^2 is its boundary_pressure_term
     section_doc = "weakly compressible SPH settings"
     parameters = (
         Param("wcsph.equation_of_state", "str", "-", "linear", "p = k (rho/rho0 - 1) (linear) or "
@@ -82,9 +83,11 @@ class WcsphSolver(Solver):
         with_boundary = terms is not None
         mirrored = self.config.boundary_pressure == "mirrored"
         pressure_kernel = _wcsph.pressure_kernel(self.config.equation_of_state)
+        bodies = self.with_bodies
         force_kernel = _wcsph.acceleration_kernel(m.smoothing.name, terms, m.viscosity > 0.0, mirrored,
                                                   "list" if self.lists else "grid",
-                                                  self.config.artificial_viscosity > 0.0)
+                                                  self.config.artificial_viscosity > 0.0, bodies)
+        term = sim.allocate("boundary_pressure_term", float) if bodies else wp.zeros(1, dtype=float, device=m.device)
         gravity = wp.vec3(*m.gravity)
         neighbors = "neighbor_lists" if self.lists else "fluid_grid"
         stiffness = self.stiffness
@@ -104,7 +107,7 @@ class WcsphSolver(Solver):
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, gravity, m.viscosity,
                     float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound), params, bn, m.boundary_x, m.boundary_v, m.boundary_volume,
                     fn, f["particle_x"], f["particle_v"], f["particle_density"], f["particle_pressure"]],
-                   [f["particle_acceleration"], f["boundary_force"]], device=m.device)
+                   [f["particle_acceleration"], f["boundary_force"], term], device=m.device)
 
         def run_integrate(sim, dt):
             f = sim.fields
@@ -112,7 +115,7 @@ class WcsphSolver(Solver):
                    [f["particle_v"], f["particle_x"]], device=m.device, min_range=LIGHT_MIN_RANGE)
 
         boundary_reads = (("boundary_x", "boundary_volume") + (() if self.lists else ("boundary_grid",))
-                          if with_boundary else ())
+                          + (("boundary_v",) if bodies else ()) if with_boundary else ())
         terms_doc = ["pressure (eq. 10)"]
         if with_boundary:
             terms_doc.append(f"{terms.name} boundary" + (" (mirrored pressure)" if mirrored and terms.pressure else ""))
@@ -127,7 +130,8 @@ class WcsphSolver(Solver):
                   doc=f"{self.config.equation_of_state} equation of state, K = {stiffness:.4g} Pa"),
             Stage("forces", run_forces,
                   reads=(neighbors, "particle_x", "particle_v", "particle_density", "particle_pressure") + boundary_reads,
-                  writes=("particle_acceleration", "boundary_force"), doc=" + ".join(terms_doc)),
+                  writes=("particle_acceleration", "boundary_force") + (("boundary_pressure_term",) if bodies else ()),
+                  doc=" + ".join(terms_doc)),
             Stage("integrate", run_integrate, reads=("particle_acceleration",), updates=("particle_v", "particle_x"),
                   doc="semi-implicit Euler (eq. 11)"),
         ]

@@ -1,0 +1,133 @@
+"""Scene checks of ``[[bodies]]`` that need the bodies' geometry, run by scene validation before any
+kernel: names, mass, thickness against the boundary inset, inside the container, no overlap with
+obstacles or each other at t = 0, a solver and boundary method that couple, Newton installed.
+
+Posed geometry: x_world = R(rotation) x_body + position, ``x_body`` relative to the centre of mass.
+"""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..scene.meshes import load_triangle_mesh, points_inside, sample_surface
+from ..scene.sampling import box_surface
+from .spec import BodyGeometry, body_geometry, body_name, check_body, quat_to_matrix, rotation_quaternion
+
+_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+
+
+def body_inset(scene) -> float:
+    """Inset [m] of a body's boundary particles below its surface: wall gap g - r (``rigid.sampling``)."""
+    return max(scene.wall_gap - scene.particle_radius, 0.0)
+
+
+def posed(geometry: BodyGeometry, body) -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), centre of mass [m] (3,)) of a body at t = 0."""
+    return quat_to_matrix(rotation_quaternion(body.rotation)), np.asarray(body.position, dtype=np.float64)
+
+
+def inside_body(geometry: BodyGeometry, body, points: np.ndarray, tolerance: float) -> np.ndarray:
+    """Mask of world ``points`` [m] strictly inside the body at t = 0 (more than ``tolerance`` [m] deep)."""
+    R, c = posed(geometry, body)
+    local = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - c) @ R  # R^T (x - c)
+    if geometry.shape == "box":
+        return np.all(np.abs(local) < geometry.half_extents - tolerance, axis=1)
+    if geometry.shape == "sphere":
+        return np.linalg.norm(local, axis=1) < geometry.radius - tolerance
+    inside = points_inside(geometry.mesh, local)
+    if tolerance > 0.0 and inside.any():  # keep points deeper than the tolerance: none of 6 offsets leaves
+        for axis in range(3):
+            for sign in (-1.0, 1.0):
+                shifted = local.copy()
+                shifted[:, axis] += sign * tolerance
+                inside &= points_inside(geometry.mesh, shifted)
+    return inside
+
+
+def surface_points(geometry: BodyGeometry, body, spacing: float) -> np.ndarray:
+    """Points about ``spacing`` [m] apart on the body's true surface at t = 0, world frame [m]."""
+    from .sampling import surface_samples
+
+    x, _ = surface_samples(geometry, spacing, 0.0)
+    R, c = posed(geometry, body)
+    verts = geometry.vertices
+    return np.concatenate([x, verts]) @ R.T + c
+
+
+def check_bodies(scene, fail) -> list[BodyGeometry]:
+    """Refuse (``fail(keypath, message)``) bodies a run cannot start with; return their geometries.
+
+    Per body: a valid, unique name; exactly one of density and mass; larger than twice the boundary
+    inset in every direction; inside the container. Between bodies and obstacles: no overlap at t = 0
+    (surface samples d/2 apart of each one tested inside the other, 0.1 d tolerance). The solver and
+    boundary method must couple (``Solver.refuses_bodies``); Newton must be installed.
+    """
+    from ..methods import registry
+    from .world import require_newton
+
+    if not scene.bodies:
+        return []
+    d = scene.spacing
+    tol = 0.1 * d
+    inset = body_inset(scene)
+    names: dict[str, int] = {}
+    geometries = []
+    for i, body in enumerate(scene.bodies):
+        kp = f"bodies[{i}]"
+        name = body_name(body, i)
+        if not _IDENTIFIER.match(name):
+            fail(f"{kp}.name", f"expected letters, digits and '_' not starting with a digit (a USD prim name), "
+                 f"got {name!r}")
+        if name in names:
+            fail(f"{kp}.name", f"{name!r} is also the name of bodies[{names[name]}]; body names must be unique")
+        names[name] = i
+        check_body(body, kp, scene.source)
+        geo = body_geometry(body)
+        small = 2.0 * inset
+        if geo.shape == "box" and not np.all(2.0 * geo.half_extents > small):
+            fail(f"{kp}.size", f"expected every edge > {small:.4g} m (twice the boundary inset wall gap - r "
+                 f"= {inset:.4g} m), got {list(body.size)}; make the box larger or the particles smaller")
+        if geo.shape == "sphere" and not geo.radius > inset:
+            fail(f"{kp}.radius", f"expected > {inset:.4g} m (the boundary inset wall gap - r), got {geo.radius:g}; "
+                 "make the sphere larger or the particles smaller")
+        if geo.shape == "mesh":
+            lo, hi = geo.vertices.min(axis=0), geo.vertices.max(axis=0)
+            if not np.all(hi - lo > small):
+                fail(f"{kp}.file", f"the mesh is {np.round(hi - lo, 6).tolist()} m across; expected more than "
+                     f"{small:.4g} m (twice the boundary inset) in every direction")
+        c = scene.container
+        if c is not None:
+            R, p = posed(geo, body)
+            verts = geo.vertices @ R.T + p
+            lo, hi = verts.min(axis=0), verts.max(axis=0)
+            ctol = 1e-9 * max(1.0, float(np.max(np.abs(verts))))
+            if np.any(lo < np.asarray(c.min) - ctol) or np.any(hi > np.asarray(c.max) + ctol):
+                fail(kp, f"spans {np.round(lo, 6).tolist()}..{np.round(hi, 6).tolist()} at its initial pose, not inside "
+                     f"the container {list(c.min)}..{list(c.max)}")
+        geometries.append(geo)
+    # overlaps at t = 0
+    samples = [surface_points(g, b, 0.5 * d) for g, b in zip(geometries, scene.bodies)]
+    for i, (gi, bi) in enumerate(zip(geometries, scene.bodies)):
+        for j in range(i):
+            gj, bj = geometries[j], scene.bodies[j]
+            if inside_body(gj, bj, samples[i], tol).any() or inside_body(gi, bi, samples[j], tol).any():
+                fail(f"bodies[{i}]", f"overlaps bodies[{j}] at t = 0; move one of them")
+        for k, ob in enumerate(scene.obstacles):
+            if ob.shape == "box":
+                lo, hi = np.asarray(ob.min, dtype=np.float64), np.asarray(ob.max, dtype=np.float64)
+                in_ob = np.all((samples[i] > lo + tol) & (samples[i] < hi - tol), axis=1)
+                ob_points, _ = box_surface(lo, hi, 0.5 * d, inward=False)
+            else:
+                mesh = load_triangle_mesh(ob.file).transformed(ob.scale, ob.translate)
+                in_ob = points_inside(mesh, samples[i])
+                ob_points = np.concatenate([sample_surface(mesh, 0.5 * d)[0], mesh.vertices])
+            if in_ob.any() or inside_body(gi, bi, ob_points, tol).any():
+                fail(f"bodies[{i}]", f"overlaps obstacles[{k}] at t = 0; move the body or the obstacle")
+    solver = registry.solver(scene.solver)
+    boundary = registry.boundary(scene.boundary)
+    refusal = solver.refuses_bodies(boundary)
+    if refusal:
+        fail("bodies", f"solver {scene.solver!r} with boundary {scene.boundary!r} cannot move bodies: {refusal}")
+    require_newton()
+    return geometries
