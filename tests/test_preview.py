@@ -232,7 +232,7 @@ def test_missing_pillow_names_the_extra(tmp_path, monkeypatch):
 def test_preview_shows_obstacles(tmp_path, mode):
     """The obstacle scene's cylinder (in the USD and the scene) is drawn, in stone grey."""
     image_module = pytest.importorskip("PIL.Image")
-    from warp_sph.preview.render_run import _load_frame, _speed_colors, _SurfaceReader
+    from warp_sph.preview.render_run import SurfaceReader, load_frame, speed_colors
     from warp_sph.run import runner
     from warp_sph.scene import load_scene
 
@@ -247,13 +247,13 @@ def test_preview_shows_obstacles(tmp_path, mode):
     with image_module.open(png) as im:
         picture = np.asarray(im)
     if mode == "surface":
-        vertices, triangles = _SurfaceReader(out).frame(2)
+        vertices, triangles = SurfaceReader(out).frame(2)
         without = render_mesh(vertices, triangles, camera, size, (box["min"], box["max"]))
     else:
-        x, v = _load_frame(out, 2)
+        x, v = load_frame(out, 2)
         speed = float(np.percentile(np.linalg.norm(v, axis=1), 99.0))
         without = render_particles(x, scene["particle_radius"], camera, size, (box["min"], box["max"]),
-                                   _speed_colors(v, speed, len(x)))
+                                   speed_colors(v, speed, len(x)))
     changed = np.any(picture != without, axis=2)
     assert changed.sum() > 0.01 * size[0] * size[1], changed.sum()
     pixels = picture[changed].astype(float)

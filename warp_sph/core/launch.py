@@ -7,6 +7,9 @@ waits for all of them; elsewhere it launches once with offset 0. The caller neve
 offset. Each thread writes only its own indices, so results do not depend on the thread count
 or timing as long as the kernel does not accumulate across indices with atomics.
 
+Other kernels (atomics across indices, ray tracing over pixels, 2-D and 3-D launches: ``dim`` a
+tuple) run as one ``wp.launch``, unchanged.
+
 Worker count: ``WARP_SPH_CPU_THREADS`` if set, else the number of cores this process may use.
 """
 from __future__ import annotations
@@ -41,11 +44,19 @@ def _takes_offset(kernel) -> bool:
     return bool(args) and args[0].label == "tid_offset"
 
 
-def launch(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = MIN_RANGE) -> None:
-    """wp.launch over ``dim`` threads; nothing happens when dim == 0. Kernels taking ``tid_offset``
-    first run in disjoint ranges on all CPU cores (see the module docstring), each of at least
-    ``min_range`` indices (``LIGHT_MIN_RANGE`` for light kernels)."""
+def launch(kernel, dim: int | tuple[int, ...], inputs, outputs=(), device=None, min_range: int = MIN_RANGE) -> None:
+    """wp.launch over ``dim`` threads (an int, or a tuple for a 2-D/3-D launch); nothing happens when
+    a dimension is 0. Kernels taking ``tid_offset`` first (1-D only) run in disjoint ranges on all CPU
+    cores (see the module docstring), each of at least ``min_range`` indices (``LIGHT_MIN_RANGE`` for
+    light kernels)."""
     global _pool
+    if isinstance(dim, tuple):
+        if _takes_offset(kernel):
+            raise ValueError(f"kernel {kernel.key} takes tid_offset: launch it over an int dim, got {dim}")
+        if min(dim, default=0) <= 0:
+            return
+        wp.launch(kernel, dim=dim, inputs=list(inputs), outputs=list(outputs), device=device)
+        return
     if dim <= 0:
         return
     if not _takes_offset(kernel):

@@ -26,6 +26,7 @@ import numpy as np
 import warp as wp
 
 from ..core.errors import SceneError
+from ..core.launch import launch
 from ..core.smoothing import get_smoothing_kernel
 from ..kernels import density as _density_dev
 from ..neighbors import NeighborGrid
@@ -105,8 +106,8 @@ def akinci_volumes(local_x: np.ndarray, smoothing: str, smoothing_length: float,
     if x.shape[0]:
         grid = NeighborGrid(support, device=device)
         grid.build(x)
-        wp.launch(_density_dev.boundary_volume_kernel(kernel.name), dim=x.shape[0],
-                  inputs=[float(smoothing_length), float(support), grid.id, x], outputs=[volume], device=device)
+        launch(_density_dev.boundary_volume_kernel(kernel.name), x.shape[0],
+               [float(smoothing_length), float(support), grid.id, x], [volume], device=device)
     return volume.numpy()
 
 

@@ -53,7 +53,7 @@ def split_launches(enabled: bool) -> None:
     _policy.split = bool(enabled)
 
 
-def launch(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = _launch_module.MIN_RANGE) -> None:
+def launch(kernel, dim: int | tuple[int, ...], inputs, outputs=(), device=None, min_range: int = _launch_module.MIN_RANGE) -> None:
     """``warp_sph.core.launch.launch`` for the surface kernels, without splitting where
     :func:`split_launches` turned it off for this thread."""
     if not getattr(_policy, "split", True):
@@ -133,7 +133,7 @@ class SparseGrid:
     def _bounds(self, particle_x: wp.array) -> tuple[np.ndarray, np.ndarray]:
         bounds = self._buf.get("bounds", 7, float)
         wp.copy(bounds, self._bounds_init, count=7)
-        wp.launch(_dev.particle_bounds, dim=len(particle_x), inputs=[particle_x], outputs=[bounds], device=self.device)
+        launch(_dev.particle_bounds, len(particle_x), [particle_x], [bounds], device=self.device)
         b = bounds.numpy()[:7].astype(np.float64)
         if b[6] > 0 or not np.all(np.isfinite(b[:6])):
             raise SimulationError(f"surface reconstruction: {int(b[6])} particle positions are not finite")
@@ -188,8 +188,7 @@ class SparseGrid:
 
         dkeys = self._buf.get("dkeys", 2 * 27 * n_occ, wp.int64)
         dindex = self._buf.get("dindex", 2 * 27 * n_occ, wp.int32)
-        wp.launch(_dev.dilate_blocks, dim=(n_occ, 27), inputs=[occ_key, self.block_dims], outputs=[dkeys, dindex],
-                  device=dev)
+        launch(_dev.dilate_blocks, (n_occ, 27), [occ_key, self.block_dims], [dkeys, dindex], device=dev)
         wp.utils.radix_sort_pairs(dkeys, dindex, 27 * n_occ, 0, key_bits)
         n_cand, cand_key, _, _ = self._unique(dkeys, 27 * n_occ, "cand")
         self.candidate_count = n_cand
@@ -198,7 +197,7 @@ class SparseGrid:
         table_key = self._buf.get("table_key", capacity, wp.int64)[:capacity]
         table_value = self._buf.get("table_value", capacity, wp.int32)[:capacity]
         table_key.fill_(-1)
-        wp.launch(_dev.hash_insert, dim=n_cand, inputs=[cand_key], outputs=[table_key, table_value], device=dev)
+        launch(_dev.hash_insert, n_cand, [cand_key], [table_key, table_value], device=dev)
 
         self.block_coord = self._buf.get("coord", n_cand, wp.vec3i)
         self.block_neighbor = self._buf.get("nbr", n_cand, wp.int32, width=27)
@@ -208,8 +207,8 @@ class SparseGrid:
         self.block_count = self._buf.get("bcount", n_cand, wp.int32)
         self.block_count.zero_()
         self.particle_block = self._buf.get("pblock", n, wp.int32)
-        wp.launch(_dev.block_particle_ranges, dim=n_occ, inputs=[occ_key, occ_start, occ_len, table_key, table_value],
-                  outputs=[self.block_start, self.block_count, self.particle_block], device=dev)
+        launch(_dev.block_particle_ranges, n_occ, [occ_key, occ_start, occ_len, table_key, table_value],
+               [self.block_start, self.block_count, self.particle_block], device=dev)
 
         self.sorted_x = self._buf.get("sorted_x", n, wp.vec3)
         launch(_dev.gather_sorted, n, [particle_x, index], [self.sorted_x], device=dev, min_range=LIGHT_MIN_RANGE)

@@ -57,11 +57,10 @@ class MeshConnectivity:
         self.face_count.zero_()
         cursor.zero_()
         if nt:
-            wp.launch(_dev.count_vertex_faces, dim=nt, inputs=[triangles], outputs=[self.face_count], device=dev)
+            launch(_dev.count_vertex_faces, nt, [triangles], [self.face_count], device=dev)
         wp.utils.array_scan(self.face_count[:nv], self.face_start[:nv], inclusive=False)
         if nt:
-            wp.launch(_dev.fill_vertex_faces, dim=nt, inputs=[triangles, self.face_start], outputs=[cursor, self.faces],
-                      device=dev)
+            launch(_dev.fill_vertex_faces, nt, [triangles, self.face_start], [cursor, self.faces], device=dev)
         launch(_dev.vertex_neighbors, nv, [triangles, self.face_start, self.face_count],
                [self.faces, self.neighbors, self.neighbor_count], device=dev)
         return self
