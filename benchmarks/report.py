@@ -45,7 +45,9 @@ def latest(records: list[dict]) -> list[dict]:
     return [r for r in records if r.get("invocation", r.get("date", "")) == inv]
 
 
-def _fmt(v, scale=1.0, digits=3) -> str:
+def fmt(v, scale=1.0, digits=3) -> str:
+    """A table cell: ``v * scale`` with ``digits`` significant digits, "-" for None or non-finite
+    (the formatter every report section gets)."""
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "-"
     if isinstance(v, (int, float)):
@@ -78,13 +80,13 @@ def sweep_table(records: list[dict]) -> list[str]:
     rows = []
     for r, best in zip(records, front):
         row = [("**" + r["label"] + "** *" if best else r["label"]), r.get("status", "?"),
-               _fmt(r.get("fluid_particles")), _fmt(_m(r, "steps")), _fmt(_m(r, SPEED_KEY)),
-               _fmt(_m(r, "particle_steps_per_second")), _fmt(_m(r, "ms_per_step")),
-               _fmt(_m(r, "density_error_mean_avg"), 100), _fmt(_m(r, "density_error_max"), 100),
-               _fmt(_m(r, "volume_drift_max_abs"), 100), _fmt(_m(r, "energy_change_final")),
-               _fmt(_m(r, "front_final")), _fmt(_m(r, "bytes_per_particle"))]
+               fmt(r.get("fluid_particles")), fmt(_m(r, "steps")), fmt(_m(r, SPEED_KEY)),
+               fmt(_m(r, "particle_steps_per_second")), fmt(_m(r, "ms_per_step")),
+               fmt(_m(r, "density_error_mean_avg"), 100), fmt(_m(r, "density_error_max"), 100),
+               fmt(_m(r, "volume_drift_max_abs"), 100), fmt(_m(r, "energy_change_final")),
+               fmt(_m(r, "front_final")), fmt(_m(r, "bytes_per_particle"))]
         if hydro:
-            row.insert(-1, _fmt(_m(r, "pressure_error_mean_abs"), 100))
+            row.insert(-1, fmt(_m(r, "pressure_error_mean_abs"), 100))
         rows.append(row)
     return _table(header, rows)
 
@@ -100,7 +102,7 @@ def stage_table(records: list[dict]) -> list[str]:
     rows = []
     for r in records:
         by = {s["stage"]: s for s in r.get("stage_times") or []}
-        rows.append([r["label"]] + [(_fmt(by[s]["ms_per_call"]) + f" ({100 * by[s].get('fraction', 0):.0f}%)")
+        rows.append([r["label"]] + [(fmt(by[s]["ms_per_call"]) + f" ({100 * by[s].get('fraction', 0):.0f}%)")
                                     if s in by and by[s]["calls"] else "-" for s in stages])
     return _table(["case (ms per call, share)"] + stages, rows)
 
@@ -131,7 +133,8 @@ def _versions(records: list[dict]) -> str:
     return "-"
 
 
-def _section_head(recs: list[dict]) -> list[str]:
+def section_head(recs: list[dict]) -> list[str]:
+    """The lines under a section title: the command, the invocation, the machine and the versions."""
     cmd = recs[0].get("command", "?")
     return [f"Command: `{cmd}`  ", f"Run: {recs[0].get('invocation', recs[0].get('date', '?'))}; "
             f"machine: {_machine(recs)}; {_versions(recs)}", ""]
@@ -175,16 +178,16 @@ def adaptive_section(records: list[dict], figures: Figures, rel: str) -> list[st
     for radius in sorted(by_radius, reverse=True):
         recs = latest(by_radius[radius])
         n = max((r.get("fluid_particles") or 0) for r in recs)
-        lines += [f"### {n:,} fluid particles (r = {radius:g} m)", ""] + _section_head(recs)
+        lines += [f"### {n:,} fluid particles (r = {radius:g} m)", ""] + section_head(recs)
         rows = []
         for r in sorted(recs, key=lambda r: (_m(r, SPEED_KEY) is None, _m(r, SPEED_KEY) or 0)):
             p = r.get("params") or {}
             rows.append([r.get("engine", "?"), p.get("case") or p.get("solver", "?"), r.get("status", "?"),
-                         _fmt(r.get("threads")), _fmt(r.get("fluid_particles")), _fmt(_m(r, "simulated_seconds")),
-                         _fmt(_m(r, "steps")), _fmt(_m(r, "dt_mean"), 1e3), _fmt(_m(r, "solver_iterations_mean")),
-                         _fmt(_m(r, "divergence_iterations_mean")), _fmt(_m(r, SPEED_KEY)),
-                         _fmt(_m(r, "cpu_per_simulated_second")), _fmt(_m(r, "density_error_mean_avg"), 100),
-                         _fmt(_m(r, "density_error_max"), 100)])
+                         fmt(r.get("threads")), fmt(r.get("fluid_particles")), fmt(_m(r, "simulated_seconds")),
+                         fmt(_m(r, "steps")), fmt(_m(r, "dt_mean"), 1e3), fmt(_m(r, "solver_iterations_mean")),
+                         fmt(_m(r, "divergence_iterations_mean")), fmt(_m(r, SPEED_KEY)),
+                         fmt(_m(r, "cpu_per_simulated_second")), fmt(_m(r, "density_error_mean_avg"), 100),
+                         fmt(_m(r, "density_error_max"), 100)])
         lines += _table(["engine", "case", "status", "threads", "fluid N", "sim s", "steps", "mean dt [ms]",
                          "iterations/step", "divergence it./step", "wall s / sim s", "CPU s / sim s", "mean ρ err %",
                          "max ρ err %"], rows) + [""]
@@ -192,8 +195,8 @@ def adaptive_section(records: list[dict], figures: Figures, rel: str) -> list[st
         if ratios:
             lines += _table(["SPlisHSPlasH case", "its threads", "warp-sph dfsph / it (wall)", "(CPU)",
                              "warp-sph mean ρ err %", "its mean ρ err %"],
-                            [[q["case"], _fmt(q["threads"]), _fmt(q["ratio"]), _fmt(q.get("cpu_ratio")),
-                              _fmt(q["ours_error"], 100), _fmt(q["ref_error"], 100)] for q in ratios]) + [""]
+                            [[q["case"], fmt(q["threads"]), fmt(q["ratio"]), fmt(q.get("cpu_ratio")),
+                              fmt(q["ours_error"], 100), fmt(q["ref_error"], 100)] for q in ratios]) + [""]
         png = figures.get(f"splishsplash_adaptive_{n}.png", recs, lambda p, recs=recs, n=n: plot_adaptive(
             recs, p, f"dam break, {n:,} fluid particles: speed against accuracy (each engine's adaptive step)"))
         if png:
@@ -233,7 +236,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     names = sorted({r.get("name", "custom") for r in sweeps}, key=lambda n: (n != "tradeoff", n))
     for name in names:
         recs = latest([r for r in sweeps if r.get("name", "custom") == name])
-        lines += [f"## Sweep: {name}", ""] + _section_head(recs)
+        lines += [f"## Sweep: {name}", ""] + section_head(recs)
         scenes = []
         for r in recs:
             s = (r.get("params") or {}).get("scene") or (r.get("scene") or {}).get("name", "?")
@@ -267,16 +270,16 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
         by_solver.setdefault((solver, extra), []).append(r)
     for solver, extra in sorted(by_solver, key=lambda k: (k[0] != "wcsph", k)):
         scaling = latest(by_solver[(solver, extra)])
-        lines += [f"## Scaling: {solver}" + (f" ({', '.join(extra)})" if extra else ""), ""] + _section_head(scaling)
+        lines += [f"## Scaling: {solver}" + (f" ({', '.join(extra)})" if extra else ""), ""] + section_head(scaling)
         iterative = any(_m(r, "ns_per_particle_iteration") for r in scaling)
         rows = []
         for r in sorted(scaling, key=lambda r: r.get("fluid_particles") or 0):
-            rows.append([_fmt((r.get("params") or {}).get("particle_radius")), r.get("status", "?"),
-                         _fmt(r.get("fluid_particles")), _fmt(r.get("boundary_particles")), _fmt(_m(r, "steps")),
-                         _fmt(_m(r, "ms_per_step")), _fmt(_m(r, "ns_per_particle_step")),
-                         _fmt(_m(r, "particle_steps_per_second")), _fmt(_m(r, "bytes_per_particle")),
-                         _fmt(_m(r, "rss_growth_per_particle")), _fmt((_m(r, "peak_rss_bytes") or 0) / 2**20)]
-                        + ([_fmt(_m(r, "solver_iterations_mean")), _fmt(_m(r, "ns_per_particle_iteration"))]
+            rows.append([fmt((r.get("params") or {}).get("particle_radius")), r.get("status", "?"),
+                         fmt(r.get("fluid_particles")), fmt(r.get("boundary_particles")), fmt(_m(r, "steps")),
+                         fmt(_m(r, "ms_per_step")), fmt(_m(r, "ns_per_particle_step")),
+                         fmt(_m(r, "particle_steps_per_second")), fmt(_m(r, "bytes_per_particle")),
+                         fmt(_m(r, "rss_growth_per_particle")), fmt((_m(r, "peak_rss_bytes") or 0) / 2**20)]
+                        + ([fmt(_m(r, "solver_iterations_mean")), fmt(_m(r, "ns_per_particle_iteration"))]
                            if iterative else []))
         lines += _table(["radius [m]", "status", "fluid N", "boundary N", "steps", "ms/step", "ns/particle-step",
                          "particle-steps/s", "bytes/particle", "RSS growth/particle", "peak RSS [MiB]"]
@@ -286,7 +289,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
             cost = [c for c in cost if c]
             if len(cost) > 1:
                 lines += [f"Flatness: the slowest cost per {what} is {max(cost) / min(cost):.2f}x the fastest "
-                          f"({_fmt(min(cost))} to {_fmt(max(cost))} ns).", ""]
+                          f"({fmt(min(cost))} to {fmt(max(cost))} ns).", ""]
         stem = "scaling" + ("" if solver == "wcsph" else f"_{solver}") + "".join(
             "_" + "".join(c if c.isalnum() else "_" for c in o) for o in extra)
         png = figures.get(f"{stem}.png", scaling, lambda p: plot_scaling(scaling, p))
@@ -307,19 +310,19 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     for size in sorted(by_size):
         sph = latest(by_size[size])
         suffix = "" if size == min(by_size) else f"_{size}"
-        lines += [f"### {size:,} fluid particles", ""] + _section_head(sph)
+        lines += [f"### {size:,} fluid particles", ""] + section_head(sph)
         skipped = [r for r in sph if r.get("engine") == "splishsplash" and r.get("status") != "ok"]
         if skipped:
             lines += [f"SPlisHSPlasH runs not available: {skipped[0].get('error')}", ""]
         rows = []
         for r in sph:
             p = r.get("params") or {}
-            rows.append([r.get("label", r.get("engine", "?")), p.get("solver", "?"), r.get("status", "?"), _fmt(p.get("dt")),
-                         _fmt(r.get("threads")), _fmt(r.get("fluid_particles")), _fmt(_m(r, "steps")),
-                         _fmt(_m(r, SPEED_KEY)), _fmt(_m(r, "particle_steps_per_second")),
-                         _fmt(_m(r, "density_error_mean_avg"), 100), _fmt(_m(r, "density_error_max"), 100),
-                         _fmt(_m(r, "volume_drift_max_abs"), 100), _fmt(_m(r, "energy_change_final")),
-                         _fmt(_m(r, "front_final"))])
+            rows.append([r.get("label", r.get("engine", "?")), p.get("solver", "?"), r.get("status", "?"), fmt(p.get("dt")),
+                         fmt(r.get("threads")), fmt(r.get("fluid_particles")), fmt(_m(r, "steps")),
+                         fmt(_m(r, SPEED_KEY)), fmt(_m(r, "particle_steps_per_second")),
+                         fmt(_m(r, "density_error_mean_avg"), 100), fmt(_m(r, "density_error_max"), 100),
+                         fmt(_m(r, "volume_drift_max_abs"), 100), fmt(_m(r, "energy_change_final")),
+                         fmt(_m(r, "front_final"))])
         lines += _table(["case", "solver", "status", "dt [s]", "threads", "fluid N", "steps", "wall s / sim s",
                          "particle-steps/s", "mean ρ err %", "max ρ err %", "max |vol drift| %", "energy change",
                          "front [m]"], rows) + [""]
@@ -327,8 +330,8 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
         if ratios:
             lines += _table(["solver", "SPlisHSPlasH threads", "warp-sph time / SPlisHSPlasH time",
                              "warp-sph mean ρ err %", "SPlisHSPlasH mean ρ err %"],
-                            [[q["solver"], _fmt(q["threads"]), _fmt(q["ratio"]), _fmt(q["ours_error"], 100),
-                              _fmt(q["ref_error"], 100)] for q in ratios]) + [""]
+                            [[q["solver"], fmt(q["threads"]), fmt(q["ratio"]), fmt(q["ours_error"], 100),
+                              fmt(q["ref_error"], 100)] for q in ratios]) + [""]
         lines += ["Threads: SPlisHSPlasH runs with OMP_NUM_THREADS as listed; warp-sph splits each particle-parallel "
                   "kernel over all cores (WARP_SPH_CPU_THREADS). Same box, fluid lattice, particle radius, fixed step and Akinci 2012 "
                   "walls; SPlisHSPlasH's particle mass is 0.8 d³ρ0 (warp-sph calibrates its mass to a rest "
@@ -350,19 +353,19 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
 
     surf = latest(data.get("surface", []))
     if surf:
-        lines += ["## Surface reconstruction", ""] + _section_head(surf)
+        lines += ["## Surface reconstruction", ""] + section_head(surf)
         rows = []
         for r in surf:
             if r.get("status") != "ok":
                 continue
             st = r.get("stage_ms") or {}
-            stages = " / ".join(_fmt(st.get(k)) for k in ("particles", "band", "field", "extraction", "smoothing",
+            stages = " / ".join(fmt(st.get(k)) for k in ("particles", "band", "field", "extraction", "smoothing",
                                                          "decimation", "normals")) if st else ""
-            usd = (f"{_fmt(r.get('usd_write_ms'))} ms, {_fmt(r.get('usd_bytes_per_frame'))} B"
+            usd = (f"{fmt(r.get('usd_write_ms'))} ms, {fmt(r.get('usd_bytes_per_frame'))} B"
                    if r.get("usd_write_ms") is not None else "")
-            rows.append([_fmt(r.get("fluid_particles")), _fmt(r.get("cell_per_radius")), _fmt(r.get("threads")),
-                         r.get("engine", "?"), r.get("variant", "?"), _fmt(r.get("ms")), _fmt(r.get("triangles")),
-                         _fmt(r.get("ratio_to_splashsurf")), stages, usd])
+            rows.append([fmt(r.get("fluid_particles")), fmt(r.get("cell_per_radius")), fmt(r.get("threads")),
+                         r.get("engine", "?"), r.get("variant", "?"), fmt(r.get("ms")), fmt(r.get("triangles")),
+                         fmt(r.get("ratio_to_splashsurf")), stages, usd])
         lines += _table(["fluid N", "cell / r", "threads", "engine", "variant", "ms/frame", "triangles",
                          "x splashsurf", "warp-sph stages [ms]: particles (spray split included) / band / field / "
                          "extraction / smoothing / decimation / normals", "USD write of the frame"], rows) + [""]
@@ -375,11 +378,11 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                   "variant.", ""]
 
     mat = latest(data.get("matrix", []))
-    lines += matrix.section(mat, _fmt, _section_head)
+    lines += matrix.section(mat, fmt, section_head)
     execs = latest(data.get("executors", []))
-    lines += executor_speed.section(execs, _fmt, _section_head)
+    lines += executor_speed.section(execs, fmt, section_head)
     moving = latest(data.get("bodies", []))
-    lines += bodies.section(moving, _fmt, _section_head)
+    lines += bodies.section(moving, fmt, section_head)
 
     if not (sweeps or by_solver or by_size or adaptive or surf or mat or execs or moving):
         lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]

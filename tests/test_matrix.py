@@ -87,7 +87,7 @@ def test_bench_matrix_command_and_its_report_section(tmp_path):
     other = next(r for r in recs if r is not wcsph)
     stopped = dict(wcsph, status="unstable", error="a particle outside the container by frame 3 (t = 0.1 s): "
                    "particle 7; likely cause: stiffness too low")
-    md = "\n".join(MX.section([stopped, other], R._fmt, R._section_head))
+    md = "\n".join(MX.section([stopped, other], R.fmt, R.section_head))
     row = next(line for line in md.splitlines() if line.startswith("| dam_break | wcsph |"))
     assert "| stopped |" in row and "likely cause: stiffness too low" in row
     assert "1 of 2 cases finished" in md

@@ -43,11 +43,13 @@ def _cmd_run(args) -> int:
         scene = load_scene(args.scene, overrides=args.set)
         info = runner.run(scene, out=Path(args.out) if args.out else None, device=args.device,
                           frames=args.frames, overwrite=args.overwrite, progress=not args.no_progress)
-    _print_summary(info)
+    print_summary(info)
     return 0
 
 
-def _print_summary(info: dict) -> None:
+def print_summary(info: dict) -> None:
+    """Print the end-of-run summary of ``warp-sph run`` (frames, steps, density error, export time,
+    output) from the dict ``runner.run`` returns."""
     frames = info["frames"]
     steps = sum(f["steps"] for f in frames)
     err = max((f["density_error_max"] for f in frames), default=0.0)

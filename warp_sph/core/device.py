@@ -63,12 +63,13 @@ def init_warp() -> None:
         if _verbose:
             wp.init()
             return
-        _init_filtering_stderr()
+        init_filtering_stderr()
 
 
-def _init_filtering_stderr() -> None:
+def init_filtering_stderr() -> None:
     """wp.init() with file descriptor 2 sent to a temporary file; lines other than the known
-    no-GPU note are written back to stderr afterwards (nothing else is hidden)."""
+    no-GPU note are written back to stderr afterwards (nothing else is hidden). ``init_warp`` runs
+    this when not verbose and Warp is not initialised yet."""
     try:
         sys.stderr.flush()
         saved = os.dup(2)
