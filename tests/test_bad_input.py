@@ -269,10 +269,10 @@ def test_failed_start_removes_what_it_created(workdir, capsys, monkeypatch):
     folder it made (runs/ included); in a folder that existed it removes only its own files."""
     from warp_sph.io import export_usd
 
-    def refuse(self, *args, **kwargs):
+    def refuse(*args, **kwargs):
         raise export_usd.OutputError("cannot create USD file (simulated)")
 
-    monkeypatch.setattr(export_usd.UsdWriter, "_create", refuse)
+    monkeypatch.setattr(export_usd, "create_stage", refuse)
     scene = write(workdir, "scene.toml", WITH_USD)
     before = snapshot(workdir)
     code, err = run_cli(["run", str(scene), "--no-progress"], capsys)

@@ -1,31 +1,8 @@
-"""USD export for Blender: time-sampled particles (UsdGeomPoints) and fluid surface (UsdGeomMesh).
+"""USD export for Blender: a run's frames as time samples in one ``.usdc`` file (``UsdWriter``).
 
-Layout (notes/usd_blender.md section 2), one ``.usdc`` file for the whole run:
-
-    defaultPrim = "sph", upAxis = "Z", metersPerUnit = 1, timeCodesPerSecond = framesPerSecond = fps,
-    startTimeCode = 1, endTimeCode = last frame written (updated before every Save)
-    /sph                   Xform
-    /sph/particles         Points: points, velocities, extent (+/- r), primvars:<name> (vertex)
-                           time-sampled every frame, in stable particle order; widths = 2 r (constant)
-    /sph/surface           Mesh (subdivisionScheme none): points, faceVertexCounts,
-                           faceVertexIndices (CCW seen from outside), extent, and primvars:normals
-                           (vertex interpolation: smooth shading in Blender without modifiers), every frame
-    /sph/spray             Points: the spray particles (few neighbours, not in the surface mesh): points,
-                           velocities, extent (+/- width / 2), widths (constant interpolation, one value
-                           per frame: 2 r); the count changes per frame. A frame without spray holds one
-                           point 1e-4 r wide at the lowest particle (under the water, below a pixel in
-                           any render), because an empty Points sample is flagged by USD checkers
-                           (check_usd.py --strict) and some importers
-    /sph/<name>            static meshes (container walls, obstacles): topology as default values;
-                           points and extent as default values *and* one (equal) time sample per
-                           frame, so every Points/Mesh prim spans the frame range (check_usd.py
-                           --strict; Blender adds a Mesh Sequence Cache that reads the same mesh).
-                           Crate shares equal values only within one Save, so each frame costs
-                           12 B per static vertex (the 8-vertex container: ~0.1 kB per frame).
-    /sph/bodies/<name>     moving rigid bodies (``add_body``): Mesh whose points are in the body frame
-                           (origin at the centre of mass), written like a static mesh, and whose
-                           xformOp:translate (centre of mass [m]) and xformOp:orient (quatf) are
-                           time-sampled every frame: Blender plays them with a Transform Cache.
+The file's prims and their attributes (particles, surface, spray, static meshes, moving bodies) are
+described and created in ``usd_layout.py`` (notes/usd_blender.md section 2); this module writes the
+frames into them.
 
 Frame f is written at time code f (1 = the initial state; ``first_frame`` for a re-export of a
 frame range). The stage is saved after every frame: crate saves append, so memory stays flat and a crash (even SIGKILL) leaves every frame written
@@ -59,50 +36,10 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 from ..core.errors import OutputError
 from . import run_folder as rf
 from .crate_guard import crate_tail, restore_crate_tail
+from .usd_layout import (BODIES, RESERVED, clear_after, container_box_mesh, create_stage, extent, file_origin,
+                         first_line, open_for_resume, vec3f)
 
-_RESERVED = ("particles", "surface", "spray", "bodies")
-_BODIES = "/sph/bodies"
-
-
-def container_box_mesh(lower, upper, open_top: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Triangle mesh of the box [lower, upper] [m] (Z up), wound CCW seen from outside.
-
-    Returns vertices (8, 3) float32 [m] and triangles (10 or 12, 3) int32; with ``open_top`` the
-    face at z = upper.z is left out (an open tank).
-    """
-    lo = np.asarray(lower, dtype=np.float64).reshape(3)
-    hi = np.asarray(upper, dtype=np.float64).reshape(3)
-    if not np.all(hi > lo):
-        raise ValueError(f"container box needs upper > lower on every axis; got {lo.tolist()} .. {hi.tolist()}")
-    # vertex v = bit0 * x + bit1 * y + bit2 * z
-    verts = np.array([[(hi if (v >> a) & 1 else lo)[a] for a in range(3)] for v in range(8)], dtype=np.float32)
-    quads = [
-        (0, 2, 3, 1),  # z = lo (bottom, normal -z)
-        (0, 1, 5, 4),  # y = lo (normal -y)
-        (2, 6, 7, 3),  # y = hi (normal +y)
-        (0, 4, 6, 2),  # x = lo (normal -x)
-        (1, 3, 7, 5),  # x = hi (normal +x)
-    ]
-    if not open_top:
-        quads.append((4, 5, 7, 6))  # z = hi (top, normal +z)
-    tris = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int32)
-    return verts, tris
-
-
-def _vec3f(a: np.ndarray) -> Vt.Vec3fArray:
-    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(a, dtype=np.float32).reshape(-1, 3))
-
-
-def _extent(points: np.ndarray, pad: float) -> Vt.Vec3fArray:
-    if len(points) == 0:
-        return _vec3f(np.zeros((2, 3)))
-    return _vec3f(np.stack([points.min(axis=0) - pad, points.max(axis=0) + pad]))
-
-
-def _first_line(exc: BaseException) -> str:
-    """The first informative line of an exception (pxr's Tf errors span several lines)."""
-    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-    return lines[0] if lines else type(exc).__name__
+__all__ = ["UsdWriter", "container_box_mesh"]
 
 
 def _nbytes(value) -> int:
@@ -186,139 +123,27 @@ class UsdWriter:
 
     # -- creation ------------------------------------------------------------------------------
     def _create(self, static_meshes, overwrite: bool) -> Usd.Stage:
-        folder = os.path.dirname(os.path.abspath(self.path))
-        if not os.path.isdir(folder):
-            raise OutputError(f"USD output folder {folder} does not exist")
-        if os.path.exists(self.path):
-            if not overwrite:
-                raise OutputError(f"USD file {self.path} already exists; remove it, choose another path, "
-                                  "or resume it")
-            os.remove(self.path)
-        try:
-            layer = Sdf.Layer.Find(self.path)
-            if layer is not None:  # still open in this process (a stage someone holds): reuse it, emptied
-                layer.Clear()
-                stage = Usd.Stage.Open(layer)
-            else:
-                stage = Usd.Stage.CreateNew(self.path)
-        except Exception as exc:  # pxr raises Tf.ErrorException
-            raise OutputError(f"cannot create USD file {self.path}: {_first_line(exc)}") from None
-        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
-        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-        stage.SetTimeCodesPerSecond(self.fps)
-        stage.SetFramesPerSecond(self.fps)
-        stage.SetStartTimeCode(self.first_frame)
-        stage.SetEndTimeCode(self.first_frame)
-        root = UsdGeom.Xform.Define(stage, "/sph")
-        stage.SetDefaultPrim(root.GetPrim())
-        if self.origin is not None:
-            root.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Vec3d(*self.origin.tolist()))
-
-        points = UsdGeom.Points.Define(stage, "/sph/particles")
-        points.CreatePointsAttr()
-        points.CreateExtentAttr()
-        points.CreateWidthsAttr(Vt.FloatArray([2.0 * self.particle_radius]))
-        points.SetWidthsInterpolation(UsdGeom.Tokens.constant)
-        if self.with_velocities:
-            points.CreateVelocitiesAttr()
-        api = UsdGeom.PrimvarsAPI(points)
-        for name in self.primvar_names:
-            api.CreatePrimvar(name, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex)
-
-        if self.with_surface:
-            mesh = UsdGeom.Mesh.Define(stage, "/sph/surface")
-            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-            mesh.CreatePointsAttr()
-            mesh.CreateFaceVertexCountsAttr()
-            mesh.CreateFaceVertexIndicesAttr()
-            mesh.CreateExtentAttr()
-            if self.with_normals:
-                UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("normals", Sdf.ValueTypeNames.Normal3fArray,
-                                                        UsdGeom.Tokens.vertex)
-
-        if self.with_spray:
-            spray = UsdGeom.Points.Define(stage, "/sph/spray")
-            spray.CreatePointsAttr()
-            spray.CreateExtentAttr()
-            spray.CreateWidthsAttr()
-            spray.SetWidthsInterpolation(UsdGeom.Tokens.constant)
-            if self.with_velocities:
-                spray.CreateVelocitiesAttr()
-
-        for name, verts, tris in static_meshes:
-            if not Sdf.Path.IsValidIdentifier(name) or name in _RESERVED:
-                raise ValueError(f"static mesh name {name!r} must be a USD identifier other than {_RESERVED}")
-            verts = self._local(verts)
-            tris = np.asarray(tris, dtype=np.int32).reshape(-1, 3)
-            if len(tris) and (tris.min() < 0 or tris.max() >= len(verts)):
-                raise ValueError(f"static mesh {name!r}: triangle indices out of range")
-            mesh = UsdGeom.Mesh.Define(stage, f"/sph/{name}")
-            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-            mesh.CreatePointsAttr(_vec3f(verts))
-            mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)))
-            mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(tris.reshape(-1))))
-            mesh.CreateExtentAttr(_extent(verts, 0.0))
-        self.stage = stage
+        self.stage = create_stage(self.path, self.fps, self.particle_radius, self.first_frame, self.origin,
+                                  self.primvar_names, self.with_surface, self.with_velocities, self.with_normals,
+                                  self.with_spray, static_meshes, overwrite, self._local)
         self._save(0)
-        return stage
+        return self.stage
 
     def _resume(self, k: int) -> Usd.Stage:
-        stage = self._open_for_resume(k)  # every check first: a refused resume changes nothing
-        self.origin = self._file_origin(stage)
-        for prim in stage.Traverse():
-            for attr in prim.GetAttributes():
-                for t in attr.GetTimeSamples():
-                    if t > k:
-                        attr.ClearAtTime(t)
+        # every check first: a refused resume changes nothing
+        stage, self.first_frame = open_for_resume(self.path, k, self.fps, self.with_surface, self.with_spray,
+                                                  self.with_normals)
+        self.origin = file_origin(stage)
+        clear_after(stage, k)
         stage.SetEndTimeCode(max(k, self.first_frame))
         self.stage = stage
         self._save(0)
         return stage
 
-    def _open_for_resume(self, k: int) -> Usd.Stage:
-        """Open the file and check it can continue after frame ``k`` (sets first_frame)."""
-        if k < 0:
-            raise ValueError(f"resume_after_frame must be >= 0; got {k}")
-        if not os.path.isfile(self.path):
-            raise OutputError(f"cannot resume: USD file {self.path} does not exist")
-        try:
-            stage = Usd.Stage.Open(self.path)
-        except Exception as exc:
-            raise OutputError(f"cannot resume: USD file {self.path} does not open: {_first_line(exc)}") from None
-        if not stage or not stage.GetPrimAtPath("/sph/particles").IsA(UsdGeom.Points):
-            raise OutputError(f"cannot resume: {self.path} has no /sph/particles Points prim (not a warp-sph file?)")
-        if stage.GetTimeCodesPerSecond() != self.fps:
-            raise OutputError(f"cannot resume: {self.path} was written at {stage.GetTimeCodesPerSecond():g} fps, "
-                              f"this run exports at {self.fps:g} fps")
-        self.first_frame = int(stage.GetStartTimeCode())
-        if k < self.first_frame - 1:
-            raise OutputError(f"cannot resume after frame {k}: {self.path} starts at frame {self.first_frame}")
-        end = stage.GetEndTimeCode()
-        if end < k:
-            raise OutputError(f"cannot resume after frame {k}: {self.path} ends at frame {end:g}")
-        for name, wanted in (("surface", self.with_surface), ("spray", getattr(self, "with_spray", None))):
-            if wanted is not None and wanted != stage.GetPrimAtPath(f"/sph/{name}").IsValid():
-                raise OutputError(f"cannot resume: {self.path} {'lacks' if wanted else 'has'} /sph/{name}")
-        if getattr(self, "with_normals", False) and \
-                not UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/sph/surface")).HasPrimvar("normals"):
-            raise OutputError(f"cannot resume: {self.path} has no surface normals (primvars:normals)")
-        return stage
-
     @staticmethod
     def check_resumable(path, k: int, fps: float, with_surface: bool) -> None:
         """Raise OutputError if ``path`` cannot be resumed after frame ``k``; changes nothing."""
-        probe = UsdWriter.__new__(UsdWriter)
-        probe.path, probe.fps, probe.with_surface = os.fspath(path), float(fps), bool(with_surface)
-        probe._open_for_resume(int(k))
-
-    def _file_origin(self, stage):
-        """The translate of /sph (the origin points are relative to), None if it has none."""
-        ops = UsdGeom.Xformable(stage.GetPrimAtPath("/sph")).GetOrderedXformOps()
-        for op in ops:
-            if op.GetOpType() == UsdGeom.XformOp.TypeTranslate:
-                value = np.asarray(op.Get(), dtype=np.float64).reshape(3)
-                return value if np.any(value) else None
-        return None
+        open_for_resume(os.fspath(path), int(k), float(fps), bool(with_surface))
 
     def _local(self, points) -> np.ndarray:
         """World positions [m] -> float32 points of the file (relative to ``origin`` if it has one)."""
@@ -353,7 +178,7 @@ class UsdWriter:
             self._failed = True
             restored = saved is not None and restore_crate_tail(self.path, saved)
             free = rf.free_bytes(Path(self.path))
-            raise OutputError(f"cannot save {self.path} ({rf.format_bytes(free)} free): {_first_line(exc)}; "
+            raise OutputError(f"cannot save {self.path} ({rf.format_bytes(free)} free): {first_line(exc)}; "
                               + (f"the file keeps frames up to {self._last_saved()}" if restored else
                                  "the file may be damaged") + "; free some space, then continue with --resume") from None
 
@@ -391,7 +216,7 @@ class UsdWriter:
         # static meshes: their default points and extent, repeated as a time sample every frame
         self._statics = []
         for prim in stage.GetPrimAtPath("/sph").GetChildren():
-            if prim.GetName() in _RESERVED or not prim.IsA(UsdGeom.Mesh):
+            if prim.GetName() in RESERVED or not prim.IsA(UsdGeom.Mesh):
                 continue
             mesh = UsdGeom.Mesh(prim)
             for attr in (mesh.GetPointsAttr(), mesh.GetExtentAttr()):
@@ -400,7 +225,7 @@ class UsdWriter:
                     raise OutputError(f"{self.path}: static mesh {prim.GetPath()} has no default {attr.GetName()}")
                 self._statics.append((attr, value))
         self._bodies = {}
-        bodies = stage.GetPrimAtPath(_BODIES)
+        bodies = stage.GetPrimAtPath(BODIES)
         for prim in bodies.GetChildren() if bodies.IsValid() else ():
             self._bind_body(prim)
 
@@ -424,13 +249,13 @@ class UsdWriter:
             return
         if self.last_frame >= self.first_frame:
             raise ValueError(f"body {name!r}: add bodies before the first frame is written")
-        UsdGeom.Xform.Define(self.stage, _BODIES)
-        mesh = UsdGeom.Mesh.Define(self.stage, f"{_BODIES}/{name}")
+        UsdGeom.Xform.Define(self.stage, BODIES)
+        mesh = UsdGeom.Mesh.Define(self.stage, f"{BODIES}/{name}")
         mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        mesh.CreatePointsAttr(_vec3f(verts))
+        mesh.CreatePointsAttr(vec3f(verts))
         mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)))
         mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(tris.reshape(-1))))
-        mesh.CreateExtentAttr(_extent(verts, 0.0))
+        mesh.CreateExtentAttr(extent(verts, 0.0))
         mesh.AddTranslateOp()
         mesh.AddOrientOp()
         self.stage.Save()
@@ -510,15 +335,15 @@ class UsdWriter:
             raise ValueError(f"write_frame needs exactly the primvars {sorted(self.primvar_names)}; got {sorted(primvars)}")
         bodies = self._body_poses(bodies)
         t = Usd.TimeCode(frame)
-        self._points.Set(_vec3f(x), t)
-        self._points_extent.Set(_extent(x, self.particle_radius), t)
+        self._points.Set(vec3f(x), t)
+        self._points_extent.Set(extent(x, self.particle_radius), t)
         if self._velocities is not None:
             if particle_v is None:
                 raise ValueError("write_frame needs particle_v (the writer was made with_velocities=True)")
             v = np.ascontiguousarray(particle_v, dtype=np.float32).reshape(-1, 3)
             if len(v) != n:
                 raise ValueError(f"{len(v)} velocities for {n} particles")
-            self._velocities.Set(_vec3f(v), t)
+            self._velocities.Set(vec3f(v), t)
         for name, attr in self._primvars.items():
             values = np.ascontiguousarray(primvars[name], dtype=np.float32).reshape(-1)
             if len(values) != n:
@@ -541,11 +366,11 @@ class UsdWriter:
                 normals = np.ascontiguousarray(normals, dtype=np.float32).reshape(-1, 3)
                 if len(normals) != len(verts):
                     raise ValueError(f"{len(normals)} surface normals for {len(verts)} vertices")
-                self._mesh_normals.Set(_vec3f(normals), t)
-            self._mesh_points.Set(_vec3f(verts), t)
+                self._mesh_normals.Set(vec3f(normals), t)
+            self._mesh_points.Set(vec3f(verts), t)
             self._mesh_counts.Set(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)), t)
             self._mesh_indices.Set(Vt.IntArray.FromNumpy(tris.reshape(-1)), t)
-            self._mesh_extent.Set(_extent(verts, 0.0), t)
+            self._mesh_extent.Set(extent(verts, 0.0), t)
         spray_bytes = 0
         if self.with_spray:
             sx = np.zeros((0, 3), np.float32) if spray is None else self._local(spray[0])
@@ -558,11 +383,11 @@ class UsdWriter:
                 sx = x[np.argmin(x[:, 2])][None, :] if n else np.zeros((1, 3), np.float32)
                 sv = np.zeros((1, 3), np.float32)
                 width = 1e-4 * self.particle_radius
-            self._spray_points.Set(_vec3f(sx), t)
+            self._spray_points.Set(vec3f(sx), t)
             self._spray_widths.Set(Vt.FloatArray([width]), t)
-            self._spray_extent.Set(_extent(sx, 0.5 * width), t)
+            self._spray_extent.Set(extent(sx, 0.5 * width), t)
             if self._spray_velocities is not None:
-                self._spray_velocities.Set(_vec3f(sv), t)
+                self._spray_velocities.Set(vec3f(sv), t)
             spray_bytes = 2 * sx.nbytes + 64
         for attr, value in self._statics:
             attr.Set(value, t)
