@@ -26,6 +26,10 @@ Neighbours: lists built once per step on x* with the search radius H_s + margin
 vorticity, rebuilt only when a particle drifted farther than margin / 2; or the reference hash-grid
 variant, rebuilt before every density pass or queried with H_s + margin. Sums and maxima over the
 particles are reduced in a fixed order (bitwise reproducible on any thread count).
+
+Host code in three modules: this one (the plug-in: parameters, stages and the solve loop, time-step
+bounds, statistics, hints), ``pbf_passes.py`` (the density and correction passes it runs) and
+``pbf_lattice.py`` (rest-lattice calibration: D0, kappa, the fluid depth).
 """
 from __future__ import annotations
 
@@ -33,63 +37,27 @@ import numpy as np
 import warp as wp
 
 from ...core.launch import LIGHT_MIN_RANGE, launch
-from ...core.smoothing import evaluate, get_smoothing_kernel, lattice_offsets
+from ...core.smoothing import evaluate
 from ...core.step_graph import Stage
 from ...kernels import pbf as _pbf
-from ...kernels import pbf_hash_grid as _pbf_grid
-from ...kernels import reduction as _reduce
-from ...neighbors.cell_lists import simulation_neighbor_lists
 from ...scene.parameters import Param
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
 from ..viscosity import viscous_bounds, viscous_stage
 from ..vorticity import vorticity_stage
 from ..xsph import xsph_stage
+from .pbf_lattice import fluid_depth, lattice_transport, rest_denominator
+from .pbf_passes import PbfPasses
+
+__all__ = ["LIST_MARGIN", "PbfSolver", "fluid_depth", "lattice_transport", "rest_denominator"]
 
 #: default search margin of the neighbour lists [spacings d]: lists hold pairs within H_s + margin
 #: and are rebuilt once a particle moved more than margin / 2 during the solve
 LIST_MARGIN = 0.2
 
 
-def rest_denominator(smoothing: str, h: float, spacing: float, particle_mass: float, rest_density: float) -> float:
-    """D0 = |grad_i C_i|^2 + sum_j |grad_j C_i|^2 [1/m^2] for an interior particle of a perfect
-    cubic lattice at spacing d, with grad_j C_i = -(m/rho0) grad W_ij (physics notes 4.4; cubic
-    h = d, m = rho0 d^3: d^2 D0 = 0.425)."""
-    kernel = get_smoothing_kernel(smoothing)
-    offsets = lattice_offsets(spacing, kernel.support_radius(h))
-    _, g = evaluate(smoothing, offsets, h)
-    g = g.astype(np.float64) * (particle_mass / rest_density)
-    return float(np.dot(g.sum(0), g.sum(0)) + np.sum(g * g))
-
-
-def lattice_transport(smoothing: str, h: float, spacing: float, particle_mass: float, rest_density: float,
-                      epsilon: float) -> float:
-    """kappa [-]: one Jacobi correction (eq. 18) of an interior rest-lattice particle under a constraint
-    that grows linearly with height, C = c' z, moves it by dx_z = -kappa d^2 c' (lambda = -C/(D0 + eps),
-    dx_i = sum_j V (lambda_i + lambda_j) grad W_ij). It sets how fast the solve carries the weight of
-    a column down: cubic h = d, eps = 0: kappa = 2.40."""
-    kernel = get_smoothing_kernel(smoothing)
-    offsets = lattice_offsets(spacing, kernel.support_radius(h))  # x_j - x_i
-    _, g = evaluate(smoothing, -offsets, h)                         # grad_i W_ij at x_ij = x_i - x_j
-    volume = particle_mass / rest_density
-    d0 = rest_denominator(smoothing, h, spacing, particle_mass, rest_density)
-    return float(volume * np.sum(offsets[:, 2] * g[:, 2].astype(np.float64)) / ((d0 + epsilon) * spacing ** 2))
-
-
-def fluid_depth(sampled, gravity) -> float:
-    """The fluid's initial extent along gravity [m] (top particle to bottom particle, plus one spacing d);
-    0 without gravity."""
-    g = np.asarray(gravity, dtype=np.float64)
-    gn = float(np.linalg.norm(g))
-    x = np.asarray(sampled.fluid_x, dtype=np.float64).reshape(-1, 3)
-    if gn == 0.0 or not len(x):
-        return 0.0
-    z = x @ (-g / gn)
-    return float(z.max() - z.min()) + float(sampled.spacing)
-
-
 @register_solver
-class PbfSolver(Solver):
+class PbfSolver(PbfPasses, Solver):
     """Iterative position-based pressure solver. Time step: velocity CFL
     dt <= cfl d / (v_max + |g| frame_dt), the pressure-solve bound dt <= d sqrt(2 kappa K eta / (|g| H))
     (``solve_bound``: the step whose weight the solve carries in about K = ``pbf.target_iterations``
@@ -181,128 +149,6 @@ class PbfSolver(Solver):
             self.query_radius = m.support_radius + self.margin
             self.allowed_drift = self.margin  # the query point is current, only the grid's points are old
         self._density_is_current = True
-
-    # --- workspace -------------------------------------------------------------------------
-    def _allocate(self) -> None:
-        sim, m = self.sim, self.model
-        n, dev = m.fluid_count, m.device
-        sim.fields["predicted_x"] = wp.clone(sim.fields["particle_x"])  # x* = x until the first step
-        for name, dtype in (("particle_density", float), ("particle_lambda", float), ("pbf_constraint", float),
-                            ("pbf_correction_size", float), ("position_correction", wp.vec3),
-                            ("boundary_force", wp.vec3), ("particle_acceleration", wp.vec3),
-                            ("pbf_neighbor_x", wp.vec3)):
-            sim.allocate(name, dtype)
-        # moving bodies: sum over the step's corrections of -lambda_i / (rho0 dt^2) (``correction``)
-        self._term = sim.allocate("boundary_pressure_term", float) if self.with_bodies else wp.zeros(
-            1, dtype=float, device=dev)
-        chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
-        self._error_partial = wp.zeros(chunks, dtype=float, device=dev)
-        self._correction_partial = wp.zeros((chunks, 2), dtype=float, device=dev)
-        terms = sim.boundary_terms
-        tensile = bool(self.config.tensile_correction)
-        if self.lists:
-            self.nl = simulation_neighbor_lists(sim, self.margin)
-            self._density_kernel = _pbf.density_lambda_pairs_kernel(m.smoothing.name, terms, tensile)
-            self._correction_kernel = _pbf.correction_pairs_kernel(self._with_boundary_gradient, tensile,
-                                                                   self.with_bodies and self._with_boundary_gradient)
-            pairs = _pbf.PairCache()
-            pairs.count = wp.zeros(n, dtype=wp.int32, device=dev)
-            pairs.boundary_gradient = wp.zeros(n, dtype=wp.vec3, device=dev)
-            sim.fields["pbf_pairs"] = pairs
-            self._pairs_capacity = 0
-        else:
-            self.nl = None
-            self._density_kernel = _pbf_grid.density_lambda_kernel(m.smoothing.name, terms)
-            self._correction_kernel = _pbf_grid.correction_kernel(m.smoothing.name, terms, tensile)
-
-    @property
-    def _with_boundary_gradient(self) -> bool:
-        terms = self.sim.boundary_terms
-        return terms is not None and terms.gradient is not None
-
-    def _pair_cache(self):
-        """The PairCache, with rows as long as the fluid lists (which grow on overflow)."""
-        pairs = self.sim.fields["pbf_pairs"]
-        capacity = self.nl.capacities[0]
-        if capacity != self._pairs_capacity:
-            n, dev = max(self.model.fluid_count, 1), self.model.device
-            pairs.index = wp.zeros((n, capacity), dtype=wp.int32, device=dev)
-            pairs.gradient = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
-            pairs.value = wp.zeros((n, capacity) if self.config.tensile_correction else (1, 1), dtype=float, device=dev)
-            self._pairs_capacity = capacity
-        return pairs
-
-    def _neighbor_args(self):
-        """(boundary_neighbors, fluid_neighbors) kernel arguments."""
-        if self.lists:
-            return self.nl.boundary, self.nl.fluid
-        return self.model.boundary_grid_id, self.sim.fluid_grid.id
-
-    # --- passes ----------------------------------------------------------------------------
-    def build_neighbors(self) -> None:
-        """Neighbours of the current x*; remember where they were searched."""
-        f = self.sim.fields
-        x = f["predicted_x"]
-        if self.lists:
-            self.nl.build(x)
-        else:
-            self.sim.fluid_grid.build(x)
-        self.grid_builds += 1
-        wp.copy(f["pbf_neighbor_x"], x)
-        self.last_drift = 0.0
-
-    def refresh_neighbors(self) -> None:
-        """After a correction: rebuild where the neighbours may be incomplete."""
-        if self.neighbor_mode == "rebuild" or self.last_drift > self.allowed_drift:
-            self.build_neighbors()
-
-    def density_pass(self) -> None:
-        """Density, C and lambda at x* (eq. 7/13, 17, 19); the sum of C_i read once (``last_error_sum``)."""
-        m, f = self.model, self.sim.fields
-        bn, fn = self._neighbor_args()
-        params = self.sim.boundary_params
-        if self.lists:
-            launch(self._density_kernel, m.fluid_count,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon, params,
-                    bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"]],
-                   [f["particle_density"], f["particle_lambda"], f["pbf_constraint"], self._pair_cache()],
-                   device=m.device)
-        else:
-            launch(self._density_kernel, m.fluid_count,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
-                    self.query_radius, params, bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"]],
-                   [f["particle_density"], f["particle_lambda"], f["pbf_constraint"]], device=m.device)
-        # sum of C_i in a fixed order: chunk sums on the device, their sum on the host (one read)
-        launch(_reduce.sum_chunks, self._error_partial.shape[0], [_reduce.REDUCE_CHUNK, f["pbf_constraint"]],
-               [self._error_partial], device=m.device)
-        self.last_error_sum = float(self._error_partial.numpy().sum(dtype=np.float64))
-
-    def correction(self, dt: float) -> None:
-        """One Jacobi correction of x* (eq. 18), capped at ``max_step``; wall reaction m dx_b / dt^2."""
-        m, f, p = self.model, self.sim.fields, self.config
-        bn, fn = self._neighbor_args()
-        inv_dt2 = 1.0 / (dt * dt) if dt > 0 else 0.0
-        tensile = (float(p.tensile_k), int(p.tensile_n), self.tensile_inv_w, self.tensile_scale)
-        if self.lists:
-            launch(self._correction_kernel, m.fluid_count,
-                   [m.particle_mass, *tensile, inv_dt2, self.max_step, -inv_dt2 / m.rest_density, fn, f["pbf_pairs"],
-                    f["particle_lambda"]],
-                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"], self._term],
-                   device=m.device)
-        else:
-            launch(self._correction_kernel, m.fluid_count,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
-                    *tensile, inv_dt2, self.max_step, self.sim.boundary_params, bn, m.boundary_x, m.boundary_volume,
-                    fn, f["predicted_x"], f["particle_lambda"]],
-                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"]], device=m.device)
-        launch(_pbf.apply_correction, m.fluid_count, [f["position_correction"]], [f["predicted_x"]], device=m.device,
-               min_range=LIGHT_MIN_RANGE)
-        launch(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
-               [_reduce.REDUCE_CHUNK, f["pbf_correction_size"], f["predicted_x"], f["pbf_neighbor_x"]],
-               [self._correction_partial], device=m.device)
-        s = self._correction_partial.numpy().max(axis=0)  # one read
-        self.last_iteration_correction = float(s[0])
-        self.last_drift = float(s[1])
 
     # --- stages ----------------------------------------------------------------------------
     def run_stabilize(self, sim, dt) -> None:

@@ -1,0 +1,145 @@
+"""PBF's device passes (``PbfPasses``, a base of ``PbfSolver``): the workspace fields it allocates,
+the neighbour search on x*, one density pass (density, C, lambda; eq. 7/13, 17, 19) and one Jacobi
+correction (eq. 18), launching ``kernels/pbf.py`` (neighbour lists) or ``kernels/pbf_hash_grid.py``
+(the reference variant). ``pbf.py`` decides when they run (stages, the solve loop) and what the
+solver reports; the attributes the passes read (``lists``, ``margin``, ``epsilon``, ``max_step``,
+``tensile_*``, ``query_radius``, ``allowed_drift``) are set by ``PbfSolver.__init__``.
+
+A helper of the solver ``pbf.py`` (it registers nothing; the registry imports it harmlessly).
+"""
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...kernels import pbf as _pbf
+from ...kernels import pbf_hash_grid as _pbf_grid
+from ...kernels import reduction as _reduce
+from ...neighbors.cell_lists import simulation_neighbor_lists
+
+
+class PbfPasses:
+    """Density and correction passes of position-based fluids on the simulation's workspace."""
+
+    # --- workspace -------------------------------------------------------------------------
+    def _allocate(self) -> None:
+        sim, m = self.sim, self.model
+        n, dev = m.fluid_count, m.device
+        sim.fields["predicted_x"] = wp.clone(sim.fields["particle_x"])  # x* = x until the first step
+        for name, dtype in (("particle_density", float), ("particle_lambda", float), ("pbf_constraint", float),
+                            ("pbf_correction_size", float), ("position_correction", wp.vec3),
+                            ("boundary_force", wp.vec3), ("particle_acceleration", wp.vec3),
+                            ("pbf_neighbor_x", wp.vec3)):
+            sim.allocate(name, dtype)
+        # moving bodies: sum over the step's corrections of -lambda_i / (rho0 dt^2) (``correction``)
+        self._term = sim.allocate("boundary_pressure_term", float) if self.with_bodies else wp.zeros(
+            1, dtype=float, device=dev)
+        chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
+        self._error_partial = wp.zeros(chunks, dtype=float, device=dev)
+        self._correction_partial = wp.zeros((chunks, 2), dtype=float, device=dev)
+        terms = sim.boundary_terms
+        tensile = bool(self.config.tensile_correction)
+        if self.lists:
+            self.nl = simulation_neighbor_lists(sim, self.margin)
+            self._density_kernel = _pbf.density_lambda_pairs_kernel(m.smoothing.name, terms, tensile)
+            self._correction_kernel = _pbf.correction_pairs_kernel(self._with_boundary_gradient, tensile,
+                                                                   self.with_bodies and self._with_boundary_gradient)
+            pairs = _pbf.PairCache()
+            pairs.count = wp.zeros(n, dtype=wp.int32, device=dev)
+            pairs.boundary_gradient = wp.zeros(n, dtype=wp.vec3, device=dev)
+            sim.fields["pbf_pairs"] = pairs
+            self._pairs_capacity = 0
+        else:
+            self.nl = None
+            self._density_kernel = _pbf_grid.density_lambda_kernel(m.smoothing.name, terms)
+            self._correction_kernel = _pbf_grid.correction_kernel(m.smoothing.name, terms, tensile)
+
+    @property
+    def _with_boundary_gradient(self) -> bool:
+        terms = self.sim.boundary_terms
+        return terms is not None and terms.gradient is not None
+
+    def _pair_cache(self):
+        """The PairCache, with rows as long as the fluid lists (which grow on overflow)."""
+        pairs = self.sim.fields["pbf_pairs"]
+        capacity = self.nl.capacities[0]
+        if capacity != self._pairs_capacity:
+            n, dev = max(self.model.fluid_count, 1), self.model.device
+            pairs.index = wp.zeros((n, capacity), dtype=wp.int32, device=dev)
+            pairs.gradient = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
+            pairs.value = wp.zeros((n, capacity) if self.config.tensile_correction else (1, 1), dtype=float, device=dev)
+            self._pairs_capacity = capacity
+        return pairs
+
+    def _neighbor_args(self):
+        """(boundary_neighbors, fluid_neighbors) kernel arguments."""
+        if self.lists:
+            return self.nl.boundary, self.nl.fluid
+        return self.model.boundary_grid_id, self.sim.fluid_grid.id
+
+    # --- passes ----------------------------------------------------------------------------
+    def build_neighbors(self) -> None:
+        """Neighbours of the current x*; remember where they were searched."""
+        f = self.sim.fields
+        x = f["predicted_x"]
+        if self.lists:
+            self.nl.build(x)
+        else:
+            self.sim.fluid_grid.build(x)
+        self.grid_builds += 1
+        wp.copy(f["pbf_neighbor_x"], x)
+        self.last_drift = 0.0
+
+    def refresh_neighbors(self) -> None:
+        """After a correction: rebuild where the neighbours may be incomplete."""
+        if self.neighbor_mode == "rebuild" or self.last_drift > self.allowed_drift:
+            self.build_neighbors()
+
+    def density_pass(self) -> None:
+        """Density, C and lambda at x* (eq. 7/13, 17, 19); the sum of C_i read once (``last_error_sum``)."""
+        m, f = self.model, self.sim.fields
+        bn, fn = self._neighbor_args()
+        params = self.sim.boundary_params
+        if self.lists:
+            launch(self._density_kernel, m.fluid_count,
+                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon, params,
+                    bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"]],
+                   [f["particle_density"], f["particle_lambda"], f["pbf_constraint"], self._pair_cache()],
+                   device=m.device)
+        else:
+            launch(self._density_kernel, m.fluid_count,
+                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
+                    self.query_radius, params, bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"]],
+                   [f["particle_density"], f["particle_lambda"], f["pbf_constraint"]], device=m.device)
+        # sum of C_i in a fixed order: chunk sums on the device, their sum on the host (one read)
+        launch(_reduce.sum_chunks, self._error_partial.shape[0], [_reduce.REDUCE_CHUNK, f["pbf_constraint"]],
+               [self._error_partial], device=m.device)
+        self.last_error_sum = float(self._error_partial.numpy().sum(dtype=np.float64))
+
+    def correction(self, dt: float) -> None:
+        """One Jacobi correction of x* (eq. 18), capped at ``max_step``; wall reaction m dx_b / dt^2."""
+        m, f, p = self.model, self.sim.fields, self.config
+        bn, fn = self._neighbor_args()
+        inv_dt2 = 1.0 / (dt * dt) if dt > 0 else 0.0
+        tensile = (float(p.tensile_k), int(p.tensile_n), self.tensile_inv_w, self.tensile_scale)
+        if self.lists:
+            launch(self._correction_kernel, m.fluid_count,
+                   [m.particle_mass, *tensile, inv_dt2, self.max_step, -inv_dt2 / m.rest_density, fn, f["pbf_pairs"],
+                    f["particle_lambda"]],
+                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"], self._term],
+                   device=m.device)
+        else:
+            launch(self._correction_kernel, m.fluid_count,
+                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
+                    *tensile, inv_dt2, self.max_step, self.sim.boundary_params, bn, m.boundary_x, m.boundary_volume,
+                    fn, f["predicted_x"], f["particle_lambda"]],
+                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"]], device=m.device)
+        launch(_pbf.apply_correction, m.fluid_count, [f["position_correction"]], [f["predicted_x"]], device=m.device,
+               min_range=LIGHT_MIN_RANGE)
+        launch(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
+               [_reduce.REDUCE_CHUNK, f["pbf_correction_size"], f["predicted_x"], f["pbf_neighbor_x"]],
+               [self._correction_partial], device=m.device)
+        s = self._correction_partial.numpy().max(axis=0)  # one read
+        self.last_iteration_correction = float(s[0])
+        self.last_drift = float(s[1])
