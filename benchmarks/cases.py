@@ -336,7 +336,7 @@ def _failed(spec: RunSpec, error: str) -> dict:
 def run_specs(specs: list[RunSpec], isolate: bool = True, log=print, executor=None, progress: bool = False) -> list[dict]:
     """Run every spec on ``executor`` (default: serial, in this process's order) and return the
     records in the order of ``specs``, printing a row for each as it finishes."""
-    from warp_sph.run.runner import Progress
+    from warp_sph.run.progress import Progress
     from warp_sph.sweep.executors import SerialExecutor
 
     executor = executor or SerialExecutor(log=log)

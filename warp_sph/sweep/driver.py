@@ -67,7 +67,7 @@ def run_sweep(cases: list[Case], out: Path, executor, device: str | None = None,
     """Run every case not complete yet into ``out/<case>`` on ``executor`` (entered here, only when a
     case needs running) and write the summary as they finish. Ctrl-C cancels the cases not
     finished and propagates after the summary is written (a re-run resumes)."""
-    from ..run.runner import Progress
+    from ..run.progress import Progress
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
