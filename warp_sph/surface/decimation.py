@@ -1,7 +1,7 @@
 """Surface decimation to a triangle budget or an error bound: quadric-error edge collapses
 (Garland & Heckbert 1997) in parallel rounds of independent collapses.
 
-Device code: ``kernels/surface_decimation.py``. Every round rebuilds the connectivity, costs each
+Device code: ``kernels/surface_decimation.py``; the mesh is compacted by ``compaction.py``. Every round rebuilds the connectivity, costs each
 edge, collapses the edges that are cheaper than every edge around them, and drops the two faces of
 each collapsed edge; it stops when the mesh has at most ``triangle_budget`` triangles, when no edge
 is cheaper than ``max_error``^2 (the squared distances of the merged vertex from the planes of all the
@@ -19,6 +19,7 @@ import warp as wp
 from ..core.errors import SceneError
 from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_decimation as _dev
+from .compaction import drop_degenerate, drop_merged_vertices, identity_maps
 from .grid import launch
 from .smoothing import MeshConnectivity
 
@@ -86,7 +87,7 @@ class Decimator:
         vmap = self._get("map", nv, wp.int32)
         vindex = self._get("vindex", nv, wp.int32)
         blocked = self._get("blocked", nv, wp.int32)
-        launch(_dev.identity_map, nv, [], [vmap, vindex, blocked], device=dev, min_range=LIGHT_MIN_RANGE)
+        identity_maps(nv, vmap, vindex, blocked, dev)
         quadric = self._get("q", nv, wp.mat44)
         best_key = self._get("bk", nv, wp.int64)
         best_cost = self._get("bc", nv, float)
@@ -130,29 +131,11 @@ class Decimator:
             # next ones would cost as much for less (measured at 59k particles: 33 rounds to converge,
             # the last 16 of them for 5 % of the triangles)
             last = ncol < MIN_ROUND_FRACTION * 0.5 * nt
-            launch(_dev.remap_triangles, nt, [vmap], [tris, alive], device=dev, min_range=LIGHT_MIN_RANGE)
-            wp.utils.array_scan(alive[:nt], alive_scan[:nt], inclusive=True)
-            n_alive = int(alive_scan[nt - 1: nt].numpy()[0])
-            out = tris_b[:n_alive]
-            launch(_dev.compact_triangles, nt, [tris, alive, alive_scan, vindex], [out], device=dev,
-                   min_range=LIGHT_MIN_RANGE)
-            tris, tris_b = out, tris
+            n_alive = drop_degenerate(tris, vmap, vindex, alive, alive_scan, tris_b, dev)
+            tris, tris_b = tris_b[:n_alive], tris
             nt = n_alive
             if last:
                 break
             conn = self._conn.build(nv, tris)
         # drop the vertices collapses removed, renumber the triangles
-        kept = self._get("kept", nv, wp.int32)
-        kept_scan = self._get("kscan", nv, wp.int32)
-        launch(_dev.kept_vertices, nv, [vmap], [kept], device=dev, min_range=LIGHT_MIN_RANGE)
-        wp.utils.array_scan(kept[:nv], kept_scan[:nv], inclusive=True)
-        n_kept = int(kept_scan[nv - 1: nv].numpy()[0]) if nv else 0
-        x_out = self._get("x_out", n_kept, wp.vec3)[:n_kept]
-        launch(_dev.compact_vertices, nv, [x, kept, kept_scan], [x_out, vindex], device=dev, min_range=LIGHT_MIN_RANGE)
-        ones = self._get("ones", nt, wp.int32)[:nt]
-        ones.fill_(1)
-        wp.utils.array_scan(ones, alive_scan[:nt], inclusive=True)
-        t_out = self._get("t_out", nt, wp.vec3i)[:nt]
-        launch(_dev.compact_triangles, nt, [tris, ones, alive_scan, vindex], [t_out], device=dev,
-               min_range=LIGHT_MIN_RANGE)
-        return x_out, t_out
+        return drop_merged_vertices(x, tris, vmap, vindex, self._get, dev)
