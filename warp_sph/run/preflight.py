@@ -1,8 +1,9 @@
 """Pre-flight checks: refuse a scene that cannot run well before any step kernel runs, warn about one
 that runs but is probably not what the user meant.
 
-``check_memory(scene, device)`` runs before sampling (``Simulation.__init__``): it estimates the
-particle count from the scene's geometry and refuses a run that would not fit in memory.
+``check_memory(scene, device)`` (``memory.py``, re-exported here) runs before sampling
+(``Simulation.__init__``): it estimates the particle count from the scene's geometry and refuses a
+run that would not fit in memory.
 ``preflight_checks(scene, sim)`` runs once the Simulation is built (the runner calls it before
 the first step):
 - a fixed time step above the solver's stability bound (WCSPH: acoustic CFL
@@ -23,12 +24,12 @@ from __future__ import annotations
 
 import math
 import warnings
-from pathlib import Path
 
 import numpy as np
 import warp as wp
 
 from ..core.errors import SceneError
+from .memory import MEMORY_WARN, check_memory, estimate_memory, estimate_particle_counts, memory_verdict
 
 #: Warn when the kernel's rest-lattice sum before calibration is off by more than this [-].
 LATTICE_BIAS_WARN = 0.05
@@ -36,21 +37,14 @@ LATTICE_BIAS_WARN = 0.05
 INITIAL_DENSITY_WARN = 0.05
 #: Warn when sampling removed more than this fraction of the fluid lattice [-].
 REMOVED_WARN = 0.10
-#: Warn when the run needs more than this fraction of the available memory; refuse above 1.
-MEMORY_WARN = 0.5
 #: Warn when float32 local coordinates resolve less than this fraction of the spacing d [-].
 PRECISION_WARN = 1e-3
 
-# Memory model [bytes], from the arrays a WCSPH run allocates (x, v, density, pressure, acceleration,
-# boundary force, XSPH correction: 68 B), hash-grid indices (~32 B), the watchdog's frame-start copy
-# (24 B) and up to three export snapshots in flight (96 B); host: sampling temporaries in float64 and
-# the export copies. A rough but conservative model; the check refuses only what cannot fit.
-DEVICE_BYTES_PER_FLUID = 256
-DEVICE_BYTES_PER_BOUNDARY = 64
-HOST_BYTES_PER_FLUID = 512
-HOST_BYTES_PER_BOUNDARY = 128
-HASH_GRID_BYTES = 2 * 128**3 * 4 * 2  # fluid and boundary grids: cell starts and ends
-SURFACE_BYTES_PER_CELL = 32
+
+#: memory.py's names re-exported (check_memory has always been imported from here)
+__all__ = ["INITIAL_DENSITY_WARN", "LATTICE_BIAS_WARN", "MEMORY_WARN", "PRECISION_WARN", "REMOVED_WARN",
+           "PreflightWarning", "check_memory", "estimate_memory", "estimate_particle_counts", "measured_step_cost",
+           "memory_verdict", "preflight_checks", "time_step_bounds", "time_step_summary"]
 
 
 class PreflightWarning(UserWarning):
@@ -123,168 +117,6 @@ def _duration_text(seconds: float) -> str:
         if seconds >= 2 * size:
             return f"about {seconds / size:.3g} {unit}"
     return f"about {seconds:.3g} s"
-
-
-# --------------------------------------------------------------------------------------------
-# Memory
-# --------------------------------------------------------------------------------------------
-def available_host_memory() -> int | None:
-    """Bytes the process may still allocate: MemAvailable from /proc/meminfo, lowered by a cgroup
-    limit when one is set; None where neither can be read."""
-    avail = None
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                avail = int(line.split()[1]) * 1024
-                break
-    except (OSError, ValueError, IndexError):
-        pass
-    for limit_file, usage_file in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
-                                   ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
-                                    "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
-        try:
-            limit = Path(limit_file).read_text().strip()
-            usage = int(Path(usage_file).read_text().strip())
-        except (OSError, ValueError):
-            continue
-        if limit.isdigit() and int(limit) < 1 << 60:
-            room = max(int(limit) - usage, 0)
-            avail = room if avail is None else min(avail, room)
-        break
-    return avail
-
-
-def available_device_memory(device) -> int | None:
-    """Free memory [bytes] of a CUDA device; None on the CPU (host memory applies)."""
-    d = wp.get_device(device)
-    if not d.is_cuda:
-        return None
-    free = getattr(d, "free_memory", None)
-    return int(free) if free else None
-
-
-def particle_count_contributions(scene) -> list[tuple[str, str, int]]:
-    """[(key path, "fluid" | "boundary", particles)] estimated from the scene's geometry without
-    sampling: a block's volume / (s d)^3, a wall's or obstacle's area / d^2."""
-    d = scene.spacing
-    out = []
-    for i, b in enumerate(scene.fluid):
-        step = b.spacing_scale * d
-        vol = 4.0 / 3.0 * math.pi * b.radius**3 if b.shape == "sphere" else float(np.prod(np.subtract(b.max, b.min)))
-        out.append((f"fluid[{i}]", "fluid", int(min(vol / step**3, 2**62))))
-
-    def box_area(lo, hi):
-        e = np.subtract(hi, lo)
-        return 2.0 * (e[0] * e[1] + e[1] * e[2] + e[0] * e[2])
-
-    if scene.container is not None:
-        out.append(("container", "boundary", int(min(box_area(scene.container.min, scene.container.max) / d**2, 2**62))))
-    for i, ob in enumerate(scene.obstacles):
-        if ob.shape == "box":
-            area = box_area(ob.min, ob.max)
-        else:
-            try:
-                from ..scene.meshes import load_triangle_mesh
-
-                mesh = load_triangle_mesh(ob.file).transformed(ob.scale, ob.translate)
-                a, b, c = mesh.triangle_corners()
-                area = 0.5 * float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
-            except Exception:
-                area = 0.0
-        out.append((f"obstacles[{i}]", "boundary", int(min(area / d**2, 2**62))))
-    return out
-
-
-def estimate_particle_counts(scene) -> tuple[int, int]:
-    """(fluid, boundary) particle counts estimated from the scene's geometry, without sampling."""
-    parts = particle_count_contributions(scene)
-    return (sum(n for _, kind, n in parts if kind == "fluid"), sum(n for _, kind, n in parts if kind == "boundary"))
-
-
-def _surface_bytes(scene, fluid_count: int) -> int:
-    o = scene.output
-    if not (o.surface and (o.usd or o.mesh_sequence)):
-        return 0
-    cell = o.surface_cell_per_radius * scene.particle_radius
-    if scene.container is not None:
-        volume = float(np.prod(np.subtract(scene.container.max, scene.container.min)))
-    else:  # free fluid: its volume grown 8x (a block expanding to twice its size)
-        volume = 8.0 * fluid_count * scene.spacing**3
-    return int(min(SURFACE_BYTES_PER_CELL * volume / cell**3, 2**62))
-
-
-def estimate_memory(scene, fluid_count: int, boundary_count: int) -> dict[str, int]:
-    """{"device": bytes, "host": bytes} a run of ``scene`` needs at its peak (rough, conservative).
-    On the CPU both live in host memory."""
-    device = (DEVICE_BYTES_PER_FLUID * fluid_count + DEVICE_BYTES_PER_BOUNDARY * boundary_count
-              + HASH_GRID_BYTES + _surface_bytes(scene, fluid_count))
-    host = HOST_BYTES_PER_FLUID * fluid_count + HOST_BYTES_PER_BOUNDARY * boundary_count
-    return {"device": int(device), "host": int(host)}
-
-
-def _gib(n: float) -> str:
-    return f"{n / 2**30:.3g} GiB" if n >= 2**28 else f"{n / 2**20:.3g} MiB"
-
-
-def _largest_cost(scene, fluid: int, boundary: int) -> tuple[str, str]:
-    """(key path, advice) of what needs the most memory: a fluid block, a wall, an obstacle or the surface grid."""
-    per = {"fluid": DEVICE_BYTES_PER_FLUID + HOST_BYTES_PER_FLUID,
-           "boundary": DEVICE_BYTES_PER_BOUNDARY + HOST_BYTES_PER_BOUNDARY}
-    parts = [(n * per[kind], key, kind, n) for key, kind, n in particle_count_contributions(scene)]
-    surface = _surface_bytes(scene, fluid)
-    cost, key, kind, n = max(parts) if parts else (0, "particle_radius", "fluid", fluid)
-    if surface > cost:
-        return ("output.surface_cell_per_radius",
-                f"the surface grid at {scene.output.surface_cell_per_radius:g} r cells needs {_gib(surface)}; "
-                "raise output.surface_cell_per_radius")
-    if key.startswith("obstacles"):
-        return key, (f"{key} needs about {n:,} boundary particles at spacing d = {scene.spacing:g} m; check its "
-                     "size (scale, min/max) or raise particle_radius")
-    if key == "container":
-        return key, (f"the container walls need about {n:,} boundary particles at spacing d = {scene.spacing:g} m; "
-                     "shrink the container or raise particle_radius")
-    return "particle_radius", f"{key} needs about {n:,} fluid particles; raise particle_radius or shrink the fluid blocks"
-
-
-def _memory_verdict(scene, fluid: int, boundary: int, device, estimated: bool) -> tuple[str, str] | None:
-    """("refuse" | "warn", message) or None."""
-    need = estimate_memory(scene, fluid, boundary)
-    host_avail = available_host_memory()
-    dev_avail = available_device_memory(device)
-    if dev_avail is None:
-        pools = [("host", need["device"] + need["host"], host_avail)]
-    else:
-        pools = [("device", need["device"], dev_avail), ("host", need["host"], host_avail)]
-    count = f"{'about ' if estimated else ''}{fluid:,} fluid and {boundary:,} boundary particles"
-    worst = None
-    for pool, n, avail in pools:
-        if avail is None or avail <= 0:
-            continue
-        ratio = n / avail
-        if worst is None or ratio > worst[0]:
-            worst = (ratio, pool, n, avail)
-    if worst is None:
-        return None
-    ratio, pool, n, avail = worst
-    # memory scales as 1/r^3: the radius that would fit in half the available memory
-    r_fit = scene.particle_radius * max(ratio / MEMORY_WARN, 1.0) ** (1.0 / 3.0)
-    text = f"{count} need about {_gib(n)} of {pool} memory, {100 * ratio:.0f} % of the {_gib(avail)} available"
-    if ratio > 1.0:
-        key, advice = _largest_cost(scene, fluid, boundary)
-        if key == "particle_radius":
-            advice += f" (particle_radius about {r_fit:.3g} m would fit; memory scales as 1/r^3)"
-        return "refuse", f"{scene.source}: {key}: {text}; {advice}"
-    if ratio > MEMORY_WARN:
-        return "warn", f"{text}; the run may swap or fail (particle_radius {r_fit:.3g} m would halve that)"
-    return None
-
-
-def check_memory(scene, device=None) -> None:
-    """Refuse a scene whose estimated particle count cannot fit in memory, before sampling it."""
-    fluid, boundary = estimate_particle_counts(scene)
-    verdict = _memory_verdict(scene, fluid, boundary, device, estimated=True)
-    if verdict is not None and verdict[0] == "refuse":
-        raise SceneError(verdict[1])
 
 
 # --------------------------------------------------------------------------------------------
@@ -388,7 +220,7 @@ def preflight_checks(scene, sim, warn: bool = True) -> list[str]:
                        f"another block; the first steps will push it apart")
 
     # memory ------------------------------------------------------------------------------------
-    verdict = _memory_verdict(scene, m.fluid_count, m.boundary_count, sim.device, estimated=False)
+    verdict = memory_verdict(scene, m.fluid_count, m.boundary_count, sim.device, estimated=False)
     if verdict is not None:
         if verdict[0] == "refuse":
             raise SceneError(verdict[1])
