@@ -109,7 +109,7 @@ def test_matrix_report_keeps_the_latest_record_of_each_case():
     latest = MX.latest_per_case(first + rerun + part)
     assert len(latest) == 3
     assert next(r for r in latest if r["params"]["solver"] == "wcsph" and r["params"]["particle_radius"] == 0.025) is rerun[0]
-    md = "\n".join(MX.section(first + rerun + part, R._fmt, R._section_head))
+    md = "\n".join(MX.section(first + rerun + part, R.fmt, R.section_head))
     assert "3 of 3 cases finished" in md and "from 3 runs" in md
     assert "--solvers wcsph" in md and "--radii 0.0125" in md
     assert "stopped here" not in md
