@@ -5,7 +5,7 @@ pairing with the fluid's own boundary force."""
 import numpy as np
 import pytest
 
-from sph_oracle import grad_W
+from sph_oracle import W, grad_W
 from warp_sph.core.step_graph import Stage
 from warp_sph.rigid.spec import quat_to_matrix
 from warp_sph.run.simulation import Simulation
@@ -168,6 +168,53 @@ def test_dfsph_body_force_is_the_impulse_the_fluid_received():
         expect, scale = oracle_body_forces(sim, s, "velocity")
         assert np.abs(expect).max() > 0.0 and pv["dfsph_divergence_pressure"].max() > 0.0
         np.testing.assert_allclose(b["body_particle_force"], expect, atol=2e-5 * scale.max() + 1e-9)
+
+
+def test_dfsph_search_sees_the_moving_particles():
+    """DFSPH's own search ("density" stage) walks the bodies' cell grid after the static one: per fluid
+    particle the boundary neighbours (static, then moving), rho_i = m sum_j W_ij + rho0 sum_b V_b W_ib,
+    sum_b V_b grad W_ib and sum_b v_b . V_b grad W_ib (the moving wall in the divergence source) over
+    every boundary particle, against a float64 brute force, after the box has moved for a frame."""
+    sim = Simulation(pool(solver="dfsph"))
+    m = sim.model
+    S = m.static_boundary_count
+    snaps = []
+
+    def keep(sim, dt):
+        nl, pairs = sim.fields["neighbor_lists"], sim.fields["dfsph_pairs"]
+        snaps.append({"x": sim.fields["particle_x"].numpy().astype(np.float64),
+                      "rho": sim.fields["particle_density"].numpy().astype(np.float64),
+                      "xb": m.boundary_x.numpy().astype(np.float64), "vb": m.boundary_v.numpy().astype(np.float64),
+                      "count": nl.boundary.count.numpy().copy(), "index": nl.boundary.index.numpy().copy(),
+                      "sb": pairs.boundary_gradient.numpy().astype(np.float64),
+                      "bvel": pairs.boundary_velocity.numpy().astype(np.float64)})
+
+    sim.graph.insert(Stage("record_search", keep, reads=("particle_x", "particle_density", "dfsph_pairs",
+                                                         "neighbor_lists", "boundary_x", "boundary_v")), after="density")
+    sim.advance_frame()
+    s = snaps[-1]
+    h, kernel, H = m.smoothing_length, m.smoothing.name, m.support_radius
+    vol = m.boundary_volume.numpy().astype(np.float64)
+    x_ij = s["x"][:, None, :] - s["x"][None, :, :]
+    r_ij = np.linalg.norm(x_ij, axis=2)
+    x_ib = s["x"][:, None, :] - s["xb"][None, :, :]
+    r_ib = np.linalg.norm(x_ib, axis=2)
+    near = r_ib < H
+    rho = m.particle_mass * (W(kernel, r_ij, h) * (r_ij < H)).sum(1) + m.rest_density * (
+        W(kernel, r_ib, h) * near * vol[None]).sum(1)
+    gb = grad_W(kernel, x_ib, h) * (near * vol[None])[..., None]
+    sb = gb.sum(axis=1)
+    bvel = np.einsum("nbk,bk->n", gb, s["vb"])
+    moving = near[:, S:].any(axis=1)
+    assert moving.sum() > 50 and np.abs(s["vb"][S:]).max() > 0.05  # the box is among the fluid, moving
+    np.testing.assert_allclose(s["rho"], rho, rtol=2e-5)
+    np.testing.assert_allclose(s["sb"], sb, atol=1e-4 * np.abs(sb).max())
+    np.testing.assert_allclose(s["bvel"], bvel, atol=1e-4 * np.abs(bvel).max())
+    np.testing.assert_array_equal(s["count"], near.sum(axis=1))
+    for i in np.nonzero(moving)[0]:
+        listed = s["index"][i, :s["count"][i]]
+        assert np.all(np.diff((listed >= S).astype(int)) >= 0)  # static first, then the body's
+        assert sorted(listed) == sorted(np.nonzero(near[i])[0])
 
 
 @pytest.mark.parametrize("solver, stage", [("wcsph", "forces"), ("dfsph", "integrate")])
