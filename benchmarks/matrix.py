@@ -77,13 +77,37 @@ def reason(record: dict) -> str:
     return text[0] if text else ""
 
 
+def case_key(record: dict) -> tuple:
+    p = record.get("params") or {}
+    return (p.get("scene"), p.get("solver"), p.get("particle_radius"), record.get("device") or "cpu")
+
+
+def latest_per_case(records: list[dict]) -> list[dict]:
+    """The latest record of each case (scene, solver, radius, device), in the order of first appearance:
+    a matrix may be run in parts (``--scenes``, ``--solvers``, ``--radii``) and a part re-run."""
+    best: dict[tuple, dict] = {}
+    for r in records:
+        k = case_key(r)
+        if k not in best or r.get("invocation", r.get("date", "")) >= best[k].get("invocation", best[k].get("date", "")):
+            best[k] = r
+    return list(best.values())
+
+
 def section(records: list[dict], fmt, head) -> list[str]:
-    """Markdown of the latest matrix: one table per particle radius (scene x solver), then the
-    reasons of the cases that did not finish. fmt/head: the report's number formatter and section
-    header (command, machine, versions)."""
+    """Markdown of the matrix from the latest record of each case (``latest_per_case``): one table per
+    particle radius (scene x solver), then the reasons of the cases that did not finish. fmt/head: the
+    report's number formatter and section header (command, machine, versions) of one invocation."""
+    records = latest_per_case(records)
     if not records:
         return []
-    lines = ["## Matrix: every scene x every solver", ""] + head(records)
+    lines = ["## Matrix: every scene x every solver", ""]
+    invocations: dict[str, list[dict]] = {}
+    for r in records:
+        invocations.setdefault(r.get("invocation", r.get("date", "?")), []).append(r)
+    if len(invocations) > 1:
+        lines += [f"The latest record of each case, from {len(invocations)} runs:", ""]
+    for inv in sorted(invocations):
+        lines += head(invocations[inv])
     finished = sum(1 for r in records if r.get("status") == "ok")
     lines += [f"{finished} of {len(records)} cases finished. Each case: the scene's first second (at most "
               f"{MAX_FRAMES} frames) from rest; *wall s / sim s* is stepping wall time per simulated second; "

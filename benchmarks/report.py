@@ -374,7 +374,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                   "smoothing and decimation). *x splashsurf*: warp-sph time / splashsurf time of the same "
                   "variant.", ""]
 
-    mat = latest(data.get("matrix", []))
+    mat = data.get("matrix", [])  # the latest record of each case (matrix.section)
     lines += matrix.section(mat, _fmt, _section_head)
     execs = latest(data.get("executors", []))
     lines += executor_speed.section(execs, _fmt, _section_head)

@@ -92,3 +92,24 @@ def test_bench_matrix_command_and_its_report_section(tmp_path):
     assert "| stopped |" in row and "likely cause: stiffness too low" in row
     assert "1 of 2 cases finished" in md
     assert "- `scene=dam_break solver=wcsph particle_radius=0.1`: stopped: a particle outside" in md
+
+
+def test_matrix_report_keeps_the_latest_record_of_each_case():
+    """A matrix run in parts (and a part re-run): the report shows each case once, from its latest run,
+    and names every run it drew from."""
+    def rec(scene, solver, radius, inv, status="ok", command="warp-sph bench matrix"):
+        return {"params": {"scene": scene, "solver": solver, "particle_radius": radius}, "status": status,
+                "invocation": inv, "command": command, "metrics": {}, "fluid_particles": 10,
+                "error": "stopped here" if status != "ok" else None}
+
+    first = [rec("dam_break", "wcsph", 0.025, "2026-01-01T00:00:00", status="unstable"),
+             rec("dam_break", "pbf", 0.025, "2026-01-01T00:00:00")]
+    rerun = [rec("dam_break", "wcsph", 0.025, "2026-01-02T00:00:00", command="warp-sph bench matrix --solvers wcsph")]
+    part = [rec("dam_break", "wcsph", 0.0125, "2026-01-03T00:00:00", command="warp-sph bench matrix --radii 0.0125")]
+    latest = MX.latest_per_case(first + rerun + part)
+    assert len(latest) == 3
+    assert next(r for r in latest if r["params"]["solver"] == "wcsph" and r["params"]["particle_radius"] == 0.025) is rerun[0]
+    md = "\n".join(MX.section(first + rerun + part, R._fmt, R._section_head))
+    assert "3 of 3 cases finished" in md and "from 3 runs" in md
+    assert "--solvers wcsph" in md and "--radii 0.0125" in md
+    assert "stopped here" not in md

@@ -150,7 +150,8 @@ def test_artificial_viscosity_pair_matches_numpy_oracle(approach):
     from sph_oracle import grad_W
 
     d = 0.1
-    scene = {"name": "pair", "particle_radius": d / 2, "fps": 30.0, "container": False, "gravity": [0, 0, 0],
+    scene = {"name": "pair", "solver": "wcsph", "particle_radius": d / 2, "fps": 30.0, "container": False,
+             "gravity": [0, 0, 0],
              "fluid": [{"shape": "box", "min": [0, 0, 0], "max": [2 * d, d, d]}],
              "wcsph": {"artificial_viscosity": 0.5, "speed_of_sound": 20.0}, "output": NO_OUTPUT}
     sim = Simulation(scene_from_dict(scene))

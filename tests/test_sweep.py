@@ -195,7 +195,8 @@ def test_failures_do_not_stop_the_others_and_a_killed_worker_is_retried(tmp_path
     long = ["particle_radius=0.05", "output.usd=false", "output.surface=false", "output.checkpoint_every=5"]
     cases = [Case("bad-value", "dam_break", TINY + ["particle_radius=-1"], {"particle_radius": "-1"}, 2),
              Case("raises", "dam_break", TINY + ["time.fixed_dt=0.02"], {"time.fixed_dt": "0.02"}, 2),
-             Case("unstable", "dam_break", TINY + ["wcsph.speed_of_sound=0.5"], {"wcsph.speed_of_sound": "0.5"}, 12),
+             Case("unstable", "dam_break", TINY + ["solver=wcsph", "wcsph.speed_of_sound=0.5"],
+                  {"wcsph.speed_of_sound": "0.5"}, 12),
              Case("killed", "dam_break", long, {"particle_radius": "0.05"}, 49),
              Case("fine", "dam_break", TINY, {}, 3)]
     killed = []
