@@ -201,12 +201,14 @@ def fluid_search_kernel(smoothing: str):
 
 
 @functools.cache
-def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool):
+def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving: bool = False):
     """The boundary half of the search and the factor (threads in cell order): with ``search``, every
     boundary particle b within the support radius goes into the boundary neighbour list (cells with
     no boundary particle within one cell are skipped by the mask), and, when the boundary method's
     ``BoundaryTerms`` has density and gradient terms, into rho_i (rho0 density_b), s_i (gb_ib) and
-    delta_i(v) (v_i - v_b). Then, from the fluid parts: f_i = 1 / D_i (0 when D_i <= factor_floor),
+    delta_i(v) (v_i - v_b). With ``moving`` (rigid bodies) a second grid, over the moving boundary
+    particles (boundary indices moving_start + k), is walked after the static one, its neighbours
+    listed after the static ones. Then, from the fluid parts: f_i = 1 / D_i (0 when D_i <= factor_floor),
     the divergence source -delta_i(v), active_i, the divergence warm start P^v_i = warm_start
     P~^v_i / dt where delta_i(v) > 0 and i is active (P~^v = P^v dt of the last step [m^2/s]), the
     compression max(rho_i / rho0 - 1, 0) [-] (the stabilisation test reads its mean), the solves'
@@ -217,10 +219,10 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool):
     density_term = boundary_terms.density if with_terms else None
     gradient_term = boundary_terms.gradient if with_terms else None
 
-    @wp.kernel(enable_backward=False, module="unique")
-    def boundary_factor(
-        tid_offset: int,
-        # Boundary cell grid:
+    @wp.func(module="unique")
+    def walk_boundary(
+        i: int,
+        xi: wp.vec3,
         grid_lo: wp.vec3,
         inv_cell_size: float,
         grid_dims: wp.vec3i,
@@ -230,6 +232,87 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool):
         sorted_volume: wp.array(dtype=float),
         cell_mask: wp.array(dtype=wp.uint8),
         use_mask: int,
+        index_offset: int,
+        smoothing_length: float,
+        support_radius: float,
+        boundary_params: BoundaryParams,
+        boundary_v: wp.array(dtype=wp.vec3),
+        neighbor_index_out: wp.array2d(dtype=wp.int32),
+        nb_in: int,
+        ratio_in: float,
+        sb_in: wp.vec3,
+        bvel_in: float,
+    ):
+        """One boundary cell grid's particles b within the support radius of x_i: listed after the nb_in
+        already listed (index index_offset + the grid's own), their terms added to (ratio, sb, bvel)."""
+        nb = nb_in
+        ratio = ratio_in
+        sb = sb_in
+        bvel = bvel_in
+        h = smoothing_length
+        skip = int(0)
+        if use_mask != 0:
+            c = cell_of(xi, grid_lo, inv_cell_size, grid_dims)
+            if cell_mask[c[0] + grid_dims[0] * (c[1] + grid_dims[1] * c[2])] == wp.uint8(0):
+                skip = 1
+        if skip == 0:
+            q = (xi - grid_lo) * inv_cell_size
+            qr = support_radius * inv_cell_size
+            radius2 = support_radius * support_radius
+            capacity = neighbor_index_out.shape[1]
+            y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
+            y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
+            z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
+            z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
+            for z in range(z0, z1 + 1):  # a branch per candidate: most boundary candidates are kept
+                for y in range(y0, y1 + 1):
+                    xs = row_range(q, qr, y, z, grid_dims)
+                    if xs[1] >= xs[0]:
+                        row = grid_dims[0] * (y + grid_dims[1] * z)
+                        k = cell_start[row + xs[0]]
+                        k_end = cell_start[row + xs[1] + 1]
+                        while k < k_end:
+                            x_ib = xi - sorted_points[k]
+                            dd = wp.dot(x_ib, x_ib)
+                            if dd < radius2:
+                                b = cell_point[k] + index_offset
+                                if nb < capacity:
+                                    neighbor_index_out[i, nb] = b
+                                nb += 1
+                                if wp.static(with_terms):
+                                    vol = sorted_volume[k]
+                                    ratio += wp.static(density_term)(boundary_params,
+                                                                     wp.static(value)(wp.sqrt(dd), h), vol)
+                                    gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
+                                    sb += gb
+                                    bvel += wp.dot(boundary_v[b], gb)
+                            k += 1
+        return nb, ratio, sb, bvel
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def boundary_factor(
+        tid_offset: int,
+        # Boundary cell grid (the static particles):
+        grid_lo: wp.vec3,
+        inv_cell_size: float,
+        grid_dims: wp.vec3i,
+        cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
+        sorted_points: wp.array(dtype=wp.vec3),
+        sorted_volume: wp.array(dtype=float),
+        cell_mask: wp.array(dtype=wp.uint8),
+        use_mask: int,
+        # Moving boundary cell grid (with ``moving``; boundary indices moving_start + its own):
+        moving_lo: wp.vec3,
+        moving_inv_cell_size: float,
+        moving_dims: wp.vec3i,
+        moving_cell_start: wp.array(dtype=wp.int32),
+        moving_cell_point: wp.array(dtype=wp.int32),
+        moving_sorted_points: wp.array(dtype=wp.vec3),
+        moving_sorted_volume: wp.array(dtype=float),
+        moving_cell_mask: wp.array(dtype=wp.uint8),
+        moving_use_mask: int,
+        moving_start: int,
         # Model:
         smoothing_length: float,
         support_radius: float,
@@ -268,7 +351,6 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool):
         i = int(fluid_order[wp.tid() + tid_offset])
         xi = particle_x[i]
         vi = particle_v[i]
-        h = smoothing_length
         ratio = particle_density[i] / rest_density
         s = gradient_sum[i]
         div = divergence[i]
@@ -276,45 +358,19 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool):
         bvel = float(0.0)
         nb = int(0)
         if wp.static(search):
-            skip = int(0)
-            if use_mask != 0:
-                c = cell_of(xi, grid_lo, inv_cell_size, grid_dims)
-                if cell_mask[c[0] + grid_dims[0] * (c[1] + grid_dims[1] * c[2])] == wp.uint8(0):
-                    skip = 1
-            if skip == 0:
-                q = (xi - grid_lo) * inv_cell_size
-                qr = support_radius * inv_cell_size
-                radius2 = support_radius * support_radius
-                capacity = neighbor_index_out.shape[1]
-                y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
-                y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
-                z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
-                z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
-                for z in range(z0, z1 + 1):  # a branch per candidate: most boundary candidates are kept
-                    for y in range(y0, y1 + 1):
-                        xs = row_range(q, qr, y, z, grid_dims)
-                        if xs[1] >= xs[0]:
-                            row = grid_dims[0] * (y + grid_dims[1] * z)
-                            k = cell_start[row + xs[0]]
-                            k_end = cell_start[row + xs[1] + 1]
-                            while k < k_end:
-                                x_ib = xi - sorted_points[k]
-                                dd = wp.dot(x_ib, x_ib)
-                                if dd < radius2:
-                                    b = cell_point[k]
-                                    if nb < capacity:
-                                        neighbor_index_out[i, nb] = b
-                                    nb += 1
-                                    if wp.static(with_terms):
-                                        vol = sorted_volume[k]
-                                        ratio += wp.static(density_term)(boundary_params,
-                                                                         wp.static(value)(wp.sqrt(dd), h), vol)
-                                        gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
-                                        sb += gb
-                                        bvel += wp.dot(boundary_v[b], gb)
-                                k += 1
-                if nb > capacity:
-                    max_count_out[i] = wp.max(max_count_out[i], nb)
+            nb, ratio, sb, bvel = walk_boundary(i, xi, grid_lo, inv_cell_size, grid_dims, cell_start, cell_point,
+                                                sorted_points, sorted_volume, cell_mask, use_mask, 0,
+                                                smoothing_length, support_radius, boundary_params, boundary_v,
+                                                neighbor_index_out, nb, ratio, sb, bvel)
+            if wp.static(moving):
+                nb, ratio, sb, bvel = walk_boundary(i, xi, moving_lo, moving_inv_cell_size, moving_dims,
+                                                    moving_cell_start, moving_cell_point, moving_sorted_points,
+                                                    moving_sorted_volume, moving_cell_mask, moving_use_mask,
+                                                    moving_start, smoothing_length, support_radius,
+                                                    boundary_params, boundary_v, neighbor_index_out, nb, ratio,
+                                                    sb, bvel)
+            if nb > neighbor_index_out.shape[1]:
+                max_count_out[i] = wp.max(max_count_out[i], nb)
             neighbor_count_out[i] = nb
         s += sb
         div += wp.dot(vi, sb) - bvel
@@ -635,3 +691,28 @@ def shift_positions(
     if size > max_shift:
         dx = dx * (max_shift / size)
     particle_x[i] = particle_x[i] + dx
+
+
+@wp.kernel(enable_backward=False)
+def body_pressure_term(
+    tid_offset: int,
+    # Model:
+    rest_density: float,
+    with_divergence: int,
+    # In:
+    fluid_neighbors: NeighborList,
+    divergence_pressure: wp.array(dtype=float),
+    pressure: wp.array(dtype=float),
+    # Out:
+    boundary_pressure_term_out: wp.array(dtype=float),
+):
+    """Moving bodies: the walls' pressure acceleration of the step, averaged over dt (impulse / dt), is
+    -(P^v_i + P_i) sum_b gb_ib (each solve changes v once, by dt a(P), with its converged P; the sweeps
+    change only P), i.e. the boundary method's pressure term with term_i = (P^v_i + P_i) / rho0
+    [m^5/(kg s^2)] (Akinci: -rho0 V_b term_i grad W_ib = -P_i V_b grad W_ib). P^v counts only when the
+    divergence solve ran (``with_divergence``)."""
+    i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+    p = pressure[i]
+    if with_divergence != 0:
+        p = divergence_pressure[i] + p
+    boundary_pressure_term_out[i] = p / rest_density

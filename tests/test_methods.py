@@ -198,6 +198,10 @@ CONFIGS |= {
     "wcsph-penalty-bodies": dict(boundary="penalty", **BODY),
     "pbf-bodies": dict(solver="pbf", material={"xsph": 0.05, "boundary_friction": 0.3}, **BODY),
     "pbf-penalty-bodies": dict(solver="pbf", boundary="penalty", **BODY),
+    "dfsph-bodies": dict(solver="dfsph", material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.3}, **BODY),
+    "dfsph-penalty-bodies": dict(solver="dfsph", boundary="penalty", **BODY),
+    "dfsph-no-divergence-bodies": dict(solver="dfsph", dfsph={"divergence_solve": False}, **BODY),
+    "dfsph-stabilize-bodies": dict(solver="dfsph", compressed=True, **BODY),
 }
 
 

@@ -44,7 +44,8 @@ def water_level(sim, centre, half_width) -> float:
     return float(np.mean(levels))
 
 
-def test_light_box_floats_half_submerged():
+@pytest.mark.parametrize("solver", ["pbf", "dfsph"])
+def test_light_box_floats_half_submerged(solver):
     """A 0.3 x 0.3 x 0.2 m box of density 500 kg/m^3 (10 particle spacings tall, wide enough to float
     flat: metacentre above the centre of mass), released 30 % submerged, settles with half its volume
     below the free surface: the submerged fraction averaged over the last second (about one heave
@@ -52,7 +53,7 @@ def test_light_box_floats_half_submerged():
     0.493; WCSPH at 6,300 particles read 0.48-0.52)."""
     h = 0.2
     body = {"shape": "box", "size": [0.3, 0.3, h], "position": [0.21, 0.21, 0.30], "density": 500.0}
-    sim = Simulation(pool_scene("pbf", 0.01, 0.42, 0.26, body))
+    sim = Simulation(pool_scene(solver, 0.01, 0.42, 0.26, body))
     fractions = []
     while sim.state.time < 2.6 - 1e-9:
         st = sim.advance_frame()
@@ -63,7 +64,7 @@ def test_light_box_floats_half_submerged():
             fractions.append(fraction)
             assert quat_to_matrix(pose["orientation"])[2, 2] > 0.995  # it floats flat
     mean = float(np.mean(fractions))
-    print(f"submerged fraction {mean:.4f} (frames {np.round(fractions, 3).tolist()})")
+    print(f"{solver}: submerged fraction {mean:.4f} (frames {np.round(fractions, 3).tolist()})")
     assert mean == pytest.approx(0.5, rel=0.05), fractions
 
 

@@ -112,8 +112,9 @@ def test_resume_continues_bit_for_bit(reference, tmp_path):
 
 
 def test_retry_restores_the_bodies():
-    """The watchdog's frame start holds the bodies' Newton state: a restored frame replays bit for bit."""
-    sim = Simulation(scene_from_dict(scene_dict(output={"usd": False})))
+    """The watchdog's frame start holds the bodies' Newton state: a restored frame replays bit for bit
+    (on_instability = "retry": the frame start also holds the solver's warm start, DFSPH's P and P^v)."""
+    sim = Simulation(scene_from_dict(scene_dict(output={"usd": False}, time={"on_instability": "retry"})))
     for _ in range(2):
         sim.advance_frame()  # the ball is in the water
     last = sim.last_frame
@@ -206,9 +207,11 @@ def test_mesh_body_must_be_closed(tmp_path):
         scene_from_dict(d)
 
 
-def test_hash_grid_variant_refuses_bodies():
+@pytest.mark.parametrize("solver", ["wcsph", "pbf"])
+def test_hash_grid_variant_refuses_bodies(solver):
+    """The solvers with a wp.HashGrid variant (DFSPH has none) refuse bodies there in one line."""
     with pytest.raises(SceneError, match=r"hash-grid variant \(lists=False\) cannot move bodies"):
-        Simulation(scene_from_dict(scene_dict(output={"usd": False})), solver_options={"lists": False})
+        Simulation(scene_from_dict(scene_dict(solver=solver, output={"usd": False})), solver_options={"lists": False})
 
 
 def test_scene_with_bodies_and_no_newton_names_the_install_command(monkeypatch, tmp_path, capsys):

@@ -26,7 +26,10 @@ that the pressure acceleration of fluid particle i due to boundary particle b is
 ``terms.pressure(params, grad_i W_ib, V_b, term_i)`` (Akinci: -rho0 V_b term_i grad_i W_ib [m/s^2];
 term_i in m^5/(kg s^2), WCSPH's p/rho^2 of the wall). ``body_coupling_after`` names the stage after
 which that term is final for the substep and particle_x, particle_v and particle_density hold the
-values the boundary terms (pressure and force) were evaluated with; the simulation gathers the
+values the boundary terms (pressure and force) were evaluated with (a solver whose velocities change
+between its boundary force and that stage names, in ``body_coupling_velocity``, a workspace field
+holding the velocities the force term read; DFSPH: a copy taken before its viscosity stage, since
+its density solve follows); the simulation gathers the
 fluid's force on each moving boundary particle right after it, as the exact negative of those terms
 (``kernels/rigid.py``), and moves the bodies after the solver's last stage.
 """
@@ -83,6 +86,9 @@ class Solver(MethodBase):
     #: the stage after which the fluid's force on moving bodies is gathered (module docstring); None:
     #: the solver does not write ``boundary_pressure_term`` and scenes with bodies are refused
     body_coupling_after: ClassVar[str | None] = None
+    #: the workspace field holding, after ``body_coupling_after``, the fluid velocities [m/s] the boundary
+    #: method's force term (friction, penalty) was evaluated with (module docstring)
+    body_coupling_velocity: str = "particle_v"
 
     def __init__(self, sim, **options: Any):
         if options:
@@ -101,8 +107,11 @@ class Solver(MethodBase):
         """A reason why this solver with ``boundary_cls`` cannot move rigid bodies, or None (it can).
         Default: refused when ``body_coupling_after`` is None or the boundary method refuses."""
         if cls.body_coupling_after is None:
+            from .registry import solvers
+
+            able = sorted(name for name, other in solvers().items() if other.body_coupling_after is not None)
             return (f"the {cls.name} solver does not provide the wall pressure term bodies need "
-                    "(Solver.body_coupling_after); use solver = 'wcsph' or 'pbf'")
+                    f"(Solver.body_coupling_after); use solver = {' or '.join(repr(n) for n in able)}")
         return boundary_cls.refuses_bodies()
 
     @property

@@ -243,6 +243,18 @@ class NeighborLists:
         return self._boundary_weight if self.boundary_cells is not None else self._no_weight
 
     @property
+    def moving_weight(self):
+        """Volume V_b per moving boundary particle in the moving grid's cell order [m^3] (rebuilt by
+        ``update_moving``; a one-value placeholder without boundary volumes or moving particles)."""
+        return self._moving_weight if self.moving_cells is not None else self._no_weight
+
+    @property
+    def moving_mask(self):
+        """uint8 per cell of the moving grid: 0 where no moving particle is within one cell; None when
+        there is no moving grid or its cells are smaller than the search radius."""
+        return self._moving_mask if self.moving_cells is not None else None
+
+    @property
     def max_count(self):
         """Per fluid particle: the largest neighbour count that did not fit since the last ``overflow``
         (a search kernel of its own writes it as ``build_lists`` does)."""

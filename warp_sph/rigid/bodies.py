@@ -84,9 +84,11 @@ class SimulationBodies:
             raise SceneError(f"bodies: the {solver.name} solver names stage {after!r} as its coupling point, but its "
                              f"stages are {', '.join(names)}")
         k = names.index(after) + 1
-        return stages[:k] + [self.force_stage()] + stages[k:] + [self.motion_stage()]
+        return stages[:k] + [self.force_stage(solver.body_coupling_velocity)] + stages[k:] + [self.motion_stage()]
 
-    def force_stage(self) -> Stage:
+    def force_stage(self, velocity: str = "particle_v") -> Stage:
+        """The gather stage; ``velocity``: the workspace field of the fluid velocities the boundary force
+        term was evaluated with (``Solver.body_coupling_velocity``)."""
         sim, m = self.sim, self.sim.model
         terms, params = sim.boundary_terms, sim.boundary_params
         kernel = _rigid.body_particle_force_kernel(m.smoothing.name, terms)
@@ -101,10 +103,10 @@ class SimulationBodies:
             launch(kernel, self.count,
                    [m.particle_mass, m.smoothing_length, m.support_radius, params, m.static_boundary_count,
                     m.boundary_x, m.boundary_v, m.boundary_volume, fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start,
-                    fc.cell_point, nl.search_radius, f["particle_x"], f["particle_v"], f["particle_density"], term],
+                    fc.cell_point, nl.search_radius, f["particle_x"], f[velocity], f["particle_density"], term],
                    [self.force], device=m.device)
 
-        reads = ("neighbor_lists", "particle_x", "particle_v", "particle_density", "boundary_x", "boundary_v",
+        reads = ("neighbor_lists", "particle_x", velocity, "particle_density", "boundary_x", "boundary_v",
                  "boundary_volume") + (("boundary_pressure_term",) if with_pressure else ())
         return Stage("body_forces", run, reads=reads, writes=("body_particle_force",),
                      doc=f"the fluid's force on {self.count} moving boundary particles: the negative of the "

@@ -73,6 +73,9 @@ class DfsphSolver(Solver):
     title = "divergence-free SPH (Bender & Koschier 2015, 2017)"
     section_doc = "divergence-free SPH settings"
     iterative = True
+    #: moving bodies: after the density solve the step's wall pressure is final (term_i = (P^v_i + P_i) /
+    #: rho0) and x, rho are still those of the search the solves used (integrate moves x after it)
+    body_coupling_after = "pressure"
     parameters = (
         Param("dfsph.target_density_error", "float", "-", 5e-4, "the density solve stops when the mean predicted "
               "over-density max(rho*/rho0 - 1, 0) is below this (fraction of rho0; SPlisHSPlasH 'maxError' / 100)",
@@ -148,9 +151,16 @@ class DfsphSolver(Solver):
         self._pairs_capacity = 0
         self._search = _dfsph.fluid_search_kernel(m.smoothing.name)
         terms = sim.boundary_terms
-        self._boundary_factor = _dfsph.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0)
+        moving = self.with_bodies and self.nl.moving_cells is not None
+        self._boundary_factor = _dfsph.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0, moving)
         self._no_volume = wp.zeros(1, dtype=float, device=dev)
         self._no_mask = wp.zeros(1, dtype=wp.uint8, device=dev)
+        self._no_cells = wp.zeros(2, dtype=wp.int32, device=dev)  # an empty grid: one cell, no point
+        if self.with_bodies:
+            # term_i of the walls' pressure (``body_pressure_term``) and the velocities the boundary
+            # force term (viscosity stage) read, for the body force gather
+            sim.allocate("boundary_pressure_term", float)
+            sim.allocate("boundary_force_velocity", wp.vec3)
 
     def _pairs(self):
         """The pair cache, sized for the fluid lists' capacity (which grows on overflow): a padded row per
@@ -183,14 +193,22 @@ class DfsphSolver(Solver):
                 m.smoothing_length, m.support_radius, m.rest_density, f["particle_x"], f["particle_v"]],
                [nl.fluid.count, nl.fluid.index, nl.max_count, self._pair_rows, self._room, f["particle_density"],
                 pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
+        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
+                 self._no_mask, 0]
         bc = nl.boundary_cells
         if bc is not None:
             mask = nl.boundary_mask
             grid = [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, nl.boundary_weight,
                     self._no_mask if mask is None else mask, int(mask is not None)]
         else:
-            grid = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), pairs.offset, pairs.offset, m.boundary_x, self._no_volume,
-                    self._no_mask, 0]
+            grid = list(empty)
+        mc = nl.moving_cells if self.with_bodies else None
+        if mc is not None:  # the bodies' particles, after the static ones (``NeighborLists.update_moving``)
+            mask = nl.moving_mask
+            grid += [mc.lo, mc.inv_cell_size, mc.dims, mc.cell_start, mc.cell_point, mc.sorted_x, nl.moving_weight,
+                     self._no_mask if mask is None else mask, int(mask is not None), nl.moving_start]
+        else:
+            grid += empty + [0]
         launch(self._boundary_factor, n,
                grid + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor, self.neighbor_threshold,
                        self.sim.boundary_params, m.boundary_v, float(self.config.warm_start),
@@ -299,6 +317,14 @@ class DfsphSolver(Solver):
                              int(p.min_iterations), int(p.max_iterations), False)
         self.last_iterations = it
         self.last_density_error = err
+        if self.with_bodies:
+            m, f = self.model, sim.fields
+            launch(_dfsph.body_pressure_term, m.fluid_count,
+                   [m.rest_density, int(bool(p.divergence_solve)), self.nl.fluid, f["dfsph_divergence_pressure"],
+                    f["dfsph_pressure"]], [f["boundary_pressure_term"]], device=m.device, min_range=LIGHT_MIN_RANGE)
+
+    def run_force_velocity(self, sim, dt) -> None:
+        wp.copy(sim.fields["boundary_force_velocity"], sim.fields["particle_v"])
 
     def run_integrate(self, sim, dt) -> None:
         m, f = self.model, sim.fields
@@ -317,6 +343,9 @@ class DfsphSolver(Solver):
         terms = sim.boundary_terms
         with_boundary = terms is not None and terms.gradient is not None
         boundary_reads = ("boundary_x", "boundary_volume") if with_boundary else ()
+        bodies = self.with_bodies
+        if bodies:  # the moving particles' grid, and their velocities in the divergence source
+            boundary_reads += ("moving_boundary_grid",) + (("boundary_v",) if with_boundary else ())
         search_out = ("neighbor_lists", "particle_density", "dfsph_pairs", "dfsph_factor", "dfsph_divergence_source",
                       "dfsph_divergence_pressure", "dfsph_acceleration", "dfsph_error", "boundary_force")
         search_reads = ("neighbor_cells", "particle_x", "particle_v", "dfsph_divergence_warm")
@@ -341,7 +370,16 @@ class DfsphSolver(Solver):
                 doc=f"Jacobi sweeps (omega {p.relaxation:g}) until mean max(D rho/Dt, 0) dt < "
                     f"{p.target_divergence_error:g} ({p.divergence_min_iterations}-{p.divergence_max_iterations}); "
                     "v += dt a(P^v)"))
-        after = [viscous_stage(sim, "particle_x", True)]
+        viscous = viscous_stage(sim, "particle_x", True)
+        #: the workspace field of the velocities the boundary force term was evaluated with (body gather)
+        self.body_coupling_velocity = "particle_v"
+        if bodies and viscous is not None:
+            # the density solve changes v after the viscosity stage: keep what its boundary force read
+            self.body_coupling_velocity = "boundary_force_velocity"
+            stages.append(Stage("force_velocity", self.run_force_velocity, reads=("particle_v",),
+                                writes=("boundary_force_velocity",),
+                                doc="v kept for the bodies' share of the boundary force (read by body_forces)"))
+        after = [viscous]
         if m.xsph > 0.0:
             after.append(xsph_stage(sim, True))
         stages += [s for s in after if s is not None]
@@ -351,10 +389,13 @@ class DfsphSolver(Solver):
                   writes=("dfsph_density_source",), updates=("dfsph_pressure",),
                   doc=f"b = (1 - rho/rho0) - dt delta(v + dt g); warm start {p.warm_start:g} P where compressing"),
             Stage("pressure", self.run_pressure,
-                  reads=("neighbor_lists", "dfsph_pairs", "dfsph_factor", "dfsph_density_source"),
+                  reads=("neighbor_lists", "dfsph_pairs", "dfsph_factor", "dfsph_density_source")
+                  + (("dfsph_divergence_pressure",) if bodies and p.divergence_solve else ()),
                   updates=("dfsph_pressure", "dfsph_acceleration", "dfsph_error"),
+                  writes=("boundary_pressure_term",) if bodies else (),
                   doc=f"Jacobi sweeps (omega {p.relaxation:g}) until the mean predicted over-density < "
-                      f"{p.target_density_error:g} ({p.min_iterations}-{p.max_iterations})"),
+                      f"{p.target_density_error:g} ({p.min_iterations}-{p.max_iterations})"
+                      + ("; bodies: term_i = (P^v_i + P_i) / rho0, the walls' pressure of the step" if bodies else "")),
             Stage("integrate", self.run_integrate,
                   reads=("neighbor_lists", "dfsph_pairs", "dfsph_pressure", "particle_density"),
                   writes=("particle_pressure", "particle_acceleration"),
