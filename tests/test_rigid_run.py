@@ -157,10 +157,10 @@ def test_fast_body_never_passes_a_wall_or_obstacle(target):
 
 def test_preview_draws_the_bodies(reference, tmp_path):
     pytest.importorskip("PIL")
-    from warp_sph.preview.render_run import BODY_COLOR, Camera, _bodies, preview_run
+    from warp_sph.preview.render_run import BODY_COLOR, Camera, body_meshes, preview_run
 
     meta = json.loads((reference / "run.json").read_text())
-    solids = _bodies(meta)[FRAMES]
+    solids = body_meshes(meta)[FRAMES]
     assert len(solids) == 2
     verts = solids[0][0]
     pose = meta["frames"][-1]["bodies"]["crate"]

@@ -88,7 +88,7 @@ def _rows(out):
 
 def _frames(folder):
     out = {}
-    for p in sorted((Path(folder) / "frames").glob("*.npz")):
+    for p in sorted((Path(folder) / "frames").glob("frame_*.npz")):  # not the hidden temporaries of atomic writes
         with np.load(p) as z:
             out[p.name] = {k: z[k].copy() for k in z.files}
     return out

@@ -41,9 +41,6 @@ from .run_files import (
 
 FAST_PARTICLE_COLOR = (0.80, 0.92, 1.00)  # foam white-blue for the fastest particles
 
-#: the name tests/test_rigid_run.py imports (kept until that test uses ``body_meshes``)
-_bodies = body_meshes
-
 __all__ = ["BACKGROUND", "BODY_COLOR", "DEFAULT_SIZE", "FAST_PARTICLE_COLOR", "OBSTACLE_COLOR", "PARTICLE_COLOR",
            "SPRAY_PRIM", "SURFACE_COLOR", "SURFACE_PRIM", "Camera", "Light", "PreviewError", "SurfaceReader",
            "auto_camera", "body_meshes", "load_frame", "obstacle_meshes", "preview_run", "render_mesh",
