@@ -1,5 +1,6 @@
 """Divergence-free SPH (Bender & Koschier 2015, 2017) as SPlisHSPlasH >= 2.12 computes it; kernels
-in ``kernels/dfsph.py``, equations there and in the research note ``dfsph.md``.
+in ``kernels/dfsph.py`` and ``kernels/dfsph_search.py``, equations there and in the research note
+``dfsph.md``.
 
 Step (one dt per substep):
   the fluid sorted into cells (the shared "neighbors" stage) -> one search at x ("density"): the
@@ -21,6 +22,10 @@ Host reads: one read of a three-value control array per check (after the first m
 sweeps, then every ``check_every`` sweeps: 1 on the CPU, where the read costs nothing; a device can
 run blocks of sweeps between reads because the kernels stop by themselves once the control kernel
 has set its done flag); one read of the mean over-density per step for the stabilisation test.
+
+Host code in two modules: this one (the plug-in: parameters, workspace, stages, the solves,
+stabilisation, time-step bounds, statistics, checkpoints, hints) and ``dfsph_search.py`` (the step's
+one search: neighbour lists, density, factor and pair cache; ``neighbor_threshold``, re-exported here).
 """
 from __future__ import annotations
 
@@ -28,7 +33,6 @@ import numpy as np
 import warp as wp
 
 from ...core.launch import LIGHT_MIN_RANGE, launch
-from ...core.smoothing import get_smoothing_kernel, lattice_offsets
 from ...core.step_graph import Stage
 from ...kernels import dfsph as _dfsph
 from ...kernels import reduction as _reduce
@@ -39,12 +43,8 @@ from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
 from ..viscosity import viscous_bounds, viscous_stage
 from ..xsph import xsph_stage
+from .dfsph_search import FACTOR_FLOOR, NEIGHBOR_THRESHOLD_CUBIC, DfsphSearch, neighbor_threshold
 
-#: neighbours (fluid + boundary, self excluded) a particle needs for its divergence error to count,
-#: on the cubic lattice with support 2d (26 interior, 17 on a flat free surface; SPlisHSPlasH: 20)
-NEIGHBOR_THRESHOLD_CUBIC = 20
-#: D_i d^2 below this: the particle is nearly isolated and gets no pressure (f_i = 0)
-FACTOR_FLOOR = 1e-6
 #: stabilise when the mean over-density at x exceeds this many times the density target (and 0.1 %)
 STABILIZE_FACTOR = 10.0
 STABILIZE_FLOOR = 1e-3
@@ -52,16 +52,8 @@ STABILIZE_FLOOR = 1e-3
 STABILIZE_ROUNDS = 20
 
 
-def neighbor_threshold(smoothing: str, h: float, spacing: float) -> int:
-    """SPlisHSPlasH's 20-neighbour rule scaled with the support: round(20/26 N) for N neighbours of an
-    interior particle of a cubic lattice at spacing d (N = 26 for support 2d)."""
-    kernel = get_smoothing_kernel(smoothing)
-    interior = len(lattice_offsets(spacing, kernel.support_radius(h))) - 1
-    return int(round(NEIGHBOR_THRESHOLD_CUBIC * interior / 26.0))
-
-
 @register_solver
-class DfsphSolver(Solver):
+class DfsphSolver(DfsphSearch, Solver):
     """Divergence-free SPH: a divergence solve and a density solve per step, both Jacobi on the
     factor computed once per step (see the module docstring). Time step: velocity CFL
     dt <= cfl d / (v_max + |g| frame_dt) and, with viscosity, the viscous bound.
@@ -140,88 +132,14 @@ class DfsphSolver(Solver):
         self._partial = wp.zeros(chunks, dtype=float, device=dev)
         self._control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=dev)
         self._zero_control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=dev)
-        size = max(n, 1)
-        pairs = _dfsph.DfsphPairs()
-        for name, dtype in (("offset", wp.int32), ("count", wp.int32), ("gradient_sum", wp.vec3),
-                            ("boundary_gradient", wp.vec3), ("boundary_velocity", float), ("active", wp.int32)):
-            setattr(pairs, name, wp.zeros(size, dtype=dtype, device=dev))
-        sim.fields["dfsph_pairs"] = pairs
-        self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle
-        self._square_sum = wp.zeros(size, dtype=float, device=dev)  # sum_j |G_ij|^2 (fluid part of D_i)
-        self._pairs_capacity = 0
-        self._search = _dfsph.fluid_search_kernel(m.smoothing.name)
-        terms = sim.boundary_terms
-        moving = self.with_bodies and self.nl.moving_cells is not None
-        self._boundary_factor = _dfsph.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0, moving)
-        self._no_volume = wp.zeros(1, dtype=float, device=dev)
-        self._no_mask = wp.zeros(1, dtype=wp.uint8, device=dev)
-        self._no_cells = wp.zeros(2, dtype=wp.int32, device=dev)  # an empty grid: one cell, no point
+        self._allocate_search()
         if self.with_bodies:
             # term_i of the walls' pressure (``body_pressure_term``) and the velocities the boundary
             # force term (viscosity stage) read, for the body force gather
             sim.allocate("boundary_pressure_term", float)
             sim.allocate("boundary_force_velocity", wp.vec3)
 
-    def _pairs(self):
-        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): a padded row per
-        particle for the search and the compressed rows the solves read."""
-        pairs = self.sim.fields["dfsph_pairs"]
-        capacity = self.nl.capacities[0]
-        if capacity != self._pairs_capacity:
-            n, dev = max(self.model.fluid_count, 1), self.model.device
-            pairs.index = wp.zeros(n * capacity, dtype=wp.int32, device=dev)
-            pairs.gradient = wp.zeros(n * capacity, dtype=wp.vec3, device=dev)
-            self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
-            self._pairs_capacity = capacity
-        return pairs
-
-    @property
-    def nl(self):
-        return self.sim.fields["neighbor_lists"]
-
     # --- passes ----------------------------------------------------------------------------
-    def search(self, dt: float) -> None:
-        """The step's one search at the current x (the fluid sorted into cells by the "neighbors" stage):
-        neighbour lists, density, pair cache, factor, divergence source and warm start."""
-        m, f = self.model, self.sim.fields
-        nl = self.nl
-        n, dev = m.fluid_count, m.device
-        pairs = self._pairs()
-        fc = nl.fluid_cells
-        launch(self._search, n,
-               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.particle_mass,
-                m.smoothing_length, m.support_radius, m.rest_density, f["particle_x"], f["particle_v"]],
-               [nl.fluid.count, nl.fluid.index, nl.max_count, self._pair_rows, self._room, f["particle_density"],
-                pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
-        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
-                 self._no_mask, 0]
-        bc = nl.boundary_cells
-        if bc is not None:
-            mask = nl.boundary_mask
-            grid = [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, nl.boundary_weight,
-                    self._no_mask if mask is None else mask, int(mask is not None)]
-        else:
-            grid = list(empty)
-        mc = nl.moving_cells if self.with_bodies else None
-        if mc is not None:  # the bodies' particles, after the static ones (``NeighborLists.update_moving``)
-            mask = nl.moving_mask
-            grid += [mc.lo, mc.inv_cell_size, mc.dims, mc.cell_start, mc.cell_point, mc.sorted_x, nl.moving_weight,
-                     self._no_mask if mask is None else mask, int(mask is not None), nl.moving_start]
-        else:
-            grid += empty + [0]
-        launch(self._boundary_factor, n,
-               grid + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor, self.neighbor_threshold,
-                       self.sim.boundary_params, m.boundary_v, float(self.config.warm_start),
-                       1.0 / dt if dt > 0 else 0.0, fc.cell_point, f["particle_x"], f["particle_v"],
-                       f["dfsph_divergence_warm"], nl.fluid.count, self._square_sum, f["particle_density"],
-                       pairs.gradient_sum, f["dfsph_divergence_source"]],
-               [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient, pairs.boundary_velocity,
-                pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"], f["dfsph_acceleration"],
-                f["dfsph_error"], f["boundary_force"]], device=dev)
-        wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
-        launch(_dfsph.compact_pairs, n, [nl.fluid.index, self._pair_rows, self._room, pairs.offset],
-               [pairs.count, pairs.index, pairs.gradient], device=dev, min_range=LIGHT_MIN_RANGE)
-
     def mean_error(self) -> float:
         """Mean of the per-particle ``dfsph_error`` [-], summed in a fixed order (one read)."""
         n = self.model.fluid_count

@@ -1,0 +1,397 @@
+"""DFSPH's per-step neighbour search, factor and pair cache: the search half of ``kernels/dfsph.py``
+(notation there: V = m / rho0 [m^3], G_ij = V grad_i W_ij [1/m], the boundary term gb_ib [1/m],
+s_i, D_i, f_i = 1 / D_i [m^2], delta_i(u)); host half ``warp_sph/methods/solvers/dfsph_search.py``.
+
+Neighbours and the factor come from one search per step (``fluid_search_kernel`` then
+``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``): each pair
+within the support radius is found once, and its G_ij goes into a padded row that
+``compact_pairs`` copies into a compressed row layout (``DfsphPairs``), read as one stream by every
+later pass; the solves evaluate no smoothing kernel. The same search writes the fluid and boundary
+neighbour lists (fluid lists without i itself) that the shared viscosity and XSPH stages read.
+Kernels taking ``tid_offset`` are split over CPU cores and write only their own particle (no
+atomics), so results are bitwise reproducible for any thread count.
+"""
+import functools
+
+import warp as wp
+
+from .neighbors import NoBoundaryParams, cell_of
+from .smoothing import SMOOTHING_FUNCTIONS
+
+
+@wp.struct
+class DfsphPairs:
+    """The step's fluid pairs in compressed rows, and what the solves need per particle.
+
+    Pairs of particle i (neighbours j != i closer than the support radius): entries
+    offset[i] .. offset[i] + count[i] - 1 of index (neighbour j) and gradient (G_ij = V grad_i W_ij
+    [1/m]); the 1-D arrays hold fluid_count x the list capacity entries, of which the rows use the
+    first sum(count). gradient_sum[i] = s_i [1/m]; boundary_gradient[i] = sum_b gb_ib [1/m];
+    boundary_velocity[i] = sum_b v_b . gb_ib [1/s]; active[i] = 1 when i has at least the threshold
+    of neighbours (fluid, plus boundary when the boundary enters the density): its divergence error
+    counts.
+    """
+
+    offset: wp.array(dtype=wp.int32)
+    count: wp.array(dtype=wp.int32)
+    index: wp.array(dtype=wp.int32)
+    gradient: wp.array(dtype=wp.vec3)
+    gradient_sum: wp.array(dtype=wp.vec3)
+    boundary_gradient: wp.array(dtype=wp.vec3)
+    boundary_velocity: wp.array(dtype=float)
+    active: wp.array(dtype=wp.int32)
+
+
+@wp.func
+def row_range(q: wp.vec3, qr: float, y: int, z: int, grid_dims: wp.vec3i) -> wp.vec2i:
+    """Cells x0..x1 of grid row (y, z) within qr cells of the point q (in cell units), trimmed to the
+    sphere (border rows extend to infinity, matching the clamped cells of outside points); x1 < x0
+    when the row is out of reach."""
+    dz = float(0.0)
+    if z > 0 and q[2] < float(z):
+        dz = float(z) - q[2]
+    if z < grid_dims[2] - 1 and q[2] > float(z + 1):
+        dz = q[2] - float(z + 1)
+    dy = float(0.0)
+    if y > 0 and q[1] < float(y):
+        dy = float(y) - q[1]
+    if y < grid_dims[1] - 1 and q[1] > float(y + 1):
+        dy = q[1] - float(y + 1)
+    rest = qr * qr - dy * dy - dz * dz
+    if rest <= 0.0:
+        return wp.vec2i(0, -1)
+    xr = wp.sqrt(rest)
+    return wp.vec2i(wp.clamp(int(wp.floor(q[0] - xr)), 0, grid_dims[0] - 1),
+                    wp.clamp(int(wp.floor(q[0] + xr)), 0, grid_dims[0] - 1))
+
+
+@functools.cache
+def fluid_search_kernel(smoothing: str):
+    """The fluid half of the step's search, over the fluid cell grid (points sorted by cell): for
+    particle i (threads in cell order) every j within the support radius. Writes the fluid neighbour
+    list (j != i; the count is exact; when i and its neighbours do not fit the capacity, entries are
+    dropped and max_count_out[i] keeps the largest such number), the padded row of G_ij,
+    room_out[i] = the pairs kept, and the
+    fluid parts of: rho_i = m sum_j W_ij (self included) [kg/m^3], s_i, sum_j |G_ij|^2 and
+    delta_i(v) [1/s] (finished by ``boundary_factor_kernel``)."""
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def search_fluid(
+        tid_offset: int,
+        # Fluid cell grid:
+        grid_lo: wp.vec3,
+        inv_cell_size: float,
+        grid_dims: wp.vec3i,
+        cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
+        sorted_points: wp.array(dtype=wp.vec3),
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        # State in:
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
+        # Out:
+        neighbor_count_out: wp.array(dtype=wp.int32),
+        neighbor_index_out: wp.array2d(dtype=wp.int32),
+        max_count_out: wp.array(dtype=wp.int32),
+        pair_gradient_out: wp.array2d(dtype=wp.vec3),
+        room_out: wp.array(dtype=wp.int32),
+        particle_density_out: wp.array(dtype=float),
+        gradient_sum_out: wp.array(dtype=wp.vec3),
+        square_sum_out: wp.array(dtype=float),
+        divergence_out: wp.array(dtype=float),
+    ):
+        i = int(cell_point[wp.tid() + tid_offset])
+        xi = particle_x[i]
+        vi = particle_v[i]
+        h = smoothing_length
+        volume = particle_mass / rest_density
+        q = (xi - grid_lo) * inv_cell_size
+        qr = support_radius * inv_cell_size
+        radius2 = support_radius * support_radius
+        capacity = neighbor_index_out.shape[1]
+        y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
+        y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
+        z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
+        z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
+        # collect the candidates closer than the support radius without a branch (sorted indices k, in
+        # the row of the list; an unpredictable branch per candidate was measured 15 % slower) ...
+        last = capacity - 1
+        found = int(0)
+        for z in range(z0, z1 + 1):
+            for y in range(y0, y1 + 1):
+                xs = row_range(q, qr, y, z, grid_dims)
+                if xs[1] >= xs[0]:
+                    row = grid_dims[0] * (y + grid_dims[1] * z)
+                    k = cell_start[row + xs[0]]
+                    k_end = cell_start[row + xs[1] + 1]
+                    while k < k_end:
+                        x_ij = xi - sorted_points[k]
+                        neighbor_index_out[i, wp.min(found, last)] = k
+                        found += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
+                        k += 1
+        # ... then the pairs (i itself adds W(0) to the density and is dropped from the list)
+        w_sum = float(0.0)
+        s = wp.vec3(0.0)
+        sq = float(0.0)
+        div = float(0.0)
+        n = int(0)
+        e = int(0)
+        e_end = wp.min(found, capacity)
+        while e < e_end:
+            k = neighbor_index_out[i, e]
+            x_ij = xi - sorted_points[k]
+            w_sum += wp.static(value)(wp.length(x_ij), h)
+            j = cell_point[k]
+            if j != i:
+                g = volume * wp.static(gradient)(x_ij, h)
+                s += g
+                sq += wp.dot(g, g)
+                div += wp.dot(vi - particle_v[j], g)
+                neighbor_index_out[i, n] = j
+                pair_gradient_out[i, n] = g
+                n += 1
+            e += 1
+        room_out[i] = n
+        if found > capacity:  # pairs were dropped: the frame is redone with larger lists
+            max_count_out[i] = wp.max(max_count_out[i], found)  # per particle, no atomics
+            n = found - 1
+        neighbor_count_out[i] = n
+        particle_density_out[i] = particle_mass * w_sum
+        gradient_sum_out[i] = s
+        square_sum_out[i] = sq
+        divergence_out[i] = div
+
+    return search_fluid
+
+
+@functools.cache
+def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving: bool = False):
+    """The boundary half of the search and the factor (threads in cell order): with ``search``, every
+    boundary particle b within the support radius goes into the boundary neighbour list (cells with
+    no boundary particle within one cell are skipped by the mask), and, when the boundary method's
+    ``BoundaryTerms`` has density and gradient terms, into rho_i (rho0 density_b), s_i (gb_ib) and
+    delta_i(v) (v_i - v_b). With ``moving`` (rigid bodies) a second grid, over the moving boundary
+    particles (boundary indices moving_start + k), is walked after the static one, its neighbours
+    listed after the static ones. Then, from the fluid parts: f_i = 1 / D_i (0 when D_i <= factor_floor),
+    the divergence source -delta_i(v), active_i, the divergence warm start P^v_i = warm_start
+    P~^v_i / dt where delta_i(v) > 0 and i is active (P~^v = P^v dt of the last step [m^2/s]), the
+    compression max(rho_i / rho0 - 1, 0) [-] (the stabilisation test reads its mean), the solves'
+    acceleration scratch and the boundary force cleared."""
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    with_terms = search and boundary_terms is not None and boundary_terms.gradient is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    density_term = boundary_terms.density if with_terms else None
+    gradient_term = boundary_terms.gradient if with_terms else None
+
+    @wp.func(module="unique")
+    def walk_boundary(
+        i: int,
+        xi: wp.vec3,
+        grid_lo: wp.vec3,
+        inv_cell_size: float,
+        grid_dims: wp.vec3i,
+        cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
+        sorted_points: wp.array(dtype=wp.vec3),
+        sorted_volume: wp.array(dtype=float),
+        cell_mask: wp.array(dtype=wp.uint8),
+        use_mask: int,
+        index_offset: int,
+        smoothing_length: float,
+        support_radius: float,
+        boundary_params: BoundaryParams,
+        boundary_v: wp.array(dtype=wp.vec3),
+        neighbor_index_out: wp.array2d(dtype=wp.int32),
+        nb_in: int,
+        ratio_in: float,
+        sb_in: wp.vec3,
+        bvel_in: float,
+    ):
+        """One boundary cell grid's particles b within the support radius of x_i: listed after the nb_in
+        already listed (index index_offset + the grid's own), their terms added to (ratio, sb, bvel)."""
+        nb = nb_in
+        ratio = ratio_in
+        sb = sb_in
+        bvel = bvel_in
+        h = smoothing_length
+        skip = int(0)
+        if use_mask != 0:
+            c = cell_of(xi, grid_lo, inv_cell_size, grid_dims)
+            if cell_mask[c[0] + grid_dims[0] * (c[1] + grid_dims[1] * c[2])] == wp.uint8(0):
+                skip = 1
+        if skip == 0:
+            q = (xi - grid_lo) * inv_cell_size
+            qr = support_radius * inv_cell_size
+            radius2 = support_radius * support_radius
+            capacity = neighbor_index_out.shape[1]
+            y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
+            y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
+            z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
+            z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
+            for z in range(z0, z1 + 1):  # a branch per candidate: most boundary candidates are kept
+                for y in range(y0, y1 + 1):
+                    xs = row_range(q, qr, y, z, grid_dims)
+                    if xs[1] >= xs[0]:
+                        row = grid_dims[0] * (y + grid_dims[1] * z)
+                        k = cell_start[row + xs[0]]
+                        k_end = cell_start[row + xs[1] + 1]
+                        while k < k_end:
+                            x_ib = xi - sorted_points[k]
+                            dd = wp.dot(x_ib, x_ib)
+                            if dd < radius2:
+                                b = cell_point[k] + index_offset
+                                if nb < capacity:
+                                    neighbor_index_out[i, nb] = b
+                                nb += 1
+                                if wp.static(with_terms):
+                                    vol = sorted_volume[k]
+                                    ratio += wp.static(density_term)(boundary_params,
+                                                                     wp.static(value)(wp.sqrt(dd), h), vol)
+                                    gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
+                                    sb += gb
+                                    bvel += wp.dot(boundary_v[b], gb)
+                            k += 1
+        return nb, ratio, sb, bvel
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def boundary_factor(
+        tid_offset: int,
+        # Boundary cell grid (the static particles):
+        grid_lo: wp.vec3,
+        inv_cell_size: float,
+        grid_dims: wp.vec3i,
+        cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
+        sorted_points: wp.array(dtype=wp.vec3),
+        sorted_volume: wp.array(dtype=float),
+        cell_mask: wp.array(dtype=wp.uint8),
+        use_mask: int,
+        # Moving boundary cell grid (with ``moving``; boundary indices moving_start + its own):
+        moving_lo: wp.vec3,
+        moving_inv_cell_size: float,
+        moving_dims: wp.vec3i,
+        moving_cell_start: wp.array(dtype=wp.int32),
+        moving_cell_point: wp.array(dtype=wp.int32),
+        moving_sorted_points: wp.array(dtype=wp.vec3),
+        moving_sorted_volume: wp.array(dtype=float),
+        moving_cell_mask: wp.array(dtype=wp.uint8),
+        moving_use_mask: int,
+        moving_start: int,
+        # Model:
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        factor_floor: float,
+        neighbor_threshold: int,
+        boundary_params: BoundaryParams,
+        boundary_v: wp.array(dtype=wp.vec3),
+        # Warm start:
+        warm_start: float,
+        inv_dt: float,
+        # State in:
+        fluid_order: wp.array(dtype=wp.int32),
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
+        divergence_warm: wp.array(dtype=float),
+        fluid_count: wp.array(dtype=wp.int32),
+        square_sum: wp.array(dtype=float),
+        # In/out (fluid parts in, totals out):
+        particle_density: wp.array(dtype=float),
+        gradient_sum: wp.array(dtype=wp.vec3),
+        divergence: wp.array(dtype=float),
+        # Out:
+        neighbor_count_out: wp.array(dtype=wp.int32),
+        neighbor_index_out: wp.array2d(dtype=wp.int32),
+        max_count_out: wp.array(dtype=wp.int32),
+        boundary_gradient_out: wp.array(dtype=wp.vec3),
+        boundary_velocity_out: wp.array(dtype=float),
+        active_out: wp.array(dtype=wp.int32),
+        factor_out: wp.array(dtype=float),
+        divergence_pressure_out: wp.array(dtype=float),
+        acceleration_out: wp.array(dtype=wp.vec3),
+        compression_out: wp.array(dtype=float),
+        boundary_force_out: wp.array(dtype=wp.vec3),
+    ):
+        i = int(fluid_order[wp.tid() + tid_offset])
+        xi = particle_x[i]
+        vi = particle_v[i]
+        ratio = particle_density[i] / rest_density
+        s = gradient_sum[i]
+        div = divergence[i]
+        sb = wp.vec3(0.0)
+        bvel = float(0.0)
+        nb = int(0)
+        if wp.static(search):
+            nb, ratio, sb, bvel = walk_boundary(i, xi, grid_lo, inv_cell_size, grid_dims, cell_start, cell_point,
+                                                sorted_points, sorted_volume, cell_mask, use_mask, 0,
+                                                smoothing_length, support_radius, boundary_params, boundary_v,
+                                                neighbor_index_out, nb, ratio, sb, bvel)
+            if wp.static(moving):
+                nb, ratio, sb, bvel = walk_boundary(i, xi, moving_lo, moving_inv_cell_size, moving_dims,
+                                                    moving_cell_start, moving_cell_point, moving_sorted_points,
+                                                    moving_sorted_volume, moving_cell_mask, moving_use_mask,
+                                                    moving_start, smoothing_length, support_radius,
+                                                    boundary_params, boundary_v, neighbor_index_out, nb, ratio,
+                                                    sb, bvel)
+            if nb > neighbor_index_out.shape[1]:
+                max_count_out[i] = wp.max(max_count_out[i], nb)
+            neighbor_count_out[i] = nb
+        s += sb
+        div += wp.dot(vi, sb) - bvel
+        d = wp.dot(s, s) + square_sum[i]
+        f = float(0.0)
+        if d > factor_floor:
+            f = 1.0 / d
+        neighbors = fluid_count[i]
+        if wp.static(with_terms):
+            neighbors += nb
+        active = int(0)
+        if neighbors >= neighbor_threshold:
+            active = 1
+        p = float(0.0)
+        if div > 0.0 and active == 1:
+            p = warm_start * divergence_warm[i] * inv_dt
+        particle_density[i] = rest_density * ratio
+        gradient_sum[i] = s
+        divergence[i] = -div
+        boundary_gradient_out[i] = sb
+        boundary_velocity_out[i] = bvel
+        active_out[i] = active
+        factor_out[i] = f
+        divergence_pressure_out[i] = p
+        acceleration_out[i] = wp.vec3(0.0)
+        compression_out[i] = wp.max(ratio - 1.0, 0.0)
+        boundary_force_out[i] = wp.vec3(0.0)
+
+    return boundary_factor
+
+
+@wp.kernel(enable_backward=False)
+def compact_pairs(
+    tid_offset: int,
+    # In:
+    neighbor_index: wp.array2d(dtype=wp.int32),
+    pair_gradient: wp.array2d(dtype=wp.vec3),
+    room: wp.array(dtype=wp.int32),
+    offset: wp.array(dtype=wp.int32),
+    # Out:
+    count_out: wp.array(dtype=wp.int32),
+    index_out: wp.array(dtype=wp.int32),
+    gradient_out: wp.array(dtype=wp.vec3),
+):
+    """Row i of the padded pairs to entries offset[i] .. offset[i] + room[i] - 1 (offset: the exclusive
+    prefix sum of room)."""
+    i = wp.tid() + tid_offset
+    base = offset[i]
+    n = room[i]
+    count_out[i] = n
+    k = int(0)
+    while k < n:
+        index_out[base + k] = neighbor_index[i, k]
+        gradient_out[base + k] = pair_gradient[i, k]
+        k += 1

@@ -1,0 +1,116 @@
+"""DFSPH's per-step search on the host (``DfsphSearch``, a base of ``DfsphSolver``): the pair cache
+and search kernels it allocates, and the one search per step that launches ``kernels/dfsph_search.py``
+(neighbour lists, density, factor f_i = 1/D_i [m^2], the pair cache G_ij = V grad W_ij [1/m] in
+compressed rows, divergence source and warm start). ``dfsph.py`` decides when it runs (the "density"
+and "stabilize" stages) and runs the solves on what it leaves; the attributes the search reads
+(``factor_floor``, ``neighbor_threshold``, ``with_bodies``, ``config``) are set by
+``DfsphSolver.__init__``.
+
+A helper of the solver ``dfsph.py`` (it registers nothing; the registry imports it harmlessly).
+"""
+from __future__ import annotations
+
+import warp as wp
+
+from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...core.smoothing import get_smoothing_kernel, lattice_offsets
+from ...kernels import dfsph_search as _search
+
+#: neighbours (fluid + boundary, self excluded) a particle needs for its divergence error to count,
+#: on the cubic lattice with support 2d (26 interior, 17 on a flat free surface; SPlisHSPlasH: 20)
+NEIGHBOR_THRESHOLD_CUBIC = 20
+#: D_i d^2 below this: the particle is nearly isolated and gets no pressure (f_i = 0)
+FACTOR_FLOOR = 1e-6
+
+
+def neighbor_threshold(smoothing: str, h: float, spacing: float) -> int:
+    """SPlisHSPlasH's 20-neighbour rule scaled with the support: round(20/26 N) for N neighbours of an
+    interior particle of a cubic lattice at spacing d (N = 26 for support 2d)."""
+    kernel = get_smoothing_kernel(smoothing)
+    interior = len(lattice_offsets(spacing, kernel.support_radius(h))) - 1
+    return int(round(NEIGHBOR_THRESHOLD_CUBIC * interior / 26.0))
+
+
+class DfsphSearch:
+    """The neighbour search, density, factor and pair cache of divergence-free SPH, once per step."""
+
+    def _allocate_search(self) -> None:
+        """The pair cache (the workspace field ``dfsph_pairs``), the search's scratch and its kernels."""
+        sim, m = self.sim, self.model
+        n, dev = m.fluid_count, m.device
+        size = max(n, 1)
+        pairs = _search.DfsphPairs()
+        for name, dtype in (("offset", wp.int32), ("count", wp.int32), ("gradient_sum", wp.vec3),
+                            ("boundary_gradient", wp.vec3), ("boundary_velocity", float), ("active", wp.int32)):
+            setattr(pairs, name, wp.zeros(size, dtype=dtype, device=dev))
+        sim.fields["dfsph_pairs"] = pairs
+        self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle
+        self._square_sum = wp.zeros(size, dtype=float, device=dev)  # sum_j |G_ij|^2 (fluid part of D_i)
+        self._pairs_capacity = 0
+        self._search = _search.fluid_search_kernel(m.smoothing.name)
+        terms = sim.boundary_terms
+        moving = self.with_bodies and self.nl.moving_cells is not None
+        self._boundary_factor = _search.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0, moving)
+        self._no_volume = wp.zeros(1, dtype=float, device=dev)
+        self._no_mask = wp.zeros(1, dtype=wp.uint8, device=dev)
+        self._no_cells = wp.zeros(2, dtype=wp.int32, device=dev)  # an empty grid: one cell, no point
+
+    def _pairs(self):
+        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): a padded row per
+        particle for the search and the compressed rows the solves read."""
+        pairs = self.sim.fields["dfsph_pairs"]
+        capacity = self.nl.capacities[0]
+        if capacity != self._pairs_capacity:
+            n, dev = max(self.model.fluid_count, 1), self.model.device
+            pairs.index = wp.zeros(n * capacity, dtype=wp.int32, device=dev)
+            pairs.gradient = wp.zeros(n * capacity, dtype=wp.vec3, device=dev)
+            self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
+            self._pairs_capacity = capacity
+        return pairs
+
+    @property
+    def nl(self):
+        return self.sim.fields["neighbor_lists"]
+
+    # --- passes ----------------------------------------------------------------------------
+    def search(self, dt: float) -> None:
+        """The step's one search at the current x (the fluid sorted into cells by the "neighbors" stage):
+        neighbour lists, density, pair cache, factor, divergence source and warm start."""
+        m, f = self.model, self.sim.fields
+        nl = self.nl
+        n, dev = m.fluid_count, m.device
+        pairs = self._pairs()
+        fc = nl.fluid_cells
+        launch(self._search, n,
+               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.particle_mass,
+                m.smoothing_length, m.support_radius, m.rest_density, f["particle_x"], f["particle_v"]],
+               [nl.fluid.count, nl.fluid.index, nl.max_count, self._pair_rows, self._room, f["particle_density"],
+                pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
+        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
+                 self._no_mask, 0]
+        bc = nl.boundary_cells
+        if bc is not None:
+            mask = nl.boundary_mask
+            grid = [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, nl.boundary_weight,
+                    self._no_mask if mask is None else mask, int(mask is not None)]
+        else:
+            grid = list(empty)
+        mc = nl.moving_cells if self.with_bodies else None
+        if mc is not None:  # the bodies' particles, after the static ones (``NeighborLists.update_moving``)
+            mask = nl.moving_mask
+            grid += [mc.lo, mc.inv_cell_size, mc.dims, mc.cell_start, mc.cell_point, mc.sorted_x, nl.moving_weight,
+                     self._no_mask if mask is None else mask, int(mask is not None), nl.moving_start]
+        else:
+            grid += empty + [0]
+        launch(self._boundary_factor, n,
+               grid + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor, self.neighbor_threshold,
+                       self.sim.boundary_params, m.boundary_v, float(self.config.warm_start),
+                       1.0 / dt if dt > 0 else 0.0, fc.cell_point, f["particle_x"], f["particle_v"],
+                       f["dfsph_divergence_warm"], nl.fluid.count, self._square_sum, f["particle_density"],
+                       pairs.gradient_sum, f["dfsph_divergence_source"]],
+               [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient, pairs.boundary_velocity,
+                pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"], f["dfsph_acceleration"],
+                f["dfsph_error"], f["boundary_force"]], device=dev)
+        wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
+        launch(_search.compact_pairs, n, [nl.fluid.index, self._pair_rows, self._room, pairs.offset],
+               [pairs.count, pairs.index, pairs.gradient], device=dev, min_range=LIGHT_MIN_RANGE)
