@@ -253,13 +253,17 @@ def test_workers_without_the_extra_is_a_one_line_error(monkeypatch, capsys, tmp_
 
 def test_ctrl_c_cancels_cleanly_and_a_rerun_resumes(tmp_path):
     out = tmp_path / "sw"
+    # WCSPH: its cases take seconds, so the Ctrl-C lands while they run (DFSPH, the default, finished
+    # all three before the first run.json was polled on a quiet machine)
     cmd = [sys.executable, "-m", "warp_sph.cli", "sweep", "dam_break", "--param", "time.cfl=0.2,0.3,0.4",
-           "--set", "particle_radius=0.05", "--set", "output.usd=false", "--set", "output.surface=false",
+           "--set", "solver=wcsph", "--set", "particle_radius=0.05", "--set", "output.usd=false",
+           "--set", "output.surface=false",
            "--frames", "13", "--out", str(out), "--workers", "2", "--no-progress"]
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     t0 = time.time()
     while time.time() - t0 < 120 and not any(out.glob("*/run.json")) and p.poll() is None:
         time.sleep(0.05)
+    assert p.poll() is None, "the sweep finished before a case started: make its cases longer"
     os.killpg(p.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
     stdout, stderr = p.communicate(timeout=120)
     assert p.returncode == 130, stderr[-2000:]
