@@ -98,3 +98,10 @@ def test_summary_says_what_export_time_is(capsys):
     print_summary(info)
     out = capsys.readouterr().out
     assert re.search(r"export: 100\.9 s on a background thread while simulating; the simulation waited 3\.6 s", out), out
+
+
+def test_check_defaults_to_the_dam_break_like_run(capsys):
+    """`warp-sph check` with no scene checks what `warp-sph run` with no scene would run."""
+    assert main(["check"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("dam_break: ok") and "solver dfsph" in out and "about " in out

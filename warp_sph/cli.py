@@ -223,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_cmd_scenes)
 
     c = sub.add_parser("check", parents=[common], help="validate a scene (and sample it) without running")
-    c.add_argument("scene")
+    c.add_argument("scene", nargs="?", default="dam_break", help="built-in scene name or path to a .toml file (default: dam_break)")
     c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     c.set_defaults(func=_cmd_check)
 
