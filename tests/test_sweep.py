@@ -253,13 +253,15 @@ def test_workers_without_the_extra_is_a_one_line_error(monkeypatch, capsys, tmp_
 
 def test_ctrl_c_cancels_cleanly_and_a_rerun_resumes(tmp_path):
     out = tmp_path / "sw"
-    # WCSPH: its cases take seconds, so the Ctrl-C lands while they run (DFSPH, the default, finished
-    # all three before the first run.json was polled on a quiet machine)
+    # WCSPH: its cases take seconds, so the Ctrl-C lands while they run
     cmd = [sys.executable, "-m", "warp_sph.cli", "sweep", "dam_break", "--param", "time.cfl=0.2,0.3,0.4",
            "--set", "solver=wcsph", "--set", "particle_radius=0.05", "--set", "output.usd=false",
            "--set", "output.surface=false",
            "--frames", "13", "--out", str(out), "--workers", "2", "--no-progress"]
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    # SIGINT as a terminal leaves it: a suite started in the background by a non-interactive shell
+    # (`bash .ci/run &`) runs with SIGINT ignored, and children inherit that (the sweep then exited 0)
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     t0 = time.time()
     while time.time() - t0 < 120 and not any(out.glob("*/run.json")) and p.poll() is None:
         time.sleep(0.05)
