@@ -51,6 +51,75 @@ PRESETS: dict[str, list[dict]] = {
 SCALING_RADII = (0.025, 0.0125, 0.008, 0.00625)  # 6,859 / 59,319 / 226,981 / 493,039 fluid particles
 
 
+def positive_int(text: str) -> int:
+    """argparse type: an integer > 0 (argparse reports a bad value in one line, exit status 2)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer > 0, got {text!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"expected an integer > 0, got {text!r}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not (v > 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return v
+
+
+def positive_floats(text: str) -> str:
+    """argparse type: comma-separated numbers > 0 (kept as the text the commands split)."""
+    items = [v.strip() for v in text.split(",") if v.strip()]
+    if not items:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers > 0, got {text!r}")
+    for v in items:
+        try:
+            positive_float(v)
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated numbers > 0, got {text!r}") from None
+    return text
+
+
+def nonnegative_floats(text: str) -> str:
+    """argparse type: comma-separated numbers >= 0 (kept as text)."""
+    items = [v.strip() for v in text.split(",") if v.strip()]
+    try:
+        if not items or any(not (0 <= float(v) < float("inf")) for v in items):
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers >= 0, got {text!r}") from None
+    return text
+
+
+def positive_ints(text: str) -> str:
+    """argparse type: comma-separated integers > 0 (kept as text)."""
+    items = [v.strip() for v in text.split(",") if v.strip()]
+    try:
+        if not items or any(int(v) <= 0 for v in items):
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers > 0, got {text!r}") from None
+    return text
+
+
+def check_names(option: str, text: str | None, known) -> None:
+    """Refuse unknown scene or solver names before any case runs (one line, exit status 2)."""
+    from warp_sph.core.errors import WarpSphError
+
+    if not text:
+        return
+    bad = [v.strip() for v in text.split(",") if v.strip() and v.strip() not in known]
+    if bad:
+        raise WarpSphError(f"bench: {option} {text!r}: unknown {', '.join(map(repr, bad))}; "
+                           f"expected some of {', '.join(known)}")
+
+
 def _out(args) -> Path:
     return results_dir(getattr(args, "out", None), getattr(args, "publish", False))
 
@@ -106,7 +175,9 @@ def cmd_scaling(args, argv: list[str], log=print) -> int:
     from warp_sph.sweep.cases import split_values
 
     from .cases import RunSpec
+    from .records import solver_names
 
+    check_names("--solver", args.solver, solver_names())
     radii = [float(r) for r in split_values(args.radii)] if args.radii else list(SCALING_RADII)
     specs = [RunSpec(scene=args.scene, overrides=[f"particle_radius={r}", f"solver={args.solver}"] + list(args.set),
                      steps=args.steps, repeats=args.repeats, device=args.device, kind="scaling", name="scaling",
@@ -120,7 +191,10 @@ def cmd_matrix(args, argv: list[str], log=print) -> int:
     from warp_sph.sweep.cases import split_values
 
     from .matrix import matrix_specs, status_word
+    from .records import scene_names, solver_names
 
+    check_names("--scenes", args.scenes, scene_names())
+    check_names("--solvers", args.solvers, solver_names())
     specs = matrix_specs(scenes=split_values(args.scenes) if args.scenes else None,
                          solvers=split_values(args.solvers) if args.solvers else None,
                          radii=[float(r) for r in split_values(args.radii)] if args.radii else None,
@@ -168,16 +242,18 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
 
 def parse_resolutions(text: str) -> list[tuple[float, float]]:
     """'0.025:1.0,0.0125:0.3' -> [(0.025, 1.0), (0.0125, 0.3)]: particle radius [m] and simulated seconds."""
+    from warp_sph.core.errors import WarpSphError
+
     out = []
     for item in [v.strip() for v in text.split(",") if v.strip()]:
         r, sep, d = item.partition(":")
         try:
             out.append((float(r), float(d) if sep else 1.0))
         except ValueError:
-            raise SystemExit(f"warp-sph bench splishsplash: --resolutions {text!r}: expected RADIUS:SECONDS,... "
-                             "e.g. 0.025:1.0,0.0125:0.3") from None
+            raise WarpSphError(f"bench splishsplash: --resolutions {text!r}: expected RADIUS:SECONDS,... "
+                               "e.g. 0.025:1.0,0.0125:0.3") from None
         if out[-1][0] <= 0 or out[-1][1] <= 0:
-            raise SystemExit(f"warp-sph bench splishsplash: --resolutions {text!r}: radius and seconds must be > 0")
+            raise WarpSphError(f"bench splishsplash: --resolutions {text!r}: radius and seconds must be > 0")
     return out
 
 
@@ -281,46 +357,46 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scene", default="dam_break", help="built-in scene or .toml path (default: dam_break)")
     s.add_argument("--param", action="append", default=[], metavar="KEY=V1,V2",
                    help="scene key path and the values to sweep, e.g. solver=wcsph,pbf (repeatable)")
-    s.add_argument("--frames", type=int, default=None, help="frames to simulate per case (default 2; presets set their own)")
+    s.add_argument("--frames", type=positive_int, default=None, help="frames to simulate per case (default 2; presets set their own)")
     s.add_argument("--preset", help=f"named sweep: {', '.join(PRESETS)}")
     s.add_argument("--name", help="name of this sweep in the report (default: custom)")
-    s.add_argument("--time-limit", type=float, default=None, help="stop a case after this many seconds of stepping")
+    s.add_argument("--time-limit", type=positive_float, default=None, help="stop a case after this many seconds of stepping")
     common(s, executors=True)
     s.set_defaults(func=cmd_sweep)
 
     c = sub.add_parser("scaling", help="time and memory per particle against particle count")
     c.add_argument("--scene", default="dam_break")
-    c.add_argument("--radii", default=None, help=f"comma-separated particle radii [m] (default {','.join(map(str, SCALING_RADII))})")
-    c.add_argument("--steps", type=int, default=20, help="substeps timed per resolution (default 20)")
-    c.add_argument("--repeats", type=int, default=3,
+    c.add_argument("--radii", type=positive_floats, default=None, help=f"comma-separated particle radii [m] (default {','.join(map(str, SCALING_RADII))})")
+    c.add_argument("--steps", type=positive_int, default=20, help="substeps timed per resolution (default 20)")
+    c.add_argument("--repeats", type=positive_int, default=3,
                    help="time that many consecutive blocks of --steps substeps and keep the fastest (default 3)")
     c.add_argument("--solver", default="wcsph")
     common(c, executors=True)
     c.set_defaults(func=cmd_scaling)
 
     m = sub.add_parser("matrix", help="every built-in scene x every solver x resolution: finished or stopped, and why")
-    m.add_argument("--radii", default=None, help="particle radii [m] for every scene (default: 0.025,0.0125, the dam "
+    m.add_argument("--radii", type=positive_floats, default=None, help="particle radii [m] for every scene (default: 0.025,0.0125, the dam "
                    "break also 0.008; with a CUDA --device also 0.00625,0.004)")
     m.add_argument("--scenes", default=None, help="comma-separated scenes (default: every built-in scene)")
     m.add_argument("--solvers", default=None, help="comma-separated solvers (default: every solver)")
-    m.add_argument("--frames", type=int, default=None, help="frames per case (default: the scene's first second, at most 24)")
-    m.add_argument("--time-limit", type=float, default=None, help="stop a case after this many seconds of stepping")
+    m.add_argument("--frames", type=positive_int, default=None, help="frames per case (default: the scene's first second, at most 24)")
+    m.add_argument("--time-limit", type=positive_float, default=None, help="stop a case after this many seconds of stepping")
     common(m, executors=True)
     m.set_defaults(func=cmd_matrix)
 
     e = sub.add_parser("executors", help="the same 8-case sweep on the serial executor and on a Dask LocalCluster")
-    e.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
-    e.add_argument("--particle-radius", type=float, default=0.05, help="particle radius of the cases [m] (default 0.05)")
-    e.add_argument("--frames", type=int, default=49, help="frames per case including the initial one (default 49: 2 s)")
-    e.add_argument("--repeats", type=int, default=2, help="serial and LocalCluster runs, alternating (default 2)")
+    e.add_argument("--workers", type=positive_int, default=2, help="LocalCluster worker processes (default 2)")
+    e.add_argument("--particle-radius", type=positive_float, default=0.05, help="particle radius of the cases [m] (default 0.05)")
+    e.add_argument("--frames", type=positive_int, default=49, help="frames per case including the initial one (default 49: 2 s)")
+    e.add_argument("--repeats", type=positive_int, default=2, help="serial and LocalCluster runs, alternating (default 2)")
     e.add_argument("--no-report", action="store_true", help="do not regenerate the Markdown report")
     where(e)
     e.set_defaults(func=cmd_executors)
 
     x = sub.add_parser("splishsplash", help="the same dam break in warp-sph and SPlisHSPlasH (pysplishsplash)")
-    x.add_argument("--particle-radius", type=float, default=0.025)
-    x.add_argument("--frames", type=int, default=25, help="frames at 24 fps (default 25: about 1 s)")
-    x.add_argument("--threads", type=int, default=None,
+    x.add_argument("--particle-radius", type=positive_float, default=0.025)
+    x.add_argument("--frames", type=positive_int, default=25, help="frames at 24 fps (default 25: about 1 s)")
+    x.add_argument("--threads", type=positive_int, default=None,
                    help="OMP_NUM_THREADS for SPlisHSPlasH (default 1; 2 with --adaptive)")
     x.add_argument("--adaptive", action="store_true",
                    help="each engine's own adaptive step (SPlisHSPlasH cflMethod 1) and defaults: every warp-sph "
@@ -330,9 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --adaptive: particle radius [m] and simulated seconds per resolution "
                         "(default 0.025:1.0,0.0125:0.3: 6,859 particles for 1 s, 59,319 for 0.3 s)")
     x.add_argument("--solvers", default="wcsph,pbf,dfsph", help="wcsph,pbf (both engines), dfsph (SPlisHSPlasH only)")
-    x.add_argument("--dt-wcsph", type=float, default=None, help="fixed step for WCSPH [s] (default: CFL 0.4 bound)")
-    x.add_argument("--dt-pbf", type=float, default=None, help="fixed step for PBF [s] (default 0.002 * r/0.025)")
-    x.add_argument("--dt-dfsph", type=float, default=None, help="fixed step for DFSPH [s] (default: as PBF)")
+    x.add_argument("--dt-wcsph", type=positive_float, default=None, help="fixed step for WCSPH [s] (default: CFL 0.4 bound)")
+    x.add_argument("--dt-pbf", type=positive_float, default=None, help="fixed step for PBF [s] (default 0.002 * r/0.025)")
+    x.add_argument("--dt-dfsph", type=positive_float, default=None, help="fixed step for DFSPH [s] (default: as PBF)")
     x.add_argument("--skip-warp-sph", action="store_true", help="only the SPlisHSPlasH runs")
     x.add_argument("--splishsplash-gap", type=float, default=None, metavar="D",
                    help="place SPlisHSPlasH's fluid D spacings from the walls (default: on warp-sph's lattice)")
@@ -346,20 +422,20 @@ def build_parser() -> argparse.ArgumentParser:
     u = sub.add_parser("surface", help="surface reconstruction time per frame on dam-break particles, warp-sph "
                        "and splashsurf (pysplashsurf, optional) side by side")
     common(u)
-    u.add_argument("--radius", default="0.025", help="particle radii [m], comma separated (default 0.025: 6,859 "
+    u.add_argument("--radius", type=positive_floats, default="0.025", help="particle radii [m], comma separated (default 0.025: 6,859 "
                    "particles; 0.0125: 59,319)")
-    u.add_argument("--time", default="0.3", help="simulated time [s] of the particles, per radius or one for all (default 0.3)")
-    u.add_argument("--cell", default="0.5", help="cell sizes per particle radius (default 0.5)")
-    u.add_argument("--threads", default="1,2", help="CPU thread counts, the same for both tools (default 1,2)")
-    u.add_argument("--repeats", type=int, default=5, help="timed calls per case, the median counts (default 5)")
+    u.add_argument("--time", type=nonnegative_floats, default="0.3", help="simulated time [s] of the particles, per radius or one for all (default 0.3)")
+    u.add_argument("--cell", type=positive_floats, default="0.5", help="cell sizes per particle radius (default 0.5)")
+    u.add_argument("--threads", type=positive_ints, default="1,2", help="CPU thread counts, the same for both tools (default 1,2)")
+    u.add_argument("--repeats", type=positive_int, default=5, help="timed calls per case, the median counts (default 5)")
     u.add_argument("--no-splashsurf", action="store_true", help="warp-sph only")
     u.set_defaults(func=cmd_surface)
 
     b = sub.add_parser("bodies", help="a scene with moving rigid bodies against the same bodies as static obstacles: "
                        "cost per step")
     b.add_argument("--scene", default="floating_bodies", help="scene with [[bodies]] (default: floating_bodies)")
-    b.add_argument("--frames", type=int, default=24, help="frames per run after the initial one (default 24: 1 s)")
-    b.add_argument("--repeats", type=int, default=3,
+    b.add_argument("--frames", type=positive_int, default=24, help="frames per run after the initial one (default 24: 1 s)")
+    b.add_argument("--repeats", type=positive_int, default=3,
                    help="runs of each variant, alternating; the fastest counts (default 3)")
     common(b)
     b.set_defaults(func=cmd_bodies)

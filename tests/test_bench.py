@@ -438,7 +438,9 @@ def test_adaptive_splishsplash_scene_uses_its_cfl_step_and_method_defaults():
                       time_step={"STIFFNESS": 50000.0})
     assert sj["Configuration"]["WCSPH"] == {"stiffness": 50000.0}
     assert B.parse_resolutions("0.025:1.0,0.0125:0.3") == [(0.025, 1.0), (0.0125, 0.3)]
-    with pytest.raises(SystemExit, match="RADIUS:SECONDS"):
+    from warp_sph.core.errors import WarpSphError
+
+    with pytest.raises(WarpSphError, match="RADIUS:SECONDS"):
         B.parse_resolutions("0.025:x")
 
 
@@ -485,3 +487,29 @@ def test_adaptive_warp_sph_runs_record_cpu_time_and_iterations():
         assert not any(o.startswith("time.fixed_dt") for o in r["spec"]["overrides"])
     dfsph = next(r for r in records if r["params"]["solver"] == "dfsph")
     assert dfsph["metrics"]["solver_iterations_mean"] >= 2 and dfsph["metrics"]["divergence_iterations_mean"] >= 1
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["bench", "matrix", "--radii", "abc"], "argument --radii: expected comma-separated numbers > 0, got 'abc'"),
+    (["bench", "matrix", "--radii", "0,0.1"], "argument --radii: expected comma-separated numbers > 0"),
+    (["bench", "matrix", "--frames", "0"], "argument --frames: expected an integer > 0, got '0'"),
+    (["bench", "matrix", "--solvers", "foo,pbf"], "--solvers 'foo,pbf': unknown 'foo'; expected some of dfsph, pbf, wcsph"),
+    (["bench", "scaling", "--solver", "nope"], "--solver 'nope': unknown 'nope'"),
+    (["bench", "bodies", "--frames", "-2"], "argument --frames: expected an integer > 0, got '-2'"),
+    (["bench", "surface", "--threads", "0"], "argument --threads: expected comma-separated integers > 0"),
+    (["bench", "splishsplash", "--adaptive", "--resolutions", "x:1"], "--resolutions 'x:1': expected RADIUS:SECONDS"),
+])
+def test_bench_bad_arguments_are_one_line_errors_before_any_case(argv, message, tmp_path, capsys, monkeypatch):
+    """Bad numbers and names are refused up front with exit status 2 (they used to run every case to a
+    failure, print a traceback, or run with a negative frame count)."""
+    from warp_sph.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    try:
+        status = main(argv)
+    except SystemExit as e:  # argparse's own errors
+        status = e.code
+    assert status == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "runs").exists()
