@@ -224,6 +224,13 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
     from .report import speed_ratios
 
     invocation = now()
+    if args.publish and not args.skip_warp_sph:
+        ok, why = S.available()
+        if not ok:
+            from warp_sph.core.errors import WarpSphError
+
+            raise WarpSphError(f"bench splishsplash --publish: SPlisHSPlasH cannot run here ({why}), and the "
+                               "published page compares both engines in the same run: pip install pysplishsplash")
     if args.adaptive:
         return _splishsplash_adaptive(args, argv, invocation, log)
     records = S.run_comparison(
@@ -275,8 +282,13 @@ def _splishsplash_adaptive(args, argv: list[str], invocation: str, log) -> int:
 def cmd_surface(args, argv: list[str], log=print) -> int:
     from warp_sph.run.runner import versions
 
-    from .surface import run_surface_bench
+    from .surface import run_surface_bench, splashsurf_available
 
+    if args.publish and not args.no_splashsurf and not splashsurf_available():
+        from warp_sph.core.errors import WarpSphError
+
+        raise WarpSphError("bench surface --publish: pysplashsurf is not installed, and the published page compares "
+                           "with splashsurf in the same run: pip install pysplashsurf (or pass --no-splashsurf)")
     radii = [float(v) for v in args.radius.split(",")]
     times = [float(v) for v in args.time.split(",")]
     if len(times) == 1:

@@ -513,3 +513,21 @@ def test_bench_bad_arguments_are_one_line_errors_before_any_case(argv, message, 
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
     assert not (tmp_path / "runs").exists()
+
+
+def test_publish_without_the_reference_tool_is_refused(tmp_path, capsys, monkeypatch):
+    """`--publish` would replace the committed side-by-side rows with warp-sph-only ones when the other
+    tool is missing: refused up front (one line, exit 2), nothing written."""
+    from warp_sph.benchmarks import surface as SURF
+    from warp_sph.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(SURF, "splashsurf_available", lambda: False)
+    monkeypatch.setattr(S, "available", lambda *a, **k: (False, "No module named 'pysplishsplash'"))
+    published = REC.RESULTS_DIR / "surface.jsonl"
+    before = published.read_bytes() if published.is_file() else None
+    assert main(["bench", "surface", "--publish"]) == 2
+    assert "pip install pysplashsurf (or pass --no-splashsurf)" in capsys.readouterr().err
+    assert main(["bench", "splishsplash", "--adaptive", "--publish"]) == 2
+    assert "pip install pysplishsplash" in capsys.readouterr().err
+    assert (published.read_bytes() if published.is_file() else None) == before
