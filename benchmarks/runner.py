@@ -21,6 +21,7 @@ themselves are in ``cases.py``; records and where they go in ``records.py``; tab
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -51,61 +52,31 @@ PRESETS: dict[str, list[dict]] = {
 SCALING_RADII = (0.025, 0.0125, 0.008, 0.00625)  # 6,859 / 59,319 / 226,981 / 493,039 fluid particles
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer > 0 (argparse reports a bad value in one line, exit status 2)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer > 0, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"expected an integer > 0, got {text!r}")
-    return v
+def number(kind: type, minimum: float, strict: bool = True, many: bool = False):
+    """argparse type: a number of ``kind`` (int or float) above ``minimum`` (or at it, ``strict=False``),
+    finite; ``many``: comma-separated such numbers, kept as the text the commands split. A bad value is
+    argparse's one-line error, exit status 2."""
+    what = f"{'comma-separated ' if many else 'an '}{'integer' if kind is int else 'number'}{'s' if many else ''} " \
+           f"{'>' if strict else '>='} {minimum:g}"
 
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
-    if not (v > 0 and v < float("inf")):
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
-    return v
-
-
-def positive_floats(text: str) -> str:
-    """argparse type: comma-separated numbers > 0 (kept as the text the commands split)."""
-    items = [v.strip() for v in text.split(",") if v.strip()]
-    if not items:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers > 0, got {text!r}")
-    for v in items:
+    def check(text: str):
         try:
-            positive_float(v)
-        except argparse.ArgumentTypeError:
-            raise argparse.ArgumentTypeError(f"expected comma-separated numbers > 0, got {text!r}") from None
-    return text
+            values = [kind(v.strip()) for v in (text.split(",") if many else [text]) if v.strip()]
+            ok = bool(values) and all(math.isfinite(v) and (v > minimum if strict else v >= minimum) for v in values)
+        except ValueError:
+            ok = False
+        if not ok:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return text if many else values[0]
+
+    return check
 
 
-def nonnegative_floats(text: str) -> str:
-    """argparse type: comma-separated numbers >= 0 (kept as text)."""
-    items = [v.strip() for v in text.split(",") if v.strip()]
-    try:
-        if not items or any(not (0 <= float(v) < float("inf")) for v in items):
-            raise ValueError
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers >= 0, got {text!r}") from None
-    return text
-
-
-def positive_ints(text: str) -> str:
-    """argparse type: comma-separated integers > 0 (kept as text)."""
-    items = [v.strip() for v in text.split(",") if v.strip()]
-    try:
-        if not items or any(int(v) <= 0 for v in items):
-            raise ValueError
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers > 0, got {text!r}") from None
-    return text
+positive_int = number(int, 0)
+positive_float = number(float, 0)
+positive_ints = number(int, 0, many=True)
+positive_floats = number(float, 0, many=True)
+nonnegative_floats = number(float, 0, strict=False, many=True)
 
 
 def check_names(option: str, text: str | None, known) -> None:

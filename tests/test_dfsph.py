@@ -9,31 +9,16 @@ import pytest
 import warp as wp
 
 from sph_oracle import SUPPORT, W, grad_W
+from small_scenes import small_tank, stage
 from warp_sph.core.smoothing import lattice_offsets
 from warp_sph.methods.solvers.dfsph import neighbor_threshold
 from warp_sph.run.simulation import Simulation
-from warp_sph.scene import load_scene, scene_from_dict
+from warp_sph.scene import load_scene
 
 
 def dfsph_scene(**kw):
-    d = {
-        "name": "dfsph_test",
-        "particle_radius": 0.05,
-        "solver": "dfsph",
-        "container": {"min": [0.0, 0.0, 0.0], "max": [0.8, 0.6, 0.8]},
-        "fluid": [{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.6, 0.5, 0.5]}],
-        "output": {"usd": False, "surface": False},
-    }
-    for k, v in kw.items():
-        if isinstance(v, dict) and isinstance(d.get(k), dict):
-            d[k] = {**d[k], **v}
-        else:
-            d[k] = v
-    return scene_from_dict(d)
+    return small_tank("dfsph_test", "dfsph", **kw)
 
-
-def stage(sim, name):
-    return next(s for s in sim.graph.stages if s.name == name)
 
 
 def field(sim, name):

@@ -6,31 +6,16 @@ import numpy as np
 import pytest
 
 from sph_oracle import SUPPORT, W, grad_W
+from small_scenes import small_tank, stage
 from warp_sph.methods.solvers.pbf import rest_denominator
-from warp_sph.scene import load_scene, scene_from_dict
+from warp_sph.scene import load_scene
 from warp_sph.run.simulation import Simulation
 from warp_sph.core.smoothing import lattice_offsets
 
 
 def pbf_scene(**kw):
-    d = {
-        "name": "pbf_test",
-        "particle_radius": 0.05,
-        "solver": "pbf",
-        "container": {"min": [0.0, 0.0, 0.0], "max": [0.8, 0.6, 0.8]},
-        "fluid": [{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.6, 0.5, 0.5]}],
-        "output": {"usd": False, "surface": False},
-    }
-    for k, v in kw.items():
-        if isinstance(v, dict) and isinstance(d.get(k), dict):
-            d[k] = {**d[k], **v}
-        else:
-            d[k] = v
-    return scene_from_dict(d)
+    return small_tank("pbf_test", "pbf", **kw)
 
-
-def stage(sim, name):
-    return next(s for s in sim.graph.stages if s.name == name)
 
 
 def oracle_denominator(kernel, h, d, volume):

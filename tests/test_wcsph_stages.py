@@ -3,26 +3,13 @@ import numpy as np
 import pytest
 
 from sph_oracle import W, grad_W
-from warp_sph.scene import scene_from_dict
+from small_scenes import small_tank
 from warp_sph.run.simulation import Simulation
 
 
 def small_scene(**kw):
-    d = {
-        "name": "stage_test",
-        "particle_radius": 0.05,
-        "solver": "wcsph",
-        "container": {"min": [0.0, 0.0, 0.0], "max": [0.8, 0.6, 0.8]},
-        "fluid": [{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.6, 0.5, 0.5]}],
-        "material": {"viscosity": 0.01, "xsph": 0.1, "boundary_friction": 0.3},
-        "output": {"usd": False, "surface": False},
-    }
-    for k, v in kw.items():
-        if isinstance(v, dict) and isinstance(d.get(k), dict):
-            d[k] = {**d[k], **v}
-        else:
-            d[k] = v
-    return scene_from_dict(d)
+    material = {**{"viscosity": 0.01, "xsph": 0.1, "boundary_friction": 0.3}, **kw.pop("material", {})}
+    return small_tank("stage_test", "wcsph", material=material, **kw)
 
 
 def jittered(sim, seed=0, amp=0.2, vel=0.5):
