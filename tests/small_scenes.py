@@ -3,7 +3,7 @@ r = 0.05 m, outputs off; keyword tables merge into the defaults, other keywords 
 from warp_sph.scene import scene_from_dict
 
 
-def small_tank(name: str, solver: str, **kw):
+def small_tank(name: str, solver: str = "dfsph", **kw):
     d = {
         "name": name,
         "particle_radius": 0.05,

@@ -17,7 +17,7 @@ from warp_sph.scene import load_scene
 
 
 def dfsph_scene(**kw):
-    return small_tank("dfsph_test", "dfsph", **kw)
+    return small_tank("dfsph_test", **{"solver": "dfsph", **kw})
 
 
 

@@ -14,7 +14,7 @@ from warp_sph.core.smoothing import lattice_offsets
 
 
 def pbf_scene(**kw):
-    return small_tank("pbf_test", "pbf", **kw)
+    return small_tank("pbf_test", **{"solver": "pbf", **kw})
 
 
 

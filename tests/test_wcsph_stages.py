@@ -9,7 +9,7 @@ from warp_sph.run.simulation import Simulation
 
 def small_scene(**kw):
     material = {**{"viscosity": 0.01, "xsph": 0.1, "boundary_friction": 0.3}, **kw.pop("material", {})}
-    return small_tank("stage_test", "wcsph", material=material, **kw)
+    return small_tank("stage_test", **{"solver": "wcsph", **kw, "material": material})
 
 
 def jittered(sim, seed=0, amp=0.2, vel=0.5):
