@@ -240,7 +240,8 @@ def _splishsplash_adaptive(args, argv: list[str], invocation: str, log) -> int:
 
     resolutions = parse_resolutions(args.resolutions) if args.resolutions else list(S.ADAPTIVE_RESOLUTIONS)
     records = S.run_adaptive(resolutions, threads=args.threads or 2, device=args.device, isolate=not args.in_process,
-                             skip_warp_sph=args.skip_warp_sph, warp_sph_overrides=args.warp_sph_set, log=log)
+                             skip_warp_sph=args.skip_warp_sph, warp_sph_overrides=args.warp_sph_set,
+                             repeats=args.repeats, log=log)
     out = _save("splishsplash", records, args, argv, invocation, log)
     for q in S.adaptive_ratios(records):
         log(f"{q['fluid_particles']} particles: warp-sph dfsph / SPlisHSPlasH {q['case']} = {q['ratio']:.2f} wall"
@@ -388,6 +389,8 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--resolutions", default=None, metavar="R:S,...",
                    help="with --adaptive: particle radius [m] and simulated seconds per resolution "
                         "(default 0.025:1.0,0.0125:0.3: 6,859 particles for 1 s, 59,319 for 0.3 s)")
+    x.add_argument("--repeats", type=positive_int, default=1,
+                   help="with --adaptive: runs of every case, in turns; the fastest of each counts (default 1)")
     x.add_argument("--solvers", default="wcsph,pbf,dfsph", help="wcsph,pbf (both engines), dfsph (SPlisHSPlasH only)")
     x.add_argument("--dt-wcsph", type=positive_float, default=None, help="fixed step for WCSPH [s] (default: CFL 0.4 bound)")
     x.add_argument("--dt-pbf", type=positive_float, default=None, help="fixed step for PBF [s] (default 0.002 * r/0.025)")

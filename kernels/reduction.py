@@ -20,3 +20,21 @@ def sum_chunks(
     for i in range(lo, hi):
         s += values[i]
     partial_out[k] = s
+
+
+@wp.kernel(enable_backward=False)
+def max_speed_chunks(
+    chunk: int,
+    # In:
+    velocity: wp.array(dtype=wp.vec3),
+    # Out:
+    partial_out: wp.array(dtype=float),
+):
+    """partial_out[k] = the largest |v|^2 [m^2/s^2] of velocity[k chunk .. (k + 1) chunk - 1]."""
+    k = wp.tid()
+    lo = k * chunk
+    hi = wp.min(lo + chunk, velocity.shape[0])
+    s = float(0.0)
+    for i in range(lo, hi):
+        s = wp.max(s, wp.length_sq(velocity[i]))
+    partial_out[k] = s

@@ -489,6 +489,31 @@ def test_adaptive_warp_sph_runs_record_cpu_time_and_iterations():
     assert dfsph["metrics"]["solver_iterations_mean"] >= 2 and dfsph["metrics"]["divergence_iterations_mean"] >= 1
 
 
+def test_adaptive_repeats_keep_the_fastest_run_of_each_case(monkeypatch):
+    """--repeats N runs every case N times in turns and keeps each case's fastest finished run, with all
+    runs' wall and CPU seconds beside it."""
+    walls = iter([5.0, 3.0, 4.0, 2.0, 6.0, 7.0])  # case A, B, A, B, A, B
+    order = []
+
+    def fake_run_specs(specs, isolate, log):
+        order.append(specs[0].params["solver"])
+        w = next(walls)
+        return [{"status": "ok", "params": dict(specs[0].params), "spec": {},
+                 "metrics": {"wall_per_simulated_second": w, "cpu_per_simulated_second": 1.5 * w}}]
+
+    monkeypatch.setattr(C, "run_specs", fake_run_specs)
+    records = S.run_adaptive([(0.1, 0.05)], warp_sph_solvers=["pbf", "dfsph"], splishsplash_cases=(), isolate=False,
+                             repeats=3, log=lambda *a: None)
+    assert order == ["pbf", "dfsph"] * 3
+    by = {r["params"]["solver"]: r for r in records}
+    assert by["pbf"]["metrics"]["wall_per_simulated_second"] == 4.0 and by["pbf"]["repeats"] == 3
+    assert by["pbf"]["repeat_wall_per_simulated_second"] == [5.0, 4.0, 6.0]
+    assert by["dfsph"]["metrics"]["wall_per_simulated_second"] == 2.0
+    assert by["dfsph"]["repeat_cpu_per_simulated_second"] == [4.5, 3.0, 10.5]
+    failed = S.fastest_of([{"status": "failed", "metrics": {}}, {"status": "failed", "metrics": {}}])
+    assert failed["status"] == "failed" and failed["repeats"] == 2
+
+
 @pytest.mark.parametrize("argv,message", [
     (["bench", "matrix", "--radii", "abc"], "argument --radii: expected comma-separated numbers > 0, got 'abc'"),
     (["bench", "matrix", "--radii", "0,0.1"], "argument --radii: expected comma-separated numbers > 0"),

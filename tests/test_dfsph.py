@@ -378,10 +378,50 @@ def test_graph_and_time_step():
     m = sim.model
     bounds = {b.name: b.seconds for b in sim.time_step_bounds(2.0)}
     assert set(bounds) == {"velocity CFL", "viscous", "boundary friction"}  # no acoustic bound
-    assert bounds["velocity CFL"] == pytest.approx(0.4 * m.spacing / (2.0 + 9.81 / 24))
+    dt = bounds["velocity CFL"]  # per substep: dt (v + |g| dt) = cfl d
+    assert dt * (2.0 + 9.81 * dt) == pytest.approx(0.4 * m.spacing)
     for _ in range(3):  # every optional stage runs
         sim.step(2e-3)
     assert np.isfinite(sim.get_field("particle_v")).all()
+
+
+def test_each_substep_is_sized_for_the_speed_at_its_start(monkeypatch):
+    """DFSPH's CFL step follows the flow substep by substep (as SPlisHSPlasH's): every substep's dt
+    satisfies dt (v + |g| dt) <= cfl d for the fastest particle at its start (NumPy, from the state),
+    the substeps add up to the frame, and a collapsing block needs fewer of them than with one step size
+    per frame sized for the frame's start speed plus |g| frame_dt."""
+    sc = dfsph_scene(fps=12.0, time={"dt_max": 0.05})  # the CFL bound, not the 5 ms cap, sizes the steps
+    sim = Simulation(sc)
+    assert sim.per_substep_step
+    m = sim.model
+    g = float(np.linalg.norm(m.gravity))
+    reach = sc.time.cfl * m.spacing
+    seen = []
+
+    def record(sim, dt):
+        v = np.linalg.norm(sim.fields["particle_v"].numpy().astype(np.float64), axis=1).max()
+        seen.append((dt, v))
+
+    from warp_sph.core.step_graph import Stage
+
+    sim.graph.insert(Stage("speed_at_start", record, reads=("particle_v",)), before="neighbors")
+    steps = []
+    for _ in range(6):
+        start = len(seen)
+        st = sim.advance_frame()
+        frame = seen[start:]
+        assert st.steps == len(frame) and sum(dt for dt, _ in frame) == pytest.approx(sim.frame_dt, rel=1e-9)
+        assert st.dt_min == pytest.approx(min(dt for dt, _ in frame)) and st.dt_max == pytest.approx(max(dt for dt, _ in frame))
+        for dt, v in frame:
+            assert dt * (v + g * dt) <= reach * (1 + 1e-5), (dt, v)
+        steps.append(st.steps)
+    assert max(dt for dt, _ in seen) > 1.2 * min(dt for dt, _ in seen)  # the step follows the speed
+
+    monkeypatch.setattr(type(sim.solver), "time_step_per_substep", False)
+    per_frame = Simulation(sc)
+    assert not per_frame.per_substep_step
+    frame_steps = [per_frame.advance_frame().steps for _ in range(6)]
+    assert sum(steps) < sum(frame_steps), (steps, frame_steps)
 
 
 def hydrostatic_inner_profile(sim, profiles, moments):

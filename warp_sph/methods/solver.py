@@ -83,6 +83,11 @@ class Solver(MethodBase):
 
     #: True when the solver iterates and reports ``iterations`` in ``step_statistics``
     iterative: ClassVar[bool] = False
+    #: True: ``advance_frame`` sizes every substep for the flow's speed at its start (one read of the
+    #: fastest particle per substep, as SPlisHSPlasH's CFL step), and ``time_step_bounds`` reads
+    #: ``sim.per_substep_step``; False: one step size per frame, for the frame's speed plus |g| frame_dt
+    #: (no read between substeps). Scenes with moving bodies always use one step per frame.
+    time_step_per_substep: ClassVar[bool] = False
     #: the stage after which the fluid's force on moving bodies is gathered (module docstring); None:
     #: the solver does not write ``boundary_pressure_term`` and scenes with bodies are refused
     body_coupling_after: ClassVar[str | None] = None

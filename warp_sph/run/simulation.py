@@ -13,6 +13,7 @@ the stage, step, time and particle, or retries the frame with half the step
 """
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -22,6 +23,7 @@ import warp as wp
 from ..core.errors import SceneError
 from ..kernels import diagnostics as _diag
 from ..kernels import neighbors as _neighbors_dev
+from ..kernels import reduction as _reduce
 from ..core.launch import launch
 from ..core.model import build_model
 from ..neighbors import GRID_DIM, NeighborGrid
@@ -226,7 +228,9 @@ class Simulation:
         return dt * self.watchdog.dt_scale
 
     def advance_frame(self) -> FrameStatistics:
-        """Advance to the next frame time in equal substeps no larger than the time-step bound.
+        """Advance to the next frame time in substeps no larger than the time-step bound: equal ones sized
+        once for the frame (the last frame's speed), or, when the solver asks for it
+        (``per_substep_step``), each sized for the speed at its start.
 
         During the substeps the per-particle fields are in cell order (``cell_order``, see
         ``warp_sph.neighbors.particle_order``); before and after, every particle is at its stable index.
@@ -241,23 +245,26 @@ class Simulation:
         wd.save()
         retries = 0
         while True:
-            bound = self.time_step(max_speed)
-            n = frame_substeps(self.frame_dt, bound)
-            dt = self.frame_dt / n
-            if self.bodies is not None:
-                self.bodies.plan_frame(dt, max_speed)
             solver_stats = []
             with self.in_cell_order():
-                for _ in range(n):
-                    self.step(dt)
-                    solver_stats.append(self.solver.step_statistics())
+                if self.per_substep_step:
+                    n, dt_min, dt_max = self._substeps_for_speed(solver_stats)
+                else:
+                    bound = self.time_step(max_speed)
+                    n = frame_substeps(self.frame_dt, bound)
+                    dt_min = dt_max = self.frame_dt / n
+                    if self.bodies is not None:
+                        self.bodies.plan_frame(dt_max, max_speed)
+                    for _ in range(n):
+                        self.step(dt_max)
+                        solver_stats.append(self.solver.step_statistics())
                 self.solver.finish_frame()  # e.g. PBF: the density at the frame's positions, for the statistics
             if self._grow_neighbor_lists():
                 wd.restore()  # neighbours were dropped: redo the frame with the larger lists
                 continue
             self.state.frame += 1
             self.state.time = self.state.frame * self.frame_dt
-            stats = self.statistics(steps=n, dt_min=dt, dt_max=dt)
+            stats = self.statistics(steps=n, dt_min=dt_min, dt_max=dt_max)
             stats.retries = retries
             if wd.broken(stats.watch) is None:
                 break
@@ -266,7 +273,7 @@ class Simulation:
                 wd.dt_scale *= 0.5
                 retries += 1
                 continue
-            raise wd.error(stats, n, dt, retries, max_speed)
+            raise wd.error(stats, n, dt_max, retries, max_speed)
         if retries == 0:
             wd.dt_scale = min(1.0, 2.0 * wd.dt_scale)
         if solver_stats and solver_stats[0]:
@@ -275,6 +282,41 @@ class Simulation:
                                 "max": float(np.max([s[k] for s in solver_stats]))} for k in keys}
         self.last_frame = stats
         return stats
+
+    @property
+    def per_substep_step(self) -> bool:
+        """True when ``advance_frame`` sizes each substep for the speed at its start: the solver asks for
+        it (``Solver.time_step_per_substep``), the scene has no fixed_dt and no moving bodies (their
+        coupling plans its substeps once per frame)."""
+        return (bool(getattr(self.solver, "time_step_per_substep", False)) and self.bodies is None
+                and not self.scene.time.fixed_dt > 0)
+
+    def current_speed(self) -> float:
+        """The fastest fluid particle's speed now [m/s] (a chunked maximum on the device, one read)."""
+        n = self.model.fluid_count
+        chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
+        if getattr(self, "_speed_partial", None) is None or self._speed_partial.shape[0] != chunks:
+            self._speed_partial = wp.zeros(chunks, dtype=float, device=self.device)
+        launch(_reduce.max_speed_chunks, chunks, [_reduce.REDUCE_CHUNK, self.fields["particle_v"]],
+               [self._speed_partial], device=self.device)
+        return math.sqrt(float(self._speed_partial.numpy().max())) if n else 0.0
+
+    def _substeps_for_speed(self, solver_stats: list) -> tuple[int, float, float]:
+        """One frame in substeps each sized for the flow's speed at its start: what is left of the frame
+        split into equal substeps no larger than ``time_step(current_speed())``, the first of them taken.
+        A steady bound gives equal substeps (a resting tank steps as with one size per frame; steps that
+        change size every substep stir the solves' warm start), a growing speed shorter ones. Appends
+        each substep's solver statistics; returns (substeps, smallest dt, largest dt) [-, s, s]."""
+        elapsed, n, dt_min, dt_max = 0.0, 0, math.inf, 0.0
+        while self.frame_dt - elapsed > 1e-9 * self.frame_dt:
+            remaining = self.frame_dt - elapsed
+            dt = remaining / frame_substeps(remaining, self.time_step(self.current_speed()))
+            self.step(dt)
+            solver_stats.append(self.solver.step_statistics())
+            elapsed += dt
+            n += 1
+            dt_min, dt_max = min(dt_min, dt), max(dt_max, dt)
+        return n, dt_min, dt_max
 
     @contextmanager
     def in_cell_order(self):
