@@ -301,6 +301,7 @@ def run_adaptive(resolutions=ADAPTIVE_RESOLUTIONS, threads: int = 2, warp_sph_so
     """
     import warp as wp
 
+    from warp_sph.core.launch import cpu_threads
     from warp_sph.core.model import build_model
     from warp_sph.methods import registry
     from warp_sph.scene import load_scene
@@ -329,8 +330,6 @@ def run_adaptive(resolutions=ADAPTIVE_RESOLUTIONS, threads: int = 2, warp_sph_so
                                        "particle_radius": radius, **({"overrides": " ".join(own)} if own else {})})
 
                 def run_ours(spec=spec, s=s, own=own):
-                    from warp_sph.core.launch import cpu_threads
-
                     r = run_specs([spec], isolate=isolate, log=log)[0]
                     r["label"] = f"warp-sph {s}" + (f" ({', '.join(own)})" if own else "")
                     r["threads"] = cpu_threads()

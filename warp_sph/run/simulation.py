@@ -122,6 +122,9 @@ class Simulation:
             self._inputs |= self.bodies.inputs
             self.unsorted_fields |= self.bodies.unsorted
         self._stats = wp.zeros(_diag.STAT_COUNT, dtype=float, device=self.device)
+        #: per-chunk largest |v|^2 of ``current_speed``
+        self._speed_partial = wp.zeros(max(1, -(-self.model.fluid_count // _reduce.REDUCE_CHUNK)), dtype=float,
+                                       device=self.device)
         self.frame_dt = 1.0 / float(scene.fps)
         self.last_frame: FrameStatistics | None = None
         self.solver = None
@@ -288,18 +291,14 @@ class Simulation:
         """True when ``advance_frame`` sizes each substep for the speed at its start: the solver asks for
         it (``Solver.time_step_per_substep``), the scene has no fixed_dt and no moving bodies (their
         coupling plans its substeps once per frame)."""
-        return (bool(getattr(self.solver, "time_step_per_substep", False)) and self.bodies is None
-                and not self.scene.time.fixed_dt > 0)
+        return self.solver.time_step_per_substep and self.bodies is None and not self.scene.time.fixed_dt > 0
 
     def current_speed(self) -> float:
         """The fastest fluid particle's speed now [m/s] (a chunked maximum on the device, one read)."""
-        n = self.model.fluid_count
-        chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
-        if getattr(self, "_speed_partial", None) is None or self._speed_partial.shape[0] != chunks:
-            self._speed_partial = wp.zeros(chunks, dtype=float, device=self.device)
-        launch(_reduce.max_speed_chunks, chunks, [_reduce.REDUCE_CHUNK, self.fields["particle_v"]],
-               [self._speed_partial], device=self.device)
-        return math.sqrt(float(self._speed_partial.numpy().max())) if n else 0.0
+        partial = self._speed_partial
+        launch(_reduce.max_speed_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, self.fields["particle_v"]],
+               [partial], device=self.device)
+        return math.sqrt(float(partial.numpy().max()))
 
     def _substeps_for_speed(self, solver_stats: list) -> tuple[int, float, float]:
         """One frame in substeps each sized for the flow's speed at its start: what is left of the frame
