@@ -4,6 +4,8 @@ example in README.md and docs/ runs (docs/about.md, "How the docs are kept true"
 of block is run)."""
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import re
 import shlex
@@ -31,8 +33,7 @@ def pages() -> list[Path]:
 
 def blocks(path: Path) -> list[tuple[str, str]]:
     """(language, code) of every fenced block, in order, dedented."""
-    return [(m["lang"].strip().split(" ")[0], textwrap.dedent(m["body"].replace("\n" + m["indent"], "\n")))
-            for m in FENCE.finditer(path.read_text())]
+    return [(m["lang"].strip().split(" ")[0], textwrap.dedent(m["body"])) for m in FENCE.finditer(path.read_text())]
 
 
 def _env() -> dict:
@@ -147,15 +148,36 @@ def test_docs_say_how_to_reach_the_commands():
 
 # --- the examples -----------------------------------------------------------------------------------
 
+def _in_process(args: list[str], cwd: Path) -> tuple[int, str]:
+    """warp-sph ARGS in this process (no start-up and kernel loading per command): (status, output)."""
+    from warp_sph.cli import main
+
+    out, here = io.StringIO(), os.getcwd()
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+            try:
+                rc = main(args)
+            except SystemExit as e:  # --help
+                rc = e.code or 0
+    finally:
+        os.chdir(here)
+    return rc, out.getvalue()
+
+
 def _help_check(argv: list[str], env: dict, cwd: Path) -> None:
     """Run the command's --help and check that every option the example uses is in it."""
     words = [w for w in argv[1:] if not w.startswith("-")]
     sub = words[:2] if argv[0] == "warp-sph" and words[:1] == ["bench"] else words[:1]
-    r = subprocess.run([str(BIN / argv[0]) if (BIN / argv[0]).exists() else argv[0], *sub, "--help"], cwd=cwd,
-                       capture_output=True, text=True, timeout=120, env=env)
-    assert r.returncode == 0, r.stdout + r.stderr
+    if argv[0] == "warp-sph":
+        rc, text = _in_process([*sub, "--help"], cwd)
+    else:
+        r = subprocess.run([str(BIN / argv[0]) if (BIN / argv[0]).exists() else argv[0], *sub, "--help"], cwd=cwd,
+                           capture_output=True, text=True, timeout=120, env=env)
+        rc, text = r.returncode, r.stdout + r.stderr
+    assert rc == 0, text
     for option in (w.split("=")[0] for w in argv if w.startswith("--")):
-        assert option in r.stdout, f"{' '.join(argv)}: {option} is not an option of {' '.join([argv[0], *sub])}"
+        assert option in text, f"{' '.join(argv)}: {option} is not an option of {' '.join([argv[0], *sub])}"
 
 
 def _adjusted(argv: list[str]) -> list[str]:
@@ -209,8 +231,10 @@ def run_command(line: str, cwd: Path, env: dict, page: Path) -> None:
         _help_check(argv, env, cwd)
         return
     if argv[0] == "warp-sph":
-        argv = [str(BIN / "warp-sph"), *_adjusted(argv)[1:]]
-    elif argv[0] == "python":
+        rc, text = _in_process(_adjusted(argv)[1:] + (["--no-progress"] if argv[1] in ("run", "sweep") else []), cwd)
+        assert rc == 0, f"{where}\n{text[-3000:]}"
+        return
+    if argv[0] == "python":
         argv = [sys.executable, *argv[1:]]
     else:
         pytest.fail(f"{where}: no rule to run {argv[0]!r} in tests/test_docs.py")
@@ -262,6 +286,15 @@ def test_examples_run(page, tmp_path):
         # quiet: the examples print their own lines only (no Warp banner, module-load lines or warnings)
         assert r.stderr == "", r.stderr
         assert not re.search(r"^Warp |Module .* load on device|CUDA", r.stdout, re.M), r.stdout
+
+
+def test_example_runner_can_fail(tmp_path):
+    """A command with an option that does not exist, a make target that does not exist, an extra that
+    is not declared and a command without a rule fail the example test."""
+    for line in ("warp-sph bench scaling --no-such-option", "warp-sph scenes --no-such-option", "make no-such-target",
+                 ".venv/bin/pip install -e '.[no_such_extra]'", "rm -rf runs"):
+        with pytest.raises((AssertionError, pytest.fail.Exception)):
+            run_command(line, tmp_path, _env(), README)
 
 
 def test_scripting_example_adds_its_stage():
