@@ -34,10 +34,16 @@ def _families() -> list[tuple[str, dict]]:
 
 def read_by(path: str) -> str:
     """Who reads the key ``path``: the method whose section it is in, or every solver."""
+    from .methods import registry
+
     section = path.split(".")[0].split("[")[0]
+    if "." not in path:
+        return "every solver"
     for kind, methods in _families():
-        if section in methods and "." in path:
+        if section in methods:
             return f"`{section}` {kind}"
+    if section in registry.methods_with_parameters():  # a family this page does not name yet
+        return f"`{section}` method"
     return "every solver"
 
 
@@ -136,6 +142,10 @@ def main(argv=None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     check = "--check" in args
     paths = [a for a in args if a != "--check"] or ["docs"]
+    if not Path(paths[0]).is_dir():
+        print(f"{paths[0]}: expected the docs folder (the scene-file reference is docs/{REFERENCE_PAGE}; "
+              "README.md has no generated table)", file=sys.stderr)
+        return 2
     page = Path(paths[0]) / REFERENCE_PAGE
     old = page.read_text()
     new = render(old, scene_reference_markdown())
