@@ -53,9 +53,11 @@ class StepGraph:
 
     # --- structure -------------------------------------------------------------------------
     def names(self) -> list[str]:
+        """The stage names in the order they run."""
         return [s.name for s in self.stages]
 
     def index(self, name: str) -> int:
+        """The position of the stage ``name``; StepGraphError listing the stages when there is none."""
         for k, s in enumerate(self.stages):
             if s.name == name:
                 return k
@@ -80,6 +82,8 @@ class StepGraph:
             raise
 
     def remove(self, name: str) -> Stage:
+        """Remove the stage ``name`` and return it; the graph is re-validated (StepGraphError, and
+        the graph unchanged, when a later stage reads a field only that stage wrote)."""
         old = list(self.stages)
         s = self.stages.pop(self.index(name))
         try:
@@ -116,6 +120,7 @@ class StepGraph:
 
     # --- execution -------------------------------------------------------------------------
     def run(self, sim, dt: float) -> None:
+        """Run every stage once, in order, for one substep of ``dt`` seconds, timing each."""
         for s in self.stages:
             t0 = time.perf_counter()
             s.run(sim, dt)

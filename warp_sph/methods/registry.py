@@ -3,7 +3,7 @@
 Every module in ``warp_sph/methods/solvers/`` and ``warp_sph/methods/boundaries/`` is imported on
 first use, and its classes register themselves with ``@register_solver`` / ``@register_boundary``.
 The scene's ``solver`` and ``boundary`` choices, the method sections of the parameter table (and so
-validation and the README table), the watchdog's advice and the benchmark solver lists all read this
+validation and the scene-file reference), the watchdog's advice and the benchmark solver lists all read this
 registry; nothing else lists methods. A solver defined elsewhere (a test, a user's script) registers
 the same way and is then a valid ``solver`` value.
 """

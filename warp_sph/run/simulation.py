@@ -72,6 +72,7 @@ class FrameStatistics:
     watch: dict = field(default_factory=dict)  # watchdog counts and first particle index per rule
 
     def to_dict(self) -> dict:
+        """The statistics as a plain dict (the per-frame record in run.json)."""
         return dict(self.__dict__)
 
 

@@ -2,8 +2,8 @@
 
 The core rows are here; each registered method (a solver or boundary, ``warp_sph.methods``) adds the
 rows of its own section (``pbf.max_iterations``, ...). ``all_parameters()`` is the whole table in the
-order the README shows it. That table drives validation, defaults, ``--set`` overrides, the typed
-section classes (``warp_sph.scene.types``) and the README table (``parameter_table_markdown``).
+order the scene-file reference (docs/scene-files.md) shows it. That table drives validation, defaults, ``--set`` overrides, the typed
+section classes (``warp_sph.scene.types``) and the generated docs (``warp_sph.docs``, ``parameter_table_markdown``).
 
 Key paths: ``particle_radius`` (top level), ``material.rest_density`` (a table), ``fluid[0].max``
 (an element of an array of tables; in the table written ``fluid[].max``).
@@ -65,7 +65,7 @@ class Param:
         return self.path.rpartition(".")[2]
 
     def expected(self) -> str:
-        """What a valid value looks like, in words (used in error messages and the README)."""
+        """What a valid value looks like, in words (used in error messages and the docs)."""
         if self.choices is not None:
             opts = ", ".join(repr(c) for c in self.choices)
             return f"a list of strings from {opts}" if self.kind == "str_list" else f"one of {opts}"
