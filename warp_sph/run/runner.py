@@ -70,7 +70,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     if total < 1:
         raise WarpSphError(f"--frames must be >= 1, got {total}")
     sim = Simulation(scene, device=device)
-    preflight_checks(scene, sim)
+    preflight_checks(scene, sim, frames=frames)
 
     frame_log: list[dict] = []
     start_frame = 1
