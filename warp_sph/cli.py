@@ -137,6 +137,9 @@ def _cmd_preview(args) -> int:
             vals = []
         if len(vals) != 6 or not all(math.isfinite(v) for v in vals):
             raise WarpSphError(f"--camera {args.camera!r}: expected px,py,pz,tx,ty,tz (six numbers [m])")
+        if vals[:3] == vals[3:]:
+            raise WarpSphError(f"--camera {args.camera!r}: the position and the target are the same point; the "
+                               "camera looks from px,py,pz towards a different tx,ty,tz [m]")
         camera = Camera(position=tuple(vals[:3]), target=tuple(vals[3:]))
     w, sep, h = args.size.lower().partition("x")
     try:
