@@ -21,7 +21,7 @@ import warp as wp
 
 from ..io import run_folder as rf
 from ..core.device import resolve_device
-from ..core.errors import OutputError, SimulationError, WarpSphError
+from ..core.errors import SimulationError, WarpSphError
 from .checkpoints import check_checkpoint, checkpoint_info, scene_hash, versions
 from .preflight import preflight_checks
 from .simulation import Simulation
@@ -40,7 +40,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     resume: a run folder to continue from its latest checkpoint (scene and folder come from it).
         Every check comes first (run.json, checkpoint, USD): a refused resume changes nothing; one
         that proceeds removes the files of frames after the checkpoint and says so. A finished
-        run is reported as complete unless ``frames`` asks for more.
+        run is reported as complete unless ``frames`` asks for more. A run without a checkpoint
+        (stopped before its first one, or ``output.checkpoint_every = 0``) starts again from frame 1
+        in its folder, with its scene, and says so: its run files are replaced, nothing else.
 
     Nothing is created before the scene, the device and the folder are known to be usable, and a
     start that fails before its first frame removes what it created.
@@ -50,6 +52,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     t_start = time.perf_counter()
     device = resolve_device(device)  # a bad --device is one line, before any folder exists
     resume_info = None
+    restart = ""  # why a --resume starts the run again from frame 1 (it has no checkpoint)
     if resume is not None:
         out = Path(resume)
         info = rf.read_run_json(out)
@@ -62,8 +65,10 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             return info
         cp_path = rf.latest_checkpoint(out)
         if cp_path is None:
-            raise OutputError(f"{out}: no checkpoint to resume from")
-        resume_info = (info, cp_path, rf.load_checkpoint(cp_path))
+            restart = ("output.checkpoint_every = 0" if scene.output.checkpoint_every == 0
+                       else "it stopped before its first one")
+        else:
+            resume_info = (info, cp_path, rf.load_checkpoint(cp_path))
     else:
         out = rf.choose_run_folder(out, scene.name, overwrite)
         total = frames if frames is not None else int(round(scene.duration * scene.fps)) + 1
@@ -104,10 +109,17 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         log(f"resuming {out} from frame {start_frame} (step {sim.state.step})"
             + (f"; removed {len(dropped)} files of frames {later[0]}..{later[-1]} written after it" if later else ""))
     else:
-        if rf.is_run_folder(out):  # --overwrite (choose_run_folder refused it otherwise)
+        if restart:
+            log(f"{out}: no checkpoint to resume from ({restart}): running it again from frame 1 with the scene "
+                f"of its {rf.RUN_JSON}, replacing its run files")
+        if rf.is_run_folder(out):  # --overwrite (choose_run_folder refused it otherwise) or a restart
             rf.clear_run(out)
         created = rf.create_run_folder(out)
         try:
+            # run.json first: a run killed from here on leaves a folder that --resume (or --overwrite) takes
+            rf.atomic_write_json(out / rf.RUN_JSON, {"scene": scene.to_dict(), "versions": versions(),
+                                                      "frames_requested": total, "frames": [], "status": "starting",
+                                                      "out": str(out)})
             exporter = Exporter(sim, out)
         except BaseException:
             _discard_start(out, created, usd_file(out, scene.name))
