@@ -14,6 +14,17 @@ import warnings
 from pathlib import Path
 
 
+class _AllCores:
+    """``--workers`` given without N: one worker per core (a non-string const, which argparse does not
+    convert, so that an explicit 0 stays distinguishable and is refused)."""
+
+    def __repr__(self):
+        return "ALL_CORES"
+
+
+ALL_CORES = _AllCores()
+
+
 def _quiet_warp():
     """Start Warp quietly (``warp_sph.core.device``) and return the module."""
     import warp as wp
@@ -179,7 +190,7 @@ def _cmd_sweep(args) -> int:
         cases = build_cases(args.scene, dict(parse_param(p) for p in args.param), fixed=args.set, frames=args.frames)
     out = Path(args.out) if args.out else Path("runs") / f"sweep-{Path(args.scene).stem}"
     workers = args.workers
-    if workers == "cores":  # --workers without N (argparse leaves const as it is)
+    if workers is ALL_CORES:  # --workers without N
         workers = 0
     elif workers is not None and workers < 1:
         raise SweepError(f"--workers {workers}: expected a number of worker processes >= 1 (--workers alone "
@@ -273,7 +284,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default: the scene's duration * fps + 1)")
     w.add_argument("--out", help="sweep folder (default: runs/sweep-<scene>); re-running into it resumes")
     g = w.add_mutually_exclusive_group()
-    g.add_argument("--workers", type=int, nargs="?", const="cores", default=None, metavar="N",
+    g.add_argument("--workers", type=int, nargs="?", const=ALL_CORES, default=None, metavar="N",
                    help="run on a Dask LocalCluster of N >= 1 worker processes (--workers alone: one per core), one "
                         "thread each; needs the distributed extra (pip install -e '.[distributed]')")
     g.add_argument("--scheduler", metavar="tcp://HOST:8786", help="submit to an existing Dask cluster "
