@@ -21,7 +21,7 @@ import warp as wp
 
 from ..io import run_folder as rf
 from ..core.device import resolve_device
-from ..core.errors import SimulationError, WarpSphError
+from ..core.errors import OutputError, SimulationError, WarpSphError
 from .checkpoints import check_checkpoint, checkpoint_info, scene_hash, versions
 from .preflight import preflight_checks
 from .simulation import Simulation
@@ -40,9 +40,10 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     resume: a run folder to continue from its latest checkpoint (scene and folder come from it).
         Every check comes first (run.json, checkpoint, USD): a refused resume changes nothing; one
         that proceeds removes the files of frames after the checkpoint and says so. A finished
-        run is reported as complete unless ``frames`` asks for more. A run without a checkpoint
-        (stopped before its first one, or ``output.checkpoint_every = 0``) starts again from frame 1
-        in its folder, with its scene, and says so: its run files are replaced, nothing else.
+        run is reported as complete unless ``frames`` asks for more. A run stopped before its first
+        checkpoint (killed in its first second: it had saved no frame after the initial one) starts
+        again from frame 1 in its folder, with its scene, and says so: its run files are replaced,
+        nothing else. With ``output.checkpoint_every = 0`` a resume is refused.
 
     Nothing is created before the scene, the device and the folder are known to be usable, and a
     start that fails before its first frame removes what it created.
@@ -64,9 +65,11 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             log(f"{out}: already complete ({done} frames); --frames N with N > {done} extends it")
             return info
         cp_path = rf.latest_checkpoint(out)
-        if cp_path is None:
-            restart = ("output.checkpoint_every = 0" if scene.output.checkpoint_every == 0
-                       else "it stopped before its first one")
+        if cp_path is None and scene.output.checkpoint_every == 0:
+            raise OutputError(f"{out}: no checkpoint to resume from (output.checkpoint_every = 0); pass the "
+                              f"scene with --out {out} --overwrite to run it again from frame 1")
+        if cp_path is None:  # checkpoint 1 comes with frame 1: it stopped before its first frame was saved
+            restart = "it stopped before its first one"
         else:
             resume_info = (info, cp_path, rf.load_checkpoint(cp_path))
     else:
