@@ -26,7 +26,11 @@ DEVICE_BYTES_PER_BOUNDARY = 64
 HOST_BYTES_PER_FLUID = 512
 HOST_BYTES_PER_BOUNDARY = 128
 HASH_GRID_BYTES = 2 * 128**3 * 4 * 2  # fluid and boundary grids: cell starts and ends
-SURFACE_BYTES_PER_CELL = 32
+# Surface reconstruction (sparse grid, marching cubes, smoothing, decimation buffers) per cell of the
+# fluid's volume grown 8x (``_surface_bytes``): the default dam break (6,859 particles, frames 1, 13 and
+# 25) holds 30.2 MiB of Warp arrays at 1 r cells (72 B per such cell, most of it the mesh's buffers) and
+# 117 MiB at 0.5 r (35 B per cell); 80 B covers both (measured as docs/limits.md says).
+SURFACE_BYTES_PER_CELL = 80
 
 
 def available_host_memory() -> int | None:
@@ -103,7 +107,7 @@ def estimate_particle_counts(scene) -> tuple[int, int]:
 
 
 def _surface_bytes(scene, fluid_count: int) -> int:
-    """Bytes of the surface grid: SURFACE_BYTES_PER_CELL per cell of the volume it can cover. The
+    """Bytes of the surface reconstruction: SURFACE_BYTES_PER_CELL per cell of the volume it can cover. The
     grid is sparse (``warp_sph.surface.grid``: blocks around the particles only), so that volume is the
     fluid's, N d^3, grown 8x (a splash that doubles the fluid's extent, the blocks' margin), and
     never more than the container: a large container with little fluid needs a small grid."""
