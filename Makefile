@@ -2,6 +2,11 @@
 PYTHON ?= python3
 VENV   ?= .venv
 STAMP  := $(VENV)/.installed
+# Real Blender for tests/test_blender.py: bpy 5.0.1 (a wheel for Python 3.11 only, ~370 MB) in its own
+# environment, because it pins numpy < 2 and must not downgrade the simulator's; the tests start it in a
+# subprocess (WARP_SPH_BLENDER_PYTHON). On another Python the Blender tests skip and say why.
+BLENDER_VENV  := $(VENV)/blender
+BLENDER_STAMP := $(BLENDER_VENV)/.installed
 
 .PHONY: run test docs clean
 
@@ -11,11 +16,19 @@ $(STAMP): pyproject.toml
 	$(VENV)/bin/python -m pip install --quiet -e '.[test,preview,docs]'
 	touch $(STAMP)
 
+$(BLENDER_STAMP): | $(STAMP)
+	@if $(PYTHON) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then \
+		$(PYTHON) -m venv $(BLENDER_VENV) && \
+		$(BLENDER_VENV)/bin/python -m pip install --quiet bpy==5.0.1 && touch $(BLENDER_STAMP); \
+	else \
+		echo "note: bpy 5.0.1 needs Python 3.11 ($(PYTHON) is not): the Blender tests will skip"; \
+	fi
+
 run: $(STAMP)
 	$(VENV)/bin/warp-sph run $(ARGS)
 
-test: $(STAMP)
-	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+test: $(STAMP) $(BLENDER_STAMP)
+	WARP_SPH_BLENDER_PYTHON=$(BLENDER_VENV)/bin/python $(VENV)/bin/python -m pytest $(PYTEST_ARGS)
 
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/python -m mkdocs build --strict --site-dir site

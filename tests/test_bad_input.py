@@ -1,7 +1,9 @@
 """Bad input through the command line and through load_scene: one clear line on stderr, a non-zero
 exit status, no traceback, and no file that existed before is changed or lost."""
 import hashlib
+import json
 import re
+import warnings
 from pathlib import Path
 
 import pytest
@@ -72,11 +74,11 @@ CASES = {
     "unknown_kernel": (GOOD.replace('name = "tiny"', 'name = "tiny"\nsmoothing_kernel = "gauss"'), [],
                        r"smoothing_kernel: expected one of .*'cubic'.*got 'gauss'"),
     "nan_radius": (GOOD.replace("particle_radius = 0.05", "particle_radius = nan"), [],
-                   r"particle_radius: expected a finite number > 0, got nan"),
+                   r"particle_radius: expected a finite number > 0 and <= 1000, got nan"),
     "inf_gravity": (GOOD.replace('name = "tiny"', 'name = "tiny"\ngravity = [0.0, 0.0, -inf]'), [],
                     r"gravity: expected a list of 3 finite numbers"),
     "negative_radius": (GOOD.replace("particle_radius = 0.05", "particle_radius = -0.05"), [],
-                        r"particle_radius: expected a finite number > 0, got -0.05"),
+                        r"particle_radius: expected a finite number > 0 and <= 1000, got -0.05"),
     "negative_viscosity_set": (None, ["--set", "material.viscosity=-1"],
                                r"material.viscosity: expected a finite number >= 0, got -1"),
     "nan_set": (None, ["--set", "material.rest_density=nan"], r"material.rest_density: expected a finite number"),
@@ -95,6 +97,29 @@ CASES = {
                              r"time\.fixed_dt: 0\.004 s is .*x the acoustic CFL time-step bound"),
     "fixed_dt_above_velocity_bound": (None, ["--set", "time.fixed_dt=0.02"],
                                       r"time\.fixed_dt: 0\.02 s is .*x the velocity CFL time-step bound"),
+    # issue 36, the rest of the trial: a traceback, a hang, silent or wrong causes before the fix
+    "huge_radius": (GOOD.replace("particle_radius = 0.05", "particle_radius = 1e30"), [],
+                    r"particle_radius: expected a finite number > 0 and <= 1000, got 1e\+30"),  # ZeroDivisionError
+    "endless_smoothing": (None, ["--set", "output.surface=true", "--set", "output.surface_smoothing_iterations=1000000000"],
+                          r"output\.surface_smoothing_iterations: expected an integer >= 0 and <= 1000"),  # ran forever
+    "endless_normal_smoothing": (None, ["--set", "output.surface_normal_smoothing_iterations=1000000000"],
+                                 r"output\.surface_normal_smoothing_iterations: expected an integer >= 0 and <= 1000"),
+    "all_spray": (None, ["--set", "output.surface_spray_neighbors=1000000000"],
+                  r"output\.surface_spray_neighbors: expected <= 17, .*flat free surface"),
+    "surface_spray": (None, ["--set", "output.surface_spray_neighbors=18"], r"output\.surface_spray_neighbors: expected <= 17"),
+    "huge_gravity": (None, ["--set", "gravity=[0,0,-1e30]"],
+                     r"gravity: expected a list of 3 finite numbers of length <= 1000, got \[0, 0, -1e\+30\]"),
+    "container_true": (GOOD.replace("[container]\nmin = [0.0, 0.0, 0.0]\nmax = [0.8, 0.6, 0.8]", "container = true"), [],
+                       r"container: expected a table \(\[container\] with min and max\) or false, got true"),
+    "single_fluid_table": (GOOD.replace("[[fluid]]", "[fluid]"), [],
+                           r"fluid: expected an array of tables: write \[\[fluid\]\] .*got a single table \[fluid\]"),
+    "single_bodies_table": (GOOD + "[bodies]\nshape = \"box\"\nsize = [0.1, 0.1, 0.1]\nposition = [0.6, 0.3, 0.6]\n"
+                            "density = 500.0\n", [],
+                            r"bodies: expected an array of tables: write \[\[bodies\]\] .*got a single table \[bodies\]"),
+    "single_obstacles_table": (GOOD + "[obstacles]\nmin = [0.6, 0.2, 0.0]\nmax = [0.7, 0.4, 0.2]\n", [],
+                               r"obstacles: expected an array of tables: write \[\[obstacles\]\]"),
+    "endless_frames": (None, ["--frames", "1000000000"],  # the max-steps preflight that duration = 1e30 gets
+                       r"the run needs about .* substeps .*--frames 1,000,000,000 at 20 fps\), more than time\.max_steps"),
     "unknown_scene": ("__builtin__:no_such_scene", [], r"no such scene file or built-in scene"),
     "missing_file": ("__path__:missing.toml", [], r"missing.toml: scene file not found"),
 }
@@ -210,7 +235,7 @@ def test_check_command_reports_bad_scene(workdir, capsys):
     path = write(workdir, "scene.toml", GOOD.replace("particle_radius = 0.05", "particle_radius = 0"))
     code, err = run_cli(["check", str(path)], capsys)
     assert code == 2
-    assert "particle_radius: expected a finite number > 0, got 0" in error_line(err)
+    assert "particle_radius: expected a finite number > 0 and <= 1000, got 0" in error_line(err)
 
 
 @pytest.mark.parametrize("text,pattern", [
@@ -425,6 +450,62 @@ def test_damaged_resume_input_is_one_line(damage, workdir, capsys):
     assert snapshot(workdir) == before
 
 
+def test_huge_gravity_is_one_line_without_numpy_warnings(workdir, capsys):
+    """gravity = [0, 0, -1e30] printed a NumPy overflow warning and a message with NaN naming time.cfl."""
+    scene = write(workdir, "scene.toml", GOOD.replace('name = "tiny"', 'name = "tiny"\ngravity = [0.0, 0.0, -1e30]'))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a NumPy RuntimeWarning on the way fails here
+        code, err = run_cli(["run", str(scene), "--out", str(workdir / "out"), "--no-progress"], capsys)
+    assert code == 2
+    assert err.strip().splitlines() == [error_line(err)]
+    assert "nan" not in err.lower() and "time.cfl" not in err
+
+
+def test_resume_without_checkpoint_restarts_from_the_start(workdir, capsys):
+    """A run killed before its first checkpoint left run.json (and maybe its USD) but no checkpoint:
+    --resume refused ("no checkpoint") and a plain run refused the folder. Now --resume runs it again
+    from frame 1 in its folder, says so in one line, and keeps the user's files there."""
+    from warp_sph.io import run_folder as rf
+    from warp_sph.scene import load_scene
+
+    scene = load_scene(str(write(workdir, "scene.toml", GOOD.replace("usd = false", "usd = true"))))
+    out = workdir / "out"
+    out.mkdir()
+    (out / "mine.txt").write_text("keep me\n")
+    # what a run killed in its first second leaves: run.json written first, a USD, no frame, no checkpoint
+    rf.atomic_write_json(out / "run.json", {"scene": scene.to_dict(), "frames_requested": 2, "frames": [],
+                                            "status": "starting", "out": str(out)})
+    (out / "tiny.usdc").write_bytes(b"PXR-USDC partial")
+    code = main(["run", "--resume", str(out), "--no-progress"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    said = [ln for ln in captured.out.splitlines() if "no checkpoint" in ln]
+    assert said == [f"{out}: no checkpoint to resume from (it stopped before its first one): running it again "
+                    "from frame 1 with the scene of its run.json, replacing its run files"]
+    assert (out / "mine.txt").read_text() == "keep me\n"
+    info = json.loads((out / "run.json").read_text())
+    assert info["status"] == "completed" and [f["frame"] for f in info["frames"]] == [1, 2]
+    assert rf.latest_checkpoint(out) is not None and (out / "tiny.usdc").stat().st_size > 100
+
+
+def test_a_run_writes_run_json_before_its_usd(workdir, monkeypatch, capsys):
+    """So that a run killed at its very start leaves a folder that --resume takes (before the fix
+    the USD came first, and a folder holding only it was refused by both --resume and a plain run)."""
+    from warp_sph.run import runner
+
+    seen = []
+
+    class Probe(runner.Exporter):
+        def __init__(self, sim, out, **kw):
+            seen.append(sorted(p.name for p in out.iterdir()))
+            raise KeyboardInterrupt  # killed right here
+
+    monkeypatch.setattr(runner, "Exporter", Probe)
+    scene = write(workdir, "scene.toml", GOOD.replace("usd = false", "usd = true"))
+    assert main(["run", str(scene), "--out", str(workdir / "out"), "--no-progress"]) == 130
+    assert seen == [["run.json"]]
+
+
 @pytest.mark.parametrize("args,pattern", [
     (["--size", "axb"], r"--size 'axb': expected WxH"),
     (["--size", "0x10"], r"--size '0x10'"),
@@ -433,8 +514,33 @@ def test_damaged_resume_input_is_one_line(damage, workdir, capsys):
     (["--frames", "5:2"], r"--frames '5:2'"),
     (["--camera", "1,2,3"], r"--camera '1,2,3': expected px,py,pz,tx,ty,tz"),
     (["--camera", "1,2,3,4,5,x"], r"--camera"),
+    (["--camera", "1,2,3,1,2,3"], r"--camera '1,2,3,1,2,3': the position and the target are the same point"),
 ])
 def test_preview_bad_arguments(args, pattern, workdir, capsys):
     code, err = run_cli(["preview", str(workdir)] + args, capsys)
     assert code == 2
     assert re.search(pattern, error_line(err)), err
+
+
+@pytest.mark.parametrize("flag,value,pattern", [
+    ("--surface-cell", "1e-9", r"--surface-cell 1e-09: expected a finite number >= 0\.1 and <= 4, as the scene key "
+                               r"output\.surface_cell_per_radius"),
+    ("--surface-cell", "0", r"--surface-cell 0: expected a finite number >= 0\.1"),
+    ("--surface-iso", "2", r"--surface-iso 2: expected a finite number > 0 and < 1, as the scene key output\.surface_iso"),
+])
+def test_export_flags_take_the_scene_keys_range(flag, value, pattern, workdir, capsys):
+    """``export RUN --surface-cell 1e-9`` wrote a USD whose surface was empty in every frame; the scene key
+    refuses below 0.1, and now the flag does too, before anything is written."""
+    import numpy as np
+
+    run = workdir / "run"
+    (run / "frames").mkdir(parents=True)
+    model = {"smoothing_kernel": "cubic", "smoothing_length": 0.1, "particle_radius": 0.05}
+    (run / "run.json").write_text(json.dumps({"scene": {"name": "tiny", "particle_radius": 0.05}, "model": model}))
+    np.savez(run / "frames" / "frame_000001.npz", x=np.zeros((8, 3), np.float32), v=np.zeros((8, 3), np.float32),
+             density=np.full(8, 1000.0, np.float32))
+    before = snapshot(workdir)
+    code, err = run_cli(["export", str(run), flag, value], capsys)
+    assert code == 2
+    assert re.search(pattern, error_line(err)), err
+    assert snapshot(workdir) == before and not (run / "export").exists()

@@ -1,21 +1,44 @@
-"""Optional end-to-end check with real Blender (``pip install bpy==5.0.1``, Python 3.11): import a run's
-USD with ``bpy.ops.wm.usd_import``, step through its frames and compare what Blender evaluates with
-what was exported. Skipped when ``bpy`` is not installed.
+"""End-to-end check with real Blender (bpy 5.0.1, Python 3.11): import a run's USD with
+``bpy.ops.wm.usd_import``, step through its frames and compare what Blender evaluates with what was
+exported.
 
 Blender runs in a subprocess: bpy bundles its own USD libraries, which must not share a process
-with usd-core's ``pxr`` (imported by the other tests).
+with usd-core's ``pxr`` (imported by the other tests). Its Python is ``WARP_SPH_BLENDER_PYTHON``, else
+``.venv/blender/bin/python`` (``make test`` installs bpy there: bpy pins numpy < 2, so it gets its own
+environment), else this interpreter when it has bpy. Skipped, saying so, when none has bpy.
 """
 import importlib.util
 import json
+import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.skipif(importlib.util.find_spec("bpy") is None,
-                                reason="bpy (Blender as a Python module) is not installed")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+FIND_BPY = "import importlib.util, sys; sys.exit(importlib.util.find_spec('bpy') is None)"
+
+
+def blender_python() -> str | None:
+    """The Python that can ``import bpy`` (see the module docstring), or None."""
+    given = os.environ.get("WARP_SPH_BLENDER_PYTHON")
+    candidates = [given] if given else []
+    candidates.append(str(ROOT / ".venv" / "blender" / "bin" / "python"))
+    for py in candidates:
+        if Path(py).is_file() and subprocess.run([py, "-c", FIND_BPY], capture_output=True, timeout=60).returncode == 0:
+            return py
+    return sys.executable if importlib.util.find_spec("bpy") is not None else None
+
+
+BLENDER_PYTHON = blender_python()
+pytestmark = pytest.mark.skipif(BLENDER_PYTHON is None, reason="no Python with bpy (Blender as a Python module): "
+                                "`make test` installs bpy 5.0.1 into .venv/blender (Python 3.11 only), or set "
+                                "WARP_SPH_BLENDER_PYTHON to a Python that has it")
 
 FRAMES = 3
 RADIUS = 0.05
@@ -65,7 +88,7 @@ PROBE = textwrap.dedent(
 
 
 def blender_import(path) -> dict:
-    proc = subprocess.run([sys.executable, "-c", PROBE, str(path)], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([BLENDER_PYTHON, "-c", PROBE, str(path)], capture_output=True, text=True, timeout=300)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("PROBE-JSON ")]
     assert proc.returncode == 0 and lines, proc.stdout[-2000:] + proc.stderr[-2000:]
     return json.loads(lines[-1][len("PROBE-JSON "):])
@@ -191,7 +214,7 @@ def test_blender_plays_rigid_bodies(tmp_path):
         for f in range(1, FRAMES + 1):
             x = np.zeros((4, 3), np.float32)
             writer.write_frame(f, x, x, bodies={n: pose(k, f) for k, n in enumerate(bodies)})
-    proc = subprocess.run([sys.executable, "-c", BODY_PROBE, str(path)], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([BLENDER_PYTHON, "-c", BODY_PROBE, str(path)], capture_output=True, text=True, timeout=300)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("PROBE-JSON ")]
     assert proc.returncode == 0 and lines, proc.stdout[-2000:] + proc.stderr[-2000:]
     got = json.loads(lines[-1][len("PROBE-JSON "):])
@@ -227,7 +250,7 @@ def test_blender_plays_a_simulated_run_with_bodies(tmp_path):
         "output": {"checkpoint_every": 0, "surface": False}})
     out = tmp_path / "run"
     runner.run(scene, out=out, device="cpu", frames=FRAMES + 1, progress=False, log=lambda *a: None)
-    proc = subprocess.run([sys.executable, "-c", BODY_PROBE, str(out / "bodies.usdc")], capture_output=True,
+    proc = subprocess.run([BLENDER_PYTHON, "-c", BODY_PROBE, str(out / "bodies.usdc")], capture_output=True,
                           text=True, timeout=300)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("PROBE-JSON ")]
     assert proc.returncode == 0 and lines, proc.stdout[-2000:] + proc.stderr[-2000:]

@@ -99,6 +99,48 @@ def test_extreme_values_blamed_on_their_key(override, key):
     assert "lower time.dt_min" not in msg  # the old advice, which blamed the step
 
 
+@pytest.fixture
+def two_gib(monkeypatch):
+    """This host has 2 GiB free (the CPU: one pool for particles and surface)."""
+    from warp_sph.run import memory
+
+    monkeypatch.setattr(memory, "available_host_memory", lambda: 2 * 2**30)
+    return memory
+
+
+def test_tiny_radius_is_blamed_on_particle_radius(two_gib):
+    """r = 1.5 mm in a 1 x 0.5 x 1 m tank: about 3 M fluid particles (2.3 GB, more than the 2 GiB free) whose
+    dense surface grid over the container (4.7 GB) was blamed: "raise output.surface_cell_per_radius",
+    which cannot make the particles fit."""
+    scene = small(particle_radius=0.0015, output={"usd": True})
+    fluid, boundary = two_gib.estimate_particle_counts(scene)
+    kind, msg = two_gib.memory_verdict(scene, fluid, boundary, "cpu", estimated=True)
+    assert kind == "refuse" and ": particle_radius: " in msg and "surface_cell_per_radius" not in msg, msg
+    assert re.search(r"particle_radius about 0\.00\d+ m would fit", msg), msg
+
+
+def test_surface_is_blamed_only_when_the_particles_alone_fit(two_gib):
+    scene = small(particle_radius=0.01, output={"usd": True, "surface_cell_per_radius": 0.1})
+    fluid, boundary = two_gib.estimate_particle_counts(scene)
+    kind, msg = two_gib.memory_verdict(scene, fluid, boundary, "cpu", estimated=True)
+    assert kind == "refuse" and msg.startswith("<dict>: output.surface_cell_per_radius: "), msg
+    assert "the particles alone fit, but the surface grid at 0.1 r cells" in msg
+
+
+def test_surface_grid_of_a_large_container_is_sparse(two_gib):
+    """A 100 m container around a small block (r = 0.05 m: about 6 M wall particles, 1.1 GB) ran in 20 s with
+    the surface off, yet was refused with it on: the surface was estimated as a dense grid over the
+    container (about 240 GiB) although the grid holds blocks around the particles only."""
+    scene = small(container={"min": [0, 0, 0], "max": [100.0, 100.0, 100.0]}, output={"usd": True})
+    fluid, boundary = two_gib.estimate_particle_counts(scene)
+    per_cell = two_gib.SURFACE_BYTES_PER_CELL
+    assert two_gib._surface_bytes(scene, fluid) == pytest.approx(per_cell * 8 * fluid * 0.1**3 / 0.05**3)
+    assert two_gib.memory_verdict(scene, fluid, boundary, "cpu", estimated=True)[0] == "warn"  # 55 %, not refused
+    # the container still bounds it: a full tank's surface grid is no larger than the tank
+    full = small(fluid=[{"min": [0, 0, 0], "max": [1.0, 0.5, 1.0]}], output={"usd": True})
+    assert two_gib._surface_bytes(full, 10**6) == pytest.approx(per_cell * 0.5 / 0.05**3, abs=1)
+
+
 def test_huge_obstacle_blamed_on_the_obstacle(tmp_path):
     mesh = tmp_path / "tet.obj"
     mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")

@@ -258,3 +258,40 @@ def test_preview_shows_obstacles(tmp_path, mode):
     assert changed.sum() > 0.01 * size[0] * size[1], changed.sum()
     pixels = picture[changed].astype(float)
     assert np.median(pixels[:, 0] - pixels[:, 2]) > 0  # red over blue: stone, not water
+
+
+def _cli_error(args, capsys) -> tuple[int, str]:
+    """(exit status, the one error line) of ``warp-sph ARGS``; no traceback, nothing else on stderr."""
+    from warp_sph.cli import main
+
+    code = main(args)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("warp-sph: error: "), err
+    return code, err[0]
+
+
+def test_preview_out_that_is_a_file_is_refused(tmp_path, capsys):
+    """``preview RUN --out FILE`` with FILE existing ended in a FileExistsError traceback."""
+    pytest.importorskip("PIL")
+    run = _fake_run(tmp_path)
+    picture = tmp_path / "picture.png"
+    picture.write_bytes(b"my own picture")
+    for out in (picture, picture / "sub"):
+        code, line = _cli_error(["preview", str(run), "--out", str(out)], capsys)
+        assert code == 2
+        assert line.startswith(f"warp-sph: error: --out {out} ") and "not a folder" in line, line
+    assert picture.read_bytes() == b"my own picture"
+    assert not (run / "preview").exists()
+
+
+@pytest.mark.parametrize("damage", ["text", "truncated", "empty"])
+def test_preview_of_a_damaged_frame_is_one_line(tmp_path, capsys, damage):
+    """A damaged frames/*.npz ended in a NumPy ValueError (or BadZipFile) traceback; ``export`` said it in
+    one line, and now both say it the same way (``run_folder.read_frame``)."""
+    run = _fake_run(tmp_path)
+    frame = run / "frames" / "frame_000005.npz"
+    data = frame.read_bytes()
+    frame.write_bytes({"text": b"garbage\n", "truncated": data[: len(data) // 2], "empty": b""}[damage])
+    code, line = _cli_error(["preview", str(run), "--frame", "5"], capsys)
+    assert code == 2
+    assert line == f"warp-sph: error: {frame}: unreadable recorded frame (not an npz archive: damaged or truncated)"

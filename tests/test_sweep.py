@@ -321,3 +321,65 @@ def test_a_started_executor_is_closed_by_the_with_that_started_it(monkeypatch):
             pass
         assert calls == ["start"] and ex.client is not None
     assert calls == ["start", "close"] and ex.client is None
+
+
+# --- issue 36: one clear line, before anything runs or is written ------------------------------------------
+def _sweep_cli(args, capsys):
+    from warp_sph.cli import main
+
+    code = main(["sweep"] + args)
+    out = capsys.readouterr()
+    assert "Traceback" not in out.err
+    return code, out
+
+
+def test_bad_scheduler_address_is_one_line(tmp_path, capsys):
+    """``--scheduler junk`` ended in a ValueError traceback from distributed."""
+    pytest.importorskip("distributed")
+    code, out = _sweep_cli(["dam_break", "--set", "particle_radius=0.1", "--scheduler", "junk",
+                            "--out", str(tmp_path / "o")], capsys)
+    assert code == 2
+    assert out.err.strip() == ("warp-sph: error: --scheduler 'junk': not a Dask scheduler address (ValueError: "
+                               "missing port number in address 'junk'); expected tcp://HOST:PORT, e.g. "
+                               "tcp://10.0.0.5:8786")
+    assert not (tmp_path / "o").exists()
+
+
+def test_workers_zero_is_refused_and_bare_workers_means_every_core(tmp_path, capsys):
+    """``--workers 0`` silently meant one worker per core."""
+    from warp_sph.cli import ALL_CORES, build_parser
+
+    code, out = _sweep_cli(["dam_break", "--workers", "0", "--out", str(tmp_path / "o")], capsys)
+    assert code == 2
+    assert out.err.strip() == ("warp-sph: error: --workers 0: expected a number of worker processes >= 1 "
+                               "(--workers alone starts one per core)")
+    assert not (tmp_path / "o").exists()
+    assert build_parser().parse_args(["sweep", "dam_break", "--workers"]).workers is ALL_CORES
+    assert build_parser().parse_args(["sweep", "dam_break", "--workers", "3"]).workers == 3
+
+
+def test_cases_refused_by_validation_print_their_reason(tmp_path, capsys):
+    """A sweep whose cases failed validation printed only "2 cases: 2 failed"."""
+    code, out = _sweep_cli(["dam_break", "--param", "particle_radius=-0.5,2000", "--out", str(tmp_path / "o"),
+                            "--no-progress"], capsys)
+    assert code == 1
+    lines = out.out.strip().splitlines()
+    assert re.fullmatch(r"particle_radius=0\.5: failed; .*dam_break\.toml: particle_radius: expected a finite "
+                        r"number > 0 and <= 1000, got -0\.5", lines[0]), lines
+    assert re.fullmatch(r"particle_radius=2000: failed; .*particle_radius: expected .* got 2000", lines[1]), lines
+    assert lines[-1].startswith("2 cases: 2 failed")
+
+
+@pytest.mark.parametrize("content, pattern", [
+    (b'[sweep]\nscene = "dam_break"\nparam = { solver = ["wcsph", "pbf" }\n', r"bad\.toml: malformed TOML: "),
+    (bytes(range(256)) * 4, r"bad\.toml: not a UTF-8 text file \(byte 0x80 at offset 128\)"),
+])
+def test_malformed_or_binary_sweep_file_is_refused(content, pattern, tmp_path, capsys):
+    """A sweep file that is not TOML text was run as a scene: every case failed, one by one."""
+    bad = tmp_path / "bad.toml"
+    bad.write_bytes(content)
+    code, out = _sweep_cli([str(bad), "--out", str(tmp_path / "o"), "--no-progress"], capsys)
+    assert code == 2
+    (line,) = out.err.strip().splitlines()
+    assert line.startswith("warp-sph: error: ") and re.search(pattern, line), line
+    assert not (tmp_path / "o").exists() and out.out == ""

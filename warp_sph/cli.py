@@ -14,6 +14,17 @@ import warnings
 from pathlib import Path
 
 
+class _AllCores:
+    """``--workers`` given without N: one worker per core (a non-string const, which argparse does not
+    convert, so that an explicit 0 stays distinguishable and is refused)."""
+
+    def __repr__(self):
+        return "ALL_CORES"
+
+
+ALL_CORES = _AllCores()
+
+
 def _quiet_warp():
     """Start Warp quietly (``warp_sph.core.device``) and return the module."""
     import warp as wp
@@ -137,6 +148,9 @@ def _cmd_preview(args) -> int:
             vals = []
         if len(vals) != 6 or not all(math.isfinite(v) for v in vals):
             raise WarpSphError(f"--camera {args.camera!r}: expected px,py,pz,tx,ty,tz (six numbers [m])")
+        if vals[:3] == vals[3:]:
+            raise WarpSphError(f"--camera {args.camera!r}: the position and the target are the same point; the "
+                               "camera looks from px,py,pz towards a different tx,ty,tz [m]")
         camera = Camera(position=tuple(vals[:3]), target=tuple(vals[3:]))
     w, sep, h = args.size.lower().partition("x")
     try:
@@ -175,7 +189,13 @@ def _cmd_sweep(args) -> int:
     else:
         cases = build_cases(args.scene, dict(parse_param(p) for p in args.param), fixed=args.set, frames=args.frames)
     out = Path(args.out) if args.out else Path("runs") / f"sweep-{Path(args.scene).stem}"
-    executor = make_executor(workers=args.workers, scheduler=args.scheduler)
+    workers = args.workers
+    if workers is ALL_CORES:  # --workers without N
+        workers = 0
+    elif workers is not None and workers < 1:
+        raise SweepError(f"--workers {workers}: expected a number of worker processes >= 1 (--workers alone "
+                         "starts one per core)")
+    executor = make_executor(workers=workers, scheduler=args.scheduler)
     command = "warp-sph " + " ".join(shlex.quote(a) for a in (args.argv or []))
     try:
         summary = run_sweep(cases, out, executor, device=args.device, progress=not args.no_progress, command=command)
@@ -264,9 +284,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default: the scene's duration * fps + 1)")
     w.add_argument("--out", help="sweep folder (default: runs/sweep-<scene>); re-running into it resumes")
     g = w.add_mutually_exclusive_group()
-    g.add_argument("--workers", type=int, nargs="?", const=0, default=None, metavar="N",
-                   help="run on a Dask LocalCluster of N worker processes (default N: the cores), one thread each; "
-                        "needs the distributed extra (pip install -e '.[distributed]')")
+    g.add_argument("--workers", type=int, nargs="?", const=ALL_CORES, default=None, metavar="N",
+                   help="run on a Dask LocalCluster of N >= 1 worker processes (--workers alone: one per core), one "
+                        "thread each; needs the distributed extra (pip install -e '.[distributed]')")
     g.add_argument("--scheduler", metavar="tcp://HOST:8786", help="submit to an existing Dask cluster "
                    "(workers need warp-sph installed and DIR on a shared file system)")
     w.add_argument("--device", default=None, help="Warp device of every case: cpu or cuda:0 (default: Warp's default)")

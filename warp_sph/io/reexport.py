@@ -157,6 +157,7 @@ def parse_frame_range(frames, available: Iterable[int]) -> list[int]:
 def _surface_reconstructor(info: dict, cell_per_radius: float | None, iso: float | None, device):
     """The run's surface settings (``scene.output.surface_*``; a run made before a setting existed
     gets its current default), with ``--surface-cell`` / ``--surface-iso`` applied."""
+    from ..scene.parameters import parameter
     from ..surface.reconstruction import SurfaceReconstructor, surface_settings
 
     model = info.get("model") or {}
@@ -168,12 +169,13 @@ def _surface_reconstructor(info: dict, cell_per_radius: float | None, iso: float
     except (KeyError, TypeError, ValueError):
         raise OutputError("run.json lacks the model constants of the surface (model.smoothing_kernel, "
                           "smoothing_length, particle_radius)") from None
-    if cell_per_radius is not None:
-        if not cell_per_radius > 0.0:
-            raise WarpSphError(f"--surface-cell must be > 0 (cell size / particle radius); got {cell_per_radius}")
-        out_cfg["surface_cell_per_radius"] = float(cell_per_radius)
-    if iso is not None:
-        out_cfg["surface_iso"] = float(iso)
+    for flag, key, value in (("--surface-cell", "surface_cell_per_radius", cell_per_radius),
+                             ("--surface-iso", "surface_iso", iso)):
+        if value is not None:  # the scene key's range (parameter registry), so no flag writes an empty surface
+            p = parameter(f"output.{key}")
+            if not p.in_range(value):
+                raise WarpSphError(f"{flag} {value:g}: expected {p.expected()}, as the scene key output.{key}")
+            out_cfg[key] = float(value)
     return SurfaceReconstructor(kernel, h, r, device=device, **surface_settings(out_cfg, r))
 
 
@@ -252,14 +254,11 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
         mesh_writer = MeshSequenceWriter(target, fmt)
     try:
         for frame in wanted:
-            try:
-                with np.load(files[frame]) as data:
-                    x_dtype = data["x"].dtype  # float64 where the run lies far from (0, 0, 0)
-                    x_world = np.asarray(data["x"], dtype=np.float64).reshape(-1, 3)
-                    v = np.asarray(data["v"], dtype=np.float32).reshape(-1, 3)
-                    rho = np.asarray(data["density"], dtype=np.float32).reshape(-1)
-            except (OSError, KeyError, ValueError) as exc:
-                raise OutputError(f"{files[frame]}: unreadable recorded frame ({exc})") from None
+            data = rf.read_frame(files[frame])
+            x_dtype = data["x"].dtype  # float64 where the run lies far from (0, 0, 0)
+            x_world = np.asarray(data["x"], dtype=np.float64).reshape(-1, 3)
+            v = np.asarray(data["v"], dtype=np.float32).reshape(-1, 3)
+            rho = np.asarray(data["density"], dtype=np.float32).reshape(-1)
             x_local = wp.array((x_world - origin).astype(np.float32), dtype=wp.vec3, device=device)
             mesh = surface.reconstruct(x_local)
             verts = mesh.vertices.astype(np.float64) + origin  # world [m]; float32 on writing unless far

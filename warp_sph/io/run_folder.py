@@ -346,6 +346,22 @@ def read_run_json(out: Path) -> dict:
     return info
 
 
+def read_frame(path: Path, keys=("x", "v", "density")) -> dict[str, np.ndarray]:
+    """The arrays ``keys`` of a recorded frame file (``frames/frame_NNNNNN.npz``); OutputError (one
+    line, naming the file) when it is missing, truncated, not an npz or lacks one of them. A key
+    written as ``"v?"`` is optional (left out of the result when the frame has none)."""
+    path = Path(path)
+    try:
+        if not zipfile.is_zipfile(path):  # (np.load would take it for a pickle and say so)
+            raise ValueError("not an npz archive: damaged or truncated")
+        with np.load(path, allow_pickle=False) as data:
+            return {k.rstrip("?"): np.asarray(data[k.rstrip("?")]) for k in keys
+                    if not k.endswith("?") or k.rstrip("?") in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as exc:
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise OutputError(f"{path}: unreadable recorded frame ({text})") from None
+
+
 #: arrays every checkpoint holds: name -> (dtype kind, trailing shape)
 CHECKPOINT_ARRAYS = {"particle_x_local": ("f", (3,)), "particle_v": ("f", (3,)), "step": ("i", ()),
                      "frame": ("i", ()), "state_frame": ("i", ()), "time": ("f", ()), "last_max_speed": ("f", ())}

@@ -55,6 +55,18 @@ def speed_colors(v: np.ndarray | None, speed_scale: float, count: int) -> np.nda
     return ((1.0 - s) * np.asarray(PARTICLE_COLOR) + s * np.asarray(FAST_PARTICLE_COLOR)).astype(np.float32)
 
 
+def _check_out_dir(out_dir: Path) -> None:
+    """Refuse, before any rendering, an output folder that is a file or lies under one (nothing is
+    written beside it or over it)."""
+    p = out_dir
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    if p.exists() and not p.is_dir():
+        where = "is a file" if p == out_dir else f"lies under the file {p}"
+        raise PreviewError(f"--out {out_dir} {where}, not a folder; preview writes its PNG files (and GIF) into a "
+                           "folder: choose a new or existing folder")
+
+
 def preview_run(
     run_dir,
     frames: list[int] | None = None,
@@ -98,6 +110,7 @@ def preview_run(
     box = scene.get("container")
     container = (box["min"], box["max"]) if box else None
     out_dir = Path(out) if out is not None else run_dir / "preview"
+    _check_out_dir(out_dir)
 
     surface = SurfaceReader(run_dir) if mode == "surface" else None
     solids = obstacle_meshes(run_dir, scene, surface)

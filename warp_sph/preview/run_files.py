@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.run_folder import read_frame
 from .render import PreviewError
 
 BODY_COLOR = (0.78, 0.45, 0.18)  # orange-brown wood for moving rigid bodies
@@ -41,8 +42,8 @@ def load_frame(run_dir: Path, frame: int) -> tuple[np.ndarray, np.ndarray | None
     path = frame_path(run_dir, frame)
     if not path.is_file():
         raise PreviewError(f"frame {frame} is listed but its file {path} is missing")
-    with np.load(path) as data:
-        return np.asarray(data["x"], dtype=np.float32), (np.asarray(data["v"]) if "v" in data else None)
+    data = read_frame(path, ("x", "v?"))  # one line naming the file when it is damaged (as ``export``)
+    return np.asarray(data["x"], dtype=np.float32), data.get("v")
 
 
 class SurfaceReader:

@@ -26,7 +26,11 @@ DEVICE_BYTES_PER_BOUNDARY = 64
 HOST_BYTES_PER_FLUID = 512
 HOST_BYTES_PER_BOUNDARY = 128
 HASH_GRID_BYTES = 2 * 128**3 * 4 * 2  # fluid and boundary grids: cell starts and ends
-SURFACE_BYTES_PER_CELL = 32
+# Surface reconstruction (sparse grid, marching cubes, smoothing, decimation buffers) per cell of the
+# fluid's volume grown 8x (``_surface_bytes``): the default dam break (6,859 particles, frames 1, 13 and
+# 25) holds 30.2 MiB of Warp arrays at 1 r cells (72 B per such cell, most of it the mesh's buffers) and
+# 117 MiB at 0.5 r (35 B per cell); 80 B covers both (measured as docs/limits.md says).
+SURFACE_BYTES_PER_CELL = 80
 
 
 def available_host_memory() -> int | None:
@@ -103,14 +107,17 @@ def estimate_particle_counts(scene) -> tuple[int, int]:
 
 
 def _surface_bytes(scene, fluid_count: int) -> int:
+    """Bytes of the surface reconstruction: SURFACE_BYTES_PER_CELL per cell of the volume it can cover. The
+    grid is sparse (``warp_sph.surface.grid``: blocks around the particles only), so that volume is the
+    fluid's, N d^3, grown 8x (a splash that doubles the fluid's extent, the blocks' margin), and
+    never more than the container: a large container with little fluid needs a small grid."""
     o = scene.output
     if not (o.surface and (o.usd or o.mesh_sequence)):
         return 0
     cell = o.surface_cell_per_radius * scene.particle_radius
+    volume = 8.0 * fluid_count * scene.spacing**3
     if scene.container is not None:
-        volume = float(np.prod(np.subtract(scene.container.max, scene.container.min)))
-    else:  # free fluid: its volume grown 8x (a block expanding to twice its size)
-        volume = 8.0 * fluid_count * scene.spacing**3
+        volume = min(volume, float(np.prod(np.subtract(scene.container.max, scene.container.min))))
     return int(min(SURFACE_BYTES_PER_CELL * volume / cell**3, 2**62))
 
 
@@ -127,17 +134,18 @@ def _gib(n: float) -> str:
     return f"{n / 2**30:.3g} GiB" if n >= 2**28 else f"{n / 2**20:.3g} MiB"
 
 
-def _largest_cost(scene, fluid: int, boundary: int) -> tuple[str, str]:
-    """(key path, advice) of what needs the most memory: a fluid block, a wall, an obstacle or the surface grid."""
+def _largest_cost(scene, fluid: int, boundary: int, surface_to_blame: int = 0) -> tuple[str, str]:
+    """(key path, advice) of what to change: the surface grid when ``surface_to_blame`` > 0 (the
+    particles alone would fit), else the particles' largest part: a fluid block, the walls or an obstacle."""
     per = {"fluid": DEVICE_BYTES_PER_FLUID + HOST_BYTES_PER_FLUID,
            "boundary": DEVICE_BYTES_PER_BOUNDARY + HOST_BYTES_PER_BOUNDARY}
     parts = [(n * per[kind], key, kind, n) for key, kind, n in particle_count_contributions(scene)]
-    surface = _surface_bytes(scene, fluid)
     cost, key, kind, n = max(parts) if parts else (0, "particle_radius", "fluid", fluid)
-    if surface > cost:
+    if surface_to_blame > 0:
         return ("output.surface_cell_per_radius",
-                f"the surface grid at {scene.output.surface_cell_per_radius:g} r cells needs {_gib(surface)}; "
-                "raise output.surface_cell_per_radius")
+                f"the particles alone fit, but the surface grid at {scene.output.surface_cell_per_radius:g} r "
+                f"cells needs {_gib(surface_to_blame)}; raise output.surface_cell_per_radius (memory scales as "
+                "1/cell^3) or set output.surface = false")
     if key.startswith("obstacles"):
         return key, (f"{key} needs about {n:,} boundary particles at spacing d = {scene.spacing:g} m; check its "
                      "size (scale, min/max) or raise particle_radius")
@@ -167,11 +175,14 @@ def memory_verdict(scene, fluid: int, boundary: int, device, estimated: bool) ->
     if worst is None:
         return None
     ratio, pool, n, avail = worst
+    # the surface grid lives in device memory (host memory on the CPU); blame it only when the
+    # particles alone would fit (in the half of the memory a run should leave free)
+    surface = _surface_bytes(scene, fluid) if pool == "device" or dev_avail is None else 0
     # memory scales as 1/r^3: the radius that would fit in half the available memory
     r_fit = scene.particle_radius * max(ratio / MEMORY_WARN, 1.0) ** (1.0 / 3.0)
     text = f"{count} need about {_gib(n)} of {pool} memory, {100 * ratio:.0f} % of the {_gib(avail)} available"
     if ratio > 1.0:
-        key, advice = _largest_cost(scene, fluid, boundary)
+        key, advice = _largest_cost(scene, fluid, boundary, surface if n - surface <= MEMORY_WARN * avail else 0)
         if key == "particle_radius":
             advice += f" (particle_radius about {r_fit:.3g} m would fit; memory scales as 1/r^3)"
         return "refuse", f"{scene.source}: {key}: {text}; {advice}"

@@ -61,20 +61,22 @@ def time_step_bounds(sim, speed: float | None = None) -> dict[str, float]:
     return {b.name: b.seconds for b in sim.time_step_bounds(v)}
 
 
-def _step_estimate(scene, sim) -> tuple[float, float, object]:
+def _step_estimate(scene, sim, frames: int | None = None) -> tuple[float, float, object]:
     """(dt [s], substeps for the whole run (a float, may be huge), the tightest bound) at the reference
     speed; dt is what the run would take (fixed, or the bound clamped to dt_min..dt_max)."""
     t = scene.time
     bound = sim.time_step_bounds(sim.model.reference_speed)[0]
     dt = float(t.fixed_dt) if t.fixed_dt > 0 else min(max(bound.seconds, t.dt_min), t.dt_max)
-    return dt, _substeps(scene, dt), bound
+    return dt, _substeps(scene, dt, frames), bound
 
 
-def _substeps(scene, dt: float) -> float:
-    """Substeps of the whole run at step dt [s]: whole substeps per frame, times the frames."""
+def _substeps(scene, dt: float, frames: int | None = None) -> float:
+    """Substeps of the whole run at step dt [s]: whole substeps per frame, times the frames after the
+    first (``frames`` written, as ``--frames``; default: duration * fps of them)."""
     frame_dt = 1.0 / float(scene.fps)
     per_frame = max(1.0, math.ceil(frame_dt / dt - 1e-9)) if dt > 0 else math.inf
-    return per_frame * scene.duration * scene.fps
+    intervals = scene.duration * scene.fps if frames is None else max(int(frames) - 1, 0)
+    return per_frame * intervals if intervals else 0.0
 
 
 def time_step_summary(scene, sim) -> list[str]:
@@ -143,9 +145,10 @@ def _removed_fluid(scene, sim) -> tuple[list[int], list[int]]:
     return before, after
 
 
-def preflight_checks(scene, sim, warn: bool = True) -> list[str]:
+def preflight_checks(scene, sim, warn: bool = True, frames: int | None = None) -> list[str]:
     """Check a built Simulation before its first step. Raises SceneError for what cannot run;
-    returns (and, with warn, issues as PreflightWarning) the warnings."""
+    returns (and, with warn, issues as PreflightWarning) the warnings. ``frames``: the frames the run
+    writes (``--frames``) when not the scene's duration * fps + 1."""
     m = sim.model
     t = scene.time
     out: list[str] = []
@@ -161,7 +164,7 @@ def preflight_checks(scene, sim, warn: bool = True) -> list[str]:
     keys = list(tight.keys) + ([m.reference_speed_source] if uses_speed and "velocity" in m.reference_speed_source
                                else [])
     set_by = f"; set by {', '.join(tight.keys)}" if tight.keys else ""
-    at_bound = _substeps(scene, bound)
+    at_bound = _substeps(scene, bound, frames)
     if t.fixed_dt > 0 and t.fixed_dt > bound * (1.0 + 1e-6):
         raise SceneError(
             f"{src}: time.fixed_dt: {t.fixed_dt:.4g} s is {t.fixed_dt / bound:.3g}x the {tight.name} time-step bound "
@@ -174,14 +177,15 @@ def preflight_checks(scene, sim, warn: bool = True) -> list[str]:
         raise SceneError(
             f"{src}: the {tight.name} time-step bound {bound:.4g} s ({tight.formula}{set_by}) is below time.dt_min = "
             f"{t.dt_min:.4g} s{source}; {fix}")
-    dt, steps, _ = _step_estimate(scene, sim)
+    dt, steps, _ = _step_estimate(scene, sim, frames)
     if steps > t.max_steps:
         cost = measured_step_cost(sim)
         wall = steps * cost * m.fluid_count
         why = (f"time.fixed_dt = {t.fixed_dt:.4g} s" if t.fixed_dt > 0 else
                f"dt = {dt:.4g} s from the {tight.name} bound ({tight.formula}{set_by})")
+        span = f"duration {scene.duration:g} s" if frames is None else f"--frames {frames:,} at {scene.fps:g} fps"
         raise SceneError(
-            f"{src}: the run needs about {steps:.3g} substeps ({why}, duration {scene.duration:g} s), more than "
+            f"{src}: the run needs about {steps:.3g} substeps ({why}, {span}), more than "
             f"time.max_steps = {t.max_steps:,}; at {1e9 * cost:.3g} ns per particle-step measured here that is "
             f"{_duration_text(wall)}{source if t.fixed_dt == 0 else ''}; check those values, or raise time.max_steps "
             "to run it anyway")

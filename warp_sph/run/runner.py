@@ -40,7 +40,10 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     resume: a run folder to continue from its latest checkpoint (scene and folder come from it).
         Every check comes first (run.json, checkpoint, USD): a refused resume changes nothing; one
         that proceeds removes the files of frames after the checkpoint and says so. A finished
-        run is reported as complete unless ``frames`` asks for more.
+        run is reported as complete unless ``frames`` asks for more. A run stopped before its first
+        checkpoint (killed in its first second: it had saved no frame after the initial one) starts
+        again from frame 1 in its folder, with its scene, and says so: its run files are replaced,
+        nothing else. With ``output.checkpoint_every = 0`` a resume is refused.
 
     Nothing is created before the scene, the device and the folder are known to be usable, and a
     start that fails before its first frame removes what it created.
@@ -50,6 +53,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     t_start = time.perf_counter()
     device = resolve_device(device)  # a bad --device is one line, before any folder exists
     resume_info = None
+    restart = ""  # why a --resume starts the run again from frame 1 (it has no checkpoint)
     if resume is not None:
         out = Path(resume)
         info = rf.read_run_json(out)
@@ -61,16 +65,20 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             log(f"{out}: already complete ({done} frames); --frames N with N > {done} extends it")
             return info
         cp_path = rf.latest_checkpoint(out)
-        if cp_path is None:
-            raise OutputError(f"{out}: no checkpoint to resume from")
-        resume_info = (info, cp_path, rf.load_checkpoint(cp_path))
+        if cp_path is None and scene.output.checkpoint_every == 0:
+            raise OutputError(f"{out}: no checkpoint to resume from (output.checkpoint_every = 0); pass the "
+                              f"scene with --out {out} --overwrite to run it again from frame 1")
+        if cp_path is None:  # checkpoint 1 comes with frame 1: it stopped before its first frame was saved
+            restart = "it stopped before its first one"
+        else:
+            resume_info = (info, cp_path, rf.load_checkpoint(cp_path))
     else:
         out = rf.choose_run_folder(out, scene.name, overwrite)
         total = frames if frames is not None else int(round(scene.duration * scene.fps)) + 1
     if total < 1:
         raise WarpSphError(f"--frames must be >= 1, got {total}")
     sim = Simulation(scene, device=device)
-    preflight_checks(scene, sim)
+    preflight_checks(scene, sim, frames=frames)
 
     frame_log: list[dict] = []
     start_frame = 1
@@ -104,10 +112,17 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         log(f"resuming {out} from frame {start_frame} (step {sim.state.step})"
             + (f"; removed {len(dropped)} files of frames {later[0]}..{later[-1]} written after it" if later else ""))
     else:
-        if rf.is_run_folder(out):  # --overwrite (choose_run_folder refused it otherwise)
+        if restart:
+            log(f"{out}: no checkpoint to resume from ({restart}): running it again from frame 1 with the scene "
+                f"of its {rf.RUN_JSON}, replacing its run files")
+        if rf.is_run_folder(out):  # --overwrite (choose_run_folder refused it otherwise) or a restart
             rf.clear_run(out)
         created = rf.create_run_folder(out)
         try:
+            # run.json first: a run killed from here on leaves a folder that --resume (or --overwrite) takes
+            rf.atomic_write_json(out / rf.RUN_JSON, {"scene": scene.to_dict(), "versions": versions(),
+                                                      "frames_requested": total, "frames": [], "status": "starting",
+                                                      "out": str(out)})
             exporter = Exporter(sim, out)
         except BaseException:
             _discard_start(out, created, usd_file(out, scene.name))

@@ -133,6 +133,20 @@ def _resolve(name_or_path: str) -> Path:
     return builtin
 
 
+def read_toml(path: Path) -> dict:
+    """The TOML table of a scene (or sweep) file; SceneError (one line) when it is not UTF-8 TOML text."""
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: malformed TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: not a UTF-8 text file (byte {exc.object[exc.start]:#04x} at offset {exc.start}); "
+                         "a scene is TOML text in UTF-8") from None
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read: {exc.strerror}") from None
+
+
 def load_scene(name_or_path: str, overrides: list[str] | dict | None = None) -> Scene:
     """Load, override and validate a scene.
 
@@ -142,16 +156,7 @@ def load_scene(name_or_path: str, overrides: list[str] | dict | None = None) -> 
     Raises SceneError naming the file, the key path and what was expected.
     """
     path = _resolve(name_or_path)
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: malformed TOML: {exc}") from None
-    except UnicodeDecodeError as exc:
-        raise SceneError(f"{path}: not a UTF-8 text file (byte {exc.object[exc.start]:#04x} at offset {exc.start}); "
-                         "a scene is TOML text in UTF-8") from None
-    except OSError as exc:
-        raise SceneError(f"{path}: cannot read: {exc.strerror}") from None
+    data = read_toml(path)
     data = apply_overrides(data, overrides, str(path))
     return scene_from_dict(data, source=str(path), base_dir=path.parent)
 

@@ -10,6 +10,7 @@ Key paths: ``particle_radius`` (top level), ``material.rest_density`` (a table),
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,7 +40,7 @@ class Param:
     kind: "float", "int", "bool", "str", "vec3", "str_list", "table", "tables" or "table_or_false".
     unit: SI unit, "-" for dimensionless.
     default: value when absent (REQUIRED: must be given; None: optional, meaning in ``doc``).
-    gt/ge/lt/le: numeric bounds; choices: allowed strings.
+    gt/ge/lt/le: numeric bounds (for a vec3: bounds of its length); choices: allowed strings.
     shapes: for fluid/obstacle keys, the shapes that use the key (None: every shape).
     """
 
@@ -80,7 +81,15 @@ class Param:
             "table_or_false": "a table or false",
         }[self.kind]
         bounds = self.range_text()
+        if bounds and self.kind == "vec3":
+            return f"{base} of length {bounds}"
         return f"{base} {bounds}" if bounds else base
+
+    def in_range(self, value: float) -> bool:
+        """Whether the number ``value`` (a vec3's length) is finite and within the bounds."""
+        v = float(value)
+        return (math.isfinite(v) and (self.gt is None or v > self.gt) and (self.ge is None or v >= self.ge)
+                and (self.lt is None or v < self.lt) and (self.le is None or v <= self.le))
 
     def range_text(self) -> str:
         parts = []
@@ -102,7 +111,8 @@ _HEAD = (
     _P("name", "str", "-", "", "scene name (default: the file name without .toml); files of the run are named "
        "after it, with characters other than letters, digits, '-' and '_' replaced by '_'"),
     _P("description", "str", "-", "", "one-line description"),
-    _P("particle_radius", "float", "m", 0.025, "particle radius r; the lattice spacing is d = 2r", gt=0.0),
+    _P("particle_radius", "float", "m", 0.025, "particle radius r; the lattice spacing is d = 2r (at most 1 km: "
+       "the kernel's float32 values underflow far above)", gt=0.0, le=1e3),
     _P("smoothing_kernel", "str", "-", "cubic", "smoothing kernel W (Liu & Liu 2010)",
        choices=tuple(SMOOTHING_KERNELS)),
     _P("h_per_spacing", "float", "-", None, "smoothing length h / d (absent: the kernel's default: "
@@ -113,7 +123,8 @@ _AFTER_METHODS = (
        "particle centres, in spacings d (absent: the gap at which the first layer next to one Akinci wall "
        "layer is at rest density, physics notes section 7: cubic 1.10, quadric 1.08, quintic 1.03)",
        ge=0.5, le=3.0, default_text="auto"),
-    _P("gravity", "vec3", "m/s^2", (0.0, 0.0, -9.81), "gravitational acceleration (Z is up)"),
+    _P("gravity", "vec3", "m/s^2", (0.0, 0.0, -9.81), "gravitational acceleration (Z is up); its length at most "
+       "1000 m/s^2 (about 100 g)", le=1e3),
     _P("duration", "float", "s", 2.0, "simulated time", gt=0.0),
     _P("fps", "float", "1/s", 24.0, "output frames per second of simulated time", gt=0.0),
     # material
@@ -212,17 +223,18 @@ _TAIL = (
        "fluid; 0.6 lies 1.0 r beyond the last particle layer, splashsurf's default)", gt=0.0, lt=1.0),
     _P("output.surface_spray_neighbors", "int", "-", 5, "particles with fewer fluid neighbours than "
        "this within the kernel support are spray: written as points to /sph/spray, left out of the "
-       "surface (0: no spray)", ge=0),
+       "surface (0: no spray); at most the neighbours of a particle on a flat free surface (17 at the "
+       "default support 2d), above which the whole surface would be spray", ge=0),
     _P("output.surface_smoothing_iterations", "int", "-", 15, "feature-weighted Laplacian smoothing "
        "steps of the surface, volume restored after them (removes the particle-scale ridges, keeps "
-       "droplets and thin sheets; 0: raw marching cubes)", ge=0),
+       "droplets and thin sheets; 0: raw marching cubes)", ge=0, le=1000),
     _P("output.surface_decimation_error", "float", "-", 0.5, "decimate the smoothed surface by edge "
        "collapses (quadric error) that keep each merged vertex within this distance of the planes of "
        "all the faces it replaces, in particle radii (0: no decimation)", ge=0.0),
     _P("output.surface_triangle_budget", "int", "-", 0, "decimate until the surface has at most this "
        "many triangles per frame, within the error bound if one is set (0: no budget)", ge=0),
     _P("output.surface_normal_smoothing_iterations", "int", "-", 10, "one-ring averaging steps of "
-       "the surface's vertex normals", ge=0),
+       "the surface's vertex normals", ge=0, le=1000),
     _P("output.surface_normals", "bool", "-", True, "write vertex normals (primvars:normals: smooth "
        "shading in Blender without modifiers)"),
     _P("output.mesh_sequence", "str", "-", "", "also write one surface mesh file per frame "
@@ -252,6 +264,14 @@ def _method_rows() -> tuple[Param, ...]:
             rows.append(_P(name, "table", "-", {}, cls.section_doc or f"{cls.title} settings"))
             rows.extend(cls.parameters)
     return tuple(rows)
+
+
+def parameter(path: str) -> Param:
+    """The row of key path ``path`` (``output.surface_cell_per_radius``, ``fluid[].max``); KeyError if none."""
+    for p in all_parameters():
+        if p.path == path:
+            return p
+    raise KeyError(path)
 
 
 def all_parameters() -> tuple[Param, ...]:
@@ -302,6 +322,8 @@ def parameter_table_markdown() -> str:
             valid = ", ".join(f'"{c}"' for c in p.choices)
         else:
             valid = p.range_text()
+            if valid and p.kind == "vec3":
+                valid = f"length {valid}"
         if p.shapes is not None:
             valid = (valid + "; " if valid else "") + f"shape {', '.join(p.shapes)}"
         doc = p.doc.replace("|", "\\|")

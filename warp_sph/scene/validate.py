@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import SceneError
-from ..core.smoothing import get_smoothing_kernel
+from ..core.smoothing import get_smoothing_kernel, lattice_offsets
 from ..methods import registry
 from .meshes import load_triangle_mesh, open_edge_count
 from .parameters import REQUIRED, TABLE_KINDS, Param, all_parameters, by_section
@@ -73,7 +73,11 @@ class Validator:
         elif kind == "vec3":
             if not isinstance(value, (list, tuple)) or len(value) != 3:
                 self.bad(param, keypath, value)
-            return tuple(self.number(param, x, keypath) for x in value)
+            v = tuple(self.number(param, x, keypath) for x in value)
+            if not param.in_range(math.hypot(*v)):  # a vec3's bounds are those of its length
+                self.fail(keypath, f"expected {param.expected()}, got {_short(value)} (length "
+                                   f"{math.hypot(*v):.4g})")
+            return v
         elif kind == "str_list":
             if not isinstance(value, (list, tuple)) or any(
                 not isinstance(x, str) or x not in param.choices for x in value
@@ -82,8 +86,7 @@ class Validator:
             return list(dict.fromkeys(value))
         else:  # pragma: no cover - tables are handled by the caller
             raise AssertionError(kind)
-        if ((param.gt is not None and not v > param.gt) or (param.ge is not None and not v >= param.ge)
-                or (param.lt is not None and not v < param.lt) or (param.le is not None and not v <= param.le)):
+        if not param.in_range(v):
             self.bad(param, keypath, value)
         return v
 
@@ -147,8 +150,9 @@ class Validator:
         raw = data.get("container", {})
         if raw is False or raw is None:
             values["container"] = None
-        elif raw is True:
-            values["container"] = Container()
+        elif not isinstance(raw, dict):
+            self.fail("container", f"expected a table ([container] with min and max) or false, got "
+                      f"{str(raw).lower() if isinstance(raw, bool) else _short(raw)}")
         else:
             c = Container(**self.table(raw, "container", "container"))
             self.box(c.min, c.max, "container")
@@ -163,7 +167,8 @@ class Validator:
     def blocks(self, data, name: str, required: bool) -> list:
         raw = data.get(name, [])
         if isinstance(raw, dict):
-            raw = [raw]
+            self.fail(name, f"expected an array of tables: write [[{name}]] (double brackets) for each block, "
+                            f"got a single table [{name}]")
         if not isinstance(raw, list) or any(not isinstance(b, dict) for b in raw):
             self.fail(name, f"expected an array of tables ([[{name}]]), got {_short(raw)}")
         if required and not raw:
@@ -200,6 +205,13 @@ class Validator:
         if time.dt_min > time.dt_max:
             self.fail("time.dt_min", f"expected <= time.dt_max ({time.dt_max:g}), got {time.dt_min:g}")
         o = scene.output
+        if o.surface_spray_neighbors:
+            full, flat = lattice_neighbor_counts(scene)
+            if o.surface_spray_neighbors > flat:
+                self.fail("output.surface_spray_neighbors", f"expected <= {flat}, the neighbours of a particle on "
+                          f"a flat free surface within the support radius (in the bulk: {full}); with more, the "
+                          f"whole surface{' and all the fluid' if o.surface_spray_neighbors > full else ''} would "
+                          f"be spray; got {o.surface_spray_neighbors}")
         if o.mesh_sequence and not o.surface:
             self.fail("output.mesh_sequence", f"{o.mesh_sequence!r} needs output.surface = true (the sequence holds "
                       "the reconstructed surface); set output.surface = true or output.mesh_sequence = ''")
@@ -228,6 +240,14 @@ class Validator:
             from ..rigid.checks import check_bodies
 
             check_bodies(scene, self.fail)
+
+
+def lattice_neighbor_counts(scene) -> tuple[int, int]:
+    """(neighbours within the kernel support of a particle inside a rest lattice of spacing d,
+    of a particle in the top layer of a flat free surface), self excluded."""
+    offsets = lattice_offsets(scene.spacing, scene.support_radius)
+    below = offsets[:, 2] <= 1e-9 * scene.spacing
+    return len(offsets) - 1, int(np.count_nonzero(below)) - 1
 
 
 def _obstacle_bounds(ob) -> tuple[np.ndarray, np.ndarray]:

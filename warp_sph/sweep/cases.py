@@ -138,7 +138,7 @@ def case_name(params: dict[str, str], scene: str | None = None) -> str:
 def _scene_ref(scene: str, base: Path | None) -> str:
     """A built-in name stays a name; a path becomes absolute (relative to ``base``), so workers on
     other machines find it on the shared file system."""
-    from ..scene.load import _resolve
+    from ..scene.load import _resolve, read_toml
 
     text = str(scene)
     if text.endswith(".toml") or "/" in text or "\\" in text:
@@ -146,7 +146,9 @@ def _scene_ref(scene: str, base: Path | None) -> str:
         if not p.is_absolute():
             p = (base or Path.cwd()) / p
         text = str(p.resolve())
-    _resolve(text)  # SceneError (exit status 2) for a scene that is neither a file nor built in
+    # SceneError (exit status 2) for a scene that is neither a file nor built in, and for a file that
+    # is not TOML text (a malformed or binary sweep file is not run as a scene, case after case)
+    read_toml(_resolve(text))
     return text
 
 

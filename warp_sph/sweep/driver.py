@@ -81,6 +81,9 @@ def run_sweep(cases: list[Case], out: Path, executor, device: str | None = None,
     for n in names:
         if n in done:
             summary.rows[n] = done[n]
+    for n in names:  # cases refused before a run (a scene value out of range): each with its reason
+        if n in done and done[n].get("status") != "completed":
+            log(f"{n}: {done[n]['status']}; {done[n].get('error')}")
     skipped = sum(1 for n in done if done[n].get("status") == "completed")
     if skipped:
         log(f"{skipped} of {len(cases)} cases complete already in {out}: not run again")

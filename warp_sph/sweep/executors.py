@@ -116,6 +116,20 @@ def _import_distributed():
     return distributed
 
 
+def _check_scheduler_address(address: str) -> None:
+    """A ``--scheduler`` address Dask can parse (``tcp://HOST:PORT``, ``HOST:PORT``, ``tls://...``),
+    checked before anything starts: WarpSphError (one line) otherwise."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(address)
+        if scheme in ("tcp", "tls"):
+            parse_host_port(location)
+    except (ValueError, TypeError) as e:
+        raise WarpSphError(f"--scheduler {address!r}: not a Dask scheduler address ({_one_line(e)}); expected "
+                           "tcp://HOST:PORT, e.g. tcp://10.0.0.5:8786") from None
+
+
 class DaskExecutor:
     """Runs the tasks on a Dask cluster: a LocalCluster of ``workers`` processes (one thread
     each; None or 0: one per core) or the existing cluster at ``scheduler``."""
@@ -125,6 +139,8 @@ class DaskExecutor:
     def __init__(self, workers: int | None = None, scheduler: str | None = None, log: Callable = print,
                  quiet: bool = True):
         self.distributed = _import_distributed()
+        if scheduler is not None:
+            _check_scheduler_address(scheduler)
         self.scheduler = scheduler
         self.workers = (workers or machine_cores()) if scheduler is None else None
         self.log = log
