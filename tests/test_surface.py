@@ -291,3 +291,16 @@ def test_surface_particles_threshold_sits_between_the_layers():
     second = np.isclose(points[:, 2], points[:, 2].max() - SPACING)
     inner = np.all((points[:, :2] > 3 * SPACING) & (points[:, :2] < 8 * SPACING), axis=1)
     assert np.all(flag[top & inner] == 2) and np.all(flag[second & inner] == 1)
+
+
+def test_array_pool_reuses_and_grows_by_half():
+    """The one growable scratch array of the surface passes (core/buffers.py): the same array while it
+    is large enough, else max(n, 1.5 x) rows; a width gives (rows, width)."""
+    from warp_sph.core.buffers import ArrayPool
+
+    pool = ArrayPool("cpu")
+    a = pool.get("a", 10, wp.int32)
+    assert a.shape == (10,) and pool.get("a", 7, wp.int32) is a
+    assert pool.get("a", 11, wp.int32).shape == (15,)  # 1.5 x 10
+    assert pool.get("a", 40, wp.int32).shape == (40,)  # more than 1.5 x 15: n itself
+    assert pool.get("b", 0, wp.vec3, width=27).shape == (1, 27)

@@ -32,6 +32,7 @@ import threading
 import numpy as np
 import warp as wp
 
+from ..core.buffers import ArrayPool
 from ..core.errors import SimulationError
 from ..core import launch as _launch_module
 from ..core.launch import LIGHT_MIN_RANGE
@@ -72,24 +73,6 @@ def lattice_weighted_count(support_radius: float, spacing: float) -> float:
     return float(np.sum(1.0 - r2 / support_radius**2))
 
 
-class _Buffers:
-    """Device arrays reused across calls, grown (x1.5) when a call needs more."""
-
-    def __init__(self, device):
-        self.device = device
-        self._arrays: dict[str, wp.array] = {}
-
-    def get(self, name: str, n: int, dtype, width: int | None = None) -> wp.array:
-        n = max(int(n), 1)
-        a = self._arrays.get(name)
-        if a is None or a.shape[0] < n:
-            cap = max(n, int(1.5 * (a.shape[0] if a is not None else 0)))
-            shape = cap if width is None else (cap, width)
-            a = wp.empty(shape, dtype=dtype, device=self.device)
-            self._arrays[name] = a
-        return a
-
-
 class SparseGrid:
     """Blocks of grid nodes around the particles, particle statistics and Phi on the band.
 
@@ -124,7 +107,7 @@ class SparseGrid:
         self.surface_count = float(surface_fraction) * self.lattice_count
         # GPU: one thread per node layer of a block; CPU: one per block (threads split over blocks)
         self.slabs = 1 if self.device.is_cpu else self.block_nodes
-        self._buf = _Buffers(self.device)
+        self._buf = ArrayPool(self.device)
         self._bounds_init = wp.array([math.inf] * 3 + [-math.inf] * 3 + [0.0], dtype=float, device=self.device)
         self.exact = False
         self.particle_count = 0
