@@ -132,4 +132,4 @@ class Decimator:
                 break
             conn = self._conn.build(nv, tris)
         # drop the vertices collapses removed, renumber the triangles
-        return drop_merged_vertices(x, tris, vmap, vindex, self._get, dev)
+        return drop_merged_vertices(x, tris, vmap, vindex, self._buf, dev)
