@@ -21,7 +21,7 @@ def obstacle_overrides(scene, folder: Path) -> list[str]:
     import meshio
     import numpy as np
 
-    from warp_sph.rigid.checks import posed
+    from warp_sph.rigid.spec import posed
     from warp_sph.rigid.spec import body_geometry, body_name
     from warp_sph.sweep.cases import toml_value
 

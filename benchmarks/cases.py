@@ -321,9 +321,9 @@ def run_task(task: dict) -> dict:
     spec = RunSpec(**task["spec"])
     if task.get("isolate", True):
         return run_isolated(spec, timeout=task.get("timeout"))
-    from warp_sph.cli import _quiet_warp
+    from warp_sph.core.device import init_warp
 
-    _quiet_warp()
+    init_warp()
     return run_warp_sph(spec)
 
 
@@ -362,8 +362,8 @@ def run_specs(specs: list[RunSpec], isolate: bool = True, log=print, executor=No
 
 
 if __name__ == "__main__":  # one run in a fresh process: python -m warp_sph.benchmarks.cases SPEC.json RECORD.json
-    from warp_sph.cli import _quiet_warp
+    from warp_sph.core.device import init_warp
 
-    _quiet_warp()
+    init_warp()
     _record = run_warp_sph(RunSpec(**json.loads(Path(sys.argv[1]).read_text())))
     Path(sys.argv[2]).write_text(json.dumps(_record, allow_nan=False))

@@ -435,7 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from warp_sph.cli import _quiet_warp
+    from warp_sph.core.device import init_warp
 
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
@@ -443,7 +443,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "command", None):
         parser.print_help()
         return 2
-    _quiet_warp()
+    init_warp()
     return args.func(args, argv)
 
 

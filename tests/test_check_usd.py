@@ -9,6 +9,7 @@ import os
 import tempfile
 
 import numpy as np
+import pytest
 from pxr import Usd, UsdGeom, Vt
 
 from warp_sph.io import check_usd
@@ -198,3 +199,36 @@ def test_unreadable_files():
             g.write(f.read()[:4096])
         code, text = run_checker(bad)
         assert code == 2 and "cannot open" in text, text
+
+
+SHARED_VALIDATOR = "/work/shared/tools/check_usd.py"
+PACKAGE_ORDER = ["common", "stage", "points", "mesh", "instancer", "driver"]
+
+
+@pytest.mark.skipif(not os.path.exists(SHARED_VALIDATOR), reason="the shared validator is not on this machine")
+def test_package_holds_the_shared_validator_line_for_line():
+    """The package's modules, in PACKAGE_ORDER after their imports, are the shared validator's body: only
+    --strict's FAILED verdict differs (warp_sph/io/check_usd/__init__.py says so), blank lines aside."""
+    import difflib
+    from pathlib import Path
+
+    def body(text, start=None):  # the lines after the imports (or from ``start``), blank lines left out
+        lines = text.split("\n")
+        first = (lines.index(start) if start else
+                 1 + max(i for i, line in enumerate(lines) if line.startswith(("from ", "import "))))
+        return [line for line in lines[first:] if line.strip()]
+
+    folder = Path(check_usd.__file__).parent
+    ours = [line for m in PACKAGE_ORDER for line in body((folder / f"{m}.py").read_text())]
+    shared = Path(SHARED_VALIDATOR).read_text()
+    theirs = body(shared, next(line for line in shared.split("\n") if line.startswith("MAX_TIMES_LISTED")))
+    changed = [line for line in difflib.unified_diff(theirs, ours, lineterm="", n=0)
+               if line[:1] in "+-" and not line.startswith(("+++", "---"))]
+    assert changed == [
+        "-def print_human(rep: Report, out=None):",
+        "+def print_human(rep: Report, out=None, strict: bool = False):",
+        '-    verdict = "OK" if d["ok"] else "FAILED"',
+        '+    verdict = "OK" if d["ok"] and not (strict and d["n_warnings"]) else "FAILED" + (" (--strict)" if d["ok"] else "")',
+        "-        print_human(rep)",
+        "+        print_human(rep, strict=args.strict)",
+    ], "\n".join(changed)

@@ -12,7 +12,9 @@ from surface_metrics import (RADIUS, SPACING, components, distance_to_mesh, eule
 from warp_sph.core.errors import SimulationError
 from warp_sph.core.smoothing import get_smoothing_kernel
 from warp_sph.surface import SurfaceReconstructor, surface_settings
+from warp_sph.surface.band import classify
 from warp_sph.surface.decimation import Decimator
+from warp_sph.surface.field import compute_field
 from warp_sph.surface.grid import lattice_weighted_count
 
 H = get_smoothing_kernel("cubic").default_smoothing_length(SPACING)  # h = d: support R = 2h = 4 r
@@ -75,8 +77,8 @@ def test_particle_statistics_and_field_match_numpy():
     assert spray.sum() == 6  # the lone particle, the pair, the line of three
     np.testing.assert_array_equal(grid.spray_mask(), spray)
     # Phi = sum_j f_j / rho~_j over the non-spray particles, at every node of every band block
-    grid.classify(exact=True)
-    field = grid.compute_field().numpy()
+    classify(grid, exact=True)
+    field = compute_field(grid).numpy()
     b = grid.block_nodes
     meshed = grid.meshed_block.numpy()[: grid.meshed_count]
     band = grid.meshed_band.numpy()[: grid.meshed_count].astype(bool)
@@ -98,8 +100,8 @@ def test_marching_cubes_matches_warp_on_the_same_field():
     rec = reconstructor(narrow_band=False)
     grid, mc = rec.grid, rec.marching
     grid.build(wp.array(points.astype(np.float32), dtype=wp.vec3))
-    grid.classify(exact=True)
-    grid.compute_field()
+    classify(grid, exact=True)
+    compute_field(grid)
     assert mc.count(grid, rec.iso_level) == 0
     vx, _, tris = mc.extract(grid, rec.iso_level)
     # the same nodes as one dense array (nodes of unmeshed blocks: Phi = 0, no particle within R)
@@ -289,3 +291,16 @@ def test_surface_particles_threshold_sits_between_the_layers():
     second = np.isclose(points[:, 2], points[:, 2].max() - SPACING)
     inner = np.all((points[:, :2] > 3 * SPACING) & (points[:, :2] < 8 * SPACING), axis=1)
     assert np.all(flag[top & inner] == 2) and np.all(flag[second & inner] == 1)
+
+
+def test_array_pool_reuses_and_grows_by_half():
+    """The one growable scratch array of the surface passes (core/buffers.py): the same array while it
+    is large enough, else max(n, 1.5 x) rows; a width gives (rows, width)."""
+    from warp_sph.core.buffers import ArrayPool
+
+    pool = ArrayPool("cpu")
+    a = pool.get("a", 10, wp.int32)
+    assert a.shape == (10,) and pool.get("a", 7, wp.int32) is a
+    assert pool.get("a", 11, wp.int32).shape == (15,)  # 1.5 x 10
+    assert pool.get("a", 40, wp.int32).shape == (40,)  # more than 1.5 x 15: n itself
+    assert pool.get("b", 0, wp.vec3, width=27).shape == (1, 27)

@@ -28,7 +28,7 @@ from .run.simulation import FrameStatistics, Simulation
 from .core.smoothing import SMOOTHING_KERNELS, SmoothingKernel, calibrated_mass, get_smoothing_kernel
 from .core.step_graph import Stage, StepGraph
 
-__version__ = "0.1.0"
+from .core.version import __version__  # noqa: E402
 
 _apply_log_level()
 

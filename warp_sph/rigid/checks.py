@@ -2,7 +2,8 @@
 kernel: names, mass, thickness against the boundary inset, inside the container, no overlap with
 obstacles or each other at t = 0, a solver and boundary method that couple, Newton installed.
 
-Posed geometry: x_world = R(rotation) x_body + position, ``x_body`` relative to the centre of mass.
+Posed geometry (``spec.posed``): x_world = R(rotation) x_body + position, ``x_body`` relative to the
+centre of mass.
 """
 from __future__ import annotations
 
@@ -10,45 +11,15 @@ import re
 
 import numpy as np
 
-from ..scene.meshes import load_triangle_mesh, points_inside, sample_surface
-from ..scene.sampling import box_surface
-from .spec import BodyGeometry, body_geometry, body_name, check_body, quat_to_matrix, rotation_quaternion
+from ..scene.meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
+from .sampling import surface_samples
+from .spec import BodyGeometry, body_geometry, body_inset, body_name, check_body, inside_body, posed
 
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
 
-def body_inset(scene) -> float:
-    """Inset [m] of a body's boundary particles below its surface: wall gap g - r (``rigid.sampling``)."""
-    return max(scene.wall_gap - scene.particle_radius, 0.0)
-
-
-def posed(geometry: BodyGeometry, body) -> tuple[np.ndarray, np.ndarray]:
-    """(R (3, 3), centre of mass [m] (3,)) of a body at t = 0."""
-    return quat_to_matrix(rotation_quaternion(body.rotation)), np.asarray(body.position, dtype=np.float64)
-
-
-def inside_body(geometry: BodyGeometry, body, points: np.ndarray, tolerance: float) -> np.ndarray:
-    """Mask of world ``points`` [m] strictly inside the body at t = 0 (more than ``tolerance`` [m] deep)."""
-    R, c = posed(geometry, body)
-    local = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - c) @ R  # R^T (x - c)
-    if geometry.shape == "box":
-        return np.all(np.abs(local) < geometry.half_extents - tolerance, axis=1)
-    if geometry.shape == "sphere":
-        return np.linalg.norm(local, axis=1) < geometry.radius - tolerance
-    inside = points_inside(geometry.mesh, local)
-    if tolerance > 0.0 and inside.any():  # keep points deeper than the tolerance: none of 6 offsets leaves
-        for axis in range(3):
-            for sign in (-1.0, 1.0):
-                shifted = local.copy()
-                shifted[:, axis] += sign * tolerance
-                inside &= points_inside(geometry.mesh, shifted)
-    return inside
-
-
 def surface_points(geometry: BodyGeometry, body, spacing: float) -> np.ndarray:
     """Points about ``spacing`` [m] apart on the body's true surface at t = 0, world frame [m]."""
-    from .sampling import surface_samples
-
     x, _ = surface_samples(geometry, spacing, 0.0)
     R, c = posed(geometry, body)
     verts = geometry.vertices

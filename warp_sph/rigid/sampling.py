@@ -1,7 +1,7 @@
 """Boundary particles of a rigid body, in its own frame, with their Akinci 2012 volumes.
 
 Surface samples about one spacing d apart, as the static obstacles are sampled
-(``scene.sampling``): a box on its faces with ``box_surface`` (square lattice), a mesh with
+(``scene.sampling``): a box on its faces with ``meshes.box_surface`` (square lattice), a mesh with
 ``meshes.sample_surface``, a sphere on a Fibonacci lattice of round(4 pi R^2 / d^2) points (the
 same area per point as a square lattice of spacing d).
 
@@ -30,9 +30,8 @@ from ..core.launch import launch
 from ..core.smoothing import get_smoothing_kernel
 from ..kernels import density as _density_dev
 from ..neighbors import NeighborGrid
-from ..scene.meshes import TriangleMesh, sample_surface
-from ..scene.sampling import box_surface
-from .spec import BodyGeometry
+from ..scene.meshes import TriangleMesh, box_surface, sample_surface
+from .spec import BodyGeometry, body_geometry, body_inset, posed
 
 
 @dataclass
@@ -133,9 +132,6 @@ def sample_scene_bodies(scene, device=None) -> tuple[list[BodyGeometry], list[Bo
     """Every ``[[bodies]]`` entry of ``scene`` sampled for the coupling: (geometries, samples in the
     body frames, their world positions at t = 0 (K, 3) [m] float64, body after body). The samples are
     inset by wall gap - r (module docstring)."""
-    from .checks import body_inset, posed
-    from .spec import body_geometry
-
     geometries, samples, world = [], [], []
     inset = body_inset(scene)
     for body in scene.bodies:

@@ -7,6 +7,9 @@ about it. Geometry here is host-side NumPy in float64, positions in metres.
 ``Body`` is the typed ``[[bodies]]`` entry (generated from its rows in ``scene/parameters.py``, listed
 again here as ``BODY_PARAMETERS``); ``check_body`` is the cross-key check that table rows cannot
 express (exactly one of density and mass; the mesh closed).
+
+Posed at t = 0 (``posed``, ``inside_body``): x_world = R(rotation) x_body + position; ``body_inset`` is
+how far below the surface its boundary particles sit (wall gap - r).
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ import numpy as np
 from ..core.errors import SceneError
 from ..scene.parameters import BODY_SHAPES, Param, core_parameters
 from ..scene.types import Body
-from ..scene.meshes import TriangleMesh, load_triangle_mesh
+from ..scene.meshes import TriangleMesh, load_triangle_mesh, points_inside
 
 #: Parameter-table rows of ``[[bodies]]`` (key paths ``bodies[].key``) and the ``rigid`` table, declared
 #: with the core rows in ``scene/parameters.py``.
@@ -201,3 +204,31 @@ def body_geometry(body: Body) -> BodyGeometry:
     mass = float(body.mass) if body.mass is not None else float(body.density) * volume
     return BodyGeometry(shape=body.shape, vertices=verts, triangles=tris, volume=volume, mass=mass,
                         half_extents=half, radius=radius, extra=extra)
+
+
+def body_inset(scene) -> float:
+    """Inset [m] of a body's boundary particles below its surface: wall gap g - r (``rigid.sampling``)."""
+    return max(scene.wall_gap - scene.particle_radius, 0.0)
+
+
+def posed(geometry: BodyGeometry, body) -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), centre of mass [m] (3,)) of a body at t = 0."""
+    return quat_to_matrix(rotation_quaternion(body.rotation)), np.asarray(body.position, dtype=np.float64)
+
+
+def inside_body(geometry: BodyGeometry, body, points: np.ndarray, tolerance: float) -> np.ndarray:
+    """Mask of world ``points`` [m] strictly inside the body at t = 0 (more than ``tolerance`` [m] deep)."""
+    R, c = posed(geometry, body)
+    local = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - c) @ R  # R^T (x - c)
+    if geometry.shape == "box":
+        return np.all(np.abs(local) < geometry.half_extents - tolerance, axis=1)
+    if geometry.shape == "sphere":
+        return np.linalg.norm(local, axis=1) < geometry.radius - tolerance
+    inside = points_inside(geometry.mesh, local)
+    if tolerance > 0.0 and inside.any():  # keep points deeper than the tolerance: none of 6 offsets leaves
+        for axis in range(3):
+            for sign in (-1.0, 1.0):
+                shifted = local.copy()
+                shifted[:, axis] += sign * tolerance
+                inside &= points_inside(geometry.mesh, shifted)
+    return inside

@@ -17,6 +17,7 @@ import numpy as np
 import warp as wp
 
 from ..core.errors import OutputError
+from ..core.version import __version__
 from ..io import run_folder as rf
 
 #: version of the checkpoint layout (``checkpoint_info``); a newer one is refused on resume
@@ -26,8 +27,6 @@ CHECKPOINT_FORMAT = 2
 def versions() -> dict:
     """Versions of warp-sph, Warp, NumPy, Python, the platform and usd-core (run.json, checkpoints)."""
     import numpy
-
-    from .. import __version__
 
     out = {"warp_sph": __version__, "warp": wp.__version__, "numpy": numpy.__version__,
            "python": platform.python_version(), "platform": platform.platform()}

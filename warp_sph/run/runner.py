@@ -48,18 +48,13 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     Nothing is created before the scene, the device and the folder are known to be usable, and a
     start that fails before its first frame removes what it created.
     """
-    from ..scene import scene_from_dict
-
     t_start = time.perf_counter()
     device = resolve_device(device)  # a bad --device is one line, before any folder exists
     resume_info = None
     restart = ""  # why a --resume starts the run again from frame 1 (it has no checkpoint)
     if resume is not None:
         out = Path(resume)
-        info = rf.read_run_json(out)
-        scene = scene_from_dict(info["scene"], source=str(out / rf.RUN_JSON))
-        frames = frames or info.get("frames_requested")
-        total = frames if frames is not None else int(round(scene.duration * scene.fps)) + 1
+        scene, total, info = _read_resume(out, frames)
         done = len(info.get("frames") or [])
         if info.get("status") == "completed" and done >= total:
             log(f"{out}: already complete ({done} frames); --frames N with N > {done} extends it")
@@ -74,59 +69,21 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             resume_info = (info, cp_path, rf.load_checkpoint(cp_path))
     else:
         out = rf.choose_run_folder(out, scene.name, overwrite)
-        total = frames if frames is not None else int(round(scene.duration * scene.fps)) + 1
+        total = frames if frames is not None else _default_frames(scene)
     if total < 1:
         raise WarpSphError(f"--frames must be >= 1, got {total}")
     sim = Simulation(scene, device=device)
     preflight_checks(scene, sim, frames=frames)
 
-    frame_log: list[dict] = []
-    start_frame = 1
     created: list[Path] = []
     if resume_info is not None:
-        info, cp_path, cp = resume_info
-        check_checkpoint(cp, cp_path, info["scene"], sim, log=log)
-        start_frame = int(cp["frame"])
-        if total < start_frame:
-            raise WarpSphError(f"{out}: its latest checkpoint is frame {start_frame}; resume with --frames >= {start_frame} "
-                               f"(got {total})")
-        sim.state.particle_x.assign(wp.array(cp["particle_x_local"], dtype=wp.vec3, device=sim.device))
-        sim.state.particle_v.assign(wp.array(cp["particle_v"], dtype=wp.vec3, device=sim.device))
-        sim.state.step = int(cp["step"])
-        sim.state.frame = int(cp["state_frame"])
-        sim.state.time = float(cp["time"])
-        sim.solver.restore_arrays(cp)
-        if sim.bodies is not None:
-            sim.bodies.restore_arrays(cp)
-        sim.refresh_density()
-        sim.last_frame = sim.statistics()
-        sim.last_frame.max_speed = float(cp["last_max_speed"])
-        if "frame_log" in cp:
-            frame_log = json.loads(str(cp["frame_log"]))
-        else:
-            frame_log = [f for f in info.get("frames", []) if f["frame"] <= start_frame]
-        # the USD is checked (and cut back to the checkpoint) before any frame file is removed
-        exporter = Exporter(sim, out, resume_after_frame=start_frame)
-        dropped = rf.truncate_run(out, start_frame)
-        later = sorted({rf._frame_number(p) for p in dropped})
-        log(f"resuming {out} from frame {start_frame} (step {sim.state.step})"
-            + (f"; removed {len(dropped)} files of frames {later[0]}..{later[-1]} written after it" if later else ""))
+        start_frame, frame_log, exporter = _resume_start(sim, out, total, *resume_info, log=log)
     else:
         if restart:
             log(f"{out}: no checkpoint to resume from ({restart}): running it again from frame 1 with the scene "
                 f"of its {rf.RUN_JSON}, replacing its run files")
-        if rf.is_run_folder(out):  # --overwrite (choose_run_folder refused it otherwise) or a restart
-            rf.clear_run(out)
-        created = rf.create_run_folder(out)
-        try:
-            # run.json first: a run killed from here on leaves a folder that --resume (or --overwrite) takes
-            rf.atomic_write_json(out / rf.RUN_JSON, {"scene": scene.to_dict(), "versions": versions(),
-                                                      "frames_requested": total, "frames": [], "status": "starting",
-                                                      "out": str(out)})
-            exporter = Exporter(sim, out)
-        except BaseException:
-            _discard_start(out, created, usd_file(out, scene.name))
-            raise
+        start_frame, frame_log = 1, []
+        exporter, created = _fresh_outputs(sim, out, scene, total)
 
     worker = ExportThread(exporter) if threaded_export else None
     checkpoint_every = int(scene.output.checkpoint_every)
@@ -144,14 +101,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             exporter.write(frame, t, snap)
         export_wait[0] += time.perf_counter() - t0
 
-    run_info = {
-        "scene": scene.to_dict(), "versions": versions(), "device": str(sim.device),
-        "model": sim.summary(), "fluid_particles": sim.model.fluid_count,
-        "boundary_particles": sim.model.boundary_count, "frames_requested": total,
-        "fps": scene.fps, "step_graph": [{"stage": s.name, "reads": list(s.reads), "writes": list(s.writes),
-                                         "updates": list(s.updates), "doc": s.doc} for s in sim.graph.stages],
-        "frames": frame_log, "status": "running", "out": str(out),
-    }
+    run_info = _run_info(scene, sim, total, frame_log, out)
     if resume_info is not None:
         run_info["scene"] = resume_info[0]["scene"]  # as stored: checkpoints hash it
     digest = scene_hash(run_info["scene"])
@@ -166,19 +116,11 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["export_wait_time"] = export_wait[0]
         run_info["export"] = exporter.report()
         run_info["threaded_export"] = worker is not None
-        # per step of this session, the first step apart: its stages load (or compile) the kernels
-        rows = run_info["stage_times"]
-        steps_here = max((t["calls"] for t in rows), default=0)
-        run_info["first_step_time"] = sum(t["first_call_seconds"] for t in rows)
-        steady = sum(t["seconds"] - t["first_call_seconds"] for t in rows)
-        run_info["sim_time_per_step_ms"] = 1e3 * (steady / (steps_here - 1) if steps_here > 1
-                                                  else run_info["first_step_time"])
+        _step_times(run_info)
         rf.atomic_write_json(out / rf.RUN_JSON, run_info)
 
     if exporter.far:
-        log(f"note: the scene lies up to {world_float32_error(sim) * 2.0**24:.4g} m from (0, 0, 0), where float32 "
-            f"world coordinates round positions by up to {world_float32_error(sim):.2g} m; the USD holds points "
-            "relative to /sph's double-precision translate and recorded frames keep x in float64")
+        _note_far_from_origin(sim, log)
     bar = Progress(total, enabled=progress)
     status = "failed"
     started = resume_info is not None
@@ -214,18 +156,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     finally:
         bar.close()
         failing = status != "completed"  # an exception is on its way out
-        errors: list[BaseException] = []
-        if worker is not None:
-            t0 = time.perf_counter()
-            try:
-                worker.finish()  # re-raises an export error (disk full, ...)
-            except BaseException as exc:
-                errors.append(exc)
-            export_wait[0] += time.perf_counter() - t0
-        try:
-            exporter.close()
-        except BaseException as exc:
-            errors.append(exc)
+        errors = _close_outputs(worker, exporter, export_wait)
         if errors and status == "completed":
             status = "failed"
         if started:
@@ -241,6 +172,134 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             for exc in errors:  # the first error is the one reported
                 print(f"warp-sph: also: {exc}", file=sys.stderr)
     return run_info
+
+
+def _default_frames(scene) -> int:
+    """Frames of a whole run, the initial one included: duration * fps + 1."""
+    return int(round(scene.duration * scene.fps)) + 1
+
+
+def _read_resume(out: Path, frames: int | None) -> tuple:
+    """(scene, total frames, run.json) of the run in ``out``: the scene as run.json stores it; frames
+    as given, else as that run requested, else the whole duration."""
+    from ..scene import scene_from_dict
+
+    info = rf.read_run_json(out)
+    scene = scene_from_dict(info["scene"], source=str(out / rf.RUN_JSON))
+    frames = frames or info.get("frames_requested")
+    total = frames if frames is not None else _default_frames(scene)
+    return scene, total, info
+
+
+def _note_far_from_origin(sim: Simulation, log) -> None:
+    """Say how much float32 world coordinates would round a scene far from the origin, and that the
+    outputs avoid it."""
+    log(f"note: the scene lies up to {world_float32_error(sim) * 2.0**24:.4g} m from (0, 0, 0), where float32 "
+        f"world coordinates round positions by up to {world_float32_error(sim):.2g} m; the USD holds points "
+        "relative to /sph's double-precision translate and recorded frames keep x in float64")
+
+
+def _resume_start(sim: Simulation, out: Path, total: int, info: dict, cp_path: Path, cp, log) -> tuple:
+    """(start frame, frame log, exporter) of a resume: the checkpoint checked against ``sim`` and the
+    frames asked for, its state restored, the outputs cut back to it."""
+    check_checkpoint(cp, cp_path, info["scene"], sim, log=log)
+    start_frame = int(cp["frame"])
+    if total < start_frame:
+        raise WarpSphError(f"{out}: its latest checkpoint is frame {start_frame}; resume with --frames >= {start_frame} "
+                           f"(got {total})")
+    frame_log = _restore_state(sim, cp, info, start_frame)
+    return start_frame, frame_log, _resume_outputs(sim, out, start_frame, log)
+
+
+def _restore_state(sim: Simulation, cp, info: dict, start_frame: int) -> list[dict]:
+    """Put checkpoint ``cp`` into ``sim``: x (model frame), v, step, frame, time, the solver's and the
+    bodies' arrays, the density and the last frame's statistics (with the max speed that sizes the
+    next substep). Returns the frame log up to ``start_frame`` (the checkpoint's, else run.json's)."""
+    sim.state.particle_x.assign(wp.array(cp["particle_x_local"], dtype=wp.vec3, device=sim.device))
+    sim.state.particle_v.assign(wp.array(cp["particle_v"], dtype=wp.vec3, device=sim.device))
+    sim.state.step = int(cp["step"])
+    sim.state.frame = int(cp["state_frame"])
+    sim.state.time = float(cp["time"])
+    sim.solver.restore_arrays(cp)
+    if sim.bodies is not None:
+        sim.bodies.restore_arrays(cp)
+    sim.refresh_density()
+    sim.last_frame = sim.statistics()
+    sim.last_frame.max_speed = float(cp["last_max_speed"])
+    if "frame_log" in cp:
+        return json.loads(str(cp["frame_log"]))
+    return [f for f in info.get("frames", []) if f["frame"] <= start_frame]
+
+
+def _resume_outputs(sim: Simulation, out: Path, start_frame: int, log) -> Exporter:
+    """The exporter of a resumed run; then the files of frames after ``start_frame`` are removed (said
+    in the log). The USD is checked (and cut back to the checkpoint) before any frame file goes."""
+    exporter = Exporter(sim, out, resume_after_frame=start_frame)
+    dropped = rf.truncate_run(out, start_frame)
+    later = sorted({rf._frame_number(p) for p in dropped})
+    log(f"resuming {out} from frame {start_frame} (step {sim.state.step})"
+        + (f"; removed {len(dropped)} files of frames {later[0]}..{later[-1]} written after it" if later else ""))
+    return exporter
+
+
+def _fresh_outputs(sim: Simulation, out: Path, scene, total: int) -> tuple[Exporter, list[Path]]:
+    """(exporter, folders created) of a new run in ``out``: a previous run there is cleared (--overwrite,
+    or a --resume that restarts; ``choose_run_folder`` refused it otherwise); run.json is written first, so
+    a run killed from here on leaves a folder that --resume (or --overwrite) takes; if the exporter cannot
+    start, what was created goes."""
+    if rf.is_run_folder(out):
+        rf.clear_run(out)
+    created = rf.create_run_folder(out)
+    try:
+        rf.atomic_write_json(out / rf.RUN_JSON, {"scene": scene.to_dict(), "versions": versions(),
+                                                  "frames_requested": total, "frames": [], "status": "starting",
+                                                  "out": str(out)})
+        return Exporter(sim, out), created
+    except BaseException:
+        _discard_start(out, created, usd_file(out, scene.name))
+        raise
+
+
+def _run_info(scene, sim: Simulation, total: int, frame_log: list[dict], out: Path) -> dict:
+    """run.json at the start: the scene, versions, device, model, particle counts, the step graph's
+    stages, the frame log (the same list the run appends to), status "running"."""
+    return {
+        "scene": scene.to_dict(), "versions": versions(), "device": str(sim.device),
+        "model": sim.summary(), "fluid_particles": sim.model.fluid_count,
+        "boundary_particles": sim.model.boundary_count, "frames_requested": total,
+        "fps": scene.fps, "step_graph": [{"stage": s.name, "reads": list(s.reads), "writes": list(s.writes),
+                                         "updates": list(s.updates), "doc": s.doc} for s in sim.graph.stages],
+        "frames": frame_log, "status": "running", "out": str(out),
+    }
+
+
+def _step_times(run_info: dict) -> None:
+    """first_step_time [s] and sim_time_per_step_ms from run_info's stage_times: per step of this
+    session, the first step apart (its stages load or compile the kernels)."""
+    rows = run_info["stage_times"]
+    steps_here = max((t["calls"] for t in rows), default=0)
+    run_info["first_step_time"] = sum(t["first_call_seconds"] for t in rows)
+    steady = sum(t["seconds"] - t["first_call_seconds"] for t in rows)
+    run_info["sim_time_per_step_ms"] = 1e3 * (steady / (steps_here - 1) if steps_here > 1
+                                              else run_info["first_step_time"])
+
+
+def _close_outputs(worker: ExportThread | None, exporter: Exporter, export_wait: list[float]) -> list[BaseException]:
+    """Drain the export thread (its wait added to ``export_wait[0]``) and close the exporter; the errors
+    either raised (an export error such as a full disk is re-raised by the thread), in order."""
+    errors: list[BaseException] = []
+    if worker is not None:
+        t0 = time.perf_counter()
+        try:
+            worker.finish()  # re-raises an export error (disk full, ...)
+        except BaseException as exc:
+            errors.append(exc)
+        export_wait[0] += time.perf_counter() - t0
+    try:
+        exporter.close()
+    except BaseException as exc:
+        errors.append(exc)
+    return errors
 
 
 def _discard_start(out: Path, created: list[Path], usd: Path) -> None:

@@ -1,5 +1,5 @@
 """Triangle meshes for obstacles: loading (OBJ, STL, PLY via meshio; USD via usd-core),
-surface sampling at a particle spacing, and an inside test.
+surface sampling at a particle spacing (of a mesh, or of a box: ``box_surface``), and an inside test.
 
 Everything here is host-side NumPy in float64; positions are in metres, Z up.
 """
@@ -190,6 +190,33 @@ def sample_surface(mesh: TriangleMesh, spacing: float) -> tuple[np.ndarray, np.n
     normals = np.concatenate(inner_n + edge_n)
     keep_idx = greedy_thin(points, SURFACE_MIN_DISTANCE * spacing)
     return points[keep_idx], normals[keep_idx]
+
+
+def box_surface(lo, hi, spacing: float, inward: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the six faces of the box lo..hi [m] on a square lattice about ``spacing`` apart.
+
+    Each edge of length L gets n = max(1, round(L / spacing)) intervals; edge and corner points
+    appear once. Returns (points (K, 3), unit normals (K, 3)); normals point into the box when
+    ``inward`` (container walls), out of it otherwise (obstacles); the normalised sum at edges.
+    """
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    n = np.maximum(1, np.round((hi - lo) / spacing)).astype(np.int64)
+    faces = []
+    for axis in range(3):
+        a, b = [x for x in range(3) if x != axis]
+        ia, ib = np.meshgrid(np.arange(n[a] + 1), np.arange(n[b] + 1), indexing="ij")
+        for side in (0, n[axis]):
+            idx = np.zeros((ia.size, 3), dtype=np.int64)
+            idx[:, axis] = side
+            idx[:, a] = ia.ravel()
+            idx[:, b] = ib.ravel()
+            faces.append(idx)
+    idx = np.unique(np.concatenate(faces), axis=0)
+    points = lo + idx * ((hi - lo) / n)
+    normals = (idx == 0).astype(np.float64) - (idx == n).astype(np.float64)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return points, (normals if inward else -normals)
 
 
 def greedy_thin(points: np.ndarray, min_distance: float) -> np.ndarray:

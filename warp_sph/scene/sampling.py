@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.errors import SceneError
-from .meshes import load_triangle_mesh, points_inside, sample_surface
+from .meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
 from .types import FluidBlock, Scene
 
 #: Points this close (relative to d) are one point (overlapping fluid blocks, shared boundary).
@@ -136,33 +136,6 @@ class PointGrid:
         return best
 
 
-def box_surface(lo, hi, spacing: float, inward: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Points on the six faces of the box lo..hi [m] on a square lattice about ``spacing`` apart.
-
-    Each edge of length L gets n = max(1, round(L / spacing)) intervals; edge and corner points
-    appear once. Returns (points (K, 3), unit normals (K, 3)); normals point into the box when
-    ``inward`` (container walls), out of it otherwise (obstacles); the normalised sum at edges.
-    """
-    lo = np.asarray(lo, dtype=np.float64)
-    hi = np.asarray(hi, dtype=np.float64)
-    n = np.maximum(1, np.round((hi - lo) / spacing)).astype(np.int64)
-    faces = []
-    for axis in range(3):
-        a, b = [x for x in range(3) if x != axis]
-        ia, ib = np.meshgrid(np.arange(n[a] + 1), np.arange(n[b] + 1), indexing="ij")
-        for side in (0, n[axis]):
-            idx = np.zeros((ia.size, 3), dtype=np.int64)
-            idx[:, axis] = side
-            idx[:, a] = ia.ravel()
-            idx[:, b] = ib.ravel()
-            faces.append(idx)
-    idx = np.unique(np.concatenate(faces), axis=0)
-    points = lo + idx * ((hi - lo) / n)
-    normals = (idx == 0).astype(np.float64) - (idx == n).astype(np.float64)
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    return points, (normals if inward else -normals)
-
-
 def lattice_block(block: FluidBlock, spacing: float, region=None) -> np.ndarray:
     """Lattice points [m] of one fluid block, clipped to ``region`` = (lo, hi) or None.
 
@@ -257,7 +230,7 @@ def sample_scene(scene: Scene) -> SampledScene:
         keep &= grid.nearest_distance(fluid_x, gap) >= gap * (1.0 - _EPS)
     body_geometries, body_samples, body_x = [], [], np.zeros((0, 3))
     if scene.bodies:  # moving bodies: fluid inside them, or within the gap of their (inset) particles, goes
-        from ..rigid.checks import inside_body
+        from ..rigid.spec import inside_body
         from ..rigid.sampling import sample_scene_bodies
 
         body_geometries, body_samples, body_x = sample_scene_bodies(scene)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..core.buffers import ArrayPool
 from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_compaction as _dev
 from .grid import launch
@@ -32,24 +33,23 @@ def drop_degenerate(triangles: wp.array, vertex_map: wp.array, vertex_index: wp.
 
 
 def drop_merged_vertices(vertex_x: wp.array, triangles: wp.array, vertex_map: wp.array, vertex_index: wp.array,
-                         get, device) -> tuple[wp.array, wp.array]:
+                         pool: ArrayPool, device) -> tuple[wp.array, wp.array]:
     """(kept vertices (V',) vec3 [m], triangles (T,) vec3i renumbered to them): the vertices the map
-    kept (vertex_map[v] == v), in order. ``get(name, n, dtype)`` returns a scratch array of at least
-    n entries (the caller's pool)."""
+    kept (vertex_map[v] == v), in order; scratch arrays come from the caller's ``pool``."""
     nv, nt = len(vertex_x), len(triangles)
-    kept = get("kept", nv, wp.int32)
-    kept_scan = get("kscan", nv, wp.int32)
+    kept = pool.get("kept", nv, wp.int32)
+    kept_scan = pool.get("kscan", nv, wp.int32)
     launch(_dev.kept_vertices, nv, [vertex_map], [kept], device=device, min_range=LIGHT_MIN_RANGE)
     wp.utils.array_scan(kept[:nv], kept_scan[:nv], inclusive=True)
     n_kept = int(kept_scan[nv - 1: nv].numpy()[0]) if nv else 0
-    x_out = get("x_out", n_kept, wp.vec3)[:n_kept]
+    x_out = pool.get("x_out", n_kept, wp.vec3)[:n_kept]
     launch(_dev.compact_vertices, nv, [vertex_x, kept, kept_scan], [x_out, vertex_index], device=device,
            min_range=LIGHT_MIN_RANGE)
-    ones = get("ones", nt, wp.int32)[:nt]
+    ones = pool.get("ones", nt, wp.int32)[:nt]
     ones.fill_(1)
-    alive_scan = get("ascan", nt, wp.int32)
+    alive_scan = pool.get("ascan", nt, wp.int32)
     wp.utils.array_scan(ones, alive_scan[:nt], inclusive=True)
-    t_out = get("t_out", nt, wp.vec3i)[:nt]
+    t_out = pool.get("t_out", nt, wp.vec3i)[:nt]
     launch(_dev.compact_triangles, nt, [triangles, ones, alive_scan, vertex_index], [t_out], device=device,
            min_range=LIGHT_MIN_RANGE)
     return x_out, t_out

@@ -16,6 +16,7 @@ import math
 import numpy as np
 import warp as wp
 
+from ..core.buffers import ArrayPool
 from ..core.errors import SceneError
 from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_decimation as _dev
@@ -61,16 +62,8 @@ class Decimator:
         self.min_cos = math.cos(math.radians(max_turn_deg))
         self.device = device
         self.rounds = 0
-        self._arrays: dict[str, wp.array] = {}
+        self._buf: ArrayPool | None = None  # on the device of the first call
         self._conn: MeshConnectivity | None = None
-
-    def _get(self, name, n, dtype):
-        a = self._arrays.get(name)
-        n = max(int(n), 1)
-        if a is None or a.shape[0] < n:
-            a = wp.empty(max(n, int(1.5 * (a.shape[0] if a is not None else 0))), dtype=dtype, device=self.device)
-            self._arrays[name] = a
-        return a
 
     def decimate(self, vertex_x: wp.array, triangles: wp.array) -> tuple[wp.array, wp.array]:
         """Decimated (vertices (V',) vec3 [m], triangles (T',) vec3i); the inputs are not changed."""
@@ -78,26 +71,27 @@ class Decimator:
         if self.device is None or self._conn is None:
             self.device = dev
             self._conn = MeshConnectivity(dev)
+            self._buf = ArrayPool(dev)
         nv, nt = len(vertex_x), len(triangles)
-        x = self._get("x", nv, wp.vec3)[:nv]
+        x = self._buf.get("x", nv, wp.vec3)[:nv]
         wp.copy(x, vertex_x)
-        tris = self._get("tris", nt, wp.vec3i)[:nt]
+        tris = self._buf.get("tris", nt, wp.vec3i)[:nt]
         wp.copy(tris, triangles)
-        tris_b = self._get("tris_b", nt, wp.vec3i)
-        vmap = self._get("map", nv, wp.int32)
-        vindex = self._get("vindex", nv, wp.int32)
-        blocked = self._get("blocked", nv, wp.int32)
+        tris_b = self._buf.get("tris_b", nt, wp.vec3i)
+        vmap = self._buf.get("map", nv, wp.int32)
+        vindex = self._buf.get("vindex", nv, wp.int32)
+        blocked = self._buf.get("blocked", nv, wp.int32)
         identity_maps(nv, vmap, vindex, blocked, dev)
-        quadric = self._get("q", nv, wp.mat44)
-        best_key = self._get("bk", nv, wp.int64)
-        best_cost = self._get("bc", nv, float)
-        best_other = self._get("bo", nv, wp.int32)
-        best_slot = self._get("bs", nv, wp.int32)
-        collapsed = self._get("col", nv, wp.int32)
-        collapsed_sum = self._get("cols", nv, wp.int32)
-        locked = self._get("locked", nv, wp.int32)
-        alive = self._get("alive", nt, wp.int32)
-        alive_scan = self._get("ascan", nt, wp.int32)
+        quadric = self._buf.get("q", nv, wp.mat44)
+        best_key = self._buf.get("bk", nv, wp.int64)
+        best_cost = self._buf.get("bc", nv, float)
+        best_other = self._buf.get("bo", nv, wp.int32)
+        best_slot = self._buf.get("bs", nv, wp.int32)
+        collapsed = self._buf.get("col", nv, wp.int32)
+        collapsed_sum = self._buf.get("cols", nv, wp.int32)
+        locked = self._buf.get("locked", nv, wp.int32)
+        alive = self._buf.get("alive", nt, wp.int32)
+        alive_scan = self._buf.get("ascan", nt, wp.int32)
         max_cost = self.max_error**2 if self.max_error > 0.0 else float(np.finfo(np.float32).max)
         cost_scale = max_cost / 64.0 if self.max_error > 0.0 else (1e-3 * self.length_scale) ** 2
         conn = self._conn.build(nv, tris)
@@ -106,8 +100,8 @@ class Decimator:
         self.rounds = 0
         while self.rounds < self.max_rounds and nt > 0 and not (self.triangle_budget and nt <= self.triangle_budget):
             self.rounds += 1
-            cost = self._get("ecost", 6 * nt, float)
-            ex = self._get("ex", 6 * nt, wp.vec3)
+            cost = self._buf.get("ecost", 6 * nt, float)
+            ex = self._buf.get("ex", 6 * nt, wp.vec3)
             launch(_dev.edge_costs, nv, [x, quadric, blocked, conn.face_start, conn.neighbors, conn.neighbor_count],
                    [cost, ex], device=dev, min_range=_RANGE)
             collapsed.zero_()
@@ -138,4 +132,4 @@ class Decimator:
                 break
             conn = self._conn.build(nv, tris)
         # drop the vertices collapses removed, renumber the triangles
-        return drop_merged_vertices(x, tris, vmap, vindex, self._get, dev)
+        return drop_merged_vertices(x, tris, vmap, vindex, self._buf, dev)

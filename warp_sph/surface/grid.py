@@ -1,8 +1,9 @@
 """Sparse narrow-band grid of the fluid surface: which particles are spray, which blocks of grid
 nodes can hold the iso-surface, and the colour field Phi on those blocks only.
 
-Device code: ``kernels/surface_grid.py`` (the field: ``field.py``, ``kernels/surface_field.py``).
-One call of :meth:`SparseGrid.build`:
+Device code: ``kernels/surface_grid.py``. Steps 1-3 are one call of :meth:`SparseGrid.build`;
+step 4 is ``band.classify(grid)`` and step 5 ``field.compute_field(grid)``, separate modules that
+read the built grid (they import this one, never the reverse):
 
 1. particle bounds (one host read), grid origin and block size B (nodes per block edge, so that
    a block edge B c >= max(support radius, band radius));
@@ -31,6 +32,7 @@ import threading
 import numpy as np
 import warp as wp
 
+from ..core.buffers import ArrayPool
 from ..core.errors import SimulationError
 from ..core import launch as _launch_module
 from ..core.launch import LIGHT_MIN_RANGE
@@ -71,24 +73,6 @@ def lattice_weighted_count(support_radius: float, spacing: float) -> float:
     return float(np.sum(1.0 - r2 / support_radius**2))
 
 
-class _Buffers:
-    """Device arrays reused across calls, grown (x1.5) when a call needs more."""
-
-    def __init__(self, device):
-        self.device = device
-        self._arrays: dict[str, wp.array] = {}
-
-    def get(self, name: str, n: int, dtype, width: int | None = None) -> wp.array:
-        n = max(int(n), 1)
-        a = self._arrays.get(name)
-        if a is None or a.shape[0] < n:
-            cap = max(n, int(1.5 * (a.shape[0] if a is not None else 0)))
-            shape = cap if width is None else (cap, width)
-            a = wp.empty(shape, dtype=dtype, device=self.device)
-            self._arrays[name] = a
-        return a
-
-
 class SparseGrid:
     """Blocks of grid nodes around the particles, particle statistics and Phi on the band.
 
@@ -123,7 +107,7 @@ class SparseGrid:
         self.surface_count = float(surface_fraction) * self.lattice_count
         # GPU: one thread per node layer of a block; CPU: one per block (threads split over blocks)
         self.slabs = 1 if self.device.is_cpu else self.block_nodes
-        self._buf = _Buffers(self.device)
+        self._buf = ArrayPool(self.device)
         self._bounds_init = wp.array([math.inf] * 3 + [-math.inf] * 3 + [0.0], dtype=float, device=self.device)
         self.exact = False
         self.particle_count = 0
@@ -155,11 +139,11 @@ class SparseGrid:
         return runs, run_key, run_start, run_len
 
     def build(self, particle_x: wp.array) -> None:
-        """Sort, classify and build the band for the positions ``particle_x`` [m] (wp.array of vec3).
+        """Sort and classify the particles at ``particle_x`` [m] (wp.array of vec3): steps 1-3.
 
         Afterwards: ``sorted_index`` (sorted -> particle), ``particle_flag`` (sorted order:
-        SPRAY / INTERIOR / SURFACE), ``weighted_count`` (sorted order), and the band (call
-        :meth:`compute_field`)."""
+        SPRAY / INTERIOR / SURFACE), ``weighted_count`` (sorted order), and the candidate blocks
+        (then ``band.classify(grid)`` and ``field.compute_field(grid)``)."""
         n = len(particle_x)
         self.particle_count = n
         dev = self.device
@@ -223,20 +207,6 @@ class SparseGrid:
         launch(_dev.classify_particles, n, [self.spray_neighbors, self.surface_count, self.neighbor_count,
                                             self.weighted_count, self.kernel_sum],
                [self.particle_flag, self.inv_kernel_sum], device=dev, min_range=LIGHT_MIN_RANGE)
-
-    def classify(self, exact: bool = False) -> bool:
-        """Band, inside and outside blocks and the meshed blocks (``band.py``); False when the band
-        missed part of the surface (classify again with exact=True)."""
-        from .band import classify
-
-        return classify(self, exact)
-
-    def compute_field(self) -> wp.array:
-        """Phi on the nodes of the meshed blocks: B^3 values per block (``field``); ghost blocks hold
-        1 (inside) or 0 (outside). See ``field.py``."""
-        from .field import compute_field
-
-        return compute_field(self)
 
     # -- host views ------------------------------------------------------------------------------
     def spray_mask(self) -> np.ndarray:

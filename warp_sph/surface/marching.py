@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..core.buffers import ArrayPool
 from ..core.errors import SimulationError
 from ..kernels import surface_marching as _dev
 from .grid import BLOCK_MIN_RANGE, SparseGrid, launch
@@ -23,17 +24,9 @@ class MarchingCubes:
         self.tri_range = wp.array(np.asarray(_dev.TRI_RANGE_TABLE, np.int32), dtype=wp.int32, device=self.device)
         self.tri_edges = wp.array(np.asarray(_dev.TRI_EDGE_TABLE, np.int32), dtype=wp.int32, device=self.device)
         self.edge_owner = wp.array(np.asarray(_dev.EDGE_OWNER_FLAT, np.int32), dtype=wp.int32, device=self.device)
-        self._arrays: dict[str, wp.array] = {}
+        self._buf = ArrayPool(self.device)
         self.vertex_count = 0
         self.triangle_count = 0
-
-    def _get(self, name, n, dtype):
-        a = self._arrays.get(name)
-        n = max(int(n), 1)
-        if a is None or a.shape[0] < n:
-            a = wp.empty(max(n, int(1.5 * (a.shape[0] if a is not None else 0))), dtype=dtype, device=self.device)
-            self._arrays[name] = a
-        return a
 
     def count(self, grid: SparseGrid, iso_level: float) -> int:
         """Pass 1: crossing edges and cases of every node; returns the crossing edges with an end whose
@@ -41,12 +34,12 @@ class MarchingCubes:
         units = grid.meshed_count * grid.slabs
         b = grid.block_nodes
         self.units = units
-        self.node_code = self._get("code", grid.meshed_count * b**3, wp.int32)
-        self.unit_vertices = self._get("uv", units, wp.int32)
-        self.unit_triangles = self._get("ut", units, wp.int32)
-        unit_inexact = self._get("ui", units, wp.int32)
-        block_min = self._get("bmin", grid.meshed_count, float)
-        block_max = self._get("bmax", grid.meshed_count, float)
+        self.node_code = self._buf.get("code", grid.meshed_count * b**3, wp.int32)
+        self.unit_vertices = self._buf.get("uv", units, wp.int32)
+        self.unit_triangles = self._buf.get("ut", units, wp.int32)
+        unit_inexact = self._buf.get("ui", units, wp.int32)
+        block_min = self._buf.get("bmin", grid.meshed_count, float)
+        block_max = self._buf.get("bmax", grid.meshed_count, float)
         launch(_dev.block_value_range, grid.meshed_count, [b, grid.field], [block_min, block_max], device=self.device,
                min_range=BLOCK_MIN_RANGE)
         launch(_dev.count_cells, units, [b, grid.slabs, float(iso_level), grid.field, grid.meshed_upper,
@@ -64,10 +57,10 @@ class MarchingCubes:
         b = grid.block_nodes
         if units == 0:
             self.vertex_count = self.triangle_count = 0
-            return (self._get("vx", 1, wp.vec3)[:0], self._get("vb", 1, wp.int32)[:0],
-                    self._get("tri", 1, wp.vec3i)[:0])
-        v_start = self._get("uvs", units, wp.int32)
-        t_start = self._get("uts", units, wp.int32)
+            return (self._buf.get("vx", 1, wp.vec3)[:0], self._buf.get("vb", 1, wp.int32)[:0],
+                    self._buf.get("tri", 1, wp.vec3i)[:0])
+        v_start = self._buf.get("uvs", units, wp.int32)
+        t_start = self._buf.get("uts", units, wp.int32)
         wp.utils.array_scan(self.unit_vertices[:units], v_start[:units], inclusive=False)
         wp.utils.array_scan(self.unit_triangles[:units], t_start[:units], inclusive=False)
         tail = np.stack([v_start[units - 1: units].numpy(), self.unit_vertices[units - 1: units].numpy(),
@@ -75,11 +68,11 @@ class MarchingCubes:
         n_v = int(tail[0, 0] + tail[1, 0])
         n_t = int(tail[2, 0] + tail[3, 0])
         self.vertex_count, self.triangle_count = n_v, n_t
-        node_vertex = self._get("nv", grid.meshed_count * b**3, wp.int32)
-        vertex_x = self._get("vx", n_v, wp.vec3)
-        vertex_block = self._get("vb", n_v, wp.int32)
-        triangles = self._get("tri", n_t, wp.vec3i)
-        missing = self._get("um", units, wp.int32)
+        node_vertex = self._buf.get("nv", grid.meshed_count * b**3, wp.int32)
+        vertex_x = self._buf.get("vx", n_v, wp.vec3)
+        vertex_block = self._buf.get("vb", n_v, wp.int32)
+        triangles = self._buf.get("tri", n_t, wp.vec3i)
+        missing = self._buf.get("um", units, wp.int32)
         launch(_dev.emit_vertices, units,
                [wp.vec3(*grid.grid_origin), grid.cell_size, b, grid.slabs, float(iso_level), grid.field,
                 grid.meshed_upper, grid.meshed_block, grid.block_coord, self.node_code, self.unit_vertices, v_start],

@@ -31,6 +31,8 @@ import numpy as np
 import warp as wp
 
 from ..core.errors import SceneError
+from .band import classify
+from .field import compute_field
 from .grid import SparseGrid, split_launches
 from .marching import MarchingCubes
 from .smoothing import SMOOTHING_SCHEMES, MeshSmoother, splashsurf_normalization
@@ -153,11 +155,11 @@ class SurfaceReconstructor:
             return empty
         exact = not self.narrow_band
         while True:
-            consistent = grid.classify(exact=exact)
+            consistent = classify(grid, exact=exact)
             t = self._tick(timings, "band", t)
             inexact = 0
             if consistent:
-                grid.compute_field()
+                compute_field(grid)
                 t = self._tick(timings, "field", t)
                 inexact = mc.count(grid, self.iso_level)
                 t = self._tick(timings, "extraction", t)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from ..core.buffers import ArrayPool
 from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_smoothing as _dev
 from .grid import SparseGrid, launch
@@ -32,26 +33,18 @@ class MeshConnectivity:
 
     def __init__(self, device):
         self.device = wp.get_device(device)
-        self._arrays: dict[str, wp.array] = {}
-
-    def _get(self, name, n, dtype):
-        a = self._arrays.get(name)
-        n = max(int(n), 1)
-        if a is None or a.shape[0] < n:
-            a = wp.empty(max(n, int(1.5 * (a.shape[0] if a is not None else 0))), dtype=dtype, device=self.device)
-            self._arrays[name] = a
-        return a
+        self._buf = ArrayPool(self.device)
 
     def build(self, vertex_count: int, triangles: wp.array) -> MeshConnectivity:
         nv, nt = int(vertex_count), len(triangles)
         dev = self.device
         self.vertex_count = nv
-        self.face_count = self._get("fcount", nv, wp.int32)
-        self.face_start = self._get("fstart", nv, wp.int32)
-        cursor = self._get("fcursor", nv, wp.int32)
-        self.faces = self._get("faces", 3 * nt, wp.int32)
-        self.neighbors = self._get("nbr", 6 * nt, wp.int32)
-        self.neighbor_count = self._get("ncount", nv, wp.int32)
+        self.face_count = self._buf.get("fcount", nv, wp.int32)
+        self.face_start = self._buf.get("fstart", nv, wp.int32)
+        cursor = self._buf.get("fcursor", nv, wp.int32)
+        self.faces = self._buf.get("faces", 3 * nt, wp.int32)
+        self.neighbors = self._buf.get("nbr", 6 * nt, wp.int32)
+        self.neighbor_count = self._buf.get("ncount", nv, wp.int32)
         if nv == 0:
             return self
         self.face_count.zero_()
@@ -85,14 +78,12 @@ class MeshSmoother:
         self.support_radius = float(support_radius)
         self.normalization = float(weighted_count_normalization)
         self.connectivity = MeshConnectivity(self.device)
-        self._arrays: dict[str, wp.array] = {}
-
-    _get = MeshConnectivity._get
+        self._buf = ArrayPool(self.device)
 
     def weights(self, grid: SparseGrid, vertex_x: wp.array, vertex_block: wp.array) -> wp.array:
         """w in [0, 1] per vertex (1: bulk fluid, smoothed fully; 0: droplets and thin features)."""
         n = len(vertex_x)
-        w = self._get("w", n, float)
+        w = self._buf.get("w", n, float)
         launch(_dev.feature_weights, n, [self.support_radius, self.normalization, vertex_x, vertex_block,
                                   grid.block_neighbor, grid.block_start, grid.block_count, grid.sorted_x,
                                   grid.weighted_count, grid.inv_kernel_sum], [w], device=self.device)
@@ -100,7 +91,7 @@ class MeshSmoother:
 
     def _volume(self, x: wp.array, triangles: wp.array) -> float:
         nt = len(triangles)
-        terms = self._get("vol", nt, float)[:nt]
+        terms = self._buf.get("vol", nt, float)[:nt]
         launch(_dev.volume_terms, nt, [x, triangles], [terms], device=self.device, min_range=LIGHT_MIN_RANGE)
         return float(wp.utils.array_sum(terms)) / 6.0
 
@@ -112,8 +103,8 @@ class MeshSmoother:
         that gives back the enclosed volume (Laplacian steps shrink convex parts). "taubin": a
         lambda and a mu step per iteration (keeps the volume, but passes waves longer than ~10 edges)."""
         n = len(vertex_x)
-        a = self._get("xa", n, wp.vec3)[:n]
-        b = self._get("xb", n, wp.vec3)[:n]
+        a = self._buf.get("xa", n, wp.vec3)[:n]
+        b = self._buf.get("xb", n, wp.vec3)[:n]
         wp.copy(a, vertex_x)
         restore = scheme == "laplacian" and triangles is not None and len(triangles) > 0 and iterations > 0
         if restore:
@@ -126,8 +117,8 @@ class MeshSmoother:
                 a, b = b, a
         if restore:
             # V(delta) ~ V1 + delta sum_v w_v A_v: solve for V(delta) = V0 (two Newton steps)
-            area = self._get("warea", n, float)[:n]
-            normal = self._get("wnormal", n, wp.vec3)[:n]
+            area = self._buf.get("warea", n, float)[:n]
+            normal = self._buf.get("wnormal", n, wp.vec3)[:n]
             for _ in range(2):
                 volume1 = self._volume(a, triangles)
                 launch(_dev.weighted_vertex_area, n, [a, weight, triangles, conn.face_start, conn.face_count,
@@ -143,8 +134,8 @@ class MeshSmoother:
     def normals(self, vertex_x: wp.array, triangles: wp.array, conn: MeshConnectivity, iterations: int) -> wp.array:
         """Unit area-weighted vertex normals, then ``iterations`` one-ring averaging steps."""
         n = len(vertex_x)
-        a = self._get("na", n, wp.vec3)[:n]
-        b = self._get("nb", n, wp.vec3)[:n]
+        a = self._buf.get("na", n, wp.vec3)[:n]
+        b = self._buf.get("nb", n, wp.vec3)[:n]
         launch(_dev.vertex_normals, n, [vertex_x, triangles, conn.face_start, conn.face_count, conn.faces], [a],
                device=self.device, min_range=LIGHT_MIN_RANGE // 4)
         for _ in range(int(iterations)):

@@ -194,8 +194,3 @@ class WcsphSolver(Solver):
     def summary(self) -> dict:
         return {"stiffness": self.stiffness, "equation_of_state": self.config.equation_of_state,
                 "acoustic_period": 2.0 * self.model.support_radius / max(self.model.speed_of_sound, 1e-30)}
-
-    @staticmethod
-    def speed_of_sound_from_stiffness(stiffness: float, rest_density: float, equation_of_state: str) -> float:
-        """c_s [m/s] of an equation of state: sqrt(k / rho0) (linear), sqrt(7 B / rho0) (Tait)."""
-        return math.sqrt((7.0 if equation_of_state == "tait" else 1.0) * stiffness / rest_density)
