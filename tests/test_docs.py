@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from test_blender import BLENDER_PYTHON  # the Python with bpy that the Blender tests use
+
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 README = ROOT / "README.md"
@@ -309,8 +311,8 @@ def test_scripting_example_adds_its_stage():
     assert str(names) in code  # the list the example prints is the default solver's graph plus the stage
 
 
-@pytest.mark.skipif(not (os.environ.get("WARP_SPH_BPY_PYTHON") or __import__("importlib").util.find_spec("bpy")),
-                    reason="bpy (Blender as a Python module) is not installed; WARP_SPH_BPY_PYTHON names a Python with it")
+@pytest.mark.skipif(BLENDER_PYTHON is None, reason="no Python with bpy (Blender as a Python module): `make test` "
+                    "installs bpy 5.0.1 into .venv/blender, or set WARP_SPH_BLENDER_PYTHON (see tests/test_blender.py)")
 @pytest.mark.slow
 def test_blender_render_example(tmp_path):
     """The Blender page's render script imports a run and renders a frame with its materials."""
@@ -322,7 +324,7 @@ def test_blender_render_example(tmp_path):
                         "--set", "particle_radius=0.05", "--no-progress"], cwd=tmp_path, capture_output=True,
                        text=True, timeout=600, env=_env())
     assert r.returncode == 0, r.stderr
-    python = os.environ.get("WARP_SPH_BPY_PYTHON", sys.executable)
+    python = BLENDER_PYTHON
     r = subprocess.run([python, str(script), "--", str(tmp_path / "run" / "drop_into_pool.usdc"), "3"],
                        cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
