@@ -46,6 +46,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Mapping
 
+import numpy as np
 import warp as wp
 
 from ..core.step_graph import Stage
@@ -152,15 +153,26 @@ class Force(MethodBase):
         return []
 
     def carried_fields(self) -> tuple[str, ...]:
-        """Workspace fields that outlive a substep (inputs of the step graph), e.g. a warm start."""
+        """Workspace fields that outlive a substep (inputs of the step graph), e.g. a warm start. Allocate
+        them with ``sim.allocate`` (one value per fluid particle) when the force is built: they then follow
+        the particle-order permutation, and the default ``checkpoint_arrays`` / ``restore_arrays`` save and
+        restore them (name them after the force, e.g. ``weiler2018_dv``)."""
         return ()
 
     def checkpoint_arrays(self) -> dict[str, Any]:
-        """Arrays a resume needs (names prefixed with the force's name), by name."""
-        return {}
+        """Arrays a resume needs, by name (default: the carried fields)."""
+        return {name: self.sim.fields[name] for name in self.carried_fields()}
 
     def restore_arrays(self, arrays: Mapping[str, Any]) -> None:
-        """Restore what ``checkpoint_arrays`` saved."""
+        """Restore what ``checkpoint_arrays`` saved (default: the carried fields; zero when absent)."""
+        for name in self.carried_fields():
+            field = self.sim.fields[name]
+            if name in arrays:
+                a = arrays[name]
+                field.assign(a if isinstance(a, wp.array) else wp.array(np.asarray(a), dtype=field.dtype,
+                                                                         device=field.device))
+            else:
+                field.zero_()
 
     def instability_hint(self, rule: str, stage: str | None) -> str | None:
         """The likely cause of a watchdog finding in this force's terms, or None."""

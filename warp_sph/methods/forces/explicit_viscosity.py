@@ -76,7 +76,7 @@ class ExplicitViscosity(Force):
         if fixed <= 0.0 and per_frame > MAX_SUBSTEPS_PER_FRAME:
             fail(key, f"{nu:g} m^2/s needs the explicit viscous time-step bound {bound:.3g} s ({formula}): "
                  f"{per_frame:.3g} substeps per frame, more than {MAX_SUBSTEPS_PER_FRAME}; use {implicit}, or at most "
-                 f"{nu * per_frame / MAX_SUBSTEPS_PER_FRAME:.3g} m^2/s")
+                 f"{nu * MAX_SUBSTEPS_PER_FRAME / per_frame:.3g} m^2/s for the explicit method")
 
     def stages(self, slot: ForceSlot) -> list[Stage]:
         m = self.model
