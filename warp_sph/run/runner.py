@@ -221,6 +221,7 @@ def _restore_state(sim: Simulation, cp, info: dict, start_frame: int) -> list[di
     sim.state.frame = int(cp["state_frame"])
     sim.state.time = float(cp["time"])
     sim.solver.restore_arrays(cp)
+    sim.forces.restore_arrays(cp)
     if sim.bodies is not None:
         sim.bodies.restore_arrays(cp)
     sim.refresh_density()

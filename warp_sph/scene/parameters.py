@@ -11,7 +11,7 @@ Key paths: ``particle_radius`` (top level), ``material.rest_density`` (a table),
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from ..core.smoothing import SMOOTHING_KERNELS
@@ -132,8 +132,10 @@ _AFTER_METHODS = (
     _P("material.rest_density", "float", "kg/m^3", 1000.0, "rest density rho0 (water 1000; 1e-3..1e5 covers "
        "every liquid and keeps float32 sums exact)", ge=1e-3, le=1e5),
     _P("material.viscosity", "float", "m^2/s", 0.0, "kinematic viscosity, explicit (SPlisHSPlasH "
-       "'standard' form); needs dt <= 0.0625 (H_s/2)^2 / nu", ge=0.0),
-    _P("material.xsph", "float", "-", 0.0, "XSPH velocity smoothing factor (report eq. 21)", ge=0.0, le=1.0),
+       "'standard' form); needs dt <= 0.0625 (H_s/2)^2 / nu; sets [[forces]] method = \"explicit_viscosity\" "
+       "(docs/forces.md)", ge=0.0),
+    _P("material.xsph", "float", "-", 0.0, "XSPH velocity smoothing factor (report eq. 21); sets [[forces]] "
+       "method = \"xsph\"", ge=0.0, le=1.0),
     _P("material.boundary_friction", "float", "-", 0.0, "Akinci boundary friction sigma (report eq. 22-24); "
        "explicit: needs dt <= 0.0625 (H_s/2)^2 / nu_b with nu_b = sigma h c_s / (2 rho0)", ge=0.0),
 )
@@ -263,6 +265,20 @@ def _method_rows() -> tuple[Param, ...]:
         if cls.parameters:
             rows.append(_P(name, "table", "-", {}, cls.section_doc or f"{cls.title} settings"))
             rows.extend(cls.parameters)
+    return tuple(rows) + _force_rows(registry.forces())
+
+
+def _force_rows(forces: dict) -> tuple[Param, ...]:
+    """``[[forces]]``: the array, its ``method`` and each force's keys as ``forces[<method>].<key>``."""
+    rows = [
+        _P("forces", "tables", "-", [], "non-pressure forces ([[forces]], docs/forces.md), at most one of each kind: "
+           + "; ".join(f"{name} ({cls.kind.replace('_', ' ')}): {cls.title}" for name, cls in forces.items()),
+           default_text="none"),
+        _P("forces[].method", "str", "-", REQUIRED, "the force method; its keys are the rows forces[<method>].<key>",
+           choices=tuple(forces)),
+    ]
+    for name, cls in forces.items():
+        rows.extend(replace(p, path=f"forces[{name}].{p.key}") for p in cls.parameters)
     return tuple(rows)
 
 
