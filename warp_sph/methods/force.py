@@ -50,14 +50,12 @@ import numpy as np
 import warp as wp
 
 from ..core.step_graph import Stage
+from . import registry
+from .force_apply import FORCE_ACCELERATION, apply_stage as _apply_stage
+from .registry import FORCE_KINDS, FORCE_MODES
 from .solver import MethodBase, TimeStepBound
 
-#: the families a force belongs to; a scene has at most one force of each
-FORCE_KINDS = ("vorticity", "surface_tension", "viscosity", "drag", "filter")
-#: the phases of a slot, in the order they run (module docstring)
-FORCE_MODES = ("explicit", "implicit", "filter")
-#: the workspace field the explicit forces add their accelerations to [m/s^2]
-FORCE_ACCELERATION = "force_acceleration"
+#: (FORCE_ACCELERATION, the workspace field the explicit forces add into, lives in force_apply.py)
 
 
 @dataclass(frozen=True)
@@ -204,7 +202,6 @@ class ForceEntry:
 def scene_forces(scene) -> list[ForceEntry]:
     """The forces of ``scene``: its ``[[forces]]`` entries and the forces set by legacy keys
     (``material.viscosity``, ``material.xsph``, ``pbf.vorticity``), in scene order then legacy order."""
-    from . import registry
 
     out = [ForceEntry(registry.force(c.method), c, f"forces[{i}]") for i, c in enumerate(scene.forces)]
     for name, cls in registry.forces().items():
@@ -219,7 +216,6 @@ def scene_forces(scene) -> list[ForceEntry]:
 
 def _legacy_value(scene, path: str):
     """The value of legacy key ``path`` when it is set to something other than its default, else None."""
-    from . import registry
     from ..scene.parameters import all_parameters
 
     section, _, key = path.rpartition(".")
@@ -236,7 +232,6 @@ def _legacy_value(scene, path: str):
 def check_scene_forces(scene, fail) -> None:
     """Validation of the scene's forces (``scene.validate``): one of each kind, hosted by the solver, each
     force's own cross-checks. ``fail(keypath, message)`` raises."""
-    from . import registry
 
     solver_cls = registry.solver(scene.solver)
     seen: dict[str, ForceEntry] = {}
@@ -302,9 +297,7 @@ class SimulationForces:
         """v += dt force_acceleration + the boundary method's non-pressure velocity change (None when the
         scene has neither). The boundary term's force on the walls (m a_boundary [N]) is added to
         ``boundary_force``."""
-        from .force_apply import apply_stage
-
-        return apply_stage(self.sim, slot, self.has_explicit, name)
+        return _apply_stage(self.sim, slot, self.has_explicit, name)
 
     def implicit_stages(self, slot: ForceSlot) -> list[Stage]:
         return [s for f in self.of_mode("implicit") for s in f.stages(slot)]

@@ -9,7 +9,9 @@ from ..core.launch import launch
 from ..core.step_graph import Stage
 from ..kernels import force_apply as _apply
 from ..kernels import neighbors as _neighbors_dev
-from .force import FORCE_ACCELERATION
+
+#: the per-particle acceleration [m/s^2] explicit forces add into (read from the same v) before one v += dt a
+FORCE_ACCELERATION = "force_acceleration"
 
 
 def apply_stage(sim, slot, with_forces: bool, name: str = "apply_forces") -> Stage | None:

@@ -16,6 +16,10 @@ import pkgutil
 from ..core.errors import SceneError
 
 DEFAULT_SOLVER = "dfsph"
+#: the families a force belongs to; a scene has at most one force of each
+FORCE_KINDS = ("vorticity", "surface_tension", "viscosity", "drag", "filter")
+#: the phases of a slot, in the order they run (warp_sph.methods.force)
+FORCE_MODES = ("explicit", "implicit", "filter")
 DEFAULT_BOUNDARY = "akinci2012"
 #: table names a method section may not take
 RESERVED_SECTIONS = frozenset({"material", "time", "container", "fluid", "obstacles", "output", "name",
@@ -65,7 +69,6 @@ def register_boundary(cls):
 def register_force(cls):
     """Class decorator: make ``cls`` (a ``warp_sph.methods.force.Force``) the force ``cls.name`` (a scene's
     ``[[forces]] method``)."""
-    from .force import FORCE_KINDS, FORCE_MODES
 
     if cls.kind not in FORCE_KINDS:
         raise ValueError(f"force {cls.__name__}: kind must be one of {', '.join(FORCE_KINDS)}, got {cls.kind!r}")
