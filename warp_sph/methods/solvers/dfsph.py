@@ -236,8 +236,8 @@ class DfsphSolver(DfsphSearch, Solver):
     def run_source(self, sim, dt) -> None:
         m, f = self.model, sim.fields
         launch(_dfsph.density_source, m.fluid_count,
-               [m.rest_density, wp.vec3(*m.gravity), float(dt), float(self.config.warm_start), self.nl.fluid,
-                f["dfsph_pairs"], f["particle_density"], f["particle_v"]],
+               [m.rest_density, wp.vec3(*m.gravity), float(dt), float(self.config.warm_start), self.error_share(dt),
+                self.nl.fluid, f["dfsph_pairs"], f["particle_density"], f["particle_v"]],
                [f["dfsph_pressure"], f["dfsph_density_source"]], device=m.device)
 
     def run_pressure(self, sim, dt) -> None:
