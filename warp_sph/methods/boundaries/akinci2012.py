@@ -26,7 +26,9 @@ class Akinci2012(BoundaryMethod):
     def sample(cls, scene):
         """The scene's particles (``BoundaryMethod.sample``) with the fluid next to the static walls relaxed
         to rest density (``akinci2012_start.relax_start``: where walls meet, the flat-wall gap leaves the
-        first layer up to 0.8 % over-dense, which every solver would turn into motion)."""
+        first layer up to 0.8 % over-dense, which every solver would turn into motion). Adds
+        ``sampled.start_rounds`` (projection rounds run) and ``sampled.start_error`` (the largest
+        over-density before them) [-]."""
         from .akinci2012_start import relax_start
 
         sampled = super().sample(scene)
