@@ -63,19 +63,20 @@ def _sum(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return np.stack([np.bincount(index, weights=values[:, k], minlength=n) for k in range(values.shape[1])], axis=1)
 
 
-def relax_start(scene, fluid_x: np.ndarray, boundary_x: np.ndarray) -> tuple[np.ndarray, int, float]:
+def relax_start(scene, fluid_x: np.ndarray, boundary_x: np.ndarray,
+                movable: np.ndarray | None = None) -> tuple[np.ndarray, int, float]:
     """Fluid positions [m] moved until no particle within reach of the walls reads more than START_TOLERANCE
     over rest density (at most START_ROUNDS rounds of the projection in the module docstring); returns
     (positions, rounds, largest over-density before) [m, -, -]. Positions farther than 2 H_s from every
-    boundary particle are not moved."""
+    boundary particle, or where ``movable`` (bool per particle) is False, are not moved."""
     fluid_x = np.array(fluid_x, dtype=np.float64).reshape(-1, 3)
     boundary_x = np.asarray(boundary_x, dtype=np.float64).reshape(-1, 3)
     if not len(fluid_x) or not len(boundary_x):
         return fluid_x, 0, 0.0
     name, h, support = scene.smoothing_kernel, scene.smoothing_length, scene.support_radius
     volume = calibrated_mass(name, h, scene.spacing, 1.0)  # m / rho0 [m^3]
-    near = np.nonzero(PointGrid(boundary_x, 2.0 * support).nearest_distance(fluid_x, 2.0 * support)
-                      < 2.0 * support)[0]
+    reach = PointGrid(boundary_x, 2.0 * support).nearest_distance(fluid_x, 2.0 * support) < 2.0 * support
+    near = np.nonzero(reach if movable is None else reach & np.asarray(movable, dtype=bool))[0]
     if not len(near):
         return fluid_x, 0, 0.0
     bi, bk = point_pairs(boundary_x, boundary_x, support)
