@@ -559,7 +559,7 @@ def energy_above_floor(sim) -> float:
 def corner_block(solver: str, fixed_dt: float, fps: float = 500.0, **kw):
     """The issue's corner block: 0.3 m of water in the corner of a 0.6 m box, r = 0.025 m (125 particles);
     sampled, its corner and edge particles are 0.79 % and 0.26 % over rest density (the wall gap is calibrated
-    on a flat wall); the Akinci sampling relaxes that to 0.03 %."""
+    on a flat wall); for WCSPH the Akinci sampling relaxes that to 0.03 %."""
     base = {"name": "corner", "particle_radius": 0.025, "fps": fps, "solver": solver,
             "container": {"min": [0.0, 0.0, 0.0], "max": [0.6, 0.6, 0.6]},
             "fluid": [{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.3, 0.3, 0.3]}],
@@ -571,8 +571,7 @@ def corner_block(solver: str, fixed_dt: float, fps: float = 500.0, **kw):
 def test_smaller_fixed_step_does_not_kick_the_walls(solver, steps):
     """Issue #36 finding 1: the corner block over 4 ms at smaller and smaller fixed steps. Main turned the
     walls' start-up over-density into a velocity ~ e d / dt in the first step (DFSPH 26 m/s, PBF 32 m/s at
-    1e-5 s; 2.6 and 3.2 m/s at 1e-4 s); now the start is relaxed and what is left is corrected over half
-    the adaptive step (without that share the relaxed start still fails at 1e-5 s). Bounds: the
+    1e-5 s; 2.6 and 3.2 m/s at 1e-4 s); now it is corrected over half the adaptive step. Bounds: the
     fastest particle below a tenth of sqrt(2 g H) (H = 0.3 m, the speed of a collapsed block) and no faster
     than at 1e-3 s plus 0.1 m/s; the energy never above 1.001 of the initial total."""
     bound = math.sqrt(2 * 9.81 * 0.3)
@@ -630,13 +629,14 @@ def test_stiff_wcsph_gains_no_energy(wcsph):
 
 
 def test_akinci_start_is_at_rest_density_in_corners():
-    """The corner block's sampled start: 0.79 % over rest density at the corner before the relaxation
-    (``akinci2012_start``), at most its tolerance after it, measured by the run's own density stage; the
-    particles moved by less than 1 % of d."""
+    """The corner block's sampled start for WCSPH (``Solver.relaxed_start``): 0.79 % over rest density at the
+    corner before the relaxation (``akinci2012_start``), at most its tolerance after it, measured by the run's
+    own density stage; the particles moved by less than 1 % of d."""
     from warp_sph.methods.boundaries.akinci2012_start import START_TOLERANCE
     from warp_sph.scene.sampling import sample_scene
 
-    sim = corner_block("dfsph", 0.0)
+    assert corner_block("dfsph", 0.0).sampled.start_rounds == 0  # DFSPH and PBF: error_share instead
+    sim = corner_block("wcsph", 0.0)
     assert sim.sampled.start_error == pytest.approx(0.0079, abs=2e-4)
     assert 0 < sim.sampled.start_rounds < 10
     assert sim.statistics().density_error_max <= START_TOLERANCE + 1e-5

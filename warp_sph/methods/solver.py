@@ -89,6 +89,11 @@ class Solver(MethodBase):
     #: ``sim.per_substep_step``; False: one step size per frame, for the frame's speed plus |g| frame_dt
     #: (no read between substeps). Scenes with moving bodies always use one step per frame.
     time_step_per_substep: ClassVar[bool] = False
+    #: True: the solver needs a start at rest density (a boundary method that can, relaxes the sampled fluid
+    #: next to its walls before the first step: ``boundaries/akinci2012_start.py``). A weakly compressible
+    #: solver stores an over-dense start as elastic energy ~ c_s^2 delta^2 / 2 per kg and releases it as
+    #: motion; DFSPH and PBF spread its correction over the adaptive step (``error_share``)
+    relaxed_start: ClassVar[bool] = False
     #: the stage after which the fluid's force on moving bodies is gathered (module docstring); None:
     #: the solver does not write ``boundary_pressure_term`` and scenes with bodies are refused
     body_coupling_after: ClassVar[str | None] = None

@@ -43,6 +43,7 @@ class WcsphSolver(Solver):
     name = "wcsph"
     title = "weakly compressible SPH (Becker & Teschner 2007)"
     body_coupling_after = "forces"  # the wall's p/rho^2 is its boundary_pressure_term
+    relaxed_start = True  # an over-dense start is elastic energy ~ c_s^2 delta^2 / 2 per kg (issue #36)
     section_doc = "weakly compressible SPH settings"
     parameters = (
         Param("wcsph.equation_of_state", "str", "-", "linear", "p = k (rho/rho0 - 1) (linear) or "
