@@ -203,6 +203,7 @@ def density_source(
     gravity: wp.vec3,
     dt: float,
     warm_start: float,
+    error_share: float,
     # In:
     fluid_neighbors: NeighborList,
     pairs: DfsphPairs,
@@ -214,9 +215,11 @@ def density_source(
     source_out: wp.array(dtype=float),
 ):
     """Source of the density solve for the predicted velocities v* = v + dt g:
-    b_i = (1 - rho_hat_i) - dt delta_i(v*) [-] (a uniform dt g cancels in the fluid pairs and
-    enters only the boundary term). Warm start, in place: P_i <- warm_start P_i (the last step's P
-    [m^2/s^2]) where the predicted density rho_hat_i + dt delta_i(v*) exceeds 1, else 0."""
+    b_i = s min(1 - rho_hat_i, 0) + max(1 - rho_hat_i, 0) - dt delta_i(v*) [-] (a uniform dt g
+    cancels in the fluid pairs and enters only the boundary term): the over-density already at x
+    is corrected by the share s = ``error_share`` in this step (Baumgarte; 1 at the adaptive step),
+    an under-dense particle keeps all its room. Warm start, in place: P_i <- warm_start P_i (the
+    last step's P [m^2/s^2]) where b_i < 0 (the particle is predicted over-dense), else 0."""
     i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
     vi = particle_v[i]
     div = wp.dot(vi + dt * gravity, pairs.boundary_gradient[i]) - pairs.boundary_velocity[i]
@@ -226,6 +229,8 @@ def density_source(
         div += wp.dot(vi - particle_v[pairs.index[k]], pairs.gradient[k])
         k += 1
     deficit = 1.0 - particle_density[i] / rest_density
+    if deficit < 0.0:
+        deficit = error_share * deficit
     b = deficit - dt * div
     source_out[i] = b
     p = float(0.0)

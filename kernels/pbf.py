@@ -4,7 +4,8 @@ Units (SPlisHSPlasH convention, physics notes section 4): V = m / rho0 [m^3] is 
 a fluid particle, V_b the Akinci volume of a boundary particle [m^3];
 
     rho_i / rho0 = V sum_j W_ij + sum_b V_b W_ib                        (report eq. 7/13)
-    C_i          = max(rho_i / rho0 - 1, 0)                             (eq. 17)         [-]
+    C_i          = max(rho_i / rho0 - 1 - o_i, 0)                       (eq. 17)         [-]
+                   (o_i: the share of the error at x left to later steps, ``constraint_offset``)
     grad_j C_i   = -V grad_i W_ij,  grad_i C_i = V sum_j grad_i W_ij + sum_b V_b grad_i W_ib
                                                                         (eq. 20)         [1/m]
     lambda_i     = -C_i / (|grad_i C_i|^2 + sum_j |grad_j C_i|^2 + eps) (eq. 19)         [m^2]
@@ -76,6 +77,22 @@ def constraint_lambda(ratio: float, grad_i: wp.vec3, grad_sq: float, relaxation_
     return wp.vec2(c, lam)
 
 
+@wp.kernel(enable_backward=False)
+def constraint_offset(
+    tid_offset: int,
+    # Model:
+    keep: float,
+    # In:
+    particle_constraint: wp.array(dtype=float),
+    # Out:
+    constraint_offset_out: wp.array(dtype=float),
+):
+    """o_i = keep C_i [-]: the share of the error C_i at x (the step's start) that this step leaves to later
+    ones (keep = 1 - s, s the Baumgarte share ``Solver.error_share``)."""
+    i = wp.tid() + tid_offset
+    constraint_offset_out[i] = keep * particle_constraint[i]
+
+
 @wp.struct
 class PairCache:
     """Pairs of the last density pass, for the correction at the same positions (lists only).
@@ -122,6 +139,7 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
         # State in:
         fluid_neighbors: NeighborList,
         predicted_x: wp.array(dtype=wp.vec3),
+        constraint_offset: wp.array(dtype=float),
         # Out:
         particle_density_out: wp.array(dtype=float),
         particle_lambda_out: wp.array(dtype=float),
@@ -170,7 +188,7 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
                 k += 1
         pairs_out.boundary_gradient[i] = grad_b
         grad_i += grad_b
-        c_lam = constraint_lambda(ratio, grad_i, grad_sq, relaxation_epsilon)
+        c_lam = constraint_lambda(ratio - constraint_offset[i], grad_i, grad_sq, relaxation_epsilon)
         particle_density_out[i] = rest_density * ratio
         particle_lambda_out[i] = c_lam[1]
         particle_constraint_out[i] = c_lam[0]
@@ -277,6 +295,7 @@ def update_velocity(
     tid_offset: int,
     # Model:
     gravity: wp.vec3,
+    dt: float,
     inv_dt: float,
     # State in:
     predicted_x: wp.array(dtype=wp.vec3),
@@ -286,10 +305,16 @@ def update_velocity(
     # Out:
     particle_acceleration_out: wp.array(dtype=wp.vec3),
 ):
-    """v = (x* - x) / dt; x = x*; a = (v_new - v_old) / dt [m/s^2] (v in holds v_old + dt g)."""
+    """v = (x* - x) / dt; x = x*; a = (v_new - v_old) / dt [m/s^2] (v in holds v_old + dt g). The
+    velocity is formed as v + (x* - x*_pred) / dt, with x*_pred = x + dt v recomputed as
+    ``predict_positions`` formed it: equal in exact arithmetic, but it keeps v to float32 precision
+    where (x* - x) / dt would round it to ulp(x) / dt (at dt = 1e-5 s and |x| = 0.3 m, 3 mm/s: gravity's
+    g dt^2 is below ulp(x) / 2, so a block would not start to fall)."""
     i = wp.tid() + tid_offset
     x_new = predicted_x[i]
-    v_new = (x_new - particle_x[i]) * inv_dt
+    v = particle_v[i]
+    x_pred = particle_x[i] + dt * v
+    v_new = v + (x_new - x_pred) * inv_dt
     particle_acceleration_out[i] = (v_new - particle_v[i]) * inv_dt + gravity
     particle_v[i] = v_new
     particle_x[i] = x_new

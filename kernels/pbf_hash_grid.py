@@ -43,6 +43,7 @@ def density_lambda_kernel(smoothing: str, boundary_terms):
         # State in:
         fluid_neighbors: Neighbors,
         predicted_x: wp.array(dtype=wp.vec3),
+        constraint_offset: wp.array(dtype=float),
         # Out:
         particle_density_out: wp.array(dtype=float),
         particle_lambda_out: wp.array(dtype=float),
@@ -76,7 +77,7 @@ def density_lambda_kernel(smoothing: str, boundary_terms):
                     vb = boundary_volume[b]
                     ratio += wp.static(density_term)(boundary_params, wp.static(value)(r, h), vb)
                     grad_i += wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vb)
-        c_lam = constraint_lambda(ratio, grad_i, grad_sq, relaxation_epsilon)
+        c_lam = constraint_lambda(ratio - constraint_offset[i], grad_i, grad_sq, relaxation_epsilon)
         particle_density_out[i] = rest_density * ratio
         particle_lambda_out[i] = c_lam[1]
         particle_constraint_out[i] = c_lam[0]

@@ -11,7 +11,8 @@ runner, the watchdog, pre-flight and the benchmarks use only what this class dec
 - ``refuses_boundary(boundary_cls)``: a reason to refuse a boundary method, or None;
 - ``stages()``: the step graph's stages (``warp_sph.core.step_graph.Stage``), each declaring the
   fields it reads, writes and updates; per-particle arrays live in the workspace (``sim.allocate``);
-- ``time_step_bounds(speed)``: the named bounds [s] of the adaptive step (``TimeStepBound``);
+- ``time_step_bounds(speed)``: the named bounds [s] of the adaptive step (``TimeStepBound``); ``step_floor()``:
+  the smallest step it resolves, if any;
 - ``step_statistics()`` (per substep, host values only) and ``finish_frame()`` (once per frame);
 - ``carried_fields()``: workspace fields that outlive a substep; ``refresh_density()``;
 - ``checkpoint_arrays()`` / ``restore_arrays(arrays)``: what a resume needs beyond x and v;
@@ -88,6 +89,11 @@ class Solver(MethodBase):
     #: ``sim.per_substep_step``; False: one step size per frame, for the frame's speed plus |g| frame_dt
     #: (no read between substeps). Scenes with moving bodies always use one step per frame.
     time_step_per_substep: ClassVar[bool] = False
+    #: True: the solver needs a start at rest density (a boundary method that can, relaxes the sampled fluid
+    #: next to its walls before the first step: ``boundaries/akinci2012_start.py``). A weakly compressible
+    #: solver stores an over-dense start as elastic energy ~ c_s^2 delta^2 / 2 per kg and releases it as
+    #: motion; DFSPH and PBF spread its correction over the adaptive step (``error_share``)
+    relaxed_start: ClassVar[bool] = False
     #: the stage after which the fluid's force on moving bodies is gathered (module docstring); None:
     #: the solver does not write ``boundary_pressure_term`` and scenes with bodies are refused
     body_coupling_after: ClassVar[str | None] = None
@@ -131,6 +137,24 @@ class Solver(MethodBase):
     def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
         """The solver's bounds of the step at flow speed ``speed`` [m/s]."""
         raise NotImplementedError
+
+    def step_floor(self) -> TimeStepBound | None:
+        """The smallest step [s] the solver resolves (pre-flight refuses a ``time.fixed_dt`` below it), or
+        None (no floor)."""
+        return None
+
+    def error_share(self, dt: float) -> float:
+        """Share s of the density error present at a step's start that an incompressible solver corrects
+        within a step of dt [s] (Baumgarte stabilisation): s = min(1, dt / tau) with tau half the adaptive
+        step (``Simulation.step_bound``). Correcting an over-density e in one step moves particles by
+        about e d, i.e. a velocity e d / dt: a start-up error or an impact's leftover would become a
+        kick that grows as 1/dt (issue #36: 29 m/s at a fixed 1e-5 s). With s it becomes e d / tau at
+        any smaller step. Every adaptive step is at least tau (a frame's equal substeps are between half
+        the bound and the bound), so s = 1 there; 1 also when no bound is known (steps run by hand)."""
+        bound = getattr(self.sim, "step_bound", 0.0)
+        if not bound > 0.0:
+            return 1.0
+        return min(1.0, 2.0 * dt / bound)
 
     def carried_fields(self) -> tuple[str, ...]:
         """Workspace fields that outlive a substep (inputs of the step graph besides x and v), e.g. the

@@ -170,6 +170,12 @@ def preflight_checks(scene, sim, warn: bool = True, frames: int | None = None) -
             f"{src}: time.fixed_dt: {t.fixed_dt:.4g} s is {t.fixed_dt / bound:.3g}x the {tight.name} time-step bound "
             f"{bound:.4g} s ({tight.formula}, at the scene's reference speed{set_by}){source}; set time.fixed_dt <= "
             f"{bound:.4g} or 0 for adaptive steps, which that bound clamps")
+    floor = sim.solver.step_floor()
+    if floor is not None and 0 < t.fixed_dt < floor.seconds:
+        raise SceneError(
+            f"{src}: time.fixed_dt: {t.fixed_dt:.4g} s is below the {scene.solver} solver's smallest step "
+            f"{floor.seconds:.4g} s ({floor.name}: {floor.formula}); set time.fixed_dt >= {floor.seconds:.4g}, 0 for "
+            f"adaptive steps, or use solver = \"dfsph\"")
     if t.fixed_dt == 0 and t.dt_min > bound * (1.0 + 1e-6):
         fix = (f"check {', '.join(keys) or 'those values'}: at that bound the run would need {at_bound:.3g} "
                f"substeps, more than time.max_steps = {t.max_steps:,}" if at_bound > t.max_steps

@@ -128,6 +128,7 @@ class Simulation:
         self._speed_partial = wp.zeros(max(1, -(-self.model.fluid_count // _reduce.REDUCE_CHUNK)), dtype=float,
                                        device=self.device)
         self.frame_dt = 1.0 / float(scene.fps)
+        self.step_bound = 0.0  # set by ``time_step``
         self.last_frame: FrameStatistics | None = None
         self.solver = None
         self.graph = None
@@ -231,11 +232,11 @@ class Simulation:
         [dt_min, dt_max], or the scene's fixed_dt; times the watchdog's retry factor (1 unless a frame
         was retried)."""
         t = self.scene.time
-        if t.fixed_dt > 0:
-            dt = float(t.fixed_dt)
-        else:
-            dt = min(b.seconds for b in self.time_step_bounds(max_speed))
-            dt = float(min(max(dt, t.dt_min), t.dt_max))
+        bound = min(b.seconds for b in self.time_step_bounds(max_speed))
+        #: the adaptive step at this speed [s] (also with a fixed_dt): the time over which the solvers
+        #: spread the correction of a density error present at a step's start (``Solver.error_share``)
+        self.step_bound = float(min(max(bound, t.dt_min), t.dt_max))
+        dt = float(t.fixed_dt) if t.fixed_dt > 0 else self.step_bound
         return dt * self.watchdog.dt_scale
 
     def advance_frame(self) -> FrameStatistics:

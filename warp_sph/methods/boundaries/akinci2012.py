@@ -22,6 +22,31 @@ class Akinci2012(BoundaryMethod):
     title = "Akinci et al. 2012 boundary particles (density, pressure and friction)"
     contributes_density = True
 
+    @classmethod
+    def sample(cls, scene):
+        """The scene's particles (``BoundaryMethod.sample``); for a solver that asks for it
+        (``Solver.relaxed_start``: WCSPH), with the fluid next to the static walls relaxed to rest density
+        (``akinci2012_start.relax_start``: where walls meet, the flat-wall gap leaves the first layer up to
+        0.8 % over-dense; blocks sampled with spacing_scale < 1, compressed on purpose, are left as they
+        are). Adds
+        ``sampled.start_rounds`` (projection rounds run) and ``sampled.start_error`` (the largest
+        over-density before them) [-]."""
+        import numpy as np
+
+        from ..registry import solver
+        from .akinci2012_start import relax_start
+
+        sampled = super().sample(scene)
+        sampled.start_rounds, sampled.start_error = 0, 0.0
+        if not solver(scene.solver).relaxed_start:
+            return sampled
+        # a block sampled denser than the rest spacing (spacing_scale < 1) is a compressed start on purpose
+        scales = np.array([float(b.spacing_scale) for b in scene.fluid] or [1.0])
+        movable = scales[np.asarray(sampled.fluid_block, dtype=np.int64)] >= 1.0 - 1e-9
+        sampled.fluid_x, sampled.start_rounds, sampled.start_error = relax_start(scene, sampled.fluid_x,
+                                                                                 sampled.boundary_x, movable)
+        return sampled
+
     def terms(self):
         m = self.model
         if m.boundary_particle_friction is not None:  # a moving body with its own fluid_friction

@@ -10,7 +10,9 @@ Step (one dt per substep):
   without velocity] -> divergence solve: Jacobi
   sweeps on P^v until the mean positive compression rate is below target_divergence_error / dt,
   v += dt a(P^v) -> [the scene's forces (slot "before_pressure") and the boundary method's force] -> density source for
-  v* = v + dt g -> density solve: Jacobi sweeps on P until the mean predicted over-density is below
+  v* = v + dt g (the over-density already at x enters with the share s = ``error_share(dt)``: 1 at the
+  adaptive step, 2 dt / bound for a smaller fixed step, so that it becomes a velocity e d / tau, not
+  e d / dt) -> density solve: Jacobi sweeps on P until the mean predicted over-density is below
   target_density_error -> integrate: v = v* + dt a(P), x += dt v.
 
 Both solves start from the last step's values (warm start, carried fields and checkpointed, so a
@@ -235,8 +237,8 @@ class DfsphSolver(DfsphSearch, Solver):
     def run_source(self, sim, dt) -> None:
         m, f = self.model, sim.fields
         launch(_dfsph.density_source, m.fluid_count,
-               [m.rest_density, wp.vec3(*m.gravity), float(dt), float(self.config.warm_start), self.nl.fluid,
-                f["dfsph_pairs"], f["particle_density"], f["particle_v"]],
+               [m.rest_density, wp.vec3(*m.gravity), float(dt), float(self.config.warm_start), self.error_share(dt),
+                self.nl.fluid, f["dfsph_pairs"], f["particle_density"], f["particle_v"]],
                [f["dfsph_pressure"], f["dfsph_density_source"]], device=m.device)
 
     def run_pressure(self, sim, dt) -> None:
@@ -317,7 +319,8 @@ class DfsphSolver(DfsphSearch, Solver):
             Stage("source", self.run_source,
                   reads=("neighbor_lists", "dfsph_pairs", "particle_density", "particle_v"),
                   writes=("dfsph_density_source",), updates=("dfsph_pressure",),
-                  doc=f"b = (1 - rho/rho0) - dt delta(v + dt g); warm start {p.warm_start:g} P where compressing"),
+                  doc=f"b = s min(1 - rho/rho0, 0) + max(1 - rho/rho0, 0) - dt delta(v + dt g), s = min(1, 2 dt / "
+                      f"adaptive step); warm start {p.warm_start:g} P where compressing"),
             Stage("pressure", self.run_pressure,
                   reads=("neighbor_lists", "dfsph_pairs", "dfsph_factor", "dfsph_density_source")
                   + (("dfsph_divergence_pressure",) if bodies and p.divergence_solve else ()),

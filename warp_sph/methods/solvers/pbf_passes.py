@@ -30,7 +30,7 @@ class PbfPasses:
         for name, dtype in (("particle_density", float), ("particle_lambda", float), ("pbf_constraint", float),
                             ("pbf_correction_size", float), ("position_correction", wp.vec3),
                             ("boundary_force", wp.vec3), ("particle_acceleration", wp.vec3),
-                            ("pbf_neighbor_x", wp.vec3)):
+                            ("pbf_neighbor_x", wp.vec3), ("pbf_constraint_offset", float)):
             sim.allocate(name, dtype)
         # moving bodies: sum over the step's corrections of -lambda_i / (rho0 dt^2) (``correction``)
         self._term = sim.allocate("boundary_pressure_term", float) if self.with_bodies else wp.zeros(
@@ -97,20 +97,22 @@ class PbfPasses:
             self.build_neighbors()
 
     def density_pass(self) -> None:
-        """Density, C and lambda at x* (eq. 7/13, 17, 19); the sum of C_i read once (``last_error_sum``)."""
+        """Density, C and lambda at x* (eq. 7/13, 17, 19; C less the offset o_i of the step's
+        ``pbf_constraint_offset``); the sum of C_i read once (``last_error_sum``)."""
         m, f = self.model, self.sim.fields
         bn, fn = self._neighbor_args()
         params = self.sim.boundary_params
         if self.lists:
             launch(self._density_kernel, m.fluid_count,
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon, params,
-                    bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"]],
+                    bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"], f["pbf_constraint_offset"]],
                    [f["particle_density"], f["particle_lambda"], f["pbf_constraint"], self._pair_cache()],
                    device=m.device)
         else:
             launch(self._density_kernel, m.fluid_count,
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
-                    self.query_radius, params, bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"]],
+                    self.query_radius, params, bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"],
+                    f["pbf_constraint_offset"]],
                    [f["particle_density"], f["particle_lambda"], f["pbf_constraint"]], device=m.device)
         # sum of C_i in a fixed order: chunk sums on the device, their sum on the host (one read)
         launch(_reduce.sum_chunks, self._error_partial.shape[0], [_reduce.REDUCE_CHUNK, f["pbf_constraint"]],
