@@ -14,7 +14,7 @@ Cohesion kernel (support H):  C(r) = 32/(pi H^9) (H - r)^3 r^3                 H
 Adhesion kernel:              A(r) = 0.007/H^3.25 (-4 r^2/H + 6 r - 2 H)^(1/4)   H/2 < r <= H, else 0.
 
 Pair terms are antisymmetric in ij, so the fluid's total momentum is conserved; the fluid's
-acceleration from the walls, times m, is added to the boundary force [N].
+acceleration from the walls, times m, can be added to the boundary force [N].
 """
 import functools
 
@@ -110,10 +110,9 @@ def pair_acceleration(cohesion: float, curvature: float, particle_mass: float, r
 
 
 @functools.cache
-def force_kernel(smoothing: str, with_adhesion: bool, neighbors: str = "list"):
-    """dv_i = dt a_i [m/s] of cohesion + curvature (+ adhesion to the boundary particles) added to v
-    in place; m a_i(walls) is added to the boundary force [N]. The force reads no velocity, so the
-    in-place update is race-free."""
+def force_kernel(with_adhesion: bool, with_reaction: bool, neighbors: str = "list"):
+    """a_i [m/s^2] of cohesion + curvature (+ adhesion to the boundary particles) added to
+    ``force_acceleration``; with_reaction: m a_i(walls) [N] is added to the boundary force."""
     lists = neighbors == "list"
     Neighbors = NEIGHBOR_TYPES[neighbors]
 
@@ -127,7 +126,6 @@ def force_kernel(smoothing: str, with_adhesion: bool, neighbors: str = "list"):
         cohesion: float,
         curvature: float,
         adhesion: float,
-        dt: float,
         boundary_neighbors: Neighbors,
         boundary_x: wp.array(dtype=wp.vec3),
         boundary_volume: wp.array(dtype=float),
@@ -137,7 +135,7 @@ def force_kernel(smoothing: str, with_adhesion: bool, neighbors: str = "list"):
         particle_density: wp.array(dtype=float),
         particle_normal: wp.array(dtype=wp.vec3),
         # Out (updated):
-        particle_v: wp.array(dtype=wp.vec3),
+        force_acceleration: wp.array(dtype=wp.vec3),
         boundary_force: wp.array(dtype=wp.vec3),
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
@@ -188,7 +186,8 @@ def force_kernel(smoothing: str, with_adhesion: bool, neighbors: str = "list"):
                         a_b -= (adhesion * rest_density * boundary_volume[b] * adhesion_kernel(r, support_radius)
                                 / r) * x_ib
             a += a_b
-            boundary_force[i] = boundary_force[i] + particle_mass * a_b
-        particle_v[i] = particle_v[i] + dt * a
+            if wp.static(with_reaction):
+                boundary_force[i] = boundary_force[i] + particle_mass * a_b
+        force_acceleration[i] = force_acceleration[i] + a
 
     return compute_surface_tension
