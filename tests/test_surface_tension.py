@@ -1,0 +1,114 @@
+"""Akinci 2013 surface tension as physics (research note forces.md 2.4), in "sim units" (sigma = 10 N/m,
+d = 1 cm: a period of a few tenths of a second): a zero-g cube becomes a sphere; a droplet oscillates at
+the l = 2 Rayleigh frequency of the sigma it was given (the calibration of
+``warp_sph/methods/forces/akinci2013.py``); the force conserves momentum; a flat slab stays flat;
+the capillary step bound and the scene keys. The longer calibration run is
+``python -m warp_sph.benchmarks.surface_tension`` (R/d = 10)."""
+import math
+
+import numpy as np
+import pytest
+
+from warp_sph.benchmarks import surface_tension as B
+from warp_sph.core.errors import SceneError
+from warp_sph.methods.forces import akinci2013 as st
+from warp_sph.run.simulation import Simulation
+from warp_sph.scene import scene_from_dict
+
+SIGMA = 10.0  # N/m, sim units
+
+
+def test_cube_relaxes_to_a_sphere(device):
+    """A 10^3 cube (R = 6.2 d) in zero g: sphericity 0.85 -> > 0.95 and gyration anisotropy < 0.05 within
+    1.5 Rayleigh periods, at the capillary step bound; nothing flies off."""
+    sim = Simulation(B.droplet_scene(6.2, SIGMA, "cube"), device=device)
+    m = sim.model
+    x0 = sim.get_field("particle_x").astype(np.float64)
+    assert B.sphericity(x0) < 0.9
+    dt = st.capillary_step(m.rest_density, m.spacing, SIGMA)
+    assert min(b.seconds for b in sim.time_step_bounds(0.0)) <= dt
+    period = 2 * math.pi / B.rayleigh_omega(SIGMA, m.rest_density, 6.2 * m.spacing)
+    for _ in range(int(1.5 * period / dt)):
+        sim.step(dt)
+    x = sim.get_field("particle_x").astype(np.float64)
+    assert B.sphericity(x) > 0.95
+    assert B.anisotropy(x) < 0.05
+    r = np.linalg.norm(x - x.mean(0), axis=1)
+    assert r.max() < 1.3 * 6.2 * m.spacing  # no particle left the droplet
+
+
+def test_droplet_oscillates_at_the_rayleigh_frequency(device):
+    """A relaxed droplet of R = 6 d kicked into its l = 2 mode: the fitted omega is within 10 % of
+    sqrt(8 sigma / (rho0 R^3)) for the sigma the scene set (calibration at R/d = 10), and the total
+    momentum stays at round-off."""
+    sim = Simulation(B.droplet_scene(6.0, SIGMA), device=device)
+    m = sim.model
+    omega = B.rayleigh_omega(SIGMA, m.rest_density, 6.0 * m.spacing)
+    dt = B.STEP_FRACTION * st.capillary_step(m.rest_density, m.spacing, SIGMA)
+    run = B.oscillate(sim, 0.3 * 2 * math.pi / omega, 0.03 * omega, 2.5 * 2 * math.pi / omega, dt)
+    expected = B.rayleigh_omega(SIGMA, m.rest_density, run["radius"])
+    fit = B.fit_oscillation(run["t"], run["q"], 4.0 * expected)
+    assert fit["residual"] < 0.3  # it is an oscillation
+    assert fit["amplitude"] > 0.05 * run["radius"] ** 2 / 5
+    assert abs(fit["omega"] / expected - 1.0) < 0.10, fit
+    assert run["momentum_drift"] < 1e-5 * run["momentum_scale"]
+
+
+def test_the_force_conserves_momentum_and_pulls_the_surface_in(device):
+    """One evaluation on a jittered zero-g blob: sum_i m a_i = 0 to round-off (antisymmetric pairs);
+    surface particles are pulled towards the centre, the bulk feels almost nothing."""
+    sim = Simulation(B.droplet_scene(5.0, SIGMA), device=device)
+    rng = np.random.default_rng(0)
+    x = sim.get_field("particle_x").astype(np.float64)
+    sim.set_field("particle_x", x + rng.normal(0, 0.05 * sim.model.spacing, x.shape))
+    sim.step(1e-4)
+    a = sim.get_field("force_acceleration").astype(np.float64)
+    assert np.abs(a.sum(0)).max() < 1e-5 * np.abs(a).sum(0).max()
+    c = x - x.mean(0)
+    r = np.linalg.norm(c, axis=1)
+    outer, inner = r > r.max() - 1.5 * sim.model.spacing, r < 0.5 * r.max()
+    radial = np.sum(a * c, axis=1) / np.maximum(r, 1e-12)
+    assert np.mean(radial[outer]) < 0  # inwards
+    assert np.abs(a[inner]).mean() < 0.2 * np.abs(a[outer]).mean()
+
+
+def test_flat_slab_stays_flat(device):
+    """A 20 x 20 x 4 d slab in zero g for 0.04 s: its centre's top and bottom layers stay flat (z spread
+    < 0.05 d) and the centre of mass does not move (< 1e-4 d). Later the retracting rim reaches the
+    centre and thickens it (measured: flat to 0.02 d until 0.05 s, then the rim wave arrives)."""
+    d = 0.01
+    sc = scene_from_dict({"name": "slab", "particle_radius": d / 2, "container": False, "gravity": [0, 0, 0],
+                          "fluid": [{"min": [0, 0, 0], "max": [20 * d, 20 * d, 4 * d]}],
+                          "output": {"usd": False, "surface": False},
+                          "forces": [{"method": "akinci2013", "surface_tension": SIGMA}]})
+    sim = Simulation(sc, device=device)
+    x0 = sim.get_field("particle_x").astype(np.float64)
+    dt = st.capillary_step(sim.model.rest_density, d, SIGMA)
+    for _ in range(int(0.04 / dt)):
+        sim.step(dt)
+    x = sim.get_field("particle_x").astype(np.float64)
+    centre = (np.abs(x0[:, 0] - 0.1) < 0.04) & (np.abs(x0[:, 1] - 0.1) < 0.04)
+    for layer in (x0[:, 2] == x0[:, 2].max(), x0[:, 2] == x0[:, 2].min()):
+        assert np.ptp(x[centre & layer, 2]) < 0.05 * d
+    assert np.abs(x.mean(0) - x0.mean(0)).max() < 1e-4 * d
+
+
+def test_scene_keys_units_and_step_bound():
+    """sigma -> gamma = sigma / (c rho0^2 H^2) (linear, H^-2); the capillary bound's value; negative and
+    NaN coefficients refused naming the key; sigma = adhesion = 0 is no force."""
+    g1, k1, b1 = st.akinci_coefficients(0.0728, 0.0, 1000.0, 0.05)
+    g2, _, b2 = st.akinci_coefficients(2 * 0.0728, 0.0728, 1000.0, 0.025)
+    assert g2 == pytest.approx(8 * g1) and b1 == 0.0 and b2 == pytest.approx(g2 / 2)
+    assert k1 == pytest.approx(st.CURVATURE_WEIGHT * g1 * 1000.0)
+    assert st.capillary_step(1000.0, 0.02, 0.0728) == pytest.approx(math.sqrt(1000 * 0.02**3 / (2 * math.pi * 0.0728)))
+    base = {"name": "k", "particle_radius": 0.05, "container": False, "fluid": [{"min": [0, 0, 0], "max": [0.3] * 3}],
+            "output": {"usd": False, "surface": False}}
+    for bad in (-1.0, float("nan")):
+        for key in ("surface_tension", "adhesion"):
+            with pytest.raises(SceneError, match=rf"forces\[0\]\.{key}"):
+                scene_from_dict({**base, "forces": [{"method": "akinci2013", key: bad}]})
+    off = Simulation(scene_from_dict({**base, "forces": [{"method": "akinci2013", "surface_tension": 0.0}]}))
+    assert "surface_tension" not in off.graph.names()
+    on = Simulation(scene_from_dict({**base, "forces": [{"method": "akinci2013"}]}))
+    assert "surface_tension" in on.graph.names()
+    assert any(b.name == "capillary" for b in on.time_step_bounds(0.0))
