@@ -63,9 +63,9 @@ def test_the_force_conserves_momentum_and_pulls_the_surface_in(device):
 
 
 def test_flat_slab_stays_flat(device):
-    """A 24 x 24 x 4 d slab in zero g for 0.03 s: its centre's top and bottom layers stay flat (z spread
+    """A 24 x 24 x 4 d slab in zero g for 0.02 s: its centre's top and bottom layers stay flat (z spread
     < 0.05 d) and the centre of mass does not move (< 1e-4 d). Later the retracting rim reaches the
-    centre and thickens it (measured: flat to 0.01 d until 0.05 s, then the rim wave arrives)."""
+    centre and thickens it (measured: flat to 0.01 d until 0.025 s, 0.16 d at 0.04 s)."""
     d = 0.01
     sc = scene_from_dict({"name": "slab", "particle_radius": d / 2, "container": False, "gravity": [0, 0, 0],
                           "fluid": [{"min": [0, 0, 0], "max": [24 * d, 24 * d, 4 * d]}],
@@ -74,10 +74,10 @@ def test_flat_slab_stays_flat(device):
     sim = Simulation(sc, device=device)
     x0 = sim.get_field("particle_x").astype(np.float64)
     dt = st.capillary_step(sim.model.rest_density, d, SIGMA)
-    for _ in range(int(0.03 / dt)):
+    for _ in range(int(0.02 / dt)):
         sim.step(dt)
     x = sim.get_field("particle_x").astype(np.float64)
-    centre = (np.abs(x0[:, 0] - 0.12) < 0.04) & (np.abs(x0[:, 1] - 0.12) < 0.04)
+    centre = (np.abs(x0[:, 0] - 0.12) < 0.025) & (np.abs(x0[:, 1] - 0.12) < 0.025)
     for layer in (x0[:, 2] == x0[:, 2].max(), x0[:, 2] == x0[:, 2].min()):
         assert np.ptp(x[centre & layer, 2]) < 0.05 * d
     assert np.abs(x.mean(0) - x0.mean(0)).max() < 1e-4 * d
