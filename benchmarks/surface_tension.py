@@ -1,7 +1,8 @@
 """Surface tension on a zero-gravity droplet (research note forces.md 2.4): shape measures, the l = 2
 oscillation and the calibration of Akinci 2013's sigma (``warp_sph/methods/forces/akinci2013.py``).
 
-    python -m warp_sph.benchmarks.surface_tension [--cells 10] [--sigma 10] [--solver dfsph] [--out FILE]
+    python -m warp_sph.benchmarks.surface_tension [--cells 10] [--sigma 10] [--solver dfsph] [--kick 0.03]
+                                                  [--cost] [--out FILE]
 
 A sphere of R = cells d (sampled on the lattice) relaxes with velocities zeroed each step, then gets
 the velocity of the linear l = 2 mode, v = a (-x, -y, 2z) about its centre. The quadrupole
@@ -9,7 +10,8 @@ Q(t) = S_zz - (S_xx + S_yy)/2 of the gyration tensor S = <(x - x_c)(x - x_c)^T> 
 A e^(-beta t) cos(omega t + phi) + C; omega gives sigma_eff = omega^2 rho0 R^3 / 8 (Rayleigh 1879) and
 the calibration constant c = sigma_eff / (gamma rho0^2 H^2), with gamma the coefficient the run used.
 Writes one JSON line (to --out, default benchmarks/results/surface_tension.jsonl) with the
-constants, the fit, the particle count and the CPU time per particle-step.
+constants, the fit, the particle count and the CPU time per particle-step. ``--cost``: the CPU time
+per particle-step of the droplet with and without the force, measured in the same run.
 """
 from __future__ import annotations
 
@@ -172,6 +174,37 @@ def calibrate(cells: float = 10.0, sigma: float = 10.0, solver: str = "dfsph", s
             "momentum_drift": run["momentum_drift"]}
 
 
+def cost(cells: float = 10.0, sigma: float = 10.0, solver: str = "dfsph", steps: int = 40, rounds: int = 3) -> dict:
+    """CPU time per particle-step [us] of the same droplet with and without the force, in alternating
+    blocks of ``steps`` steps (``rounds`` of each; the fastest block kept: the two differ also by the
+    solver's iterations, a tense droplet being more compressed), and the surface_tension stage's own
+    time per particle-step and share of the step from the step graph's timing table (wall time)."""
+    from warp_sph.methods.forces import akinci2013 as st
+    from warp_sph.run.simulation import Simulation
+
+    sims = {"with": Simulation(droplet_scene(cells, sigma, "sphere", solver)),
+            "without": Simulation(droplet_scene(cells, sigma, "sphere", solver, extra={"forces": []}))}
+    m = sims["with"].model
+    dt = st.capillary_step(m.rest_density, m.spacing, sigma)
+    for sim in sims.values():
+        sim.step(dt)  # compile
+    best = {k: math.inf for k in sims}
+    for _ in range(rounds):
+        for k, sim in sims.items():
+            t0 = time.process_time()
+            for _ in range(steps):
+                sim.step(dt)
+            best[k] = min(best[k], (time.process_time() - t0) / steps)
+    table = {row["stage"]: row["ms_per_call"] for row in sims["with"].graph.timing_table()}
+    total = sum(table.values())
+    n = m.fluid_count
+    return {"solver": solver, "particles": n, "cpu_us_per_particle_step_with": 1e6 * best["with"] / n,
+            "cpu_us_per_particle_step_without": 1e6 * best["without"] / n,
+            "stage_us_per_particle_step_wall": 1e3 * table.get("surface_tension", 0.0) / n,
+            "stage_share_wall": table.get("surface_tension", 0.0) / total if total else 0.0,
+            "stage_ms_per_call_wall": table.get("surface_tension", 0.0)}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", type=float, default=10.0, help="droplet radius / particle spacing")
@@ -181,12 +214,17 @@ def main(argv=None) -> int:
     ap.add_argument("--periods", type=float, default=3.0)
     ap.add_argument("--step", type=float, default=STEP_FRACTION, help="dt / capillary bound")
     ap.add_argument("--kick", type=float, default=0.03, help="kick: surface speed / (omega R)")
+    ap.add_argument("--cost", action="store_true", help="measure the cost per particle-step instead")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "surface_tension.jsonl"))
     a = ap.parse_args(argv)
     import warp as wp
 
     wp.config.quiet = True
-    rec = calibrate(a.cells, a.sigma, a.solver, a.smoothing, a.periods, a.kick, a.step)
+    if a.cost:
+        rec = {"measure": "cost", **cost(a.cells, a.sigma, a.solver)}
+    else:
+        rec = {"measure": "calibration", **calibrate(a.cells, a.sigma, a.solver, a.smoothing, a.periods, a.kick,
+                                                     a.step)}
     rec.update({"time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": platform.node(),
                 "load": os.getloadavg()[0], "warp": wp.__version__})
     line = json.dumps(rec)
