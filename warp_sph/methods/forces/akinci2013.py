@@ -105,10 +105,7 @@ class Akinci2013(Force):
         def run(sim, dt):
             f = sim.fields
             nb = slot.neighbor_arg(sim)
-            if slot.lists:
-                bn = f["neighbor_lists"].boundary
-            else:
-                bn = m.boundary_grid_id
+            bn = slot.boundary_neighbor_arg(sim)
             launch(normals, m.fluid_count, [m.particle_mass, m.smoothing_length, m.support_radius, nb, f[positions],
                                             f["particle_density"]], [f["particle_normal"]], device=m.device)
             launch(force, m.fluid_count,
