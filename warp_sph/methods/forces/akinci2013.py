@@ -42,7 +42,7 @@ from ..solver import TimeStepBound
 
 #: sigma_eff / (gamma rho0^2 H^2) [-] for support H = 2d (the default of every kernel), measured with
 #: benchmarks/surface_tension.py (DFSPH, zero g, R/d = 10): see docs/surface_tension.md
-SIGMA_PER_GAMMA = 0.0056
+SIGMA_PER_GAMMA = 0.0050
 #: gamma_k = CURVATURE_WEIGHT gamma rho0 (module docstring)
 CURVATURE_WEIGHT = 1.0e-3
 
