@@ -11,9 +11,11 @@ surface tension sigma [N/m] and the code uses
   gamma_k = CURVATURE_WEIGHT gamma rho0               [m/s^2]         (curvature)
   beta    = adhesion / (SIGMA_PER_GAMMA rho0^2 H^2)   [m^4/(kg s^2)]  (adhesion)
 The accelerations then scale as gamma rho0 times a function of the geometry in units of H, so the
-effective surface tension is sigma_eff = c gamma rho0^2 H^2 with c depending only on the smoothing
+effective surface tension would be sigma_eff = c gamma rho0^2 H^2 with c depending only on the smoothing
 kernel and H/d: SIGMA_PER_GAMMA is c, measured from the l = 2 oscillation of a zero-gravity droplet
 (omega^2 = 8 sigma / (rho R^3), Rayleigh 1879; docs/surface_tension.md, benchmarks/surface_tension.py).
+Measured, c also varies with gamma and with the drop's size in particles: sigma is right in units and
+order of magnitude, anchored at one droplet, not a material constant.
 CURVATURE_WEIGHT = 1e-3 keeps SPlisHSPlasH's balance of the two terms at water's density (there
 gamma_k = gamma in SI numbers at rho0 = 1000 kg/m^3).
 
@@ -40,9 +42,11 @@ from ..force import Force, ForceSlot
 from ..registry import register_force
 from ..solver import TimeStepBound
 
-#: sigma_eff / (gamma rho0^2 H^2) [-] for support H = 2d (the default of every kernel), measured with
-#: benchmarks/surface_tension.py (DFSPH, zero g, R/d = 10): see docs/surface_tension.md
-SIGMA_PER_GAMMA = 0.0050
+#: sigma_eff / (gamma rho0^2 H^2) [-] for support H = 2d (the default of every kernel): the value at which a
+#: zero-g droplet of R = 10 d with sigma = 10 N/m oscillates nearest Rayleigh's l = 2 frequency (0.85 of it; DFSPH, cubic;
+#: ``python -m warp_sph.benchmarks.surface_tension``). sigma_eff is not linear in gamma nor independent of
+#: R/d at this resolution (measured c from 0.003 to 0.016): docs/surface_tension.md has the table.
+SIGMA_PER_GAMMA = 0.0056
 #: gamma_k = CURVATURE_WEIGHT gamma rho0 (module docstring)
 CURVATURE_WEIGHT = 1.0e-3
 
@@ -133,7 +137,7 @@ class Akinci2013(Force):
                               f"sigma = {sigma:g} N/m", (self.key_path(self.keypath, "surface_tension"),))]
 
     def instability_hint(self, rule: str, stage: str | None) -> str | None:
-        if stage == "surface_tension" or rule in ("non_finite", "fast"):
+        if stage == "surface_tension" and rule in ("non_finite", "fast"):
             return (f"surface tension {self.config.surface_tension:g} N/m ({self.keypath}): a coarse resolution "
                     "clusters at the surface when sigma is large; lower it or refine the particles")
         return None
