@@ -42,9 +42,9 @@ from ..force import Force, ForceSlot
 from ..registry import register_force
 from ..solver import TimeStepBound
 
-#: sigma_eff / (gamma rho0^2 H^2) [-] for support H = 2d (the default of every kernel): the value at which a
-#: zero-g droplet of R = 10 d with sigma = 10 N/m oscillates nearest Rayleigh's l = 2 frequency (0.85 of it; DFSPH, cubic;
-#: ``python -m warp_sph.benchmarks.surface_tension``). sigma_eff is not linear in gamma nor independent of
+#: sigma_eff / (gamma rho0^2 H^2) [-] for support H = 2d (the default of every kernel): the value at which
+#: a zero-g droplet of R = 10 d with sigma = 10 N/m oscillated nearest Rayleigh's l = 2 frequency (0.85 of
+#: it; DFSPH, cubic; ``python -m warp_sph.benchmarks.surface_tension``). sigma_eff is not linear in gamma nor independent of
 #: R/d at this resolution (measured c from 0.003 to 0.016): docs/surface_tension.md has the table.
 SIGMA_PER_GAMMA = 0.0056
 #: gamma_k = CURVATURE_WEIGHT gamma rho0 (module docstring)
