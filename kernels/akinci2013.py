@@ -1,0 +1,193 @@
+"""Surface tension and adhesion of Akinci, Akinci & Teschner 2013 ("Versatile Surface Tension and
+Adhesion for SPH Fluids", ACM TOG 32(6)), in SPlisHSPlasH's form (notes/forces.md section 2.1).
+
+Two passes over the fluid neighbours (H = support radius, x_ij = x_i - x_j, x^_ij = x_ij / |x_ij|):
+
+1. normals  n_i = H sum_j (m / rho_j) grad_i W_ij                       [-], |n| ~ 0 in the bulk
+2. force    a_i = - sum_j K_ij [ gamma m C(r_ij) x^_ij + gamma_k (n_i - n_j) ]
+                  - beta rho0 sum_b V_b A(r_ib) x^_ib                    [m/s^2]
+   with K_ij = 2 rho0 / (rho_i + rho_j), gamma [m^4/(kg s^2)] (cohesion), gamma_k [m/s^2] (curvature),
+   beta [m^4/(kg s^2)] (adhesion to boundary particles b of volume V_b [m^3]).
+
+Cohesion kernel (support H):  C(r) = 32/(pi H^9) (H - r)^3 r^3                 H/2 < r <= H
+                              C(r) = 32/(pi H^9) [2 (H - r)^3 r^3 - H^6/64]     0 < r <= H/2
+Adhesion kernel:              A(r) = 0.007/H^3.25 (-4 r^2/H + 6 r - 2 H)^(1/4)   H/2 < r <= H, else 0.
+
+Pair terms are antisymmetric in ij, so the fluid's total momentum is conserved; the fluid's
+acceleration from the walls, times m, can be added to the boundary force [N].
+"""
+import functools
+
+import warp as wp
+
+from .density import NEIGHBOR_TYPES
+from .neighbors import neighbor_count, particle_in_cell_order
+from .smoothing import PI, SMOOTHING_FUNCTIONS
+
+#: pairs closer than this fraction of H get no cohesion direction (coincident particles)
+MIN_DISTANCE_FRACTION = wp.constant(1.0e-5)
+
+
+@wp.func
+def cohesion_kernel(r: float, support: float) -> float:
+    """Akinci 2013 cohesion spline C(r) [1/m^3]: attracts for r > 0.273 H, repels closer, 0 past H."""
+    if r > support or r <= 0.0:
+        return 0.0
+    h3 = support * support * support
+    a = 32.0 / (PI * h3 * h3 * h3)
+    t = (support - r) * r
+    t3 = t * t * t
+    if r > 0.5 * support:
+        return a * t3
+    return a * (2.0 * t3 - h3 * h3 / 64.0)
+
+
+@wp.func
+def adhesion_kernel(r: float, support: float) -> float:
+    """Akinci 2013 adhesion spline A(r) [1/m^3]: zero inside H/2, peaks at 3H/4, zero past H."""
+    if r > support or r <= 0.5 * support:
+        return 0.0
+    q = -4.0 * r * r / support + 6.0 * r - 2.0 * support
+    return 0.007 / wp.pow(support, 3.25) * wp.pow(wp.max(q, 0.0), 0.25)
+
+
+@functools.cache
+def normals_kernel(smoothing: str, neighbors: str = "list"):
+    """n_i = H sum_j (m / rho_j) grad_i W_ij [-] (Akinci 2013 eq. 9; fluid neighbours only)."""
+    _, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    lists = neighbors == "list"
+    Neighbors = NEIGHBOR_TYPES[neighbors]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_normals(
+        tid_offset: int,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        # State in:
+        fluid_neighbors: Neighbors,
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_density: wp.array(dtype=float),
+        # Out:
+        particle_normal_out: wp.array(dtype=wp.vec3),
+    ):
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        xi = particle_x[i]
+        n = wp.vec3(0.0)
+        if wp.static(lists):
+            k = int(0)
+            k_end = int(neighbor_count(fluid_neighbors, i))
+            while k < k_end:
+                j = fluid_neighbors.index[i, k]
+                x_ij = xi - particle_x[j]
+                if wp.length(x_ij) < support_radius:
+                    n += (particle_mass / particle_density[j]) * wp.static(gradient)(x_ij, smoothing_length)
+                k += 1
+        else:
+            query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
+            j = int(0)
+            while wp.hash_grid_query_next(query, j):
+                x_ij = xi - particle_x[j]
+                if wp.length(x_ij) < support_radius:
+                    n += (particle_mass / particle_density[j]) * wp.static(gradient)(x_ij, smoothing_length)
+        particle_normal_out[i] = support_radius * n
+
+    return compute_normals
+
+
+@wp.func
+def pair_acceleration(cohesion: float, curvature: float, particle_mass: float, rest_density: float,
+                      support_radius: float, rho_i: float, rho_j: float, x_ij: wp.vec3, n_i: wp.vec3,
+                      n_j: wp.vec3) -> wp.vec3:
+    """-K_ij [gamma m C(r) x^_ij + gamma_k (n_i - n_j)] [m/s^2], K_ij = 2 rho0 / (rho_i + rho_j)."""
+    r = wp.length(x_ij)
+    k_ij = 2.0 * rest_density / (rho_i + rho_j)
+    a = -curvature * (n_i - n_j)
+    if r > MIN_DISTANCE_FRACTION * support_radius:
+        a -= (cohesion * particle_mass * cohesion_kernel(r, support_radius) / r) * x_ij
+    return k_ij * a
+
+
+@functools.cache
+def force_kernel(with_adhesion: bool, with_reaction: bool, neighbors: str = "list"):
+    """a_i [m/s^2] of cohesion + curvature (+ adhesion to the boundary particles) added to
+    ``force_acceleration``; with_reaction: m a_i(walls) [N] is added to the boundary force."""
+    lists = neighbors == "list"
+    Neighbors = NEIGHBOR_TYPES[neighbors]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_surface_tension(
+        tid_offset: int,
+        # Model:
+        particle_mass: float,
+        rest_density: float,
+        support_radius: float,
+        cohesion: float,
+        curvature: float,
+        adhesion: float,
+        boundary_neighbors: Neighbors,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        fluid_neighbors: Neighbors,
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_density: wp.array(dtype=float),
+        particle_normal: wp.array(dtype=wp.vec3),
+        # Out (updated):
+        force_acceleration: wp.array(dtype=wp.vec3),
+        boundary_force: wp.array(dtype=wp.vec3),
+    ):
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        xi = particle_x[i]
+        rho_i = particle_density[i]
+        n_i = particle_normal[i]
+        a = wp.vec3(0.0)
+        if wp.static(lists):
+            k = int(0)
+            k_end = int(neighbor_count(fluid_neighbors, i))
+            while k < k_end:
+                j = fluid_neighbors.index[i, k]
+                if j != i:
+                    x_ij = xi - particle_x[j]
+                    if wp.length(x_ij) < support_radius:
+                        a += pair_acceleration(cohesion, curvature, particle_mass, rest_density, support_radius,
+                                               rho_i, particle_density[j], x_ij, n_i, particle_normal[j])
+                k += 1
+        else:
+            query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
+            j = int(0)
+            while wp.hash_grid_query_next(query, j):
+                if j != i:
+                    x_ij = xi - particle_x[j]
+                    if wp.length(x_ij) < support_radius:
+                        a += pair_acceleration(cohesion, curvature, particle_mass, rest_density, support_radius,
+                                               rho_i, particle_density[j], x_ij, n_i, particle_normal[j])
+        if wp.static(with_adhesion):
+            a_b = wp.vec3(0.0)
+            if wp.static(lists):
+                k = int(0)
+                k_end = int(neighbor_count(boundary_neighbors, i))
+                while k < k_end:
+                    b = boundary_neighbors.index[i, k]
+                    x_ib = xi - boundary_x[b]
+                    r = wp.length(x_ib)
+                    if r < support_radius and r > MIN_DISTANCE_FRACTION * support_radius:
+                        a_b -= (adhesion * rest_density * boundary_volume[b] * adhesion_kernel(r, support_radius)
+                                / r) * x_ib
+                    k += 1
+            else:
+                bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
+                b = int(0)
+                while wp.hash_grid_query_next(bquery, b):
+                    x_ib = xi - boundary_x[b]
+                    r = wp.length(x_ib)
+                    if r < support_radius and r > MIN_DISTANCE_FRACTION * support_radius:
+                        a_b -= (adhesion * rest_density * boundary_volume[b] * adhesion_kernel(r, support_radius)
+                                / r) * x_ib
+            a += a_b
+            if wp.static(with_reaction):
+                boundary_force[i] = boundary_force[i] + particle_mass * a_b
+        force_acceleration[i] = force_acceleration[i] + a
+
+    return compute_surface_tension
