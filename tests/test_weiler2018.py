@@ -1,0 +1,184 @@
+"""Implicit viscosity (Weiler et al. 2018): the operator against a dense NumPy oracle built from
+SPlisHSPlasH's equation, its symmetry and definiteness, and the CG solve against a dense solve."""
+import numpy as np
+import pytest
+import warp as wp
+
+from warp_sph.kernels import neighbors as _neighbors
+from warp_sph.kernels import weiler2018 as _weiler
+from warp_sph.methods.forces.weiler2018 import Weiler2018Solve
+
+from sph_oracle import grad_W
+
+SPACING = 0.05
+H = SPACING            # smoothing length (cubic: support 2H)
+SUPPORT = 2.0 * H
+REST = 1000.0
+MASS = REST * SPACING**3
+
+
+class _Model:
+    particle_mass = MASS
+    rest_density = REST
+    smoothing_length = H
+    support_radius = SUPPORT
+
+
+def _packing(seed=1, n_side=(8, 7, 6)):
+    """A jittered lattice of fluid particles above one layer of wall particles, with densities near
+    rho0 and a moving wall (boundary velocities)."""
+    rng = np.random.default_rng(seed)
+    g = np.stack(np.meshgrid(*[np.arange(k) for k in n_side], indexing="ij"), -1).reshape(-1, 3)
+    x = (g + 0.5) * SPACING + rng.uniform(-0.15, 0.15, g.shape) * SPACING
+    x[:, 2] += 0.6 * SPACING
+    bg = np.stack(np.meshgrid(np.arange(-2, n_side[0] + 2), np.arange(-2, n_side[1] + 2), indexing="ij"), -1).reshape(-1, 2)
+    bx = np.column_stack([(bg + 0.5) * SPACING, np.zeros(len(bg))])
+    bvol = np.full(len(bx), 0.8 * SPACING**3) * rng.uniform(0.9, 1.1, len(bx))
+    bv = np.zeros_like(bx)
+    bv[:, 0] = 0.3  # the wall slides along x
+    rho = REST * rng.uniform(0.9, 1.05, len(x))
+    v = rng.normal(0.0, 0.5, x.shape)
+    return x, rho, v, bx, bv, bvol
+
+
+def _lists(query, points, exclude_self, device):
+    """A brute-force ``NeighborList`` (index in order of j) within the support radius."""
+    d = np.linalg.norm(query[:, None, :] - points[None, :, :], axis=-1)
+    near = d < SUPPORT
+    if exclude_self:
+        np.fill_diagonal(near, False)
+    counts = near.sum(1)
+    cap = max(int(counts.max()) if len(counts) else 1, 1) + 3  # spare slots: never read
+    index = np.zeros((len(query), cap), dtype=np.int32)
+    for i in range(len(query)):
+        js = np.nonzero(near[i])[0]
+        index[i, : len(js)] = js
+    nl = _neighbors.NeighborList()
+    nl.count = wp.array(counts.astype(np.int32), dtype=wp.int32, device=device)
+    nl.index = wp.array(index, dtype=wp.int32, device=device)
+    nl.order = wp.array(np.arange(len(query), dtype=np.int32)[::-1].copy(), dtype=wp.int32, device=device)
+    return nl
+
+
+def _oracle(x, rho, bx, bv, bvol, nu, nu_b, dt):
+    """Dense A (3n x 3n), c (b = v* + c) and the boundary blocks B_i (3x3 each) from SPlisHSPlasH's
+    matrixVecProd / computeRHS (float64)."""
+    n = len(x)
+    A = np.eye(3 * n)
+    c = np.zeros((n, 3))
+    B = np.zeros((n, 3, 3))
+    mu, mu_b = REST * nu, REST * nu_b
+    eps = 0.01 * SUPPORT**2
+    for i in range(n):
+        xij = x[i] - x
+        r2 = (xij**2).sum(1)
+        g = grad_W("cubic", xij, H)
+        for j in np.nonzero((r2 < SUPPORT**2) & (np.arange(n) != i))[0]:
+            blk = (dt / rho[i]) * 10 * mu * (MASS / rho[j]) / (r2[j] + eps) * np.outer(g[j], xij[j])
+            A[3 * i:3 * i + 3, 3 * i:3 * i + 3] -= blk
+            A[3 * i:3 * i + 3, 3 * j:3 * j + 3] += blk
+        xib = x[i] - bx
+        rb2 = (xib**2).sum(1)
+        gb = grad_W("cubic", xib, H)
+        for b in np.nonzero(rb2 < SUPPORT**2)[0]:
+            w = (dt / rho[i]) * 10 * mu_b * (REST * bvol[b] / rho[i]) / (rb2[b] + eps)
+            A[3 * i:3 * i + 3, 3 * i:3 * i + 3] -= w * np.outer(gb[b], xib[b])
+            B[i] -= w * np.outer(gb[b], xib[b])
+            c[i] -= w * np.dot(bv[b], xib[b]) * gb[b]
+    return A, c, B
+
+
+def _solver(x, rho, bx, bv, bvol, nu_b, device, tolerance=1e-5, max_iterations=200):
+    wb = nu_b > 0.0
+    s = Weiler2018Solve(len(x), "cubic", wb, tolerance, max_iterations, device)
+    arrays = dict(
+        fluid_neighbors=_lists(x, x, False, device), boundary_neighbors=_lists(x, bx, False, device),
+        boundary_x=wp.array(bx, dtype=wp.vec3, device=device), boundary_v=wp.array(bv, dtype=wp.vec3, device=device),
+        boundary_volume=wp.array(bvol, dtype=float, device=device),
+        particle_x=wp.array(x, dtype=wp.vec3, device=device), particle_density=wp.array(rho, dtype=float, device=device))
+    return s, arrays
+
+
+def _apply(s, arrays, nu, nu_b, dt, u, device):
+    """A u with the kernels (setup, then one matvec)."""
+    fn = arrays["fluid_neighbors"]
+    pairs = s._pairs_for(fn.index.shape[1])
+    wp.launch(s._setup, len(u), inputs=[0, MASS, REST, H, SUPPORT, nu, nu_b, dt, arrays["boundary_neighbors"],
+                                        arrays["boundary_x"], arrays["boundary_v"], arrays["boundary_volume"], fn,
+                                        arrays["particle_x"], arrays["particle_density"]],
+              outputs=[pairs, s.block_inverse, s.boundary_block, s.boundary_rhs], device=device)
+    p = wp.array(u, dtype=wp.vec3, device=device)
+    q = wp.zeros(len(u), dtype=wp.vec3, device=device)
+    control = wp.zeros(_weiler.CONTROL_COUNT, dtype=wp.float64, device=device)
+    wp.launch(s._matvec, len(u), inputs=[0, fn, pairs, s.boundary_block, p, control], outputs=[q], device=device)
+    return q.numpy().astype(np.float64)
+
+
+@pytest.mark.parametrize("nu_b", [0.0, 0.7])
+def test_operator_matches_oracle(device, nu_b):
+    x, rho, _, bx, bv, bvol = _packing()
+    nu, dt = 0.5, 0.004
+    A, c, B = _oracle(x, rho, bx, bv, bvol, nu, nu_b, dt)
+    s, arrays = _solver(x, rho, bx, bv, bvol, nu_b, device)
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=x.shape)
+    q = _apply(s, arrays, nu, nu_b, dt, u, device)
+    ref = (A @ u.reshape(-1)).reshape(-1, 3)
+    assert np.abs(A - np.eye(len(A))).max() > 0.1  # the viscous part is not negligible at this dt nu / H^2
+    np.testing.assert_allclose(q, ref, rtol=0, atol=2e-5 * np.abs(ref).max())
+    if nu_b > 0.0:
+        np.testing.assert_allclose(s.boundary_rhs.numpy(), c, rtol=0, atol=1e-5 * np.abs(c).max())
+        assert np.abs(c).max() > 1e-3
+    # the block-Jacobi preconditioner is the inverse of A's diagonal blocks
+    blocks = np.stack([A[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(x))])
+    np.testing.assert_allclose(np.einsum("nij,njk->nik", s.block_inverse.numpy(), blocks),
+                               np.broadcast_to(np.eye(3), blocks.shape), atol=1e-4)
+
+
+def test_operator_symmetric_positive_definite(device):
+    x, rho, _, bx, bv, bvol = _packing(seed=7)
+    nu, nu_b, dt = 2.0, 1.0, 0.005
+    s, arrays = _solver(x, rho, bx, bv, bvol, nu_b, device)
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        v, w = rng.normal(size=x.shape), rng.normal(size=x.shape)
+        Av, Aw = _apply(s, arrays, nu, nu_b, dt, v, device), _apply(s, arrays, nu, nu_b, dt, w, device)
+        assert abs(np.sum(v * Aw) - np.sum(w * Av)) <= 1e-5 * np.sqrt(np.sum(Av**2) * np.sum(w**2))
+        assert np.sum(v * Av) > np.sum(v * v)  # A = I + PSD, and the PSD part is not zero here
+    # a uniform translation is not damped by the fluid part (Galilean invariance): A u = u without walls
+    s0, arrays0 = _solver(x, rho, bx, bv, bvol, 0.0, device)
+    u = np.tile([0.3, -1.0, 2.0], (len(x), 1))
+    np.testing.assert_allclose(_apply(s0, arrays0, nu, 0.0, dt, u, device), u, atol=1e-5)
+
+
+@pytest.mark.parametrize("nu_b", [0.0, 0.7])
+def test_solve_matches_dense_solve_and_warm_start(device, nu_b):
+    x, rho, v, bx, bv, bvol = _packing(seed=5)
+    nu, dt = 5.0, 0.004  # dt nu / H^2 = 8: far past the explicit bound
+    A, c, B = _oracle(x, rho, bx, bv, bvol, nu, nu_b, dt)
+    ref = np.linalg.solve(A, (v + c).reshape(-1)).reshape(-1, 3)
+    tol = 1e-5
+    s, arrays = _solver(x, rho, bx, bv, bvol, nu_b, device, tolerance=tol)
+    vel = wp.array(v, dtype=wp.vec3, device=device)
+    warm = wp.zeros(len(x), dtype=wp.vec3, device=device)
+    force = wp.zeros(len(x), dtype=wp.vec3, device=device)
+    it, res = s.solve(
+        dt, _Model, nu, nu_b, arrays["fluid_neighbors"], arrays["boundary_neighbors"], arrays["boundary_x"],
+        arrays["boundary_v"], arrays["boundary_volume"], arrays["particle_x"], arrays["particle_density"], vel, warm,
+        force)
+    assert 1 <= it < 200 and res <= tol
+    r0 = np.linalg.norm(v + c - (A @ v.reshape(-1)).reshape(-1, 3))
+    out = vel.numpy().astype(np.float64)
+    # |A dv - r0| <= tol |r0| bounds the error by cond(A) tol |r0| / |A|; check it against the dense answer
+    assert np.linalg.norm(out - ref) <= 20 * tol * r0 + 1e-5 * np.linalg.norm(ref)
+    np.testing.assert_allclose(warm.numpy(), out - v, atol=1e-5)
+    if nu_b > 0.0:  # the walls' force on the fluid: m (c - B v_new) / dt
+        fb = MASS * (c - np.einsum("nij,nj->ni", B, out)) / dt
+        np.testing.assert_allclose(force.numpy(), fb, rtol=1e-4, atol=1e-6 * np.abs(fb).max())
+    # warm start: the same system again from the last dv converges without an iteration
+    vel.assign(wp.array(v, dtype=wp.vec3, device=device))
+    it2, res2 = s.solve(dt, _Model, nu, nu_b, arrays["fluid_neighbors"], arrays["boundary_neighbors"],
+                        arrays["boundary_x"], arrays["boundary_v"], arrays["boundary_volume"], arrays["particle_x"],
+                        arrays["particle_density"], vel, warm, force)
+    assert it2 <= 1 and res2 <= tol
+    np.testing.assert_allclose(vel.numpy(), out, atol=1e-5 * np.abs(out).max())
