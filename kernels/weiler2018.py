@@ -86,7 +86,7 @@ def setup_kernel(smoothing: str, with_boundary: bool):
         xi = particle_x[i]
         rho_i = particle_density[i]
         h = smoothing_length
-        eps = 0.01 * support_radius * support_radius
+        eps = 0.01 * h * h
         fluid_weight = 10.0 * dt * viscosity * rest_density * particle_mass / rho_i
         block = wp.identity(n=3, dtype=float)
         k = int(0)
