@@ -30,3 +30,31 @@ def add_velocity_correction(
     """v_i += dv_i [m/s]."""
     i = wp.tid() + tid_offset
     particle_v[i] = particle_v[i] + velocity_correction[i]
+
+
+@wp.kernel(enable_backward=False)
+def kick(
+    tid_offset: int,
+    # State in:
+    particle_acceleration: wp.array(dtype=wp.vec3),
+    dt: float,
+    # State in/out:
+    particle_v: wp.array(dtype=wp.vec3),
+):
+    """The velocity half of ``integrate_symplectic_euler``: v += dt a [m/s]."""
+    i = wp.tid() + tid_offset
+    particle_v[i] = particle_v[i] + dt * particle_acceleration[i]
+
+
+@wp.kernel(enable_backward=False)
+def drift(
+    tid_offset: int,
+    dt: float,
+    # State in:
+    particle_v: wp.array(dtype=wp.vec3),
+    # State in/out:
+    particle_x: wp.array(dtype=wp.vec3),
+):
+    """The position half of ``integrate_symplectic_euler``: x += dt v [m]."""
+    i = wp.tid() + tid_offset
+    particle_x[i] = particle_x[i] + dt * particle_v[i]

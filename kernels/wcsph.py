@@ -1,7 +1,8 @@
 """Weakly compressible SPH (Becker & Teschner 2007): equation of state and accelerations.
 
 Pressure acceleration (report eq. 10), the boundary method's terms (``kernels/boundary.py``: Akinci
-2012 pressure eq. 16 and friction eq. 22-24, or the penalty force eq. 12), explicit viscosity, gravity.
+2012 pressure eq. 16 and friction eq. 22-24, or the penalty force eq. 12), artificial viscosity, the
+accelerations of the scene's explicit forces (``force_acceleration``, summed before), gravity.
 """
 import functools
 
@@ -10,7 +11,19 @@ import warp as wp
 from .density import NEIGHBOR_TYPES
 from .neighbors import NoBoundaryParams, neighbor_count, particle_in_cell_order
 from .smoothing import SMOOTHING_FUNCTIONS
-from .viscosity import artificial_viscosity_acceleration, viscosity_acceleration
+
+
+@wp.func
+def artificial_viscosity_acceleration(alpha_h_c: float, particle_mass: float, rho_i: float, rho_j: float,
+                                      v_ij: wp.vec3, x_ij: wp.vec3, eps_h2: float, grad: wp.vec3) -> wp.vec3:
+    """Artificial viscosity of pair ij [m/s^2] (Monaghan 1992; Becker & Teschner 2007): -m Pi_ij grad W_ij
+    with Pi_ij = -nu min(v_ij . x_ij, 0) / (|x_ij|^2 + 0.01 h^2), nu = 2 alpha h c_s / (rho_i + rho_j);
+    alpha_h_c = alpha h c_s [m^2/s]. Only approaching pairs: it dissipates compression (impacts), not shear."""
+    vx = wp.dot(v_ij, x_ij)
+    if vx >= 0.0:
+        return wp.vec3(0.0)
+    nu = 2.0 * alpha_h_c / (rho_i + rho_j)
+    return (particle_mass * nu * vx / (wp.dot(x_ij, x_ij) + eps_h2)) * grad
 
 
 @functools.cache
@@ -44,11 +57,11 @@ def pressure_kernel(equation_of_state: str):
 
 
 @functools.cache
-def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mirrored_pressure: bool,
+def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirrored_pressure: bool,
                         neighbors: str = "grid", with_artificial_viscosity: bool = False,
                         write_pressure_term: bool = False):
     """a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij (eq. 10)
-             + 10 nu sum_j (2m/(rho_i+rho_j)) (v_ij . x_ij)/(|x_ij|^2 + 0.01 h^2) grad W_ij  (viscosity)
+             + a_forces,i (``force_acceleration``, with_forces: the scene's explicit forces)
              + sum_b [pressure_b(grad W_ib, V_b, (p/rho^2)_b) + force_b(x_ib, v_ib, ...)] + g    [m/s^2]
 
     boundary_terms: the boundary method's ``BoundaryTerms`` (``kernels/boundary.py``; None: no walls).
@@ -70,12 +83,10 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
 
     @wp.func(module="unique")
     def fluid_pair(x_ij: wp.vec3, v_ij: wp.vec3, p_rho2_i: float, p_rho2_j: float, rho_i: float, rho_j: float,
-                   particle_mass: float, h: float, eps_h2: float, viscosity: float, alpha_h_c: float) -> wp.vec3:
-        """Pressure (eq. 10), viscosity and artificial viscosity acceleration of i due to fluid neighbour j != i."""
+                   particle_mass: float, h: float, eps_h2: float, alpha_h_c: float) -> wp.vec3:
+        """Pressure (eq. 10) and artificial viscosity acceleration of i due to fluid neighbour j != i."""
         grad = wp.static(gradient)(x_ij, h)
         a = -particle_mass * (p_rho2_i + p_rho2_j) * grad
-        if wp.static(with_viscosity):
-            a += viscosity_acceleration(viscosity, particle_mass, rho_i, rho_j, v_ij, x_ij, eps_h2, grad)
         if wp.static(with_artificial_viscosity):
             a += artificial_viscosity_acceleration(alpha_h_c, particle_mass, rho_i, rho_j, v_ij, x_ij, eps_h2, grad)
         return a
@@ -101,7 +112,6 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         support_radius: float,
         rest_density: float,
         gravity: wp.vec3,
-        viscosity: float,
         alpha_h_c: float,
         boundary_params: BoundaryParams,
         boundary_neighbors: Neighbors,
@@ -114,6 +124,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
         particle_v: wp.array(dtype=wp.vec3),
         particle_density: wp.array(dtype=float),
         particle_pressure: wp.array(dtype=float),
+        force_acceleration: wp.array(dtype=wp.vec3),
         # Out:
         particle_acceleration_out: wp.array(dtype=wp.vec3),
         boundary_force_out: wp.array(dtype=wp.vec3),
@@ -142,7 +153,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
                 if j != i:
                     rho_j = particle_density[j]
                     a += fluid_pair(xi - particle_x[j], vi - particle_v[j], p_rho2_i,
-                                    particle_pressure[j] / (rho_j * rho_j), rho_i, rho_j, particle_mass, h, eps_h2, viscosity, alpha_h_c)
+                                    particle_pressure[j] / (rho_j * rho_j), rho_i, rho_j, particle_mass, h, eps_h2, alpha_h_c)
                 k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
@@ -153,7 +164,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
                     if wp.length(x_ij) < support_radius:
                         rho_j = particle_density[j]
                         a += fluid_pair(x_ij, vi - particle_v[j], p_rho2_i, particle_pressure[j] / (rho_j * rho_j),
-                                        rho_i, rho_j, particle_mass, h, eps_h2, viscosity, alpha_h_c)
+                                        rho_i, rho_j, particle_mass, h, eps_h2, alpha_h_c)
         a_boundary = wp.vec3(0.0)
         if wp.static(with_boundary):
             if wp.static(lists):
@@ -173,6 +184,8 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_viscosity: bool, mi
                         a_boundary += boundary_pair(boundary_params, b, x_ib, vi - boundary_v[b], boundary_volume[b],
                                                     p_rho2_b, rho_i, h)
         boundary_force_out[i] = particle_mass * a_boundary
+        if wp.static(with_forces):
+            a += force_acceleration[i]
         particle_acceleration_out[i] = a + a_boundary + gravity
 
     return compute_acceleration

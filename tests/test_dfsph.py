@@ -371,8 +371,8 @@ NO_OUTPUT = ["output.usd=false", "output.surface=false"]
 
 def test_graph_and_time_step():
     sim = Simulation(dfsph_scene(material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.2}))
-    assert sim.graph.names() == ["neighbors", "density", "stabilize", "divergence", "viscosity", "xsph", "source",
-                                 "pressure", "integrate"]
+    assert sim.graph.names() == ["neighbors", "density", "stabilize", "divergence", "viscosity", "apply_forces",
+                                 "xsph", "source", "pressure", "integrate"]
     bare = Simulation(dfsph_scene(container=False, gravity=[0.0, 0.0, 0.0], dfsph={"divergence_solve": False}))
     assert bare.graph.names() == ["neighbors", "density", "stabilize", "source", "pressure", "integrate"]
     m = sim.model

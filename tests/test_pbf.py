@@ -125,8 +125,8 @@ def test_position_correction_stage(tensile):
 def test_graph_and_time_step():
     sim = Simulation(pbf_scene(material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.2},
                                pbf={"vorticity": 0.01}))
-    assert sim.graph.names() == ["stabilize", "predict", "neighbors", "density", "solve", "update", "viscosity",
-                                 "xsph", "vorticity"]
+    assert sim.graph.names() == ["stabilize", "predict", "neighbors", "density", "solve", "update", "vorticity",
+                                 "viscosity", "apply_forces", "xsph"]
     bare = Simulation(pbf_scene(container=False, gravity=[0.0, 0.0, 0.0]))
     assert bare.graph.names() == ["stabilize", "predict", "neighbors", "density", "solve", "update"]
     m = sim.model

@@ -102,7 +102,7 @@ def test_pressure_stage(eos):
 def test_forces_stage(boundary, mirrored):
     sim = Simulation(small_scene(boundary=boundary, wcsph={"boundary_pressure": "mirrored" if mirrored else "eq16"}))
     x, _ = jittered(sim, seed=3, amp=0.3)
-    for name in ("neighbors", "density", "xsph", "pressure"):
+    for name in ("neighbors", "density", "xsph", "viscosity", "pressure"):  # viscosity: its acceleration
         run_stage(sim, name)
     v = sim.get_field("particle_v").astype(np.float64)
     rho = sim.get_field("particle_density").astype(np.float64)
@@ -147,7 +147,7 @@ def test_forces_stage(boundary, mirrored):
 def test_integrate_stage():
     sim = Simulation(small_scene())
     x, v = jittered(sim, seed=4)
-    for name in ("neighbors", "density", "xsph", "pressure", "forces"):
+    for name in ("neighbors", "density", "xsph", "viscosity", "pressure", "forces"):
         run_stage(sim, name)
     v1 = sim.get_field("particle_v").astype(np.float64)
     a = sim.get_field("particle_acceleration").astype(np.float64)
@@ -161,7 +161,7 @@ def test_integrate_stage():
 
 def test_graph_holds_only_what_the_scene_needs():
     full = Simulation(small_scene())
-    assert full.graph.names() == ["neighbors", "density", "xsph", "pressure", "forces", "integrate"]
+    assert full.graph.names() == ["neighbors", "density", "xsph", "viscosity", "pressure", "forces", "integrate"]
     bare = Simulation(small_scene(container=False, material={"viscosity": 0.0, "xsph": 0.0, "boundary_friction": 0.0},
                                   gravity=[0.0, 0.0, 0.0]))
     assert bare.graph.names() == ["neighbors", "density", "pressure", "forces", "integrate"]
@@ -180,7 +180,7 @@ def test_neighbor_lists_match_grid_queries(boundary):
         sim.set_solver(lists=lists)
         stages = {s.name: s for s in sim.graph.stages}
         assert ("neighbor_lists" in stages["density"].writes) == lists  # lists: search and density in one pass
-        for name in ("neighbors", "density", "xsph", "pressure", "forces"):
+        for name in ("neighbors", "density", "xsph", "viscosity", "pressure", "forces"):
             if name == "xsph":
                 v0 = sim.get_field("particle_v")
             stages[name].run(sim, 1e-4)
@@ -188,6 +188,6 @@ def test_neighbor_lists_match_grid_queries(boundary):
                 v1 = sim.get_field("particle_v")
                 sim.set_field("particle_v", v0)
         results[lists] = [sim.get_field(f) for f in ("particle_density", "particle_pressure", "particle_acceleration",
-                                                     "boundary_force")] + [v1]
+                                                     "boundary_force", "force_acceleration")] + [v1]
     for a, b in zip(results[True], results[False]):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max())

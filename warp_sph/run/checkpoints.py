@@ -2,7 +2,7 @@
 
 A checkpoint ``checkpoints/checkpoint_NNNNNN.npz`` holds the state of frame N (positions relative to
 the model origin, velocities, step, time, the max speed that sizes the next substep, the solver's
-own arrays, the rigid bodies' Newton state (``rigid_*``), the per-frame statistics so far) and what it belongs to: the layout version, the hash
+own arrays, the forces' carried arrays, the rigid bodies' Newton state (``rigid_*``), the per-frame statistics so far) and what it belongs to: the layout version, the hash
 of run.json's scene, the particle counts, the solver and the software versions. ``check_checkpoint``
 refuses one that belongs to another scene, particle count, solver or a newer layout.
 """
@@ -57,6 +57,7 @@ def checkpoint_info(sim, frame: int, frame_log: list[dict], digest: str = "") ->
     s = sim.state
     last = sim.last_frame.max_speed if sim.last_frame else 0.0
     extra = dict(sim.solver.checkpoint_arrays())
+    extra.update(sim.forces.checkpoint_arrays())  # e.g. a warm start or a carried angular velocity
     if sim.bodies is not None:  # Newton's state: a resume continues bit for bit
         extra.update(sim.bodies.checkpoint_arrays())
     # copies: on the CPU ``numpy()`` is a view of the live array, and a checkpoint is written on the

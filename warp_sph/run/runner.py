@@ -88,6 +88,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         sim.state.frame = int(cp["state_frame"])
         sim.state.time = float(cp["time"])
         sim.solver.restore_arrays(cp)
+        sim.forces.restore_arrays(cp)
         if sim.bodies is not None:
             sim.bodies.restore_arrays(cp)
         sim.refresh_density()

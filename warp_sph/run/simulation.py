@@ -28,6 +28,7 @@ from ..core.launch import launch
 from ..core.model import build_model
 from ..neighbors import GRID_DIM, NeighborGrid
 from ..core.step_graph import StepGraph
+from ..methods.force import SimulationForces
 from .watchdog import MAX_RETRIES, Watchdog, frame_substeps
 
 
@@ -129,6 +130,9 @@ class Simulation:
         self.last_frame: FrameStatistics | None = None
         self.solver = None
         self.graph = None
+        #: the scene's non-pressure forces (``warp_sph.methods.force.SimulationForces``); solvers place their
+        #: stages at their slots
+        self.forces = SimulationForces(self)
         self.set_solver(solver_cls.name, **(solver_options or {}))
         self.watchdog = Watchdog(self)
         #: sort the per-particle fields into cell order for each frame (``warp_sph.neighbors.particle_order``)
@@ -154,17 +158,20 @@ class Simulation:
             stages = self.bodies.insert_stages(stages, solver)
             self.bodies.place()  # the neighbour lists exist now: their moving grid is the workspace's
         self.solver = solver
-        self.graph = StepGraph(stages, self._inputs | set(solver.carried_fields()), device=self.device,
+        self.graph = StepGraph(stages, self._inputs | set(solver.carried_fields()) | set(self.forces.carried_fields()),
+                               device=self.device,
                                synchronize_timing=self.device.is_cuda)
         #: names of the solver's own stages (the watchdog tells them apart from stages a user inserted)
         self.solver_stage_names = set(self.graph.names())
         self.refresh_density()
 
     def summary(self) -> dict:
-        """The model's constants, the solver's (``solver``), the boundary method's (``boundary``) and the
-        rigid bodies' (``bodies``)."""
+        """The model's constants, the solver's (``solver``), the forces' (``forces``, when the scene has any),
+        the boundary method's (``boundary``) and the rigid bodies' (``bodies``)."""
         out = self.model.summary()
         out["solver"] = {"name": self.solver.name, **self.solver.summary()}
+        if len(self.forces):
+            out["forces"] = self.forces.summary()
         if self.boundary is not None:
             out["boundary"] = {"name": self.boundary.name, **self.boundary.summary()}
         if self.bodies is not None:
@@ -212,8 +219,8 @@ class Simulation:
 
     def time_step_bounds(self, speed: float) -> list:
         """Every bound of the step [s] at flow speed ``speed`` [m/s] (fluid and moving bodies): the solver's
-        and the boundary method's (``warp_sph.methods.solver.TimeStepBound``), tightest first."""
-        bounds = list(self.solver.time_step_bounds(speed))
+        the forces' and the boundary method's (``warp_sph.methods.solver.TimeStepBound``), tightest first."""
+        bounds = list(self.solver.time_step_bounds(speed)) + self.forces.time_step_bounds(speed)
         if self.boundary is not None:
             bounds += self.boundary.time_step_bounds(speed)
         return sorted(bounds, key=lambda b: b.seconds)

@@ -102,8 +102,8 @@ class Watchdog:
         self._start = (s.time, s.step, s.frame)
         self._bodies = self.sim.bodies.save() if self.sim.bodies is not None else None
         if self.mode == "retry":
-            self._extra = {k: wp.clone(a) if isinstance(a, wp.array) else a
-                           for k, a in self.sim.solver.checkpoint_arrays().items()}
+            arrays = {**self.sim.solver.checkpoint_arrays(), **self.sim.forces.checkpoint_arrays()}
+            self._extra = {k: wp.clone(a) if isinstance(a, wp.array) else a for k, a in arrays.items()}
 
     def restore(self) -> None:
         s = self.sim.state
@@ -112,6 +112,7 @@ class Watchdog:
         s.time, s.step, s.frame = self._start
         if self._extra:
             self.sim.solver.restore_arrays(self._extra)
+            self.sim.forces.restore_arrays(self._extra)
         if self._bodies is not None:  # the bodies' Newton state and their boundary particles
             self.sim.bodies.restore(self._bodies)
 
@@ -210,7 +211,7 @@ class Watchdog:
                    f"lower time.dt_min below {tight.seconds:.3g} s")
             return (f"time step too large: dt = {dt:.3g} s is {dt / tight.seconds:.2g}x the {tight.name} bound "
                     f"{tight.seconds:.3g} s ({tight.formula}); {fix}")
-        hint = sim.solver.instability_hint(rule, stage)
+        hint = sim.solver.instability_hint(rule, stage) or sim.forces.instability_hint(rule, stage)
         if hint:
             return hint
         if rule == "outside":

@@ -10,7 +10,7 @@ Key paths: ``particle_radius`` (top level), ``material.rest_density`` (a table),
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from ..core.smoothing import SMOOTHING_KERNELS
@@ -251,6 +251,20 @@ def _method_rows() -> tuple[Param, ...]:
         if cls.parameters:
             rows.append(_P(name, "table", "-", {}, cls.section_doc or f"{cls.title} settings"))
             rows.extend(cls.parameters)
+    return tuple(rows) + _force_rows(registry.forces())
+
+
+def _force_rows(forces: dict) -> tuple[Param, ...]:
+    """``[[forces]]``: the array, its ``method`` and each force's keys as ``forces[<method>].<key>``."""
+    rows = [
+        _P("forces", "tables", "-", [], "non-pressure forces ([[forces]], docs/forces.md), at most one of each kind: "
+           + "; ".join(f"{name} ({cls.kind.replace('_', ' ')}): {cls.title}" for name, cls in forces.items()),
+           default_text="none"),
+        _P("forces[].method", "str", "-", REQUIRED, "the force method; its keys are the rows forces[<method>].<key>",
+           choices=tuple(forces)),
+    ]
+    for name, cls in forces.items():
+        rows.extend(replace(p, path=f"forces[{name}].{p.key}") for p in cls.parameters)
     return tuple(rows)
 
 

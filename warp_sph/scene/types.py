@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..core.smoothing import get_smoothing_kernel, wall_gap
+from ..methods.registry import DEFAULT_BOUNDARY, DEFAULT_SOLVER
 from .parameters import REQUIRED, TABLE_KINDS, Param, by_section, core_parameters
 
 Vec3 = tuple[float, float, float]
@@ -72,7 +73,9 @@ class Scene:
     """A validated scene, SI units. Build with ``load_scene`` or ``scene_from_dict``.
 
     particle_radius r [m] (spacing d = 2r); boundary_gap [d] (None: auto, see ``wall_gap``);
-    gravity [m/s^2]; duration [s]; fps [1/s]; container None means no walls. ``sections`` holds one
+    gravity [m/s^2]; duration [s]; fps [1/s]; container None means no walls; forces: the ``[[forces]]``
+    entries as written (each a ``Force.config_class()`` object with its ``method``; the forces legacy keys
+    set are added by ``warp_sph.methods.force.scene_forces``). ``sections`` holds one
     settings object per registered method (solvers and boundaries with parameters), also reachable as
     attributes (``scene.pbf.max_iterations``). ``source`` (the file it came from) is not part of the
     scene's value and is left out of ``to_dict`` and comparisons.
@@ -83,8 +86,8 @@ class Scene:
     particle_radius: float = 0.025
     smoothing_kernel: str = "cubic"
     h_per_spacing: float | None = None
-    solver: str = "wcsph"
-    boundary: str = "akinci2012"
+    solver: str = DEFAULT_SOLVER
+    boundary: str = DEFAULT_BOUNDARY
     boundary_gap: float | None = None
     gravity: Vec3 = (0.0, 0.0, -9.81)
     duration: float = 2.0
@@ -95,6 +98,7 @@ class Scene:
     fluid: list = field(default_factory=list)
     obstacles: list = field(default_factory=list)
     bodies: list = field(default_factory=list)
+    forces: list = field(default_factory=list)
     rigid: Any = field(default_factory=RigidParams)
     output: Any = field(default_factory=OutputParams)
     sections: dict = field(default_factory=dict)
@@ -145,6 +149,9 @@ class Scene:
         ``scene_from_dict(scene.to_dict()) == scene``.
         """
         out = _plain(self)
+        out["forces"] = [{"method": f.method, **_plain(f)} for f in self.forces]
+        if not out["forces"]:
+            del out["forces"]  # as written: a scene without forces has no [[forces]]
         sections = out.pop("sections", {})
         for name, values in sections.items():
             out[name] = values

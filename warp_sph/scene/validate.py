@@ -156,6 +156,7 @@ class Validator:
         values["fluid"] = self.blocks(data, "fluid", required=True)
         values["obstacles"] = self.blocks(data, "obstacles", required=False)
         values["bodies"] = self.blocks(data, "bodies", required=False)
+        values["forces"] = self.forces(data)
         scene = Scene(**values, source=self.source)
         self.cross_checks(scene)
         return scene
@@ -178,6 +179,25 @@ class Validator:
             if name in ("obstacles", "bodies") and block.shape == "mesh":
                 self.mesh_file(block, kp, name)
             out.append(block)
+        return out
+
+    def forces(self, data) -> list:
+        """The ``[[forces]]`` entries: each a ``method`` and that force's keys (``Force.config_class``)."""
+        raw = data.get("forces", [])
+        if isinstance(raw, dict):
+            raw = [raw]
+        if not isinstance(raw, list) or any(not isinstance(b, dict) for b in raw):
+            self.fail("forces", f"expected an array of tables ([[forces]] with method = ...), got {_short(raw)}")
+        out = []
+        method_param = self.params["forces[]"]["method"]
+        for i, b in enumerate(raw):
+            kp = f"forces[{i}]"
+            if "method" not in b:
+                self.fail(f"{kp}.method", f"missing; expected {method_param.expected()}")
+            name = self.value(method_param, b["method"], f"{kp}.method")
+            cls = registry.force(name)
+            values = self.table({k: v for k, v in b.items() if k != "method"}, f"forces[{name}]", kp)
+            out.append(cls.config_class()(**values))
         return out
 
     def mesh_file(self, block, kp: str, what: str = "obstacles") -> None:
@@ -224,6 +244,9 @@ class Validator:
             self.fail("boundary", f"{scene.boundary!r} does not work with solver {scene.solver!r}: {refusal}")
         for name, cls in registry.methods_with_parameters().items():
             cls.validate(scene, self.fail)
+        from ..methods.force import check_scene_forces
+
+        check_scene_forces(scene, self.fail)
         if scene.bodies:
             from ..rigid.checks import check_bodies
 

@@ -9,7 +9,7 @@ Step (one dt per substep):
   at x is over-dense far beyond the target, e.g. a compressed start, project the excess out of x
   without velocity] -> divergence solve: Jacobi
   sweeps on P^v until the mean positive compression rate is below target_divergence_error / dt,
-  v += dt a(P^v) -> [viscosity and the boundary method's force] -> [XSPH] -> density source for
+  v += dt a(P^v) -> [the scene's forces (slot "before_pressure") and the boundary method's force] -> density source for
   v* = v + dt g -> density solve: Jacobi sweeps on P until the mean predicted over-density is below
   target_density_error -> integrate: v = v* + dt a(P), x += dt v.
 
@@ -41,8 +41,7 @@ from ...scene.parameters import Param
 from ..density import neighbors_stage
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
-from ..viscosity import viscous_bounds, viscous_stage
-from ..xsph import xsph_stage
+from ..force import ForceSlot
 from .dfsph_search import FACTOR_FLOOR, NEIGHBOR_THRESHOLD_CUBIC, DfsphSearch, neighbor_threshold
 
 #: stabilise when the mean over-density at x exceeds this many times the density target (and 0.1 %)
@@ -63,7 +62,7 @@ class DfsphSolver(DfsphSearch, Solver):
     """Divergence-free SPH: a divergence solve and a density solve per step, both Jacobi on the
     factor computed once per step (see the module docstring). Time step: velocity CFL for the
     speed at each substep's start, dt (v_max + |g| dt) <= cfl d (with moving bodies once per frame,
-    dt <= cfl d / (v_max + |g| frame_dt)) and, with viscosity, the viscous bound.
+    dt <= cfl d / (v_max + |g| frame_dt)); the forces add their own bounds.
 
     check_every: sweeps between host reads of the stop test (default: 1 on the CPU, 4 elsewhere).
     """
@@ -145,7 +144,7 @@ class DfsphSolver(DfsphSearch, Solver):
         self._allocate_search()
         if self.with_bodies:
             # term_i of the walls' pressure (``body_pressure_term``) and the velocities the boundary
-            # force term (viscosity stage) read, for the body force gather
+            # force term (apply_forces stage) read, for the body force gather
             sim.allocate("boundary_pressure_term", float)
             sim.allocate("boundary_force_velocity", wp.vec3)
 
@@ -299,19 +298,21 @@ class DfsphSolver(DfsphSearch, Solver):
                 doc=f"Jacobi sweeps (omega {p.relaxation:g}) until mean max(D rho/Dt, 0) dt < "
                     f"{p.target_divergence_error:g} ({p.divergence_min_iterations}-{p.divergence_max_iterations}); "
                     "v += dt a(P^v)"))
-        viscous = viscous_stage(sim, "particle_x", True)
+        # the non-pressure forces (``warp_sph.methods.force``) act on the divergence-free v at x; the density
+        # solve then projects what they did; gravity is added later (source, integrate)
+        slot = ForceSlot("before_pressure", "list", "particle_x", gravity_in_velocity=False)
+        forces = sim.forces
+        explicit = forces.explicit_stages(slot)
+        apply = forces.apply_stage(slot)
         #: the workspace field of the velocities the boundary force term was evaluated with (body gather)
         self.body_coupling_velocity = "particle_v"
-        if bodies and viscous is not None:
-            # the density solve changes v after the viscosity stage: keep what its boundary force read
+        if bodies and apply is not None:
+            # the density solve changes v after the apply stage: keep what its boundary force read
             self.body_coupling_velocity = "boundary_force_velocity"
             stages.append(Stage("force_velocity", self.run_force_velocity, reads=("particle_v",),
                                 writes=("boundary_force_velocity",),
                                 doc="v kept for the bodies' share of the boundary force (read by body_forces)"))
-        after = [viscous]
-        if m.xsph > 0.0:
-            after.append(xsph_stage(sim, True))
-        stages += [s for s in after if s is not None]
+        stages += explicit + ([apply] if apply is not None else []) + forces.implicit_stages(slot) + forces.filter_stages(slot)
         stages += [
             Stage("source", self.run_source,
                   reads=("neighbor_lists", "dfsph_pairs", "particle_density", "particle_v"),
@@ -341,7 +342,7 @@ class DfsphSolver(DfsphSearch, Solver):
     def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
         """Velocity CFL for the fastest speed the step can reach: per substep (``sim.per_substep_step``)
         dt (v + |g| dt) = cfl d, i.e. dt = 2 cfl d / (v + sqrt(v^2 + 4 |g| cfl d)); once per frame
-        dt = cfl d / (v + |g| frame_dt). With viscosity, the viscous bound."""
+        dt = cfl d / (v + |g| frame_dt)."""
         m = self.model
         cfl = self.sim.scene.time.cfl
         g = float(np.linalg.norm(m.gravity))
@@ -357,7 +358,7 @@ class DfsphSolver(DfsphSearch, Solver):
             bound = TimeStepBound("velocity CFL", cfl * m.spacing / v,
                                   f"cfl d / (v + |g| frame_dt) with cfl = {cfl:g}, d = {m.spacing:.4g} m, v = {speed:.3g} m/s, "
                                   f"|g| frame_dt = {g * frame_dt:.3g} m/s", ("time.cfl",))
-        return [bound] + viscous_bounds(m)
+        return [bound]
 
     def step_statistics(self) -> dict[str, float]:
         return {"iterations": float(self.last_iterations), "density_error": self.last_density_error,

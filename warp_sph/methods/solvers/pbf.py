@@ -5,7 +5,7 @@ Step: [stabilize x] -> predict (v += dt g, x* = x + dt v) -> neighbours on x* ->
 x* -> solve (iterations of a density pass and a Jacobi correction dx, eq. 18, as in SPlisHSPlasH: until
 the average density error mean(max(rho/rho0 - 1, 0)) of the iteration's density pass is below
 ``pbf.target_density_error``, between ``min_iterations`` and ``max_iterations``) -> update
-(v = (x* - x)/dt, x = x*) -> [viscosity and the boundary method's force] -> [XSPH] -> [vorticity].
+(v = (x* - x)/dt, x = x*) -> [the scene's forces (slot "after_update") and the boundary method's force].
 
 Iterations per step: each step gravity moves the fluid by |g| dt^2 and the Jacobi solve carries that
 load down a column kappa d^2 dC/dz per iteration, so a column of depth H needs about
@@ -22,8 +22,7 @@ eps = relaxation * D0, with D0 the denominator of an interior particle of a rest
 once on the host from the same kernel (``rest_denominator``).
 
 Neighbours: lists built once per step on x* with the search radius H_s + margin
-(``warp_sph.neighbors.NeighborLists``), read by every solver iteration and by viscosity, XSPH and
-vorticity, rebuilt only when a particle drifted farther than margin / 2; or the reference hash-grid
+(``warp_sph.neighbors.NeighborLists``), read by every solver iteration and by the forces, rebuilt only when a particle drifted farther than margin / 2; or the reference hash-grid
 variant, rebuilt before every density pass or queried with H_s + margin. Sums and maxima over the
 particles are reduced in a fixed order (bitwise reproducible on any thread count).
 
@@ -43,9 +42,7 @@ from ...kernels import pbf as _pbf
 from ...scene.parameters import Param
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
-from ..viscosity import viscous_bounds, viscous_stage
-from ..vorticity import vorticity_stage
-from ..xsph import xsph_stage
+from ..force import ForceSlot
 from .pbf_lattice import fluid_depth, lattice_transport, rest_denominator
 from .pbf_passes import PbfPasses
 
@@ -61,8 +58,8 @@ class PbfSolver(PbfPasses, Solver):
     """Iterative position-based pressure solver. Time step: velocity CFL
     dt <= cfl d / (v_max + |g| frame_dt), the pressure-solve bound dt <= d sqrt(2 kappa K eta / (|g| H))
     (``solve_bound``: the step whose weight the solve carries in about K = ``pbf.target_iterations``
-    iterations, so the iterations per step do not grow with the fluid's depth in particles) and, with
-    viscosity, the viscous bound.
+    iterations, so the iterations per step do not grow with the fluid's depth in particles); the forces
+    add their own bounds.
 
     lists: neighbour lists built on x* once per step with the search radius H_s + margin and read by
     every pass of the step; rebuilt when a particle of x* drifted more than margin / 2 from where they
@@ -76,7 +73,7 @@ class PbfSolver(PbfPasses, Solver):
     name = "pbf"
     title = "position-based fluids (Macklin & Mueller 2013)"
     #: the walls' correction summed over the step's iterations is its boundary_pressure_term; particle_x
-    #: and particle_v after "update" are what the viscosity stage's boundary force reads
+    #: and particle_v after "update" are what the apply_forces stage's boundary force reads
     body_coupling_after = "update"
     section_doc = "position-based fluids settings"
     iterative = True
@@ -94,7 +91,8 @@ class PbfSolver(PbfPasses, Solver):
         Param("pbf.tensile_n", "int", "-", 4, "s_corr exponent n", ge=1, le=16),
         Param("pbf.tensile_dq", "float", "-", 0.2, "s_corr reference distance dq in smoothing lengths h",
               gt=0.0, lt=2.0),
-        Param("pbf.vorticity", "float", "-", 0.0, "vorticity confinement strength epsilon", ge=0.0, le=100.0),
+        Param("pbf.vorticity", "float", "-", 0.0, "vorticity confinement strength epsilon: sets [[forces]] method = "
+              "\"vorticity_confinement\" strength (which works with every solver)", ge=0.0, le=100.0),
         Param("pbf.target_iterations", "float", "-", 4.0, "iterations per step the time step is sized for "
               "(solve bound dt <= d sqrt(2 kappa K eta / (g H)), H the fluid depth, eta the target density error, "
               "kappa = 2.4 for the cubic kernel: at a fixed step the iterations grow as g H dt^2 / d^2); 0: no such bound", ge=0.0, le=1000.0),
@@ -268,12 +266,10 @@ class PbfSolver(PbfPasses, Solver):
                                                                               "particle_acceleration"),
                   doc="v = (x* - x)/dt; x = x*"),
         ]
-        after = [viscous_stage(sim, "particle_x", self.lists)]
-        if m.xsph > 0.0:
-            after.append(xsph_stage(sim, self.lists))
-        if p.vorticity > 0.0:
-            after.append(vorticity_stage(sim, float(p.vorticity), self.lists))
-        after = [s for s in after if s is not None]
+        # the non-pressure forces (``warp_sph.methods.force``) act on the new velocity after the projection
+        # (Macklin & Mueller 2013, SPlisHSPlasH), with the neighbours found on x* (= x now)
+        slot = ForceSlot("after_update", "list" if self.lists else "grid", "particle_x", gravity_in_velocity=True)
+        after = sim.forces.stages(slot)
         # the grid variant queries H_s + margin during the solve; stages after it query H_s on a current grid
         self._needs_exact_grid = not self.lists and self.neighbor_mode == "margin" and bool(after)
         return stages + after
@@ -298,7 +294,7 @@ class PbfSolver(PbfPasses, Solver):
         solve = self.solve_bound()
         if solve is not None:
             bounds.append(solve)
-        return bounds + viscous_bounds(m)
+        return bounds
 
     def solve_bound(self) -> TimeStepBound | None:
         """dt <= d sqrt(2 kappa K eta / (|g| H)): the step whose hydrostatic load the solve carries in about

@@ -1,7 +1,10 @@
 """Weakly compressible SPH (Becker & Teschner 2007); kernels in ``kernels/wcsph.py``.
 
-Step: neighbours -> density (eq. 7/13) -> [XSPH, eq. 21] -> pressure (eq. 9 or Tait) ->
-forces (eq. 10, the boundary method's terms, viscosity, gravity) -> semi-implicit Euler (eq. 11).
+Step: neighbours -> density (eq. 7/13) -> [filters: XSPH, eq. 21] -> [explicit forces: their
+accelerations] -> pressure (eq. 9 or Tait) -> forces (eq. 10, the boundary method's terms, artificial
+viscosity, the explicit forces' accelerations, gravity) -> semi-implicit Euler (eq. 11); with an
+implicit force: kick (v += dt a) -> [implicit forces on v*] -> drift (x += dt v). The forces' slot is
+"before_pressure" (``warp_sph.methods.force``).
 """
 from __future__ import annotations
 
@@ -18,8 +21,7 @@ from ...scene.parameters import Param
 from ..density import density_stage, neighbors_stage
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
-from ..viscosity import viscous_bounds
-from ..xsph import xsph_stage
+from ..force import FORCE_ACCELERATION, ForceSlot
 
 EQUATIONS_OF_STATE = ("linear", "tait")
 
@@ -33,11 +35,11 @@ WALL_ESCAPE_FRACTION = {"eq16": 0.25, "mirrored": 0.40}
 
 @register_solver
 class WcsphSolver(Solver):
-    """Explicit WCSPH. Time step: acoustic CFL dt <= cfl (H_s/2) / (c_s + v_max) and, with viscosity,
-    the viscous bound (``methods.viscosity``). Stiffness K [Pa]: ``wcsph.stiffness``, or rho0 c_s^2
+    """Explicit WCSPH. Time step: acoustic CFL dt <= cfl (H_s/2) / (c_s + v_max); the forces add their own
+    bounds. Stiffness K [Pa]: ``wcsph.stiffness``, or rho0 c_s^2
     (linear) / rho0 c_s^2 / 7 (Tait) from the model's speed of sound c_s.
 
-    lists: neighbour lists built once per step and read by density, XSPH and forces (default), or
+    lists: neighbour lists built once per step and read by density, the forces and the force kernel (default), or
     hash-grid queries in every pass (``lists=False``, the reference variant)."""
 
     name = "wcsph"
@@ -84,7 +86,13 @@ class WcsphSolver(Solver):
         mirrored = self.config.boundary_pressure == "mirrored"
         pressure_kernel = _wcsph.pressure_kernel(self.config.equation_of_state)
         bodies = self.with_bodies
-        force_kernel = _wcsph.acceleration_kernel(m.smoothing.name, terms, m.viscosity > 0.0, mirrored,
+        slot = ForceSlot("before_pressure", "list" if self.lists else "grid", "particle_x", gravity_in_velocity=True)
+        forces = sim.forces
+        explicit = forces.explicit_stages(slot)
+        implicit = forces.implicit_stages(slot)
+        with_forces = bool(explicit)
+        accel = sim.fields[FORCE_ACCELERATION] if with_forces else wp.zeros(1, dtype=wp.vec3, device=m.device)
+        force_kernel = _wcsph.acceleration_kernel(m.smoothing.name, terms, with_forces, mirrored,
                                                   "list" if self.lists else "grid",
                                                   self.config.artificial_viscosity > 0.0, bodies)
         term = sim.allocate("boundary_pressure_term", float) if bodies else wp.zeros(1, dtype=float, device=m.device)
@@ -104,9 +112,10 @@ class WcsphSolver(Solver):
             else:
                 bn, fn = m.boundary_grid_id, sim.fluid_grid.id
             launch(force_kernel, n,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, gravity, m.viscosity,
-                    float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound), params, bn, m.boundary_x, m.boundary_v, m.boundary_volume,
-                    fn, f["particle_x"], f["particle_v"], f["particle_density"], f["particle_pressure"]],
+                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, gravity,
+                    float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound), params, bn,
+                    m.boundary_x, m.boundary_v, m.boundary_volume, fn, f["particle_x"], f["particle_v"],
+                    f["particle_density"], f["particle_pressure"], accel],
                    [f["particle_acceleration"], f["boundary_force"], term], device=m.device)
 
         def run_integrate(sim, dt):
@@ -114,27 +123,45 @@ class WcsphSolver(Solver):
             launch(_integrate.integrate_symplectic_euler, n, [f["particle_acceleration"], float(dt)],
                    [f["particle_v"], f["particle_x"]], device=m.device, min_range=LIGHT_MIN_RANGE)
 
+        def run_kick(sim, dt):
+            f = sim.fields
+            launch(_integrate.kick, n, [f["particle_acceleration"], float(dt)], [f["particle_v"]], device=m.device,
+                   min_range=LIGHT_MIN_RANGE)
+
+        def run_drift(sim, dt):
+            f = sim.fields
+            launch(_integrate.drift, n, [float(dt), f["particle_v"]], [f["particle_x"]], device=m.device,
+                   min_range=LIGHT_MIN_RANGE)
+
         boundary_reads = (("boundary_x", "boundary_volume") + (() if self.lists else ("boundary_grid",))
                           + (("boundary_v",) if bodies else ()) if with_boundary else ())
         terms_doc = ["pressure (eq. 10)"]
         if with_boundary:
             terms_doc.append(f"{terms.name} boundary" + (" (mirrored pressure)" if mirrored and terms.pressure else ""))
-        if m.viscosity > 0.0:
-            terms_doc.append("viscosity")
+        if self.config.artificial_viscosity > 0.0:
+            terms_doc.append("artificial viscosity")
+        if with_forces:
+            terms_doc.append("forces (" + ", ".join(f.name for f in forces.of_mode("explicit")) + ")")
         terms_doc.append("gravity")
         stages = [neighbors_stage(sim, self.lists), density_stage(sim, self.lists)]
-        if m.xsph > 0.0:
-            stages.append(xsph_stage(sim, self.lists))
+        stages += forces.filter_stages(slot) + explicit
         stages += [
             Stage("pressure", run_pressure, reads=("particle_density",), writes=("particle_pressure",),
                   doc=f"{self.config.equation_of_state} equation of state, K = {stiffness:.4g} Pa"),
             Stage("forces", run_forces,
-                  reads=(neighbors, "particle_x", "particle_v", "particle_density", "particle_pressure") + boundary_reads,
+                  reads=(neighbors, "particle_x", "particle_v", "particle_density", "particle_pressure") + boundary_reads
+                  + ((FORCE_ACCELERATION,) if with_forces else ()),
                   writes=("particle_acceleration", "boundary_force") + (("boundary_pressure_term",) if bodies else ()),
                   doc=" + ".join(terms_doc)),
-            Stage("integrate", run_integrate, reads=("particle_acceleration",), updates=("particle_v", "particle_x"),
-                  doc="semi-implicit Euler (eq. 11)"),
         ]
+        if implicit:  # the implicit forces act on v* = v + dt a, before the positions move
+            stages += [Stage("kick", run_kick, reads=("particle_acceleration",), updates=("particle_v",),
+                             doc="v += dt a (eq. 11, velocity)")]
+            stages += implicit
+            stages += [Stage("drift", run_drift, reads=("particle_v",), updates=("particle_x",), doc="x += dt v (eq. 11, position)")]
+        else:
+            stages += [Stage("integrate", run_integrate, reads=("particle_acceleration",),
+                             updates=("particle_v", "particle_x"), doc="semi-implicit Euler (eq. 11)")]
         return stages
 
     def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
@@ -153,7 +180,7 @@ class WcsphSolver(Solver):
             acoustic = TimeStepBound("acoustic CFL", cfl * length / (m.speed_of_sound + speed),
                                      f"cfl (H_s/2)/(c_s + v) with cfl = {cfl:g}, H_s/2 = {length:.4g} m, "
                                      f"c_s = {m.speed_of_sound:.4g} m/s, v = {speed:.3g} m/s", keys + ("time.cfl",))
-        return [acoustic] + viscous_bounds(m)
+        return [acoustic]
 
     def _stiffness_key(self) -> str:
         if self.config.stiffness > 0:

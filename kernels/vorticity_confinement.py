@@ -1,4 +1,5 @@
-"""Vorticity confinement (Macklin & Mueller 2013 eq. 15-16): the vorticity and the confinement velocity change."""
+"""Vorticity confinement (Fedkiw et al. 2001; Macklin & Mueller 2013 eq. 15-16): the vorticity and the
+confinement acceleration a_i = eps v_ref (N x omega_i) [m/s^2], N = grad|omega| / |grad|omega||."""
 import functools
 
 import warp as wp
@@ -60,8 +61,8 @@ def vorticity_kernel(smoothing: str, neighbors: str = "grid"):
 @functools.cache
 def confinement_kernel(smoothing: str, neighbors: str = "grid"):
     """Vorticity confinement (Macklin & Mueller 2013 eq. 16): eta = grad |omega| (SPH difference
-    gradient), N = eta / |eta|, dv_i = dt vorticity v_ref (N x omega_i) [m/s]; v_ref [m/s] makes
-    the strength dimensionless."""
+    gradient), N = eta / |eta|; adds a_i = vorticity v_ref (N x omega_i) [m/s^2] to ``acceleration``;
+    v_ref [m/s] makes the strength dimensionless."""
     _, gradient = SMOOTHING_FUNCTIONS[smoothing]
     lists = neighbors == "list"
     Neighbors = NEIGHBOR_TYPES[neighbors]
@@ -75,14 +76,13 @@ def confinement_kernel(smoothing: str, neighbors: str = "grid"):
         support_radius: float,
         vorticity: float,
         reference_speed: float,
-        dt: float,
         # State in:
         fluid_neighbors: Neighbors,
         particle_x: wp.array(dtype=wp.vec3),
         particle_density: wp.array(dtype=float),
         particle_vorticity: wp.array(dtype=wp.vec3),
-        # Out:
-        vorticity_dv_out: wp.array(dtype=wp.vec3),
+        # In/out:
+        acceleration: wp.array(dtype=wp.vec3),
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
@@ -108,9 +108,7 @@ def confinement_kernel(smoothing: str, neighbors: str = "grid"):
                     eta += (particle_mass / particle_density[j] * (wp.length(particle_vorticity[j]) - mag_i)) * wp.static(
                         gradient)(x_ij, smoothing_length)
         n = wp.length(eta)
-        dv = wp.vec3(0.0)
         if n > 1.0e-12:
-            dv = (dt * vorticity * reference_speed / n) * wp.cross(eta, wi)
-        vorticity_dv_out[i] = dv
+            acceleration[i] = acceleration[i] + (vorticity * reference_speed / n) * wp.cross(eta, wi)
 
     return compute_confinement

@@ -1,0 +1,1 @@
+"""Non-pressure forces, one module per method (``warp_sph.methods.force``)."""
