@@ -145,7 +145,9 @@ def laplacian(fluid_neighbors: NeighborList, pairs: wp.array2d(dtype=wp.vec3), u
 @functools.cache
 def start_kernel(with_boundary: bool):
     """The solve's start: dv = warm (the last step's dv), r0 = c - (A - I) v* (written to
-    ``start_residual_out``), r = r0 - A dv, z = M^-1 r, p = z."""
+    ``start_residual_out``), r = r0 - A dv, z = M^-1 r, p = z. v* = particle_v + velocity_shift (the
+    step's dt g when the solver adds gravity after the solve: a uniform shift enters only the walls'
+    term)."""
 
     @wp.kernel(enable_backward=False, module="unique")
     def weiler_start(
@@ -157,6 +159,7 @@ def start_kernel(with_boundary: bool):
         boundary_block: wp.array(dtype=wp.mat33),
         boundary_rhs: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
+        velocity_shift: wp.vec3,
         warm: wp.array(dtype=wp.vec3),
         # Out:
         solution_out: wp.array(dtype=wp.vec3),
@@ -171,7 +174,7 @@ def start_kernel(with_boundary: bool):
         ax = x0 + laplacian(fluid_neighbors, pairs, warm, i)
         if wp.static(with_boundary):
             bb = boundary_block[i]
-            r0 += boundary_rhs[i] - bb * particle_v[i]
+            r0 += boundary_rhs[i] - bb * (particle_v[i] + velocity_shift)
             ax += bb * x0
         r = r0 - ax
         z = block_inverse[i] * r
@@ -372,8 +375,8 @@ def beta_control(
 
 @functools.cache
 def finish_kernel(with_boundary: bool):
-    """After the solve: v = v* + dv, warm = dv for the next step; with boundary viscosity the walls'
-    force on i, m (c_i - B_i v_i) / dt [N], added to the boundary force."""
+    """After the solve: v += dv, warm = dv for the next step; with boundary viscosity the walls' force on
+    i, m (c_i - B_i (v_i + velocity_shift)) / dt [N], added to the boundary force."""
 
     @wp.kernel(enable_backward=False, module="unique")
     def weiler_finish(
@@ -381,6 +384,7 @@ def finish_kernel(with_boundary: bool):
         # Model:
         particle_mass: float,
         dt: float,
+        velocity_shift: wp.vec3,
         # In:
         fluid_neighbors: NeighborList,
         boundary_block: wp.array(dtype=wp.mat33),
@@ -398,7 +402,7 @@ def finish_kernel(with_boundary: bool):
         particle_v[i] = v
         warm_out[i] = dv
         if wp.static(with_boundary):
-            a_b = (boundary_rhs[i] - boundary_block[i] * v) / dt
+            a_b = (boundary_rhs[i] - boundary_block[i] * (v + velocity_shift)) / dt
             boundary_force[i] = boundary_force[i] + particle_mass * a_b
 
     return weiler_finish
