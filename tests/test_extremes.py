@@ -501,10 +501,11 @@ def test_run_keeps_frames_written_before_a_blow_up(tmp_path, monkeypatch):
 # 9. pre-flight checks
 # --------------------------------------------------------------------------------------------
 def test_preflight_viscous_bound_named():
-    scene = dam(material={"viscosity": 4.0}, time={"fixed_dt": 5e-4})
-    sim = Simulation(scene)
-    with pytest.raises(SceneError, match=r"viscous time-step bound .*0\.0625 \(H_s/2\)\^2/nu"):
-        preflight_checks(scene, sim)
+    """A fixed step above the explicit viscosity's bound is refused when the scene is loaded (the force's
+    own check, before any kernel), naming the bound and the implicit method."""
+    with pytest.raises(SceneError, match=r"material\.viscosity: the explicit viscous time-step bound .*0\.0625 "
+                                         r"\(H_s/2\)\^2/nu.*weiler2018"):
+        dam(material={"viscosity": 4.0}, time={"fixed_dt": 5e-4})
 
 
 def test_preflight_dt_min_above_bound():
