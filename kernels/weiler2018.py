@@ -3,15 +3,17 @@ Viscosity Solver for SPH Fluids", CGF 37(2)) as SPlisHSPlasH implements it; host
 ``warp_sph/methods/forces/weiler2018.py``, equations also in the research note ``forces.md`` section 3.2.
 
 Backward Euler on the velocities, with nu the kinematic viscosity [m^2/s] (mu = rho0 nu), nu_b the
-boundary's, H_s the support radius, x_ij = x_i - x_j, g_ij = grad_i W_ij = psi_ij x_ij (psi <= 0):
+boundary's, h the smoothing length, x_ij = x_i - x_j, g_ij = grad_i W_ij = psi_ij x_ij (psi <= 0); the
+0.01 h^2 (Monaghan's; SPlisHSPlasH writes 0.01 H_s^2 with its "h" the support radius) is also the
+explicit form's (``kernels/explicit_viscosity.py``):
 
-    (A v)_i = v_i - (dt / rho_i) [ 10 mu sum_j (m / rho_j) (v_ij . x_ij) / (r^2 + 0.01 H_s^2) g_ij
-                                 + 10 mu_b sum_b (rho0 V_b / rho_i) (v_i . x_ib) / (r^2 + 0.01 H_s^2) g_ib ]
-    b_i     = v*_i - (dt / rho_i) 10 mu_b sum_b (rho0 V_b / rho_i) (v_b . x_ib) / (r^2 + 0.01 H_s^2) g_ib
+    (A v)_i = v_i - (dt / rho_i) [ 10 mu sum_j (m / rho_j) (v_ij . x_ij) / (r^2 + 0.01 h^2) g_ij
+                                 + 10 mu_b sum_b (rho0 V_b / rho_i) (v_i . x_ib) / (r^2 + 0.01 h^2) g_ib ]
+    b_i     = v*_i - (dt / rho_i) 10 mu_b sum_b (rho0 V_b / rho_i) (v_b . x_ib) / (r^2 + 0.01 h^2) g_ib
 
-Written with the pair weights K_ij = -dt 10 nu rho0 m psi_ij / (rho_i rho_j (r^2 + 0.01 H_s^2)) >= 0
+Written with the pair weights K_ij = -dt 10 nu rho0 m psi_ij / (rho_i rho_j (r^2 + 0.01 h^2)) >= 0
 (symmetric in ij: every particle has the mass m) and K_ib = -dt 10 nu_b rho0^2 V_b psi_ib /
-(rho_i^2 (r^2 + 0.01 H_s^2)) >= 0, and the pair vectors e_ij = sqrt(K_ij) x_ij:
+(rho_i^2 (r^2 + 0.01 h^2)) >= 0, and the pair vectors e_ij = sqrt(K_ij) x_ij:
 
     (A u)_i = u_i + B_i u_i + sum_j e_ij (e_ij . (u_i - u_j)),   B_i = sum_b K_ib x_ib x_ib^T,
     c_i     = sum_b K_ib (v_b . x_ib) x_ib                       (b = v* + c),
