@@ -266,20 +266,27 @@ def dot_chunks(
     # In:
     a: wp.array(dtype=wp.vec3),
     b: wp.array(dtype=wp.vec3),
+    c: wp.array(dtype=wp.vec3),
+    d: wp.array(dtype=wp.vec3),
     control: wp.array(dtype=wp.float64),
     # Out:
-    partial_out: wp.array(dtype=wp.float64),
+    partial_ab_out: wp.array(dtype=wp.float64),
+    partial_cd_out: wp.array(dtype=wp.float64),
 ):
-    """partial_out[k] = sum of a_i . b_i over chunk k, in index order (float64; nothing once done)."""
+    """partial_ab_out[k], partial_cd_out[k] = the sums of a_i . b_i and c_i . d_i over chunk k, in index
+    order (float64; nothing once done). Two dot products in one pass over the particles."""
     if control[CONTROL_DONE] != wp.float64(0.0):
         return
     k = wp.tid()
     lo = k * chunk
     hi = wp.min(lo + chunk, a.shape[0])
-    s = wp.float64(0.0)
+    ab = wp.float64(0.0)
+    cd = wp.float64(0.0)
     for i in range(lo, hi):
-        s += wp.float64(wp.dot(a[i], b[i]))
-    partial_out[k] = s
+        ab += wp.float64(wp.dot(a[i], b[i]))
+        cd += wp.float64(wp.dot(c[i], d[i]))
+    partial_ab_out[k] = ab
+    partial_cd_out[k] = cd
 
 
 @wp.func

@@ -78,11 +78,12 @@ class Weiler2018Solve:
             self.pairs = wp.zeros((max(self.n, 1), capacity), dtype=wp.vec3, device=self.device)
         return self.pairs
 
-    def _dot(self, k: int, a: wp.array, b: wp.array) -> wp.array:
-        partial = self._partials[k]
-        launch(_weiler.dot_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, a, b, self.control], [partial],
+    def _dots(self, a: wp.array, b: wp.array, c: wp.array, d: wp.array, first: int = 0) -> tuple:
+        """Chunk sums of a . b and c . d into partial arrays ``first`` and ``first + 1``."""
+        p, q = self._partials[first], self._partials[first + 1]
+        launch(_weiler.dot_chunks, p.shape[0], [_reduce.REDUCE_CHUNK, a, b, c, d, self.control], [p, q],
                device=self.device)
-        return partial
+        return p, q
 
     def solve(self, dt: float, model, viscosity: float, boundary_viscosity: float, fluid_neighbors,
               boundary_neighbors, boundary_x, boundary_v, boundary_volume, particle_x, particle_density,
@@ -110,10 +111,10 @@ class Weiler2018Solve:
         launch(self._start, n, [fn, pairs, self.block_inverse, self.boundary_block, self.boundary_rhs, particle_v, shift,
                                  warm],
                [warm, self.start_residual, self.residual, self.preconditioned, self.direction], device=dev)
-        launch(_weiler.start_control, 1,
-               [self._dot(0, self.residual, self.preconditioned), self._dot(1, self.residual, self.residual),
-                self._dot(2, self.start_residual, self.start_residual), self._dot(3, particle_v, particle_v),
-                self.tolerance, self.max_iterations], [control], device=dev)
+        rz, rr = self._dots(self.residual, self.preconditioned, self.residual, self.residual)
+        start, speed = self._dots(self.start_residual, self.start_residual, particle_v, particle_v, 2)
+        launch(_weiler.start_control, 1, [rz, rr, start, speed, self.tolerance, self.max_iterations], [control],
+               device=dev)
         self.solves += 1
         c = control.numpy()
         launched = 0
@@ -122,12 +123,12 @@ class Weiler2018Solve:
             for _ in range(block):
                 launch(self._matvec, n, [fn, pairs, self.boundary_block, self.direction, control], [self.product],
                        device=dev)
-                launch(_weiler.alpha_control, 1, [self._dot(0, self.direction, self.product)], [control], device=dev)
+                launch(_weiler.alpha_control, 1, [self._dots(self.direction, self.product, self.direction,
+                                                             self.product)[0]], [control], device=dev)
                 launch(_weiler.update, n, [fn, self.block_inverse, self.direction, self.product, control],
                        [warm, self.residual, self.preconditioned], device=dev)
-                launch(_weiler.beta_control, 1,
-                       [self._dot(0, self.residual, self.preconditioned), self._dot(1, self.residual, self.residual),
-                        self.max_iterations], [control], device=dev)
+                rz, rr = self._dots(self.residual, self.preconditioned, self.residual, self.residual)
+                launch(_weiler.beta_control, 1, [rz, rr, self.max_iterations], [control], device=dev)
                 launch(_weiler.new_direction, n, [fn, self.preconditioned, control], [self.direction], device=dev)
             launched += block
             c = control.numpy()  # the one read per check
