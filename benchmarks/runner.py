@@ -9,6 +9,7 @@
     warp-sph bench splishsplash                    # side by side with SPlisHSPlasH (pysplishsplash)
     warp-sph bench surface                         # surface reconstruction per frame
     warp-sph bench bodies                          # moving rigid bodies against the same static obstacles
+    warp-sph bench forces                          # each force's cost per particle-step beside its solver's
     warp-sph bench report                          # RESULTS.md from the JSON lines
 
 Results go to ``runs/bench/`` (JSON lines and ``RESULTS.md``) unless ``--out DIR``; ``--publish``
@@ -298,6 +299,19 @@ def cmd_bodies(args, argv: list[str], log=print) -> int:
     return _finish(_save("bodies", records, args, argv, invocation, log), args, records, log)
 
 
+def cmd_forces(args, argv: list[str], log=print) -> int:
+    from . import forces as F
+
+    specs = F.specs(args.scene, args.frames, args.repeats, solvers=[s for s in args.solvers.split(",") if s],
+                    forces=[f for f in args.forces.split(",") if f], device=args.device, overrides=args.set)
+    invocation = now()
+    records = _run(specs, args, log)
+    for s in F.summary(records):
+        log(f"{s['solver']} + {s['force']}: the force {s['force_ns']:.0f} ns per particle-step, the step "
+            f"{s['step_ns']:.0f} (without forces {s['bare_step_ns'] or float('nan'):.0f})")
+    return _finish(_save("forces", records, args, argv, invocation, log), args, records, log)
+
+
 def _finish(out: Path, args, records: list[dict], log) -> int:
     if not getattr(args, "no_report", False):
         from .report import write_report
@@ -433,6 +447,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="runs of each variant, alternating; the fastest counts (default 3)")
     common(b)
     b.set_defaults(func=cmd_bodies)
+
+    f = sub.add_parser("forces", help="each registered force's cost per particle-step beside its solver's (and the "
+                       "same scene without forces)")
+    f.add_argument("--scene", default="dam_break", help="scene (default: dam_break)")
+    f.add_argument("--frames", type=positive_int, default=6, help="frames per run (default 6)")
+    f.add_argument("--repeats", type=positive_int, default=2, help="runs of each case, alternating; the fastest counts")
+    f.add_argument("--solvers", default="", help="comma-separated solvers (default: every registered solver)")
+    f.add_argument("--forces", default="", help="comma-separated forces (default: every registered force)")
+    common(f)
+    f.set_defaults(func=cmd_forces)
 
     r = sub.add_parser("report", help="regenerate RESULTS.md, tables and plots from the JSON lines")
     where(r)

@@ -255,3 +255,25 @@ def test_carried_fields_follow_the_particle_order_and_resume_bit_for_bit(test_fo
         assert cp["memory_test_m"].min() > 0
     runner.run(None, frames=5, resume=resumed, progress=False, device="cpu", log=quiet)
     assert_same_run(reference, resumed)
+
+
+def test_bench_forces_covers_every_solver_and_force_and_costs_the_extra_stages():
+    from warp_sph.benchmarks import forces as F
+
+    specs = F.specs("dam_break", 1, 2)
+    assert {(s.params["solver"], s.params["force"]) for s in specs} == {(s, f) for s in SOLVERS
+                                                                       for f in ("none",) + FORCES}
+    assert len(specs) == 2 * len(SOLVERS) * (1 + len(FORCES))
+
+    def record(force, stages, repeat):  # steady seconds per call: (seconds - first) / (calls - 1)
+        return {"status": "ok", "fluid_particles": 1000, "params": {"solver": "dfsph", "force": force, "repeat": repeat},
+                "stage_times": [{"stage": s, "calls": 11, "seconds": 1.0 + 10 * t, "first_call_seconds": 1.0}
+                                for s, t in stages.items()]}
+
+    bare = {"density": 2e-3, "pressure": 3e-3}
+    records = [record("none", bare, 1), record("xsph", {**bare, "xsph": 1e-3}, 1),
+               record("xsph", {"density": 4e-3, "pressure": 3e-3, "xsph": 2e-3}, 2)]  # slower repeat: not counted
+    (s,) = F.summary(records)
+    assert (s["solver"], s["force"]) == ("dfsph", "xsph")
+    assert s["force_ns"] == pytest.approx(1e3) and s["step_ns"] == pytest.approx(6e3)
+    assert s["bare_step_ns"] == pytest.approx(5e3)

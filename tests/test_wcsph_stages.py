@@ -76,7 +76,7 @@ def test_xsph_stage():
     m = sim.model
     r = np.linalg.norm(x[:, None] - x[None], axis=2)
     w = W(m.smoothing.name, r, m.smoothing_length) * (m.particle_mass / rho)[None]
-    dv = m.xsph * (w[:, :, None] * (v[None] - v[:, None])).sum(1)
+    dv = sim.scene.material.xsph * (w[:, :, None] * (v[None] - v[:, None])).sum(1)
     np.testing.assert_allclose(sim.get_field("particle_v"), v + dv, rtol=1e-4, atol=1e-5)
 
 
@@ -116,7 +116,7 @@ def test_forces_stage(boundary, mirrored):
     coef = -mass * (p / rho**2)[:, None] - mass * (p / rho**2)[None]
     a = (coef[:, :, None] * g).sum(1)
     vij = v[:, None] - v[None]
-    visc = 20 * m.viscosity * mass / (rho[:, None] + rho[None]) * (vij * xij).sum(2) / (r2 + 0.01 * h * h)
+    visc = 20 * sim.scene.material.viscosity * mass / (rho[:, None] + rho[None]) * (vij * xij).sum(2) / (r2 + 0.01 * h * h)
     a += (visc[:, :, None] * g).sum(1)
     xb = m.boundary_x.numpy().astype(np.float64)
     xib = x[:, None] - xb[None]

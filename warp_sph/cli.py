@@ -93,6 +93,9 @@ def _cmd_check(args) -> int:
     extra = ", ".join(f"{k.replace('_', ' ')} {v:.4g}" for k, v in s["solver"].items()
                       if isinstance(v, float))
     print(f"  speed of sound {s['speed_of_sound']:.3g} m/s" + (f", {extra}" if extra else ""))
+    if "forces" in s:
+        print("  forces: " + ", ".join(f"{f['method']} ({f['set_by']})" for f in s["forces"]))
+    print(f"  step graph: {' -> '.join(sim.graph.names())}")
     if "bodies" in s:
         b = s["bodies"]
         print(f"  {b['count']} rigid bodies ({', '.join(f'{n} {m:.3g} kg' for n, m in zip(b['names'], b['masses']))}; "

@@ -37,8 +37,6 @@ class Model:
     reference_speed: float        # expected max speed max(sqrt(2 |g| H), |v0|) [m/s]
     reference_speed_source: str   # what set it: the fall height or a block's initial velocity
     speed_of_sound: float         # c_s [m/s]: WCSPH's stiffness, the Akinci friction and the penalty force
-    viscosity: float              # kinematic nu [m^2/s]
-    xsph: float                   # XSPH factor [-]
     boundary_friction: float      # Akinci sigma [-]
     boundary_method: str          # the scene's boundary method, "none" without boundary particles
     boundary_x: wp.array          # boundary particle positions (local) [m], shape (boundary_count,)
@@ -229,7 +227,6 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         smoothing_length=h, support_radius=support, particle_mass=mass, lattice_bias=bias,
         gravity=np.asarray(scene.gravity, dtype=np.float32), origin=origin,
         reference_speed=v_ref, reference_speed_source=v_source, speed_of_sound=c_s,
-        viscosity=float(scene.material.viscosity), xsph=float(scene.material.xsph),
         boundary_friction=float(scene.material.boundary_friction), boundary_method=boundary_method,
         boundary_x=bx, boundary_v=bv, boundary_volume=bvol, boundary_grid=bgrid,
         container_lo=None if lo is None else (lo - origin), container_hi=None if hi is None else (hi - origin),

@@ -89,6 +89,12 @@ class ForceSlot:
         """The neighbour argument of a kernel launch (``kernels.density.NEIGHBOR_TYPES``)."""
         return sim.fields["neighbor_lists"].fluid if self.lists else sim.fluid_grid.id
 
+    def boundary_neighbor_arg(self, sim):
+        """The boundary-neighbour argument of a kernel launch (the lists' boundary part, or the boundary hash
+        grid); a stage that reads it declares ``boundary_x`` and ``boundary_volume`` (and ``boundary_grid``
+        without lists; ``boundary_v`` with moving bodies)."""
+        return sim.fields["neighbor_lists"].boundary if self.lists else sim.model.boundary_grid_id
+
 
 class Force(MethodBase):
     """Base class of the non-pressure forces (see the module docstring). ``sim`` is the Simulation,

@@ -121,8 +121,10 @@ _AFTER_METHODS = (
     _P("material.rest_density", "float", "kg/m^3", 1000.0, "rest density rho0 (water 1000; 1e-3..1e5 covers "
        "every liquid and keeps float32 sums exact)", ge=1e-3, le=1e5),
     _P("material.viscosity", "float", "m^2/s", 0.0, "kinematic viscosity, explicit (SPlisHSPlasH "
-       "'standard' form); needs dt <= 0.0625 (H_s/2)^2 / nu", ge=0.0),
-    _P("material.xsph", "float", "-", 0.0, "XSPH velocity smoothing factor (report eq. 21)", ge=0.0, le=1.0),
+       "'standard' form); needs dt <= 0.0625 (H_s/2)^2 / nu; sets [[forces]] method = \"explicit_viscosity\" "
+       "(docs/forces.md)", ge=0.0),
+    _P("material.xsph", "float", "-", 0.0, "XSPH velocity smoothing factor (report eq. 21); sets [[forces]] "
+       "method = \"xsph\"", ge=0.0, le=1.0),
     _P("material.boundary_friction", "float", "-", 0.0, "Akinci boundary friction sigma (report eq. 22-24); "
        "explicit: needs dt <= 0.0625 (H_s/2)^2 / nu_b with nu_b = sigma h c_s / (2 rho0)", ge=0.0),
 )
