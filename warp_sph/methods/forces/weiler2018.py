@@ -155,8 +155,8 @@ class Weiler2018(Force):
               ge=0.0, le=1e5),
         Param("weiler2018.boundary_viscosity", "float", "m^2/s", 0.0, "viscosity nu_b against the boundary particles "
               "(0: the fluid slips along walls; about nu: it sticks, e.g. honey on a plate)", ge=0.0, le=1e5),
-        Param("weiler2018.tolerance", "float", "-", 0.01, "the conjugate-gradient solve stops when the residual is "
-              "this fraction of its value at dv = 0 (|r| <= tolerance |r0|)", gt=0.0, lt=1.0),
+        Param("weiler2018.tolerance", "float", "-", 0.01, "the conjugate-gradient solve stops when the residual's "
+              "norm is this fraction of its value at dv = 0", gt=0.0, lt=1.0),
         Param("weiler2018.max_iterations", "int", "-", 100, "most conjugate-gradient iterations per step", ge=1,
               le=10000),
     )
