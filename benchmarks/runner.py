@@ -47,6 +47,14 @@ PRESETS: dict[str, list[dict]] = {
          "set": ["particle_radius=0.025"],
          "params": {"solver": ["wcsph", "pbf"], "smoothing_kernel": ["cubic", "quintic", "quadric"]}},
     ],
+    # implicit viscosity (weiler2018) at nu = 1 m^2/s against none, the honey scene's first second (issue #33's
+    # goal: at most 2x the cost per simulated second); docs/viscosity.md
+    "viscosity": [
+        {"scene": "honey", "frames": 24,
+         "set": [],
+         "params": {"forces": ["[]", '[{method = "weiler2018", viscosity = 1.0, boundary_viscosity = 1.0}]'],
+                    "particle_radius": ["0.01", "0.005"]}},
+    ],
 }
 
 #: Resolutions of the scaling benchmark: particle radius [m] for the 1 m dam-break cube.

@@ -45,7 +45,9 @@ def test_a_scene_without_forces_has_no_force_stage(solver):
     assert not {"viscosity", "apply_forces", "xsph", "vorticity", "kick", "drift"} & set(names), names
     assert FORCE_ACCELERATION not in sim.fields and "particle_vorticity" not in sim.fields
     assert len(sim.forces) == 0 and "forces" not in sim.summary()
-    with_all = Simulation(small_tank("all", solver, forces=[{"method": name} for name in FORCES]))
+    # the alphabetically first force of each kind (explicit_viscosity, not weiler2018)
+    one_per_kind = {registry.force(name).kind: name for name in sorted(FORCES, reverse=True)}.values()
+    with_all = Simulation(small_tank("all", solver, forces=[{"method": name} for name in one_per_kind]))
     assert {"viscosity", "xsph", "vorticity"} <= set(with_all.graph.names())
 
 

@@ -226,6 +226,9 @@ CONFIGS |= {
     "dfsph-no-divergence": dict(solver="dfsph", dfsph={"divergence_solve": False}),
     "dfsph-stabilize": dict(solver="dfsph", compressed=True),
 }
+#: the implicit viscosity (force weiler2018) at each solver's slot, with its wall term
+WEILER = [{"method": "weiler2018", "viscosity": 1.0, "boundary_viscosity": 0.5}]
+CONFIGS |= {f"{s}-weiler2018": dict(solver=s, forces=WEILER) for s in SOLVERS}
 #: a floating box (moving rigid body, two-way coupled): the body_forces and bodies stages join the graph
 BODY = {"bodies": [{"shape": "box", "size": [0.1, 0.1, 0.08], "position": [0.1, 0.1, 0.2], "density": 500.0,
                     "velocity": [0.1, 0.0, -0.2], "angular_velocity": [0.5, 0.0, 0.0]}]}

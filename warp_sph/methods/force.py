@@ -39,7 +39,7 @@ it), ``is_active(config)``, ``validate_config(scene, config, keypath, fail)`` (c
 kernel), ``refuses_solver(solver_cls)``, ``stages(slot)``, ``time_step_bounds(speed)``,
 ``carried_fields()`` (workspace fields that outlive a substep: allocate them with ``sim.allocate`` and
 they follow the particle-order permutation), ``checkpoint_arrays()`` / ``restore_arrays(arrays)``,
-``instability_hint(rule, stage)``, ``summary()``.
+``step_statistics()``, ``instability_hint(rule, stage)``, ``summary()``.
 """
 from __future__ import annotations
 
@@ -177,6 +177,11 @@ class Force(MethodBase):
                                                                          device=field.device))
             else:
                 field.zero_()
+
+    def step_statistics(self) -> dict[str, float]:
+        """Host-side figures of the last substep (e.g. iterations), merged into the solver's per-frame
+        statistics (mean and max per frame in run.json); names must not clash with the solver's."""
+        return {}
 
     def instability_hint(self, rule: str, stage: str | None) -> str | None:
         """The likely cause of a watchdog finding in this force's terms, or None."""
@@ -327,6 +332,12 @@ class SimulationForces:
     def restore_arrays(self, arrays: Mapping[str, Any]) -> None:
         for f in self.forces:
             f.restore_arrays(arrays)
+
+    def step_statistics(self) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for f in self.forces:
+            out.update(f.step_statistics())
+        return out
 
     def instability_hint(self, rule: str, stage: str | None) -> str | None:
         for f in self.forces:

@@ -269,7 +269,7 @@ class Simulation:
                         self.bodies.plan_frame(dt_max, max_speed)
                     for _ in range(n):
                         self.step(dt_max)
-                        solver_stats.append(self.solver.step_statistics())
+                        solver_stats.append({**self.solver.step_statistics(), **self.forces.step_statistics()})
                 self.solver.finish_frame()  # e.g. PBF: the density at the frame's positions, for the statistics
             if self._grow_neighbor_lists():
                 wd.restore()  # neighbours were dropped: redo the frame with the larger lists
@@ -320,7 +320,7 @@ class Simulation:
             remaining = self.frame_dt - elapsed
             dt = remaining / frame_substeps(remaining, self.time_step(self.current_speed()))
             self.step(dt)
-            solver_stats.append(self.solver.step_statistics())
+            solver_stats.append({**self.solver.step_statistics(), **self.forces.step_statistics()})
             elapsed += dt
             n += 1
             dt_min, dt_max = min(dt_min, dt), max(dt_max, dt)
