@@ -20,6 +20,7 @@ from pathlib import Path
 import warp as wp
 
 from ..io import run_folder as rf
+from ..io.probe_files import ProbeFiles
 from ..core.device import resolve_device
 from ..core.errors import OutputError, SimulationError, WarpSphError
 from .checkpoints import check_checkpoint, checkpoint_info, scene_hash, versions
@@ -73,6 +74,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     preflight_checks(scene, sim)
 
     frame_log: list[dict] = []
+    probe_files = None  # the probes' CSV files (``warp_sph.io.probe_files``)
     start_frame = 1
     created: list[Path] = []
     if resume_info is not None:
@@ -100,6 +102,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         # the USD is checked (and cut back to the checkpoint) before any frame file is removed
         exporter = Exporter(sim, out, resume_after_frame=start_frame)
         dropped = rf.truncate_run(out, start_frame)
+        if sim.probes is not None:  # rows after the checkpoint's time go; sampling continues after it
+            probe_files = ProbeFiles.resume(out, sim.probes.lines, scene.name, sim.state.time)
+            sim.probes.restart(sim.state.time)
         later = sorted({rf._frame_number(p) for p in dropped})
         log(f"resuming {out} from frame {start_frame} (step {sim.state.step})"
             + (f"; removed {len(dropped)} files of frames {later[0]}..{later[-1]} written after it" if later else ""))
@@ -109,6 +114,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         created = rf.create_run_folder(out)
         try:
             exporter = Exporter(sim, out)
+            if sim.probes is not None:
+                probe_files = ProbeFiles.create(out, sim.probes.lines, scene.name)
         except BaseException:
             _discard_start(out, created, usd_file(out, scene.name))
             raise
@@ -158,6 +165,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         steady = sum(t["seconds"] - t["first_call_seconds"] for t in rows)
         run_info["sim_time_per_step_ms"] = 1e3 * (steady / (steps_here - 1) if steps_here > 1
                                                   else run_info["first_step_time"])
+        if probe_files is not None:
+            run_info["probes"] = probe_files.summary(sim.probes.skipped())
         rf.atomic_write_json(out / rf.RUN_JSON, run_info)
 
     if exporter.far:
@@ -175,6 +184,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             d = stats.to_dict()
             d["frame"] = 1
             frame_log.append(d)
+            if probe_files is not None:
+                sim.probes.sample_now(0.0)
+                probe_files.append(sim.probes.collect())
             export(1, 0.0)
             save_info("running")
             started = True
@@ -184,6 +196,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             d = stats.to_dict()
             d["frame"] = frame
             frame_log.append(d)
+            if probe_files is not None:  # before the frame's checkpoint is queued: its rows are on disk
+                probe_files.append(sim.probes.collect())
             export(frame, sim.state.time)
             save_info("running")
             # the same figure as the summary: the largest density error of any frame so far
