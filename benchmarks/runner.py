@@ -9,6 +9,7 @@
     warp-sph bench splishsplash                    # side by side with SPlisHSPlasH (pysplishsplash)
     warp-sph bench surface                         # surface reconstruction per frame
     warp-sph bench bodies                          # moving rigid bodies against the same static obstacles
+    warp-sph bench validation                      # every solver against experiments (benchmarks/validation.py)
     warp-sph bench report                          # RESULTS.md from the JSON lines
 
 Results go to ``runs/bench/`` (JSON lines and ``RESULTS.md``) unless ``--out DIR``; ``--publish``
@@ -425,6 +426,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="runs of each variant, alternating; the fastest counts (default 3)")
     common(b)
     b.set_defaults(func=cmd_bodies)
+
+    from .validation import add_parser as add_validation
+
+    add_validation(sub, common)
 
     r = sub.add_parser("report", help="regenerate RESULTS.md, tables and plots from the JSON lines")
     where(r)

@@ -4,9 +4,11 @@ At a point x_k, with rest volumes V = m / rho0 of the fluid particles j within t
     fill      F_k = sum_j V W(x_k - x_j)                                     [-]  (1 in the bulk, ~0.5 on a wall)
     pressure  p_k = sum_j V W (p_j + rho0 g . (x_k - x_j)) / F_k             [Pa]
 The pressure is Shepard-normalised (as SPHERIC studies sample wall pressure) and carries each
-neighbour's pressure to the probe point with the hydrostatic term of Adami, Hu & Adams 2012 (eq. 27
-with a static wall), so a probe on a wall at rest reads rho0 |g| depth at the probe, not at the
-first fluid layer. Heights and fronts walk the fill along a line (step ``line_step``): the free
+neighbour's pressure to the probe point x_p with the hydrostatic term of Adami, Hu & Adams 2012 (eq. 27
+with a static wall): p_p = sum_j V W(x_k - x_j) (p_j + rho0 g . (x_p - x_j)) / F_k, so a probe on a wall at
+rest reads rho0 |g| depth at the probe, not at the first fluid layer. The kernel is centred at x_k, which
+the host moves off the container's walls to where the first fluid layer lies (DualSPHysics measures
+1.5 h inside the fluid for the same reason: on the wall the kernel sees a few particles). Heights and fronts walk the fill along a line (step ``line_step``): the free
 surface is where F falls through 1/2 (DualSPHysics' mass-limit rule with the limit half the
 bulk value), linearly interpolated between the two points around the crossing.
 """
@@ -26,7 +28,9 @@ SURFACE_FILL = wp.constant(0.5)
 
 @functools.cache
 def point_values_kernel(smoothing: str, with_pressure: bool):
-    """Kernel: fill and (``with_pressure``) Shepard pressure at each point; one thread per point."""
+    """Kernel: fill and (``with_pressure``) Shepard pressure at each point ``point_x``, the pressure carried
+    hydrostatically to ``point_target`` (the probe's point, where the evaluation point was moved off a wall);
+    one thread per point."""
     value, _ = SMOOTHING_FUNCTIONS[smoothing]
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -42,12 +46,14 @@ def point_values_kernel(smoothing: str, with_pressure: bool):
         particle_x: wp.array(dtype=wp.vec3),
         particle_pressure: wp.array(dtype=float),
         point_x: wp.array(dtype=wp.vec3),
+        point_target: wp.array(dtype=wp.vec3),
         # Out:
         point_fill_out: wp.array(dtype=float),
         point_pressure_out: wp.array(dtype=float),
     ):
         k = wp.tid()
         xk = point_x[k]
+        target = point_target[k]
         fill = float(0.0)
         weighted = float(0.0)
         query = wp.hash_grid_query(fluid_grid, xk, support_radius)
@@ -59,7 +65,7 @@ def point_values_kernel(smoothing: str, with_pressure: bool):
                 w = particle_volume * wp.static(value)(r, smoothing_length)
                 fill += w
                 if wp.static(with_pressure):
-                    weighted += w * (particle_pressure[j] + rest_density * wp.dot(gravity, d))
+                    weighted += w * (particle_pressure[j] + rest_density * wp.dot(gravity, target - particle_x[j]))
         point_fill_out[k] = fill
         if wp.static(with_pressure):
             p = float(0.0)

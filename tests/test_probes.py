@@ -24,19 +24,20 @@ def quiet(*a, **k):
     pass
 
 
-def oracle_fill_pressure(sim, points, pressure):
-    """sum_j V W and the Shepard pressure with the hydrostatic carry, brute force in float64."""
+def oracle_fill_pressure(sim, points, pressure, targets=None):
+    """sum_j V W at ``points`` and the Shepard pressure there with the hydrostatic carry to ``targets``
+    (default the points), brute force in float64."""
     m = sim.model
     x = sim.get_field("particle_x").astype(np.float64)
     V = m.particle_mass / m.rest_density
     g = np.asarray(m.gravity, dtype=np.float64)
     fills, ps = [], []
-    for p in np.asarray(points, dtype=np.float64):
-        d = p - x
-        r = np.linalg.norm(d, axis=1)
+    targets = points if targets is None else targets
+    for p, q in zip(np.asarray(points, dtype=np.float64), np.asarray(targets, dtype=np.float64)):
+        r = np.linalg.norm(p - x, axis=1)
         w = V * W(m.smoothing.name, r, m.smoothing_length)
         fills.append(w.sum())
-        ps.append((w * (pressure + m.rest_density * d @ g)).sum() / max(w.sum(), 1e-30))
+        ps.append((w * (pressure + m.rest_density * (q - x) @ g)).sum() / max(w.sum(), 1e-30))
     return np.array(fills), np.array(ps)
 
 
@@ -45,10 +46,11 @@ def tank_with(probes, **kw):
 
 
 def test_pressure_probe_matches_oracle_and_hydrostatic_depths():
-    """A lattice at rest holding p_j = rho0 g (H - z_j): probes at several depths (inside, at the floor,
-    in a corner) read rho0 g (H - z_p) exactly up to float32, and an arbitrary field reads the NumPy oracle."""
+    """A lattice at rest holding p_j = rho0 g (H - z_j): probes at several depths (inside, on the floor,
+    in the container's corner: their kernels centred one wall gap off the walls) read rho0 g (H - z_p)
+    exactly up to float32, one above the water is dry (0 Pa), and an arbitrary field reads the NumPy oracle."""
     depths = (0.05, 0.2, 0.35)
-    points = [(0.3, 0.25, 0.5 - dz) for dz in depths] + [(0.3, 0.25, 0.0), (0.0, 0.0, 0.0)]
+    points = [(0.3, 0.25, 0.5 - dz) for dz in depths] + [(0.3, 0.25, 0.0), (0.0, 0.0, 0.0), (0.3, 0.25, 0.75)]
     sim = Simulation(tank_with([{"kind": "pressure", "position": list(p), "rate": 24.0} for p in points]))
     z = sim.get_field("particle_x")[:, 2]
     H = 0.5
@@ -59,19 +61,22 @@ def test_pressure_probe_matches_oracle_and_hydrostatic_depths():
     for k, p in enumerate(points[:-1]):
         t, value, fill = got[f"probe{k}"][0]
         assert value == pytest.approx(RHO0 * G * (H - p[2]), rel=2e-5), (p, value)
-    _, value, fill = got["probe4"][0]
-    assert value == 0.0 and fill < MIN_FILL  # the container's corner is dry: no load
+    _, value, fill = got["probe5"][0]
+    assert value == 0.0 and fill < MIN_FILL  # above the water: dry, no load
     rng = np.random.default_rng(3)
     field = rng.uniform(0.0, 5000.0, len(z))
     sim.set_field("particle_pressure", field)
     sim.probes.sample_now()
     got = sim.probes.collect()
-    fills, ps = oracle_fill_pressure(sim, points, field)
+    gap = sim.scene.wall_gap
+    centres = np.clip(points, np.array([gap] * 3), np.array([0.8, 0.6, 0.8]) - gap)
+    assert np.allclose(centres[:3], points[:3]) and centres[3][2] == gap and np.allclose(centres[4], gap)
+    fills, ps = oracle_fill_pressure(sim, centres, field, targets=points)
     for k in range(len(points)):
         _, value, fill = got[f"probe{k}"][0]
         assert fill == pytest.approx(fills[k], rel=1e-5)
         assert value == pytest.approx(ps[k] if fills[k] >= MIN_FILL else 0.0, rel=1e-4)
-    assert 0.9 < fills[1] < 1.1 and fills[4] < 0.2  # bulk ~1, the container's corner nearly dry
+    assert 0.9 < fills[1] < 1.1 and fills[4] > 0.1 and fills[5] < 0.01  # bulk ~1; the corner's first particles
 
 
 def test_height_of_resting_pool_and_oracle():

@@ -14,8 +14,9 @@ the state's time back: the stage sees it and drops the samples taken after it, s
 is sampled once, from the state that is kept.
 
 Readings (``kernels/probes.py``): pressure [Pa], Shepard mean of the fluid around the point with the
-hydrostatic carry rho0 g . (x_p - x_j) (Adami et al. 2012), 0 where the fill (sum of V W) is below
-``MIN_FILL`` (dry); height [m], the world z where the fill along the vertical line first falls through
+hydrostatic carry rho0 g . (x_p - x_j) (Adami et al. 2012), the kernel centred at the point clamped into
+the container shrunk by the wall gap (a probe on a wall or in a corner reads the first fluid layers, carried
+to the wall), 0 where the fill (sum of V W) there is below ``MIN_FILL`` (dry); height [m], the world z where the fill along the vertical line first falls through
 1/2; front [m], the world coordinate along the axis of the last point of the line with fill >= 1/2
 (interpolated).
 """
@@ -57,6 +58,13 @@ class ProbeLine:
     def unit(self) -> str:
         return KINDS[self.kind][0]
 
+    def evaluation_point(self, lo, hi, gap: float) -> np.ndarray:
+        """Where a pressure probe's kernel is centred [m]: its point clamped into the container shrunk by the
+        wall gap (where the first fluid centres lie), or the point itself without a container."""
+        if lo is None:
+            return self.start.copy()
+        return np.clip(self.start, np.asarray(lo) + gap, np.asarray(hi) - gap)
+
     def points(self, step: float) -> np.ndarray:
         """World points [m] the probe reads: the point, or the line every ``step`` metres (both ends in)."""
         if self.kind == "pressure":
@@ -95,14 +103,20 @@ class _RateGroup:
         m, dev = sim.model, sim.device
         self.rate = rate
         self.lines = lines
-        pts, start, end = [], [], []
+        pts, targets, start, end = [], [], [], []
+        c = sim.scene.container
+        lo, hi = (None, None) if c is None else (c.min, c.max)
         for line in lines:
             p = line.points(line_step)
+            targets.append(p)
+            if line.kind == "pressure":
+                p = line.evaluation_point(lo, hi, sim.scene.wall_gap).reshape(1, 3)
             start.append(sum(len(q) for q in pts))
             pts.append(p)
             end.append(start[-1] + len(p))
         world = np.concatenate(pts)
         self.point_x = wp.array(m.to_local(world), dtype=wp.vec3, device=dev)
+        self.point_target = wp.array(m.to_local(np.concatenate(targets)), dtype=wp.vec3, device=dev)
         self.point_fill = wp.zeros(len(world), dtype=float, device=dev)
         self.point_pressure = wp.zeros(len(world), dtype=float, device=dev)
         self.kind = wp.array([KINDS[line.kind][1] for line in lines], dtype=int, device=dev)
@@ -220,7 +234,7 @@ class Probes:
         pressure = f["particle_pressure"] if g.with_pressure else self._no_pressure
         launch(_dev.point_values_kernel(m.smoothing.name, g.with_pressure), g.point_x.shape[0],
                [m.particle_mass / m.rest_density, m.rest_density, wp.vec3(*m.gravity), m.smoothing_length,
-                m.support_radius, self.grid.id, f["particle_x"], pressure, g.point_x],
+                m.support_radius, self.grid.id, f["particle_x"], pressure, g.point_x, g.point_target],
                [g.point_fill, g.point_pressure], device=dev)
         launch(_dev.probe_readings, len(g.lines),
                [g.kind, g.start, g.end, g.offset, MIN_FILL, self.line_step, len(g.times), g.point_fill,
