@@ -169,6 +169,7 @@ def run_one(case: Case, solver: str, resolution: str, out_root: Path, device=Non
         scene = load_case_scene(case, solver, radius, extra)
         if scene is None:
             rec.update(status="skipped", error=f"{solver} has no pressure field; the case has only pressure probes")
+            log(f"  {case.name} {solver} {resolution}: skipped ({rec['error']})")
             return rec
         c0, w0 = time.process_time(), time.perf_counter()
         info = runner.run(scene, out=folder, overwrite=True, progress=False, device=device, log=lambda *a: None)
@@ -194,7 +195,8 @@ def summary_text(rec: dict) -> str:
         return "; ".join(f"{s}: peak {100 * v['peak_error']:+.0f} %, time {100 * v['time_error']:+.1f} %"
                          for s, v in f.items() if isinstance(v, dict)) or f.get("note", "")
     if rec["case"] == "hydrostatic":
-        return ", ".join(f"{k} {100 * v:+.2f} %" for k, v in f.items() if k.endswith("_error"))
+        return ", ".join(f"{k} {100 * v:+.2f} %" for k, v in f.items() if k.endswith("_error")) or \
+            f"surface {f.get('surface_height', 0):.4f} m (no pressure field)"
     return ""
 
 
