@@ -99,10 +99,13 @@ def moving_average(t, v, window: float) -> np.ndarray:
 
 
 def peak(t_sim, p_sim, t_exp, p_exp) -> dict:
-    """The largest value of each series and its time; peak_error = p_sim/p_exp - 1, time_error =
+    """The largest value of each series and its time, the experiment's within the simulated span (a run
+    shorter than the experiment compares the peaks it saw); peak_error = p_sim/p_exp - 1, time_error =
     t_sim/t_exp - 1 (relative, the experiment's time from the simulation's start)."""
     t_sim, p_sim = np.asarray(t_sim, dtype=np.float64), np.asarray(p_sim, dtype=np.float64)
     t_exp, p_exp = np.asarray(t_exp, dtype=np.float64), np.asarray(p_exp, dtype=np.float64)
+    inside = (t_exp >= t_sim[0] - 1e-12) & (t_exp <= t_sim[-1] + 1e-12)
+    t_exp, p_exp = t_exp[inside], p_exp[inside]
     i, j = int(np.argmax(p_sim)), int(np.argmax(p_exp))
     return {"sim_peak": float(p_sim[i]), "sim_time": float(t_sim[i]), "exp_peak": float(p_exp[j]),
             "exp_time": float(t_exp[j]), "peak_error": float(p_sim[i] / p_exp[j] - 1.0),
