@@ -302,46 +302,24 @@ def section(records: list[dict], fmt, head) -> list[str]:
     return lines
 
 
-def command(args, argv: list[str], log=print) -> int:
-    """``warp-sph bench validation``: run, append the records, draw the plots, rebuild the report."""
-    from .records import now, solver_names
-    from .runner import _finish, _out, _save, check_names
 
-    from warp_sph.core.errors import WarpSphError
-
-    cases = [c.strip() for c in args.cases.split(",") if c.strip()] if args.cases else list(CASES)
-    bad = [c for c in cases if c not in CASES]
-    if bad:
-        raise WarpSphError(f"bench validation: --cases {args.cases!r}: unknown {', '.join(map(repr, bad))}; "
-                           f"expected some of {', '.join(CASES)}")
-    check_names("--solvers", args.solvers, solver_names())
-    solvers = [s.strip() for s in args.solvers.split(",") if s.strip()] if args.solvers else list(solver_names())
-    resolutions = ["coarse", "fine"] if args.resolution == "both" else [args.resolution]
-    invocation = now()
-    log(f"validation: {len(cases)} cases x {len(solvers)} solvers x {len(resolutions)} resolutions; runs in {args.runs}")
-    records = run_validation(cases, solvers, resolutions, Path(args.runs), device=args.device, extra=args.set, log=log)
-    from .records import host_info
-    from warp_sph.run.checkpoints import versions
-
-    for r in records:
-        r.update(host=host_info(), versions=versions(), date=now())
-    out = _save("validation", records, args, argv, invocation, log)
-    for case in cases:
-        p = plot_case(case, records, Path(out) / f"validation_{case}.png")
-        if p:
-            log(f"plot: {p}")
-    return _finish(out, args, records, log)
-
-
-def add_parser(sub, common) -> None:
-    """The ``validation`` subcommand of ``warp-sph bench``."""
-    v = sub.add_parser("validation", help="every solver against published experiments (column collapse, dam-break "
-                       "wall pressure, hydrostatic tank) at two resolutions: error figures and plots")
+def add_arguments(v) -> None:
+    """The options of ``warp-sph bench validation`` (runner.py registers the command)."""
     v.add_argument("--cases", default=None, help=f"comma-separated cases (default: all: {', '.join(CASES)})")
     v.add_argument("--solvers", default=None, help="comma-separated solvers (default: every solver)")
     v.add_argument("--resolution", choices=("coarse", "fine", "both"), default="both",
                    help="the cases' coarse or fine particle radius, or both (default)")
     v.add_argument("--runs", default=str(Path("runs") / "bench" / "validation"),
                    help="folder of the run folders (default runs/bench/validation; replaced on every run)")
-    common(v)
-    v.set_defaults(func=lambda args, argv, log=print: command(args, argv, log))
+
+
+def case_names(text: str | None) -> list[str]:
+    """--cases text -> case names; WarpSphError (one line) for an unknown one."""
+    from warp_sph.core.errors import WarpSphError
+
+    cases = [c.strip() for c in text.split(",") if c.strip()] if text else list(CASES)
+    bad = [c for c in cases if c not in CASES]
+    if bad:
+        raise WarpSphError(f"bench validation: --cases {text!r}: unknown {', '.join(map(repr, bad))}; "
+                           f"expected some of {', '.join(CASES)}")
+    return cases
