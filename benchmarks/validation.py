@@ -237,13 +237,13 @@ def plot_case(case: str, records: list[dict], path: Path) -> Path | None:
     for ax, (key, data, xl, yl, xlim) in zip(axes[0], panels):
         if data:
             te, ve, cite = E.load_series(data)
-            ax.plot(te, ve, "ko", ms=3.5, label=cite[0].split("(")[0].strip().rstrip(",") + " (experiment)")
+            ax.plot(te, ve, "ko", ms=3.5, zorder=10, label=cite[0].split("(")[0].strip().rstrip(",") + " (experiment)")
         else:
             ax.axhline(1.0, color="k", lw=1, label="ρ0 g (h − z)")
         for r in recs:
             s = np.array(r["series"].get(key) or [], dtype=float).reshape(-1, 2)
             if len(s):
-                ax.plot(s[:, 0], s[:, 1], lw=1.1, ls="-" if r["resolution"] == "fine" else "--",
+                ax.plot(s[:, 0], s[:, 1], lw=0.9, alpha=0.8, ls="-" if r["resolution"] == "fine" else "--",
                         label=f"{r['solver']} {r['resolution']} (r = {r['particle_radius']:g} m)")
         ax.set_xlabel(xl)
         ax.set_ylabel(yl)
