@@ -10,6 +10,7 @@
     warp-sph bench surface                         # surface reconstruction per frame
     warp-sph bench bodies                          # moving rigid bodies against the same static obstacles
     warp-sph bench forces                          # each force's cost per particle-step beside its solver's
+    warp-sph bench validation                      # every solver against experiments (benchmarks/validation.py)
     warp-sph bench report                          # RESULTS.md from the JSON lines
 
 Results go to ``runs/bench/`` (JSON lines and ``RESULTS.md``) unless ``--out DIR``; ``--publish``
@@ -312,6 +313,28 @@ def cmd_forces(args, argv: list[str], log=print) -> int:
     return _finish(_save("forces", records, args, argv, invocation, log), args, records, log)
 
 
+def cmd_validation(args, argv: list[str], log=print) -> int:
+    from warp_sph.run.checkpoints import versions
+
+    from . import validation as V
+    from .records import solver_names
+
+    cases = V.case_names(args.cases)
+    check_names("--solvers", args.solvers, solver_names())
+    solvers = [s.strip() for s in args.solvers.split(",") if s.strip()] if args.solvers else list(solver_names())
+    resolutions = ["coarse", "fine"] if args.resolution == "both" else [args.resolution]
+    invocation = now()
+    records = V.run_validation(cases, solvers, resolutions, Path(args.runs), device=args.device, extra=args.set, log=log)
+    for r in records:
+        r.update(host=host_info(), versions=versions(), date=now())
+    out = _save("validation", records, args, argv, invocation, log)
+    for case in cases:
+        path = V.plot_case(case, records, out / f"validation_{case}.png")
+        if path:
+            log(f"plot: {path}")
+    return _finish(out, args, records, log)
+
+
 def _finish(out: Path, args, records: list[dict], log) -> int:
     if not getattr(args, "no_report", False):
         from .report import write_report
@@ -457,6 +480,14 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--forces", default="", help="comma-separated forces (default: every registered force)")
     common(f)
     f.set_defaults(func=cmd_forces)
+
+    from .validation import add_arguments as validation_arguments
+
+    v = sub.add_parser("validation", help="every solver against published experiments (column collapse, dam-break "
+                       "wall pressure, hydrostatic tank) at two resolutions: error figures and plots")
+    validation_arguments(v)
+    common(v)
+    v.set_defaults(func=cmd_validation)
 
     r = sub.add_parser("report", help="regenerate RESULTS.md, tables and plots from the JSON lines")
     where(r)

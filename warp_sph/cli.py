@@ -1,4 +1,4 @@
-"""Command line: ``warp-sph run | scenes | check | export | preview | sweep | bench``.
+"""Command line: ``warp-sph run | scenes | check | export | preview | plot | sweep | bench``.
 
 Errors the user can act on print one line (``warp-sph: error: ...``) and exit with status 2;
 no traceback. Ctrl-C stops a run and keeps every frame written so far (exit status 130).
@@ -212,6 +212,14 @@ def _cmd_sweep(args) -> int:
     return 0 if set(counts) <= {"completed"} else 1
 
 
+def _cmd_plot(args) -> int:
+    from .preview.plot_probes import plot_run
+
+    for path in plot_run(Path(args.run), out=Path(args.out) if args.out else None):
+        print(path)
+    return 0
+
+
 def _cmd_bench(args) -> int:
     from .benchmarks.runner import main as bench_main
 
@@ -295,6 +303,11 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--device", default=None, help="Warp device of every case: cpu or cuda:0 (default: Warp's default)")
     w.add_argument("--no-progress", action="store_true", help="no progress bar")
     w.set_defaults(func=_cmd_sweep)
+
+    pl = sub.add_parser("plot", parents=[common], help="plot a run's probes ([[probes]]) to PNG (needs the plots extra)")
+    pl.add_argument("run", help="run folder")
+    pl.add_argument("--out", help="output folder (default: RUN/plots)")
+    pl.set_defaults(func=_cmd_plot)
 
     b = sub.add_parser("bench", help="benchmarks: speed and accuracy (see warp-sph bench --help)", add_help=False)
     b.add_argument("bench_args", nargs=argparse.REMAINDER)  # main() passes everything after "bench" through

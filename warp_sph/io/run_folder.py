@@ -7,6 +7,8 @@ Layout of DIR:
     checkpoints/checkpoint_000010.npz   exact state to resume from (written atomically, after the
                                   frame's other outputs: checkpoint k implies frames 1..k are saved)
     mesh/surface_000001.obj       optional mesh sequence
+    probe_<name>.csv              probe samples (``[[probes]]``, ``warp_sph.io.probe_files``)
+    plots/probe_<name>.png        probe plots (``warp-sph plot``)
     export/                       re-exports from the recorded frames (``warp-sph export``)
 """
 from __future__ import annotations
@@ -32,9 +34,12 @@ RUN_FILE_PATTERNS = {
     "checkpoints": re.compile(r"checkpoint_\d{6}\.npz"),
     "mesh": re.compile(r"surface_\d{6}\.(obj|ply|vtk)"),
     "preview": re.compile(r"(particles|surface)(_\d{6}\.png|\.gif)"),
+    "plots": re.compile(r"probe_[A-Za-z0-9_-]+\.png"),
 }
+#: the probes' CSV files beside run.json (``warp_sph.io.probe_files``)
+PROBE_CSV_PATTERN = re.compile(r"probe_[A-Za-z0-9_-]+\.csv")
 #: temporary files of the atomic writes below (left behind only by a crash during a write)
-_TEMP_PATTERN = re.compile(r"\.(frame|checkpoint|surface|particles|run)[A-Za-z0-9_.]*\.tmp(\.npz)?")
+_TEMP_PATTERN = re.compile(r"\.(frame|checkpoint|surface|particles|run|probe)[A-Za-z0-9_.-]*\.tmp(\.npz)?")
 
 
 def safe_name(name: str) -> str:
@@ -261,7 +266,8 @@ def run_files(out: Path) -> list[Path]:
             usd = out / f"{safe_name(name)}.usdc"
             if usd.is_file():
                 found.append(usd)
-    found += [p for p in sorted(out.iterdir()) if p.is_file() and _TEMP_PATTERN.fullmatch(p.name)]
+    found += [p for p in sorted(out.iterdir()) if p.is_file() and (_TEMP_PATTERN.fullmatch(p.name)
+                                                                   or PROBE_CSV_PATTERN.fullmatch(p.name))]
     for sub, pattern in RUN_FILE_PATTERNS.items():
         d = out / sub
         if d.is_dir():

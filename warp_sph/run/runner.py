@@ -20,6 +20,7 @@ from pathlib import Path
 import warp as wp
 
 from ..io import run_folder as rf
+from ..io.probe_files import ProbeFiles
 from ..core.device import resolve_device
 from ..core.errors import OutputError, SimulationError, WarpSphError
 from .checkpoints import check_checkpoint, checkpoint_info, scene_hash, versions
@@ -78,12 +79,16 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     created: list[Path] = []
     if resume_info is not None:
         start_frame, frame_log, exporter = _resume_start(sim, out, total, *resume_info, log=log)
+        probe_files = None  # the probes' CSV files (``warp_sph.io.probe_files``)
+        if sim.probes is not None:  # rows after the checkpoint's time go; sampling continues after it
+            probe_files = ProbeFiles.resume(out, sim.probes.lines, scene.name, sim.state.time)
+            sim.probes.restart(sim.state.time)
     else:
         if restart:
             log(f"{out}: no checkpoint to resume from ({restart}): running it again from frame 1 with the scene "
                 f"of its {rf.RUN_JSON}, replacing its run files")
         start_frame, frame_log = 1, []
-        exporter, created = _fresh_outputs(sim, out, scene, total)
+        exporter, created, probe_files = _fresh_outputs(sim, out, scene, total)
 
     worker = ExportThread(exporter) if threaded_export else None
     checkpoint_every = int(scene.output.checkpoint_every)
@@ -117,6 +122,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["export"] = exporter.report()
         run_info["threaded_export"] = worker is not None
         _step_times(run_info)
+        if probe_files is not None:
+            run_info["probes"] = probe_files.summary(sim.probes.skipped())
         rf.atomic_write_json(out / rf.RUN_JSON, run_info)
 
     if exporter.far:
@@ -132,6 +139,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             d = stats.to_dict()
             d["frame"] = 1
             frame_log.append(d)
+            if probe_files is not None:
+                sim.probes.sample_now(0.0)
+                probe_files.append(sim.probes.collect())
             export(1, 0.0)
             save_info("running")
             started = True
@@ -141,6 +151,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             d = stats.to_dict()
             d["frame"] = frame
             frame_log.append(d)
+            if probe_files is not None:  # before the frame's checkpoint is queued: its rows are on disk
+                probe_files.append(sim.probes.collect())
             export(frame, sim.state.time)
             save_info("running")
             # the same figure as the summary: the largest density error of any frame so far
@@ -243,8 +255,8 @@ def _resume_outputs(sim: Simulation, out: Path, start_frame: int, log) -> Export
     return exporter
 
 
-def _fresh_outputs(sim: Simulation, out: Path, scene, total: int) -> tuple[Exporter, list[Path]]:
-    """(exporter, folders created) of a new run in ``out``: a previous run there is cleared (--overwrite,
+def _fresh_outputs(sim: Simulation, out: Path, scene, total: int) -> tuple[Exporter, list[Path], ProbeFiles | None]:
+    """(exporter, folders created, probe CSV files or None) of a new run in ``out``: a previous run there is cleared (--overwrite,
     or a --resume that restarts; ``choose_run_folder`` refused it otherwise); run.json is written first, so
     a run killed from here on leaves a folder that --resume (or --overwrite) takes; if the exporter cannot
     start, what was created goes."""
@@ -255,7 +267,9 @@ def _fresh_outputs(sim: Simulation, out: Path, scene, total: int) -> tuple[Expor
         rf.atomic_write_json(out / rf.RUN_JSON, {"scene": scene.to_dict(), "versions": versions(),
                                                   "frames_requested": total, "frames": [], "status": "starting",
                                                   "out": str(out)})
-        return Exporter(sim, out), created
+        exporter = Exporter(sim, out)
+        probe_files = ProbeFiles.create(out, sim.probes.lines, scene.name) if sim.probes is not None else None
+        return exporter, created, probe_files
     except BaseException:
         _discard_start(out, created, usd_file(out, scene.name))
         raise

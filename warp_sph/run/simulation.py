@@ -135,6 +135,12 @@ class Simulation:
         #: the scene's non-pressure forces (``warp_sph.methods.force.SimulationForces``); solvers place their
         #: stages at their slots
         self.forces = SimulationForces(self)
+        #: the scene's probes (``warp_sph.run.probes.Probes``); None without [[probes]]
+        self.probes = None
+        if scene.probes:
+            from .probes import Probes
+
+            self.probes = Probes(self)
         self.set_solver(solver_cls.name, **(solver_options or {}))
         self.watchdog = Watchdog(self)
         #: sort the per-particle fields into cell order for each frame (``warp_sph.neighbors.particle_order``)
@@ -160,6 +166,8 @@ class Simulation:
             stages = self.bodies.insert_stages(stages, solver)
             self.bodies.place()  # the neighbour lists exist now: their moving grid is the workspace's
         self.solver = solver
+        if self.probes is not None:  # after every other stage: they read the substep's end state
+            stages = stages + [self.probes.stage(stages)]
         self.graph = StepGraph(stages, self._inputs | set(solver.carried_fields()) | set(self.forces.carried_fields()),
                                device=self.device,
                                synchronize_timing=self.device.is_cuda)

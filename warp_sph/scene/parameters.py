@@ -21,6 +21,7 @@ PARTICLE_PRIMVARS = ("density", "pressure")
 FLUID_SHAPES = ("box", "sphere")
 OBSTACLE_SHAPES = ("box", "mesh")
 BODY_SHAPES = ("box", "sphere", "mesh")
+PROBE_KINDS = ("pressure", "height", "front")
 TABLE_KINDS = ("table", "tables", "table_or_false")
 
 
@@ -201,6 +202,20 @@ _TAIL = (
     _P("bodies[].angular_velocity", "vec3", "rad/s", (0.0, 0.0, 0.0), "initial angular velocity (world axes)"),
     _P("bodies[].fluid_friction", "float", "-", None, "Akinci boundary friction sigma between this body and "
        "the fluid (absent: material.boundary_friction)", ge=0.0, default_text="material.boundary_friction"),
+    # probes (warp_sph.run.probes): sampled during the run, one CSV per probe in the run folder
+    _P("probes", "tables", "-", [], "probes ([[probes]]): wall pressure, water height or surge front sampled "
+       "during the run into probe_<name>.csv (docs/probes.md)", default_text="none"),
+    _P("probes[].name", "str", "-", "", "name of the probe in its CSV file and run.json (default: probe<index>); "
+       "letters, digits, '-' and '_'"),
+    _P("probes[].kind", "str", "-", REQUIRED, "'pressure': Shepard-weighted fluid pressure at a point on or near a "
+       "wall [Pa]; 'height': free-surface elevation along a vertical line [m]; 'front': the furthest fluid along a "
+       "line [m]", choices=PROBE_KINDS),
+    _P("probes[].position", "vec3", "m", REQUIRED, "the pressure point, or the start of the height or front line"),
+    _P("probes[].axis", "vec3", "-", (1.0, 0.0, 0.0), "direction of a front line (normalised)", shapes=("front",)),
+    _P("probes[].length", "float", "m", None, "length of a height or front line (absent: up to the container wall)",
+       gt=0.0, shapes=("height", "front"), default_text="to the wall"),
+    _P("probes[].rate", "float", "Hz", 100.0, "samples per second of simulated time; at most one per substep",
+       gt=0.0),
     _P("rigid", "table", "-", {}, "contacts of the rigid bodies (Newton, penalty contacts)"),
     _P("rigid.contact_friction", "float", "-", 0.5, "Coulomb friction coefficient of every body contact "
        "(body-body, body-wall, body-obstacle)", ge=0.0, le=10.0),

@@ -61,11 +61,15 @@ Body = section_class("bodies[]", _CORE["bodies[]"].values(),
                      doc="A moving rigid body (``warp_sph.rigid``); keys of other shapes are None (file: the "
                          "absolute path after loading).")
 Body.__name__ = Body.__qualname__ = "Body"
+Probe = section_class("probes[]", _CORE["probes[]"].values(),
+                      doc="A probe sampled during the run (``warp_sph.run.probes``); keys of other kinds are None.")
+Probe.__name__ = Probe.__qualname__ = "Probe"
 RigidParams = section_class("rigid", _CORE["rigid"].values(), doc="Contacts of the rigid bodies.")
 
 #: core section name -> class (method sections come from the registry)
 CORE_SECTIONS = {"material": Material, "time": TimeParams, "container": Container, "output": OutputParams,
-                 "fluid[]": FluidBlock, "obstacles[]": Obstacle, "bodies[]": Body, "rigid": RigidParams}
+                 "fluid[]": FluidBlock, "obstacles[]": Obstacle, "bodies[]": Body, "rigid": RigidParams,
+                 "probes[]": Probe}
 
 
 @dataclass
@@ -99,6 +103,7 @@ class Scene:
     obstacles: list = field(default_factory=list)
     bodies: list = field(default_factory=list)
     forces: list = field(default_factory=list)
+    probes: list = field(default_factory=list)
     rigid: Any = field(default_factory=RigidParams)
     output: Any = field(default_factory=OutputParams)
     sections: dict = field(default_factory=dict)

@@ -91,7 +91,7 @@ class Validator:
         return v
 
     # one table -----------------------------------------------------------------------------
-    def table(self, raw, section: str, keypath: str, shape_key: bool = False) -> dict:
+    def table(self, raw, section: str, keypath: str, shape_key: bool | str = False) -> dict:
         params = {k: p for k, p in self.params.get(section, {}).items() if p.kind not in TABLE_KINDS}
         if not isinstance(raw, dict):
             self.fail(keypath, f"expected a table, got {_short(raw)}")
@@ -99,19 +99,22 @@ class Validator:
             if k not in params:
                 self.fail(f"{keypath}.{k}", f"unknown key; expected one of {', '.join(params)}")
         shape = None
+        word = shape_key if isinstance(shape_key, str) else "shape"  # the key that selects the keys used
         if shape_key:
-            shape = self.value(params["shape"], raw.get("shape", params["shape"].default), f"{keypath}.shape")
+            if params[word].default is REQUIRED and word not in raw:
+                self.fail(f"{keypath}.{word}", f"missing; expected {params[word].expected()}")
+            shape = self.value(params[word], raw.get(word, params[word].default), f"{keypath}.{word}")
         out = {}
         for k, p in params.items():
             kp = f"{keypath}.{k}"
             if p.shapes is not None and shape not in p.shapes:
                 if k in raw:
-                    self.fail(kp, f"not used by shape {shape!r} (used by {', '.join(map(repr, p.shapes))})")
+                    self.fail(kp, f"not used by {word} {shape!r} (used by {', '.join(map(repr, p.shapes))})")
                 out[k] = None
             elif k in raw:
                 out[k] = self.value(p, raw[k], kp)
             elif p.default is REQUIRED:
-                self.fail(kp, f"missing; expected {p.expected()}" + (f" for shape {shape!r}" if shape else ""))
+                self.fail(kp, f"missing; expected {p.expected()}" + (f" for {word} {shape!r}" if shape else ""))
             else:
                 out[k] = copy.copy(list(p.default) if isinstance(p.default, (list, tuple)) and p.kind == "str_list"
                                    else p.default)
@@ -161,11 +164,12 @@ class Validator:
         values["obstacles"] = self.blocks(data, "obstacles", required=False)
         values["bodies"] = self.blocks(data, "bodies", required=False)
         values["forces"] = self.forces(data)
+        values["probes"] = self.blocks(data, "probes", required=False, shape_key="kind")
         scene = Scene(**values, source=self.source)
         self.cross_checks(scene)
         return scene
 
-    def blocks(self, data, name: str, required: bool) -> list:
+    def blocks(self, data, name: str, required: bool, shape_key: str = "shape") -> list:
         raw = data.get(name, [])
         if isinstance(raw, dict):
             self.fail(name, f"expected an array of tables: write [[{name}]] (double brackets) for each block, "
@@ -178,8 +182,8 @@ class Validator:
         out = []
         for i, b in enumerate(raw):
             kp = f"{name}[{i}]"
-            block = cls(**self.table(b, f"{name}[]", kp, shape_key=True))
-            if block.shape == "box" and name != "bodies":
+            block = cls(**self.table(b, f"{name}[]", kp, shape_key=shape_key))
+            if getattr(block, "shape", None) == "box" and name != "bodies":
                 self.box(block.min, block.max, kp)
             if name in ("obstacles", "bodies") and block.shape == "mesh":
                 self.mesh_file(block, kp, name)
@@ -263,6 +267,10 @@ class Validator:
             from ..rigid.checks import check_bodies
 
             check_bodies(scene, self.fail)
+        if scene.probes:
+            from .probes import check_probes
+
+            check_probes(scene, self.fail)
 
 
 def lattice_neighbor_counts(scene) -> tuple[int, int]:

@@ -1,0 +1,123 @@
+"""Error figures of a simulation against a published experiment: pure functions of two series (NumPy,
+float64), so the bench and its tests compute them with the same code (``tests/test_validation.py``).
+
+Both series are in the experiment's dimensionless variables (the case converts the probe CSV).
+
+front_rms      relative RMS of the front, sqrt(mean_i ((Z_sim(T_i - s) - Z_i) / Z_i)^2), minimised over a start-time
+               shift |s| <= max_shift (experiments lift a gate in finite time, a simulation releases at once: the
+               experiment's clock may run late by s); the points with T_i - s inside the simulated span count.
+peak           the largest value of each series and its time; the relative errors of both (the bench filters the
+               simulated pressure first: ``moving_average``, a centred window of ``PRESSURE_WINDOW`` seconds).
+gauge_rms      RMS of (h_sim(T_i) - h_i) over the experimental points in the simulated span, in the series' units
+               (heights over the initial height: an absolute figure, as h -> 0 makes relative errors meaningless).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+#: the shipped experimental series (CSV with a citation in '#' lines, then a header row)
+DATA_DIR = Path(__file__).resolve().parent / "validation_data"
+#: the start-time shift the front RMS may use, in the experiment's time unit (the issue's 0.2 T)
+MAX_SHIFT = 0.2
+#: the centred moving-average window applied to simulated pressures before their peak is compared [s]:
+#: SPH pressure at one point is noisy from step to step; experiments average over a sensor's face (a few mm)
+PRESSURE_WINDOW = 0.004
+
+
+def load_series(name: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """(time, value, citation lines) of ``validation_data/<name>.csv``; the citation is its '#' lines."""
+    path = DATA_DIR / f"{name}.csv"
+    lines = path.read_text().splitlines()
+    cite = [ln[1:].strip() for ln in lines if ln.startswith("#")]
+    rows = [ln for ln in lines if ln and not ln.startswith("#")][1:]
+    data = np.array([[float(v) for v in ln.split(",")] for ln in rows], dtype=np.float64)
+    return data[:, 0], data[:, 1], cite
+
+
+def _interp(t_sim, v_sim, t):
+    """The simulated series at times t (linear), NaN outside its span."""
+    t_sim = np.asarray(t_sim, dtype=np.float64)
+    v = np.interp(t, t_sim, np.asarray(v_sim, dtype=np.float64))
+    return np.where((t >= t_sim[0] - 1e-12) & (t <= t_sim[-1] + 1e-12), v, np.nan)
+
+
+def _relative_rms(t_sim, v_sim, t_exp, v_exp, shift):
+    pred = _interp(t_sim, v_sim, np.asarray(t_exp) - shift)
+    ok = np.isfinite(pred)
+    if not ok.any():
+        return np.nan, 0
+    err = (pred[ok] - np.asarray(v_exp)[ok]) / np.asarray(v_exp)[ok]
+    return float(np.sqrt(np.mean(err * err))), int(ok.sum())
+
+
+def front_rms(t_sim, z_sim, t_exp, z_exp, max_shift: float = MAX_SHIFT, resolution: float = 1e-3) -> dict:
+    """Relative RMS front error with the best start-time shift |s| <= max_shift (searched on a grid of
+    ``resolution``, then refined). Returns rms, shift (s > 0: the experiment's clock runs late), the
+    points used, and rms_unshifted (s = 0). Points of different shifts count only when they all lie in
+    the simulated span (the set of points is the one for s = 0 where it can be, so no shift wins by
+    dropping points)."""
+    t_exp = np.asarray(t_exp, dtype=np.float64)
+    z_exp = np.asarray(z_exp, dtype=np.float64)
+    t_sim = np.asarray(t_sim, dtype=np.float64)
+    # points that every shift in the range can evaluate
+    inside = (t_exp - max_shift >= t_sim[0] - 1e-12) & (t_exp + max_shift <= t_sim[-1] + 1e-12)
+    if not inside.any():
+        inside = (t_exp >= t_sim[0]) & (t_exp <= t_sim[-1])
+    te, ze = t_exp[inside], z_exp[inside]
+    if te.size == 0:
+        return {"rms": None, "shift": None, "points": 0, "rms_unshifted": None}
+    grid = np.arange(-max_shift, max_shift + 0.5 * resolution, resolution)
+    values = [_relative_rms(t_sim, z_sim, te, ze, s)[0] for s in grid]
+    k = int(np.nanargmin(values))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    for _ in range(40):  # golden-section refinement inside the best grid cell's neighbours
+        a, b = lo + 0.382 * (hi - lo), lo + 0.618 * (hi - lo)
+        if _relative_rms(t_sim, z_sim, te, ze, a)[0] <= _relative_rms(t_sim, z_sim, te, ze, b)[0]:
+            hi = b
+        else:
+            lo = a
+    best = 0.5 * (lo + hi)
+    rms, n = _relative_rms(t_sim, z_sim, te, ze, best)
+    if values[k] < rms:
+        best, rms = float(grid[k]), values[k]
+    return {"rms": rms, "shift": float(best), "points": n,
+            "rms_unshifted": _relative_rms(t_sim, z_sim, te, ze, 0.0)[0]}
+
+
+def moving_average(t, v, window: float) -> np.ndarray:
+    """Centred moving average of v over ``window`` (in t's units): each sample the mean of the samples within
+    window / 2 of it (the ends average what they have). window <= 0 returns v."""
+    t, v = np.asarray(t, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    if window <= 0 or v.size == 0:
+        return v.copy()
+    c = np.concatenate([[0.0], np.cumsum(v)])
+    lo = np.searchsorted(t, t - 0.5 * window - 1e-12, side="left")
+    hi = np.searchsorted(t, t + 0.5 * window + 1e-12, side="right")
+    return (c[hi] - c[lo]) / (hi - lo)
+
+
+def peak(t_sim, p_sim, t_exp, p_exp) -> dict:
+    """The largest value of each series and its time, the experiment's within the simulated span (a run
+    shorter than the experiment compares the peaks it saw); peak_error = p_sim/p_exp - 1, time_error =
+    t_sim/t_exp - 1 (relative, the experiment's time from the simulation's start)."""
+    t_sim, p_sim = np.asarray(t_sim, dtype=np.float64), np.asarray(p_sim, dtype=np.float64)
+    t_exp, p_exp = np.asarray(t_exp, dtype=np.float64), np.asarray(p_exp, dtype=np.float64)
+    inside = (t_exp >= t_sim[0] - 1e-12) & (t_exp <= t_sim[-1] + 1e-12)
+    t_exp, p_exp = t_exp[inside], p_exp[inside]
+    i, j = int(np.argmax(p_sim)), int(np.argmax(p_exp))
+    return {"sim_peak": float(p_sim[i]), "sim_time": float(t_sim[i]), "exp_peak": float(p_exp[j]),
+            "exp_time": float(t_exp[j]), "peak_error": float(p_sim[i] / p_exp[j] - 1.0),
+            "time_error": float(t_sim[i] / t_exp[j] - 1.0)}
+
+
+def gauge_rms(t_sim, h_sim, t_exp, h_exp) -> dict:
+    """RMS of h_sim(T_i) - h_i over the experimental points inside the simulated span (absolute, in the
+    series' units), and the points used."""
+    pred = _interp(t_sim, h_sim, np.asarray(t_exp, dtype=np.float64))
+    ok = np.isfinite(pred)
+    if not ok.any():
+        return {"rms": None, "points": 0}
+    err = pred[ok] - np.asarray(h_exp, dtype=np.float64)[ok]
+    return {"rms": float(np.sqrt(np.mean(err * err))), "points": int(ok.sum())}

@@ -1,0 +1,140 @@
+"""Probe kernels: kernel-weighted fluid values at fixed points, and the probe readings made from them.
+
+At a point x_k, with rest volumes V = m / rho0 of the fluid particles j within the support H_s:
+    fill      F_k = sum_j V W(x_k - x_j)                                     [-]  (1 in the bulk, ~0.5 on a wall)
+    pressure  p_k = sum_j V W (p_j + rho0 g . (x_k - x_j)) / F_k             [Pa]
+The pressure is Shepard-normalised (as SPHERIC studies sample wall pressure) and carries each
+neighbour's pressure to the probe point x_p with the hydrostatic term of Adami, Hu & Adams 2012 (eq. 27
+with a static wall): p_p = sum_j V W(x_k - x_j) (p_j + rho0 g . (x_p - x_j)) / F_k, so a probe on a wall at
+rest reads rho0 |g| depth at the probe, not at the first fluid layer. The kernel is centred at x_k, which
+the host moves off the container's walls to where the first fluid layer lies (DualSPHysics measures
+1.5 h inside the fluid for the same reason: on the wall the kernel sees a few particles). Heights and fronts walk the fill along a line (step ``line_step``): the free
+surface is where F falls through 1/2 (DualSPHysics' mass-limit rule with the limit half the
+bulk value), linearly interpolated between the two points around the crossing.
+"""
+import functools
+
+import warp as wp
+
+from .smoothing import SMOOTHING_FUNCTIONS
+
+#: probe kinds as the device sees them
+KIND_PRESSURE = wp.constant(0)
+KIND_HEIGHT = wp.constant(1)
+KIND_FRONT = wp.constant(2)
+#: the fill at the free surface of a height or front line [-]
+SURFACE_FILL = wp.constant(0.5)
+
+
+@functools.cache
+def point_values_kernel(smoothing: str, with_pressure: bool):
+    """Kernel: fill and (``with_pressure``) Shepard pressure at each point ``point_x``, the pressure carried
+    hydrostatically to ``point_target`` (the probe's point, where the evaluation point was moved off a wall);
+    one thread per point."""
+    value, _ = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def probe_point_values(
+        # Model:
+        particle_volume: float,
+        rest_density: float,
+        gravity: wp.vec3,
+        smoothing_length: float,
+        support_radius: float,
+        # In:
+        fluid_grid: wp.uint64,
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_pressure: wp.array(dtype=float),
+        point_x: wp.array(dtype=wp.vec3),
+        point_target: wp.array(dtype=wp.vec3),
+        # Out:
+        point_fill_out: wp.array(dtype=float),
+        point_pressure_out: wp.array(dtype=float),
+    ):
+        k = wp.tid()
+        xk = point_x[k]
+        target = point_target[k]
+        fill = float(0.0)
+        weighted = float(0.0)
+        query = wp.hash_grid_query(fluid_grid, xk, support_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            d = xk - particle_x[j]
+            r = wp.length(d)
+            if r < support_radius:
+                w = particle_volume * wp.static(value)(r, smoothing_length)
+                fill += w
+                if wp.static(with_pressure):
+                    weighted += w * (particle_pressure[j] + rest_density * wp.dot(gravity, target - particle_x[j]))
+        point_fill_out[k] = fill
+        if wp.static(with_pressure):
+            p = float(0.0)
+            if fill > 0.0:
+                p = weighted / fill
+            point_pressure_out[k] = p
+
+    return probe_point_values
+
+
+@wp.func
+def line_crossing(point_fill: wp.array(dtype=float), start: int, end: int, step: float, last: int) -> float:
+    """Distance [m] along a line of points (``start`` .. ``end`` - 1, ``step`` apart) to the free surface:
+    last = 0: the first fall of the fill through 1/2 after it was >= 1/2 (height: walk up from the floor,
+    spray above the first surface ignored); last = 1: the last point with fill >= 1/2 and the fall after
+    it (front: the furthest fluid). Linear interpolation between the points around the crossing;
+    0 when no point reaches 1/2 (dry), the line's length when the fluid reaches its end."""
+    wet = int(-1)
+    s = float(0.0)
+    found = int(0)
+    for k in range(start, end):
+        f = point_fill[k]
+        if f >= SURFACE_FILL:
+            wet = k
+            s = float(k - start) * step
+            found = 0
+        elif wet >= 0 and found == 0:
+            f0 = point_fill[k - 1]
+            s = (float(k - 1 - start) + (f0 - SURFACE_FILL) / (f0 - f)) * step
+            found = 1
+            if last == 0:
+                return s
+    return s
+
+
+@wp.kernel(enable_backward=False)
+def probe_readings(
+    # Probes:
+    probe_kind: wp.array(dtype=int),
+    probe_point_start: wp.array(dtype=int),
+    probe_point_end: wp.array(dtype=int),
+    probe_offset: wp.array(dtype=float),
+    min_fill: float,
+    line_step: float,
+    row: int,
+    # In:
+    point_fill: wp.array(dtype=float),
+    point_pressure: wp.array(dtype=float),
+    # Out:
+    value_out: wp.array2d(dtype=float),
+    fill_out: wp.array2d(dtype=float),
+):
+    """Row ``row`` of the samples, one thread per probe: pressure [Pa] (0 where the fill is below
+    ``min_fill``: dry), height [m] (world z of the surface: the line's start + the crossing) or front
+    [m] (world coordinate along the axis: ``probe_offset`` + the crossing)."""
+    q = wp.tid()
+    a = probe_point_start[q]
+    b = probe_point_end[q]
+    kind = probe_kind[q]
+    if kind == KIND_PRESSURE:
+        f = point_fill[a]
+        p = float(0.0)
+        if f >= min_fill:
+            p = point_pressure[a]
+        value_out[row, q] = p
+        fill_out[row, q] = f
+    else:
+        last = int(0)
+        if kind == KIND_FRONT:
+            last = 1
+        value_out[row, q] = probe_offset[q] + line_crossing(point_fill, a, b, line_step, last)
+        fill_out[row, q] = point_fill[a]

@@ -1,0 +1,211 @@
+"""Probes ([[probes]]): readings against NumPy oracles and analytic cases, the CSV files across a resume,
+the plot, and bad input (one line, exit status 2, before any step)."""
+import math
+
+import numpy as np
+import pytest
+
+from warp_sph.cli import main
+from warp_sph.core.errors import SceneError
+from warp_sph.io.probe_files import read_probe_csv
+from warp_sph.run import runner
+from warp_sph.run.probes import MIN_FILL
+from warp_sph.run.simulation import Simulation
+from warp_sph.scene import scene_from_dict
+
+from small_scenes import small_tank
+from sph_oracle import W
+
+G = 9.81
+RHO0 = 1000.0
+
+
+def quiet(*a, **k):
+    pass
+
+
+def oracle_fill_pressure(sim, points, pressure, targets=None):
+    """sum_j V W at ``points`` and the Shepard pressure there with the hydrostatic carry to ``targets``
+    (default the points), brute force in float64."""
+    m = sim.model
+    x = sim.get_field("particle_x").astype(np.float64)
+    V = m.particle_mass / m.rest_density
+    g = np.asarray(m.gravity, dtype=np.float64)
+    fills, ps = [], []
+    targets = points if targets is None else targets
+    for p, q in zip(np.asarray(points, dtype=np.float64), np.asarray(targets, dtype=np.float64)):
+        r = np.linalg.norm(p - x, axis=1)
+        w = V * W(m.smoothing.name, r, m.smoothing_length)
+        fills.append(w.sum())
+        ps.append((w * (pressure + m.rest_density * (q - x) @ g)).sum() / max(w.sum(), 1e-30))
+    return np.array(fills), np.array(ps)
+
+
+def tank_with(probes, **kw):
+    return small_tank("probe_tank", probes=probes, **kw)
+
+
+def test_pressure_probe_matches_oracle_and_hydrostatic_depths():
+    """A lattice at rest holding p_j = rho0 g (H - z_j): probes at several depths (inside, on the floor,
+    in the container's corner: their kernels centred one wall gap off the walls) read rho0 g (H - z_p)
+    exactly up to float32, one above the water is dry (0 Pa), and an arbitrary field reads the NumPy oracle."""
+    depths = (0.05, 0.2, 0.35)
+    points = [(0.3, 0.25, 0.5 - dz) for dz in depths] + [(0.3, 0.25, 0.0), (0.0, 0.0, 0.0), (0.3, 0.25, 0.75)]
+    sim = Simulation(tank_with([{"kind": "pressure", "position": list(p), "rate": 24.0} for p in points]))
+    z = sim.get_field("particle_x")[:, 2]
+    H = 0.5
+    p_hydro = RHO0 * G * (H - z)
+    sim.set_field("particle_pressure", p_hydro)
+    sim.probes.sample_now()
+    got = sim.probes.collect()
+    for k, p in enumerate(points[:-1]):
+        t, value, fill = got[f"probe{k}"][0]
+        assert value == pytest.approx(RHO0 * G * (H - p[2]), rel=2e-5), (p, value)
+    _, value, fill = got["probe5"][0]
+    assert value == 0.0 and fill < MIN_FILL  # above the water: dry, no load
+    rng = np.random.default_rng(3)
+    field = rng.uniform(0.0, 5000.0, len(z))
+    sim.set_field("particle_pressure", field)
+    sim.probes.sample_now()
+    got = sim.probes.collect()
+    gap = sim.scene.wall_gap
+    centres = np.clip(points, np.array([gap] * 3), np.array([0.8, 0.6, 0.8]) - gap)
+    assert np.allclose(centres[:3], points[:3]) and centres[3][2] == gap and np.allclose(centres[4], gap)
+    fills, ps = oracle_fill_pressure(sim, centres, field, targets=points)
+    for k in range(len(points)):
+        _, value, fill = got[f"probe{k}"][0]
+        assert fill == pytest.approx(fills[k], rel=1e-5)
+        assert value == pytest.approx(ps[k] if fills[k] >= MIN_FILL else 0.0, rel=1e-4)
+    assert 0.9 < fills[1] < 1.1 and fills[4] > 0.1 and fills[5] < 0.01  # bulk ~1; the corner's first particles
+
+
+def test_height_of_resting_pool_and_oracle():
+    """The height line reads the pool's top face (last layer + d/2) within 0.1 d, and equals the
+    crossing of the NumPy fill profile."""
+    sim = Simulation(tank_with([{"name": "level", "kind": "height", "position": [0.3, 0.25, 0.0], "rate": 24.0}]))
+    sim.probes.sample_now()
+    h = sim.probes.collect()["level"][0][1]
+    d = sim.model.spacing
+    top = sim.get_field("particle_x")[:, 2].max() + 0.5 * d
+    assert abs(h - top) < 0.1 * d, (h, top)
+    line = sim.probes.lines[0]
+    pts = line.points(sim.probes.line_step)
+    fills, _ = oracle_fill_pressure(sim, pts, np.zeros(sim.model.fluid_count))
+    k = next(i for i in range(1, len(fills)) if fills[i - 1] >= 0.5 > fills[i])
+    s = (k - 1 + (fills[k - 1] - 0.5) / (fills[k - 1] - fills[k])) * sim.probes.line_step
+    assert h == pytest.approx(s, abs=1e-4 * d)
+
+
+def test_front_moves_at_the_block_speed():
+    """Gravity off, no walls, the block translated at 1 m/s: the front advances v t (within 0.05 d),
+    and probes change nothing in the state (positions equal a run without probes, bit for bit)."""
+    base = {"name": "moving", "particle_radius": 0.05, "gravity": [0.0, 0.0, 0.0], "container": False,
+            "fluid": [{"min": [0.0, 0.0, 0.0], "max": [0.4, 0.4, 0.4], "velocity": [1.0, 0.0, 0.0]}],
+            "output": {"usd": False, "surface": False}, "fps": 48.0, "solver": "dfsph"}
+    probe = {"name": "tip", "kind": "front", "position": [0.0, 0.2, 0.2], "axis": [1.0, 0.0, 0.0],
+             "length": 1.2, "rate": 200.0}
+    with_probe = Simulation(scene_from_dict({**base, "probes": [probe]}))
+    plain = Simulation(scene_from_dict(base))
+    with_probe.probes.sample_now(0.0)
+    for _ in range(6):
+        with_probe.advance_frame()
+        plain.advance_frame()
+    rows = with_probe.probes.collect()["tip"]
+    assert len(rows) >= 20 and with_probe.probes.skipped()["tip"] == 0
+    t = np.array([r[0] for r in rows])
+    front = np.array([r[1] for r in rows])
+    d = with_probe.model.spacing
+    assert front[0] == pytest.approx(with_probe.get_field("particle_x")[:, 0].max() - t[-1] * 1.0 + 0.5 * d,
+                                     abs=0.1 * d)
+    assert np.abs(front - front[0] - 1.0 * t).max() < 0.05 * d
+    dt = with_probe.last_frame.dt_max
+    k = np.arange(len(t))  # sample k is stamped at the end of the first substep reaching k / rate
+    assert np.all(t >= k / 200.0 - 1e-12) and np.all(t < k / 200.0 + dt)
+    np.testing.assert_array_equal(with_probe.get_field("particle_x"), plain.get_field("particle_x"))
+    np.testing.assert_array_equal(with_probe.get_field("particle_v"), plain.get_field("particle_v"))
+
+
+def run_tank(out, frames, probes, extra=None):
+    scene = tank_with(probes, output={"usd": False, "surface": False, "checkpoint_every": 2}, **(extra or {}))
+    return runner.run(scene, out=out, frames=frames, progress=False, device="cpu", threaded_export=False, log=quiet)
+
+
+PROBES = [{"name": "floor", "kind": "pressure", "position": [0.3, 0.25, 0.0], "rate": 100.0},
+          {"name": "level", "kind": "height", "position": [0.3, 0.25, 0.0], "rate": 48.0},
+          {"name": "front", "kind": "front", "position": [0.0, 0.25, 0.1], "rate": 100.0}]
+
+
+def test_csv_written_summarised_and_resumed(tmp_path):
+    """probe_<name>.csv beside run.json (units in the header, one row per sample time), the summary in
+    run.json, and a run stopped after its checkpoint and resumed writes the same files byte for byte,
+    also when rows after the checkpoint (and a torn line) were written before the stop."""
+    ref = tmp_path / "ref"
+    info = run_tank(ref, 7, PROBES)
+    header, rows = read_probe_csv(ref / "probe_floor.csv")
+    assert header[-1] == "time [s],pressure [Pa],fill [-]\n"
+    assert read_probe_csv(ref / "probe_level.csv")[0][-1] == "time [s],height [m],fill [-]\n"
+    times = [r[0] for r in rows]
+    assert times[0] == 0.0 and times == sorted(times) and len(times) == len(set(times))
+    assert len(rows) == 1 + math.floor(6 / 24 * 100 + 1e-9)  # t = 0 and every 10 ms up to 0.25 s
+    s = info["probes"]["floor"]
+    assert s["samples"] == len(rows) and s["max"] == pytest.approx(max(r[1] for r in rows))
+    assert s["unit"] == "Pa" and info["probes"]["level"]["unit"] == "m"
+
+    cut = tmp_path / "cut"
+    run_tank(cut, 5, PROBES)  # checkpoints at frames 1, 3, 5
+    (cut / "checkpoints" / "checkpoint_000005.npz").unlink()  # stopped before it: resume from frame 3
+    with open(cut / "probe_floor.csv", "a") as f:
+        f.write("0.2,123,0.5\n0.21,1")  # rows of frames 4-5 already written, and a torn line
+    runner.run(None, resume=cut, frames=7, progress=False, device="cpu", threaded_export=False, log=quiet)
+    for name in ("floor", "level", "front"):
+        assert (cut / f"probe_{name}.csv").read_bytes() == (ref / f"probe_{name}.csv").read_bytes(), name
+
+
+def test_plot_writes_png_or_names_the_extra(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    run_tank(out, 3, PROBES[:2])
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        matplotlib = None
+    if matplotlib is not None:
+        assert main(["plot", str(out)]) == 0
+        pngs = sorted((out / "plots").iterdir())
+        assert [p.name for p in pngs] == ["probe_floor.png", "probe_level.png"]
+        assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
+    capsys.readouterr()
+    monkeypatch.setitem(__import__("sys").modules, "matplotlib", None)  # as if the extra is not installed
+    assert main(["plot", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install 'warp-sph[plots]'" in err[0]
+
+
+@pytest.mark.parametrize("probe, where, what", [
+    ({"kind": "pressure", "position": [0.3, 0.25, -0.1]}, "probes[0].position", "outside the container"),
+    ({"kind": "height", "position": [0.3, 0.25, 0.0], "length": 2.0}, "probes[0].length", "outside the container"),
+    ({"kind": "sonar", "position": [0.3, 0.25, 0.0]}, "probes[0].kind", "expected one of 'pressure'"),
+    ({"kind": "pressure", "position": [0.3, 0.25, 0.0], "rate": 0}, "probes[0].rate", "expected a finite number > 0"),
+    ({"kind": "front", "position": [0.0, 0.25, 0.1], "axis": [0, 0, 0]}, "probes[0].axis", "non-zero"),
+    ({"kind": "pressure", "position": [0.3, 0.25, 0.0], "axis": [1, 0, 0]}, "probes[0].axis", "not used by kind"),
+    ({"position": [0.3, 0.25, 0.0]}, "probes[0].kind", "missing"),
+])
+def test_bad_probes_refused_by_validation(probe, where, what):
+    with pytest.raises(SceneError, match=f"{where.replace('[', '.').replace(']', '.')}.*{what}"):
+        tank_with([probe])
+
+
+def test_bad_probes_one_line_exit_2_before_any_step(tmp_path, capsys):
+    """A rate finer than the time step, a pressure probe on a solver without pressure: one line, exit
+    status 2, no run folder."""
+    scene = tmp_path / "s.toml"
+    base = ('particle_radius = 0.05\n[container]\nmin = [0, 0, 0]\nmax = [0.8, 0.6, 0.8]\n'
+            '[[fluid]]\nmin = [0, 0, 0]\nmax = [0.6, 0.5, 0.5]\n')
+    cases = [('solver = "dfsph"\n', 'rate = 100000.0', "probes[0].rate: 100000 Hz samples every 0.01 ms, finer than the time step (5 ms"),
+             ('solver = "pbf"\n', 'rate = 50.0', "probes[0].kind: 'pressure' needs a solver with a pressure")]
+    for solver, rate, message in cases:
+        scene.write_text(solver + base + f'[[probes]]\nkind = "pressure"\nposition = [0.3, 0.25, 0.0]\n{rate}\n')
+        out = tmp_path / "never"
+        assert main(["run", str(scene), "--out", str(out), "--no-progress"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+        assert not out.exists()

@@ -1,0 +1,108 @@
+"""The validation bench's error figures, computed by the bench's own code (benchmarks/validation_errors.py and
+validation.evaluate) from the shipped experimental data: the experiment itself scores 0, a known shift, scale
+or offset is found again."""
+import math
+
+import numpy as np
+import pytest
+
+from warp_sph.benchmarks import validation as V
+from warp_sph.benchmarks import validation_errors as E
+
+SHIPPED = ("martin_moyce_1952_front", "martin_moyce_1952_residual", "koshizuka_oka_1996_front",
+           "lobovsky_2014_sensor1", "lobovsky_2014_sensor3", "lobovsky_2014_sensor4")
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_series_have_citation_and_data(name):
+    t, v, cite = E.load_series(name)
+    assert len(t) >= 9 and np.all(np.isfinite(v)) and np.all(np.diff(t) >= 0)
+    assert any("doi:" in line for line in cite), cite  # the paper is named with its DOI
+
+
+def test_front_rms_of_the_experiment_is_zero_and_finds_a_shift():
+    T, Z, _ = E.load_series("martin_moyce_1952_front")
+    T0, Z0 = np.concatenate([[0.0], T]), np.concatenate([[1.0], Z])  # released at T = 0 from Z = 1
+    same = E.front_rms(T0, Z0, T, Z)
+    assert same["rms"] < 1e-9 and abs(same["shift"]) <= 1e-3 and same["points"] >= 10
+    early = E.front_rms(T0 - 0.1, Z0, T, Z)  # a simulation 0.1 T ahead of the experiment
+    assert early["shift"] == pytest.approx(0.1, abs=2e-3) and early["rms"] < 2e-3
+    assert early["rms_unshifted"] > 0.02
+    far = E.front_rms(T0 - 0.5, Z0, T, Z)  # more than the allowed 0.2 T: the shift stops at the bound
+    assert far["shift"] == pytest.approx(0.2, abs=1e-3) and far["rms"] > 0.02
+    scaled = E.front_rms(T0, 1.05 * Z0, T, Z)  # 5 % ahead everywhere: about 5 %
+    assert 0.01 < scaled["rms"] <= 0.05 + 1e-9
+
+
+def test_peak_and_gauge_figures():
+    t, p, _ = E.load_series("lobovsky_2014_sensor1")
+    same = E.peak(t, p, t, p)
+    assert same["peak_error"] == 0.0 and same["time_error"] == 0.0 and same["exp_peak"] == pytest.approx(2.843)
+    off = E.peak(1.05 * t, 1.1 * p, t, p)
+    assert off["peak_error"] == pytest.approx(0.1) and off["time_error"] == pytest.approx(0.05)
+    short = t <= 2.0  # a run that ends before the impact compares with the experiment's peak before it
+    assert E.peak(t[short], p[short], t, p)["exp_time"] <= 2.0
+    tau, h, _ = E.load_series("martin_moyce_1952_residual")
+    assert E.gauge_rms(tau, h, tau, h)["rms"] == 0.0
+    assert E.gauge_rms(tau, h + 0.05, tau, h)["rms"] == pytest.approx(0.05)
+
+
+def test_moving_average():
+    t = np.arange(0.0, 0.05, 0.001)
+    assert np.allclose(E.moving_average(t, np.full_like(t, 3.0), 0.004), 3.0)
+    ramp = E.moving_average(t, 2.0 * t, 0.004)
+    assert np.allclose(ramp[2:-2], 2.0 * t[2:-2])
+    spike = np.zeros_like(t)
+    spike[20] = 1.0
+    assert E.moving_average(t, spike, 0.004).max() == pytest.approx(0.2)  # 5 samples in +-2 ms
+    assert np.array_equal(E.moving_average(t, spike, 0.0), spike)
+
+
+def _write_probe(folder, name, t, v):
+    rows = "".join(f"{float(a)!r},{float(b)!r},1\n" for a, b in zip(t, v))
+    (folder / f"probe_{name}.csv").write_text(f"# test\ntime [s],value [-],fill [-]\n{rows}")
+
+
+def test_bench_evaluation_of_the_experiment_itself_scores_zero(tmp_path):
+    """validation.evaluate, as the bench calls it on a run folder, fed probe files that hold the experiments
+    (converted to seconds and metres): front and residual RMS 0, peak and time errors 0, every goal met."""
+    a, h0, g = 0.2, 0.4, 9.81
+    T, Z, _ = E.load_series("martin_moyce_1952_front")
+    tau, Hr, _ = E.load_series("martin_moyce_1952_residual")
+    mm = tmp_path / "mm"
+    mm.mkdir()
+    _write_probe(mm, "front", np.concatenate([[0.0], T]) / math.sqrt(2 * g / a), a * np.concatenate([[1.0], Z]))
+    _write_probe(mm, "residual", np.concatenate([[0.0], tau]) / math.sqrt(g / a), h0 * np.concatenate([[1.0], Hr]))
+    fig, met, series = V.evaluate("martin_moyce", mm, {"probes": {"front": {}, "residual": {}}})
+    assert fig["a"] == pytest.approx(a) and fig["initial_height"] == pytest.approx(h0)
+    assert fig["front_rms"] < 1e-6 and fig["residual_rms"] < 1e-9 and met["front_rms"]
+    lob = tmp_path / "lob"
+    lob.mkdir()
+    for s in V.LOBOVSKY_SENSORS:
+        t, p, _ = E.load_series(f"lobovsky_2014_{s}")
+        _write_probe(lob, s, t / math.sqrt(g / 0.3), p * 1000.0 * g * 0.3)
+    fig, met, _ = V.evaluate("lobovsky", lob, {"probes": {s: {} for s in V.LOBOVSKY_SENSORS}}, pressure_window=0.0)
+    for s in V.LOBOVSKY_SENSORS:
+        assert abs(fig[s]["peak_error"]) < 1e-9 and abs(fig[s]["time_error"]) < 1e-9 and met[s] == {"peak": True,
+                                                                                                    "time": True}
+
+
+@pytest.mark.parametrize("case", list(V.CASES))
+@pytest.mark.parametrize("solver", ["dfsph", "pbf"])
+def test_validation_scenes_run_and_probe(case, solver):
+    """Each case's scene, as the bench loads it (PBF without pressure probes), runs a short frame and
+    its probes sample."""
+    from warp_sph.run.simulation import Simulation
+
+    c = V.CASES[case]
+    scene = V.load_case_scene(c, solver, c.radii[0], extra=["fps=40"])
+    if scene is None:
+        assert solver == "pbf" and case == "lobovsky"
+        return
+    sim = Simulation(scene)
+    sim.probes.sample_now(0.0)
+    sim.advance_frame()
+    got = sim.probes.collect()
+    assert set(got) == {p.name for p in scene.probes} and all(len(rows) >= 2 for rows in got.values())
+    if solver == "pbf":
+        assert all(p.kind != "pressure" for p in scene.probes)

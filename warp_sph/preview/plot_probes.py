@@ -1,0 +1,73 @@
+"""``warp-sph plot RUN``: one PNG per probe of a run, its value against simulated time.
+
+Reads the probe CSVs named in run.json's ``probes`` (``warp_sph.io.probe_files``) and writes
+``RUN/plots/probe_<name>.png`` (or into ``out``) through a temporary file and a rename. Needs
+matplotlib, the ``plots`` extra; without it the command says so in one line.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from ..core.errors import OutputError, WarpSphError
+from ..io import run_folder as rf
+from ..io.probe_files import probe_csv_path, read_probe_csv
+
+LABELS = {"pressure": "pressure [Pa]", "height": "surface elevation z [m]", "front": "front position [m]"}
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend, or WarpSphError (one line) naming the extra to install."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise WarpSphError("plotting needs matplotlib, the 'plots' extra: pip install 'warp-sph[plots]' "
+                           "(or pip install matplotlib)") from None
+    return plt
+
+
+def save_figure(fig, path: Path) -> Path:
+    """Save a figure as PNG atomically (a temporary file beside ``path``, then a rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    try:
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, path)
+    except OSError as exc:
+        if tmp.exists():
+            tmp.unlink()
+        raise rf.write_error(path, exc) from None
+    return path
+
+
+def plot_run(run: Path, out: Path | None = None) -> list[Path]:
+    """PNG of every probe of the run folder ``run``; returns the files written."""
+    run = Path(run)
+    info = rf.read_run_json(run)
+    probes = info.get("probes") or {}
+    if not probes:
+        raise OutputError(f"{run}: the run has no probes ([[probes]] in its scene); nothing to plot")
+    plt = pyplot()
+    folder = Path(out) if out else run / "plots"
+    written = []
+    for name, meta in probes.items():
+        path = probe_csv_path(run, name)
+        if not path.is_file():
+            raise OutputError(f"{run}: run.json names probe {name!r} but {path.name} is missing")
+        rows = read_probe_csv(path)[1]
+        fig, ax = plt.subplots(figsize=(7.0, 3.6))
+        ax.plot([r[0] for r in rows], [r[1] for r in rows], lw=1.2, label=f"{name} ({meta.get('kind')})")
+        ax.set_xlabel("simulated time [s]")
+        ax.set_ylabel(LABELS.get(meta.get("kind"), f"value [{meta.get('unit', '')}]"))
+        ax.set_title(f"{info['scene'].get('name', run.name)}: probe {name}, {meta.get('rate', 0):g} Hz, "
+                     f"at {[round(v, 4) for v in meta.get('position', [])]} m", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        written.append(save_figure(fig, folder / f"probe_{name}.png"))
+        plt.close(fig)
+    return written

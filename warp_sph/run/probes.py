@@ -1,0 +1,273 @@
+"""Probes (``[[probes]]``): wall pressure, water height and surge front sampled during a run.
+
+``Probes(sim)`` turns the scene's probes into points on the device (a pressure probe is one point; a
+height or front probe is a line of points ``line_step`` = d/4 apart) and a stage, ``probes``, that runs
+after the solver's last stage. Each probe is sampled at t_k = k / rate (k = 1, 2, ...): at the end of
+the first substep whose end time reaches t_k, stamped with that time (the state's time after the
+substep). The decision is host arithmetic on the step's time; the samples stay on the device, in a
+buffer of one frame's rows, and the runner reads them once per frame (``collect``). A substep longer
+than 1 / rate takes one sample and skips the sample times it stepped over (counted in ``skipped``).
+Probes read the state and change nothing (``tests/test_probes.py`` checks it bit for bit).
+
+A frame redone from its start (the watchdog's retry, grown neighbour lists, a cost measurement) puts
+the state's time back: the stage sees it and drops the samples taken after it, so every sample time
+is sampled once, from the state that is kept.
+
+Readings (``kernels/probes.py``): pressure [Pa], Shepard mean of the fluid around the point with the
+hydrostatic carry rho0 g . (x_p - x_j) (Adami et al. 2012), the kernel centred at the point clamped into
+the container shrunk by the wall gap (a probe on a wall or in a corner reads the first fluid layers, carried
+to the wall), 0 where the fill (sum of V W) there is below ``MIN_FILL`` (dry); height [m], the world z where the fill along the vertical line first falls through
+1/2; front [m], the world coordinate along the axis of the last point of the line with fill >= 1/2
+(interpolated).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..core.errors import SceneError
+from ..core.launch import launch
+from ..core.step_graph import Stage
+from ..kernels import probes as _dev
+from ..neighbors import NeighborGrid
+
+#: probe kinds, their unit and the device code of each
+KINDS = {"pressure": ("Pa", 0), "height": ("m", 1), "front": ("m", 2)}
+#: a pressure probe whose fill sum_j V W is below this reads 0 Pa (dry): a lone splash is not a load [-]
+MIN_FILL = 0.1
+#: spacing of the points of a height or front line, in particle spacings d [-]
+LINE_STEP = 0.25
+
+
+@dataclass
+class ProbeLine:
+    """A probe as points: ``name``, ``kind``, ``rate`` [Hz], ``start`` (world [m]), ``direction`` (unit;
+    zero for a pressure probe), ``length`` [m] and the unit of its value."""
+
+    name: str
+    kind: str
+    rate: float
+    start: np.ndarray
+    direction: np.ndarray
+    length: float
+
+    @property
+    def unit(self) -> str:
+        return KINDS[self.kind][0]
+
+    def evaluation_point(self, lo, hi, gap: float) -> np.ndarray:
+        """Where a pressure probe's kernel is centred [m]: its point clamped into the container shrunk by the
+        wall gap (where the first fluid centres lie), or the point itself without a container."""
+        if lo is None:
+            return self.start.copy()
+        return np.clip(self.start, np.asarray(lo) + gap, np.asarray(hi) - gap)
+
+    def points(self, step: float) -> np.ndarray:
+        """World points [m] the probe reads: the point, or the line every ``step`` metres (both ends in)."""
+        if self.kind == "pressure":
+            return self.start.reshape(1, 3)
+        n = int(math.floor(self.length / step + 1e-9)) + 1
+        return self.start + np.outer(np.arange(n) * step, self.direction)
+
+    def offset(self) -> float:
+        """Value of the reading at the line's start: its world z (height) or coordinate along the axis (front)."""
+        if self.kind == "height":
+            return float(self.start[2])
+        return float(np.dot(self.start, self.direction))
+
+
+def probe_lines(scene) -> list[ProbeLine]:
+    """The scene's probes as ``ProbeLine`` (names, directions and lengths resolved as validation left them)."""
+    out = []
+    for i, p in enumerate(scene.probes):
+        start = np.asarray(p.position, dtype=np.float64)
+        if p.kind == "pressure":
+            direction = np.zeros(3)
+        elif p.kind == "height":
+            direction = np.array([0.0, 0.0, 1.0])
+        else:
+            a = np.asarray(p.axis, dtype=np.float64)
+            direction = a / np.linalg.norm(a)
+        out.append(ProbeLine(p.name or f"probe{i}", p.kind, float(p.rate), start, direction,
+                             float(p.length or 0.0)))
+    return out
+
+
+class _RateGroup:
+    """The probes of one sample rate: their points, device tables and the frame's sample buffer."""
+
+    def __init__(self, sim, rate: float, lines: list[ProbeLine], line_step: float):
+        m, dev = sim.model, sim.device
+        self.rate = rate
+        self.lines = lines
+        pts, targets, start, end = [], [], [], []
+        c = sim.scene.container
+        lo, hi = (None, None) if c is None else (c.min, c.max)
+        for line in lines:
+            p = line.points(line_step)
+            targets.append(p)
+            if line.kind == "pressure":
+                p = line.evaluation_point(lo, hi, sim.scene.wall_gap).reshape(1, 3)
+            start.append(sum(len(q) for q in pts))
+            pts.append(p)
+            end.append(start[-1] + len(p))
+        world = np.concatenate(pts)
+        self.point_x = wp.array(m.to_local(world), dtype=wp.vec3, device=dev)
+        self.point_target = wp.array(m.to_local(np.concatenate(targets)), dtype=wp.vec3, device=dev)
+        self.point_fill = wp.zeros(len(world), dtype=float, device=dev)
+        self.point_pressure = wp.zeros(len(world), dtype=float, device=dev)
+        self.kind = wp.array([KINDS[line.kind][1] for line in lines], dtype=int, device=dev)
+        self.start = wp.array(start, dtype=int, device=dev)
+        self.end = wp.array(end, dtype=int, device=dev)
+        self.offset = wp.array([line.offset() for line in lines], dtype=float, device=dev)
+        self.with_pressure = any(line.kind == "pressure" for line in lines)
+        #: rows of one frame (+2: a frame may end just past a sample time and start on one)
+        self.capacity = int(math.ceil(rate / float(sim.scene.fps))) + 2
+        self.values = wp.zeros((self.capacity, len(lines)), dtype=float, device=dev)
+        self.fills = wp.zeros((self.capacity, len(lines)), dtype=float, device=dev)
+        self.times: list[float] = []       # stamps of the rows in the device buffer [s]
+        self.host: list[tuple[float, np.ndarray, np.ndarray]] = []  # rows read before the frame ended
+        self.next_k = 1
+        self.skipped = 0
+
+    def next_index(self, t: float) -> int:
+        """The first sample index k with t_k = k / rate after time t [s]."""
+        return int(math.floor(t * self.rate * (1.0 + 1e-12) + 1e-9)) + 1
+
+    def due(self, t_end: float) -> bool:
+        return self.next_k / self.rate <= t_end * (1.0 + 1e-12) + 1e-12
+
+    def rewind(self, t: float) -> None:
+        """Drop the samples stamped after time t [s] (a frame redone from t)."""
+        keep = sum(1 for s in self.times if s <= t)
+        del self.times[keep:]
+        self.host = [row for row in self.host if row[0] <= t]
+        self.next_k = self.next_index(t)
+
+    def flush(self) -> None:
+        """Move the device rows to the host (once per frame, or when a caller steps past a frame's rows)."""
+        if self.times:
+            v, f = self.values.numpy(), self.fills.numpy()
+            self.host += [(t, v[r].copy(), f[r].copy()) for r, t in enumerate(self.times)]
+            self.times = []
+
+
+class Probes:
+    """The scene's probes on the device, their stage and the samples of the current frame."""
+
+    def __init__(self, sim):
+        from .simulation import _fluid_grid_dim
+
+        self.sim = sim
+        m = sim.model
+        self.lines = probe_lines(sim.scene)
+        self.line_step = LINE_STEP * m.spacing
+        self.grid = NeighborGrid(m.support_radius, device=sim.device, dim=_fluid_grid_dim(m, sim.sampled.fluid_x))
+        rates = sorted({line.rate for line in self.lines})
+        self.groups = [_RateGroup(sim, r, [line for line in self.lines if line.rate == r], self.line_step) for r in rates]
+        self._no_pressure = wp.zeros(1, dtype=float, device=sim.device)
+        self._t_last = -math.inf
+        self.samples = 0
+
+    # --- checks (before any step) -------------------------------------------------------------
+    def check(self, stages) -> None:
+        """SceneError (one line) for a pressure probe with a solver whose stages write no pressure, and
+        for a rate faster than the time step at the scene's reference speed (``preflight``'s estimate)."""
+        sim, scene = self.sim, self.sim.scene
+        produced = {name for s in stages for name in s.writes + s.updates}
+        for i, line in enumerate(self.lines):
+            if line.kind == "pressure" and "particle_pressure" not in produced:
+                raise SceneError(f"{scene.source}: probes[{i}].kind: 'pressure' needs a solver with a pressure field; "
+                                 f"solver {sim.solver.name!r} has none (its position correction is not a pressure): "
+                                 "use solver 'dfsph' or 'wcsph', or a 'height' or 'front' probe")
+        t = scene.time
+        bound = sim.time_step_bounds(sim.model.reference_speed)[0].seconds
+        dt = float(t.fixed_dt) if t.fixed_dt > 0 else min(max(bound, t.dt_min), t.dt_max)
+        for i, line in enumerate(self.lines):
+            if 1.0 / line.rate < dt * (1.0 - 1e-9):
+                raise SceneError(f"{scene.source}: probes[{i}].rate: {line.rate:g} Hz samples every "
+                                 f"{1e3 / line.rate:.3g} ms, finer than the time step ({1e3 * dt:.3g} ms at the "
+                                 f"reference speed {sim.model.reference_speed:.3g} m/s); expected at most "
+                                 f"{math.floor(1.0 / dt):g} Hz, or a smaller time.fixed_dt / time.dt_max")
+
+    # --- the stage ----------------------------------------------------------------------------
+    def stage(self, stages) -> Stage:
+        """The ``probes`` stage, to run after the solver's ``stages`` (``sim.solver`` set): reads positions
+        (and pressures)."""
+        self.check(stages)
+        reads = ("particle_x",) + (("particle_pressure",) if any(g.with_pressure for g in self.groups) else ())
+        names = ", ".join(f"{line.name} ({line.kind}, {line.rate:g} Hz)" for line in self.lines)
+        return Stage("probes", self.run, reads=reads,
+                     doc=f"probes {names}: fill sum V W and Shepard pressure (+ rho0 g . (x_p - x_j)) at their "
+                         "points, sampled at k / rate; nothing written to the state")
+
+    def run(self, sim, dt) -> None:
+        t0 = float(sim.state.time)
+        t1 = t0 + float(dt)
+        if t0 < self._t_last - 1e-12 * max(1.0, abs(t0)):
+            for g in self.groups:
+                g.rewind(t0)
+        self._t_last = t1
+        due = [g for g in self.groups if g.due(t1)]
+        if not due:
+            return
+        self.grid.build(sim.fields["particle_x"])
+        for g in due:
+            self._sample(g, t1)
+
+    def sample_now(self, t: float | None = None) -> None:
+        """Sample every probe at the current state (the runner's initial frame; scripts), stamped t."""
+        t = float(self.sim.state.time) if t is None else float(t)
+        self.grid.build(self.sim.fields["particle_x"])
+        for g in self.groups:
+            g.rewind(t)  # steps taken and undone before (a cost measurement) leave no samples
+            self._sample(g, t, scheduled=False)
+        self._t_last = t
+
+    def _sample(self, g: _RateGroup, t: float, scheduled: bool = True) -> None:
+        m, f, dev = self.sim.model, self.sim.fields, self.sim.device
+        if len(g.times) == g.capacity:
+            g.flush()
+        pressure = f["particle_pressure"] if g.with_pressure else self._no_pressure
+        launch(_dev.point_values_kernel(m.smoothing.name, g.with_pressure), g.point_x.shape[0],
+               [m.particle_mass / m.rest_density, m.rest_density, wp.vec3(*m.gravity), m.smoothing_length,
+                m.support_radius, self.grid.id, f["particle_x"], pressure, g.point_x, g.point_target],
+               [g.point_fill, g.point_pressure], device=dev)
+        launch(_dev.probe_readings, len(g.lines),
+               [g.kind, g.start, g.end, g.offset, MIN_FILL, self.line_step, len(g.times), g.point_fill,
+                g.point_pressure], [g.values, g.fills], device=dev)
+        g.times.append(t)
+        self.samples += 1
+        if scheduled:
+            k = g.next_index(t)
+            g.skipped += max(0, k - g.next_k - 1)
+            g.next_k = k
+        else:
+            g.next_k = g.next_index(t)
+
+    def restart(self, t: float) -> None:
+        """After a resume at time t [s]: the next samples are the ones after t."""
+        for g in self.groups:
+            g.times, g.host = [], []
+            g.next_k = g.next_index(t)
+        self._t_last = t
+
+    # --- reading ------------------------------------------------------------------------------
+    def collect(self) -> dict[str, list[tuple[float, float, float]]]:
+        """The samples since the last call, per probe name: (time [s], value [unit], fill [-]); one host
+        read per rate group."""
+        out: dict[str, list] = {line.name: [] for line in self.lines}
+        for g in self.groups:
+            g.flush()
+            for t, v, f in g.host:
+                for q, line in enumerate(g.lines):
+                    out[line.name].append((t, float(v[q]), float(f[q])))
+            g.host = []
+        return out
+
+    def skipped(self) -> dict[str, int]:
+        """Sample times stepped over per probe (substeps longer than 1 / rate)."""
+        return {line.name: g.skipped for g in self.groups for line in g.lines}
