@@ -177,7 +177,7 @@ def test_plot_writes_png_or_names_the_extra(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(__import__("sys").modules, "matplotlib", None)  # as if the extra is not installed
     assert main(["plot", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "pip install 'warp-sph[plots]'" in err[0]
+    assert len(err) == 1 and "pip install -e '.[plots]'" in err[0]
 
 
 @pytest.mark.parametrize("probe, where, what", [

@@ -24,8 +24,8 @@ def pyplot():
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        raise WarpSphError("plotting needs matplotlib, the 'plots' extra: pip install 'warp-sph[plots]' "
-                           "(or pip install matplotlib)") from None
+        raise WarpSphError("plotting needs matplotlib, the 'plots' extra: pip install -e '.[plots]' in the warp-sph "
+                           "checkout (into the environment warp-sph runs in, e.g. .venv/bin/pip)") from None
     return plt
 
 

@@ -32,7 +32,7 @@ from ..core.errors import SceneError
 from ..core.launch import launch
 from ..core.step_graph import Stage
 from ..kernels import probes as _dev
-from ..neighbors import NeighborGrid
+from ..neighbors import NeighborGrid, fluid_grid_dim
 
 #: probe kinds, their unit and the device code of each
 KINDS = {"pressure": ("Pa", 0), "height": ("m", 1), "front": ("m", 2)}
@@ -159,13 +159,12 @@ class Probes:
     """The scene's probes on the device, their stage and the samples of the current frame."""
 
     def __init__(self, sim):
-        from .simulation import _fluid_grid_dim
 
         self.sim = sim
         m = sim.model
         self.lines = probe_lines(sim.scene)
         self.line_step = LINE_STEP * m.spacing
-        self.grid = NeighborGrid(m.support_radius, device=sim.device, dim=_fluid_grid_dim(m, sim.sampled.fluid_x))
+        self.grid = NeighborGrid(m.support_radius, device=sim.device, dim=fluid_grid_dim(m, sim.sampled.fluid_x))
         rates = sorted({line.rate for line in self.lines})
         self.groups = [_RateGroup(sim, r, [line for line in self.lines if line.rate == r], self.line_step) for r in rates]
         self._no_pressure = wp.zeros(1, dtype=float, device=sim.device)

@@ -26,26 +26,10 @@ from ..kernels import neighbors as _neighbors_dev
 from ..kernels import reduction as _reduce
 from ..core.launch import launch
 from ..core.model import build_model
-from ..neighbors import GRID_DIM, NeighborGrid
+from ..neighbors import NeighborGrid, fluid_grid_dim
 from ..core.step_graph import StepGraph
 from ..methods.force import SimulationForces
 from .watchdog import MAX_RETRIES, Watchdog, frame_substeps
-
-
-def _fluid_grid_dim(model, fluid_x) -> int:
-    """Hash cells per axis of the fluid grid: the container's extent in cells of H_s (the fluid's,
-    doubled, without a container), rounded up to a power of two in [16, GRID_DIM]. No hash
-    collisions inside the container below GRID_DIM cells, and a rebuild clears dim^3 cells per
-    substep: 128^3 cost 2-3 ms on the CPU even for a few hundred particles, 16^3 about 0.15 ms."""
-    if model.container_lo is not None:
-        extent = float(np.max(model.container_hi - model.container_lo))
-    else:
-        extent = 2.0 * float(np.max(np.ptp(np.asarray(fluid_x), axis=0))) if len(fluid_x) else 0.0
-    cells = extent / model.support_radius + 2.0
-    dim = 16
-    while dim < cells and dim < GRID_DIM:
-        dim *= 2
-    return dim
 
 
 @dataclass
@@ -111,7 +95,7 @@ class Simulation:
             self.boundary_terms = None
             self.boundary_params = _neighbors_dev.NoBoundaryParams()
         self.fluid_grid = NeighborGrid(self.model.support_radius, device=self.device,
-                                       dim=_fluid_grid_dim(self.model, self.sampled.fluid_x))
+                                       dim=fluid_grid_dim(self.model, self.sampled.fluid_x))
         self.fields["fluid_grid"] = self.fluid_grid
         #: fields that are not one value per fluid particle (never sorted into cell order)
         self.unsorted_fields = {"boundary_x", "boundary_volume"}
