@@ -1,0 +1,213 @@
+"""The energy watchdog: the scene's total energy may not grow (issue 36), whatever the solver.
+
+Total energy E [J], summed in float64 once per frame (``kernels/diagnostics.energy_chunks``, one small read):
+- fluid: kinetic sum m |v|^2 / 2 and potential sum -m g.x;
+- compression: sum m e(rho/rho0), the energy stored by the solver's equation of state when its pressure is
+  one (``Solver.equation_of_state``: WCSPH; e = int p / rho^2 drho, clamped at 0 below rho0). With it
+  E is the conserved quantity of the symmetric SPH pressure force; an incompressible projection
+  (PBF, DFSPH) stores nothing in compression, so the term is absent there;
+- rigid bodies: M |v|^2 / 2 + w.I w / 2 - M g.x_com (``RigidWorld.energy``).
+The tree has no emitters or driven colliders yet; a source that puts energy in must add its work to the
+reference (``reference``) before it can run under this rule.
+
+Rule: E(t) - E(0) > allowance + ENERGY_GROWTH_LIMIT * scale at the end of a frame stops the run (or retries
+the frame with ``time.on_instability = "retry"``), with one line naming the likely cause and the key to change.
+- ``scale`` [J] does not depend on the origin: the initial total with the potential energy counted from the
+  floor (the lowest container corner along gravity; without a container the lowest particle or body at
+  t = 0), i.e. what the scene can release, but at least 1 % of M v_ref^2 / 2 (v_ref =
+  ``model.reference_speed``), so that a scene at rest in zero gravity is not judged on rounding.
+  The dam break: M g h_com, the centre of mass above the floor.
+- ``allowance`` [J]: for a solver without an equation of state, the energy the start's over-density could
+  return, sum m e(rho/rho0) under a linear law at the model's speed of sound c_s (a compressed block
+  in ``radial_expansion`` expands); 0 for WCSPH, whose compression energy is part of E. A start at rest
+  density (every shipped scene except radial_expansion) has an allowance of ~0.
+- ENERGY_GROWTH_LIMIT = 1 %: measured on every shipped scene at r = 0.05 m for 24 frames, the largest rise
+  above E(0) was 0.1 % of the scale (WCSPH, drop_into_pool); numerical dissipation makes every other run lose
+  energy. A solver instability grows exponentially and crosses 1 % within a frame or two, long before the
+  speed or escape rules see it (docs/extremes.md).
+
+A user change of the state (``Simulation.set_field``) or of the solver (``set_solver``) starts a new reference.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from ..core.launch import launch
+from ..kernels import diagnostics as _diag
+from ..kernels import reduction as _reduce
+
+#: largest rise of the total energy above its initial value, as a fraction of ``EnergyWatch.scale``
+ENERGY_GROWTH_LIMIT = 0.01
+#: the floor of the scale: this fraction of M v_ref^2 / 2 (a scene at rest without gravity)
+SCALE_FLOOR = 0.01
+
+_EOS = {"linear": _diag.EOS_LINEAR, "tait": _diag.EOS_TAIT}
+
+
+@dataclass
+class Energy:
+    """The scene's energies at one instant [J] (potentials in the simulation's local frame)."""
+
+    kinetic: float
+    potential: float
+    compression: float            # the solver's equation of state (0 without one)
+    body_kinetic: np.ndarray      # per body
+    body_potential: np.ndarray    # per body
+
+    @property
+    def bodies(self) -> float:
+        return float(np.sum(self.body_kinetic) + np.sum(self.body_potential))
+
+    @property
+    def fluid(self) -> float:
+        return self.kinetic + self.potential + self.compression
+
+    @property
+    def total(self) -> float:
+        return self.fluid + self.bodies
+
+
+class EnergyWatch:
+    """Total energy of ``sim`` against its value at the reference state (see the module docstring)."""
+
+    def __init__(self, sim):
+        self.sim = sim
+        m = sim.model
+        chunks = max(1, -(-m.fluid_count // _reduce.REDUCE_CHUNK))
+        self._partial = wp.zeros((chunks, _diag.ENERGY_COUNT), dtype=wp.float64, device=sim.device)
+        #: a user changed the state or the solver: the next check starts a new reference
+        self.stale = False
+        self.reference: Energy | None = None
+        self.scale = 0.0
+        self.allowance = 0.0
+        self.last: Energy | None = None
+        self.rebase()
+
+    # --- measuring -------------------------------------------------------------------------
+    def _sums(self, law) -> np.ndarray:
+        sim, m = self.sim, self.sim.model
+        eos, k = (_EOS[law[0]], float(law[1])) if law else (_diag.EOS_NONE, 0.0)
+        f = sim.fields
+        launch(_diag.energy_chunks, self._partial.shape[0],
+               [_reduce.REDUCE_CHUNK, m.particle_mass, m.rest_density, wp.vec3(*m.gravity), eos,
+                wp.float64(k / m.rest_density), f["particle_x"], f["particle_v"], f["particle_density"]],
+               [self._partial], device=sim.device)
+        return self._partial.numpy().sum(axis=0)
+
+    def measure(self) -> Energy:
+        """The energies now (one reduction and one small read; the bodies' state is read too)."""
+        ke, pe, u = self._sums(self.sim.solver.equation_of_state())
+        if self.sim.bodies is not None:
+            bk, bp = self.sim.bodies.energy()
+        else:
+            bk = bp = np.zeros(0)
+        self.last = Energy(float(ke), float(pe), float(u), bk, bp)
+        return self.last
+
+    def rebase(self) -> None:
+        """Take the current state as the reference: E(0), the scale and the allowance."""
+        sim, m = self.sim, self.sim.model
+        e = self.measure()
+        self.reference = e
+        self.stale = False
+        if sim.solver.equation_of_state() is None:
+            law = ("linear", m.rest_density * m.speed_of_sound ** 2)
+            self.allowance = float(self._sums(law)[2])
+        else:
+            self.allowance = 0.0
+        g = np.asarray(m.gravity, dtype=np.float64)
+        gn = float(np.linalg.norm(g))
+        masses = np.asarray(sim.bodies.world.masses if sim.bodies is not None else [], dtype=np.float64)
+        total_mass = m.fluid_count * m.particle_mass + float(masses.sum())
+        floor = 0.0
+        if gn > 0:
+            up = -g / gn
+            if m.container_lo is not None:
+                lo, hi = np.asarray(m.container_lo, float), np.asarray(m.container_hi, float)
+                floor = min(float(np.array([a, b, c]) @ up) for a in (lo[0], hi[0]) for b in (lo[1], hi[1])
+                            for c in (lo[2], hi[2]))
+            else:
+                heights = self.sim.fields["particle_x"].numpy().astype(np.float64) @ up
+                if sim.bodies is not None and len(masses):
+                    q = sim.bodies.world.body_q.numpy().astype(np.float64)
+                    heights = np.concatenate([heights, q[:, :3] @ up])
+                floor = float(heights.min())
+        # potential energy counted from the floor: sum m g.(h - floor) = PE_local - M |g| floor
+        above = e.total - total_mass * gn * floor + self.allowance
+        self.scale = max(above, SCALE_FLOOR * 0.5 * total_mass * m.reference_speed ** 2)
+
+    # --- the rule ----------------------------------------------------------------------------
+    def growth(self, e: Energy) -> float:
+        """(E - E(0)) / scale [-]."""
+        return (e.total - self.reference.total) / self.scale
+
+    def limit(self) -> float:
+        """The largest allowed (E - E(0)) / scale [-]: allowance / scale + ENERGY_GROWTH_LIMIT."""
+        return self.allowance / self.scale + ENERGY_GROWTH_LIMIT
+
+    def check(self) -> tuple[Energy, float, bool]:
+        """(energies now, growth, True when the growth is beyond the limit)."""
+        if self.stale:
+            self.rebase()
+        e = self.measure()
+        g = self.growth(e)
+        return e, g, not g <= self.limit()  # NaN breaks it too
+
+    # --- messages ----------------------------------------------------------------------------
+    def account(self, e: Energy) -> str:
+        """How much the total rose and where: fluid kinetic, potential, compression and bodies."""
+        r = self.reference
+        parts = [f"kinetic {e.kinetic - r.kinetic:+.3g} J", f"potential {e.potential - r.potential:+.3g} J"]
+        if e.compression or r.compression:
+            parts.append(f"compression {e.compression - r.compression:+.3g} J")
+        if len(e.body_kinetic):
+            parts.append(f"bodies {e.bodies - r.bodies:+.3g} J")
+        rise = e.total - r.total
+        text = (f"the total energy rose by {rise:.3g} J = {100 * rise / self.scale:.3g} % of the scene's energy "
+                f"{self.scale:.4g} J (limit {100 * ENERGY_GROWTH_LIMIT:g} %")
+        if self.allowance > 1e-6 * self.scale:
+            text += f" beyond the {self.allowance:.3g} J its initial compression can release"
+        return text + f"; {', '.join(parts)})"
+
+    def cause(self, e: Energy, dt: float, tight) -> str:
+        """The likely cause of an energy rise that the step bound does not explain, with the key to change.
+        ``tight``: the tightest ``TimeStepBound`` at the frame's speed."""
+        sim, m = self.sim, self.sim.model
+        scene, solver = sim.scene, sim.solver
+        r = self.reference
+        rise = e.total - r.total
+        if len(e.body_kinetic):
+            gain = (e.body_kinetic + e.body_potential) - (r.body_kinetic + r.body_potential)
+            k = int(np.argmax(gain))
+            if gain[k] > 0.5 * rise:
+                geo = sim.bodies.geometries[k]
+                ratio = geo.density / m.rest_density
+                return (f"bodies[{k}] ({sim.bodies.names[k]!r}, {geo.density:.4g} kg/m^3 = {ratio:.3g}x the fluid's "
+                        f"density) gained {gain[k]:.3g} J: the fluid-body coupling is explicit, and a body that is light "
+                        "against the fluid it moves (added mass) gains energy at every bounce; raise "
+                        f"bodies[{k}].density, or lower time.cfl")
+        viscous = [b for b in sim.time_step_bounds(0.0) if "material.viscosity" in b.keys]
+        if m.viscosity > 0 and viscous and dt > 0.5 * viscous[0].seconds:
+            b = viscous[0]
+            return (f"explicit viscosity material.viscosity = {m.viscosity:g} m^2/s at dt = {dt:.3g} s, "
+                    f"{dt / b.seconds:.2g}x its stable step {b.seconds:.3g} s ({b.formula}): lower material.viscosity "
+                    "or time.cfl")
+        t = scene.time
+        if t.fixed_dt > 0 and dt < 0.1 * tight.seconds:
+            return (f"the fixed step time.fixed_dt = {t.fixed_dt:.3g} s is {tight.seconds / dt:.3g}x below the "
+                    f"{tight.name} bound {tight.seconds:.3g} s, and the {solver.name} pressure turns each step's "
+                    "density error into velocity over that step; set time.fixed_dt = 0 for adaptive steps, or raise "
+                    f"it toward {tight.seconds:.3g} s")
+        tolerance = [p.key for p in solver.parameters if p.key.endswith(".target_density_error")]
+        cfl = f"time.cfl (now {t.cfl:g})"
+        if tolerance:
+            key = tolerance[0]
+            now = getattr(solver.config, key.split(".", 1)[1])
+            return (f"the {solver.name} pressure solve added energy: lower {key} (now {now:g}) or {cfl}")
+        keys = [k for k in tight.keys if k != "time.cfl"]
+        return (f"the {solver.name} pressure added energy at dt = {dt:.3g} s: lower {cfl}"
+                + (f", or check {', '.join(keys)}" if keys else ""))
+
