@@ -201,7 +201,12 @@ class EnergyWatch:
                     f"{tight.name} bound {tight.seconds:.3g} s, and the {solver.name} pressure turns each step's "
                     "density error into velocity over that step; set time.fixed_dt = 0 for adaptive steps, or raise "
                     f"it toward {tight.seconds:.3g} s")
-        tolerance = [p.key for p in solver.parameters if p.key.endswith(".target_density_error")]
+        # equal substeps no larger than dt_max fill the frame: dt in (dt_max / 2, dt_max] when it clamps
+        if t.fixed_dt == 0 and dt < 0.1 * tight.seconds and dt > 0.5 * t.dt_max * sim.watchdog.dt_scale:
+            return (f"time.dt_max = {t.dt_max:.3g} s holds the step {tight.seconds / dt:.3g}x below the {tight.name} bound "
+                    f"{tight.seconds:.3g} s, and the {solver.name} pressure turns each step's density error into "
+                    f"velocity over that step; raise time.dt_max toward {tight.seconds:.3g} s")
+        tolerance = [p.path for p in solver.parameters if p.path.endswith(".target_density_error")]
         cfl = f"time.cfl (now {t.cfl:g})"
         if tolerance:
             key = tolerance[0]
