@@ -179,6 +179,10 @@ class EnergyWatch:
         scene, solver = sim.scene, sim.solver
         r = self.reference
         rise = e.total - r.total
+        added = [name for name in sim.graph.names() if name not in sim.solver_stage_names]
+        if added:
+            return (f"stage(s) {', '.join(map(repr, added))} inserted into the step graph by hand may add energy: check "
+                    "them first")
         if len(e.body_kinetic):
             gain = (e.body_kinetic + e.body_potential) - (r.body_kinetic + r.body_potential)
             k = int(np.argmax(gain))
