@@ -110,7 +110,7 @@ def extreme_cases(solvers=None, quick: bool = False) -> list[Case]:
     cases: list[Case] = []
     if quick:
         for s in solvers:
-            cases.append(Case("dt", "1e-05 s", s, _dam(s, time={"fixed_dt": 1e-5}, fps=200.0), frames=1))
+            cases.append(Case("dt", "1e-05 s", s, _dam(s, time={"fixed_dt": 1e-5}, fps=1000.0), frames=1))
             cases.append(Case("single", "free fall", s, _single(s, False), frames=3))
         cases.append(Case("body", "1 kg/m^3", solvers[-1], _body(solvers[-1], 1.0), frames=6))
         cases.append(Case("scale", "1 km", solvers[0], _dam(solvers[0], KM), frames=2))
