@@ -126,7 +126,7 @@ def extreme_cases(solvers=None, quick: bool = False) -> list[Case]:
         for nu in (1e-6, 1e-2, 1.0, 100.0):
             cases.append(Case("viscosity", f"{nu:g} m^2/s", s, _dam(s, material={"viscosity": nu}, fps=200.0),
                               frames=3))
-        for rho in (1.0, 10.0, 100.0, 1e3, 1e4, 1e5):
+        for rho in (1.0, 10.0, 100.0, 200.0, 1e3, 1e4, 1e5):
             cases.append(Case("body", f"{rho:g} kg/m^3", s, _body(s, rho), frames=12))
         cases.append(Case("single", "free fall", s, _single(s, False), frames=6))
         cases.append(Case("single", "in a box", s, _single(s, True), frames=12))

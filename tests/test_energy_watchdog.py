@@ -122,13 +122,13 @@ def test_body_energy_against_analytic():
 
 
 @pytest.mark.parametrize("key,value,message", [
-    ("density", 1.0, r"bodies\[0\]\.density: expected a mean density >= 100 kg/m\^3 \(0\.1x the fluid's "
+    ("density", 1.0, r"bodies\[0\]\.density: expected a mean density >= 200 kg/m\^3 \(0\.2x the fluid's "
                      r"material\.rest_density\), got density 1 kg/m\^3"),
-    ("mass", 1e-6, r"bodies\[0\]\.mass: expected a mean density >= 100 kg/m\^3 .*got mass 1e-06 kg"),
+    ("mass", 1e-6, r"bodies\[0\]\.mass: expected a mean density >= 200 kg/m\^3 .*got mass 1e-06 kg"),
 ])
 def test_light_body_refused(key, value, message):
     """Issue 36 finding 4: a 0.2 m box of 1 kg/m^3 dropped onto a pool bounced higher each time, one of 1e-6 kg
-    flew to z = 571 m; bodies lighter than 0.1x the fluid are refused before any kernel, in one line."""
+    flew to z = 571 m; bodies lighter than 0.2x the fluid are refused before any kernel, in one line."""
     body = {"shape": "box", "size": [0.2, 0.2, 0.2], "position": [0.4, 0.4, 0.5], key: value}
     with pytest.raises(SceneError, match=message) as err:
         scene_from_dict({**DAM, "name": "light", "container": {"min": [0, 0, 0], "max": [0.8, 0.8, 0.8]},

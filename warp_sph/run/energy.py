@@ -17,10 +17,13 @@ the frame with ``time.on_instability = "retry"``), with one line naming the like
   t = 0), i.e. what the scene can release, but at least 1 % of M v_ref^2 / 2 (v_ref =
   ``model.reference_speed``), so that a scene at rest in zero gravity is not judged on rounding.
   The dam break: M g h_com, the centre of mass above the floor.
-- ``allowance`` [J]: for a solver without an equation of state, the energy the start's over-density could
-  return, sum m e(rho/rho0) under a linear law at the model's speed of sound c_s (a compressed block
-  in ``radial_expansion`` expands); 0 for WCSPH, whose compression energy is part of E. A start at rest
-  density (every shipped scene except radial_expansion) has an allowance of ~0.
+- E(0) (``reference_total``): the initial total, without the compression energy of an *unintended*
+  over-density (the first layers of a lattice sampled at rest spacing read up to ~1 % over rest at walls):
+  released, it is a rise (WCSPH with c_s = 1000 m/s stores 5 % of the small dam break's energy there).
+  A block packed tighter on purpose (``fluid[].spacing_scale`` < 1, ``radial_expansion``) keeps it.
+- ``allowance`` [J]: for a solver without an equation of state and a start compressed on purpose, the energy
+  that compression could return, sum m e(rho/rho0) under a linear law at the model's speed of sound c_s;
+  0 otherwise (WCSPH counts its compression energy in E).
 - ENERGY_GROWTH_LIMIT = 1 %: measured on every shipped scene at r = 0.05 m for 24 frames, the largest rise
   above E(0) was 0.1 % of the scale (WCSPH, drop_into_pool); numerical dissipation makes every other run lose
   energy. A solver instability grows exponentially and crosses 1 % within a frame or two, long before the
@@ -118,11 +121,19 @@ class EnergyWatch:
         e = self.measure()
         self.reference = e
         self.stale = False
-        if sim.solver.equation_of_state() is None:
+        # a block packed tighter than rest on purpose (spacing_scale < 1) may release its compression; the
+        # residual over-density of a lattice sampled at rest spacing (first layers at walls) may not
+        intended = any(float(getattr(b, "spacing_scale", 1.0)) < 1.0 for b in sim.scene.fluid)
+        self.unintended = 0.0 if intended else e.compression
+        rho = sim.fields["particle_density"].numpy()
+        self.start_compression = float(np.max(rho)) / m.rest_density - 1.0 if len(rho) else 0.0
+        if sim.solver.equation_of_state() is None and intended:
             law = ("linear", m.rest_density * m.speed_of_sound ** 2)
             self.allowance = float(self._sums(law)[2])
         else:
             self.allowance = 0.0
+        #: E(0) the rule measures from [J]: the initial total without an unintended compression energy
+        self.reference_total = e.total - self.unintended
         g = np.asarray(m.gravity, dtype=np.float64)
         gn = float(np.linalg.norm(g))
         masses = np.asarray(sim.bodies.world.masses if sim.bodies is not None else [], dtype=np.float64)
@@ -141,13 +152,13 @@ class EnergyWatch:
                     heights = np.concatenate([heights, q[:, :3] @ up])
                 floor = float(heights.min())
         # potential energy counted from the floor: sum m g.(h - floor) = PE_local - M |g| floor
-        above = e.total - total_mass * gn * floor + self.allowance
+        above = self.reference_total - total_mass * gn * floor + self.allowance
         self.scale = max(above, SCALE_FLOOR * 0.5 * total_mass * m.reference_speed ** 2)
 
     # --- the rule ----------------------------------------------------------------------------
     def growth(self, e: Energy) -> float:
-        """(E - E(0)) / scale [-]."""
-        return (e.total - self.reference.total) / self.scale
+        """(E - E(0)) / scale [-] (E(0): ``reference_total``)."""
+        return (e.total - self.reference_total) / self.scale
 
     def limit(self) -> float:
         """The largest allowed (E - E(0)) / scale [-]: allowance / scale + ENERGY_GROWTH_LIMIT."""
@@ -170,11 +181,13 @@ class EnergyWatch:
             parts.append(f"compression {e.compression - r.compression:+.3g} J")
         if len(e.body_kinetic):
             parts.append(f"bodies {e.bodies - r.bodies:+.3g} J")
-        rise = e.total - r.total
+        rise = e.total - self.reference_total
         text = (f"the total energy rose by {rise:.3g} J = {100 * rise / self.scale:.3g} % of the scene's energy "
                 f"{self.scale:.4g} J (limit {100 * ENERGY_GROWTH_LIMIT:g} %")
         if self.allowance > 1e-6 * self.scale:
             text += f" beyond the {self.allowance:.3g} J its initial compression can release"
+        if self.unintended > 1e-3 * self.scale:
+            parts.append(f"the start's compression energy {self.unintended:.3g} J counted as a rise")
         return text + f"; {', '.join(parts)})"
 
     def cause(self, e: Energy, dt: float, tight) -> str:
@@ -183,11 +196,19 @@ class EnergyWatch:
         sim, m = self.sim, self.sim.model
         scene, solver = sim.scene, sim.solver
         r = self.reference
-        rise = e.total - r.total
+        rise = e.total - self.reference_total
         added = [name for name in sim.graph.names() if name not in sim.solver_stage_names]
         if added:
             return (f"stage(s) {', '.join(map(repr, added))} inserted into the step graph by hand may add energy: check "
                     "them first")
+        if self.unintended > 0.5 * rise:
+            law = solver.equation_of_state()
+            keys = [k for k in tight.keys if k != "time.cfl"] or [f"{solver.name}.stiffness"]
+            return (f"the fluid starts up to {100 * self.start_compression:.2g} % over its rest density (the sampled "
+                    f"lattice's first layers at the walls), and the {law[0] if law else ''} equation of state at "
+                    f"c_s = {m.speed_of_sound:.4g} m/s stores {self.unintended:.3g} J = "
+                    f"{100 * self.unintended / self.scale:.3g} % of the scene's energy in it, which the run turns into "
+                    f"motion; lower {' or '.join(keys)}")
         if len(e.body_kinetic):
             gain = (e.body_kinetic + e.body_potential) - (r.body_kinetic + r.body_potential)
             k = int(np.argmax(gain))

@@ -38,7 +38,7 @@ import warp as wp
 from ..core.errors import SimulationError
 from ..kernels import diagnostics as _diag
 from ..core.launch import launch
-from .energy import EnergyWatch
+from .energy import ENERGY_GROWTH_LIMIT, EnergyWatch
 
 SPEED_LIMIT_FACTOR = 10.0
 DENSITY_LIMIT_FACTOR = 2.0
@@ -262,6 +262,14 @@ class Watchdog:
 
     def initial_error(self, stats) -> SimulationError:
         rule = self.broken(stats.watch)
+        if rule == "energy" and self.sim.state.step == 0:  # an unintended compression energy at the start
+            en = self.energy
+            tight = self.sim.time_step_bounds(stats.max_speed)[0]
+            return SimulationError(
+                f"the initial state holds {en.unintended:.3g} J of compression energy = "
+                f"{100 * en.unintended / en.scale:.3g} % of the scene's energy {en.scale:.4g} J (limit "
+                f"{100 * ENERGY_GROWTH_LIMIT:g} %), which a run releases as motion; likely cause: "
+                f"{en.cause(en.last, tight.seconds, tight)}")
         if rule == "energy":  # the caller stepped the state (Simulation.step): judge the steps it took
             dt = float(getattr(stats, "dt_max", 0.0) or 0.0) or float(self.sim.scene.time.fixed_dt)
             cause = self.likely_cause(rule, None, dt, stats.max_speed) if dt > 0 else "check the steps taken"
