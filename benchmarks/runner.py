@@ -305,7 +305,9 @@ def cmd_extremes(args, argv: list[str], log=print) -> int:
     invocation = now()
     records = run_cases(cases, device=args.device, log=log)
     bad = [r for r in records if r["bad"]]
-    log(f"extremes: {len(records)} cases, {len(bad)} silent bad" + "".join(f"\n  bad: {r['label']}: {r['verdict']}" for r in bad))
+    log(f"extremes: {len(records)} cases, {len(bad)} silent bad")
+    for r in bad:
+        log(f"  bad: {r['label']}: {r['verdict']}")
     out = _save("extremes", records, args, argv, invocation, log)
     if not args.no_report:
         from .report import write_report

@@ -161,7 +161,8 @@ class Solver(MethodBase):
 
     def instability_hint(self, rule: str, stage: str | None) -> str | None:
         """The likely cause of a watchdog finding (rule: "non_finite", "outside", "fast", "dense", "energy";
-        stage None for "energy") in this solver's terms, with the scene key to change; None when the generic advice applies."""
+        stage None for "energy") in this solver's terms, with the scene key to change; None when the generic
+        advice applies."""
         return None
 
     def equation_of_state(self) -> tuple[str, float] | None:

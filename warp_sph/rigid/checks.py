@@ -65,8 +65,8 @@ def check_bodies(scene, fail) -> list[BodyGeometry]:
     """Refuse (``fail(keypath, message)``) bodies a run cannot start with; return their geometries.
 
     Per body: a valid, unique name; exactly one of density and mass; a mean density at least
-    ``MIN_DENSITY_RATIO`` times the fluid's (the added-mass limit of the explicit coupling); larger than twice the boundary
-    inset in every direction; inside the container. Between bodies and obstacles: no overlap at t = 0
+    ``MIN_DENSITY_RATIO`` times the fluid's (the added-mass limit of the explicit coupling); larger than
+    twice the boundary inset in every direction; inside the container. Between bodies and obstacles: no overlap at t = 0
     (surface samples d/2 apart of each one tested inside the other, 0.1 d tolerance). The solver and
     boundary method must couple (``Solver.refuses_bodies``); Newton must be installed.
     """

@@ -7,8 +7,9 @@
     sim.graph.insert(Stage(...), before="integrate")
 
 Every frame ends with the watchdog's rules (``warp_sph.run.watchdog``): a non-finite value, a particle
-outside the container, too fast or too compressed, or a rise of the total energy stops the run with a SimulationError naming
-the stage, step, time and particle, or retries the frame with half the step
+outside the container, too fast or too compressed, or a rise of the total energy stops the run with a
+SimulationError naming the stage, step, time and particle (or the rise and its cause), or retries the frame
+with half the step
 (``time.on_instability = "retry"``). Pre-flight checks: ``warp_sph.run.preflight``.
 """
 from __future__ import annotations
