@@ -295,15 +295,35 @@ def run_cases(cases: list[Case], device=None, log=print) -> list[dict]:
 # --------------------------------------------------------------------------------------------
 # report
 # --------------------------------------------------------------------------------------------
+def latest_per_case(records: list[dict]) -> list[dict]:
+    """The latest record of each case (family, extreme, solver), in the order of first appearance: the bench
+    may be run in parts (``--solvers``, ``--families``) and a part re-run."""
+    best: dict[str, dict] = {}
+    for r in records:
+        k, when = r.get("label"), r.get("invocation", r.get("date", ""))
+        if k not in best or when >= best[k].get("invocation", best[k].get("date", "")):
+            best[k] = r
+    return list(best.values())
+
+
 def section(records: list[dict], fmt, head) -> list[str]:
-    """Markdown of the latest invocation: one row per case, then the silent bad results and the stops."""
+    """Markdown of the latest record of each case (``latest_per_case``): one row per case, then the silent bad
+    results."""
+    records = latest_per_case(records)
     if not records:
         return []
     bad = [r for r in records if r.get("bad")]
     counts: dict[str, int] = {}
     for r in records:
         counts[r.get("status", "?")] = counts.get(r.get("status", "?"), 0) + 1
-    lines = ["## Extremes: every solver at the extremes", ""] + head(records)
+    lines = ["## Extremes: every solver at the extremes", ""]
+    invocations: dict[str, list[dict]] = {}
+    for r in records:
+        invocations.setdefault(r.get("invocation", r.get("date", "?")), []).append(r)
+    if len(invocations) > 1:
+        lines += [f"The latest record of each case, from {len(invocations)} runs:", ""]
+    for inv in sorted(invocations):
+        lines += head(invocations[inv])
     lines += [f"{len(records)} cases: " + ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
               + f"; **{len(bad)} silent bad** (goal 0). *energy* is (E − E(0)) / scale, E the fluid's kinetic + "
               "potential energy plus the bodies', the scale the initial energy counted from the floor (its largest "

@@ -383,7 +383,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     lines += executor_speed.section(execs, fmt, section_head)
     moving = latest(data.get("bodies", []))
     lines += bodies.section(moving, fmt, section_head)
-    extreme = latest(data.get("extremes", []))
+    extreme = data.get("extremes", [])  # the latest record of each case (extremes.section)
     lines += extremes.section(extreme, fmt, section_head)
 
     if not (sweeps or by_solver or by_size or adaptive or surf or mat or execs or moving or extreme):

@@ -71,7 +71,8 @@ class FrameStatistics:
     solver: dict = field(default_factory=dict)
     retries: int = 0            # frames retried with a halved step (time.on_instability = "retry")
     watch: dict = field(default_factory=dict)  # watchdog counts and first particle index per rule
-    compression_energy: float = 0.0  # [J] stored by the solver's equation of state (WCSPH; 0 for PBF, DFSPH)
+    compression_energy: float = 0.0  # [J] stored by the solver's equation of state (WCSPH; 0 for PBF, DFSPH);
+    #                                  not part of the total the energy rule checks (``warp_sph.run.energy``)
     body_energy: float = 0.0    # [J] kinetic + potential of the rigid bodies (local origin)
     energy_growth: float = 0.0  # (E - E(0)) / the scene's energy scale [-] (``warp_sph.run.energy``)
 

@@ -13,8 +13,8 @@ Rules (counted by ``kernels/diagnostics.accumulate_statistics`` in the frame's o
   doubled beyond rest (or beyond an intentionally compressed start). WCSPH aims at ~1 % compression
   (c_s = 10 v_ref, Becker & Teschner 2007); 100 % means particles at 0.8 d and a broken boundary or
   stiffness, never a valid state of a liquid.
-- **energy**: the total energy (fluid kinetic + potential + the solver's compression energy, and the rigid
-  bodies') rose more than 1 % of the scene's energy above its initial value (``warp_sph.run.energy``): the
+- **energy**: the total energy (fluid kinetic + potential, and the rigid bodies') rose more than 1 % of the
+  scene's energy above its initial value (``warp_sph.run.energy``): the
   rule every solver shares, since a bad step, solve, viscosity or coupling creates energy long before it
   throws a particle out. Checked on the host once per frame; no replay (the rise has no single stage).
 
