@@ -29,8 +29,8 @@ the frame with ``time.on_instability = "retry"``), with one line naming the like
   one (PBF, DFSPH) a linear law at the model's speed of sound c_s; 0 otherwise.
 - ENERGY_GROWTH_LIMIT = 1 %: on every shipped scene at r = 0.05 m (floating_bodies at 0.015 m), 24 frames,
   every solver, the largest rise above E(0) was +0.18 % (drop_into_pool, WCSPH); every other run lost
-  energy (numerical dissipation). radial_expansion stays 0.58 % beyond its allowance at its r = 0.025 m
-  (WCSPH; 1.6 % at r = 0.05 m). A solver instability grows fast and crosses 1 % within a frame or two,
+  energy (numerical dissipation). radial_expansion (time.cfl = 0.2) stays 0.25 % beyond its allowance at
+  its r = 0.025 m (WCSPH; 0.69 % at r = 0.05 m). A solver instability grows fast and crosses 1 % within a frame or two,
   long before the speed or escape rules see it (docs/extremes.md).
 
 A user change of the state (``Simulation.set_field``) or of the solver (``set_solver``) starts a new reference.
