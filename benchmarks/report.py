@@ -14,7 +14,7 @@ import math
 import os
 from pathlib import Path
 
-from . import bodies, executor_speed, matrix, validation
+from . import bodies, executor_speed, extremes, matrix, validation
 from . import metrics as M
 from .plots import SPEED_KEY, Figures, plot_adaptive, plot_scaling, plot_series, plot_tradeoff
 from .records import host_info
@@ -386,7 +386,10 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     checked = latest(data.get("validation", []))
     lines += validation.section(checked, fmt, section_head)
 
-    if not (sweeps or by_solver or by_size or adaptive or surf or mat or execs or moving or checked):
+    extreme = data.get("extremes", [])  # the latest record of each case (extremes.section)
+    lines += extremes.section(extreme, fmt, section_head)
+
+    if not (sweeps or by_solver or by_size or adaptive or surf or mat or execs or moving or checked or extreme):
         lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]
     figures.save()
     md_path.parent.mkdir(parents=True, exist_ok=True)

@@ -11,6 +11,7 @@
     warp-sph bench bodies                          # moving rigid bodies against the same static obstacles
     warp-sph bench forces                          # each force's cost per particle-step beside its solver's
     warp-sph bench validation                      # every solver against experiments (benchmarks/validation.py)
+    warp-sph bench extremes                        # every solver at the extremes: completed, stopped or refused
     warp-sph bench report                          # RESULTS.md from the JSON lines
 
 Results go to ``runs/bench/`` (JSON lines and ``RESULTS.md``) unless ``--out DIR``; ``--publish``
@@ -335,6 +336,31 @@ def cmd_validation(args, argv: list[str], log=print) -> int:
     return _finish(out, args, records, log)
 
 
+def cmd_extremes(args, argv: list[str], log=print) -> int:
+    from warp_sph.sweep.cases import split_values
+
+    from .extremes import extreme_cases, run_cases
+    from .records import solver_names
+
+    check_names("--solvers", args.solvers, solver_names())
+    cases = extreme_cases(split_values(args.solvers) if args.solvers else None, quick=args.quick)
+    if args.families:
+        families = split_values(args.families)
+        cases = [c for c in cases if c.family in families]
+    invocation = now()
+    records = run_cases(cases, device=args.device, log=log)
+    bad = [r for r in records if r["bad"]]
+    log(f"extremes: {len(records)} cases, {len(bad)} silent bad")
+    for r in bad:
+        log(f"  bad: {r['label']}: {r['verdict']}")
+    out = _save("extremes", records, args, argv, invocation, log)
+    if not args.no_report:
+        from .report import write_report
+
+        log(f"report: {write_report(out, md_path=report_path(out), log=log)}")
+    return 1 if bad else 0
+
+
 def _finish(out: Path, args, records: list[dict], log) -> int:
     if not getattr(args, "no_report", False):
         from .report import write_report
@@ -488,6 +514,18 @@ def build_parser() -> argparse.ArgumentParser:
     validation_arguments(v)
     common(v)
     v.set_defaults(func=cmd_validation)
+
+    x = sub.add_parser("extremes", help="every solver at the extremes (steps, drops, viscosity, stiffness, body "
+                       "densities, a single particle, 1 mm and 1 km scenes): completed, stopped or refused, and no "
+                       "silent bad result")
+    x.add_argument("--solvers", default=None, help="comma-separated solvers (default: every solver)")
+    x.add_argument("--families", default=None, help="comma-separated families: dt, drop, viscosity, stiffness, body, "
+                   "single, scale (default: all)")
+    x.add_argument("--quick", action="store_true", help="a handful of cases (the test suite's)")
+    x.add_argument("--device", default=None, help="Warp device (cpu, cuda:0; default: Warp's default)")
+    x.add_argument("--no-report", action="store_true", help="do not regenerate the Markdown report")
+    where(x)
+    x.set_defaults(func=cmd_extremes)
 
     r = sub.add_parser("report", help="regenerate RESULTS.md, tables and plots from the JSON lines")
     where(r)

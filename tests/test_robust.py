@@ -124,7 +124,8 @@ def test_wall_turns_back_a_lone_particle_below_the_escape_speed(boundary_pressur
         assert s.outside == 0
     assert sim.get_field("particle_v")[0, 2] > 0.0  # on its way up
     fast = lone_particle(1.25 * esc, boundary_pressure)
-    with pytest.raises(SimulationError, match="outside the container"):
+    # or the energy rule first, when the integrator gains energy inside the wall
+    with pytest.raises(SimulationError, match="outside the container|the total energy rose"):
         for _ in range(4):
             fast.advance_frame()
 

@@ -36,6 +36,9 @@ def test_hydrostatic_tank_akinci():
     profile this checks: it never comes to rest (it is not energy-consistent; the scene itself uses
     eq16, tests/test_robust.py), but its time-averaged profile is hydrostatic within 5 %."""
     sim = Simulation(load_scene("hydrostatic", WCSPH + ["wcsph.boundary_pressure=mirrored", "material.xsph=0"]))
+    # mirrored pumps energy into the tank: the energy rule (warp_sph/run/energy.py) would stop it (1.1 % of the
+    # scene's energy by frame 9); this test checks its time-averaged profile only
+    sim.watchdog.energy.enabled = False
     m = sim.model
     g = float(np.linalg.norm(m.gravity))
     weight = m.particle_mass * m.fluid_count * g

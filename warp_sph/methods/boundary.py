@@ -26,6 +26,9 @@ class BoundaryMethod(MethodBase):
     #: True when the method's density term makes the fluid next to a wall read rest density, so the
     #: fluid starts at the gap of ``smoothing.wall_gap`` (physics notes section 7)
     contributes_density: ClassVar[bool] = False
+    #: True when the wall's force is a spring that stores energy the energy watchdog does not count
+    #: (``warp_sph.run.energy``): the energy rule is then off for the scene, the other rules stay
+    stores_energy: ClassVar[bool] = False
 
     def __init__(self, sim):
         self.sim = sim

@@ -17,6 +17,7 @@ runner, the watchdog, pre-flight and the benchmarks use only what this class dec
 - ``carried_fields()``: workspace fields that outlive a substep; ``refresh_density()``;
 - ``checkpoint_arrays()`` / ``restore_arrays(arrays)``: what a resume needs beyond x and v;
 - ``instability_hint(rule, stage)``: the likely cause of a watchdog finding in its own terms;
+- ``equation_of_state()``: the pressure law whose compression energy the energy watchdog counts;
 - moving rigid bodies (``warp_sph.rigid``, two-way coupled as Akinci et al. 2012): ``body_coupling_after``
   and the workspace field ``boundary_pressure_term`` (below); ``refuses_bodies(boundary_cls)``.
 
@@ -183,9 +184,20 @@ class Solver(MethodBase):
         """Restore what ``checkpoint_arrays`` saved (after the state's x and v were restored)."""
 
     def instability_hint(self, rule: str, stage: str | None) -> str | None:
-        """The likely cause of a watchdog finding (rule: "non_finite", "outside", "fast", "dense") in
-        this solver's terms, with the scene key to change; None when the generic advice applies."""
+        """The likely cause of a watchdog finding (rule: "non_finite", "outside", "fast", "dense", "energy";
+        stage None for "energy") in this solver's terms, with the scene key to change; None when the generic
+        advice applies."""
         return None
+
+    def equation_of_state(self) -> tuple[str, float] | None:
+        """("linear" | "tait", K [Pa]) when the pressure is a clamped equation of state of the density
+        (p = K (rho/rho0 - 1) or K ((rho/rho0)^7 - 1), >= 0), whose compression energy the energy watchdog
+        then counts in the total (``warp_sph.run.watchdog``); None for a solver that stores no energy in
+        compression (an incompressible projection: PBF, DFSPH). Default: the section's
+        ``equation_of_state`` with the solver's ``stiffness`` attribute when it has both (WCSPH), else None."""
+        eos = getattr(self.config, "equation_of_state", None)
+        k = getattr(self, "stiffness", None)
+        return (eos, float(k)) if eos in ("linear", "tait") and k else None
 
     def summary(self) -> dict:
         """Constants of this solver for run.json (``model.solver``) and ``warp-sph check``."""

@@ -181,6 +181,11 @@ class SimulationBodies:
         qd = np.concatenate([poses["velocity"], poses["angular_velocity"]], axis=1)
         return out, self.max_speed(qd)
 
+    def energy(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per body (kinetic, potential) energy [J] in the simulation's local frame (``RigidWorld.energy``), for
+        the energy watchdog."""
+        return self.world.energy(self.sim.model.gravity)
+
     def export_poses(self) -> dict:
         """{name: (centre of mass [m] world (3,), quaternion (x, y, z, w))} for the USD writer."""
         poses = self.world.poses()

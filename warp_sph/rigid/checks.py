@@ -16,6 +16,12 @@ from .sampling import surface_samples
 from .spec import BodyGeometry, body_geometry, body_inset, body_name, check_body, inside_body, posed
 
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+#: lightest body the explicit (weak) fluid coupling moves stably, as its mean density over the fluid's rest
+#: density: lighter bodies gain energy at every bounce (added-mass instability). Measured (docs/extremes.md):
+#: a 0.2 m box dropped 0.1 m onto a pool at r = 0.05 m rises above its release point at 0.1 (PBF, WCSPH;
+#: bench extremes' pool) and below 0.03 (DFSPH, PBF) or 0.07 (WCSPH) in a larger pool; at 0.2 it stays below
+#: it in every solver for 1 s. Finer particles are more stable (r = 0.025 m: DFSPH held 0.001, WCSPH 0.01).
+MIN_DENSITY_RATIO = 0.2
 
 
 def surface_points(geometry: BodyGeometry, body, spacing: float) -> np.ndarray:
@@ -29,8 +35,9 @@ def surface_points(geometry: BodyGeometry, body, spacing: float) -> np.ndarray:
 def check_bodies(scene, fail) -> list[BodyGeometry]:
     """Refuse (``fail(keypath, message)``) bodies a run cannot start with; return their geometries.
 
-    Per body: a valid, unique name; exactly one of density and mass; larger than twice the boundary
-    inset in every direction; inside the container. Between bodies and obstacles: no overlap at t = 0
+    Per body: a valid, unique name; exactly one of density and mass; a mean density at least
+    ``MIN_DENSITY_RATIO`` times the fluid's (the added-mass limit of the explicit coupling); larger than
+    twice the boundary inset in every direction; inside the container. Between bodies and obstacles: no overlap at t = 0
     (surface samples d/2 apart of each one tested inside the other, 0.1 d tolerance). The solver and
     boundary method must couple (``Solver.refuses_bodies``); Newton must be installed.
     """
@@ -55,6 +62,14 @@ def check_bodies(scene, fail) -> list[BodyGeometry]:
         names[name] = i
         check_body(body, kp, scene.source)
         geo = body_geometry(body)
+        rho0 = float(scene.material.rest_density)
+        if not geo.density >= MIN_DENSITY_RATIO * rho0:
+            given = (f"density {geo.density:.4g} kg/m^3" if body.density is not None else
+                     f"mass {geo.mass:.4g} kg (a mean density of {geo.density:.4g} kg/m^3)")
+            fail(f"{kp}.{'density' if body.density is not None else 'mass'}",
+                 f"expected a mean density >= {MIN_DENSITY_RATIO * rho0:.4g} kg/m^3 ({MIN_DENSITY_RATIO:g}x the fluid's "
+                 f"material.rest_density), got {given}: the fluid-body coupling is explicit and a lighter body gains "
+                 "energy at every bounce (added-mass instability, measured in docs/extremes.md)")
         small = 2.0 * inset
         if geo.shape == "box" and not np.all(2.0 * geo.half_extents > small):
             fail(f"{kp}.size", f"expected every edge > {small:.4g} m (twice the boundary inset wall gap - r "

@@ -278,6 +278,23 @@ class RigidWorld:
         return {"position": pos + self.origin, "orientation": q[:, 3:7], "velocity": qd[:, :3],
                 "angular_velocity": qd[:, 3:6]}
 
+    def energy(self, gravity) -> tuple[np.ndarray, np.ndarray]:
+        """Per body (kinetic, potential) energy [J], float64: M |v|^2 / 2 + w.(R I R^T w) / 2 (I the inertia
+        about the centre of mass in the body frame) and -M g.x_com, x_com in the coordinates the world steps
+        (local: ``origin`` not added)."""
+        q = self.state.body_q.numpy().astype(np.float64)
+        qd = self.state.body_qd.numpy().astype(np.float64)
+        com = self.model.body_com.numpy().astype(np.float64)
+        inertia = self.model.body_inertia.numpy().astype(np.float64).reshape(-1, 3, 3)
+        g = np.asarray(gravity, dtype=np.float64)
+        kinetic, potential = np.zeros(self.body_count), np.zeros(self.body_count)
+        for k in range(self.body_count):
+            R = quat_to_matrix(q[k, 3:7])
+            w = qd[k, 3:6]
+            kinetic[k] = 0.5 * self.masses[k] * float(qd[k, :3] @ qd[k, :3]) + 0.5 * float(w @ (R @ inertia[k] @ R.T) @ w)
+            potential[k] = -self.masses[k] * float(g @ (q[k, :3] + R @ com[k]))
+        return kinetic, potential
+
     def momentum(self) -> np.ndarray:
         """Total linear momentum of the bodies sum m v [kg m/s] (float64)."""
         qd = self.state.body_qd.numpy().astype(np.float64)

@@ -7,8 +7,9 @@
     sim.graph.insert(Stage(...), before="integrate")
 
 Every frame ends with the watchdog's rules (``warp_sph.run.watchdog``): a non-finite value, a particle
-outside the container, too fast or too compressed stops the run with a SimulationError naming
-the stage, step, time and particle, or retries the frame with half the step
+outside the container, too fast or too compressed, or a rise of the total energy stops the run with a
+SimulationError naming the stage, step, time and particle (or the rise and its cause), or retries the frame
+with half the step
 (``time.on_instability = "retry"``). Pre-flight checks: ``warp_sph.run.preflight``.
 """
 from __future__ import annotations
@@ -45,8 +46,8 @@ class FrameStatistics:
     density_error_mean: float   # mean of max(rho/rho0 - 1, 0) [-] (compression only, as SPlisHSPlasH)
     density_error_max: float    # max of rho/rho0 - 1 [-]
     density_error_min: float    # min of rho/rho0 - 1 [-] (surface particles read under-dense)
-    kinetic_energy: float       # [J]
-    potential_energy: float     # [J], relative to the local origin
+    kinetic_energy: float       # [J] of the fluid
+    potential_energy: float     # [J] of the fluid, relative to the local origin
     non_finite: int
     outside: int
     max_acceleration: float = 0.0
@@ -55,6 +56,10 @@ class FrameStatistics:
     solver: dict = field(default_factory=dict)
     retries: int = 0            # frames retried with a halved step (time.on_instability = "retry")
     watch: dict = field(default_factory=dict)  # watchdog counts and first particle index per rule
+    compression_energy: float = 0.0  # [J] stored by the solver's equation of state (WCSPH; 0 for PBF, DFSPH);
+    #                                  not part of the total the energy rule checks (``warp_sph.run.energy``)
+    body_energy: float = 0.0    # [J] kinetic + potential of the rigid bodies (local origin)
+    energy_growth: float = 0.0  # (E - E(0)) / the scene's energy scale [-] (``warp_sph.run.energy``)
 
     def to_dict(self) -> dict:
         """The statistics as a plain dict (the per-frame record in run.json)."""
@@ -138,6 +143,8 @@ class Simulation:
         from ..methods import registry
 
         cls = registry.solver(name or self.scene.solver)
+        if getattr(self, "watchdog", None) is not None:
+            self.watchdog.energy.stale = True  # another solver: another equation of state, a new reference
         if self.boundary is not None:
             refusal = cls.refuses_boundary(type(self.boundary))
             if refusal:
@@ -198,6 +205,7 @@ class Simulation:
         if values.shape[0] != a.shape[0]:
             raise ValueError(f"field {name!r} holds {a.shape[0]} values, got {values.shape[0]}")
         a.assign(wp.array(values.astype(np.float32), dtype=a.dtype, device=self.device))
+        self.watchdog.energy.stale = True  # the energy rule measures from the changed state
 
     # --- stepping --------------------------------------------------------------------------
     def refresh_density(self) -> None:
@@ -353,8 +361,10 @@ class Simulation:
 
     def statistics(self, steps: int = 0, dt_min: float = 0.0, dt_max: float = 0.0,
                    at_time: float | None = None) -> FrameStatistics:
-        """Reduce diagnostics and the watchdog's rules on the device and read them once.
-        at_time: the time [s] the free-fall speed limit is taken at (default: the state's time)."""
+        """Reduce diagnostics and the watchdog's rules on the device and read them once, and the energies
+        (float64, one more small read) with the energy rule. at_time: the time [s] the free-fall speed limit is
+        taken at (default: the state's time); given by the watchdog's stage-by-stage replay, which checks
+        the device rules only (a state between stages has no meaningful energy), so energy is skipped."""
         m = self.model
         f = self.fields
         acc = f.get("particle_acceleration")
@@ -376,6 +386,13 @@ class Simulation:
         watch = wd.read()
         n = m.fluid_count
         bodies, body_speed = self.bodies.frame_record() if self.bodies is not None else ({}, 0.0)
+        energy = {"kinetic_energy": float(s[_diag.STAT_KINETIC_ENERGY]),
+                  "potential_energy": float(s[_diag.STAT_POTENTIAL_ENERGY])}
+        if at_time is None:
+            e, growth, bad = wd.energy.check()
+            watch["energy"], watch["first_energy"] = int(bad), -1
+            energy = {"kinetic_energy": e.kinetic, "potential_energy": e.potential, "compression_energy": e.compression,
+                      "body_energy": e.bodies, "energy_growth": growth}
         return FrameStatistics(
             body_speed=body_speed, bodies=bodies,
             frame=self.state.frame, time=self.state.time, steps=steps, dt_min=dt_min, dt_max=dt_max,
@@ -383,9 +400,7 @@ class Simulation:
             density_error_mean=float(s[_diag.STAT_SUM_COMPRESSION]) / n,
             density_error_max=float(s[_diag.STAT_MAX_DENSITY_ERROR]),
             density_error_min=float(s[_diag.STAT_MIN_DENSITY_ERROR]),
-            kinetic_energy=float(s[_diag.STAT_KINETIC_ENERGY]),
-            potential_energy=float(s[_diag.STAT_POTENTIAL_ENERGY]),
-            non_finite=watch["non_finite"], outside=watch["outside"],
+            **energy, non_finite=watch["non_finite"], outside=watch["outside"],
             max_acceleration=float(s[_diag.STAT_MAX_ACCELERATION]),
             watch=watch,
         )

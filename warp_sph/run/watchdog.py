@@ -13,6 +13,10 @@ Rules (counted by ``kernels/diagnostics.accumulate_statistics`` in the frame's o
   doubled beyond rest (or beyond an intentionally compressed start). WCSPH aims at ~1 % compression
   (c_s = 10 v_ref, Becker & Teschner 2007); 100 % means particles at 0.8 d and a broken boundary or
   stiffness, never a valid state of a liquid.
+- **energy**: the total energy (fluid kinetic + potential, and the rigid bodies') rose more than 1 % of the
+  scene's energy above its initial value (``warp_sph.run.energy``): the
+  rule every solver shares, since a bad step, solve, viscosity or coupling creates energy long before it
+  throws a particle out. Checked on the host once per frame; no replay (the rise has no single stage).
 
 On a violation the frame is either retried from its start with half the time step
 (``time.on_instability = "retry"``, up to MAX_RETRIES halvings; the reduction relaxes again,
@@ -34,6 +38,7 @@ import warp as wp
 from ..core.errors import SimulationError
 from ..kernels import diagnostics as _diag
 from ..core.launch import launch
+from .energy import ENERGY_GROWTH_LIMIT, EnergyWatch
 
 SPEED_LIMIT_FACTOR = 10.0
 DENSITY_LIMIT_FACTOR = 2.0
@@ -44,7 +49,10 @@ RULE_TEXT = {
     "outside": "a particle outside the container",
     "fast": "a particle faster than the speed limit",
     "dense": "a density beyond the limit",
+    "energy": "a rise of the total energy",
 }
+#: the rules the device's statistics pass counts (the stage-by-stage replay checks these only)
+DEVICE_RULES = ("non_finite", "outside", "fast", "dense")
 
 
 @dataclass
@@ -82,6 +90,8 @@ class Watchdog:
         self._start = None      # (time, step, frame) at the frame start
         self._extra = None
         self._bodies = None
+        #: the energy rule's reference and measurements (``warp_sph.run.energy``)
+        self.energy = EnergyWatch(sim)
 
     # --- limits ------------------------------------------------------------------------------
     def speed_limit(self, t: float) -> float:
@@ -129,8 +139,9 @@ class Watchdog:
         return out
 
     @staticmethod
-    def broken(watch: dict) -> str | None:
-        for rule in ("non_finite", "outside", "fast", "dense"):
+    def broken(watch: dict, rules: tuple[str, ...] = DEVICE_RULES + ("energy",)) -> str | None:
+        """The first rule of ``rules`` the watch counts say is broken, or None."""
+        for rule in rules:
             if watch.get(rule, 0):
                 return rule
         return None
@@ -170,7 +181,7 @@ class Watchdog:
                             return Finding("non_finite", stage.name, name, step0 + k + 1, k + 1, t, count, first)
                 sim.statistics(at_time=t + dt)
                 w = self.read()
-                rule = self.broken(w)
+                rule = self.broken(w, DEVICE_RULES)
                 if rule is not None:
                     field = {"non_finite": "particle state", "outside": "particle_x", "fast": "particle_v",
                              "dense": "particle_density"}[rule]
@@ -214,6 +225,8 @@ class Watchdog:
         hint = sim.solver.instability_hint(rule, stage) or sim.forces.instability_hint(rule, stage)
         if hint:
             return hint
+        if rule == "energy":
+            return self.energy.cause(self.energy.last, dt, tight)
         if rule == "outside":
             return ("particles passed through a wall: the boundary is too soft or the step too large for the "
                     "impact speed; lower time.cfl" + (", or use boundary = 'akinci2012'" if m.boundary_method == "penalty" else ""))
@@ -226,8 +239,13 @@ class Watchdog:
     def error(self, stats, n: int, dt: float, retries: int, start_speed: float) -> SimulationError:
         """Diagnose the failed frame (replay) and build the error."""
         rule = self.broken(stats.watch)
-        finding = self.diagnose(n, dt) if self.replay else None
         tail = f" after {retries} retries with halved time steps" if retries else ""
+        if rule == "energy":
+            return SimulationError(
+                f"{self.energy.account(self.energy.last)} by frame {stats.frame} (t = {stats.time:.5g} s, step "
+                f"{self.sim.state.step}, dt = {dt:.3g} s){tail}; likely cause: "
+                f"{self.likely_cause(rule, None, dt, start_speed)}")
+        finding = self.diagnose(n, dt) if self.replay else None
         if finding is not None:
             where = (f"stage {finding.stage!r} produced {RULE_TEXT[finding.rule]} in {finding.field} at step "
                      f"{finding.step} (t = {finding.time:.5g} s, substep {finding.substep} of {n} in frame "
@@ -245,6 +263,19 @@ class Watchdog:
 
     def initial_error(self, stats) -> SimulationError:
         rule = self.broken(stats.watch)
+        if rule == "energy" and self.sim.state.step == 0:  # an unintended compression energy at the start
+            en = self.energy
+            tight = self.sim.time_step_bounds(stats.max_speed)[0]
+            return SimulationError(
+                f"the initial state holds {en.unintended:.3g} J of compression energy = "
+                f"{100 * en.unintended / en.scale:.3g} % of the scene's energy {en.scale:.4g} J (limit "
+                f"{100 * ENERGY_GROWTH_LIMIT:g} %), which a run releases as motion; likely cause: "
+                f"{en.cause(en.last, tight.seconds, tight)}")
+        if rule == "energy":  # the caller stepped the state (Simulation.step): judge the steps it took
+            dt = float(getattr(stats, "dt_max", 0.0) or 0.0) or float(self.sim.scene.time.fixed_dt)
+            cause = self.likely_cause(rule, None, dt, stats.max_speed) if dt > 0 else "check the steps taken"
+            return SimulationError(f"{self.energy.account(self.energy.last)} by step {self.sim.state.step} "
+                                   f"(t = {stats.time:.5g} s); likely cause: {cause}")
         first = stats.watch.get(f"first_{rule}", -1)
         count = stats.watch.get(rule, 0)
         who = f"particle {first}" + (f" and {count - 1} more" if count > 1 else "")
