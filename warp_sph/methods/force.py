@@ -106,6 +106,10 @@ class Force(MethodBase):
     #: old scene keys that set this force: {"material.viscosity": "viscosity"} (old key -> this force's
     #: key); active when the old key is not its default (a key of a solver's section only with that solver)
     legacy_keys: ClassVar[dict[str, str]] = {}
+    #: True for a force that stores energy the energy watchdog does not count (surface tension: surface
+    #: energy) or puts energy in by design (vorticity confinement): with it in a scene the watchdog's
+    #: energy rule is off (``warp_sph.run.energy``); the energies are still measured and recorded
+    stores_energy: ClassVar[bool] = False
 
     def __init__(self, sim, config, keypath: str):
         self.sim = sim

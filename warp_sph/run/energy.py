@@ -35,10 +35,13 @@ the frame with ``time.on_instability = "retry"``), with one line naming the like
 
 A user change of the state (``Simulation.set_field``) or of the solver (``set_solver``) starts a new reference.
 A boundary method whose wall force is a spring (``BoundaryMethod.stores_energy``: penalty) exchanges energy
-with the fluid that E does not hold (up to 16 % of a resting tank's), so the rule is off with it.
+with the fluid that E does not hold (up to 16 % of a resting tank's), so the rule is off with it; so is it
+with a force that stores or adds energy E does not hold (``Force.stores_energy``: surface tension's surface
+energy, vorticity confinement's injected rotation).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,9 +97,11 @@ class EnergyWatch:
         self.scale = 0.0
         self.allowance = 0.0
         self.last: Energy | None = None
-        #: False when the boundary method's wall force stores energy the rule does not count (penalty): the
-        #: energies are still measured and recorded, the rule is off
-        self.enabled = not (sim.boundary is not None and type(sim.boundary).stores_energy)
+        #: False when the boundary method's wall force (penalty) or a force of the scene (surface tension,
+        #: vorticity confinement) stores or adds energy the rule does not count: the energies are still
+        #: measured and recorded, the rule is off
+        self.enabled = not ((sim.boundary is not None and type(sim.boundary).stores_energy)
+                            or any(type(f).stores_energy for f in sim.forces))
         self.rebase()
 
     # --- measuring -------------------------------------------------------------------------
@@ -223,12 +228,13 @@ class EnergyWatch:
                         f"density) gained {gain[k]:.3g} J: the fluid-body coupling is explicit, and a body that is light "
                         "against the fluid it moves (added mass) gains energy at every bounce; raise "
                         f"bodies[{k}].density, or lower time.cfl")
-        viscous = [b for b in sim.time_step_bounds(0.0) if "material.viscosity" in b.keys]
-        if m.viscosity > 0 and viscous and dt > 0.5 * viscous[0].seconds:
+        viscous = [b for b in sim.time_step_bounds(0.0) if b.name == "viscous" and math.isfinite(b.seconds)]
+        if viscous and dt > 0.5 * viscous[0].seconds:
             b = viscous[0]
-            return (f"explicit viscosity material.viscosity = {m.viscosity:g} m^2/s at dt = {dt:.3g} s, "
-                    f"{dt / b.seconds:.2g}x its stable step {b.seconds:.3g} s ({b.formula}): lower material.viscosity "
-                    "or time.cfl")
+            key = b.keys[0] if b.keys else "the viscosity"
+            return (f"explicit viscosity ({key}) at dt = {dt:.3g} s, {dt / b.seconds:.2g}x its stable step "
+                    f"{b.seconds:.3g} s ({b.formula}): lower {key} or time.cfl, or use "
+                    '[[forces]] method = "weiler2018" (implicit viscosity)')
         t = scene.time
         if t.fixed_dt > 0 and dt < 0.1 * tight.seconds:
             return (f"the fixed step time.fixed_dt = {t.fixed_dt:.3g} s is {tight.seconds / dt:.3g}x below the "

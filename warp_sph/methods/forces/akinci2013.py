@@ -74,6 +74,7 @@ class Akinci2013(Force):
     title = "surface tension and adhesion (Akinci, Akinci & Teschner 2013)"
     kind = "surface_tension"
     mode = "explicit"
+    stores_energy = True  # surface energy, which the energy watchdog does not count
     parameters = (
         Param("akinci2013.surface_tension", "float", "N/m", 0.0728, "surface tension sigma (water 0.0728 at 20 C); "
               "converted to Akinci's gamma with the calibration measured on a zero-g droplet; explicit: needs "

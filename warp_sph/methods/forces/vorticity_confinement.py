@@ -29,6 +29,7 @@ class VorticityConfinement(Force):
     title = "vorticity confinement (Fedkiw et al. 2001, Macklin & Mueller 2013)"
     kind = "vorticity"
     mode = "explicit"
+    stores_energy = True  # puts rotational energy in by design: the energy watchdog's rule is off
     legacy_keys = {"pbf.vorticity": "strength"}
     parameters = (
         Param("vorticity_confinement.strength", "float", "-", 0.01, "confinement strength eps: a = eps v_ref (N x omega) "
