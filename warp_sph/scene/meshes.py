@@ -1,5 +1,6 @@
-"""Triangle meshes for obstacles: loading (OBJ, STL, PLY via meshio; USD via usd-core),
-surface sampling at a particle spacing (of a mesh, or of a box: ``box_surface``), and an inside test.
+"""Triangle meshes for obstacles and fluid blocks: loading (OBJ, STL, PLY via meshio; USD via usd-core),
+surface sampling at a particle spacing (of a mesh, or of a box: ``box_surface``), an inside test,
+closedness checks and the enclosed volume.
 
 Everything here is host-side NumPy in float64; positions are in metres, Z up.
 """
@@ -10,6 +11,7 @@ import io
 import math
 import os
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -290,3 +292,63 @@ def open_edge_count(mesh: TriangleMesh, tolerance: float = 1e-9) -> int:
     edges = edges[edges[:, 0] != edges[:, 1]]
     _, counts = np.unique(edges, axis=0, return_counts=True)
     return int(np.count_nonzero(counts == 1))
+
+
+def _vertex_ids(mesh: TriangleMesh, tolerance: float) -> np.ndarray:
+    """Triangle corners as merged vertex ids, shape (T, 3): vertices closer than ``tolerance`` times
+    the mesh size are one vertex (files that repeat vertices per face)."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    size = float(np.ptp(v, axis=0).max()) if len(v) else 1.0
+    keys = np.round(v / max(size * tolerance, 1e-300)).astype(np.int64)
+    _, ids = np.unique(keys, axis=0, return_inverse=True)
+    return ids.reshape(-1)[np.asarray(mesh.triangles, dtype=np.int64)]
+
+
+def closed_surface_problem(mesh: TriangleMesh, tolerance: float = 1e-9) -> str | None:
+    """Why ``mesh`` is not a closed, consistently oriented surface, or None when it is.
+
+    Closed: every edge is shared by exactly two triangles that traverse it in opposite directions
+    (a -> b in one, b -> a in the other); degenerate triangles (two corners merged) are ignored.
+    Vertices are merged as in ``open_edge_count``.
+    """
+    t = _vertex_ids(mesh, tolerance)
+    t = t[(t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 2] != t[:, 0])]
+    if len(t) == 0:
+        return "it has no non-degenerate triangle"
+    directed = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    undirected, counts = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+    single = int(np.count_nonzero(counts == 1))
+    if single:
+        return f"it is open: {single} edges belong to one triangle only"
+    many = int(np.count_nonzero(counts > 2))
+    if many:
+        return f"it is not manifold: {many} edges are shared by more than two triangles"
+    _, dcounts = np.unique(directed, axis=0, return_counts=True)
+    flipped = int(np.count_nonzero(dcounts > 1))
+    if flipped:
+        return (f"its triangles are not consistently oriented: {flipped} edges run the same way in both "
+                "of their triangles")
+    return None
+
+
+def signed_volume(mesh: TriangleMesh) -> float:
+    """Volume [m^3] enclosed by a closed mesh: sum over triangles of a . (b x c) / 6 (divergence
+    theorem); positive when the triangles are counter-clockwise seen from outside."""
+    a, b, c = mesh.triangle_corners()
+    return float(np.einsum("tk,tk->t", a, np.cross(b, c)).sum() / 6.0)
+
+
+@lru_cache(maxsize=16)
+def _load_cached(path: str, mtime_ns: int, size: int) -> TriangleMesh:
+    return load_triangle_mesh(path)
+
+
+def load_triangle_mesh_cached(path: str | os.PathLike) -> TriangleMesh:
+    """``load_triangle_mesh`` remembered per (path, modification time, size): the bounds, volume and
+    inside test of one scene's mesh blocks read the file once. Do not modify the returned arrays."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError:
+        return load_triangle_mesh(p)
+    return _load_cached(str(p), st.st_mtime_ns, st.st_size)
