@@ -14,7 +14,8 @@ from warp_sph.scene import (
     scene_from_dict,
 )
 
-BUILTIN = ["dam_break", "hydrostatic", "radial_expansion", "drop_into_pool", "obstacle", "floating_bodies"]
+BUILTIN = ["dam_break", "hydrostatic", "radial_expansion", "drop_into_pool", "obstacle", "floating_bodies",
+           "bunny_splash"]
 
 MINIMAL = """
 [[fluid]]
