@@ -14,7 +14,8 @@ from warp_sph.cli import main
 from warp_sph.core.errors import SceneError
 from warp_sph.scene import load_scene
 from warp_sph.scene.load import scene_from_dict
-from warp_sph.scene.meshes import TriangleMesh, closed_surface_problem, load_triangle_mesh, signed_volume
+from warp_sph.scene.meshes import (TriangleMesh, closed_surface_problem, lattice_inside, load_triangle_mesh,
+                                   signed_volume)
 from warp_sph.scene.sampling import sample_scene
 
 D = 0.05  # lattice spacing d = 2 r [m]
@@ -216,3 +217,23 @@ def test_bad_fluid_mesh_is_one_line_exit_2_and_writes_nothing(case, pattern, tmp
     if case != "tiny":  # the others are refused by the loader already (the tiny mesh: by sampling)
         with pytest.raises(SceneError):
             load_scene(str(scene))
+
+
+def test_lattice_columns_on_edges_fall_back_to_the_winding_number():
+    """Columns through the cube's face diagonals (shared edges: ray parity would count 0 or 2
+    crossings there) and through the icosphere's vertices: the inside mask is the exact one."""
+    g = np.array([-0.3, 0.1, 0.25, 0.5, 0.75, 0.9, 1.2])
+    zs = np.linspace(-0.47, 1.53, 21)
+    inside = lattice_inside(unit_box(), g, g, zs)
+    x, y, z = np.meshgrid(g, g, zs, indexing="ij")
+    np.testing.assert_array_equal(inside, (x > 0) & (x < 1) & (y > 0) & (y < 1) & (z > 0) & (z < 1))
+    mesh = icosphere(0.5, 1)
+    ax = np.linspace(-0.55, 0.55, 12)
+    a, b, c = mesh.triangle_corners()
+    normal = np.cross(b - a, c - a)
+    pts = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+    pts = pts[np.abs(np.einsum("tk,ptk->pt", normal, pts[:, None, :] - a[None])).min(axis=1) > 1e-9]  # off faces
+    expected = np.all(np.einsum("tk,ptk->pt", normal, pts[:, None, :] - a[None]) < 0.0, axis=1)
+    grid = lattice_inside(mesh, ax, ax, ax)
+    idx = np.round((pts + 0.55) / (1.1 / 11)).astype(int)
+    np.testing.assert_array_equal(grid[idx[:, 0], idx[:, 1], idx[:, 2]], expected)

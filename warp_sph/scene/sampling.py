@@ -5,7 +5,8 @@ gap at which the first fluid layer over one Akinci wall layer is at rest density
 - Fluid lattice: a block's particle centres are min + s r + k s d (s = ``spacing_scale``), so an
   aligned box holds exactly volume / (s d)^3 particles; a sphere keeps the lattice points of its
   bounding box whose centres are inside it, a closed mesh those inside it (generalised winding
-  number, ``meshes.points_inside``), about volume / (s d)^3 of them.
+  number where a ray would graze an edge, ray parity per lattice column elsewhere:
+  ``meshes.lattice_inside``), about volume / (s d)^3 of them.
 - Walls: the six faces of the container carry one layer of boundary particles on a square
   lattice (spacing L/round(L/d), i.e. d when the size is a multiple of d) on the wall planes.
 - Gap at walls: a block touching (or closer than the gap to) a wall is first clipped to the
@@ -35,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.errors import SceneError
-from .meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
+from .meshes import box_surface, lattice_inside, load_triangle_mesh, points_inside, sample_surface
 from .types import FluidBlock, Scene
 
 #: Points this close (relative to d) are one point (overlapping fluid blocks, shared boundary).
@@ -143,8 +144,8 @@ def lattice_block(block: FluidBlock, spacing: float, region=None) -> np.ndarray:
     Centres at lo + s d/2 + k s d (s = block.spacing_scale) from the corner lo of the clipped
     bounding box, k = 0 .. floor(extent / (s d)) - 1 per axis; where a side was clipped and the
     extent is not a multiple of s d, the lattice is pushed against the clipped side (centred when
-    both were). A sphere keeps the points whose centre lies inside it, a mesh those whose winding
-    number says inside.
+    both were). A sphere keeps the points whose centre lies inside it, a mesh those inside it
+    (``meshes.lattice_inside``).
     """
     step = block.spacing_scale * spacing
     lo, hi = (np.asarray(x, dtype=np.float64) for x in block.bounds())
@@ -167,7 +168,7 @@ def lattice_block(block: FluidBlock, spacing: float, region=None) -> np.ndarray:
         r = np.linalg.norm(pts - np.asarray(block.center), axis=1)
         pts = pts[r <= block.radius * (1.0 + _EPS)]
     elif block.shape == "mesh":
-        pts = pts[points_inside(block.mesh(), pts)]
+        pts = pts[lattice_inside(block.mesh(), *axes).reshape(-1)]
     return pts
 
 
