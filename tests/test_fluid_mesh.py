@@ -14,8 +14,8 @@ from warp_sph.cli import main
 from warp_sph.core.errors import SceneError
 from warp_sph.scene import load_scene
 from warp_sph.scene.load import scene_from_dict
-from warp_sph.scene.meshes import (TriangleMesh, closed_surface_problem, lattice_inside, load_triangle_mesh,
-                                   signed_volume)
+from warp_sph.scene.mesh_volume import closed_surface_problem, lattice_inside, signed_volume
+from warp_sph.scene.meshes import TriangleMesh, load_triangle_mesh
 from warp_sph.scene.sampling import sample_scene
 
 D = 0.05  # lattice spacing d = 2 r [m]

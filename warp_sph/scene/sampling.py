@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.errors import SceneError
-from .meshes import box_surface, lattice_inside, load_triangle_mesh, points_inside, sample_surface
+from .mesh_volume import lattice_inside
+from .meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
 from .types import FluidBlock, Scene
 
 #: Points this close (relative to d) are one point (overlapping fluid blocks, shared boundary).

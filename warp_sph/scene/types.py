@@ -60,7 +60,7 @@ def _volume(self) -> float:
     if self.shape == "sphere":
         return 4.0 / 3.0 * math.pi * self.radius**3
     if self.shape == "mesh":
-        from .meshes import signed_volume
+        from .mesh_volume import signed_volume
 
         return abs(signed_volume(self.mesh()))
     return float(math.prod(b - a for a, b in zip(self.min, self.max)))

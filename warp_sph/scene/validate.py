@@ -20,7 +20,8 @@ import numpy as np
 from ..core.errors import SceneError
 from ..core.smoothing import get_smoothing_kernel, lattice_offsets
 from ..methods import registry
-from .meshes import closed_surface_problem, load_triangle_mesh, open_edge_count, signed_volume
+from .mesh_volume import closed_surface_problem, signed_volume
+from .meshes import load_triangle_mesh, open_edge_count
 from .parameters import REQUIRED, TABLE_KINDS, Param, all_parameters, by_section
 from .types import CORE_SECTIONS, Container, Scene
 
