@@ -623,8 +623,8 @@ def test_resume_is_bitwise_equal_and_needs_the_warm_start(tmp_path):
         assert_same_run(reference, cold)
 
 
-@pytest.mark.parametrize("name", ["dam_break", "drop_into_pool", "floating_bodies", "hydrostatic", "obstacle",
-                                  "radial_expansion"])
+@pytest.mark.parametrize("name", ["bunny_splash", "dam_break", "drop_into_pool", "floating_bodies", "hydrostatic",
+                                  "obstacle", "radial_expansion"])
 def test_every_scene_runs_a_few_frames(name):
     from warp_sph.scene import list_scenes
 

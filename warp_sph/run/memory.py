@@ -5,7 +5,6 @@ pre-flight checks are in ``preflight.py``, which reports ``memory_verdict`` for 
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +74,7 @@ def particle_count_contributions(scene) -> list[tuple[str, str, int]]:
     out = []
     for i, b in enumerate(scene.fluid):
         step = b.spacing_scale * d
-        vol = 4.0 / 3.0 * math.pi * b.radius**3 if b.shape == "sphere" else float(np.prod(np.subtract(b.max, b.min)))
+        vol = b.volume()  # box, sphere or closed mesh [m^3]
         out.append((f"fluid[{i}]", "fluid", int(min(vol / step**3, 2**62))))
 
     def box_area(lo, hi):

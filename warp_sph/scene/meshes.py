@@ -1,5 +1,6 @@
-"""Triangle meshes for obstacles: loading (OBJ, STL, PLY via meshio; USD via usd-core),
+"""Triangle meshes for obstacles and fluid blocks: loading (OBJ, STL, PLY via meshio; USD via usd-core),
 surface sampling at a particle spacing (of a mesh, or of a box: ``box_surface``), and an inside test.
+What a closed mesh encloses (closedness, volume, the inside of a lattice) is in ``mesh_volume.py``.
 
 Everything here is host-side NumPy in float64; positions are in metres, Z up.
 """
@@ -10,6 +11,7 @@ import io
 import math
 import os
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -290,3 +292,19 @@ def open_edge_count(mesh: TriangleMesh, tolerance: float = 1e-9) -> int:
     edges = edges[edges[:, 0] != edges[:, 1]]
     _, counts = np.unique(edges, axis=0, return_counts=True)
     return int(np.count_nonzero(counts == 1))
+
+
+@lru_cache(maxsize=16)
+def _load_cached(path: str, mtime_ns: int, size: int) -> TriangleMesh:
+    return load_triangle_mesh(path)
+
+
+def load_triangle_mesh_cached(path: str | os.PathLike) -> TriangleMesh:
+    """``load_triangle_mesh`` remembered per (path, modification time, size): the bounds, volume and
+    inside test of one scene's mesh blocks read the file once. Do not modify the returned arrays."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError:
+        return load_triangle_mesh(p)
+    return _load_cached(str(p), st.st_mtime_ns, st.st_size)

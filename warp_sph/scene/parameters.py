@@ -18,7 +18,7 @@ from ..core.smoothing import SMOOTHING_KERNELS
 
 MESH_SEQUENCE_FORMATS = ("", "obj", "ply", "vtk")
 PARTICLE_PRIMVARS = ("density", "pressure")
-FLUID_SHAPES = ("box", "sphere")
+FLUID_SHAPES = ("box", "sphere", "mesh")
 OBSTACLE_SHAPES = ("box", "mesh")
 BODY_SHAPES = ("box", "sphere", "mesh")
 PROBE_KINDS = ("pressure", "height", "front")
@@ -165,6 +165,11 @@ _TAIL = (
     _P("fluid[].max", "vec3", "m", REQUIRED, "upper corner of a box block", shapes=("box",)),
     _P("fluid[].center", "vec3", "m", REQUIRED, "centre of a sphere block", shapes=("sphere",)),
     _P("fluid[].radius", "float", "m", REQUIRED, "radius of a sphere block", gt=0.0, shapes=("sphere",)),
+    _P("fluid[].file", "str", "-", REQUIRED, "closed triangle mesh whose inside is filled (.obj .stl .ply .usd "
+       ".usda .usdc); relative to the scene file, else one shipped in scenes/meshes/", shapes=("mesh",)),
+    _P("fluid[].scale", "float", "-", 1.0, "uniform scale of the mesh (x -> scale x + translate)",
+       gt=0.0, shapes=("mesh",)),
+    _P("fluid[].translate", "vec3", "m", (0.0, 0.0, 0.0), "translation of the mesh", shapes=("mesh",)),
     _P("fluid[].velocity", "vec3", "m/s", (0.0, 0.0, 0.0), "initial velocity"),
     _P("fluid[].spacing_scale", "float", "-", 1.0, "lattice spacing / d; < 1 starts the block "
        "over-dense (compressed)", ge=0.5, le=2.0),

@@ -4,7 +4,9 @@ Rules (d = 2 r is the rest spacing, g d = ``scene.wall_gap``: boundary_gap * d, 
 gap at which the first fluid layer over one Akinci wall layer is at rest density, about 1.1 d):
 - Fluid lattice: a block's particle centres are min + s r + k s d (s = ``spacing_scale``), so an
   aligned box holds exactly volume / (s d)^3 particles; a sphere keeps the lattice points of its
-  bounding box whose centres are inside it.
+  bounding box whose centres are inside it, a closed mesh those inside it (generalised winding
+  number where a ray would graze an edge, ray parity per lattice column elsewhere:
+  ``meshes.lattice_inside``), about volume / (s d)^3 of them.
 - Walls: the six faces of the container carry one layer of boundary particles on a square
   lattice (spacing L/round(L/d), i.e. d when the size is a multiple of d) on the wall planes.
 - Gap at walls: a block touching (or closer than the gap to) a wall is first clipped to the
@@ -34,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.errors import SceneError
+from .mesh_volume import lattice_inside
 from .meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
 from .types import FluidBlock, Scene
 
@@ -142,7 +145,8 @@ def lattice_block(block: FluidBlock, spacing: float, region=None) -> np.ndarray:
     Centres at lo + s d/2 + k s d (s = block.spacing_scale) from the corner lo of the clipped
     bounding box, k = 0 .. floor(extent / (s d)) - 1 per axis; where a side was clipped and the
     extent is not a multiple of s d, the lattice is pushed against the clipped side (centred when
-    both were). A sphere keeps the points whose centre lies inside it.
+    both were). A sphere keeps the points whose centre lies inside it, a mesh those inside it
+    (``meshes.lattice_inside``).
     """
     step = block.spacing_scale * spacing
     lo, hi = (np.asarray(x, dtype=np.float64) for x in block.bounds())
@@ -164,6 +168,8 @@ def lattice_block(block: FluidBlock, spacing: float, region=None) -> np.ndarray:
     if block.shape == "sphere":
         r = np.linalg.norm(pts - np.asarray(block.center), axis=1)
         pts = pts[r <= block.radius * (1.0 + _EPS)]
+    elif block.shape == "mesh":
+        pts = pts[lattice_inside(block.mesh(), *axes).reshape(-1)]
     return pts
 
 
@@ -214,6 +220,10 @@ def sample_scene(scene: Scene) -> SampledScene:
             shrink = gap - 0.5 * block.spacing_scale * d
             region = (np.asarray(c.min) + shrink, np.asarray(c.max) - shrink)
         p = lattice_block(block, d, region)
+        if block.shape == "mesh" and len(p) == 0:
+            raise SceneError(f"{scene.source}: fluid[{i}].file: mesh {block.file!r} holds no lattice point inside "
+                             f"the container at spacing {block.spacing_scale * d:g} m; scale it up, move it inside "
+                             "or lower particle_radius")
         p = p[_append_unique(fx, p, DUPLICATE_DISTANCE * d)]
         fx.append(p)
         fv.append(np.broadcast_to(np.asarray(block.velocity, dtype=np.float64), p.shape))

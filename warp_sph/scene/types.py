@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -42,7 +43,28 @@ def _bounds(self) -> tuple[Vec3, Vec3]:
     if self.shape == "sphere":
         c, r = self.center, self.radius
         return tuple(x - r for x in c), tuple(x + r for x in c)
+    if self.shape == "mesh":
+        lo, hi = self.mesh().bounds
+        return tuple(map(float, lo)), tuple(map(float, hi))
     return self.min, self.max
+
+
+def _mesh(self):
+    """The block's triangle mesh (shape "mesh") with its scale and translate applied [m]."""
+    from .meshes import load_triangle_mesh_cached
+
+    return load_triangle_mesh_cached(self.file).transformed(self.scale, self.translate)
+
+
+def _volume(self) -> float:
+    """Volume of the block [m^3]: box extent product, 4/3 pi R^3, or the mesh's enclosed volume."""
+    if self.shape == "sphere":
+        return 4.0 / 3.0 * math.pi * self.radius**3
+    if self.shape == "mesh":
+        from .mesh_volume import signed_volume
+
+        return abs(signed_volume(self.mesh()))
+    return float(math.prod(b - a for a, b in zip(self.min, self.max)))
 
 
 _CORE = by_section(core_parameters())
@@ -51,8 +73,9 @@ TimeParams = section_class("time", _CORE["time"].values(), doc="Time stepping.")
 Container = section_class("container", _CORE["container"].values(),
                           doc="Axis-aligned box of walls [m]; its six faces are sampled as boundary particles.")
 OutputParams = section_class("output", _CORE["output"].values(), doc="What a run writes.")
-FluidBlock = section_class("fluid[]", _CORE["fluid[]"].values(), {"bounds": _bounds},
-                           doc="A block of fluid sampled on a lattice; keys of the other shape are None.")
+FluidBlock = section_class("fluid[]", _CORE["fluid[]"].values(), {"bounds": _bounds, "mesh": _mesh, "volume": _volume},
+                           doc="A block of fluid sampled on a lattice; keys of the other shapes are None (file: the "
+                               "absolute path after loading).")
 Obstacle = section_class("obstacles[]", _CORE["obstacles[]"].values(),
                          doc="A static obstacle sampled on its surface as boundary particles; keys of the other "
                              "shape are None (file: the absolute path after loading).")

@@ -10,6 +10,7 @@ rigid bodies (``warp_sph.rigid.checks``: inside the container, no overlap, Newto
 from __future__ import annotations
 
 import copy
+import importlib.resources
 import math
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ import numpy as np
 from ..core.errors import SceneError
 from ..core.smoothing import get_smoothing_kernel, lattice_offsets
 from ..methods import registry
+from .mesh_volume import closed_surface_problem, signed_volume
 from .meshes import load_triangle_mesh, open_edge_count
 from .parameters import REQUIRED, TABLE_KINDS, Param, all_parameters, by_section
 from .types import CORE_SECTIONS, Container, Scene
@@ -187,6 +189,8 @@ class Validator:
                 self.box(block.min, block.max, kp)
             if name in ("obstacles", "bodies") and block.shape == "mesh":
                 self.mesh_file(block, kp, name)
+            if name == "fluid" and block.shape == "mesh":
+                self.fluid_mesh(block, kp)
             out.append(block)
         return out
 
@@ -209,11 +213,34 @@ class Validator:
             out.append(cls.config_class()(**values))
         return out
 
-    def mesh_file(self, block, kp: str, what: str = "obstacles") -> None:
-        path = Path(block.file).expanduser()
+    def mesh_path(self, file: str) -> Path:
+        """``file`` resolved: absolute, else relative to the scene file's folder, else (when not there)
+        a mesh shipped in the built-in scenes' meshes/ folder."""
+        path = Path(file).expanduser()
         if not path.is_absolute():
-            path = (self.base_dir or Path.cwd()) / path
-        path = path.resolve()
+            local = (self.base_dir or Path.cwd()) / path
+            shipped = Path(str(importlib.resources.files("warp_sph.scenes"))) / "meshes" / path
+            path = local if local.is_file() or not shipped.is_file() else shipped
+        return path.resolve()
+
+    def fluid_mesh(self, block, kp: str) -> None:
+        """A [[fluid]] mesh: readable, closed and consistently oriented, enclosing a volume; file made absolute."""
+        path = self.mesh_path(block.file)
+        try:
+            mesh = load_triangle_mesh(path)
+        except SceneError as exc:
+            self.fail(f"{kp}.file", str(exc))
+        problem = closed_surface_problem(mesh)
+        if problem:
+            self.fail(f"{kp}.file", f"mesh {str(path)!r} cannot be filled with fluid: {problem}; a fluid mesh "
+                      "needs a closed, consistently oriented surface (every edge shared by exactly two triangles)")
+        volume = abs(signed_volume(mesh.transformed(block.scale, block.translate)))
+        if not volume > 0.0:
+            self.fail(f"{kp}.file", f"mesh {str(path)!r} encloses no volume")
+        block.file = str(path)
+
+    def mesh_file(self, block, kp: str, what: str = "obstacles") -> None:
+        path = self.mesh_path(block.file)
         try:
             mesh = load_triangle_mesh(path)
         except SceneError as exc:
@@ -244,6 +271,12 @@ class Validator:
             tol = 1e-9 * max(1.0, *map(abs, tuple(c.min) + tuple(c.max)))
             for i, block in enumerate(scene.fluid):
                 lo, hi = block.bounds()
+                if block.shape == "mesh":  # filled where it overlaps the container (sampling clips it)
+                    if any(b <= cl for b, cl in zip(hi, c.min)) or any(a >= ch for a, ch in zip(lo, c.max)):
+                        self.fail(f"fluid[{i}]", f"mesh {block.file!r} (bounds {[round(x, 6) for x in lo]}.."
+                                  f"{[round(x, 6) for x in hi]} after scale and translate) has no volume inside the "
+                                  f"container {list(c.min)}..{list(c.max)}; check translate and scale")
+                    continue
                 if any(a < cl - tol for a, cl in zip(lo, c.min)) or any(b > ch + tol for b, ch in zip(hi, c.max)):
                     what = "sphere" if block.shape == "sphere" else "box"
                     self.fail(f"fluid[{i}]", f"{what} {list(lo)}..{list(hi)} is not inside the container "
