@@ -36,3 +36,37 @@ def test_first_compile_prints_no_compiler_output(tmp_path):
     for name in ("surface_decimation", "surface_grid", "surface_marching", "surface_smoothing", "dfsph"):
         assert any(b.startswith(f"wp_warp_sph.kernels.{name}_") for b in built), (name, sorted(built))
     assert r.stdout == "" and r.stderr == "", r.stdout + r.stderr
+
+
+def test_edge_key_hash_matches_numpy_oracle():
+    """The unsigned constants keep the edge hash of the int32-literal version: the 32-bit products
+    wrap modulo 2^32 (a brute-force NumPy uint64 oracle, reduced mod 2^32), so the decimation order
+    and the meshes stay the same bits."""
+    import numpy as np
+    import warp as wp
+
+    from warp_sph.kernels.surface_decimation import edge_key
+
+    @wp.kernel
+    def keys(a: wp.array(dtype=int), b: wp.array(dtype=int), cost: wp.array(dtype=float),
+             out: wp.array(dtype=wp.int64)):
+        i = wp.tid()
+        out[i] = edge_key(cost[i], 1.0, a[i], b[i])
+
+    rng = np.random.default_rng(3)
+    a = rng.integers(0, 2**31 - 1, 64, dtype=np.int64)
+    b = rng.integers(0, 2**31 - 1, 64, dtype=np.int64)
+    a[:4], b[:4] = [0, 1, 7, 2**31 - 1], [1, 0, 7, 5]
+    cost = np.where(np.arange(64) % 2 == 0, 0.5, 100.0).astype(np.float32)
+    out = wp.zeros(64, dtype=wp.int64, device="cpu")
+    wp.launch(keys, 64, inputs=[wp.array(a.astype(np.int32), dtype=int, device="cpu"),
+                                wp.array(b.astype(np.int32), dtype=int, device="cpu"),
+                                wp.array(cost, dtype=float, device="cpu"), out], device="cpu")
+    m = np.uint64(2**32)
+    lo, hi = np.minimum(a, b).astype(np.uint64), np.maximum(a, b).astype(np.uint64)
+    h = ((lo * np.uint64(2654435761)) % m) ^ ((hi * np.uint64(2246822519)) % m)
+    h = ((h ^ (h >> np.uint64(15))) * np.uint64(2654435761)) % m
+    c = cost.astype(np.float64)
+    bucket = np.where(c > 1.0, np.floor(np.log2(np.maximum(c, 1.0)) / 3.0).astype(np.int64) + 1, 0)
+    expected = (bucket << 32) | (h >> np.uint64(1)).astype(np.int64)
+    np.testing.assert_array_equal(out.numpy(), expected)
