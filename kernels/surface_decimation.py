@@ -14,6 +14,11 @@ import warp as wp
 
 #: cost of an edge that may not collapse
 BLOCKED = wp.constant(3.0e38)
+#: multipliers of the edge hash (Knuth's 2^32 / golden ratio, xxHash's PRIME32_2); typed uint32
+#: constants, so the generated C++ holds them as unsigned literals (a bare literal above 2^31 - 1
+#: inside a kernel becomes an int32 constant that overflows, and clang warns on the first compile)
+HASH_MUL_A = wp.constant(wp.uint32(2654435761))
+HASH_MUL_B = wp.constant(wp.uint32(2246822519))
 
 
 @wp.func
@@ -198,8 +203,8 @@ def edge_key(cost: float, cost_scale: float, a: int, b: int) -> wp.int64:
         bucket = wp.int64(wp.min(int(wp.log2(cost / cost_scale) / 3.0) + 1, 1000000))
     lo = wp.min(a, b)
     hi = wp.max(a, b)
-    h = (wp.uint32(lo) * wp.uint32(2654435761)) ^ (wp.uint32(hi) * wp.uint32(2246822519))
-    h = (h ^ (h >> wp.uint32(15))) * wp.uint32(2654435761)
+    h = (wp.uint32(lo) * HASH_MUL_A) ^ (wp.uint32(hi) * HASH_MUL_B)
+    h = (h ^ (h >> wp.uint32(15))) * HASH_MUL_A
     return (bucket << wp.int64(32)) | wp.int64(h >> wp.uint32(1))
 
 
