@@ -209,7 +209,7 @@ class EnergyWatch:
         added = [name for name in sim.graph.names() if name not in sim.solver_stage_names]
         if added:
             return (f"stage(s) {', '.join(map(repr, added))} inserted into the step graph by hand may add energy: check "
-                    "them first")
+                    "them first (a stage that puts energy in by design: sim.watchdog.energy.enabled = False)")
         if self.unintended > 0.5 * rise:
             law = solver.equation_of_state()
             keys = [k for k in tight.keys if k != "time.cfl"] or [f"{solver.name}.stiffness"]
