@@ -31,7 +31,7 @@ def blender_python() -> str | None:
     candidates.append(str(ROOT / ".venv" / "blender" / "bin" / "python"))
     for py in candidates:
         if Path(py).is_file() and subprocess.run([py, "-c", FIND_BPY], capture_output=True, timeout=60).returncode == 0:
-            return py
+            return str(Path(py).absolute())  # absolute: the tests run it from their own folders
     return sys.executable if importlib.util.find_spec("bpy") is not None else None
 
 

@@ -25,6 +25,9 @@ def test_sorted_frames_match_unsorted_frames(solver):
         sim = Simulation(small_scene(solver=solver))
         sim.cell_order = sort
         x0, _ = jittered(sim, seed=3, amp=0.2, vel=0.3)
+        # the jittered start's overlaps become motion (PBF: +9 % of the scene's energy in frame 1): the energy
+        # rule would stop this ordering test, which is about where particles go, not about the start
+        sim.watchdog.energy.enabled = False
         # shuffle the stable order, so that it is far from cell order
         perm = np.random.default_rng(1).permutation(len(x0))
         for name in ("particle_x", "particle_v"):

@@ -206,7 +206,8 @@ class EnergyWatch:
         scene, solver = sim.scene, sim.solver
         r = self.reference
         rise = e.total - self.reference_total
-        added = [name for name in sim.graph.names() if name not in sim.solver_stage_names]
+        # a stage inserted by hand that changes a field (one that only reads cannot add energy)
+        added = [s.name for s in sim.graph.stages if s.name not in sim.solver_stage_names and (s.writes or s.updates)]
         if added:
             return (f"stage(s) {', '.join(map(repr, added))} inserted into the step graph by hand may add energy: check "
                     "them first (a stage that puts energy in by design: sim.watchdog.energy.enabled = False)")
