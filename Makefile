@@ -2,6 +2,8 @@
 PYTHON ?= python3
 VENV   ?= .venv
 STAMP  := $(VENV)/.installed
+# test processes (pytest-xdist; each test file runs whole in one of them): 2 halves the suite's time on 2 cores
+TEST_WORKERS ?= 2
 # Real Blender for tests/test_blender.py: bpy 5.0.1 (a wheel for Python 3.11 only, ~370 MB) in its own
 # environment, because it pins numpy < 2 and must not downgrade the simulator's; the tests start it in a
 # subprocess (WARP_SPH_BLENDER_PYTHON). On another Python the Blender tests skip and say why.
@@ -28,7 +30,7 @@ run: $(STAMP)
 	$(VENV)/bin/warp-sph run $(ARGS)
 
 test: $(STAMP) $(BLENDER_STAMP)
-	WARP_SPH_BLENDER_PYTHON=$(BLENDER_VENV)/bin/python $(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+	WARP_SPH_BLENDER_PYTHON=$(BLENDER_VENV)/bin/python $(VENV)/bin/python -m pytest -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/python -m mkdocs build --strict --site-dir site
