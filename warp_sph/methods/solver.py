@@ -150,8 +150,11 @@ class Solver(MethodBase):
         step (``Simulation.step_bound``). Correcting an over-density e in one step moves particles by
         about e d, i.e. a velocity e d / dt: a start-up error or an impact's leftover would become a
         kick that grows as 1/dt (issue #36: 29 m/s at a fixed 1e-5 s). With s it becomes e d / tau at
-        any smaller step. Every adaptive step is at least tau (a frame's equal substeps are between half
-        the bound and the bound), so s = 1 there; 1 also when no bound is known (steps run by hand)."""
+        any smaller step. tau is the pressure's own adaptive step (the solver's and the boundary's bounds:
+        a force's viscous or capillary bound does not count), so a step made small by a fixed dt or by a
+        force's bound spreads the correction too. Every adaptive step the pressure bounds is at least
+        tau / 2 (a frame's equal substeps are between half the bound and the bound), so s = 1 there; 1 also
+        when no bound is known (steps run by hand)."""
         bound = getattr(self.sim, "step_bound", 0.0)
         if not bound > 0.0:
             return 1.0
