@@ -21,6 +21,7 @@ import numpy as np
 from ..core.errors import SceneError
 from ..scene.parameters import BODY_SHAPES, Param, core_parameters
 from ..scene.types import Body
+from ..scene.mesh_volume import closed_surface_problem, volume_and_centroid
 from ..scene.meshes import TriangleMesh, load_triangle_mesh, points_inside
 
 #: Parameter-table rows of ``[[bodies]]`` (key paths ``bodies[].key``) and the ``rigid`` table, declared
@@ -77,9 +78,11 @@ def check_body(body: Body, keypath: str, source: str = "<dict>") -> None:
         fail("size", f"expected 3 edge lengths > 0, got {list(body.size)}")
     if body.shape == "mesh":
         mesh = load_triangle_mesh(body.file)
-        volume = _signed_volume(mesh.vertices, mesh.triangles)[0]
-        if not _closed(mesh.triangles):
-            fail("file", f"mesh {body.file!r} is not closed (every edge must join exactly two triangles)")
+        volume = volume_and_centroid(mesh.vertices, mesh.triangles)[0]
+        problem = closed_surface_problem(mesh)
+        if problem:
+            fail("file", f"mesh {body.file!r} is not a closed surface: {problem} (every edge must join exactly two "
+                 "triangles, traversed in opposite directions)")
         if not abs(volume) > 0.0:
             fail("file", f"mesh {body.file!r} encloses no volume")
 
@@ -110,26 +113,6 @@ def quat_to_matrix(q) -> np.ndarray:
     return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def _signed_volume(vertices: np.ndarray, triangles: np.ndarray) -> tuple[float, np.ndarray]:
-    """(signed volume [m^3], centroid [m]) of a closed triangle surface (sum of tetrahedra to the origin;
-    positive when wound counter-clockwise seen from outside)."""
-    a, b, c = (vertices[triangles[:, k]] for k in range(3))
-    v6 = np.einsum("ij,ij->i", a, np.cross(b, c))
-    volume = float(v6.sum() / 6.0)
-    if volume == 0.0:
-        return 0.0, np.zeros(3)
-    centroid = (v6[:, None] * (a + b + c)).sum(axis=0) / (4.0 * v6.sum())
-    return volume, centroid
-
-
-def _closed(triangles: np.ndarray) -> bool:
-    """True when every undirected edge is shared by exactly two triangles."""
-    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    e = np.sort(e, axis=1)
-    _, counts = np.unique(e, axis=0, return_counts=True)
-    return bool(np.all(counts == 2))
 
 
 def box_mesh(half_extents) -> tuple[np.ndarray, np.ndarray]:
@@ -191,7 +174,7 @@ def body_geometry(body: Body) -> BodyGeometry:
         mesh = load_triangle_mesh(body.file)
         verts = mesh.vertices * float(body.scale if body.scale is not None else 1.0)
         tris = np.asarray(mesh.triangles, dtype=np.int64)
-        volume, centroid = _signed_volume(verts, tris)
+        volume, centroid = volume_and_centroid(verts, tris)
         if volume < 0.0:
             tris = tris[:, ::-1].copy()
             volume = -volume

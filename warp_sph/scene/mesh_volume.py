@@ -50,8 +50,19 @@ def closed_surface_problem(mesh: TriangleMesh, tolerance: float = 1e-9) -> str |
 def signed_volume(mesh: TriangleMesh) -> float:
     """Volume [m^3] enclosed by a closed mesh: sum over triangles of a . (b x c) / 6 (divergence
     theorem); positive when the triangles are counter-clockwise seen from outside."""
-    a, b, c = mesh.triangle_corners()
-    return float(np.einsum("tk,tk->t", a, np.cross(b, c)).sum() / 6.0)
+    return volume_and_centroid(mesh.vertices, mesh.triangles)[0]
+
+
+def volume_and_centroid(vertices: np.ndarray, triangles: np.ndarray) -> tuple[float, np.ndarray]:
+    """(signed volume [m^3], centroid [m]) of a closed triangle surface (sum of tetrahedra to the origin;
+    positive when wound counter-clockwise seen from outside)."""
+    a, b, c = (vertices[triangles[:, k]] for k in range(3))
+    v6 = np.einsum("ij,ij->i", a, np.cross(b, c))
+    volume = float(v6.sum() / 6.0)
+    if volume == 0.0:
+        return 0.0, np.zeros(3)
+    centroid = (v6[:, None] * (a + b + c)).sum(axis=0) / (4.0 * v6.sum())
+    return volume, centroid
 
 
 def lattice_inside(mesh: TriangleMesh, xs: np.ndarray, ys: np.ndarray, zs: np.ndarray,
