@@ -81,8 +81,8 @@ def check_body(body: Body, keypath: str, source: str = "<dict>") -> None:
         volume = volume_and_centroid(mesh.vertices, mesh.triangles)[0]
         problem = closed_surface_problem(mesh)
         if problem:
-            fail("file", f"mesh {body.file!r} is not a closed surface: {problem} (every edge must join exactly two "
-                 "triangles, traversed in opposite directions)")
+            fail("file", f"mesh {body.file!r} is not closed and consistently oriented: {problem} (every edge must join "
+                 "exactly two triangles, traversed in opposite directions)")
         if not abs(volume) > 0.0:
             fail("file", f"mesh {body.file!r} encloses no volume")
 

@@ -7,17 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .meshes import TriangleMesh, points_inside
-
-
-def _vertex_ids(mesh: TriangleMesh, tolerance: float) -> np.ndarray:
-    """Triangle corners as merged vertex ids, shape (T, 3): vertices closer than ``tolerance`` times
-    the mesh size are one vertex (files that repeat vertices per face)."""
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    size = float(np.ptp(v, axis=0).max()) if len(v) else 1.0
-    keys = np.round(v / max(size * tolerance, 1e-300)).astype(np.int64)
-    _, ids = np.unique(keys, axis=0, return_inverse=True)
-    return ids.reshape(-1)[np.asarray(mesh.triangles, dtype=np.int64)]
+from .meshes import TriangleMesh, merged_vertex_ids, points_inside
 
 
 def closed_surface_problem(mesh: TriangleMesh, tolerance: float = 1e-9) -> str | None:
@@ -25,9 +15,9 @@ def closed_surface_problem(mesh: TriangleMesh, tolerance: float = 1e-9) -> str |
 
     Closed: every edge is shared by exactly two triangles that traverse it in opposite directions
     (a -> b in one, b -> a in the other); degenerate triangles (two corners merged) are ignored.
-    Vertices are merged as in ``meshes.open_edge_count``.
+    Vertices are merged as in ``meshes.merged_vertex_ids``.
     """
-    t = _vertex_ids(mesh, tolerance)
+    t = merged_vertex_ids(mesh, tolerance)
     t = t[(t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 2] != t[:, 0])]
     if len(t) == 0:
         return "it has no non-degenerate triangle"

@@ -279,15 +279,20 @@ def points_inside(mesh: TriangleMesh, points: np.ndarray) -> np.ndarray:
     return np.abs(winding_number(mesh, points)) > 0.5
 
 
-def open_edge_count(mesh: TriangleMesh, tolerance: float = 1e-9) -> int:
-    """Edges used by exactly one triangle (0 for a closed surface). Vertices closer than
-    ``tolerance`` times the mesh size are one vertex, so files that repeat vertices per face count
-    as closed when their faces meet."""
+def merged_vertex_ids(mesh: TriangleMesh, tolerance: float = 1e-9) -> np.ndarray:
+    """Triangle corners as merged vertex ids, shape (T, 3): vertices closer than ``tolerance`` times
+    the mesh size are one vertex (files that repeat vertices per face)."""
     v = np.asarray(mesh.vertices, dtype=np.float64)
     size = float(np.ptp(v, axis=0).max()) if len(v) else 1.0
     keys = np.round(v / max(size * tolerance, 1e-300)).astype(np.int64)
     _, ids = np.unique(keys, axis=0, return_inverse=True)
-    t = ids.reshape(-1)[np.asarray(mesh.triangles, dtype=np.int64)]
+    return ids.reshape(-1)[np.asarray(mesh.triangles, dtype=np.int64)]
+
+
+def open_edge_count(mesh: TriangleMesh, tolerance: float = 1e-9) -> int:
+    """Edges used by exactly one triangle (0 for a closed surface); vertices merged as in
+    ``merged_vertex_ids``, so files that repeat vertices per face count as closed when their faces meet."""
+    t = merged_vertex_ids(mesh, tolerance)
     edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
     edges = edges[edges[:, 0] != edges[:, 1]]
     _, counts = np.unique(edges, axis=0, return_counts=True)
