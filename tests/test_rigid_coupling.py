@@ -10,8 +10,13 @@ from sph_oracle import W
 from warp_sph.core.smoothing import get_smoothing_kernel
 from warp_sph.rigid.coupling import BodyParticles
 from warp_sph.rigid.sampling import BodySamples, fibonacci_sphere, sample_body
-from warp_sph.rigid.spec import (Body, body_geometry, box_mesh, quat_to_matrix, rotation_quaternion, sphere_mesh,
-                                 _closed, _signed_volume)
+from warp_sph.rigid.spec import Body, body_geometry, box_mesh, quat_to_matrix, rotation_quaternion, sphere_mesh
+from warp_sph.scene.mesh_volume import closed_surface_problem, volume_and_centroid as _signed_volume
+from warp_sph.scene.meshes import TriangleMesh
+
+
+def _closed(verts, tris) -> bool:
+    return closed_surface_problem(TriangleMesh(verts, tris)) is None
 
 
 def random_quaternions(rng, n):
@@ -122,7 +127,7 @@ def test_wrench_matches_numpy_and_is_bitwise_ordered(monkeypatch):
 def test_closed_meshes_are_outward():
     for verts, tris in (box_mesh([0.2, 0.1, 0.05]), sphere_mesh(0.3, 2)):
         volume, centroid = _signed_volume(verts, tris)
-        assert volume > 0 and _closed(tris)
+        assert volume > 0 and _closed(verts, tris)
         np.testing.assert_allclose(centroid, 0.0, atol=1e-12)
     assert _signed_volume(*box_mesh([0.2, 0.1, 0.05]))[0] == pytest.approx(0.4 * 0.2 * 0.1)
 
