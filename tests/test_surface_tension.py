@@ -84,7 +84,7 @@ def test_flat_slab_stays_flat(device):
     assert np.abs(x.mean(0) - x0.mean(0)).max() < 1e-4 * d
 
 
-def test_scene_keys_units_and_step_bound():
+def test_scene_keys_units_and_step_bound(device):
     """sigma -> gamma = sigma / (c rho0^2 H^2) (linear, H^-2); the capillary bound's value; negative and
     NaN coefficients refused naming the key; sigma = adhesion = 0 is no force."""
     g1, k1, b1 = st.akinci_coefficients(0.0728, 0.0, 1000.0, 0.05)
@@ -98,15 +98,15 @@ def test_scene_keys_units_and_step_bound():
         for key in ("surface_tension", "adhesion"):
             with pytest.raises(SceneError, match=rf"forces\[0\]\.{key}"):
                 scene_from_dict({**base, "forces": [{"method": "akinci2013", key: bad}]})
-    off = Simulation(scene_from_dict({**base, "forces": [{"method": "akinci2013", "surface_tension": 0.0}]}))
+    off = Simulation(scene_from_dict({**base, "forces": [{"method": "akinci2013", "surface_tension": 0.0}]}), device=device)
     assert "surface_tension" not in off.graph.names()
-    on = Simulation(scene_from_dict({**base, "forces": [{"method": "akinci2013"}]}))
+    on = Simulation(scene_from_dict({**base, "forces": [{"method": "akinci2013"}]}), device=device)
     assert "surface_tension" in on.graph.names()
     assert any(b.name == "capillary" for b in on.time_step_bounds(0.0))
 
 
 @pytest.mark.parametrize("solver", ["dfsph", "wcsph", "pbf"])
-def test_adhesion_pulls_fluid_to_the_wall(solver):
+def test_adhesion_pulls_fluid_to_the_wall(solver, device):
     """A zero-g block resting 1.1 d above the floor of a box: with adhesion its centre of mass moves
     towards the floor, without it does not (surface tension alone pulls it into a ball, about its own
     centre); every solver hosts the wall pass (the step graph checks its declarations)."""
@@ -118,7 +118,7 @@ def test_adhesion_pulls_fluid_to_the_wall(solver):
                               "fluid": [{"min": [0.1, 0.1, 0.0], "max": [0.3, 0.3, 0.08]}],
                               "output": {"usd": False, "surface": False},
                               "forces": [{"method": "akinci2013", "surface_tension": 1.0, "adhesion": adhesion}]})
-        sim = Simulation(sc)
+        sim = Simulation(sc, device=device)
         assert ("boundary_x" in next(s for s in sim.graph.stages if s.name == "surface_tension").reads) == (adhesion > 0)
         for _ in range(10):
             sim.step(1e-3)
