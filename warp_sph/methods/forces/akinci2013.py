@@ -161,5 +161,5 @@ class Akinci2013(Force):
         gamma, gamma_k, beta = self.coefficients
         m = self.model
         return {"surface_tension": float(self.config.surface_tension), "adhesion": float(self.config.adhesion),
-                "gamma": gamma, "curvature_gamma": gamma_k, "beta": beta,
+                "curvature": float(self.config.curvature), "gamma": gamma, "curvature_gamma": gamma_k, "beta": beta,
                 "time_step_bound": capillary_step(m.rest_density, m.spacing, float(self.config.surface_tension))}
