@@ -110,9 +110,10 @@ def pair_acceleration(cohesion: float, curvature: float, particle_mass: float, r
 
 
 @functools.cache
-def force_kernel(with_adhesion: bool, with_reaction: bool, neighbors: str = "list"):
+def force_kernel(with_adhesion: bool, with_reaction: bool, neighbors: str = "list", with_curvature: bool = True):
     """a_i [m/s^2] of cohesion + curvature (+ adhesion to the boundary particles) added to
-    ``force_acceleration``; with_reaction: m a_i(walls) [N] is added to the boundary force."""
+    ``force_acceleration``; with_reaction: m a_i(walls) [N] is added to the boundary force;
+    with_curvature=False: no curvature term (the normals are not read)."""
     lists = neighbors == "list"
     Neighbors = NEIGHBOR_TYPES[neighbors]
 
@@ -141,7 +142,9 @@ def force_kernel(with_adhesion: bool, with_reaction: bool, neighbors: str = "lis
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
         rho_i = particle_density[i]
-        n_i = particle_normal[i]
+        n_i = wp.vec3(0.0)
+        if wp.static(with_curvature):
+            n_i = particle_normal[i]
         a = wp.vec3(0.0)
         if wp.static(lists):
             k = int(0)
@@ -151,8 +154,11 @@ def force_kernel(with_adhesion: bool, with_reaction: bool, neighbors: str = "lis
                 if j != i:
                     x_ij = xi - particle_x[j]
                     if wp.length(x_ij) < support_radius:
+                        n_j = wp.vec3(0.0)
+                        if wp.static(with_curvature):
+                            n_j = particle_normal[j]
                         a += pair_acceleration(cohesion, curvature, particle_mass, rest_density, support_radius,
-                                               rho_i, particle_density[j], x_ij, n_i, particle_normal[j])
+                                               rho_i, particle_density[j], x_ij, n_i, n_j)
                 k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
@@ -161,8 +167,11 @@ def force_kernel(with_adhesion: bool, with_reaction: bool, neighbors: str = "lis
                 if j != i:
                     x_ij = xi - particle_x[j]
                     if wp.length(x_ij) < support_radius:
+                        n_j = wp.vec3(0.0)
+                        if wp.static(with_curvature):
+                            n_j = particle_normal[j]
                         a += pair_acceleration(cohesion, curvature, particle_mass, rest_density, support_radius,
-                                               rho_i, particle_density[j], x_ij, n_i, particle_normal[j])
+                                               rho_i, particle_density[j], x_ij, n_i, n_j)
         if wp.static(with_adhesion):
             a_b = wp.vec3(0.0)
             if wp.static(lists):

@@ -124,6 +124,14 @@ def test_passes_match_numpy_oracle(device, smoothing, neighbors):
     for g, gk in ((0.0, gamma_k), (gamma, 0.0)):
         part = oracle(x, rho, b, vb, m, rho0, h, H, smoothing, g, gk, beta)[1]
         assert np.abs(part - a_ref).max() > 0.05 * scale
+    # with_curvature=False (scene key curvature = 0) is cohesion + adhesion alone and reads no normals
+    cohesion_only = oracle(x, rho, b, vb, m, rho0, h, H, smoothing, gamma, 0.0, beta)[1]
+    acc = wp.array(a0, dtype=wp.vec3, device=device)
+    garbage = wp.array(rng.normal(0, 1e3, x.shape), dtype=wp.vec3, device=device)
+    wp.launch(ak.force_kernel(True, True, neighbors, False), len(x),
+              [0, m, rho0, H, gamma, gamma_k, beta, bn, wb, wp.array(vb, dtype=float, device=device), fn, wx,
+               wrho, garbage], [acc, force], device=device)
+    np.testing.assert_allclose(acc.numpy() - a0, cohesion_only, atol=2e-3 * scale, rtol=1e-3)
 
 
 def test_without_adhesion_the_wall_is_not_read(device):

@@ -65,10 +65,10 @@ class Oracle:
         return -((P[:, None] + P[None])[..., None] * self.G).sum(1) - P[:, None] * self.sb
 
 
-def prepared(seed=0, **kw):
+def prepared(seed=0, device=None, **kw):
     """A 10 % compressed, jittered block with random velocities, moving wall particles, and the
     neighbours and density computed (the stages before 'factor')."""
-    sim = Simulation(dfsph_scene(**kw))
+    sim = Simulation(dfsph_scene(**kw), device=device)
     rng = np.random.default_rng(seed)
     m = sim.model
     x = m.to_local(sim.get_field("particle_x")).astype(np.float64)
@@ -77,7 +77,8 @@ def prepared(seed=0, **kw):
     v = rng.normal(0.0, 0.3, x.shape)
     sim.set_field("particle_x", m.to_world(x))
     sim.set_field("particle_v", v)
-    m.boundary_v.assign(wp.array(rng.normal(0.0, 0.2, (m.boundary_count, 3)).astype(np.float32), dtype=wp.vec3))
+    m.boundary_v.assign(wp.array(rng.normal(0.0, 0.2, (m.boundary_count, 3)).astype(np.float32), dtype=wp.vec3,
+                                 device=m.device))
     stage(sim, "neighbors").run(sim, 0.0)
     stage(sim, "density").run(sim, 0.0)
     x = m.to_local(sim.get_field("particle_x")).astype(np.float64)
@@ -86,9 +87,9 @@ def prepared(seed=0, **kw):
 
 
 # --- the factor and the lattice (T1) ---------------------------------------------------------------
-def test_neighbor_threshold_is_splishsplash_20_for_support_2d():
+def test_neighbor_threshold_is_splishsplash_20_for_support_2d(device):
     for kernel in ("cubic", "quintic", "quadric"):
-        sim = Simulation(dfsph_scene(smoothing_kernel=kernel))
+        sim = Simulation(dfsph_scene(smoothing_kernel=kernel), device=device)
         assert neighbor_threshold(kernel, sim.model.smoothing_length, sim.model.spacing) == 20
         assert sim.solver.neighbor_threshold == 20
     # a wider support scales it: h = 1.5 d (cubic, support 3 d) has 92 interior neighbours
@@ -96,11 +97,11 @@ def test_neighbor_threshold_is_splishsplash_20_for_support_2d():
 
 
 @pytest.mark.parametrize("kernel", ["cubic", "quintic", "quadric"])
-def test_factor_on_a_rest_lattice(kernel):
+def test_factor_on_a_rest_lattice(kernel, device):
     """T1: D d^2 of an interior lattice particle (cubic: 0.4248) and of the flat free surface
     (cubic: 0.600), from the solver's factor stage and from NumPy."""
     sim = Simulation(dfsph_scene(smoothing_kernel=kernel, gravity=[0.0, 0.0, 0.0], container=False,
-                                 fluid=[{"min": [0, 0, 0], "max": [0.7, 0.7, 0.7]}]))
+                                 fluid=[{"min": [0, 0, 0], "max": [0.7, 0.7, 0.7]}]), device=device)
     m = sim.model
     sim.step(1e-4)  # the factor of the sampled lattice (nothing moves: g = 0, rho <= rho0)
     x = m.to_local(sim.get_field("particle_x")).astype(np.float64)
@@ -121,11 +122,11 @@ def test_factor_on_a_rest_lattice(kernel):
         assert d_surface * d * d == pytest.approx(0.600, abs=2e-3)
 
 
-def test_factor_stage_against_numpy():
+def test_factor_stage_against_numpy(device):
     """The search stage ("density"): density, pair cache, factor, divergence source (moving walls),
     active flags and the divergence warm start, against the brute-force oracle on a compressed,
     jittered block with random velocities."""
-    sim, o = prepared()
+    sim, o = prepared(device=device)
     m = sim.model
     dt = 3e-3
     warm = np.random.default_rng(5).uniform(0.0, 0.01, m.fluid_count)
@@ -163,10 +164,10 @@ def test_factor_stage_against_numpy():
     assert np.all(sim.get_field("boundary_force") == 0.0)
 
 
-def test_jacobi_sweep_against_numpy():
+def test_jacobi_sweep_against_numpy(device):
     """One sweep of each solve: a(P), (A P) = scale delta(a) (walls at rest for accelerations), the
     error max(-(b - A P), 0) (divergence: active particles only) and P <- max(0, P - omega f r / scale)."""
-    sim, o = prepared(seed=1)
+    sim, o = prepared(seed=1, device=device)
     m, s = sim.model, sim.solver
     dt = 2e-3
     stage(sim, "density").run(sim, dt)
@@ -192,10 +193,10 @@ def test_jacobi_sweep_against_numpy():
         assert (new == 0).any() and (new > 0).any()  # the clamp is exercised
 
 
-def test_source_and_integrate_against_numpy():
+def test_source_and_integrate_against_numpy(device):
     """Density source b = (1 - rho_hat) - dt delta(v + dt g) with the warm start where rho* > 1;
     integrate v += dt (g + a(P)), x += dt v, the walls' force -m P sum_b V_b grad W, p = P rho^2/rho0."""
-    sim, o = prepared(seed=3)
+    sim, o = prepared(seed=3, device=device)
     m = sim.model
     dt = 2e-3
     stage(sim, "density").run(sim, dt)
@@ -227,10 +228,10 @@ def test_source_and_integrate_against_numpy():
 
 
 # --- the operator (T2) -----------------------------------------------------------------------------
-def test_operator_diagonal_symmetry_and_momentum():
+def test_operator_diagonal_symmetry_and_momentum(device):
     """(A e_i)_i = -dt^2 D_i; A_ik = A_ki (equal volumes); the fluid pairs of a(P) conserve momentum and
     angular momentum for any P, so the fluid's momentum change is the walls' force."""
-    sim, o = prepared(seed=6)
+    sim, o = prepared(seed=6, device=device)
     m, s = sim.model, sim.solver
     dt = 2e-3
     stage(sim, "density").run(sim, dt)
@@ -274,11 +275,11 @@ def free_scene(n_per_axis, spacing_scale=1.0, **kw):
                                "spacing_scale": spacing_scale}], **kw)
 
 
-def test_two_particles_approaching_stop_in_one_sweep():
+def test_two_particles_approaching_stop_in_one_sweep(device):
     """T3: two particles closing at u with a tangential part: after the divergence solve their normal
     relative velocity is 0 (omega = 0.5 solves the rank-1 2x2 system in the first sweep; the paper's
     omega = 1 would bounce them back at -u), the tangential velocity and the momentum are unchanged."""
-    sim = Simulation(free_scene((2, 1, 1)))
+    sim = Simulation(free_scene((2, 1, 1)), device=device)
     m = sim.model
     assert m.fluid_count == 2
     sim.solver.neighbor_threshold = 0  # two particles: the 20-neighbour rule would drop their error
@@ -297,11 +298,11 @@ def test_two_particles_approaching_stop_in_one_sweep():
     assert sim.solver.last_divergence_iterations == 2  # the second sweep sees no error left
 
 
-def test_translating_block_is_ballistic_and_a_single_particle_gets_no_pressure():
+def test_translating_block_is_ballistic_and_a_single_particle_gets_no_pressure(device):
     """T4: a lattice block (rho < rho0: sampled at 1.02 d, so round-off in x never reads over-dense)
     moving uniformly without gravity or walls: P = P^v = 0, v is unchanged bitwise and x is ballistic
     to round-off. One free particle: f = 0, no NaN."""
-    sim = Simulation(free_scene((5, 4, 3), spacing_scale=1.02))
+    sim = Simulation(free_scene((5, 4, 3), spacing_scale=1.02), device=device)
     m = sim.model
     v0 = np.array([0.7, -0.2, 0.1], dtype=np.float32)
     sim.set_field("particle_v", np.tile(v0, (m.fluid_count, 1)))
@@ -313,7 +314,7 @@ def test_translating_block_is_ballistic_and_a_single_particle_gets_no_pressure()
         assert np.all(sim.get_field("dfsph_pressure") == 0) and np.all(sim.get_field("dfsph_divergence_pressure") == 0)
     np.testing.assert_array_equal(sim.get_field("particle_v"), np.tile(v0, (m.fluid_count, 1)))
     np.testing.assert_allclose(m.to_local(sim.get_field("particle_x")), x, atol=1e-6)
-    one = Simulation(free_scene((1, 1, 1)))
+    one = Simulation(free_scene((1, 1, 1)), device=device)
     assert one.model.fluid_count == 1
     one.set_field("particle_v", np.array([[0.0, 0.0, -1.0]]))
     for _ in range(5):
@@ -324,13 +325,13 @@ def test_translating_block_is_ballistic_and_a_single_particle_gets_no_pressure()
 
 
 # --- the solves ------------------------------------------------------------------------------------
-def test_divergence_below_its_threshold_after_the_divergence_solve():
+def test_divergence_below_its_threshold_after_the_divergence_solve(device):
     """T5: on a dam break in motion, the mean over active particles of max(delta_i(v), 0) after the
     divergence solve, recomputed in NumPy from the velocities it left, is below target / dt
     whenever the solve stopped before its maximum (velocities stirred with 5 cm/s of noise, target 1e-4)."""
     sc = load_scene("dam_break", ["solver=dfsph", "particle_radius=0.05", "output.usd=false",
                                   "dfsph.target_divergence_error=1e-4"])
-    sim = Simulation(sc)
+    sim = Simulation(sc, device=device)
     for _ in range(6):
         sim.advance_frame()
     dt = sim.frame_dt / sim.last_frame.steps
@@ -353,9 +354,9 @@ def test_divergence_below_its_threshold_after_the_divergence_solve():
     assert np.where(active, after, 0).mean() * dt <= sim.solver.last_divergence_error * 1.0001
 
 
-def test_density_solve_meets_its_target_on_a_dam_break():
+def test_density_solve_meets_its_target_on_a_dam_break(device):
     sc = load_scene("dam_break", ["solver=dfsph", "particle_radius=0.05", "output.usd=false"])
-    sim = Simulation(sc)
+    sim = Simulation(sc, device=device)
     for _ in range(8):
         st = sim.advance_frame()
         assert st.solver["density_error"]["max"] <= sc.dfsph.target_density_error
@@ -369,11 +370,11 @@ def test_density_solve_meets_its_target_on_a_dam_break():
 NO_OUTPUT = ["output.usd=false", "output.surface=false"]
 
 
-def test_graph_and_time_step():
-    sim = Simulation(dfsph_scene(material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.2}))
+def test_graph_and_time_step(device):
+    sim = Simulation(dfsph_scene(material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.2}), device=device)
     assert sim.graph.names() == ["neighbors", "density", "stabilize", "divergence", "viscosity", "apply_forces",
                                  "xsph", "source", "pressure", "integrate"]
-    bare = Simulation(dfsph_scene(container=False, gravity=[0.0, 0.0, 0.0], dfsph={"divergence_solve": False}))
+    bare = Simulation(dfsph_scene(container=False, gravity=[0.0, 0.0, 0.0], dfsph={"divergence_solve": False}), device=device)
     assert bare.graph.names() == ["neighbors", "density", "stabilize", "source", "pressure", "integrate"]
     m = sim.model
     bounds = {b.name: b.seconds for b in sim.time_step_bounds(2.0)}
@@ -385,13 +386,13 @@ def test_graph_and_time_step():
     assert np.isfinite(sim.get_field("particle_v")).all()
 
 
-def test_each_substep_is_sized_for_the_speed_at_its_start(monkeypatch):
+def test_each_substep_is_sized_for_the_speed_at_its_start(monkeypatch, device):
     """DFSPH's CFL step follows the flow substep by substep (as SPlisHSPlasH's): every substep's dt
     satisfies dt (v + |g| dt) <= cfl d for the fastest particle at its start (NumPy, from the state),
     the substeps add up to the frame, and a collapsing block needs fewer of them than with one step size
     per frame sized for the frame's start speed plus |g| frame_dt."""
     sc = dfsph_scene(fps=12.0, time={"dt_max": 0.05})  # the CFL bound, not the 5 ms cap, sizes the steps
-    sim = Simulation(sc)
+    sim = Simulation(sc, device=device)
     assert sim.per_substep_step
     m = sim.model
     g = float(np.linalg.norm(m.gravity))
@@ -418,7 +419,7 @@ def test_each_substep_is_sized_for_the_speed_at_its_start(monkeypatch):
     assert max(dt for dt, _ in seen) > 1.2 * min(dt for dt, _ in seen)  # the step follows the speed
 
     monkeypatch.setattr(type(sim.solver), "time_step_per_substep", False)
-    per_frame = Simulation(sc)
+    per_frame = Simulation(sc, device=device)
     assert not per_frame.per_substep_step
     frame_steps = [per_frame.advance_frame().steps for _ in range(6)]
     assert sum(steps) < sum(frame_steps), (steps, frame_steps)
@@ -453,7 +454,7 @@ def hydrostatic_inner_profile(sim, profiles, moments):
             profiles.setdefault(k, []).append((depth[sel].mean(), filtered[sel].mean()))
 
 
-def test_hydrostatic_tank_pressure_and_floor_load():
+def test_hydrostatic_tank_pressure_and_floor_load(device):
     """T6: after settling, averaged over 1 s: the floor carries the weight within 1 %, the density
     solve meets its target in every step with few iterations (warm start), and the Shepard-filtered
     pressure of every interior layer deeper than 2h (and 2h above the floor) is within 1 % of the
@@ -467,7 +468,7 @@ def test_hydrostatic_tank_pressure_and_floor_load():
     rest by 5 s, test_robust.py): with 0.4 the layer at depth 2.7 h reads 6 % low over 1.5-2.5 s,
     while the tank still settles."""
     sc = load_scene("hydrostatic", ["solver=dfsph", "material.xsph=0.2"] + NO_OUTPUT)
-    sim = Simulation(sc)
+    sim = Simulation(sc, device=device)
     m = sim.model
     g = float(np.linalg.norm(m.gravity))
     weight = m.particle_mass * m.fluid_count * g
@@ -510,14 +511,14 @@ def block_on_floor(nx=6, ny=6, nz=4, **kw):
 
 
 @pytest.mark.slow
-def test_block_at_rest_stays_at_rest_for_ten_thousand_steps():
+def test_block_at_rest_stays_at_rest_for_ten_thousand_steps(device):
     """T7: a 6x6x4 block on the floor between walls (dt = 2 ms) settles, then holds max |v| < 1e-3 m/s
     for 10^4 steps. Measured: without dissipation the lattice's rearrangement under its own weight keeps
     sloshing at ~0.15 m/s (DFSPH adds no damping of its own), so viscosity 5e-3 m^2/s and XSPH 0.1 damp
     it; once settled, the solves leave a period-3-step jitter whose size follows the density target:
     1-3e-3 m/s at the default 5e-4, 5-8e-4 m/s at 1e-4 (SPlisHSPlasH's default maxError 0.01 %), which
     this test uses. Settling took 16,000 steps (surface particles creep along the walls)."""
-    sim = Simulation(block_on_floor(material={"viscosity": 5e-3, "xsph": 0.1}, dfsph={"target_density_error": 1e-4}))
+    sim = Simulation(block_on_floor(material={"viscosity": 5e-3, "xsph": 0.1}, dfsph={"target_density_error": 1e-4}), device=device)
 
     def window_max(steps):
         largest = 0.0
@@ -540,7 +541,7 @@ def test_block_at_rest_stays_at_rest_for_ten_thousand_steps():
     assert (x > sim.model.container_lo).all() and (x < sim.model.container_hi).all()
 
 
-def test_block_compressed_20_percent_against_the_floor_does_not_explode():
+def test_block_compressed_20_percent_against_the_floor_does_not_explode(device):
     """The report's failure case: a block sampled at 0.8 d (rho up to 1.95 rho0) on the floor. DFSPH's
     implicit density solve would turn the whole excess into velocity in one step (SPlisHSPlasH issues
     113, 56, 346); the stabilisation projects it out of x first (measured: 6 rounds, 56 % -> 0.04 %),
@@ -548,7 +549,7 @@ def test_block_compressed_20_percent_against_the_floor_does_not_explode():
     no particle leaves the box and speeds stay below free fall from the box's height."""
     sc = dfsph_scene(particle_radius=0.025, container={"min": [0, 0, 0], "max": [0.5, 0.5, 0.5]},
                      fluid=[{"min": [0, 0, 0], "max": [0.25, 0.25, 0.25], "spacing_scale": 0.8}])
-    sim = Simulation(sc)
+    sim = Simulation(sc, device=device)
     m = sim.model
     start = sim.get_field("particle_density") / m.rest_density - 1
     assert np.maximum(start, 0).mean() > 0.5
@@ -567,13 +568,13 @@ def test_block_compressed_20_percent_against_the_floor_does_not_explode():
     assert np.linalg.norm(sim.get_field("particle_v"), axis=1).max() < math.sqrt(2 * 9.81 * 0.5)
 
 
-def test_bitwise_reproducible_over_thread_counts(monkeypatch):
+def test_bitwise_reproducible_over_thread_counts(monkeypatch, device):
     """Every kernel writes only its own particle and the errors are reduced in a fixed order: 1, 2 or 3
     CPU threads give bitwise the same state and iteration counts."""
     res = []
     for threads in ("1", "2", "3"):
         monkeypatch.setenv("WARP_SPH_CPU_THREADS", threads)
-        sim = Simulation(block_on_floor(nx=16, ny=16, nz=12, material={"xsph": 0.05, "viscosity": 1e-3}))
+        sim = Simulation(block_on_floor(nx=16, ny=16, nz=12, material={"xsph": 0.05, "viscosity": 1e-3}), device=device)
         assert sim.model.fluid_count >= 3 * 1024  # three ranges of the split launch
         figures = []
         for _ in range(3):
@@ -625,11 +626,11 @@ def test_resume_is_bitwise_equal_and_needs_the_warm_start(tmp_path):
 
 @pytest.mark.parametrize("name", ["bunny_splash", "dam_break", "drop_into_pool", "floating_bodies", "hydrostatic",
                                   "obstacle", "radial_expansion"])
-def test_every_scene_runs_a_few_frames(name):
+def test_every_scene_runs_a_few_frames(name, device):
     from warp_sph.scene import list_scenes
 
     assert name in [n for n, _ in list_scenes()]
-    sim = Simulation(load_scene(name, NO_OUTPUT + ["solver=dfsph"]))
+    sim = Simulation(load_scene(name, NO_OUTPUT + ["solver=dfsph"]), device=device)
     for _ in range(2):
         stats = sim.advance_frame()
         sim.check_health(stats)
@@ -637,13 +638,13 @@ def test_every_scene_runs_a_few_frames(name):
     assert stats.steps >= 1 and np.isfinite(stats.max_speed)
 
 
-def test_deep_over_dense_block_is_stabilised_without_clumping():
+def test_deep_over_dense_block_is_stabilised_without_clumping(device):
     """The radial expansion at r = 0.0125 m (a 22-layer cube at 1.37 rho0, found by `warp-sph bench
     matrix`): the stabilisation's shifts come from a few local sweeps per round, so the block relaxes
     to rho0 everywhere (with converged solves per round the capped shifts crossed and clumped it:
     max density 1.4 -> 13 rho0, the watchdog stopped the run at step 1)."""
     sim = Simulation(load_scene("radial_expansion", ["particle_radius=0.0125", "output.usd=false",
-                                                     "output.surface=false", "solver=dfsph"]))
+                                                     "output.surface=false", "solver=dfsph"]), device=device)
     m = sim.model
     start = sim.get_field("particle_density") / m.rest_density
     assert start.max() > 1.35

@@ -53,9 +53,9 @@ def test_compression_energy_against_quadrature():
             assert e == pytest.approx(ref, rel=1e-6, abs=1e-9), (name, s)
 
 
-def test_energies_against_numpy():
+def test_energies_against_numpy(device):
     """Kinetic, potential (local frame) and WCSPH's compression energy against a float64 NumPy sum."""
-    sim = Simulation(dam("wcsph"))
+    sim = Simulation(dam("wcsph"), device=device)
     for _ in range(2):
         s = sim.advance_frame()
     m = sim.model
@@ -74,15 +74,15 @@ def test_energies_against_numpy():
 
 
 @pytest.mark.parametrize("solver", solver_names())
-def test_energy_rule_stops_every_solver(solver):
+def test_energy_rule_stops_every_solver(solver, device):
     """A stage pushing the fluid up (net 2 g upward) creates energy: the energy rule stops the run in one line
     that names the rise and the stage, before any particle is fast or outside; the same scene without it
     runs (its energy only falls)."""
-    sim = Simulation(dam(solver))
+    sim = Simulation(dam(solver), device=device)
     for _ in range(3):
         s = sim.advance_frame()
         assert s.energy_growth <= ENERGY_GROWTH_LIMIT
-    sim = Simulation(dam(solver))
+    sim = Simulation(dam(solver), device=device)
     sim.graph.insert(_pump(3.0 * 9.81))
     with pytest.raises(SimulationError) as err:
         for _ in range(3):
@@ -93,9 +93,9 @@ def test_energy_rule_stops_every_solver(solver):
     assert "\n" not in msg
 
 
-def test_energy_rule_retry_and_user_changes():
+def test_energy_rule_retry_and_user_changes(device):
     """set_field starts a new reference (a velocity given by hand is not a rise); the run.json fields exist."""
-    sim = Simulation(dam("dfsph"))
+    sim = Simulation(dam("dfsph"), device=device)
     v = sim.get_field("particle_v")
     v[:, 0] = 2.0  # the whole block thrown at the far wall: 2 J/kg more than at rest
     sim.set_field("particle_v", v)
@@ -105,7 +105,7 @@ def test_energy_rule_retry_and_user_changes():
     assert {"compression_energy", "body_energy", "energy_growth"} <= set(d)
 
 
-def test_stiff_start_relaxed_or_refused_naming_the_stiffness(monkeypatch):
+def test_stiff_start_relaxed_or_refused_naming_the_stiffness(monkeypatch, device):
     """Issue 36 finding 5: wcsph.stiffness = 1e8 Pa (c_s = 316 m/s) gained energy in small scenes. The sampled
     lattice's first layers at the walls start ~0.5 % over rest; at that c_s they hold 2.3 % of the scene's
     energy, which the first frame releases. WCSPH now relaxes its start next to the walls (Solver.relaxed_start,
@@ -117,16 +117,16 @@ def test_stiff_start_relaxed_or_refused_naming_the_stiffness(monkeypatch):
                              "container": {"min": [0, 0, 0], "max": [1.0, 0.5, 1.0]},
                              "fluid": [{"min": [0, 0, 0], "max": [0.4, 0.5, 0.4]}], "output": {"usd": False},
                              "wcsph": {"stiffness": 1e8}})
-    relaxed = Simulation(scene)
+    relaxed = Simulation(scene, device=device)
     relaxed.check_health(relaxed.statistics())
     assert relaxed.watchdog.energy.unintended < 0.01 * relaxed.watchdog.energy.scale
     monkeypatch.setattr(WcsphSolver, "relaxed_start", False)
-    sim = Simulation(scene)
+    sim = Simulation(scene, device=device)
     with pytest.raises(SimulationError) as err:
         sim.check_health(sim.statistics())
     msg = str(err.value)
     assert msg.startswith("the initial state holds") and "lower wcsph.stiffness" in msg and "\n" not in msg
-    soft = Simulation(scene_from_dict({**scene.to_dict(), "wcsph": {"stiffness": 0.0}}))
+    soft = Simulation(scene_from_dict({**scene.to_dict(), "wcsph": {"stiffness": 0.0}}), device=device)
     soft.check_health(soft.statistics())
     assert soft.watchdog.energy.unintended < 1e-3 * soft.watchdog.energy.scale
 
@@ -163,15 +163,15 @@ def test_light_body_refused(key, value, message):
     assert math.isfinite(value)
 
 
-def test_energy_rule_off_with_a_force_that_stores_energy():
+def test_energy_rule_off_with_a_force_that_stores_energy(device):
     """Surface tension releases surface energy into motion (a zero-g cube becoming a ball gains kinetic
     energy from nothing E counts): with it, or vorticity confinement, the rule is off; explicit viscosity
     only dissipates, so the rule stays on with it."""
     base = {"name": "blob", "particle_radius": 0.05, "gravity": [0, 0, 0], "container": False,
             "fluid": [{"min": [0, 0, 0], "max": [0.4, 0.4, 0.4]}], "output": {"usd": False}}
-    on = Simulation(scene_from_dict({**base, "forces": [{"method": "explicit_viscosity", "viscosity": 0.001}]}))
+    on = Simulation(scene_from_dict({**base, "forces": [{"method": "explicit_viscosity", "viscosity": 0.001}]}), device=device)
     assert on.watchdog.energy.enabled
     for force in ({"method": "akinci2013"}, {"method": "vorticity_confinement"}):
-        off = Simulation(scene_from_dict({**base, "forces": [force]}))
+        off = Simulation(scene_from_dict({**base, "forces": [force]}), device=device)
         assert not off.watchdog.energy.enabled, force
 

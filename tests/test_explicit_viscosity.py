@@ -13,12 +13,12 @@ from warp_sph.run.simulation import Simulation
 NU = 0.02
 
 
-def free_block(n=6, kernel="cubic", nu=NU, solver="dfsph"):
+def free_block(n=6, kernel="cubic", nu=NU, solver="dfsph", device=None):
     """An n^3 block without walls or gravity, r = 0.025 m."""
     d = 0.05
     return Simulation(small_tank("visc", solver, particle_radius=0.025, smoothing_kernel=kernel, container=False,
                                  gravity=[0.0, 0.0, 0.0], fluid=[{"min": [0, 0, 0], "max": [n * d] * 3}],
-                                 forces=[{"method": "explicit_viscosity", "viscosity": nu}]))
+                                 forces=[{"method": "explicit_viscosity", "viscosity": nu}]), device=device)
 
 
 def acceleration(sim, v):
@@ -39,8 +39,8 @@ def searched(sim, seed=None, amp=0.15):
 
 
 @pytest.mark.parametrize("solver", ["dfsph", "wcsph", "pbf"])
-def test_stage_matches_the_numpy_oracle(solver):
-    sim = free_block(solver=solver)
+def test_stage_matches_the_numpy_oracle(solver, device):
+    sim = free_block(solver=solver, device=device)
     x = searched(sim, seed=1)
     m = sim.model
     v = np.random.default_rng(2).normal(0.0, 0.5, x.shape)
@@ -58,8 +58,8 @@ def test_stage_matches_the_numpy_oracle(solver):
     assert np.abs(ref).max() > 0.1
 
 
-def test_rigid_motion_feels_nothing_and_momentum_is_conserved():
-    sim = free_block()
+def test_rigid_motion_feels_nothing_and_momentum_is_conserved(device):
+    sim = free_block(device=device)
     x = searched(sim, seed=3)
     c = x.mean(axis=0)
     omega = np.array([0.3, -1.0, 2.0])
@@ -72,11 +72,11 @@ def test_rigid_motion_feels_nothing_and_momentum_is_conserved():
 
 
 @pytest.mark.parametrize("kernel", ["cubic", "quintic", "quadric"])
-def test_step_bound_is_half_the_measured_stability_limit(kernel):
+def test_step_bound_is_half_the_measured_stability_limit(kernel, device):
     """Forward Euler on dv/dt = L v is stable for dt < 2 / |lambda_max(L)|. Power iteration with the stage on
     a rest block gives 0.128-0.136 (H_s/2)^2/nu for the three kernels (0.13 = Morris et al.'s 0.125 h^2/nu
     with h = H_s/2); the declared bound 0.0625 keeps a factor 2 for compressed and disordered neighbourhoods."""
-    sim = free_block(n=8, kernel=kernel, nu=1.0)
+    sim = free_block(n=8, kernel=kernel, nu=1.0, device=device)
     searched(sim)
     v = np.random.default_rng(0).normal(size=(sim.model.fluid_count, 3))
     lam = 0.0
@@ -92,7 +92,7 @@ def test_step_bound_is_half_the_measured_stability_limit(kernel):
 
 
 @pytest.mark.parametrize("solver", ["dfsph", "pbf"])
-def test_viscous_step_does_not_turn_the_start_error_into_a_kick(solver):
+def test_viscous_step_does_not_turn_the_start_error_into_a_kick(solver, device):
     """Issue #36 finding 2, found again by bench extremes: nu = 100 m^2/s runs at its viscous bound
     (6.25e-6 s here, 800 substeps a frame, below the refusal). The density error of the sampled start
     (0.8 % at the walls) must be corrected over the pressure's time scale, not over the viscous step: with
@@ -106,7 +106,7 @@ def test_viscous_step_does_not_turn_the_start_error_into_a_kick(solver):
         "name": "viscous_corner", "particle_radius": 0.05, "fps": 200.0, "solver": solver,
         "output": {"usd": False, "surface": False}, "container": {"min": [0, 0, 0], "max": [1.6, 0.6, 1.2]},
         "fluid": [{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.8, 0.6, 0.8]}],
-        "material": {"viscosity": 100.0}}))
+        "material": {"viscosity": 100.0}}), device=device)
     assert sim.watchdog.energy.enabled
     stats = sim.advance_frame()  # the energy rule raises SimulationError on a rise over 1 %
     assert stats.steps == 800

@@ -77,15 +77,15 @@ def reference_run(acoustic_bound):
 
 
 @pytest.mark.parametrize("factor", [0.25, 1.0, 4.0])
-def test_time_step_sweep(factor, acoustic_bound, reference_run):
+def test_time_step_sweep(factor, acoustic_bound, reference_run, device):
     scene = dam(time={"fixed_dt": factor * acoustic_bound})
-    sim = Simulation(scene)
+    sim = Simulation(scene, device=device)
     if factor > 1.0:
         # above the bound: refused before the first step, with the bound in the message
         with pytest.raises(SceneError, match=r"time\.fixed_dt.*acoustic CFL time-step bound"):
             preflight_checks(scene, sim)
         # adaptive steps: the same scene without fixed_dt stays below the bound every frame
-        sim = Simulation(dam())
+        sim = Simulation(dam(), device=device)
         speed = sim.statistics().max_speed
         for s in frames(sim, 4):
             assert s.dt_max <= min(time_step_bounds(sim, speed).values()) * (1 + 1e-9)
@@ -98,18 +98,18 @@ def test_time_step_sweep(factor, acoustic_bound, reference_run):
     np.testing.assert_allclose(ke, reference_run, rtol=0.10, atol=0.5)
 
 
-def test_far_above_bound_is_never_a_silent_nan(acoustic_bound):
+def test_far_above_bound_is_never_a_silent_nan(acoustic_bound, device):
     """8x the bound, pre-flight bypassed: the energy rule stops the run (the energy rises before any
     particle escapes) and names the frame, the rise and the cause; with the energy rule off (a test-only
     switch), the device rules catch the blow-up later and the replay names stage, step, particle."""
-    sim = Simulation(dam(time={"fixed_dt": 8 * acoustic_bound}))
+    sim = Simulation(dam(time={"fixed_dt": 8 * acoustic_bound}), device=device)
     with pytest.raises(SimulationError) as err:
         frames(sim, 12)
     msg = str(err.value)
     assert msg.startswith("the total energy rose by") and "by frame" in msg
     assert "likely cause: time step too large" in msg
     assert "\n" not in msg
-    sim = Simulation(dam(time={"fixed_dt": 8 * acoustic_bound}))
+    sim = Simulation(dam(time={"fixed_dt": 8 * acoustic_bound}), device=device)
     sim.watchdog.energy.limit = lambda: math.inf
     with pytest.raises(SimulationError) as err:
         frames(sim, 12)
@@ -122,11 +122,11 @@ def test_far_above_bound_is_never_a_silent_nan(acoustic_bound):
 # --------------------------------------------------------------------------------------------
 # 2. tiny systems
 # --------------------------------------------------------------------------------------------
-def test_single_particle_free_fall():
+def test_single_particle_free_fall(device):
     """x_n = x0 + v0 t_n + g dt^2 n(n+1)/2 (semi-implicit Euler); density m W(0), no NaN."""
     v0 = np.array([0.5, 0.0, 1.0])
     sim = Simulation(free(fluid=[{"shape": "box", "min": [0, 0, 0], "max": [0.1, 0.1, 0.1],
-                                  "velocity": list(v0)}], time={"fixed_dt": 1e-3}))
+                                  "velocity": list(v0)}], time={"fixed_dt": 1e-3}), device=device)
     assert sim.model.fluid_count == 1
     x0 = sim.get_field("particle_x")[0]
     g = np.array([0.0, 0.0, -9.81])
@@ -149,9 +149,9 @@ def test_single_particle_free_fall():
     assert rho == pytest.approx(m.particle_mass * W(m.smoothing.name, np.array(0.0), m.smoothing_length), rel=1e-5)
 
 
-def _pair(separation, velocity=(0.0, 0.0, 0.0), **kw):
+def _pair(separation, velocity=(0.0, 0.0, 0.0), device=None, **kw):
     """Two particles (no gravity, no container) ``separation`` [m] apart along x, approaching."""
-    sim = Simulation(free(n_box=(2, 1, 1), gravity=(0.0, 0.0, 0.0), **kw))
+    sim = Simulation(free(n_box=(2, 1, 1), gravity=(0.0, 0.0, 0.0), **kw), device=device)
     o = sim.model.origin
     x = np.array([o - [separation / 2, 0, 0], o + [separation / 2, 0, 0]])
     sim.set_field("particle_x", x)
@@ -160,10 +160,10 @@ def _pair(separation, velocity=(0.0, 0.0, 0.0), **kw):
     return sim
 
 
-def test_two_particles_equal_and_opposite():
+def test_two_particles_equal_and_opposite(device):
     """Viscous pair (isolated particles are under-dense, so the clamped pressure is zero): the forces
     are equal and opposite and the momentum is conserved to float32 rounding."""
-    sim = _pair(0.12, velocity=(1.0, 0.3, -0.2), material={"viscosity": 0.05}, time={"fixed_dt": 1e-4})
+    sim = _pair(0.12, velocity=(1.0, 0.3, -0.2), material={"viscosity": 0.05}, time={"fixed_dt": 1e-4}, device=device)
     m = sim.model
     for _ in range(50):
         sim.step(1e-4)
@@ -177,14 +177,14 @@ def test_two_particles_equal_and_opposite():
     assert abs(v[0, 0]) < 1.0 and m.fluid_count == 2
 
 
-def test_compressed_cluster_conserves_momentum():
+def test_compressed_cluster_conserves_momentum(device):
     """27 particles squeezed to 0.7 d and jittered, no gravity: pressure pushes them apart, the total
     momentum stays zero (pairwise antisymmetric pressure forces). Without viscosity: the explicit
     viscosity (SPlisHSPlasH 'standard' form, m/rho_j) is not antisymmetric when rho_i != rho_j
     (measured: net momentum 0.1 kg m/s here with nu = 0.01). cfl 0.1: the first frame's steps are sized
     for the start at rest, and the explosive expansion (0.5 c_s) then gains energy in first order of dt:
     7.3, 2.2, 0.48 % of the compression energy at cfl 0.4, 0.2, 0.1, which the energy rule stops above 1 %."""
-    sim = Simulation(free(n_box=(3, 3, 3), gravity=(0.0, 0.0, 0.0), time={"cfl": 0.1}))
+    sim = Simulation(free(n_box=(3, 3, 3), gravity=(0.0, 0.0, 0.0), time={"cfl": 0.1}), device=device)
     x = sim.get_field("particle_x")
     c = x.mean(0)
     rng = np.random.default_rng(1)
@@ -199,12 +199,12 @@ def test_compressed_cluster_conserves_momentum():
 
 
 @pytest.mark.parametrize("boundary", ["none", "akinci2012", "penalty"])
-def test_coincident_particles(boundary):
+def test_coincident_particles(boundary, device):
     """Two fluid particles at the same point (r = 0), and one on top of a wall particle: no NaN."""
     if boundary == "none":
-        sim = Simulation(free(n_box=(3, 3, 3), material={"viscosity": 0.01, "xsph": 0.1}))
+        sim = Simulation(free(n_box=(3, 3, 3), material={"viscosity": 0.01, "xsph": 0.1}), device=device)
     else:
-        sim = Simulation(dam(boundary=boundary, material={"viscosity": 0.01, "xsph": 0.1, "boundary_friction": 0.2}))
+        sim = Simulation(dam(boundary=boundary, material={"viscosity": 0.01, "xsph": 0.1, "boundary_friction": 0.2}), device=device)
     x = sim.get_field("particle_x")
     x[1] = x[0]
     if boundary != "none":
@@ -219,12 +219,12 @@ def test_coincident_particles(boundary):
 
 
 @pytest.mark.parametrize("kernel", KERNELS)
-def test_particle_at_support_radius_feels_no_force(kernel):
+def test_particle_at_support_radius_feels_no_force(kernel, device):
     """Two particles exactly H_s apart (binary-exact values): W = grad W = 0, so a = g exactly."""
     r = 0.0625  # d = 0.125 m; cubic/quadric h = d, quintic h = 2d/3: H_s = 0.25 m for all three
     sim = Simulation(free(n_box=(2, 1, 1), particle_radius=r, gravity=(0.0, 0.0, 0.0), smoothing_kernel=kernel,
                           material={"viscosity": 0.1}, fluid=[{"shape": "box", "min": [0, 0, 0],
-                                                                "max": [0.25, 0.125, 0.125]}]))
+                                                                "max": [0.25, 0.125, 0.125]}]), device=device)
     m = sim.model
     assert m.support_radius == 0.25
     o = m.origin
@@ -244,10 +244,10 @@ def test_particle_at_support_radius_feels_no_force(kernel):
 # 3. zero-gravity rest block
 # --------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("kernel", KERNELS)
-def test_zero_gravity_block_stays_at_rest(kernel):
+def test_zero_gravity_block_stays_at_rest(kernel, device):
     """A 6x6x6 lattice block at rest, no gravity, no container: calibrated mass and clamped pressure
     keep it still. 500 steps at the acoustic bound; max |v| < 1e-4 m/s and drift < 1e-3 d."""
-    sim = Simulation(free(n_box=(6, 6, 6), gravity=(0.0, 0.0, 0.0), smoothing_kernel=kernel))
+    sim = Simulation(free(n_box=(6, 6, 6), gravity=(0.0, 0.0, 0.0), smoothing_kernel=kernel), device=device)
     x0 = sim.get_field("particle_x")
     dt = min(time_step_bounds(sim).values())
     for _ in range(500):
@@ -263,22 +263,22 @@ def test_zero_gravity_block_stays_at_rest(kernel):
 # 4. very stiff, very soft, PBF iterations, very viscous
 # --------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("factor,max_density_error", [(40.0, 0.01), (3.0, 0.5)])
-def test_wcsph_stiffness_extremes(factor, max_density_error):
+def test_wcsph_stiffness_extremes(factor, max_density_error, device):
     """c_s = 40 v_ref (stiff: 4x the steps, density error well under 1 %) and c_s = 3 v_ref (soft:
     compression ~ (v/c_s)^2 ~ 10 %, but it must stay finite, inside and bounded)."""
-    sim = Simulation(dam(wcsph={"speed_of_sound_factor": factor}))
+    sim = Simulation(dam(wcsph={"speed_of_sound_factor": factor}), device=device)
     stats = frames(sim, 6)
     assert max(s.density_error_max for s in stats) < max_density_error
     assert max(s.max_speed for s in stats) < 2.0 * sim.model.reference_speed
     if factor > 10:  # the acoustic bound scales as 1/c_s: about 4x the steps of the default factor 10
-        default_steps = math.ceil(sim.frame_dt / Simulation(dam()).time_step(0.0))
+        default_steps = math.ceil(sim.frame_dt / Simulation(dam(), device=device).time_step(0.0))
         assert stats[0].steps >= 3 * default_steps
 
 
 @pytest.mark.parametrize("iterations", [1, 100])
-def test_pbf_iterations(iterations):
+def test_pbf_iterations(iterations, device):
     pytest.importorskip("warp_sph.methods.solvers.pbf")
-    sim = Simulation(dam(solver="pbf", pbf={"min_iterations": iterations, "max_iterations": iterations}))
+    sim = Simulation(dam(solver="pbf", pbf={"min_iterations": iterations, "max_iterations": iterations}), device=device)
     stats = frames(sim, 6)
     assert all(s.non_finite == 0 and s.outside == 0 for s in stats)
     assert max(s.max_speed for s in stats) < 2.0 * sim.model.reference_speed
@@ -293,7 +293,7 @@ VISCOUS_BOUND_XFAIL = pytest.mark.xfail(
 
 @pytest.mark.parametrize("viscosity,fixed", [(0.1, 0.0), (1.0, 0.0),
                                              (1.0, 0.5)])
-def test_viscous_column_spreads_monotonically(viscosity, fixed):
+def test_viscous_column_spreads_monotonically(viscosity, fixed, device):
     """A column (0.3 x 0.3 x 0.6 m, d = 0.05 m) with nu up to 1 m^2/s slumps: its height falls and
     its footprint grows monotonically, no oscillation, no explosion; at nu = 1 the viscous bound
     0.125 (H_s/2)^2/nu binds (adaptive, fixed = 0) or the step is ``fixed`` x that bound."""
@@ -301,10 +301,10 @@ def test_viscous_column_spreads_monotonically(viscosity, fixed):
             "container": {"min": [0.0, 0.0, 0.0], "max": [1.2, 1.2, 0.8]},
             "fluid": [{"shape": "box", "min": [0.45, 0.45, 0.0], "max": [0.75, 0.75, 0.6]}],
             "material": {"viscosity": viscosity}}
-    sim = Simulation(make_scene(base))
+    sim = Simulation(make_scene(base), device=device)
     bounds = time_step_bounds(sim)
     if fixed:
-        sim = Simulation(make_scene(base, time={"fixed_dt": fixed * bounds["viscous"]}))
+        sim = Simulation(make_scene(base, time={"fixed_dt": fixed * bounds["viscous"]}), device=device)
     heights, widths = [], []
 
     def measure():
@@ -329,11 +329,11 @@ def test_viscous_column_spreads_monotonically(viscosity, fixed):
 # --------------------------------------------------------------------------------------------
 # 5. impact: a block dropped from 10x its height
 # --------------------------------------------------------------------------------------------
-def test_block_dropped_from_ten_heights_stays_above_floor():
+def test_block_dropped_from_ten_heights_stays_above_floor(device):
     base = {"name": "drop", "particle_radius": 0.05, "fps": 20.0,
             "container": {"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 2.6]},
             "fluid": [{"shape": "box", "min": [0.25, 0.25, 2.0], "max": [0.75, 0.75, 2.2]}]}
-    sim = Simulation(make_scene(base))
+    sim = Simulation(make_scene(base), device=device)
     lowest = []
     for s in frames(sim, 16):  # fall time 0.64 s, impact and splash until 0.8 s
         x = sim.get_field("particle_x")
@@ -346,7 +346,7 @@ def test_block_dropped_from_ten_heights_stays_above_floor():
 # --------------------------------------------------------------------------------------------
 # 6. a hydrostatic tank for 10^4 steps
 # --------------------------------------------------------------------------------------------
-def test_hydrostatic_tank_long_run():
+def test_hydrostatic_tank_long_run(device):
     """10^4 steps of a coarse tank (0.8 x 0.8 x 0.5 m of water, d = 0.1 m, ~180 particles) with the
     damping overrides material.viscosity = 0.005, xsph = 0.1 (without them the default WCSPH sloshes
     at ~2 m/s with boundary_pressure 'eq16' and blows up within 1.4 s with 'mirrored'): no leak, no
@@ -357,7 +357,7 @@ def test_hydrostatic_tank_long_run():
             "container": {"min": list(lo), "max": list(hi)},
             "fluid": [{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.8, 0.8, 0.5]}],
             "material": {"viscosity": 0.005, "xsph": 0.1}}
-    sim = Simulation(make_scene(base))
+    sim = Simulation(make_scene(base), device=device)
     n0 = sim.model.fluid_count
     mass = n0 * sim.model.particle_mass
     steps = 0
@@ -395,14 +395,14 @@ def dam_at_origin():
 
 
 @pytest.mark.parametrize("offset", [1e2, 1e3, 1e4])
-def test_far_from_origin(offset, dam_at_origin):
+def test_far_from_origin(offset, dam_at_origin, device):
     """The dam break translated by (offset, offset/2, offset/3) m: same front and kinetic energy."""
     shift = np.array([offset, offset / 2, offset / 3])
     c = DAM["container"]
     f = DAM["fluid"][0]
     scene = dam(container={"min": list(np.add(c["min"], shift)), "max": list(np.add(c["max"], shift))},
                 fluid=[{**f, "min": list(np.add(f["min"], shift)), "max": list(np.add(f["max"], shift))}])
-    sim = Simulation(scene)
+    sim = Simulation(scene, device=device)
     if sim.sampled.fluid_x.dtype != np.float64:
         pytest.xfail("sampling.SampledScene stores world positions in float32 (ulp 6e-5 m at 10^3 m, 1e-3 m at "
                      "10^4 m) before the model subtracts the local origin; measured front differences 2-3.5 mm "
@@ -432,8 +432,8 @@ def _poison_stage(at_step, particle=7, field="particle_density", when=None):
     return Stage("poison", run, reads=(field,), updates=(field,), doc="test: writes a NaN")
 
 
-def test_watchdog_names_stage_step_and_particle():
-    sim = Simulation(dam())
+def test_watchdog_names_stage_step_and_particle(device):
+    sim = Simulation(dam(), device=device)
     sim.graph.insert(_poison_stage(at_step=40), after="density")
     with pytest.raises(SimulationError) as err:
         frames(sim, 3)
@@ -443,17 +443,17 @@ def test_watchdog_names_stage_step_and_particle():
     assert "not one of the wcsph solver's own stages" in msg
 
 
-def test_watchdog_first_stage_of_a_propagating_nan():
+def test_watchdog_first_stage_of_a_propagating_nan(device):
     """A NaN velocity spreads to every field within a step; the replay names the stage that made it."""
-    sim = Simulation(dam())
+    sim = Simulation(dam(), device=device)
     sim.graph.insert(_poison_stage(at_step=5, particle=3, field="particle_v"), before="integrate")
     with pytest.raises(SimulationError, match=r"stage 'poison' produced a non-finite value in particle_v at step 5"):
         frames(sim, 1)
 
 
-def test_watchdog_retry_halves_the_step():
+def test_watchdog_retry_halves_the_step(device):
     """on_instability = 'retry': a fault that only appears with a large step is retried away."""
-    sim = Simulation(dam(time={"on_instability": "retry"}))
+    sim = Simulation(dam(time={"on_instability": "retry"}), device=device)
     dt0 = min(time_step_bounds(sim).values())
     sim.graph.insert(_poison_stage(at_step=3, field="particle_v", when=lambda dt: dt > 0.3 * dt0),
                      before="integrate")
@@ -465,8 +465,8 @@ def test_watchdog_retry_halves_the_step():
     assert later[-1].dt_max > 2 * s.dt_max  # the reduction relaxes again, doubling per clean frame
 
 
-def test_watchdog_speed_and_escape_rules():
-    sim = Simulation(dam())
+def test_watchdog_speed_and_escape_rules(device):
+    sim = Simulation(dam(), device=device)
     v = sim.get_field("particle_v")
     v[4] = [0.0, 0.0, 100.0 * sim.model.reference_speed]
     sim.set_field("particle_v", v)
@@ -474,7 +474,7 @@ def test_watchdog_speed_and_escape_rules():
     assert s.watch["fast"] == 1 and s.watch["first_fast"] == 4
     with pytest.raises(SimulationError, match="faster than the speed limit: particle 4"):
         sim.check_health(s)
-    sim = Simulation(dam())
+    sim = Simulation(dam(), device=device)
     x = sim.get_field("particle_x")
     x[9] = [0.5, 0.3, -1.0]
     sim.set_field("particle_x", x)
@@ -520,41 +520,41 @@ def test_preflight_viscous_bound_named():
         dam(material={"viscosity": 4.0}, time={"fixed_dt": 5e-4})
 
 
-def test_preflight_dt_min_above_bound():
+def test_preflight_dt_min_above_bound(device):
     scene = dam(time={"dt_min": 4e-3})
     with pytest.raises(SceneError, match=r"time\.dt_min"):
-        preflight_checks(scene, Simulation(scene))
+        preflight_checks(scene, Simulation(scene, device=device))
 
 
-def test_preflight_fluid_inside_obstacles():
+def test_preflight_fluid_inside_obstacles(device):
     obstacle = {"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.5, 0.6, 0.5]}
     scene = dam(obstacles=[obstacle])
     with pytest.warns(PreflightWarning, match=r"sampling removed \d+ of \d+ fluid particles"):
-        preflight_checks(scene, Simulation(scene))
+        preflight_checks(scene, Simulation(scene, device=device))
     # a second block entirely inside the obstacle is refused
     scene = dam(obstacles=[obstacle], fluid=DAM["fluid"] + [{"min": [0.1, 0.1, 0.1], "max": [0.3, 0.3, 0.3]}])
     with pytest.raises(SceneError, match=r"fluid\[1\]: all \d+ of its particles lie inside obstacles"):
-        preflight_checks(scene, Simulation(scene))
+        preflight_checks(scene, Simulation(scene, device=device))
 
 
-def test_preflight_lattice_bias_warning():
+def test_preflight_lattice_bias_warning(device):
     scene = dam(h_per_spacing=0.6)
     with pytest.warns(PreflightWarning, match=r"rest lattice before mass calibration"):
-        preflight_checks(scene, Simulation(scene))
+        preflight_checks(scene, Simulation(scene, device=device))
 
 
-def test_preflight_clean_scene_has_no_warnings():
+def test_preflight_clean_scene_has_no_warnings(device):
     scene = dam()
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert preflight_checks(scene, Simulation(scene)) == []
+        assert preflight_checks(scene, Simulation(scene, device=device)) == []
 
 
-def test_memory_refused_before_sampling():
+def test_memory_refused_before_sampling(device):
     """10^11 particles: refused from the scene's geometry, before any array is allocated."""
     scene = dam(particle_radius=2e-4)
     with pytest.raises(SceneError, match=r"particle_radius: about [\d,]+ fluid .* memory.*raise particle_radius"):
-        Simulation(scene)
+        Simulation(scene, device=device)
 
 
 # --------------------------------------------------------------------------------------------
@@ -569,7 +569,7 @@ def energy_above_floor(sim) -> float:
     return sim.model.particle_mass * (0.5 * (v * v).sum() + g * (x[:, 2] - floor).sum())
 
 
-def corner_block(solver: str, fixed_dt: float, fps: float = 500.0, **kw):
+def corner_block(solver: str, fixed_dt: float, fps: float = 500.0, device=None, **kw):
     """The issue's corner block: 0.3 m of water in the corner of a 0.6 m box, r = 0.025 m (125 particles);
     sampled, its corner and edge particles are 0.79 % and 0.26 % over rest density (the wall gap is calibrated
     on a flat wall); for WCSPH the Akinci sampling relaxes that to 0.03 %."""
@@ -577,11 +577,11 @@ def corner_block(solver: str, fixed_dt: float, fps: float = 500.0, **kw):
             "container": {"min": [0.0, 0.0, 0.0], "max": [0.6, 0.6, 0.6]},
             "fluid": [{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.3, 0.3, 0.3]}],
             "time": {"fixed_dt": fixed_dt}}
-    return Simulation(make_scene(base, **kw))
+    return Simulation(make_scene(base, **kw), device=device)
 
 
 @pytest.mark.parametrize("solver,steps", [("dfsph", (1e-3, 1e-4, 1e-5)), ("pbf", (1e-3, 1e-4, 5e-5))])
-def test_smaller_fixed_step_does_not_kick_the_walls(solver, steps):
+def test_smaller_fixed_step_does_not_kick_the_walls(solver, steps, device):
     """Issue #36 finding 1: the corner block over 4 ms at smaller and smaller fixed steps. Main turned the
     walls' start-up over-density into a velocity ~ e d / dt in the first step (DFSPH 26 m/s, PBF 32 m/s at
     1e-5 s; 2.6 and 3.2 m/s at 1e-4 s); now it is corrected over half the adaptive step. Bounds: the
@@ -590,7 +590,7 @@ def test_smaller_fixed_step_does_not_kick_the_walls(solver, steps):
     bound = math.sqrt(2 * 9.81 * 0.3)
     fastest = {}
     for dt in steps:
-        sim = corner_block(solver, dt)
+        sim = corner_block(solver, dt, device=device)
         e0 = energy_above_floor(sim)
         top = 0.0
         for _ in range(2):
@@ -602,7 +602,7 @@ def test_smaller_fixed_step_does_not_kick_the_walls(solver, steps):
     assert max(fastest.values()) <= fastest[steps[0]] + 0.1, fastest
 
 
-def test_pbf_fixed_step_below_float32_floor_is_refused():
+def test_pbf_fixed_step_below_float32_floor_is_refused(device):
     """PBF at a fixed 1e-5 s in a 0.6 m box: |g| dt^2 = 1e-9 m is below the float32 spacing of the positions
     (3e-8 m), so the solve's corrections come in whole ulps and the fluid gains energy; pre-flight refuses
     it in one line naming time.fixed_dt and the floor; 5e-5 s passes."""
@@ -612,21 +612,21 @@ def test_pbf_fixed_step_below_float32_floor_is_refused():
                         "time": {"fixed_dt": 1e-5}})
     with pytest.raises(SceneError, match=r"time\.fixed_dt: 1e-05 s is below the pbf solver's smallest step "
                                          r"3\.\d+e-05 s \(float32 position resolution") as err:
-        preflight_checks(scene, Simulation(scene))
+        preflight_checks(scene, Simulation(scene, device=device))
     assert "\n" not in str(err.value)
     ok = make_scene({**scene.to_dict(), "time": {"fixed_dt": 5e-5}})
-    preflight_checks(ok, Simulation(ok), warn=False)
+    preflight_checks(ok, Simulation(ok, device=device), warn=False)
 
 
 @pytest.mark.parametrize("wcsph", [{"speed_of_sound": 1000.0}, {"stiffness": 1e8},
                                    {"stiffness": 1e8, "equation_of_state": "tait"}])
-def test_stiff_wcsph_gains_no_energy(wcsph):
+def test_stiff_wcsph_gains_no_energy(wcsph, device):
     """Issue #36 finding 5: a stiff WCSPH corner block gained kinetic + potential energy (main: 7.44 J of
     23.7 J in a frame at c_s = 1000 m/s). The step already followed c_s = sqrt(K / rho0) (sqrt(7 B / rho0)
     for Tait); the energy was the elastic energy sum m u(rho), ~ c_s^2 delta^2 / 2 per kg, of the sampled
     start's over-dense corner and edges (0.79 %, 0.26 %), which the Akinci sampling now relaxes away. Bounds:
     kinetic + potential energy within 0.5 % of its start, and with the elastic energy too."""
-    sim = corner_block("wcsph", 0.0, fps=120.0, wcsph=wcsph)
+    sim = corner_block("wcsph", 0.0, fps=120.0, wcsph=wcsph, device=device)
     c = sim.model.speed_of_sound
     if "stiffness" in wcsph:
         k = 7.0 if wcsph.get("equation_of_state") == "tait" else 1.0
@@ -641,15 +641,15 @@ def test_stiff_wcsph_gains_no_energy(wcsph):
     assert e1 + u1 <= 1.005 * (e0 + u0)
 
 
-def test_akinci_start_is_at_rest_density_in_corners():
+def test_akinci_start_is_at_rest_density_in_corners(device):
     """The corner block's sampled start for WCSPH (``Solver.relaxed_start``): 0.79 % over rest density at the
     corner before the relaxation (``akinci2012_start``), at most its tolerance after it, measured by the run's
     own density stage; the particles moved by less than 1 % of d."""
     from warp_sph.methods.boundaries.akinci2012_start import START_TOLERANCE
     from warp_sph.scene.sampling import sample_scene
 
-    assert corner_block("dfsph", 0.0).sampled.start_rounds == 0  # DFSPH and PBF: error_share instead
-    sim = corner_block("wcsph", 0.0)
+    assert corner_block("dfsph", 0.0, device=device).sampled.start_rounds == 0  # DFSPH and PBF: error_share instead
+    sim = corner_block("wcsph", 0.0, device=device)
     assert sim.sampled.start_error == pytest.approx(0.0079, abs=2e-4)
     assert 0 < sim.sampled.start_rounds < 10
     assert sim.statistics().density_error_max <= START_TOLERANCE + 1e-5

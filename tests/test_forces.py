@@ -39,15 +39,15 @@ def test_scene_entries_round_trip_and_keep_their_values():
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_a_scene_without_forces_has_no_force_stage(solver):
-    sim = Simulation(small_tank("bare", solver, container=False, gravity=[0.0, 0.0, 0.0]))
+def test_a_scene_without_forces_has_no_force_stage(solver, device):
+    sim = Simulation(small_tank("bare", solver, container=False, gravity=[0.0, 0.0, 0.0]), device=device)
     names = sim.graph.names()
     assert not {"viscosity", "apply_forces", "xsph", "vorticity", "kick", "drift"} & set(names), names
     assert FORCE_ACCELERATION not in sim.fields and "particle_vorticity" not in sim.fields
     assert len(sim.forces) == 0 and "forces" not in sim.summary()
     # the alphabetically first force of each kind (explicit_viscosity, not weiler2018)
     one_per_kind = {registry.force(name).kind: name for name in sorted(FORCES, reverse=True)}.values()
-    with_all = Simulation(small_tank("all", solver, forces=[{"method": name} for name in one_per_kind]))
+    with_all = Simulation(small_tank("all", solver, forces=[{"method": name} for name in one_per_kind]), device=device)
     assert {"viscosity", "xsph", "vorticity"} <= set(with_all.graph.names())
 
 
@@ -56,10 +56,10 @@ SLOTS = {"dfsph": ("divergence", "source"), "wcsph": ("density", "pressure"), "p
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_each_solver_places_the_phases_at_its_slot(solver):
+def test_each_solver_places_the_phases_at_its_slot(solver, device):
     forces = [{"method": "xsph", "factor": 0.05}, {"method": "explicit_viscosity", "viscosity": 1e-3},
               {"method": "vorticity_confinement", "strength": 0.01}]
-    names = Simulation(small_tank("slot", solver, forces=forces)).graph.names()
+    names = Simulation(small_tank("slot", solver, forces=forces), device=device).graph.names()
     after, before = SLOTS[solver]
     k = names.index(after)
     block = names[k + 1:names.index(before) if before else len(names)]
@@ -75,10 +75,10 @@ def test_each_solver_places_the_phases_at_its_slot(solver):
     ("pbf.vorticity", {"solver": "pbf", "pbf": {"vorticity": 0.05}},
      {"method": "vorticity_confinement", "strength": 0.05}),
 ])
-def test_legacy_keys_set_the_same_force_bit_for_bit(key, legacy, entry):
+def test_legacy_keys_set_the_same_force_bit_for_bit(key, legacy, entry, device):
     solver = legacy.get("solver", "dfsph")
-    old = Simulation(small_tank("old", **legacy))
-    new = Simulation(small_tank("new", solver, forces=[entry]))
+    old = Simulation(small_tank("old", **legacy), device=device)
+    new = Simulation(small_tank("new", solver, forces=[entry]), device=device)
     assert old.graph.names() == new.graph.names()
     assert [f.keypath for f in old.forces] == [key] and [f.keypath for f in new.forces] == ["forces[0]"]
     for sim in (old, new):
@@ -87,21 +87,21 @@ def test_legacy_keys_set_the_same_force_bit_for_bit(key, legacy, entry):
     assert np.array_equal(old.get_field("particle_v"), new.get_field("particle_v"))
 
 
-def test_pbf_vorticity_key_sets_nothing_for_another_solver():
+def test_pbf_vorticity_key_sets_nothing_for_another_solver(device):
     """As before the family: pbf.vorticity belongs to PBF's section and only acts with solver = "pbf"."""
-    sim = Simulation(small_tank("wc", "wcsph", pbf={"vorticity": 0.05}))
+    sim = Simulation(small_tank("wc", "wcsph", pbf={"vorticity": 0.05}), device=device)
     assert len(sim.forces) == 0
 
 
-def test_time_step_bounds_and_hints_come_from_the_force():
-    sim = Simulation(small_tank("v", forces=[{"method": "explicit_viscosity", "viscosity": 0.05}]))
+def test_time_step_bounds_and_hints_come_from_the_force(device):
+    sim = Simulation(small_tank("v", forces=[{"method": "explicit_viscosity", "viscosity": 0.05}]), device=device)
     bounds = {b.name: b for b in sim.time_step_bounds(1.0)}
     h = 0.5 * sim.model.support_radius
     assert bounds["viscous"].seconds == pytest.approx(0.0625 * h * h / 0.05)
     assert bounds["viscous"].keys == ("forces[0].viscosity",)
     hint = sim.forces.instability_hint("non_finite", "viscosity")
     assert "forces[0]" in hint and "weiler2018" in hint
-    legacy = Simulation(small_tank("v", material={"viscosity": 0.05}))
+    legacy = Simulation(small_tank("v", material={"viscosity": 0.05}), device=device)
     assert {b.name: b for b in legacy.time_step_bounds(1.0)}["viscous"].keys == ("material.viscosity",)
 
 
@@ -225,7 +225,7 @@ def test_a_force_a_solver_cannot_host_is_refused(test_forces):
     small_tank("x", "dfsph", forces=[{"method": "no_wcsph_test"}])
 
 
-def test_carried_fields_follow_the_particle_order_and_resume_bit_for_bit(test_forces, tmp_path):
+def test_carried_fields_follow_the_particle_order_and_resume_bit_for_bit(test_forces, tmp_path, device):
     """A force's carried fields are graph inputs, sorted with the particles each frame (at stable indices
     outside it), in the checkpoint, and restored: the resumed run equals the uninterrupted one."""
     from test_run_outputs import assert_same_run, quiet
@@ -236,7 +236,7 @@ def test_carried_fields_follow_the_particle_order_and_resume_bit_for_bit(test_fo
 
     extra = ["particle_radius=0.05", "output.checkpoint_every=2", 'forces=[{method = "memory_test"}, '
              '{method = "vorticity_confinement"}, {method = "explicit_viscosity", viscosity = 0.001}, {method = "xsph"}]']
-    sim = Simulation(load_scene("dam_break", extra + ["output.usd=false"]))
+    sim = Simulation(load_scene("dam_break", extra + ["output.usd=false"]), device=device)
     assert {"memory_test_m", "memory_test_id"} <= sim.graph.inputs
     sim.advance_frame()
     assert sim._cell_order is not None and not np.array_equal(sim._cell_order.order.numpy(),

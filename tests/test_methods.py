@@ -91,7 +91,7 @@ def tiny_solver():
     registry.unregister("tiny")
 
 
-def test_a_solver_defined_in_a_test_registers_validates_and_runs(tiny_solver):
+def test_a_solver_defined_in_a_test_registers_validates_and_runs(tiny_solver, device):
     assert "tiny" in registry.solver_names()
     from warp_sph.scene import parameter_table_markdown
 
@@ -102,7 +102,7 @@ def test_a_solver_defined_in_a_test_registers_validates_and_runs(tiny_solver):
         load_scene("hydrostatic", ["solver=tiny", "tiny.damping=-1"])
     with pytest.raises(SceneError, match=r"tiny\.damping: a damping above 50 /s needs gravity"):
         load_scene("hydrostatic", ["solver=tiny", "tiny.damping=60", "gravity=[0, 0, 0]"])
-    sim = Simulation(scene)
+    sim = Simulation(scene, device=device)
     assert sim.graph.names() == ["neighbors", "density", "accelerate", "integrate"]
     z0 = sim.get_field("particle_x")[:, 2].mean()
     stats = sim.advance_frame()
@@ -130,10 +130,10 @@ def test_registry_refuses_a_taken_or_reserved_name():
 # --- every solver with every boundary ---------------------------------------------------------------
 @pytest.mark.parametrize("boundary", BOUNDARIES)
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_solver_boundary_matrix_small_tank(solver, boundary):
+def test_solver_boundary_matrix_small_tank(solver, boundary, device):
     """Nobody leaves the tank, and averaged over 1 s after a settling second the walls carry the fluid's
     weight within 3 % (a penalty wall is a soft spring: the pool bounces on it for a second)."""
-    sim = Simulation(tank(solver, boundary))
+    sim = Simulation(tank(solver, boundary), device=device)
     m = sim.model
     weight = m.fluid_count * m.particle_mass * 9.81
     t_end, t_avg = 2.0, 1.0
@@ -154,11 +154,11 @@ def test_solver_boundary_matrix_small_tank(solver, boundary):
 @pytest.mark.parametrize("group", range(len(FORCE_GROUPS)))
 @pytest.mark.parametrize("boundary", BOUNDARIES)
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_solver_boundary_force_matrix_runs(solver, boundary, group):
+def test_solver_boundary_force_matrix_runs(solver, boundary, group, device):
     """Every force (at its defaults) with every solver and boundary: its stages run every substep, at the
     solver's slot, and the pool neither leaves the tank nor blows up (0.15 s, 125 particles)."""
     names = FORCE_GROUPS[group]
-    sim = Simulation(tank(solver, boundary, particle_radius=0.02, forces=[{"method": n} for n in names]))
+    sim = Simulation(tank(solver, boundary, particle_radius=0.02, forces=[{"method": n} for n in names]), device=device)
     assert {f.name for f in sim.forces} == set(names)  # every force is active at its defaults
     steps = 0
     for _ in range(3):
@@ -255,7 +255,7 @@ def _restore(sim, snap, names):
 
 
 @pytest.mark.parametrize("config", sorted(CONFIGS))
-def test_stages_touch_only_the_fields_they_declare(config):
+def test_stages_touch_only_the_fields_they_declare(config, device):
     """Each stage runs twice from the same state, with every float field it does not declare filled with
     one poison value and then another: no undeclared field changes, and what it writes or updates is the
     same both times (it read no field it did not declare)."""
@@ -267,7 +267,7 @@ def test_stages_touch_only_the_fields_they_declare(config):
         data = scene.to_dict()
         data["fluid"][0]["spacing_scale"] = 0.92
         scene = scene_from_dict(data)
-    sim = Simulation(scene, solver_options=options)
+    sim = Simulation(scene, solver_options=options, device=device)
     if not compressed:
         sim.step(1e-4)  # every field holds a value (the compressed start keeps its error for "stabilize")
     stabilized = 0
@@ -299,8 +299,8 @@ def test_stages_touch_only_the_fields_they_declare(config):
         assert stabilized > 0  # the stabilize stage did its work under the poison
 
 
-def test_set_solver_swaps_the_graph_and_keeps_the_state():
-    sim = Simulation(tank())
+def test_set_solver_swaps_the_graph_and_keeps_the_state(device):
+    sim = Simulation(tank(), device=device)
     x = sim.get_field("particle_x")
     sim.set_solver("pbf")
     assert sim.solver.name == "pbf" and "solve" in sim.graph.names()

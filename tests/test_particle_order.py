@@ -17,12 +17,12 @@ def _cell_keys(x, cells):
 
 
 @pytest.mark.parametrize("solver", ["wcsph", "pbf"])
-def test_sorted_frames_match_unsorted_frames(solver):
+def test_sorted_frames_match_unsorted_frames(solver, device):
     """Two frames with and without the cell order: the same particle ends at the same place, and
     during the substeps the fields really are in cell order (not the shuffled stable order)."""
     ends = {}
     for sort in (True, False):
-        sim = Simulation(small_scene(solver=solver))
+        sim = Simulation(small_scene(solver=solver), device=device)
         sim.cell_order = sort
         x0, _ = jittered(sim, seed=3, amp=0.2, vel=0.3)
         # the jittered start's overlaps become motion (PBF: +9 % of the scene's energy in frame 1): the energy
@@ -53,10 +53,10 @@ def test_sorted_frames_match_unsorted_frames(solver):
     assert np.max(np.abs(ends[True] - ends[False])) < 1e-3 * scale
 
 
-def test_user_fields_follow_their_particles():
+def test_user_fields_follow_their_particles(device):
     """A per-particle field made with sim.allocate keeps each particle's value through sorted frames;
     outside a frame every field is at the stable index."""
-    sim = Simulation(small_scene())
+    sim = Simulation(small_scene(), device=device)
     jittered(sim, seed=4, amp=0.3, vel=1.0)
     tag = sim.allocate("tag", float)
     n = sim.model.fluid_count
@@ -69,10 +69,10 @@ def test_user_fields_follow_their_particles():
     assert moved.max() < 5.0 * sim.frame_dt
 
 
-def test_sort_then_unsort_is_the_identity():
+def test_sort_then_unsort_is_the_identity(device):
     from warp_sph.neighbors.particle_order import CellOrder
 
-    sim = Simulation(small_scene())
+    sim = Simulation(small_scene(), device=device)
     jittered(sim, seed=6, amp=0.4, vel=1.0)
     before = {k: sim.fields[k].numpy().copy() for k in ("particle_x", "particle_v", "particle_density")}
     co = CellOrder(sim)

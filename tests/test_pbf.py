@@ -32,8 +32,8 @@ def test_rest_denominator_matches_unit_free_table(h_per_d, expected):
 
 
 @pytest.mark.parametrize("kernel", ["cubic", "quintic", "quadric"])
-def test_rest_denominator_matches_numpy_oracle_and_solver(kernel):
-    sim = Simulation(pbf_scene(smoothing_kernel=kernel))
+def test_rest_denominator_matches_numpy_oracle_and_solver(kernel, device):
+    sim = Simulation(pbf_scene(smoothing_kernel=kernel), device=device)
     m = sim.model
     volume = m.particle_mass / m.rest_density
     ref = oracle_denominator(kernel, m.smoothing_length, m.spacing, volume)
@@ -64,9 +64,9 @@ def oracle_density_lambda(sim, x):
     return m.rest_density * ratio, lam, c, g, gb
 
 
-def prepared(kernel="cubic", tensile=False, seed=0):
+def prepared(kernel="cubic", tensile=False, seed=0, device=None):
     """A compressed, jittered block with x* = x, neighbours and density + lambda computed."""
-    sim = Simulation(pbf_scene(smoothing_kernel=kernel, pbf={"tensile_correction": tensile}))
+    sim = Simulation(pbf_scene(smoothing_kernel=kernel, pbf={"tensile_correction": tensile}), device=device)
     rng = np.random.default_rng(seed)
     m = sim.model
     x = m.to_local(sim.get_field("particle_x")).astype(np.float64)
@@ -80,8 +80,8 @@ def prepared(kernel="cubic", tensile=False, seed=0):
 
 
 @pytest.mark.parametrize("kernel", ["cubic", "quintic", "quadric"])
-def test_density_and_lambda_stage(kernel):
-    sim, x = prepared(kernel)
+def test_density_and_lambda_stage(kernel, device):
+    sim, x = prepared(kernel, device=device)
     rho, lam, c, _, _ = oracle_density_lambda(sim, x)
     np.testing.assert_allclose(sim.get_field("particle_density"), rho, rtol=2e-4)
     got = sim.get_field("particle_lambda")
@@ -92,8 +92,8 @@ def test_density_and_lambda_stage(kernel):
 
 
 @pytest.mark.parametrize("tensile", [False, True])
-def test_position_correction_stage(tensile):
-    sim, x = prepared(tensile=tensile, seed=1)
+def test_position_correction_stage(tensile, device):
+    sim, x = prepared(tensile=tensile, seed=1, device=device)
     m = sim.model
     p = sim.scene.pbf
     sim.solver.max_step = 1e30  # the trust region off: compare the raw eq. 18
@@ -122,12 +122,12 @@ def test_position_correction_stage(tensile):
     assert sim.solver.last_iteration_correction == pytest.approx(np.linalg.norm(dx, axis=1).max(), rel=2e-3)
 
 
-def test_graph_and_time_step():
+def test_graph_and_time_step(device):
     sim = Simulation(pbf_scene(material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.2},
-                               pbf={"vorticity": 0.01}))
+                               pbf={"vorticity": 0.01}), device=device)
     assert sim.graph.names() == ["stabilize", "predict", "neighbors", "density", "solve", "update", "vorticity",
                                  "viscosity", "apply_forces", "xsph"]
-    bare = Simulation(pbf_scene(container=False, gravity=[0.0, 0.0, 0.0]))
+    bare = Simulation(pbf_scene(container=False, gravity=[0.0, 0.0, 0.0]), device=device)
     assert bare.graph.names() == ["stabilize", "predict", "neighbors", "density", "solve", "update"]
     m = sim.model
     dt = min(b.seconds for b in sim.time_step_bounds(2.0))
@@ -141,14 +141,14 @@ def test_graph_and_time_step():
 
 
 # --- the report's failure case --------------------------------------------------------------
-def test_block_compressed_20_percent_against_the_floor_does_not_explode():
+def test_block_compressed_20_percent_against_the_floor_does_not_explode(device):
     """Report 4.5: particles pushed over rest density made the solver explode. A block sampled at
     0.8 d (rho ~ 1.95 rho0) on the floor: the start-of-step error is projected out of x without
     becoming velocity (pre-stabilisation), no correction reaches the particle radius after that, no
     particle leaves the box and speeds stay at dam-break level."""
     sc = pbf_scene(particle_radius=0.025, container={"min": [0, 0, 0], "max": [0.5, 0.5, 0.5]},
                    fluid=[{"min": [0, 0, 0], "max": [0.25, 0.25, 0.25], "spacing_scale": 0.8}])
-    sim = Simulation(sc)
+    sim = Simulation(sc, device=device)
     m = sim.model
     rho0 = sim.get_field("particle_density") / m.rest_density - 1
     assert np.maximum(rho0, 0).mean() > 0.5  # it really starts ~ 1.7-1.95 rho0
@@ -171,10 +171,10 @@ def test_block_compressed_20_percent_against_the_floor_does_not_explode():
 
 
 # --- whole scenes ---------------------------------------------------------------------------
-def test_hydrostatic_tank_error_and_bottom_force():
+def test_hydrostatic_tank_error_and_bottom_force(device):
     sc = load_scene("hydrostatic")
     sc.solver = "pbf"
-    sim = Simulation(sc)
+    sim = Simulation(sc, device=device)
     m = sim.model
     weight = m.particle_mass * m.fluid_count * 9.81
     target = sc.pbf.target_density_error
@@ -192,11 +192,11 @@ def test_hydrostatic_tank_error_and_bottom_force():
     assert (x > m.container_lo).all() and (x < m.container_hi).all()
 
 
-def test_dam_break_coarse():
+def test_dam_break_coarse(device):
     sc = load_scene("dam_break")
     sc.solver = "pbf"
     sc.particle_radius = 0.05
-    sim = Simulation(sc)
+    sim = Simulation(sc, device=device)
     for _ in range(4):
         st = sim.advance_frame()
         assert st.solver["density_error"]["max"] <= sc.pbf.target_density_error
@@ -211,13 +211,13 @@ def with_solver(sim, **options):
     return sim
 
 
-def test_neighbor_modes_agree():
+def test_neighbor_modes_agree(device):
     """Neighbour lists (margin: built once per step; rebuild: before every density pass) and the
     hash-grid reference (rebuild, margin) give the same motion."""
     res = []
     for lists, mode in ((True, "margin"), (True, "rebuild"), (False, "rebuild"), (False, "margin")):
         sim = with_solver(Simulation(pbf_scene(material={"xsph": 0.05, "viscosity": 1e-3, "boundary_friction": 0.2},
-                                               pbf={"vorticity": 0.01})),
+                                               pbf={"vorticity": 0.01}), device=device),
                           neighbor_mode=mode, lists=lists)
         for _ in range(5):
             sim.step(4e-3)
@@ -226,13 +226,13 @@ def test_neighbor_modes_agree():
         np.testing.assert_allclose(res[0], other, atol=1e-4 * 0.1)
 
 
-def test_lists_margin_rebuilds_only_on_drift():
+def test_lists_margin_rebuilds_only_on_drift(device):
     """The lists are searched with H_s + margin and rebuilt when x* drifted more than margin / 2:
     a tiny margin rebuilds before (nearly) every density pass of an iteration after the first, the
     default one about once per step, and both agree."""
     res, builds = [], []
     for margin in (0.2, 1e-4):
-        sim = with_solver(Simulation(block_on_floor(nx=8, ny=8, nz=6)), margin=margin)
+        sim = with_solver(Simulation(block_on_floor(nx=8, ny=8, nz=6), device=device), margin=margin)
         sim.solver.last_drift = 0.0
         start = sim.solver.grid_builds
         iterations = 0
@@ -246,14 +246,14 @@ def test_lists_margin_rebuilds_only_on_drift():
     np.testing.assert_allclose(res[0], res[1], atol=1e-6)
 
 
-def test_bitwise_reproducible_over_thread_counts(monkeypatch):
+def test_bitwise_reproducible_over_thread_counts(monkeypatch, device):
     """Kernels split over CPU threads write only their own particles, and the error sum and the
     maxima are reduced in a fixed order: 1, 2 or 3 threads give bitwise the same state."""
     res = []
     for threads in ("1", "2", "3"):
         monkeypatch.setenv("WARP_SPH_CPU_THREADS", threads)
         sim = Simulation(block_on_floor(nx=16, ny=16, nz=12, material={"xsph": 0.05, "viscosity": 1e-3},
-                                        pbf={"vorticity": 0.01}))
+                                        pbf={"vorticity": 0.01}), device=device)
         assert sim.model.fluid_count >= 3 * 1024  # three ranges of the split launch
         errors = []
         for _ in range(3):
@@ -275,8 +275,8 @@ def block_on_floor(kernel="cubic", nx=6, ny=6, nz=4, **kw):
 
 
 @pytest.mark.parametrize("kernel", ["cubic", "quintic", "quadric"])
-def test_same_start_no_initial_explosion(kernel):
-    sim = Simulation(block_on_floor(kernel))
+def test_same_start_no_initial_explosion(kernel, device):
+    sim = Simulation(block_on_floor(kernel), device=device)
     rho = sim.get_field("particle_density") / sim.model.rest_density - 1
     assert rho.max() < 0.02  # the wall gap is computed per kernel
     for _ in range(10):
@@ -289,7 +289,7 @@ def test_same_start_no_initial_explosion(kernel):
     assert v.max() < 0.6 and np.median(v) < 0.2
 
 
-def test_block_at_rest_stays_at_rest_for_ten_thousand_steps():
+def test_block_at_rest_stays_at_rest_for_ten_thousand_steps(device):
     """A 6x6x4 block on the floor between walls (cubic, dt = 2 ms) settles, then holds max |v| below
     1e-3 m/s for 10^4 steps (issue 4). Plain Jacobi (relaxation 1e-4 D0, the default) overshoots:
     on a disordered packing every step injects a little energy and the block keeps creeping at
@@ -297,7 +297,7 @@ def test_block_at_rest_stays_at_rest_for_ten_thousand_steps():
     little viscosity (2e-3 m^2/s) lets it settle. Settling is a sequence of rearrangements whose
     end varies with the block (measured: 8,000-18,000 steps for 5x5x4, 6x6x4, 6x6x5 blocks and the
     three kernels), so the test settles until a 1,000-step window stays below 1e-3 m/s."""
-    sim = Simulation(block_on_floor(material={"xsph": 0.1, "viscosity": 2e-3}, pbf={"relaxation": 5.0}))
+    sim = Simulation(block_on_floor(material={"xsph": 0.1, "viscosity": 2e-3}, pbf={"relaxation": 5.0}), device=device)
 
     def window_max(steps):
         largest = 0.0

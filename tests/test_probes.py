@@ -45,13 +45,13 @@ def tank_with(probes, **kw):
     return small_tank("probe_tank", probes=probes, **kw)
 
 
-def test_pressure_probe_matches_oracle_and_hydrostatic_depths():
+def test_pressure_probe_matches_oracle_and_hydrostatic_depths(device):
     """A lattice at rest holding p_j = rho0 g (H - z_j): probes at several depths (inside, on the floor,
     in the container's corner: their kernels centred one wall gap off the walls) read rho0 g (H - z_p)
     exactly up to float32, one above the water is dry (0 Pa), and an arbitrary field reads the NumPy oracle."""
     depths = (0.05, 0.2, 0.35)
     points = [(0.3, 0.25, 0.5 - dz) for dz in depths] + [(0.3, 0.25, 0.0), (0.0, 0.0, 0.0), (0.3, 0.25, 0.75)]
-    sim = Simulation(tank_with([{"kind": "pressure", "position": list(p), "rate": 24.0} for p in points]))
+    sim = Simulation(tank_with([{"kind": "pressure", "position": list(p), "rate": 24.0} for p in points]), device=device)
     z = sim.get_field("particle_x")[:, 2]
     H = 0.5
     p_hydro = RHO0 * G * (H - z)
@@ -79,10 +79,10 @@ def test_pressure_probe_matches_oracle_and_hydrostatic_depths():
     assert 0.9 < fills[1] < 1.1 and fills[4] > 0.1 and fills[5] < 0.01  # bulk ~1; the corner's first particles
 
 
-def test_height_of_resting_pool_and_oracle():
+def test_height_of_resting_pool_and_oracle(device):
     """The height line reads the pool's top face (last layer + d/2) within 0.1 d, and equals the
     crossing of the NumPy fill profile."""
-    sim = Simulation(tank_with([{"name": "level", "kind": "height", "position": [0.3, 0.25, 0.0], "rate": 24.0}]))
+    sim = Simulation(tank_with([{"name": "level", "kind": "height", "position": [0.3, 0.25, 0.0], "rate": 24.0}]), device=device)
     sim.probes.sample_now()
     h = sim.probes.collect()["level"][0][1]
     d = sim.model.spacing
@@ -96,7 +96,7 @@ def test_height_of_resting_pool_and_oracle():
     assert h == pytest.approx(s, abs=1e-4 * d)
 
 
-def test_front_moves_at_the_block_speed():
+def test_front_moves_at_the_block_speed(device):
     """Gravity off, no walls, the block translated at 1 m/s: the front advances v t (within 0.05 d),
     and probes change nothing in the state (positions equal a run without probes, bit for bit)."""
     base = {"name": "moving", "particle_radius": 0.05, "gravity": [0.0, 0.0, 0.0], "container": False,
@@ -104,8 +104,8 @@ def test_front_moves_at_the_block_speed():
             "output": {"usd": False, "surface": False}, "fps": 48.0, "solver": "dfsph"}
     probe = {"name": "tip", "kind": "front", "position": [0.0, 0.2, 0.2], "axis": [1.0, 0.0, 0.0],
              "length": 1.2, "rate": 200.0}
-    with_probe = Simulation(scene_from_dict({**base, "probes": [probe]}))
-    plain = Simulation(scene_from_dict(base))
+    with_probe = Simulation(scene_from_dict({**base, "probes": [probe]}), device=device)
+    plain = Simulation(scene_from_dict(base), device=device)
     with_probe.probes.sample_now(0.0)
     for _ in range(6):
         with_probe.advance_frame()

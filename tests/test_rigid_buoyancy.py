@@ -45,7 +45,7 @@ def water_level(sim, centre, half_width) -> float:
 
 
 @pytest.mark.parametrize("solver", ["pbf", "dfsph"])
-def test_light_box_floats_half_submerged(solver):
+def test_light_box_floats_half_submerged(solver, device):
     """A 0.3 x 0.3 x 0.2 m box of density 500 kg/m^3 (10 particle spacings tall, wide enough to float
     flat: metacentre above the centre of mass), released 30 % submerged, settles with half its volume
     below the free surface: the submerged fraction averaged over the last second (about one heave
@@ -53,7 +53,7 @@ def test_light_box_floats_half_submerged(solver):
     0.493; WCSPH at 6,300 particles read 0.48-0.52)."""
     h = 0.2
     body = {"shape": "box", "size": [0.3, 0.3, h], "position": [0.21, 0.21, 0.30], "density": 500.0}
-    sim = Simulation(pool_scene(solver, 0.01, 0.42, 0.26, body))
+    sim = Simulation(pool_scene(solver, 0.01, 0.42, 0.26, body), device=device)
     fractions = []
     while sim.state.time < 2.6 - 1e-9:
         st = sim.advance_frame()
@@ -68,7 +68,7 @@ def test_light_box_floats_half_submerged(solver):
     assert mean == pytest.approx(0.5, rel=0.05), fractions
 
 
-def test_heavy_box_sinks_and_rests_on_the_floor():
+def test_heavy_box_sinks_and_rests_on_the_floor(device):
     """A box of density 2000 kg/m^3 released half submerged, tilted by 5 degrees, sinks, lands on an edge,
     squeezes the water out from under it and rests flat on the floor (Newton's contact: resting
     penetration about 1 % of r) within 1 s. WCSPH. (Released exactly flat it can come to rest on one
@@ -77,7 +77,7 @@ def test_heavy_box_sinks_and_rests_on_the_floor():
     h = 0.1
     body = {"shape": "box", "size": [0.15, 0.15, h], "position": [0.2, 0.2, 0.2], "density": 2000.0,
             "rotation": [5.0, 0.0, 0.0]}
-    sim = Simulation(pool_scene("wcsph", 0.0125, 0.4, 0.2, body, viscosity=1e-3))
+    sim = Simulation(pool_scene("wcsph", 0.0125, 0.4, 0.2, body, viscosity=1e-3), device=device)
     while sim.state.time < 1.0 - 1e-9:
         st = sim.advance_frame()
     pose = st.bodies["body0"]
@@ -86,7 +86,7 @@ def test_heavy_box_sinks_and_rests_on_the_floor():
     assert quat_to_matrix(pose["orientation"])[2, 2] > 0.999
 
 
-def test_neutral_sphere_stays_where_it_is():
+def test_neutral_sphere_stays_where_it_is(device):
     """A sphere of the water's density, submerged at rest, neither rises nor sinks more than one particle
     radius in 2 s. The first 0.8 s are left out: the pool settles on its walls (a layer of fluid at the
     sphere's height far from it sinks 10 mm) and the fluid closes the sampling gaps around the sphere
@@ -94,7 +94,7 @@ def test_neutral_sphere_stays_where_it_is():
     sphere moves down with that fluid. PBF."""
     r = 0.01
     body = {"shape": "sphere", "radius": 0.07, "position": [0.17, 0.17, 0.13], "density": 1000.0}
-    sim = Simulation(pool_scene("pbf", r, 0.34, 0.26, body))
+    sim = Simulation(pool_scene("pbf", r, 0.34, 0.26, body), device=device)
     heights = []
     while sim.state.time < 2.8 - 1e-9:
         st = sim.advance_frame()

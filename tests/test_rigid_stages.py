@@ -91,7 +91,7 @@ CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
-def test_body_forces_and_wrench_match_numpy(case):
+def test_body_forces_and_wrench_match_numpy(case, device):
     c = dict(CASES[case])
     friction = c.pop("bodies_friction", None)
     scene = pool(**c)
@@ -99,7 +99,7 @@ def test_body_forces_and_wrench_match_numpy(case):
         data = scene.to_dict()
         data["bodies"][0]["fluid_friction"] = friction
         scene = scene_from_dict(data)
-    sim = Simulation(scene)
+    sim = Simulation(scene, device=device)
     velocity = sim.solver.body_coupling_velocity  # DFSPH: v as its viscosity stage read it
     names = ("particle_x", velocity, "particle_density", "boundary_pressure_term", "boundary_x", "boundary_v",
              "body_particle_force", "body_q")
@@ -129,9 +129,9 @@ def test_body_forces_and_wrench_match_numpy(case):
     assert checked == 3
 
 
-def test_particles_follow_the_new_pose():
+def test_particles_follow_the_new_pose(device):
     """After the bodies stage, x_b = R x_local + p and v_b = v + omega x (x_b - p) for Newton's new pose."""
-    sim = Simulation(pool())
+    sim = Simulation(pool(), device=device)
     poses = record_after(sim, "bodies", ("body_q", "body_qd", "boundary_x", "boundary_v"))
     sim.advance_frame()
     s = poses[-1]
@@ -145,14 +145,14 @@ def test_particles_follow_the_new_pose():
     assert np.all(s["boundary_v"][:S] == 0.0)  # walls stay still
 
 
-def test_dfsph_body_force_is_the_impulse_the_fluid_received():
+def test_dfsph_body_force_is_the_impulse_the_fluid_received(device):
     """DFSPH changes the fluid's velocity by the walls' pressure twice a step, each time once with the
     converged pressure (its Jacobi sweeps change only P): dt a(P^v) after the divergence solve and
     dt a(P) in integrate, a_i = -P_i sum_b V_b grad W_ib; and by the boundary friction in its viscosity
     stage, at the velocity the divergence solve left. The force on each body particle is minus that
     impulse from it over dt, computed here in float64 from the solver's own P^v (after "divergence"),
     P (after "pressure") and v (before "viscosity"), not from the coupling term or the kept velocity."""
-    sim = Simulation(pool(solver="dfsph", material={"boundary_friction": 0.2, "viscosity": 1e-3}))
+    sim = Simulation(pool(solver="dfsph", material={"boundary_friction": 0.2, "viscosity": 1e-3}), device=device)
     names = sim.graph.names()
     v_used = record_after(sim, names[names.index("viscosity") - 1], ("particle_v",))
     p_div = record_after(sim, "divergence", ("dfsph_divergence_pressure",))
@@ -170,12 +170,12 @@ def test_dfsph_body_force_is_the_impulse_the_fluid_received():
         np.testing.assert_allclose(b["body_particle_force"], expect, atol=2e-5 * scale.max() + 1e-9)
 
 
-def test_dfsph_search_sees_the_moving_particles():
+def test_dfsph_search_sees_the_moving_particles(device):
     """DFSPH's own search ("density" stage) walks the bodies' cell grid after the static one: per fluid
     particle the boundary neighbours (static, then moving), rho_i = m sum_j W_ij + rho0 sum_b V_b W_ib,
     sum_b V_b grad W_ib and sum_b v_b . V_b grad W_ib (the moving wall in the divergence source) over
     every boundary particle, against a float64 brute force, after the box has moved for a frame."""
-    sim = Simulation(pool(solver="dfsph"))
+    sim = Simulation(pool(solver="dfsph"), device=device)
     m = sim.model
     S = m.static_boundary_count
     snaps = []
@@ -218,11 +218,11 @@ def test_dfsph_search_sees_the_moving_particles():
 
 
 @pytest.mark.parametrize("solver, stage", [("wcsph", "forces"), ("dfsph", "integrate")])
-def test_action_equals_reaction_pair_by_pair(solver, stage):
+def test_action_equals_reaction_pair_by_pair(solver, stage, device):
     """Without walls every boundary particle belongs to the body: the fluid's boundary force summed over
     the fluid (the solver's own sum; DFSPH: both solves' wall pressure and the friction) is minus the
     force summed over the body's particles (float32 rounding only)."""
-    sim = Simulation(pool(solver=solver, container=False, gravity=[0.0, 0.0, 0.0], material={"boundary_friction": 0.2}))
+    sim = Simulation(pool(solver=solver, container=False, gravity=[0.0, 0.0, 0.0], material={"boundary_friction": 0.2}), device=device)
     fluid = record_after(sim, stage, ("boundary_force",))
     body = record_after(sim, "body_forces", ("body_particle_force",))
     for _ in range(2):
@@ -238,7 +238,7 @@ def test_action_equals_reaction_pair_by_pair(solver, stage):
 
 
 @pytest.mark.parametrize("solver", ["wcsph", "dfsph"])
-def test_momentum_changes_only_by_what_the_walls_took(solver):
+def test_momentum_changes_only_by_what_the_walls_took(solver, device):
     """A box thrown into a closed pool, no gravity on the box after release (Akinci walls): over
     every substep the fluid's and the box's momentum together change by dt (M_fluid g + F_walls), with
     F_walls the force of the container's particles on the fluid computed by a NumPy brute force at the
@@ -253,7 +253,7 @@ def test_momentum_changes_only_by_what_the_walls_took(solver):
         "bodies": [{"shape": "box", "size": [0.1, 0.08, 0.08], "position": [0.14, 0.13, 0.17], "density": 700.0,
                     "velocity": [0.4, 0.1, -0.8], "angular_velocity": [0.0, 3.0, 0.0]}],
         "output": {"usd": False}})
-    sim = Simulation(scene)
+    sim = Simulation(scene, device=device)
     sim.bodies.world.model.set_gravity((0.0, 0.0, 0.0))  # released: no gravity on the body
     m = sim.model
     S = m.static_boundary_count

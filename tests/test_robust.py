@@ -23,7 +23,7 @@ SOLVERS = registry.solver_names()
 # --------------------------------------------------------------------------------------------
 # PBF: iterations per step against the depth of the fluid in particles
 # --------------------------------------------------------------------------------------------
-def column(layers: int, **pbf) -> Simulation:
+def column(layers: int, device=None, **pbf) -> Simulation:
     """A narrow column 4 x 4 particles wide and ``layers`` deep (d = 0.05 m) in a tank that fits it."""
     d = 0.05
     width = 4 * d + 2 * 1.1 * d - d + 1e-4  # 4 columns plus the rest gap to the walls on both sides
@@ -31,7 +31,7 @@ def column(layers: int, **pbf) -> Simulation:
              "container": {"min": [0, 0, 0], "max": [width, width, 1.2 * layers * d + 0.2]},
              "fluid": [{"shape": "box", "min": [0, 0, 0], "max": [width, width, layers * d]}],
              "output": NO_OUTPUT}
-    return Simulation(scene_from_dict(scene))
+    return Simulation(scene_from_dict(scene), device=device)
 
 
 def iterations_after_start(sim: Simulation, frames: int = 12, last: int = 4) -> float:
@@ -61,18 +61,18 @@ def test_lattice_transport_matches_its_definition():
     assert lattice_transport("cubic", h, d, m, 1000.0, d0) == pytest.approx(kappa / 2, rel=1e-6)
 
 
-def test_pbf_iterations_do_not_grow_with_depth():
+def test_pbf_iterations_do_not_grow_with_depth(device):
     """From rest, a 10-layer and an 80-layer column need about the same iterations per step (the solve
     bound sizes the step for pbf.target_iterations = 4); main needed 2.1 and 15.2 at its 4.6 ms step."""
-    its = {n: iterations_after_start(column(n)) for n in (10, 80)}
+    its = {n: iterations_after_start(column(n, device=device)) for n in (10, 80)}
     assert max(its.values()) <= 6.0, its
     # the test can fail: without the bound the deep column needs its depth / 5 iterations
-    deep = iterations_after_start(column(80, target_iterations=0.0))
+    deep = iterations_after_start(column(80, target_iterations=0.0, device=device))
     assert deep > 10.0, deep
 
 
-def test_pbf_solve_bound_follows_depth_and_spacing():
-    sim = column(40)
+def test_pbf_solve_bound_follows_depth_and_spacing(device):
+    sim = column(40, device=device)
     b = {x.name: x for x in sim.time_step_bounds(0.0)}["pressure solve"]
     m = sim.model
     eta = sim.scene.pbf.target_density_error
@@ -82,10 +82,10 @@ def test_pbf_solve_bound_follows_depth_and_spacing():
     assert "pbf.target_iterations" in b.keys
 
 
-def test_fixed_step_beyond_the_cfl_names_the_step():
+def test_fixed_step_beyond_the_cfl_names_the_step(device):
     """A state stepped with a step sized at rest (as the scaling benchmark did) until the flow is 2 d per
     step: check_health names the step against the bound at the flow's speed now, not the scene."""
-    sim = Simulation(load_scene("dam_break", ["particle_radius=0.05", "solver=pbf", "output.usd=false"]))
+    sim = Simulation(load_scene("dam_break", ["particle_radius=0.05", "solver=pbf", "output.usd=false"]), device=device)
     dt = 0.04  # v dt / d ~ 2 at t = 0.3 s
     for _ in range(8):
         sim.step(dt)
@@ -99,7 +99,7 @@ def test_fixed_step_beyond_the_cfl_names_the_step():
 # --------------------------------------------------------------------------------------------
 # one wall layer and a lone particle (WCSPH)
 # --------------------------------------------------------------------------------------------
-def lone_particle(fraction: float, boundary_pressure: str = "eq16", mode: str = "stop") -> Simulation:
+def lone_particle(fraction: float, boundary_pressure: str = "eq16", mode: str = "stop", device=None) -> Simulation:
     """One particle (d = 0.1 m) thrown at the floor at ``fraction`` c_s (c_s = 100 m/s), no gravity."""
     c = 100.0
     scene = {"name": "lone", "particle_radius": 0.05, "fps": 100.0, "solver": "wcsph", "gravity": [0, 0, 0],
@@ -108,32 +108,32 @@ def lone_particle(fraction: float, boundary_pressure: str = "eq16", mode: str = 
                         "velocity": [0, 0, -fraction * c]}],
              "wcsph": {"speed_of_sound": c, "boundary_pressure": boundary_pressure},
              "time": {"on_instability": mode}, "output": NO_OUTPUT}
-    sim = Simulation(scene_from_dict(scene))
+    sim = Simulation(scene_from_dict(scene), device=device)
     assert sim.model.fluid_count == 1
     return sim
 
 
 @pytest.mark.parametrize("boundary_pressure", sorted(WALL_ESCAPE_FRACTION))
-def test_wall_turns_back_a_lone_particle_below_the_escape_speed(boundary_pressure):
+def test_wall_turns_back_a_lone_particle_below_the_escape_speed(boundary_pressure, device):
     """Measured: eq16 turns 0.26 c_s back and lets 0.27 c_s through, mirrored 0.40 / 0.42; the watchdog
     quotes 0.25 / 0.40."""
     esc = WALL_ESCAPE_FRACTION[boundary_pressure]
-    sim = lone_particle(esc, boundary_pressure)
+    sim = lone_particle(esc, boundary_pressure, device=device)
     for _ in range(4):  # reaches the floor after 0.02 s, bounces
         s = sim.advance_frame()
         assert s.outside == 0
     assert sim.get_field("particle_v")[0, 2] > 0.0  # on its way up
-    fast = lone_particle(1.25 * esc, boundary_pressure)
+    fast = lone_particle(1.25 * esc, boundary_pressure, device=device)
     # or the energy rule first, when the integrator gains energy inside the wall
     with pytest.raises(SimulationError, match="outside the container|the total energy rose"):
         for _ in range(4):
             fast.advance_frame()
 
 
-def test_advice_for_a_particle_through_the_wall_is_stiffness_not_the_step():
+def test_advice_for_a_particle_through_the_wall_is_stiffness_not_the_step(device):
     """0.28 c_s: through the wall whatever the step (main advised 'lower time.cfl'; retry halved the
     step five times and stopped with the same advice)."""
-    sim = lone_particle(0.28, mode="retry")
+    sim = lone_particle(0.28, mode="retry", device=device)
     with pytest.raises(SimulationError) as e:
         for _ in range(4):
             sim.advance_frame()
@@ -144,7 +144,7 @@ def test_advice_for_a_particle_through_the_wall_is_stiffness_not_the_step():
 
 
 @pytest.mark.parametrize("approach", [1.0, -1.0])
-def test_artificial_viscosity_pair_matches_numpy_oracle(approach):
+def test_artificial_viscosity_pair_matches_numpy_oracle(approach, device):
     """Two isolated particles (under-dense: no pressure): a_i = -m Pi_ij grad W_ij with
     Pi_ij = -nu (v_ij . x_ij) / (|x_ij|^2 + 0.01 h^2), nu = 2 alpha h c_s / (rho_i + rho_j), only when
     approaching (Monaghan 1992); receding pairs feel nothing."""
@@ -155,7 +155,7 @@ def test_artificial_viscosity_pair_matches_numpy_oracle(approach):
              "gravity": [0, 0, 0],
              "fluid": [{"shape": "box", "min": [0, 0, 0], "max": [2 * d, d, d]}],
              "wcsph": {"artificial_viscosity": 0.5, "speed_of_sound": 20.0}, "output": NO_OUTPUT}
-    sim = Simulation(scene_from_dict(scene))
+    sim = Simulation(scene_from_dict(scene), device=device)
     m = sim.model
     x = np.array([m.origin - [0.06, 0.01, 0.0], m.origin + [0.06, 0.01, 0.0]])
     v = approach * np.array([[1.0, 0.2, -0.3], [-1.0, -0.2, 0.3]])
@@ -230,11 +230,11 @@ def test_pressure_impulse_reference():
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_impact_at_14_m_s_runs_to_the_end(solver):
+def test_impact_at_14_m_s_runs_to_the_end(solver, device):
     """Every registered solver: the splash of a 14 m/s impact stays in the container, nobody leaves the
     impact faster than 3 v (the incompressible edge speed at this spacing is 1.25 v; measured: PBF 1.6 v,
     WCSPH 2.5-2.7 v), and the energy never rises."""
-    sim = Simulation(scene_from_dict(impact_scene(solver)))
+    sim = Simulation(scene_from_dict(impact_scene(solver)), device=device)
     m = sim.model
     v0 = math.sqrt(2 * 9.81 * 10.0)
 
@@ -258,11 +258,11 @@ def test_impact_at_14_m_s_runs_to_the_end(solver):
 # --------------------------------------------------------------------------------------------
 @pytest.mark.slow
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_hydrostatic_scene_settles(solver):
+def test_hydrostatic_scene_settles(solver, device):
     """With the scene's own settings: mean |v| below 1e-3 sqrt(g H) (H = 0.5 m) averaged over the
     last 0.5 s of 5 s (22 settling times sqrt(H/g)), and the mean height does not rise (main, WCSPH:
     0.03-0.08 m/s for 10 s and +2.8 mm: the mirrored wall pressure is not energy-consistent)."""
-    sim = Simulation(load_scene("hydrostatic", [f"solver={solver}", "output.usd=false"]))
+    sim = Simulation(load_scene("hydrostatic", [f"solver={solver}", "output.usd=false"]), device=device)
     g, depth = 9.81, 0.5
     z0 = sim.get_field("particle_x")[:, 2].mean()
     speeds, heights = [], []

@@ -11,13 +11,13 @@ from warp_sph.run.simulation import Simulation
 SOLVERS = ["dfsph", "wcsph", "pbf"]
 
 
-def vortex_block(solver, strength=0.05, n=8):
+def vortex_block(solver, strength=0.05, n=8, device=None):
     """An n^3 block (r = 0.025 m) without walls or gravity, spinning as a Gaussian vortex about the vertical
     axis through its centre: v = Omega x (x - c) exp(-rho^2 / s^2), Omega = 4 rad/s, s = half the side."""
     d = 0.05
     forces = [{"method": "vorticity_confinement", "strength": strength}] if strength else []
     sim = Simulation(small_tank("vortex", solver, particle_radius=0.025, container=False, gravity=[0.0, 0.0, 0.0],
-                                fluid=[{"min": [0, 0, 0], "max": [n * d] * 3}], forces=forces))
+                                fluid=[{"min": [0, 0, 0], "max": [n * d] * 3}], forces=forces), device=device)
     x = sim.get_field("particle_x").astype(np.float64)
     c = x.mean(axis=0)
     rel = x - c
@@ -29,8 +29,8 @@ def vortex_block(solver, strength=0.05, n=8):
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_vorticity_matches_the_oracle_and_confinement_feeds_the_vortex(solver):
-    sim, v = vortex_block(solver)
+def test_vorticity_matches_the_oracle_and_confinement_feeds_the_vortex(solver, device):
+    sim, v = vortex_block(solver, device=device)
     m = sim.model
     sim.fields["force_acceleration"].zero_()
     stage(sim, "vorticity").run(sim, 1e-3)
@@ -52,13 +52,13 @@ def test_vorticity_matches_the_oracle_and_confinement_feeds_the_vortex(solver):
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
-def test_confinement_keeps_a_vortex_spinning_longer(solver):
+def test_confinement_keeps_a_vortex_spinning_longer(solver, device):
     """After 0.08 s (steps within the solver's bounds at 1 m/s) the vortex with confinement holds more angular
     momentum about its axis than the same vortex without (confinement puts back what numerical dissipation
     removes)."""
     spins = []
     for strength in (0.0, 0.05):
-        sim, _ = vortex_block(solver, strength)
+        sim, _ = vortex_block(solver, strength, device=device)
         dt = min(2e-3, min(b.seconds for b in sim.time_step_bounds(1.0)))
         for _ in range(int(round(0.08 / dt))):
             sim.step(dt)
@@ -68,8 +68,8 @@ def test_confinement_keeps_a_vortex_spinning_longer(solver):
     assert spins[0] > 0 and spins[1] > 1.01 * spins[0], spins
 
 
-def test_uniform_motion_feels_no_confinement():
-    sim, _ = vortex_block("dfsph")
+def test_uniform_motion_feels_no_confinement(device):
+    sim, _ = vortex_block("dfsph", device=device)
     sim.set_field("particle_v", np.tile([0.3, -0.1, 0.2], (sim.model.fluid_count, 1)))
     sim.fields["force_acceleration"].zero_()
     stage(sim, "vorticity").run(sim, 1e-3)

@@ -29,13 +29,13 @@ def layer_pressure_profile(sim, n_layers=12):
 
 @pytest.mark.slow
 @pytest.mark.filterwarnings("error::RuntimeWarning")  # numpy's "Mean of empty slice" included
-def test_hydrostatic_tank_akinci():
+def test_hydrostatic_tank_akinci(device):
     """After settling: time- and layer-averaged p(depth) = rho0 g depth below 2h from the surface
     (mean error <= 5 %), bottom wall load = weight within 2 %, nobody leaves in 10^4 steps,
     volume sum m/max(rho, rho0) within 1 %. With the mirrored wall pressure (SPlisHSPlasH), whose
     profile this checks: it never comes to rest (it is not energy-consistent; the scene itself uses
     eq16, tests/test_robust.py), but its time-averaged profile is hydrostatic within 5 %."""
-    sim = Simulation(load_scene("hydrostatic", WCSPH + ["wcsph.boundary_pressure=mirrored", "material.xsph=0"]))
+    sim = Simulation(load_scene("hydrostatic", WCSPH + ["wcsph.boundary_pressure=mirrored", "material.xsph=0"]), device=device)
     # mirrored pumps energy into the tank: the energy rule (warp_sph/run/energy.py) would stop it (1.1 % of the
     # scene's energy by frame 9); this test checks its time-averaged profile only
     sim.watchdog.energy.enabled = False
@@ -69,8 +69,8 @@ def test_hydrostatic_tank_akinci():
     assert np.isfinite(prof[deep]).all()
 
 
-def test_hydrostatic_tank_penalty_keeps_particles_inside():
-    sim = Simulation(load_scene("hydrostatic", WCSPH + ["boundary=penalty"]))
+def test_hydrostatic_tank_penalty_keeps_particles_inside(device):
+    sim = Simulation(load_scene("hydrostatic", WCSPH + ["boundary=penalty"]), device=device)
     m = sim.model
     for _ in range(24):
         stats = sim.advance_frame()
@@ -80,10 +80,10 @@ def test_hydrostatic_tank_penalty_keeps_particles_inside():
     assert sim.state.step > 1000
 
 
-def test_radial_expansion_symmetric():
+def test_radial_expansion_symmetric(device):
     """The report's dense cube in vacuum: expands radially, symmetric, centre of mass fixed,
     total momentum ~ 0."""
-    sim = Simulation(load_scene("radial_expansion", WCSPH))
+    sim = Simulation(load_scene("radial_expansion", WCSPH), device=device)
     m = sim.model
     x0 = sim.get_field("particle_x")
     c0 = x0.mean(axis=0)
@@ -111,8 +111,8 @@ def test_radial_expansion_symmetric():
 
 
 @pytest.mark.parametrize("name", [n for n, _ in list_scenes()])
-def test_every_scene_runs_a_few_frames(name):
-    sim = Simulation(load_scene(name, NO_OUTPUT))
+def test_every_scene_runs_a_few_frames(name, device):
+    sim = Simulation(load_scene(name, NO_OUTPUT), device=device)
     for _ in range(2):
         stats = sim.advance_frame()
         sim.check_health(stats)

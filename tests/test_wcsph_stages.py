@@ -46,8 +46,8 @@ def oracle_density(sim, x):
 
 
 @pytest.mark.parametrize("kernel", ["cubic", "quintic", "quadric"])
-def test_boundary_volume(kernel):
-    sim = Simulation(small_scene(smoothing_kernel=kernel))
+def test_boundary_volume(kernel, device):
+    sim = Simulation(small_scene(smoothing_kernel=kernel), device=device)
     m = sim.model
     xb = m.boundary_x.numpy().astype(np.float64)
     rb = np.linalg.norm(xb[:, None] - xb[None], axis=2)
@@ -58,16 +58,16 @@ def test_boundary_volume(kernel):
 
 
 @pytest.mark.parametrize("kernel", ["cubic", "quintic", "quadric"])
-def test_density_stage(kernel):
-    sim = Simulation(small_scene(smoothing_kernel=kernel))
+def test_density_stage(kernel, device):
+    sim = Simulation(small_scene(smoothing_kernel=kernel), device=device)
     x, _ = jittered(sim)
     run_stage(sim, "neighbors")
     run_stage(sim, "density")
     np.testing.assert_allclose(sim.get_field("particle_density"), oracle_density(sim, x), rtol=2e-4)
 
 
-def test_xsph_stage():
-    sim = Simulation(small_scene())
+def test_xsph_stage(device):
+    sim = Simulation(small_scene(), device=device)
     x, v = jittered(sim, seed=1)
     run_stage(sim, "neighbors")
     run_stage(sim, "density")
@@ -81,8 +81,8 @@ def test_xsph_stage():
 
 
 @pytest.mark.parametrize("eos", ["linear", "tait"])
-def test_pressure_stage(eos):
-    sim = Simulation(small_scene(wcsph={"equation_of_state": eos}))
+def test_pressure_stage(eos, device):
+    sim = Simulation(small_scene(wcsph={"equation_of_state": eos}), device=device)
     jittered(sim, seed=2, amp=0.3)
     run_stage(sim, "neighbors")
     run_stage(sim, "density")
@@ -99,8 +99,8 @@ def test_pressure_stage(eos):
 
 
 @pytest.mark.parametrize("boundary,mirrored", [("akinci2012", True), ("akinci2012", False), ("penalty", False)])
-def test_forces_stage(boundary, mirrored):
-    sim = Simulation(small_scene(boundary=boundary, wcsph={"boundary_pressure": "mirrored" if mirrored else "eq16"}))
+def test_forces_stage(boundary, mirrored, device):
+    sim = Simulation(small_scene(boundary=boundary, wcsph={"boundary_pressure": "mirrored" if mirrored else "eq16"}), device=device)
     x, _ = jittered(sim, seed=3, amp=0.3)
     for name in ("neighbors", "density", "xsph", "viscosity", "pressure"):  # viscosity: its acceleration
         run_stage(sim, name)
@@ -144,8 +144,8 @@ def test_forces_stage(boundary, mirrored):
     assert np.abs(ab).max() > 1.0  # boundary terms actually exercised
 
 
-def test_integrate_stage():
-    sim = Simulation(small_scene())
+def test_integrate_stage(device):
+    sim = Simulation(small_scene(), device=device)
     x, v = jittered(sim, seed=4)
     for name in ("neighbors", "density", "xsph", "viscosity", "pressure", "forces"):
         run_stage(sim, name)
@@ -159,11 +159,11 @@ def test_integrate_stage():
     np.testing.assert_allclose(sim.get_field("particle_x"), x0 + dt * v_ref, rtol=0, atol=1e-5)
 
 
-def test_graph_holds_only_what_the_scene_needs():
-    full = Simulation(small_scene())
+def test_graph_holds_only_what_the_scene_needs(device):
+    full = Simulation(small_scene(), device=device)
     assert full.graph.names() == ["neighbors", "density", "xsph", "viscosity", "pressure", "forces", "integrate"]
     bare = Simulation(small_scene(container=False, material={"viscosity": 0.0, "xsph": 0.0, "boundary_friction": 0.0},
-                                  gravity=[0.0, 0.0, 0.0]))
+                                  gravity=[0.0, 0.0, 0.0]), device=device)
     assert bare.graph.names() == ["neighbors", "density", "pressure", "forces", "integrate"]
     reads = {f for s in bare.graph.stages for f in s.reads}
     assert not any(f.startswith("boundary") for f in reads)
@@ -171,9 +171,9 @@ def test_graph_holds_only_what_the_scene_needs():
 
 
 @pytest.mark.parametrize("boundary", ["akinci2012", "penalty"])
-def test_neighbor_lists_match_grid_queries(boundary):
+def test_neighbor_lists_match_grid_queries(boundary, device):
     """The list variant of every neighbour loop (the default) equals the hash-grid variant."""
-    sim = Simulation(small_scene(boundary=boundary))
+    sim = Simulation(small_scene(boundary=boundary), device=device)
     jittered(sim, seed=5, amp=0.3)
     results = {}
     for lists in (True, False):

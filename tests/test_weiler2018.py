@@ -257,16 +257,16 @@ def test_rotating_blob_spreads_at_the_analytic_rate(device):
     assert max(iterations) < 100 and iterations[-1] <= iterations[0]  # converged; the warm start helps
 
 
-def _frames(scene, frames):
+def _frames(scene, frames, device=None):
     from warp_sph.run.simulation import Simulation
 
-    sim = Simulation(scene)
+    sim = Simulation(scene, device=device)
     start = sim.statistics()
     stats = [sim.advance_frame() for _ in range(frames)]
     return sim, start, stats
 
 
-def test_high_viscosity_runs_at_the_step_of_no_viscosity_and_stays_stable():
+def test_high_viscosity_runs_at_the_step_of_no_viscosity_and_stays_stable(device):
     """The small tank's block (a dam break in a box, DFSPH) at nu = 10 m^2/s with sticking walls: the same
     time-step bounds as nu = 0 (the explicit bound would be 6e-5 s), no more substeps,
     total energy never above the start, no particle faster than free fall from the top of the box, the
@@ -276,8 +276,8 @@ def test_high_viscosity_runs_at_the_step_of_no_viscosity_and_stays_stable():
     tol = 1e-3
     viscous = small_tank("honey_tank", forces=[{"method": "weiler2018", "viscosity": 10.0, "boundary_viscosity": 10.0,
                                                  "tolerance": tol, "max_iterations": 200}])
-    sim0, start0, plain = _frames(small_tank("water_tank"), 4)
-    sim, start, honey = _frames(viscous, 4)
+    sim0, start0, plain = _frames(small_tank("water_tank"), 4, device=device)
+    sim, start, honey = _frames(viscous, 4, device=device)
     assert [b.name for b in sim.time_step_bounds(1.0)] == [b.name for b in sim0.time_step_bounds(1.0)]
     assert "implicit_viscosity" in sim.graph.names()
     assert sum(s.steps for s in honey) <= sum(s.steps for s in plain)

@@ -7,17 +7,20 @@ n_i = H sum_j (m/rho_j) grad W_ij and K_ij = 2 rho0/(rho_i + rho_j); research no
 Units. Akinci's gamma is not a surface tension: it multiplies a mass in the cohesion term and
 nothing in the curvature term, so one number cannot be sigma for both. Here the user sets the
 surface tension sigma [N/m] and the code uses
-  gamma   = sigma / (SIGMA_PER_GAMMA rho0^2 H^2)      [m^4/(kg s^2)]  (cohesion)
-  gamma_k = CURVATURE_WEIGHT gamma rho0               [m/s^2]         (curvature)
-  beta    = adhesion / (SIGMA_PER_GAMMA rho0^2 H^2)   [m^4/(kg s^2)]  (adhesion)
+  gamma   = sigma / (SIGMA_PER_GAMMA rho0^2 H^2)                [m^4/(kg s^2)]  (cohesion)
+  gamma_k = curvature CURVATURE_WEIGHT gamma rho0               [m/s^2]         (curvature)
+  beta    = adhesion / (SIGMA_PER_GAMMA rho0^2 H^2)             [m^4/(kg s^2)]  (adhesion)
 The accelerations then scale as gamma rho0 times a function of the geometry in units of H, so the
-effective surface tension would be sigma_eff = c gamma rho0^2 H^2 with c depending only on the smoothing
-kernel and H/d: SIGMA_PER_GAMMA is c, measured from the l = 2 oscillation of a zero-gravity droplet
-(omega^2 = 8 sigma / (rho R^3), Rayleigh 1879; docs/surface_tension.md, benchmarks/surface_tension.py).
-Measured, c also varies with gamma and with the drop's size in particles: sigma is right in units and
-order of magnitude, anchored at one droplet, not a material constant.
+effective surface tension is sigma_eff = c gamma rho0^2 H^2 with c depending on the smoothing kernel,
+H/d and (measured) the drop's size in particles. Cohesion alone has the surface energy
+c = 4 int_0^1 C(q H) H^9 (32/pi)^-1 q^4 dq = 21/7040 = 0.00298 (a uniform half-space bonded by the
+pair force, Kirkwood-Buff; research note forces.md 2.1); the curvature term is not derived from an energy
+and, at the default weight, more than doubles it. SIGMA_PER_GAMMA is therefore measured: the undamped
+l = 2 frequency of zero-gravity droplets (omega^2 = 8 sigma / (rho R^3), Rayleigh 1879;
+``python -m warp_sph.benchmarks.surface_tension``, docs/surface_tension.md).
 CURVATURE_WEIGHT = 1e-3 keeps SPlisHSPlasH's balance of the two terms at water's density (there
-gamma_k = gamma in SI numbers at rho0 = 1000 kg/m^3).
+gamma_k = gamma in SI numbers at rho0 = 1000 kg/m^3); the scene key ``curvature`` scales it (0: cohesion
+only, no normals pass; the calibration holds for 1).
 
 Adhesion is set in the same units: ``adhesion`` = sigma gives beta = gamma (SPlisHSPlasH's defaults,
 beta = 0.01 with gamma = 0.05, are adhesion = 0.2 sigma). It is a wall-attraction coefficient scaled
@@ -42,21 +45,23 @@ from ..force import Force, ForceSlot
 from ..registry import register_force
 from ..solver import TimeStepBound
 
-#: sigma_eff / (gamma rho0^2 H^2) [-] for support H = 2d (the default of every kernel): the value at which
-#: a zero-g droplet of R = 10 d with sigma = 10 N/m oscillated nearest Rayleigh's l = 2 frequency (0.85 of
-#: it; DFSPH, cubic; ``python -m warp_sph.benchmarks.surface_tension``). sigma_eff is not linear in gamma nor independent of
-#: R/d at this resolution (measured c from 0.003 to 0.016): docs/surface_tension.md has the table.
-SIGMA_PER_GAMMA = 0.0056
+#: sigma_eff / (gamma rho0^2 H^2) [-] for support H = 2d (the default of every kernel) and curvature = 1: measured
+#: on zero-g droplets of R = 6 and 7 d (DFSPH, cubic, sigma = 10 N/m, dt = 0.3 x the capillary bound; the odd
+#: part of two oppositely kicked runs, damping removed): with 0.0107 they oscillated at 0.884 and 0.954 of
+#: Rayleigh's frequency; 0.0107 x 0.919^2 (sigma_eff ~ omega^2 taken linear in gamma; the table in
+#: docs/surface_tension.md, measured with this value, checks it). The droplet's size in particles still matters.
+SIGMA_PER_GAMMA = 0.0090
 #: gamma_k = CURVATURE_WEIGHT gamma rho0 (module docstring)
 CURVATURE_WEIGHT = 1.0e-3
 
 
-def akinci_coefficients(sigma: float, adhesion: float, rest_density: float, support_radius: float):
-    """(gamma [m^4/(kg s^2)], gamma_k [m/s^2], beta [m^4/(kg s^2)]) for surface tension sigma [N/m] and
-    adhesion [N/m] (module docstring)."""
+def akinci_coefficients(sigma: float, adhesion: float, rest_density: float, support_radius: float,
+                        curvature: float = 1.0):
+    """(gamma [m^4/(kg s^2)], gamma_k [m/s^2], beta [m^4/(kg s^2)]) for surface tension sigma [N/m],
+    adhesion [N/m] and the curvature term's weight [-] (module docstring)."""
     scale = SIGMA_PER_GAMMA * rest_density ** 2 * support_radius ** 2
     gamma = sigma / scale
-    return gamma, CURVATURE_WEIGHT * gamma * rest_density, adhesion / scale
+    return gamma, curvature * CURVATURE_WEIGHT * gamma * rest_density, adhesion / scale
 
 
 def capillary_step(rest_density: float, spacing: float, sigma: float) -> float:
@@ -82,6 +87,9 @@ class Akinci2013(Force):
         Param("akinci2013.adhesion", "float", "N/m", 0.0, "attraction of the fluid to walls and bodies, scaled like "
               "surface_tension (adhesion = surface_tension gives Akinci's beta = gamma; 0: none, no wall pass)",
               ge=0.0, le=1.0e6),
+        Param("akinci2013.curvature", "float", "-", 1.0, "weight of Akinci's curvature term (n_i - n_j): 1 = "
+              "SPlisHSPlasH's balance with cohesion, 0 = cohesion only (no normals pass); the calibration of "
+              "surface_tension holds for 1 (docs/surface_tension.md)", ge=0.0, le=100.0),
     )
 
     @classmethod
@@ -92,7 +100,7 @@ class Akinci2013(Force):
     def coefficients(self) -> tuple[float, float, float]:
         m = self.model
         return akinci_coefficients(float(self.config.surface_tension), float(self.config.adhesion), m.rest_density,
-                                   m.support_radius)
+                                   m.support_radius, float(self.config.curvature))
 
     def stages(self, slot: ForceSlot) -> list[Stage]:
         m = self.model
@@ -101,8 +109,9 @@ class Akinci2013(Force):
         # the boundary force is produced before the slot in DFSPH (search) and PBF (prediction); WCSPH's force
         # stage writes it after its slot, so there the walls' share of adhesion is not added
         with_reaction = with_adhesion and (slot.name == "after_update" or not slot.gravity_in_velocity)
-        normals = _dev.normals_kernel(m.smoothing.name, slot.neighbors)
-        force = _dev.force_kernel(with_adhesion, with_reaction, slot.neighbors)
+        with_curvature = gamma_k > 0.0
+        normals = _dev.normals_kernel(m.smoothing.name, slot.neighbors) if with_curvature else None
+        force = _dev.force_kernel(with_adhesion, with_reaction, slot.neighbors, with_curvature)
         self.sim.allocate("particle_normal", wp.vec3)
         positions, field = slot.positions, slot.acceleration
         no_force = wp.zeros(1, dtype=wp.vec3, device=m.device)
@@ -111,8 +120,10 @@ class Akinci2013(Force):
             f = sim.fields
             nb = slot.neighbor_arg(sim)
             bn = slot.boundary_neighbor_arg(sim)
-            launch(normals, m.fluid_count, [m.particle_mass, m.smoothing_length, m.support_radius, nb, f[positions],
-                                            f["particle_density"]], [f["particle_normal"]], device=m.device)
+            if with_curvature:
+                launch(normals, m.fluid_count, [m.particle_mass, m.smoothing_length, m.support_radius, nb,
+                                                f[positions], f["particle_density"]], [f["particle_normal"]],
+                       device=m.device)
             launch(force, m.fluid_count,
                    [m.particle_mass, m.rest_density, m.support_radius, gamma, gamma_k, beta, bn, m.boundary_x,
                     m.boundary_volume, nb, f[positions], f["particle_density"], f["particle_normal"]],
@@ -122,11 +133,14 @@ class Akinci2013(Force):
         if with_adhesion and not slot.lists:
             boundary += ("boundary_grid",)
         what = f"sigma = {self.config.surface_tension:g} N/m (gamma = {gamma:.4g})"
+        if with_curvature:
+            what += f", curvature weight {self.config.curvature:g} (gamma_k = {gamma_k:.4g})"
         if with_adhesion:
             what += f", adhesion = {self.config.adhesion:g} N/m (beta = {beta:.4g})"
         return [Stage("surface_tension", run, reads=(slot.neighbor_field, positions, "particle_density") + boundary,
-                      writes=("particle_normal",), updates=(field,) + (("boundary_force",) if with_reaction else ()),
-                      doc=f"Akinci 2013 normals, cohesion + curvature{' + adhesion' if with_adhesion else ''}: {what}")]
+                      writes=("particle_normal",) if with_curvature else (), updates=(field,) + (("boundary_force",) if with_reaction else ()),
+                      doc=f"Akinci 2013 {'normals, cohesion + curvature' if with_curvature else 'cohesion'}"
+                          f"{' + adhesion' if with_adhesion else ''}: {what}")]
 
     def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
         sigma = float(self.config.surface_tension)
@@ -147,5 +161,5 @@ class Akinci2013(Force):
         gamma, gamma_k, beta = self.coefficients
         m = self.model
         return {"surface_tension": float(self.config.surface_tension), "adhesion": float(self.config.adhesion),
-                "gamma": gamma, "curvature_gamma": gamma_k, "beta": beta,
+                "curvature": float(self.config.curvature), "gamma": gamma, "curvature_gamma": gamma_k, "beta": beta,
                 "time_step_bound": capillary_step(m.rest_density, m.spacing, float(self.config.surface_tension))}
