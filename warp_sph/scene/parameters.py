@@ -232,13 +232,14 @@ _TAIL = (
     # f = (1 - r^2/R^2)^5 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
     # the bulk); on a rest lattice the 0.6 level lies 1.0 r beyond the last particle layer (ripple
     # 0.007 r), splashsurf's default level. Cells of 0.5 r are splashsurf's usual cube size; the
-    # cost grows with the surface area / cell^2 (sparse narrow band). Defaults: the default dam break's
-    # USD at 28.6 MB instead of 104 MB, frame 13 as smooth as at 0.5 r (benchmarks/results/surface_*).
+    # cost grows with the surface area / cell^2 (sparse narrow band). Defaults (cells of 1.75 r, two
+    # decimation rounds): the default dam break's surface in ~1/5 of the time of 1.0 r with 40 rounds,
+    # as many triangles, equal or better pool, sphere and sheet figures (docs/benchmarks.md).
     _P("output", "table", "-", {}, "what a run writes"),
     _P("output.usd", "bool", "-", True, "write a USD stage (points, and the surface mesh if surface)"),
     _P("output.surface", "bool", "-", True, "reconstruct the fluid surface (marching cubes)"),
-    _P("output.surface_cell_per_radius", "float", "-", 1.0, "surface grid cell size / r (1.0: once "
-       "smoothed and decimated, no visible difference from 0.5 in a render, 4x cheaper)", ge=0.1, le=4.0),
+    _P("output.surface_cell_per_radius", "float", "-", 1.75, "surface grid cell size / r (1.75: as "
+       "flat and round as 1.0 once smoothed, about 5x cheaper; docs/benchmarks.md)", ge=0.1, le=4.0),
     _P("output.surface_method", "str", "-", "marching_cubes", "iso-surface extraction: marching cubes "
        "on the sparse narrow band (Warp's case table)", choices=("marching_cubes",)),
     _P("output.surface_iso", "float", "-", 0.6, "iso level of Phi = sum_j f_j/rho~_j (1 inside the "
@@ -253,6 +254,9 @@ _TAIL = (
     _P("output.surface_decimation_error", "float", "-", 0.5, "decimate the smoothed surface by edge "
        "collapses (quadric error) that keep each merged vertex within this distance of the planes of "
        "all the faces it replaces, in particle radii (0: no decimation)", ge=0.0),
+    _P("output.surface_decimation_rounds", "int", "-", 0, "most rounds of parallel edge collapses per "
+       "frame (each rebuilds the connectivity; 0: 2 rounds, or up to 40 while a triangle budget is unmet)",
+       ge=0, le=1000, default_text="auto"),
     _P("output.surface_triangle_budget", "int", "-", 0, "decimate until the surface has at most this "
        "many triangles per frame, within the error bound if one is set (0: no budget)", ge=0),
     _P("output.surface_normal_smoothing_iterations", "int", "-", 10, "one-ring averaging steps of "
