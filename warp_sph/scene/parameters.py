@@ -248,7 +248,7 @@ _TAIL = (
        "this within the kernel support are spray: written as points to /sph/spray, left out of the "
        "surface (0: no spray); at most the neighbours of a particle on a flat free surface (17 at the "
        "default support 2d), above which the whole surface would be spray", ge=0),
-    _P("output.surface_smoothing_iterations", "int", "-", 15, "feature-weighted Laplacian smoothing "
+    _P("output.surface_smoothing_iterations", "int", "-", 5, "feature-weighted Laplacian smoothing "
        "steps of the surface, volume restored after them (removes the particle-scale ridges, keeps "
        "droplets and thin sheets; 0: raw marching cubes)", ge=0, le=1000),
     _P("output.surface_decimation_error", "float", "-", 0.5, "decimate the smoothed surface by edge "

@@ -44,7 +44,7 @@ DEFAULT_ISO_LEVEL = 0.6
 #: default spray threshold: neighbours within the kernel support (``output.surface_spray_neighbors``)
 DEFAULT_SPRAY_NEIGHBORS = 5
 #: default smoothing iterations (``output.surface_smoothing_iterations``)
-DEFAULT_SMOOTHING_ITERATIONS = 15
+DEFAULT_SMOOTHING_ITERATIONS = 5
 #: default decimation error bound [r] (``output.surface_decimation_error``; 0: no decimation)
 DEFAULT_DECIMATION_ERROR = 0.5
 #: collapse rounds per frame with an error bound only (``output.surface_decimation_rounds`` = 0); each
