@@ -7,9 +7,9 @@ each frame's simulation; then, per thread count, warp-sph's surface at the scene
 ``reconstruction_pipeline`` (mesh cleanup, weighted smoothing 25, normals, normal smoothing 10; same
 iso level, kernel support and thread count) on the same frames, at warp-sph's cell size and at
 splashsurf's coarsest recommended one (1.0 r). Per frame the USD bytes of the frame (particles,
-surface, spray, as the run writes them) and the time of Warp's dense marching cubes
-(``warp.geometry.IsoSurfaceMarchingCubes``) on the same nodes as warp-sph's extraction pass
-(the dense array built untimed; docs/ARCHITECTURE.md).
+surface, spray, as the run writes them) and the times of Warp's own marching cubes (dense
+``IsoSurfaceMarchingCubes`` and ``sparse_marching_cubes_from_cells``) on the same nodes as
+warp-sph's extraction pass (their inputs built untimed; docs/ARCHITECTURE.md).
 
 Figures per record: ``ms`` and ``cpu_ms`` (mean over the frames, warm: one untimed call on frame 1
 first), the simulation's ``sim_ms`` / ``sim_cpu_ms`` per frame, the ratios to both, triangles per
@@ -58,9 +58,11 @@ def simulate_frames(radius: float, device=None, frames: int | None = None, log=p
     return sim, xs, wall, cpu
 
 
-def _dense_warp_mc_ms(grid, iso: float) -> float:
-    """Time [ms] of Warp's dense IsoSurfaceMarchingCubes on the nodes of the grid's meshed blocks
-    (the dense array, zero elsewhere, built untimed)."""
+def _warp_mc_ms(grid, iso: float) -> tuple[float, float]:
+    """Times [ms] of Warp's own marching cubes on the nodes of the grid's meshed blocks: the dense
+    ``IsoSurfaceMarchingCubes`` (the blocks' bounding box, zero elsewhere) and
+    ``sparse_marching_cubes_from_cells`` (every cell of the meshed blocks with its 8 corner values);
+    their inputs are built untimed."""
     import warp as wp
     import warp.geometry
 
@@ -73,12 +75,24 @@ def _dense_warp_mc_ms(grid, iso: float) -> float:
     for c, block in zip(coords, field):
         o = c * b - lo
         dense[o[0]:o[0] + b, o[1]:o[1] + b, o[2]:o[2] + b] = block
-    arr = wp.array(dense, dtype=float, device=grid.device)
-    wp.synchronize_device(grid.device)
-    t0 = time.perf_counter()
-    warp.geometry.IsoSurfaceMarchingCubes.extract(arr, iso)
-    wp.synchronize_device(grid.device)
-    return 1e3 * (time.perf_counter() - t0)
+    local = np.stack(np.meshgrid(*[np.arange(b)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    cells = (coords[:, None, :] * b - lo + local[None]).reshape(-1, 3)
+    cells = cells[np.all(cells < np.array(dense.shape) - 1, axis=1)]
+    offsets = np.asarray(warp.geometry.IsoSurfaceMarchingCubes.CUBE_CORNER_OFFSETS, dtype=np.int64).reshape(8, 3)
+    corners = np.stack([dense[tuple((cells + o).T)] for o in offsets], axis=1).astype(np.float32)
+    dev = grid.device
+    arr = wp.array(dense, dtype=float, device=dev)
+    cells_wp = wp.array(cells.astype(np.int32), dtype=wp.vec3i, device=dev)
+    corners_wp = wp.array(corners, dtype=float, device=dev)
+    times = []
+    for call in (lambda: warp.geometry.IsoSurfaceMarchingCubes.extract(arr, iso),
+                 lambda: warp.geometry.sparse_marching_cubes_from_cells(cells_wp, corners_wp, threshold=iso, device=dev)):
+        wp.synchronize_device(dev)
+        t0 = time.perf_counter()
+        call()
+        wp.synchronize_device(dev)
+        times.append(1e3 * (time.perf_counter() - t0))
+    return times[0], times[1]
 
 
 def _usd_bytes(sim, xs, meshes) -> int:
@@ -111,10 +125,12 @@ def time_warp_sph(sim, xs, threads: int, with_warp_mc: bool = True) -> dict:
     rec = SurfaceReconstructor(m.smoothing.name, m.smoothing_length, m.particle_radius, device=sim.device, **kw)
     old = os.environ.get("WARP_SPH_CPU_THREADS")
     os.environ["WARP_SPH_CPU_THREADS"] = str(threads)
-    wall, cpu, tris, mc_ms, meshes = [], [], [], [], []
+    wall, cpu, tris, mc_ms, sparse_ms, meshes = [], [], [], [], [], []
     stages = {s: 0.0 for s in STAGES}
     try:
         rec.reconstruct(wp.array(xs[0], dtype=wp.vec3, device=sim.device))  # compile, load, size buffers
+        if with_warp_mc:
+            _warp_mc_ms(rec.grid, rec.iso_level)  # Warp's modules too
         for x in xs:
             a = wp.array(x, dtype=wp.vec3, device=sim.device)
             wp.synchronize_device(sim.device)
@@ -128,7 +144,9 @@ def time_warp_sph(sim, xs, threads: int, with_warp_mc: bool = True) -> dict:
             # copies: on the CPU the frame's arrays view the reconstructor's reused buffers
             meshes.append((f.vertices.copy(), f.triangles.copy(), f.normals.copy(), f.spray.copy()))
             if with_warp_mc:
-                mc_ms.append(_dense_warp_mc_ms(rec.grid, rec.iso_level))
+                dense_ms, cells_ms = _warp_mc_ms(rec.grid, rec.iso_level)
+                mc_ms.append(dense_ms)
+                sparse_ms.append(cells_ms)
     finally:
         if old is None:
             os.environ.pop("WARP_SPH_CPU_THREADS", None)
@@ -143,6 +161,7 @@ def time_warp_sph(sim, xs, threads: int, with_warp_mc: bool = True) -> dict:
     out["usd_bytes_per_frame"] = out["usd_bytes"] / n
     if mc_ms:
         out["warp_dense_mc_ms"] = float(np.mean(mc_ms))
+        out["warp_sparse_mc_ms"] = float(np.mean(sparse_ms))
     return out
 
 
@@ -229,7 +248,8 @@ def run_default_run_bench(radii=(0.025,), threads=(2,), splashsurf: bool = True,
             log(f"  warp-sph / simulation per frame: {ours['sim_ratio']:.2f} wall, {ours['sim_cpu_ratio']:.2f} CPU "
                 f"(simulation {ours['sim_ms']:.0f} ms, {ours['sim_cpu_ms']:.0f} ms CPU); USD "
                 f"{ours['usd_bytes'] / 1e6:.1f} MB; extraction {ours['stage_ms']['extraction']:.1f} ms, Warp's dense "
-                f"marching cubes on the same nodes {ours.get('warp_dense_mc_ms', float('nan')):.1f} ms"
+                f"marching cubes on the same nodes {ours.get('warp_dense_mc_ms', float('nan')):.1f} ms, its "
+                f"sparse_marching_cubes_from_cells {ours.get('warp_sparse_mc_ms', float('nan')):.1f} ms"
                 + "".join(f"; / splashsurf{k.replace('ratio_to_splashsurf', '') or ''} {ours[k]:.2f} wall, "
                           f"{ours['cpu_' + k]:.2f} CPU" for k in ("ratio_to_splashsurf", "ratio_to_splashsurf_at_1r")
                           if k in ours))

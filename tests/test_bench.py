@@ -228,7 +228,7 @@ def test_surface_bench_tiny(tmp_path):
     assert set(ours) == {"raw", "pipeline", "default", "run"}
     run = ours.pop("run")  # every frame of the default run (3 here), with the simulation's time per frame
     assert run["frames"] == 3 and run["triangles"] > 0 and run["usd_bytes"] > 0 and run["sim_ms"] > 0.0
-    assert run["sim_ratio"] == pytest.approx(run["ms"] / run["sim_ms"]) and run["warp_dense_mc_ms"] > 0.0
+    assert run["sim_ratio"] == pytest.approx(run["ms"] / run["sim_ms"]) and run["warp_dense_mc_ms"] > 0.0 < run["warp_sparse_mc_ms"]
     assert run["cell_per_radius"] == pytest.approx(1.75)  # the scene default, not --cell
     for r in ours.values():
         assert r["kind"] == "surface" and r["triangles"] > 0 and r["ms"] > 0 and r["threads"] == 1
