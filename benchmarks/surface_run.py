@@ -11,6 +11,9 @@ surface, spray, as the run writes them) and the times of Warp's own marching cub
 ``IsoSurfaceMarchingCubes`` and ``sparse_marching_cubes_from_cells``) on the same nodes as
 warp-sph's extraction pass (their inputs built untimed; docs/ARCHITECTURE.md).
 
+With Newton installed, its ``ParticleSurface`` on the same frames too (``time_newton``: a cost
+reference; one launch per kernel, so one CPU thread).
+
 Figures per record: ``ms`` and ``cpu_ms`` (mean over the frames, warm: one untimed call on frame 1
 first), the simulation's ``sim_ms`` / ``sim_cpu_ms`` per frame, the ratios to both, triangles per
 frame, USD bytes of the whole run. Goal (issue 30): ms <= 0.5 x splashsurf's pipeline and
@@ -19,6 +22,7 @@ frame, USD bytes of the whole run. Goal (issue 30): ms <= 0.5 x splashsurf's pip
 from __future__ import annotations
 
 import importlib.metadata
+import importlib.util
 import json
 import os
 import subprocess
@@ -165,6 +169,34 @@ def time_warp_sph(sim, xs, threads: int, with_warp_mc: bool = True) -> dict:
     return out
 
 
+def time_newton(sim, xs, cell_per_radius: float, threads: int) -> dict:
+    """Newton's ``ParticleSurface`` (isotropic kernels of our support radius, voxels of our cell,
+    its default level 0.25, 5 mesh smoothing steps, normals) on every frame: mean wall and CPU ms,
+    triangles. Its field differs from ours (not a like-for-like mesh): a reference for the cost."""
+    import newton.geometry
+    import warp as wp
+
+    m = sim.model
+    ps = newton.geometry.ParticleSurface(cell_per_radius * m.particle_radius,
+                                         kernel_radius=m.smoothing.support_radius(m.smoothing_length),
+                                         mesh_smooth_iterations=5, device=sim.device)
+    radii = wp.full(len(xs[0]), m.particle_radius, dtype=float, device=sim.device)
+    arrays = [wp.array(x, dtype=wp.vec3, device=sim.device) for x in xs]
+    ps.extract(arrays[0], radii)  # compile, load
+    wall, cpu, tris = [], [], []
+    for a in arrays:
+        wp.synchronize_device(sim.device)
+        t0, c0 = time.perf_counter(), time.process_time()
+        mesh = ps.extract(a, radii)
+        wp.synchronize_device(sim.device)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+        tris.append(mesh.indices.size // 3)
+    return {"engine": "newton", "status": "ok", "cell_per_radius": cell_per_radius,
+            "ms": 1e3 * float(np.mean(wall)), "cpu_ms": 1e3 * float(np.mean(cpu)), "triangles": float(np.mean(tris)),
+            "version": importlib.metadata.version("newton")}
+
+
 def _splashsurf_frames_driver(args: list[str]) -> int:
     """Subprocess entry: ``_splashsurf_frames FRAMES.npz CELL``: splashsurf's full pipeline on every
     frame (one untimed call on frame 0 first); prints one JSON line. RAYON_NUM_THREADS is set by the
@@ -213,9 +245,10 @@ def time_splashsurf(sim, xs, cell: float, threads: int, log=print) -> dict:
 
 
 def run_default_run_bench(radii=(0.025,), threads=(2,), splashsurf: bool = True, device=None, frames=None,
-                          log=print) -> list[dict]:
+                          newton: bool = True, log=print) -> list[dict]:
     """Records (kind "surface", variant "run") for every radius and thread count: warp-sph's defaults
-    and splashsurf's pipeline (at warp-sph's cell and at SPLASHSURF_CELL) on every frame."""
+    and splashsurf's pipeline (at warp-sph's cell and at SPLASHSURF_CELL) on every frame, and Newton's
+    ParticleSurface when Newton is installed."""
     from .surface import splashsurf_available
 
     records = []
@@ -230,6 +263,8 @@ def run_default_run_bench(radii=(0.025,), threads=(2,), splashsurf: bool = True,
         for nthreads in threads:
             ours = {**base, "threads": nthreads, **time_warp_sph(sim, xs, nthreads)}
             found = [ours]
+            if newton and importlib.util.find_spec("newton") is not None:
+                found.append({**base, "threads": nthreads, **time_newton(sim, xs, ours["cell_per_radius"], nthreads)})
             if with_ss:
                 for cell in dict.fromkeys((ours["cell_per_radius"], SPLASHSURF_CELL)):
                     found.append({**base, "threads": nthreads, **time_splashsurf(sim, xs, cell, nthreads, log)})
