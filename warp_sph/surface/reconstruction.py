@@ -187,7 +187,7 @@ class SurfaceReconstructor:
             vertex_x = sm.smooth(vertex_x, w, conn, self.smoothing_iterations, self.smoothing_scheme, triangles)
             t = self._tick(timings, "smoothing", t)
         if self.decimation is not None and len(triangles):
-            vertex_x, triangles = self.decimation.decimate(vertex_x, triangles)
+            vertex_x, triangles = self.decimation.decimate(vertex_x, triangles, conn)
             conn = None
             t = self._tick(timings, "decimation", t)
         normals = None
