@@ -229,7 +229,7 @@ def test_surface_bench_tiny(tmp_path):
     run = ours.pop("run")  # every frame of the default run (3 here), with the simulation's time per frame
     assert run["frames"] == 3 and run["triangles"] > 0 and run["usd_bytes"] > 0 and run["sim_ms"] > 0.0
     assert run["sim_ratio"] == pytest.approx(run["ms"] / run["sim_ms"]) and run["warp_dense_mc_ms"] > 0.0 < run["warp_sparse_mc_ms"]
-    assert run["cell_per_radius"] == pytest.approx(1.75)  # the scene default, not --cell
+    assert run["cell_per_radius"] == pytest.approx(2.0)  # the scene default, not --cell
     for r in ours.values():
         assert r["kind"] == "surface" and r["triangles"] > 0 and r["ms"] > 0 and r["threads"] == 1
         assert sum(r["stage_ms"].values()) <= r["ms"] * 1.01
@@ -243,7 +243,7 @@ def test_surface_bench_tiny(tmp_path):
         assert 0.5 < ours["raw"]["triangles"] / theirs["raw"]["triangles"] < 2.0
         # the run case: splashsurf's pipeline on the same frames at the same cell and at 1.0 r
         cells = sorted(r["cell_per_radius"] for r in recs if r["engine"] == "splashsurf" and r["variant"] == "run")
-        assert cells == [1.0, 1.75] and run["ratio_to_splashsurf"] == pytest.approx(run["ms"] / run["splashsurf_ms"])
+        assert cells == [1.0, 2.0] and run["ratio_to_splashsurf"] == pytest.approx(run["ms"] / run["splashsurf_ms"])
     assert "## Surface reconstruction" in (out / "RESULTS.md").read_text()
 
 

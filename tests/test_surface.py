@@ -163,7 +163,7 @@ def test_narrow_band_gives_the_exact_mesh(device):
 @pytest.mark.parametrize("device", DEVICES)
 def test_sphere_watertight_outward_volume_curvature(device):
     points = lattice_sphere(15.0, jitter=0.1)
-    frame = reconstruct(reconstructor(device), points)  # the run's defaults: smoothed, decimated
+    frame = reconstruct(reconstructor(device), points)  # the run's defaults: cells of 2 r, smoothed
     v, t = frame.vertices, frame.triangles
     assert not frame.spray.any()
     assert is_closed_manifold(t) and len(np.unique(components(t, len(v)))) == 1

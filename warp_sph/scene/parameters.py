@@ -232,14 +232,16 @@ _TAIL = (
     # f = (1 - r^2/R^2)^5 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
     # the bulk); on a rest lattice the 0.6 level lies 1.0 r beyond the last particle layer (ripple
     # 0.007 r), splashsurf's default level. Cells of 0.5 r are splashsurf's usual cube size; the
-    # cost grows with the surface area / cell^2 (sparse narrow band). Defaults (cells of 1.75 r, two
-    # decimation rounds): the default dam break's surface in ~1/5 of the time of 1.0 r with 40 rounds,
-    # as many triangles, equal or better pool, sphere and sheet figures (docs/benchmarks.md).
+    # cost grows with the surface area / cell^2 (sparse narrow band). Defaults (cells of 2 r, 5
+    # smoothing steps, no decimation): the default dam break's surface in ~1/10 of the CPU time of
+    # 1.0 r with 15 steps and decimation to convergence, as many triangles, flatter pool and rounder
+    # sphere (docs/benchmarks.md); more steps on coarse cells grow marching cubes' "barnacles".
     _P("output", "table", "-", {}, "what a run writes"),
     _P("output.usd", "bool", "-", True, "write a USD stage (points, and the surface mesh if surface)"),
     _P("output.surface", "bool", "-", True, "reconstruct the fluid surface (marching cubes)"),
-    _P("output.surface_cell_per_radius", "float", "-", 1.75, "surface grid cell size / r (1.75: as "
-       "flat and round as 1.0 once smoothed, about 5x cheaper; docs/benchmarks.md)", ge=0.1, le=4.0),
+    _P("output.surface_cell_per_radius", "float", "-", 2.0, "surface grid cell size / r (2.0: with 5 "
+       "smoothing steps flatter and rounder than 1.0 with 15 steps and decimation, as many triangles, "
+       "about 1/10 of the cost; docs/benchmarks.md)", ge=0.1, le=4.0),
     _P("output.surface_method", "str", "-", "marching_cubes", "iso-surface extraction: marching cubes "
        "on the sparse narrow band (Warp's case table)", choices=("marching_cubes",)),
     _P("output.surface_iso", "float", "-", 0.6, "iso level of Phi = sum_j f_j/rho~_j (1 inside the "
@@ -251,9 +253,10 @@ _TAIL = (
     _P("output.surface_smoothing_iterations", "int", "-", 5, "feature-weighted Laplacian smoothing "
        "steps of the surface, volume restored after them (removes the particle-scale ridges, keeps "
        "droplets and thin sheets; 0: raw marching cubes)", ge=0, le=1000),
-    _P("output.surface_decimation_error", "float", "-", 0.5, "decimate the smoothed surface by edge "
+    _P("output.surface_decimation_error", "float", "-", 0.0, "decimate the smoothed surface by edge "
        "collapses (quadric error) that keep each merged vertex within this distance of the planes of "
-       "all the faces it replaces, in particle radii (0: no decimation)", ge=0.0),
+       "all the faces it replaces, in particle radii (0: no decimation; 0.5 with the default rounds "
+       "removes ~14 % of the triangles per round)", ge=0.0),
     _P("output.surface_decimation_rounds", "int", "-", 0, "most rounds of parallel edge collapses per "
        "frame (each rebuilds the connectivity; 0: 2 rounds, or up to 40 while a triangle budget is unmet)",
        ge=0, le=1000, default_text="auto"),

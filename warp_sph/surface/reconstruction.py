@@ -38,7 +38,7 @@ from .marching import MarchingCubes
 from .smoothing import SMOOTHING_SCHEMES, MeshSmoother, splashsurf_normalization
 
 #: default grid cell size per particle radius (scene key ``output.surface_cell_per_radius``)
-DEFAULT_CELL_PER_RADIUS = 1.75
+DEFAULT_CELL_PER_RADIUS = 2.0
 #: default iso level of Phi (scene key ``output.surface_iso``)
 DEFAULT_ISO_LEVEL = 0.6
 #: default spray threshold: neighbours within the kernel support (``output.surface_spray_neighbors``)
@@ -46,7 +46,7 @@ DEFAULT_SPRAY_NEIGHBORS = 5
 #: default smoothing iterations (``output.surface_smoothing_iterations``)
 DEFAULT_SMOOTHING_ITERATIONS = 5
 #: default decimation error bound [r] (``output.surface_decimation_error``; 0: no decimation)
-DEFAULT_DECIMATION_ERROR = 0.5
+DEFAULT_DECIMATION_ERROR = 0.0
 #: collapse rounds per frame with an error bound only (``output.surface_decimation_rounds`` = 0); each
 #: round cuts ~1/8 of the triangles and costs about a smoothing pass (docs/benchmarks.md)
 DEFAULT_DECIMATION_ROUNDS = 2
