@@ -9,7 +9,8 @@ those near thin sheets, jets and droplets (few neighbours) barely move. Host lau
 """
 import warp as wp
 
-from .surface_grid import block_local, field_kernel, row_range_near
+from .surface_grid import field_kernel
+from .surface_rows import block_local, row_range_near
 
 
 @wp.kernel(enable_backward=False)
