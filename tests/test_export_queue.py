@@ -31,7 +31,7 @@ def test_frames_queue_within_the_budget_and_the_simulation_never_waits():
     t0 = time.perf_counter()
     for f in range(1, 41):  # 40 frames behind a writer that has not written one
         worker.submit(f, 0.1 * f, snap())
-    assert time.perf_counter() - t0 < 5.0 and worker.queued == 40
+    assert time.perf_counter() - t0 < 5.0 and worker.queued == 40 and worker.blocked_seconds == 0.0
     ex.release.set()
     worker.finish()
     assert ex.frames == list(range(1, 41)) and worker.queued == 0 and worker.queued_bytes == 0
@@ -49,7 +49,7 @@ def test_submit_waits_for_a_slot_beyond_the_budget():
     ex.release.set()
     assert done.wait(10.0)
     worker.finish()
-    assert ex.frames == [1, 2, 3]
+    assert ex.frames == [1, 2, 3] and worker.blocked_seconds >= 0.5
 
 
 def test_an_export_error_reaches_the_simulation_thread():

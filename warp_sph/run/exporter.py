@@ -209,6 +209,7 @@ class ExportThread:
         self.room = threading.Condition()
         self.queued = 0  # frames submitted and not yet written
         self.queued_bytes = 0
+        self.blocked_seconds = 0.0  # time submit waited for room in the queue
         self.error: BaseException | None = None
         self.thread = threading.Thread(target=self._work, name="warp-sph-export", daemon=True)
         self.thread.start()
@@ -232,8 +233,11 @@ class ExportThread:
         self.check()
         size = snapshot_bytes(snap)
         with self.room:
-            while self.queued >= self.depth and self.queued_bytes + size > self.max_bytes and self.error is None:
-                self.room.wait()
+            if self.queued >= self.depth and self.queued_bytes + size > self.max_bytes:
+                t0 = time.perf_counter()
+                while self.queued >= self.depth and self.queued_bytes + size > self.max_bytes and self.error is None:
+                    self.room.wait()
+                self.blocked_seconds += time.perf_counter() - t0
             self.queued += 1
             self.queued_bytes += size
         self.q.put((frame, t, snap, size))

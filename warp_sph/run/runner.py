@@ -92,8 +92,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
 
     worker = ExportThread(exporter) if threaded_export else None
     checkpoint_every = int(scene.output.checkpoint_every)
-    # seconds the simulation thread spent on exports: [waiting for the export (or writing, unthreaded),
-    # draining it after the last step, copying the frame snapshots]
+    # seconds the simulation thread spent on exports: [writing them (unthreaded; threaded: the
+    # worker's waits for queue room are added), draining it after the last step, copying snapshots]
     export_wait = [0.0, 0.0, 0.0]
 
     def export(frame, t):
@@ -105,10 +105,10 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         t1 = time.perf_counter()
         export_wait[2] += t1 - t0
         if worker is not None:
-            worker.submit(frame, t, snap)
+            worker.submit(frame, t, snap)  # its waits for room in the queue: worker.blocked_seconds
         else:
             exporter.write(frame, t, snap)
-        export_wait[0] += time.perf_counter() - t1
+            export_wait[0] += time.perf_counter() - t1
 
     run_info = _run_info(scene, sim, total, frame_log, out)
     if resume_info is not None:
@@ -122,7 +122,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["wall_time"] = time.perf_counter() - t_start
         run_info["stage_times"] = sim.graph.timing_table()
         run_info["export_time"] = exporter.seconds
-        run_info["export_wait_time"] = export_wait[0]
+        run_info["export_wait_time"] = export_wait[0] + (worker.blocked_seconds if worker is not None else 0.0)
         run_info["export_tail_time"] = export_wait[1]
         run_info["export_snapshot_time"] = export_wait[2]
         run_info["export"] = exporter.report()
