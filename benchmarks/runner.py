@@ -276,9 +276,23 @@ def cmd_surface(args, argv: list[str], log=print) -> int:
     times = [float(v) for v in args.time.split(",")]
     if len(times) == 1:
         times = times * len(radii)
-    records = run_surface_bench(radii=radii, times=times, cells=[float(v) for v in args.cell.split(",")],
-                                threads=[int(v) for v in args.threads.split(",")], repeats=args.repeats,
-                                splashsurf=not args.no_splashsurf, device=args.device, log=log)
+    threads = [int(v) for v in args.threads.split(",")]
+    cases = [c.strip() for c in args.cases.split(",")]
+    bad = [c for c in cases if c not in ("frame", "run")]
+    if bad:
+        from warp_sph.core.errors import WarpSphError
+
+        raise WarpSphError(f"bench surface --cases: unknown case {bad[0]!r}; expected frame, run or both (frame,run)")
+    records = []
+    if "frame" in cases:
+        records += run_surface_bench(radii=radii, times=times, cells=[float(v) for v in args.cell.split(",")],
+                                     threads=threads, repeats=args.repeats, splashsurf=not args.no_splashsurf,
+                                     device=args.device, log=log)
+    if "run" in cases:
+        from .surface_run import run_default_run_bench
+
+        records += run_default_run_bench(radii=radii, threads=threads, splashsurf=not args.no_splashsurf,
+                                         device=args.device, frames=args.frames, log=log)
     for r in records:
         r.update(host=host_info(), versions=versions(), date=now())
     out = _save("surface", records, args, argv, now(), log)
@@ -486,6 +500,11 @@ def build_parser() -> argparse.ArgumentParser:
     u.add_argument("--threads", type=positive_ints, default="1,2", help="CPU thread counts, the same for both tools (default 1,2)")
     u.add_argument("--repeats", type=positive_int, default=5, help="timed calls per case, the median counts (default 5)")
     u.add_argument("--no-splashsurf", action="store_true", help="warp-sph only")
+    u.add_argument("--cases", default="frame,run", help="frame: one frame at --time, each --cell, warm repeats; "
+                   "run: every frame of the default run at the default settings, with the simulation's time per "
+                   "frame (default: both)")
+    u.add_argument("--frames", type=positive_int, default=None, help="frames of the run case (default: the "
+                   "scene's duration * fps + 1, as warp-sph run)")
     u.set_defaults(func=cmd_surface)
 
     b = sub.add_parser("bodies", help="a scene with moving rigid bodies against the same bodies as static obstacles: "

@@ -4,8 +4,8 @@ their cells see beyond their upper faces. Host launcher: ``warp_sph/surface/band
 """
 import warp as wp
 
-from .surface_grid import (CLASS_BAND, CLASS_INSIDE, CLASS_OUTSIDE, SPRAY, STATE_INSIDE, STATE_OUTSIDE, SURFACE,
-                           row_range)
+from .surface_grid import CLASS_BAND, CLASS_INSIDE, CLASS_OUTSIDE, SPRAY, STATE_INSIDE, STATE_OUTSIDE, SURFACE
+from .surface_rows import row_range
 
 
 @wp.kernel(enable_backward=False)

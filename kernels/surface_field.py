@@ -6,7 +6,8 @@
 """
 import warp as wp
 
-from .surface_grid import CLASS_BAND, CLASS_INSIDE, field_kernel, row_range
+from .surface_grid import CLASS_BAND, CLASS_INSIDE, field_kernel
+from .surface_rows import row_range
 
 
 @wp.kernel(enable_backward=False)

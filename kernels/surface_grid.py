@@ -23,6 +23,8 @@ particles only, so Phi does not depend on the solver's density or on walls.
 """
 import warp as wp
 
+from .surface_rows import block_local, row_range_near
+
 #: hash table slot that holds no key
 EMPTY_KEY = wp.constant(wp.int64(-1))
 #: particle flags
@@ -283,37 +285,16 @@ def gather_sorted(
     sorted_x_out[s] = particle_x[sorted_index[s]]
 
 
-@wp.func
-def row_range(
-    block_neighbor: wp.array2d(dtype=wp.int32),
-    block_start: wp.array(dtype=wp.int32),
-    block_count: wp.array(dtype=wp.int32),
-    c: int,
-    row: int,
-) -> wp.vec2i:
-    """Sorted particle range [begin, end) of the three blocks dx = -1..1 of neighbour row ``row``
-    (dy = row % 3 - 1, dz = row / 3 - 1) around block c: their keys are consecutive, so their
-    particles are contiguous."""
-    begin = int(2147483647)
-    end = int(-1)
-    for dx in range(3):
-        n = block_neighbor[c, row * 3 + dx]
-        if n >= 0:
-            cnt = block_count[n]
-            if cnt > 0:
-                st = block_start[n]
-                begin = wp.min(begin, st)
-                end = wp.max(end, st + cnt)
-    if end < 0:
-        return wp.vec2i(0, 0)
-    return wp.vec2i(begin, end)
-
-
 @wp.kernel(enable_backward=False)
 def particle_stats(
     tid_offset: int,
     # Model:
     support_radius: float,
+    # Grid:
+    grid_origin: wp.vec3,
+    cell_size: float,
+    block_nodes: int,
+    block_coord: wp.array(dtype=wp.vec3i),
     # In (sorted order):
     sorted_x: wp.array(dtype=wp.vec3),
     particle_block: wp.array(dtype=wp.int32),
@@ -334,8 +315,10 @@ def particle_stats(
     count = int(0)
     wnn = float(0.0)
     rho = float(0.0)
+    local = block_local(xi, grid_origin, cell_size, block_nodes, block_coord[c])
+    reach = support_radius / cell_size
     for row in range(9):
-        rng = row_range(block_neighbor, block_start, block_count, c, row)
+        rng = row_range_near(block_neighbor, block_start, block_count, c, row, local, reach, block_nodes)
         t = rng[0]
         while t < rng[1]:
             d = sorted_x[t] - xi

@@ -9,7 +9,8 @@ those near thin sheets, jets and droplets (few neighbours) barely move. Host lau
 """
 import warp as wp
 
-from .surface_grid import field_kernel, row_range
+from .surface_grid import field_kernel
+from .surface_rows import block_local, row_range_near
 
 
 @wp.kernel(enable_backward=False)
@@ -99,6 +100,11 @@ def feature_weights(
     # Model:
     support_radius: float,
     weighted_count_normalization: float,
+    # Grid:
+    grid_origin: wp.vec3,
+    cell_size: float,
+    block_nodes: int,
+    block_coord: wp.array(dtype=wp.vec3i),
     # In:
     vertex_x: wp.array(dtype=wp.vec3),
     vertex_block: wp.array(dtype=wp.int32),
@@ -120,8 +126,10 @@ def feature_weights(
     inv_r2max = 1.0 / r2max
     num = float(0.0)
     den = float(0.0)
+    local = block_local(xv, grid_origin, cell_size, block_nodes, block_coord[c])
+    reach = support_radius / cell_size
     for row in range(9):
-        rng = row_range(block_neighbor, block_start, block_count, c, row)
+        rng = row_range_near(block_neighbor, block_start, block_count, c, row, local, reach, block_nodes)
         t = rng[0]
         while t < rng[1]:
             d = sorted_x[t] - xv

@@ -219,24 +219,31 @@ def test_surface_bench_tiny(tmp_path):
 
     out = tmp_path / "res"
     assert main(["surface", "--radius", "0.1", "--time", "0", "--cell", "1.0", "--threads", "1", "--repeats", "1",
-                 "--out", str(out)]) == 0
+                 "--frames", "3", "--out", str(out)]) == 0
     import importlib.util
     import json
 
     recs = [json.loads(line) for line in (out / "surface.jsonl").read_text().splitlines()]
     ours = {r["variant"]: r for r in recs if r["engine"] == "warp-sph"}
-    assert set(ours) == {"raw", "pipeline", "default"}
+    assert set(ours) == {"raw", "pipeline", "default", "run"}
+    run = ours.pop("run")  # every frame of the default run (3 here), with the simulation's time per frame
+    assert run["frames"] == 3 and run["triangles"] > 0 and run["usd_bytes"] > 0 and run["sim_ms"] > 0.0
+    assert run["sim_ratio"] == pytest.approx(run["ms"] / run["sim_ms"]) and run["warp_dense_mc_ms"] > 0.0 < run["warp_sparse_mc_ms"]
+    assert run["cell_per_radius"] == pytest.approx(2.0)  # the scene default, not --cell
     for r in ours.values():
         assert r["kind"] == "surface" and r["triangles"] > 0 and r["ms"] > 0 and r["threads"] == 1
         assert sum(r["stage_ms"].values()) <= r["ms"] * 1.01
     assert ours["raw"]["stage_ms"]["smoothing"] == 0.0 and ours["pipeline"]["stage_ms"]["smoothing"] > 0.0
     assert ours["default"]["usd_write_ms"] > 0.0 and ours["default"]["usd_bytes_per_frame"] > 0
     if importlib.util.find_spec("pysplashsurf") is not None:  # measured beside, on the same particles
-        theirs = {r["variant"]: r for r in recs if r["engine"] == "splashsurf"}
+        theirs = {r["variant"]: r for r in recs if r["engine"] == "splashsurf" and r["variant"] != "run"}
         assert set(theirs) == {"raw", "pipeline"} and all(r["status"] == "ok" for r in theirs.values())
         assert ours["raw"]["splashsurf_ms"] == theirs["raw"]["ms"]
         # same cell, level and support: meshes of comparable size (marching cubes on both sides)
         assert 0.5 < ours["raw"]["triangles"] / theirs["raw"]["triangles"] < 2.0
+        # the run case: splashsurf's pipeline on the same frames at the same cell and at 1.0 r
+        cells = sorted(r["cell_per_radius"] for r in recs if r["engine"] == "splashsurf" and r["variant"] == "run")
+        assert cells == [1.0, 2.0] and run["ratio_to_splashsurf"] == pytest.approx(run["ms"] / run["splashsurf_ms"])
     assert "## Surface reconstruction" in (out / "RESULTS.md").read_text()
 
 

@@ -137,11 +137,12 @@ def test_surface_grid_of_a_large_container_is_sparse(two_gib):
     scene = small(container={"min": [0, 0, 0], "max": [100.0, 100.0, 100.0]}, output={"usd": True})
     fluid, boundary = two_gib.estimate_particle_counts(scene)
     per_cell = two_gib.SURFACE_BYTES_PER_CELL
-    assert two_gib._surface_bytes(scene, fluid) == pytest.approx(per_cell * 8 * fluid * 0.1**3 / 0.05**3)
+    cell = scene.output.surface_cell_per_radius * scene.particle_radius
+    assert two_gib._surface_bytes(scene, fluid) == pytest.approx(per_cell * 8 * fluid * 0.1**3 / cell**3)
     assert two_gib.memory_verdict(scene, fluid, boundary, "cpu", estimated=True)[0] == "warn"  # 55 %, not refused
     # the container still bounds it: a full tank's surface grid is no larger than the tank
     full = small(fluid=[{"min": [0, 0, 0], "max": [1.0, 0.5, 1.0]}], output={"usd": True})
-    assert two_gib._surface_bytes(full, 10**6) == pytest.approx(per_cell * 0.5 / 0.05**3, abs=1)
+    assert two_gib._surface_bytes(full, 10**6) == pytest.approx(per_cell * 0.5 / cell**3, abs=1)
 
 
 def test_huge_obstacle_blamed_on_the_obstacle(tmp_path):

@@ -74,8 +74,8 @@ def test_defaults_resolved(tmp_path):
     assert s.time.cfl == 0.4 and s.time.dt_max == 5e-3 and s.time.fixed_dt == 0.0
     assert s.container.max == (4.0, 1.5, 3.0)
     assert s.output.usd is True and s.output.particle_primvars == ["density"]
-    assert s.output.surface_cell_per_radius == 1.0 and s.output.surface_iso == 0.6
-    assert s.output.surface_spray_neighbors == 5 and s.output.surface_decimation_error == 0.5
+    assert s.output.surface_cell_per_radius == 2.0 and s.output.surface_iso == 0.6
+    assert s.output.surface_spray_neighbors == 5 and s.output.surface_decimation_error == 0.0
     assert s.fluid[0].shape == "box" and s.fluid[0].velocity == (0.0, 0.0, 0.0)
     assert s.fluid[0].spacing_scale == 1.0
     assert s.obstacles == []

@@ -85,7 +85,7 @@ def test_particle_statistics_and_field_match_numpy():
     local = np.stack(np.meshgrid(*[np.arange(b)] * 3, indexing="ij"), -1).reshape(-1, 3)
     nodes = (coords[:, None, :] * b + local[None]).reshape(-1, 3)
     values = field.reshape(-1, b**3)[: grid.meshed_count][band].reshape(-1)
-    pick = np.random.default_rng(0).choice(len(nodes), 3000, replace=False)
+    pick = np.random.default_rng(0).choice(len(nodes), min(3000, len(nodes)), replace=False)
     x = grid.grid_origin + nodes[pick] * grid.cell_size
     keep = ~spray
     oracle = (field_kernel(((x[:, None, :] - points[None, keep]) ** 2).sum(-1)) / rho[keep][None, :]).sum(1)
@@ -160,7 +160,7 @@ def test_narrow_band_gives_the_exact_mesh(device):
 # -- quality as numbers -----------------------------------------------------------------------------
 def test_sphere_watertight_outward_volume_curvature(device):
     points = lattice_sphere(15.0, jitter=0.1)
-    frame = reconstruct(reconstructor(device), points)  # the run's defaults: smoothed, decimated
+    frame = reconstruct(reconstructor(device), points)  # the run's defaults: cells of 2 r, smoothed
     v, t = frame.vertices, frame.triangles
     assert not frame.spray.any()
     assert is_closed_manifold(t) and len(np.unique(components(t, len(v)))) == 1
@@ -236,11 +236,12 @@ def test_lone_particle_becomes_spray_not_mesh():
 
 def test_decimation_budget_and_error_bound():
     points = lattice_sphere(12.0, jitter=0.1)
-    full = reconstruct(reconstructor(decimation=None), points)
+    cell = dict(cell_size=RADIUS)  # fine cells: many edges far below the 0.1 r bound
+    full = reconstruct(reconstructor(decimation=None, **cell), points)
     budget = len(full.triangles) // 4
-    cut = reconstruct(reconstructor(decimation=Decimator(triangle_budget=budget, length_scale=RADIUS)), points)
+    cut = reconstruct(reconstructor(decimation=Decimator(triangle_budget=budget, length_scale=RADIUS), **cell), points)
     assert 0.7 * budget < len(cut.triangles) <= budget and is_closed_manifold(cut.triangles)
-    bound = reconstruct(reconstructor(decimation=Decimator(max_error=0.1 * RADIUS)), points)
+    bound = reconstruct(reconstructor(decimation=Decimator(max_error=0.1 * RADIUS), **cell), points)
     assert len(bound.triangles) < 0.6 * len(full.triangles) and is_closed_manifold(bound.triangles)
     # merged vertices stay within the bound of the planes they replace, so near the smoothed surface
     dist = distance_to_mesh(bound.vertices, full.vertices, full.triangles, reach=2.0 * RADIUS)

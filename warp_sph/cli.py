@@ -73,7 +73,9 @@ def print_summary(info: dict) -> None:
           f"{info['sim_time_per_step_ms']:.2f} ms per simulation step")
     if info.get("threaded_export", True):
         print(f"export: {info['export_time']:.1f} s on a background thread while simulating; the simulation "
-              f"waited {info.get('export_wait_time', 0.0):.1f} s of it")
+              f"waited {info.get('export_wait_time', 0.0):.1f} s of it"
+              + (f", and it ended {info['export_tail_time']:.1f} s after the last step" if "export_tail_time" in info
+                 else ""))
     else:
         print(f"export: {info['export_time']:.1f} s")
     print(f"output: {out}" + (f"  (Blender: File > Import > USD, {usd[0].name})" if usd else ""))

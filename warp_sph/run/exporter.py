@@ -1,6 +1,7 @@
 """A run's outputs for each frame: ``Exporter`` writes frames/*.npz, the USD time samples, the surface
 mesh sequence and the checkpoints from a snapshot taken on the simulation thread; ``ExportThread``
-runs it on a background thread, at most two frames behind (see ``runner.py``).
+runs it on a background thread, behind the simulation by as many frames as ``SNAPSHOT_QUEUE_BYTES``
+of snapshots hold (see ``runner.py``).
 """
 from __future__ import annotations
 
@@ -183,12 +184,32 @@ def world_float32_error(sim: Simulation) -> float:
     return float(np.abs(corners).max()) * 2.0**-24
 
 
-class ExportThread:
-    """Runs Exporter.write on a worker thread, at most ``depth`` frames behind; re-raises its errors."""
+#: device memory the queued frame snapshots may hold [bytes]: the simulation goes on while the export
+#: runs behind (default dam break: ~0.25 MB a frame, so it never waits) and the export catches up after
+#: the last step; at the limit the simulation waits for a slot
+SNAPSHOT_QUEUE_BYTES = 1 << 30
 
-    def __init__(self, exporter: Exporter, depth: int = 2):
+
+def snapshot_bytes(snap: dict) -> int:
+    """Bytes of the device arrays in a frame snapshot."""
+    return sum(int(a.capacity) for a in snap.values() if isinstance(a, wp.array))
+
+
+class ExportThread:
+    """Runs Exporter.write on a worker thread, in frame order; re-raises its errors. Frames queue up
+    while their snapshots hold at most ``max_bytes`` (always at least ``depth`` frames); ``submit``
+    blocks only beyond that. Each frame's outputs depend on its snapshot alone, so the queue depth
+    changes when they are written, never what."""
+
+    def __init__(self, exporter: Exporter, depth: int = 2, max_bytes: int = SNAPSHOT_QUEUE_BYTES):
         self.exporter = exporter
-        self.q: queue.Queue = queue.Queue(maxsize=depth)
+        self.depth = int(depth)
+        self.max_bytes = int(max_bytes)
+        self.q: queue.Queue = queue.Queue()
+        self.room = threading.Condition()
+        self.queued = 0  # frames submitted and not yet written
+        self.queued_bytes = 0
+        self.blocked_seconds = 0.0  # time submit waited for room in the queue
         self.error: BaseException | None = None
         self.thread = threading.Thread(target=self._work, name="warp-sph-export", daemon=True)
         self.thread.start()
@@ -200,13 +221,26 @@ class ExportThread:
                 return
             if self.error is None:
                 try:
-                    self.exporter.write(*item)
+                    self.exporter.write(*item[:3])
                 except BaseException as e:  # reported on the simulation thread
                     self.error = e
+            with self.room:
+                self.queued -= 1
+                self.queued_bytes -= item[3]
+                self.room.notify_all()
 
     def submit(self, frame, t, snap):
         self.check()
-        self.q.put((frame, t, snap))
+        size = snapshot_bytes(snap)
+        with self.room:
+            if self.queued >= self.depth and self.queued_bytes + size > self.max_bytes:
+                t0 = time.perf_counter()
+                while self.queued >= self.depth and self.queued_bytes + size > self.max_bytes and self.error is None:
+                    self.room.wait()
+                self.blocked_seconds += time.perf_counter() - t0
+            self.queued += 1
+            self.queued_bytes += size
+        self.q.put((frame, t, snap, size))
 
     def check(self):
         if self.error is not None:

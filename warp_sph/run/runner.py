@@ -92,7 +92,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
 
     worker = ExportThread(exporter) if threaded_export else None
     checkpoint_every = int(scene.output.checkpoint_every)
-    export_wait = [0.0]  # seconds the simulation thread spent on exports (snapshot, queue, drain)
+    # seconds the simulation thread spent on exports: [writing them (unthreaded; threaded: the
+    # worker's waits for queue room are added), draining it after the last step, copying snapshots]
+    export_wait = [0.0, 0.0, 0.0]
 
     def export(frame, t):
         t0 = time.perf_counter()
@@ -100,11 +102,13 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         if checkpoint_every > 0 and ((frame - 1) % checkpoint_every == 0 or frame == total):
             checkpoint = checkpoint_info(sim, frame, frame_log, digest)
         snap = exporter.snapshot(checkpoint)
+        t1 = time.perf_counter()
+        export_wait[2] += t1 - t0
         if worker is not None:
-            worker.submit(frame, t, snap)
+            worker.submit(frame, t, snap)  # its waits for room in the queue: worker.blocked_seconds
         else:
             exporter.write(frame, t, snap)
-        export_wait[0] += time.perf_counter() - t0
+            export_wait[0] += time.perf_counter() - t1
 
     run_info = _run_info(scene, sim, total, frame_log, out)
     if resume_info is not None:
@@ -118,7 +122,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["wall_time"] = time.perf_counter() - t_start
         run_info["stage_times"] = sim.graph.timing_table()
         run_info["export_time"] = exporter.seconds
-        run_info["export_wait_time"] = export_wait[0]
+        run_info["export_wait_time"] = export_wait[0] + (worker.blocked_seconds if worker is not None else 0.0)
+        run_info["export_tail_time"] = export_wait[1]
+        run_info["export_snapshot_time"] = export_wait[2]
         run_info["export"] = exporter.report()
         run_info["threaded_export"] = worker is not None
         _step_times(run_info)
@@ -300,7 +306,7 @@ def _step_times(run_info: dict) -> None:
 
 
 def _close_outputs(worker: ExportThread | None, exporter: Exporter, export_wait: list[float]) -> list[BaseException]:
-    """Drain the export thread (its wait added to ``export_wait[0]``) and close the exporter; the errors
+    """Drain the export thread (its wait added to ``export_wait[1]``) and close the exporter; the errors
     either raised (an export error such as a full disk is re-raised by the thread), in order."""
     errors: list[BaseException] = []
     if worker is not None:
@@ -309,7 +315,7 @@ def _close_outputs(worker: ExportThread | None, exporter: Exporter, export_wait:
             worker.finish()  # re-raises an export error (disk full, ...)
         except BaseException as exc:
             errors.append(exc)
-        export_wait[0] += time.perf_counter() - t0
+        export_wait[1] += time.perf_counter() - t0
     try:
         exporter.close()
     except BaseException as exc:

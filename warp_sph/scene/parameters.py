@@ -232,13 +232,16 @@ _TAIL = (
     # f = (1 - r^2/R^2)^5 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
     # the bulk); on a rest lattice the 0.6 level lies 1.0 r beyond the last particle layer (ripple
     # 0.007 r), splashsurf's default level. Cells of 0.5 r are splashsurf's usual cube size; the
-    # cost grows with the surface area / cell^2 (sparse narrow band). Defaults: the default dam break's
-    # USD at 28.6 MB instead of 104 MB, frame 13 as smooth as at 0.5 r (benchmarks/results/surface_*).
+    # cost grows with the surface area / cell^2 (sparse narrow band). Defaults (cells of 2 r, 5
+    # smoothing steps, no decimation): the default dam break's surface in ~1/10 of the CPU time of
+    # 1.0 r with 15 steps and decimation to convergence, as many triangles, flatter pool and rounder
+    # sphere (docs/benchmarks.md); more steps on coarse cells grow marching cubes' "barnacles".
     _P("output", "table", "-", {}, "what a run writes"),
     _P("output.usd", "bool", "-", True, "write a USD stage (points, and the surface mesh if surface)"),
     _P("output.surface", "bool", "-", True, "reconstruct the fluid surface (marching cubes)"),
-    _P("output.surface_cell_per_radius", "float", "-", 1.0, "surface grid cell size / r (1.0: once "
-       "smoothed and decimated, no visible difference from 0.5 in a render, 4x cheaper)", ge=0.1, le=4.0),
+    _P("output.surface_cell_per_radius", "float", "-", 2.0, "surface grid cell size / r (2.0: with 5 "
+       "smoothing steps flatter and rounder than 1.0 with 15 steps and decimation, as many triangles, "
+       "about 1/10 of the cost; docs/benchmarks.md)", ge=0.1, le=4.0),
     _P("output.surface_method", "str", "-", "marching_cubes", "iso-surface extraction: marching cubes "
        "on the sparse narrow band (Warp's case table)", choices=("marching_cubes",)),
     _P("output.surface_iso", "float", "-", 0.6, "iso level of Phi = sum_j f_j/rho~_j (1 inside the "
@@ -247,12 +250,16 @@ _TAIL = (
        "this within the kernel support are spray: written as points to /sph/spray, left out of the "
        "surface (0: no spray); at most the neighbours of a particle on a flat free surface (17 at the "
        "default support 2d), above which the whole surface would be spray", ge=0),
-    _P("output.surface_smoothing_iterations", "int", "-", 15, "feature-weighted Laplacian smoothing "
+    _P("output.surface_smoothing_iterations", "int", "-", 5, "feature-weighted Laplacian smoothing "
        "steps of the surface, volume restored after them (removes the particle-scale ridges, keeps "
        "droplets and thin sheets; 0: raw marching cubes)", ge=0, le=1000),
-    _P("output.surface_decimation_error", "float", "-", 0.5, "decimate the smoothed surface by edge "
+    _P("output.surface_decimation_error", "float", "-", 0.0, "decimate the smoothed surface by edge "
        "collapses (quadric error) that keep each merged vertex within this distance of the planes of "
-       "all the faces it replaces, in particle radii (0: no decimation)", ge=0.0),
+       "all the faces it replaces, in particle radii (0: no decimation; 0.5 with the default rounds "
+       "removes ~14 % of the triangles per round)", ge=0.0),
+    _P("output.surface_decimation_rounds", "int", "-", 0, "most rounds of parallel edge collapses per "
+       "frame (each rebuilds the connectivity; 0: 2 rounds, or up to 40 while a triangle budget is unmet)",
+       ge=0, le=1000, default_text="auto"),
     _P("output.surface_triangle_budget", "int", "-", 0, "decimate until the surface has at most this "
        "many triangles per frame, within the error bound if one is set (0: no budget)", ge=0),
     _P("output.surface_normal_smoothing_iterations", "int", "-", 10, "one-ring averaging steps of "

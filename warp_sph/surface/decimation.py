@@ -65,8 +65,10 @@ class Decimator:
         self._buf: ArrayPool | None = None  # on the device of the first call
         self._conn: MeshConnectivity | None = None
 
-    def decimate(self, vertex_x: wp.array, triangles: wp.array) -> tuple[wp.array, wp.array]:
-        """Decimated (vertices (V',) vec3 [m], triangles (T',) vec3i); the inputs are not changed."""
+    def decimate(self, vertex_x: wp.array, triangles: wp.array, connectivity: MeshConnectivity | None = None
+                 ) -> tuple[wp.array, wp.array]:
+        """Decimated (vertices (V',) vec3 [m], triangles (T',) vec3i); the inputs are not changed.
+        connectivity: that of (vertex_x, triangles) if the caller has it (saves the first build)."""
         dev = wp.get_device(self.device if self.device is not None else vertex_x.device)
         if self.device is None or self._conn is None:
             self.device = dev
@@ -94,7 +96,7 @@ class Decimator:
         alive_scan = self._buf.get("ascan", nt, wp.int32)
         max_cost = self.max_error**2 if self.max_error > 0.0 else float(np.finfo(np.float32).max)
         cost_scale = max_cost / 64.0 if self.max_error > 0.0 else (1e-3 * self.length_scale) ** 2
-        conn = self._conn.build(nv, tris)
+        conn = connectivity if connectivity is not None else self._conn.build(nv, tris)
         launch(_dev.vertex_quadrics, nv, [x, tris, conn.face_start, conn.face_count, conn.faces], [quadric],
                device=dev, min_range=_RANGE)
         self.rounds = 0
@@ -128,8 +130,8 @@ class Decimator:
             n_alive = drop_degenerate(tris, vmap, vindex, alive, alive_scan, tris_b, dev)
             tris, tris_b = tris_b[:n_alive], tris
             nt = n_alive
-            if last:
-                break
+            if last or self.rounds >= self.max_rounds or (self.triangle_budget and nt <= self.triangle_budget):
+                break  # no connectivity for a round that will not run
             conn = self._conn.build(nv, tris)
         # drop the vertices collapses removed, renumber the triangles
         return drop_merged_vertices(x, tris, vmap, vindex, self._buf, dev)

@@ -199,8 +199,9 @@ class SparseGrid:
         self.neighbor_count = self._buf.get("ncount", n, wp.int32)
         self.weighted_count = self._buf.get("wcount", n, float)
         self.kernel_sum = self._buf.get("ksum", n, float)
-        launch(_dev.particle_stats, n, [self.support_radius, self.sorted_x, self.particle_block, self.block_neighbor,
-                                self.block_start, self.block_count],
+        launch(_dev.particle_stats, n, [self.support_radius, wp.vec3(*self.grid_origin), self.cell_size, self.block_nodes,
+                                        self.block_coord, self.sorted_x, self.particle_block, self.block_neighbor,
+                                        self.block_start, self.block_count],
                [self.neighbor_count, self.weighted_count, self.kernel_sum], device=dev)
         self.particle_flag = self._buf.get("pflag", n, wp.int32)
         self.inv_kernel_sum = self._buf.get("invk", n, float)

@@ -84,7 +84,8 @@ class MeshSmoother:
         """w in [0, 1] per vertex (1: bulk fluid, smoothed fully; 0: droplets and thin features)."""
         n = len(vertex_x)
         w = self._buf.get("w", n, float)
-        launch(_dev.feature_weights, n, [self.support_radius, self.normalization, vertex_x, vertex_block,
+        launch(_dev.feature_weights, n, [self.support_radius, self.normalization, wp.vec3(*grid.grid_origin),
+                                         grid.cell_size, grid.block_nodes, grid.block_coord, vertex_x, vertex_block,
                                   grid.block_neighbor, grid.block_start, grid.block_count, grid.sorted_x,
                                   grid.weighted_count, grid.inv_kernel_sum], [w], device=self.device)
         return w[:n]

@@ -1,0 +1,70 @@
+"""The export thread's snapshot queue: the simulation never waits while the queued snapshots fit in
+the byte budget, waits for a slot beyond it, and the frames are written in order."""
+import threading
+import time
+
+import numpy as np
+import warp as wp
+
+from warp_sph.run.exporter import ExportThread, snapshot_bytes
+
+
+class SlowExporter:
+    """Writes nothing until ``release`` is set; records the order of the frames."""
+
+    def __init__(self):
+        self.release = threading.Event()
+        self.frames = []
+
+    def write(self, frame, t, snap):
+        self.release.wait(timeout=30)
+        self.frames.append(frame)
+
+
+def snap(n=1000):
+    return {"x": wp.zeros(n, dtype=wp.vec3, device="cpu"), "checkpoint": {"step": 1}}
+
+
+def test_frames_queue_within_the_budget_and_the_simulation_never_waits():
+    ex = SlowExporter()
+    worker = ExportThread(ex, depth=2, max_bytes=64 * snapshot_bytes(snap()))
+    t0 = time.perf_counter()
+    for f in range(1, 41):  # 40 frames behind a writer that has not written one
+        worker.submit(f, 0.1 * f, snap())
+    assert time.perf_counter() - t0 < 5.0 and worker.queued == 40 and worker.blocked_seconds == 0.0
+    ex.release.set()
+    worker.finish()
+    assert ex.frames == list(range(1, 41)) and worker.queued == 0 and worker.queued_bytes == 0
+
+
+def test_submit_waits_for_a_slot_beyond_the_budget():
+    ex = SlowExporter()
+    assert snapshot_bytes(snap()) == 1000 * 12
+    worker = ExportThread(ex, depth=2, max_bytes=2 * snapshot_bytes(snap()))
+    worker.submit(1, 0.0, snap())
+    worker.submit(2, 0.0, snap())
+    done = threading.Event()
+    threading.Thread(target=lambda: (worker.submit(3, 0.0, snap()), done.set()), daemon=True).start()
+    assert not done.wait(0.5)  # the third frame would exceed the budget: it waits
+    ex.release.set()
+    assert done.wait(10.0)
+    worker.finish()
+    assert ex.frames == [1, 2, 3] and worker.blocked_seconds >= 0.5
+
+
+def test_an_export_error_reaches_the_simulation_thread():
+    class Failing:
+        def write(self, frame, t, snap):
+            raise OSError("disk full")
+
+    worker = ExportThread(Failing(), depth=1, max_bytes=1)
+    worker.submit(1, 0.0, snap())
+    try:
+        for f in range(2, 50):  # a waiting submit wakes up and raises instead of hanging
+            worker.submit(f, 0.0, snap())
+            time.sleep(0.01)
+        worker.finish()
+    except OSError as e:
+        assert "disk full" in str(e)
+    else:
+        raise AssertionError("the export error was not raised")
