@@ -190,6 +190,16 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
     body_x = np.asarray(getattr(sampled, "body_x", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
     v_ref, c_s, v_source = _speed_of_sound(scene, fluid_x, fluid_v, lo, getattr(sampled, "fluid_block", None),
                                            body_x)
+    colliders = list(getattr(sampled, "colliders", []))
+    if colliders:  # animated obstacles: moving particles after the bodies'; their top speed counts in v_ref
+        from ..rigid.colliders import max_path_speed
+
+        v_col = max_path_speed(colliders, 0.0, float(scene.duration))
+        if v_col > v_ref:
+            v_ref, v_source = v_col, "the animated obstacles' top speed"
+            c_s = _speed_of_sound(scene, fluid_x, np.full((1, 3), v_col / math.sqrt(3.0), np.float32), lo,
+                                  None, body_x)[1]
+        body_x = np.concatenate([body_x, np.asarray(sampled.collider_x, np.float64).reshape(-1, 3)])
 
     static_count = len(boundary_x)
     boundary_method = scene.boundary if static_count + len(body_x) else "none"
@@ -206,7 +216,7 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
     particle_friction = None
     max_friction = -1.0
     if len(body_x):  # moving bodies after the static particles; their volumes from their own samples
-        samples = sampled.body_samples
+        samples = list(sampled.body_samples) + [c.samples for c in colliders]
         bx = wp.array(np.concatenate([bx.numpy(), (body_x - origin).astype(np.float32)]), dtype=wp.vec3, device=device)
         bvol = wp.array(np.concatenate([bvol.numpy()] + [s.volume for s in samples]).astype(np.float32), dtype=float,
                         device=device)
@@ -217,6 +227,7 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         boundary_x = np.concatenate([boundary_x, body_x])
         sigma0 = float(scene.material.boundary_friction)
         sigmas = [sigma0 if b.fluid_friction is None else float(b.fluid_friction) for b in scene.bodies]
+        sigmas += [sigma0] * len(colliders)
         max_friction = max([sigma0] + sigmas)
         if any(s != sigma0 for s in sigmas):  # a body with its own friction: sigma per particle
             particle_friction = wp.array(np.concatenate([np.full(static_count, sigma0, np.float32)] + [
