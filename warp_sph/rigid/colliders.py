@@ -234,6 +234,16 @@ class SimulationColliders:
         R, T, _, _ = self.poses(self.time)
         return {name: (T[k], matrix_quaternion(R[k])) for k, name in enumerate(self.names)}
 
+    def checkpoint_arrays(self) -> dict:
+        """What a resume needs beyond the time: the work done so far [J]."""
+        return {"collider_work": self.work.numpy().copy()}
+
+    def restore_arrays(self, arrays) -> None:
+        """Restore ``checkpoint_arrays`` and place the particles at the state's time."""
+        if "collider_work" in arrays:
+            self.work.assign(np.asarray(arrays["collider_work"], dtype=np.float64).reshape(1))
+        self.place(self.sim.state.time)
+
     def save(self) -> tuple:
         return (self.time, self.work_done())
 
