@@ -267,3 +267,31 @@ def test_blender_plays_a_simulated_run_with_bodies(tmp_path):
             np.testing.assert_allclose(matrix[:3, 3], pose["position"], atol=2e-6)
         moved = max(moved, abs(frames[-1]["bodies"][name]["position"][2] - frames[0]["bodies"][name]["position"][2]))
     assert moved > 0.01  # the bodies fell: the check followed real motion
+
+
+def test_blender_plays_the_animated_paddle(tmp_path):
+    """The paddle scene (an obstacle moving along TOML keyframes): Blender's 'paddle' object follows the
+    path's pose at every frame's time (x = R(t) x_local + T(t); the mesh is in the paddle's frame)."""
+    from warp_sph.run import runner
+    from warp_sph.scene import load_scene
+
+    scene = load_scene("paddle", {"output.surface": False, "output.checkpoint_every": 0, "particle_radius": 0.025})
+    out = tmp_path / "run"
+    frames = 4
+    runner.run(scene, out=out, device="cpu", frames=frames, progress=False, log=lambda *a: None)
+    proc = subprocess.run([BLENDER_PYTHON, "-c", BODY_PROBE, str(out / "paddle.usdc")], capture_output=True,
+                          text=True, timeout=300)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("PROBE-JSON ")]
+    assert proc.returncode == 0 and lines, proc.stdout[-2000:] + proc.stderr[-2000:]
+    ob = json.loads(lines[-1][len("PROBE-JSON "):])["paddle"]
+    assert ob["type"] == "MESH" and ob["parent"] == "bodies" and ob["constraints"] == ["TRANSFORM_CACHE"]
+    path = scene.obstacles[0].path
+    for f in range(1, frames + 1):
+        R, T = path.pose((f - 1) / scene.fps)
+        matrix = np.asarray(ob["frames"][str(f)]["matrix_world"])
+        # 5e-5: the orient op is a float quaternion, and its angle 2 acos(w) loses digits near w = 1 (frame 2
+        # turns 0.16 deg: float w = 0.99999905 +- 6e-8 gives the angle to 4e-5 rad); translate is a double
+        np.testing.assert_allclose(matrix[:3, :3], R, atol=5e-5)
+        np.testing.assert_allclose(matrix[:3, 3], T, atol=2e-6)
+        assert ob["frames"][str(f)]["verts"] == 8
+    assert np.asarray(ob["frames"][str(frames)]["matrix_world"])[0, 3] > path.pose(0.0)[1][0] + 0.01  # it moved
