@@ -247,6 +247,8 @@ def _static_usd(path: Path) -> None:
     ({"animation": {"file": "nowhere.usda", "prim": "/paddle"}}, "obstacles[0].animation.file: USD file"),
     ({"animation": {"file": "still.usda", "prim": "/paddle"}}, "prim '/paddle' does not exist"),
     ({"animation": {"file": "still.usda", "prim": "/still"}}, "is not animated: its transform has no time samples"),
+    ({"animation": {"file": "still.usda", "prim": "/still"}, "keyframes": PUSH}, "give keyframes or animation, not both"),
+    ({"keyframes": PUSH, "name": "2fast"}, "obstacles[0].name: expected letters, digits and '_'"),
 ])
 def test_bad_paths_are_one_line_errors_before_any_kernel(tmp_path, change, message):
     _static_usd(tmp_path / "still.usda")
@@ -285,3 +287,10 @@ def _toml(d: dict) -> str:
             for block in v:
                 lines += [f"[[{k}]]"] + [f"{a} = {value(b)}" for a, b in block.items()]
     return "\n".join(lines) + "\n"
+
+
+def test_two_animated_obstacles_need_distinct_names():
+    d = tank(keyframes=PUSH[:1])
+    d["obstacles"].append(dict(d["obstacles"][0]))
+    with pytest.raises(SceneError, match=r"obstacles\[1\]\.name: 'pusher' is already the name of obstacles\[0\]"):
+        scene_from_dict(d)

@@ -317,6 +317,15 @@ class Validator:
                 if np.any(hi < np.asarray(c.min)) or np.any(lo > np.asarray(c.max)):
                     self.fail(f"obstacles[{i}]", f"lies entirely outside the container {list(c.min)}..{list(c.max)} "
                               f"(its bounds {lo.round(6).tolist()}..{hi.round(6).tolist()}); move it inside or remove it")
+        moving = [(f"bodies[{i}].name", b.name or f"body{i}") for i, b in enumerate(scene.bodies)]
+        moving += [(f"obstacles[{i}].name", ob.name or f"obstacle{i}") for i, ob in enumerate(scene.obstacles)
+                   if ob.animated]
+        seen: dict[str, str] = {}
+        for key, name in moving:  # one USD prim /sph/bodies/<name> and one run.json entry each
+            if name in seen:
+                self.fail(key, f"{name!r} is already the name of {seen[name].rsplit('.', 1)[0]}; moving bodies and "
+                          "animated obstacles need distinct names")
+            seen[name] = key
         solver = registry.solver(scene.solver)
         boundary = registry.boundary(scene.boundary)
         refusal = solver.refuses_boundary(boundary)
