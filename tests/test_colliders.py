@@ -95,24 +95,30 @@ STIR = [{"time": 0.0, "translate": [0.05, 0.08, 0.15]}, {"time": 0.15, "translat
         {"time": 0.3, "translate": [0.05, 0.08, 0.15]}]
 
 
-def test_pusher_at_the_step_speed_limit_lets_no_particle_through():
-    """A wall across the whole tank pushed at 1.25 m/s (linear: full speed from the first substep) into
-    the fluid: the step bound counts its speed (it moves at most cfl d per substep) and at every substep
-    every fluid particle stays ahead of its front face."""
-    sim = Simulation(scene_from_dict(tank(keyframes=PUSH, interpolation="linear")))
+@pytest.mark.parametrize("boundary", ["akinci2012", "penalty"])
+def test_pusher_at_the_step_speed_limit_lets_no_particle_through(boundary):
+    """A wall across the whole tank, at rest for the first frame, then pushed at 4 m/s (linear: full speed
+    at once) into the resting fluid: the step bound counts its speed before the fluid has any (it moves at
+    most cfl d per substep; sized from the fluid's speed alone the step would stay at dt_max, 0.4 d per
+    substep = 0.5 d at this speed) and at every substep every fluid particle stays ahead of its front face,
+    with either boundary method."""
+    keys = [{"time": 0.0, "translate": [0.05, 0.08, 0.15]}, {"time": 1 / FPS, "translate": [0.05, 0.08, 0.15]},
+            {"time": 1 / FPS + 0.05, "translate": [0.25, 0.08, 0.15]}]
+    sim = Simulation(scene_from_dict({**tank(keyframes=keys, interpolation="linear"), "boundary": boundary}))
     from warp_sph.core.step_graph import Stage
 
     seen = []
 
     def track(sim, dt):
         x = sim.get_field("particle_x")[:, 0]
-        face = sim.colliders.poses(sim.state.time + dt)[1][0, 0] + 0.04
-        seen.append((x.min() - face, 1.25 * dt))
+        start, face = (sim.colliders.poses(t)[1][0, 0] + 0.04 for t in (sim.state.time, sim.state.time + dt))
+        seen.append((x.min() - face, face - start, (face - start) / dt))
 
     sim.graph.insert(Stage("track", track, reads=("particle_x",)), after="colliders")
     for _ in range(4):
         sim.advance_frame()
-    gap, move = np.array(seen).T
+    gap, move, speed = np.array(seen).T
+    assert speed.max() == pytest.approx(4.0)  # it went at full speed
     assert move.max() <= sim.scene.time.cfl * sim.model.spacing * (1 + 1e-6)  # the step bound saw the wall
     assert gap.min() > 0.0, gap.min()
     assert sim.colliders.work_done() > 0.0  # it pushed
