@@ -298,5 +298,5 @@ def _toml(d: dict) -> str:
 def test_two_animated_obstacles_need_distinct_names():
     d = tank(keyframes=PUSH[:1])
     d["obstacles"].append(dict(d["obstacles"][0]))
-    with pytest.raises(SceneError, match=r"obstacles\[1\]\.name: 'pusher' is already the name of obstacles\[0\]"):
+    with pytest.raises(SceneError, match=r"obstacles\[1\]\.name: 'pusher' is also the name of obstacles\[0\]"):
         scene_from_dict(d)

@@ -322,10 +322,10 @@ class Validator:
                    if ob.animated]
         seen: dict[str, str] = {}
         for key, name in moving:  # one USD prim /sph/bodies/<name> and one run.json entry each
-            if name in seen:
-                self.fail(key, f"{name!r} is already the name of {seen[name].rsplit('.', 1)[0]}; moving bodies and "
-                          "animated obstacles need distinct names")
-            seen[name] = key
+            if name in seen and (key.startswith("obstacles") or seen[name].startswith("obstacles")):
+                self.fail(key, f"{name!r} is also the name of {seen[name].rsplit('.', 1)[0]}; moving bodies and "
+                          "animated obstacles need distinct names")  # two bodies: rigid.checks says so
+            seen.setdefault(name, key)
         solver = registry.solver(scene.solver)
         boundary = registry.boundary(scene.boundary)
         refusal = solver.refuses_boundary(boundary)
