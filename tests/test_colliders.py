@@ -119,6 +119,9 @@ def test_pusher_at_the_step_speed_limit_lets_no_particle_through(boundary):
         sim.advance_frame()
     gap, move, speed = np.array(seen).T
     assert speed.max() == pytest.approx(4.0)  # it went at full speed
+    # its top speed is the scene's reference speed (WCSPH's c_s = 10 v_ref, the pre-flight step estimate)
+    assert sim.model.reference_speed == pytest.approx(4.0)
+    assert sim.model.reference_speed_source == "the animated obstacles' top speed"
     assert move.max() <= sim.scene.time.cfl * sim.model.spacing * (1 + 1e-6)  # the step bound saw the wall
     assert gap.min() > 0.0, gap.min()
     assert sim.colliders.work_done() > 0.0  # it pushed
