@@ -267,3 +267,85 @@ def test_blender_plays_a_simulated_run_with_bodies(tmp_path):
             np.testing.assert_allclose(matrix[:3, 3], pose["position"], atol=2e-6)
         moved = max(moved, abs(frames[-1]["bodies"][name]["position"][2] - frames[0]["bodies"][name]["position"][2]))
     assert moved > 0.01  # the bodies fell: the check followed real motion
+
+
+def test_blender_plays_the_animated_paddle(tmp_path):
+    """The paddle scene (an obstacle moving along TOML keyframes): Blender's 'paddle' object follows the
+    path's pose at every frame's time (x = R(t) x_local + T(t); the mesh is in the paddle's frame)."""
+    from warp_sph.run import runner
+    from warp_sph.scene import load_scene
+
+    scene = load_scene("paddle", {"output.surface": False, "output.checkpoint_every": 0, "particle_radius": 0.025})
+    out = tmp_path / "run"
+    frames = 4
+    runner.run(scene, out=out, device="cpu", frames=frames, progress=False, log=lambda *a: None)
+    proc = subprocess.run([BLENDER_PYTHON, "-c", BODY_PROBE, str(out / "paddle.usdc")], capture_output=True,
+                          text=True, timeout=300)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("PROBE-JSON ")]
+    assert proc.returncode == 0 and lines, proc.stdout[-2000:] + proc.stderr[-2000:]
+    ob = json.loads(lines[-1][len("PROBE-JSON "):])["paddle"]
+    assert ob["type"] == "MESH" and ob["parent"] == "bodies" and ob["constraints"] == ["TRANSFORM_CACHE"]
+    path = scene.obstacles[0].path
+    for f in range(1, frames + 1):
+        R, T = path.pose((f - 1) / scene.fps)
+        matrix = np.asarray(ob["frames"][str(f)]["matrix_world"])
+        # 5e-5: the orient op is a float quaternion, and its angle 2 acos(w) loses digits near w = 1 (frame 2
+        # turns 0.16 deg: float w = 0.99999905 +- 6e-8 gives the angle to 4e-5 rad); translate is a double
+        np.testing.assert_allclose(matrix[:3, :3], R, atol=5e-5)
+        np.testing.assert_allclose(matrix[:3, 3], T, atol=2e-6)
+        assert ob["frames"][str(f)]["verts"] == 8
+    assert np.asarray(ob["frames"][str(frames)]["matrix_world"])[0, 3] > path.pose(0.0)[1][0] + 0.01  # it moved
+
+
+PADDLE_EXPORT = textwrap.dedent(
+    """
+    import json, math, sys
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.fps = 30
+    scene.frame_start, scene.frame_end = 1, 31
+    bpy.ops.mesh.primitive_cube_add(size=0.2)
+    ob = bpy.context.active_object
+    ob.name = "Paddle"
+    keys = ((1, (0.2, 0.2, 0.3), (0.0, 0.0, 0.0)), (16, (0.6, 0.25, 0.3), (0.2, 0.4, math.pi)),
+            (31, (0.2, 0.2, 0.3), (0.0, 0.0, 2.0 * math.pi)))
+    for f, loc, rot in keys:
+        ob.location, ob.rotation_euler = loc, rot
+        ob.keyframe_insert("location", frame=f)
+        ob.keyframe_insert("rotation_euler", frame=f)
+    bpy.ops.wm.usd_export(filepath=sys.argv[1], export_animation=True)
+    out = {}
+    for f in range(scene.frame_start, scene.frame_end + 1):
+        scene.frame_set(f)
+        out[f] = [list(r) for r in ob.matrix_world]
+    print("PROBE-JSON " + json.dumps(out))
+    """
+)
+
+
+def test_a_paddle_keyframed_and_exported_by_blender_drives_an_obstacle(tmp_path):
+    """Blender 5.0 keyframes a paddle (Bezier keys, a full turn about Z) and exports it with its USD
+    exporter; the obstacle path read from that file (``scene.paths.usd_path``: /root/Paddle, time code 1 =
+    t = 0, 30 time codes per second) gives Blender's own matrix_world at every frame."""
+    from warp_sph.core.errors import SceneError
+    from warp_sph.scene.paths import usd_path
+
+    file = tmp_path / "paddle.usdc"
+    proc = subprocess.run([BLENDER_PYTHON, "-c", PADDLE_EXPORT, str(file)], capture_output=True, text=True,
+                          timeout=300)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("PROBE-JSON ")]
+    assert proc.returncode == 0 and lines, proc.stdout[-2000:] + proc.stderr[-2000:]
+    blender = {int(k): np.asarray(v) for k, v in json.loads(lines[-1][len("PROBE-JSON "):]).items()}
+
+    def fail(keypath, message):
+        raise SceneError(f"{keypath}: {message}")
+
+    path = usd_path(file, "/root/Paddle", "smooth", fail, "obstacles[0]")
+    assert len(path.times) == 31 and path.times[0] == 0.0 and path.times[-1] == pytest.approx(1.0)
+    for f, matrix in blender.items():
+        R, T = path.pose((f - 1) / 30.0)
+        np.testing.assert_allclose(T, matrix[:3, 3], atol=1e-5)
+        np.testing.assert_allclose(R, matrix[:3, :3], atol=1e-5)
+    assert abs(path.channels[-1, 5] - path.channels[0, 5]) == pytest.approx(360.0, abs=0.01)  # unwrapped: a turn

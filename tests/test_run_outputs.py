@@ -338,7 +338,10 @@ def test_builtin_scene_with_default_outputs(name, tmp_path, monkeypatch):
     stage = Usd.Stage.Open(str(path))
     names = {p.GetName() for p in stage.GetPrimAtPath("/sph").GetChildren()}
     assert ("container" in names) == (scene.container is not None), names
-    assert {f"obstacle_{i}" for i in range(len(scene.obstacles or []))} <= names
+    obstacles = list(enumerate(scene.obstacles or []))
+    assert {f"obstacle_{i}" for i, ob in obstacles if not ob.animated} <= names
+    moving = {p.GetName() for p in stage.GetPrimAtPath("/sph/bodies").GetChildren()} if "bodies" in names else set()
+    assert {ob.name or f"obstacle{i}" for i, ob in obstacles if ob.animated} <= moving  # animated: /sph/bodies/<name>
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["checkpoint_000001.npz", "checkpoint_000002.npz"]
     exported = export_run(out, fmt="usd", frames="2:2")
     run_checker_strict(exported)

@@ -116,14 +116,16 @@ def _body_speeds(scene, body_x: np.ndarray) -> tuple[np.ndarray, float, int]:
 
 
 def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_lo,
-                    fluid_block: np.ndarray | None = None, body_x: np.ndarray | None = None) -> tuple[float, float, str]:
+                    fluid_block: np.ndarray | None = None, body_x: np.ndarray | None = None,
+                    driven_speed: float = 0.0) -> tuple[float, float, str]:
     """(reference speed, c_s, what set v_ref): v_ref = max(sqrt(2 |g| H), max|v0|), H the height of the fluid above the
     container floor (or the fluid's own height). c_s, the fluid's (artificial) speed of sound, comes from
     the ``wcsph`` section: sqrt(k / rho0) (linear) or sqrt(7 B / rho0) (Tait) when ``wcsph.stiffness`` is
     set, else ``wcsph.speed_of_sound``, else factor * v_ref (Becker & Teschner 2007: |drho|/rho0 ~
     v^2/c^2, so factor 10 keeps density errors near 1 %). WCSPH's pressure, the Akinci friction
     (report eq. 24) and the penalty force scale with it. Moving bodies (``body_x``: their particles at
-    t = 0 [m]) count as fluid for H (a body falls into the pool) and with their initial speeds."""
+    t = 0 [m]) count as fluid for H (a body falls into the pool) and with their initial speeds; animated
+    obstacles with ``driven_speed``, their top speed over the run [m/s]."""
     body_x, body_speed, fastest = _body_speeds(scene, np.zeros((0, 3)) if body_x is None else body_x)
     g = np.asarray(scene.gravity, dtype=np.float64)
     gnorm = float(np.linalg.norm(g))
@@ -142,8 +144,10 @@ def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_l
     g_ref = gnorm if gnorm > 0 else 9.81
     fall = math.sqrt(2.0 * g_ref * height)
     speeds = np.linalg.norm(fluid_v.astype(np.float64), axis=1) if len(fluid_v) else np.zeros(1)
-    v_ref = max(fall, float(speeds.max()), body_speed)
-    if body_speed > max(fall, float(speeds.max())):
+    v_ref = max(fall, float(speeds.max()), body_speed, driven_speed)
+    if driven_speed > max(fall, float(speeds.max()), body_speed):
+        source = "the animated obstacles' top speed"
+    elif body_speed > max(fall, float(speeds.max())):
         source = f"bodies[{fastest}].velocity"
     elif v_ref > fall:
         k = int(np.argmax(speeds))
@@ -190,6 +194,14 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
     body_x = np.asarray(getattr(sampled, "body_x", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
     v_ref, c_s, v_source = _speed_of_sound(scene, fluid_x, fluid_v, lo, getattr(sampled, "fluid_block", None),
                                            body_x)
+    colliders = list(getattr(sampled, "colliders", []))
+    if colliders:  # animated obstacles: moving particles after the bodies'; their top speed counts in v_ref
+        from ..rigid.colliders import max_path_speed
+
+        v_col = max_path_speed(colliders, 0.0, float(scene.duration))
+        if v_col > v_ref:
+            v_ref, c_s, v_source = _speed_of_sound(scene, fluid_x, fluid_v, lo, None, body_x, driven_speed=v_col)
+        body_x = np.concatenate([body_x, np.asarray(sampled.collider_x, np.float64).reshape(-1, 3)])
 
     static_count = len(boundary_x)
     boundary_method = scene.boundary if static_count + len(body_x) else "none"
@@ -206,7 +218,7 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
     particle_friction = None
     max_friction = -1.0
     if len(body_x):  # moving bodies after the static particles; their volumes from their own samples
-        samples = sampled.body_samples
+        samples = list(sampled.body_samples) + [c.samples for c in colliders]
         bx = wp.array(np.concatenate([bx.numpy(), (body_x - origin).astype(np.float32)]), dtype=wp.vec3, device=device)
         bvol = wp.array(np.concatenate([bvol.numpy()] + [s.volume for s in samples]).astype(np.float32), dtype=float,
                         device=device)
@@ -217,6 +229,7 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         boundary_x = np.concatenate([boundary_x, body_x])
         sigma0 = float(scene.material.boundary_friction)
         sigmas = [sigma0 if b.fluid_friction is None else float(b.fluid_friction) for b in scene.bodies]
+        sigmas += [sigma0] * len(colliders)
         max_friction = max([sigma0] + sigmas)
         if any(s != sigma0 for s in sigmas):  # a body with its own friction: sigma per particle
             particle_friction = wp.array(np.concatenate([np.full(static_count, sigma0, np.float32)] + [

@@ -49,6 +49,8 @@ def scene_static_meshes(scene: dict) -> list[tuple[str, np.ndarray, np.ndarray]]
         out.append(("container", *container_box_mesh(c["min"], c["max"], open_top=True)))
     for i, ob in enumerate(scene.get("obstacles") or []):
         name = f"obstacle_{i}"
+        if ob.get("keyframes") or ob.get("animation"):  # animated: a moving prim under /sph/bodies
+            continue
         if ob.get("shape", "box") == "box":
             out.append((name, *container_box_mesh(ob["min"], ob["max"], open_top=False)))
             continue

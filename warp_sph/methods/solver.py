@@ -128,8 +128,9 @@ class Solver(MethodBase):
 
     @property
     def with_bodies(self) -> bool:
-        """True when the scene has moving rigid bodies: write ``boundary_pressure_term``."""
-        return getattr(self.sim, "bodies", None) is not None
+        """True when the scene has moving boundary particles (rigid bodies or animated obstacles): write
+        ``boundary_pressure_term`` and walk the moving cell grid."""
+        return getattr(self.sim, "bodies", None) is not None or getattr(self.sim, "colliders", None) is not None
 
     def stages(self) -> list:
         """The stages of one substep, in order."""

@@ -150,11 +150,15 @@ def body_meshes(meta: dict) -> dict[int, list[tuple[np.ndarray, np.ndarray, tupl
     """{frame: [(world vertices [m], triangles, BODY_COLOR), ...]}: each rigid body of the run's scene
     (its shape in the body frame, ``rigid.spec.body_geometry``) at the pose run.json recorded for the frame."""
     entries = (meta.get("scene") or {}).get("bodies") or []
-    if not entries:
+    animated = [(i, ob) for i, ob in enumerate((meta.get("scene") or {}).get("obstacles") or [])
+                if ob.get("keyframes") or ob.get("animation")]
+    if not entries and not animated:
         return {}
     from ..rigid.spec import Body, body_geometry, body_name, quat_to_matrix
 
     shapes = {}
+    for i, ob in animated:  # animated obstacles: their surface in their own frame, at the recorded pose
+        shapes[ob.get("name") or f"obstacle{i}"] = _local_obstacle_mesh(ob, i)
     for i, entry in enumerate(entries):
         try:
             geo = body_geometry(Body(**entry))
@@ -172,6 +176,27 @@ def body_meshes(meta: dict) -> dict[int, list[tuple[np.ndarray, np.ndarray, tupl
             solids.append((geo.vertices @ R.T + np.asarray(pose["position"]), geo.triangles, BODY_COLOR))
         out[int(record["frame"])] = solids
     return out
+
+
+class _Mesh:
+    def __init__(self, vertices, triangles):
+        self.vertices, self.triangles = vertices, triangles
+
+
+def _local_obstacle_mesh(ob: dict, i: int) -> _Mesh:
+    """An animated obstacle's surface in its own frame (the geometry as written in the scene) [m]."""
+    from ..rigid.spec import box_mesh
+    from ..scene.meshes import load_triangle_mesh
+
+    if ob.get("shape", "box") == "box":
+        lo, hi = np.asarray(ob["min"], float), np.asarray(ob["max"], float)
+        verts, tris = box_mesh(0.5 * (hi - lo))
+        return _Mesh(verts + 0.5 * (lo + hi), tris)
+    try:
+        mesh = load_triangle_mesh(ob["file"]).transformed(ob.get("scale") or 1.0, ob.get("translate") or (0.0, 0.0, 0.0))
+    except Exception as exc:  # a mesh file moved away since the run
+        raise PreviewError(f"obstacles[{i}] of run.json cannot be drawn: {' '.join(str(exc).split())[:160]}") from None
+    return _Mesh(mesh.vertices, mesh.triangles)
 
 
 def _sphere_mesh(centers: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -61,6 +61,9 @@ class Exporter:
             if sim.bodies is not None:  # mesh prims with a time-sampled transform (a resume only checks them)
                 for name, geo in zip(sim.bodies.names, sim.bodies.geometries):
                     self.usd.add_body(name, geo.vertices, geo.triangles)
+            if sim.colliders is not None:  # animated obstacles: the same prims, in their local frames
+                for c in sim.colliders.colliders:
+                    self.usd.add_body(c.name, c.vertices, c.triangles)
         if o.mesh_sequence and self.surface is not None:
             from ..io.export_mesh import MeshSequenceWriter
 
@@ -100,6 +103,8 @@ class Exporter:
             snap["checkpoint"] = checkpoint
         if self.sim.bodies is not None:
             snap["bodies"] = self.sim.bodies.export_poses()
+        if self.sim.colliders is not None:
+            snap["bodies"] = {**snap.get("bodies", {}), **self.sim.colliders.export_poses()}
         return snap
 
     def write(self, frame: int, t: float, snap: dict) -> None:

@@ -242,6 +242,8 @@ def _restore_state(sim: Simulation, cp, info: dict, start_frame: int) -> list[di
     sim.forces.restore_arrays(cp)
     if sim.bodies is not None:
         sim.bodies.restore_arrays(cp)
+    if sim.colliders is not None:  # placed at the checkpoint's time, with their work so far
+        sim.colliders.restore_arrays(cp)
     sim.refresh_density()
     sim.last_frame = sim.statistics()
     sim.last_frame.max_speed = float(cp["last_max_speed"])

@@ -112,6 +112,14 @@ class Simulation:
             self.bodies = SimulationBodies(self)
             self._inputs |= self.bodies.inputs
             self.unsorted_fields |= self.bodies.unsorted
+        #: the animated obstacles (``warp_sph.rigid.colliders.SimulationColliders``); None without any
+        self.colliders = None
+        if self.sampled.colliders:
+            from ..rigid.colliders import SimulationColliders
+
+            self.colliders = SimulationColliders(self)
+            self._inputs |= self.colliders.inputs
+            self.unsorted_fields |= self.colliders.unsorted
         self._stats = wp.zeros(_diag.STAT_COUNT, dtype=float, device=self.device)
         #: per-chunk largest |v|^2 of ``current_speed``
         self._speed_partial = wp.zeros(max(1, -(-self.model.fluid_count // _reduce.REDUCE_CHUNK)), dtype=float,
@@ -156,6 +164,9 @@ class Simulation:
         if self.bodies is not None:
             stages = self.bodies.insert_stages(stages, solver)
             self.bodies.place()  # the neighbour lists exist now: their moving grid is the workspace's
+        if self.colliders is not None:
+            stages = self.colliders.insert_stages(stages, solver)
+            self.colliders.place(self.colliders.time)
         self.solver = solver
         if self.probes is not None:  # after every other stage: they read the substep's end state
             stages = stages + [self.probes.stage(stages)]
@@ -177,6 +188,8 @@ class Simulation:
             out["boundary"] = {"name": self.boundary.name, **self.boundary.summary()}
         if self.bodies is not None:
             out["bodies"] = self.bodies.summary()
+        if self.colliders is not None:
+            out["colliders"] = self.colliders.summary()
         return out
 
     # --- fields ----------------------------------------------------------------------------
@@ -262,6 +275,8 @@ class Simulation:
         wd = self.watchdog
         last = self.last_frame if self.last_frame else self.statistics()
         max_speed = max(last.max_speed, last.body_speed)  # the CFL includes the bodies' particles
+        if self.colliders is not None:  # and the animated obstacles' top speed over the coming frame
+            max_speed = max(max_speed, self.colliders.max_speed(self.state.time, self.state.time + self.frame_dt))
         wd.save()
         retries = 0
         while True:
@@ -284,6 +299,8 @@ class Simulation:
                 continue
             self.state.frame += 1
             self.state.time = self.state.frame * self.frame_dt
+            if self.colliders is not None:  # at the exact frame time (a resume starts there)
+                self.colliders.place(self.state.time)
             stats = self.statistics(steps=n, dt_min=dt_min, dt_max=dt_max)
             stats.retries = retries
             if wd.broken(stats.watch) is None:
@@ -308,7 +325,8 @@ class Simulation:
         """True when ``advance_frame`` sizes each substep for the speed at its start: the solver asks for
         it (``Solver.time_step_per_substep``), the scene has no fixed_dt and no moving bodies (their
         coupling plans its substeps once per frame)."""
-        return self.solver.time_step_per_substep and self.bodies is None and not self.scene.time.fixed_dt > 0
+        return (self.solver.time_step_per_substep and self.bodies is None and self.colliders is None
+                and not self.scene.time.fixed_dt > 0)
 
     def current_speed(self) -> float:
         """The fastest fluid particle's speed now [m/s] (a chunked maximum on the device, one read)."""
@@ -394,6 +412,8 @@ class Simulation:
         watch = wd.read()
         n = m.fluid_count
         bodies, body_speed = self.bodies.frame_record() if self.bodies is not None else ({}, 0.0)
+        if self.colliders is not None:
+            bodies = {**bodies, **self.colliders.frame_record()}
         energy = {"kinetic_energy": float(s[_diag.STAT_KINETIC_ENERGY]),
                   "potential_energy": float(s[_diag.STAT_POTENTIAL_ENERGY])}
         if at_time is None:

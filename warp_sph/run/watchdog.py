@@ -111,6 +111,7 @@ class Watchdog:
         wp.copy(self._v0, s.particle_v)
         self._start = (s.time, s.step, s.frame)
         self._bodies = self.sim.bodies.save() if self.sim.bodies is not None else None
+        self._colliders = self.sim.colliders.save() if getattr(self.sim, "colliders", None) is not None else None
         if self.mode == "retry":
             arrays = {**self.sim.solver.checkpoint_arrays(), **self.sim.forces.checkpoint_arrays()}
             self._extra = {k: wp.clone(a) if isinstance(a, wp.array) else a for k, a in arrays.items()}
@@ -125,6 +126,8 @@ class Watchdog:
             self.sim.forces.restore_arrays(self._extra)
         if self._bodies is not None:  # the bodies' Newton state and their boundary particles
             self.sim.bodies.restore(self._bodies)
+        if getattr(self, "_colliders", None) is not None:  # their pose at the frame start and the work so far
+            self.sim.colliders.restore(self._colliders)
 
     # --- rules -------------------------------------------------------------------------------
     def read(self) -> dict:

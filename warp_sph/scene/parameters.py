@@ -184,6 +184,26 @@ _TAIL = (
     _P("obstacles[].scale", "float", "-", 1.0, "uniform scale of the mesh (x -> scale x + translate)",
        gt=0.0, shapes=("mesh",)),
     _P("obstacles[].translate", "vec3", "m", (0.0, 0.0, 0.0), "translation of the mesh", shapes=("mesh",)),
+    # animated colliders (warp_sph/scene/paths.py, warp_sph/run/colliders.py, docs/colliders.md)
+    _P("obstacles[].name", "str", "-", "", "name of an animated obstacle in the USD file and run.json (default: "
+       "obstacle<index>); letters, digits and '_', not starting with a digit"),
+    _P("obstacles[].interpolation", "str", "-", "smooth", "how an animated obstacle moves between its keys: "
+       "'linear' (velocity jumps at keys) or 'smooth' (cubic Hermite, Catmull-Rom tangents, at rest at the "
+       "first and last key)", choices=("linear", "smooth")),
+    _P("obstacles[].keyframes", "tables", "-", [], "keys of an animated obstacle's path (keyframes = [{time = 0.0, "
+       "translate = [...], rotation = [...]}, ...]): x = R(t) x_local + T(t), x_local the geometry as written; the "
+       "end poses are held before the first and after the last key", default_text="none"),
+    _P("obstacles[].keyframes[].time", "float", "s", REQUIRED, "time of the key (strictly increasing)"),
+    _P("obstacles[].keyframes[].translate", "vec3", "m", (0.0, 0.0, 0.0), "translation T of the local origin"),
+    _P("obstacles[].keyframes[].rotation", "vec3", "deg", (0.0, 0.0, 0.0), "rotation about the local origin as "
+       "Euler angles about X, then Y, then Z (Blender's XYZ mode); each angle is interpolated on its own, so "
+       "0 -> 360 is a full turn"),
+    _P("obstacles[].animation", "table", "-", {}, "the obstacle's path from a transform animated in a USD file "
+       "(animation = {file = \"paddle.usda\", prim = \"/paddle\"}; Blender's USD export), instead of keyframes",
+       default_text="none"),
+    _P("obstacles[].animation.file", "str", "-", REQUIRED, "USD file (.usd .usda .usdc), relative to the scene file"),
+    _P("obstacles[].animation.prim", "str", "-", REQUIRED, "absolute path of the animated prim, e.g. '/paddle'; its "
+       "local-to-world transform at each time sample, t = (time code - startTimeCode) / timeCodesPerSecond"),
     # moving rigid bodies (warp_sph.rigid): Akinci 2012 two-way coupling, dynamics by Newton
     _P("bodies", "tables", "-", [], "moving rigid bodies ([[bodies]]), two-way coupled with the fluid "
        "(Akinci et al. 2012) and stepped by Newton (the rigid extra)", default_text="none"),

@@ -60,6 +60,7 @@ class SampledScene:
     body_geometries, body_samples: per ``[[bodies]]`` entry, its ``rigid.BodyGeometry`` and
         ``rigid.BodySamples`` (moving boundary particles in the body frame, with their volumes);
     body_x: those particles' world positions at t = 0, body after body [m], (K, 3) float64.
+    colliders, collider_x: the animated obstacles (``rigid.colliders``) and their particles at t = 0 [m].
         The static boundary arrays above hold the walls and obstacles only.
     particle_radius: r [m]; spacing: d = 2 r [m].
     container_min, container_max: container corners [m], or None without a container.
@@ -78,6 +79,9 @@ class SampledScene:
     body_geometries: list = field(default_factory=list)
     body_samples: list = field(default_factory=list)
     body_x: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    #: animated obstacles (``rigid.colliders.Collider``) and their particles at t = 0 [m], after the bodies'
+    colliders: list = field(default_factory=list)
+    collider_x: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def fluid_count(self) -> int:
@@ -198,6 +202,8 @@ def sample_scene(scene: Scene) -> SampledScene:
         bx.append(p), bn.append(n), bo.append(np.full(len(p), -1, dtype=np.int32))
     inside_tests = []
     for i, ob in enumerate(scene.obstacles):
+        if ob.animated:  # moving boundary particles (``rigid.colliders``), sampled below
+            continue
         if ob.shape == "box":
             p, n = box_surface(ob.min, ob.max, d, inward=False)
             lo, hi = np.asarray(ob.min), np.asarray(ob.max)
@@ -247,6 +253,14 @@ def sample_scene(scene: Scene) -> SampledScene:
         for geo, body in zip(body_geometries, scene.bodies):
             keep &= ~inside_body(geo, body, fluid_x, 0.0)
         keep &= PointGrid(body_x, gap).nearest_distance(fluid_x, gap) >= gap * (1.0 - _EPS)
+    colliders, collider_x = [], np.zeros((0, 3))
+    if any(ob.animated for ob in scene.obstacles):  # animated obstacles: fluid inside them or within the gap at t = 0
+        from ..rigid.colliders import sample_colliders
+
+        colliders, collider_x = sample_colliders(scene)
+        for col in colliders:
+            keep &= ~col.inside(fluid_x, 0.0)
+        keep &= PointGrid(collider_x, gap).nearest_distance(fluid_x, gap) >= gap * (1.0 - _EPS)
     fluid_x, fluid_v, fluid_b = fluid_x[keep], fluid_v[keep], fluid_b[keep]
     if len(fluid_x) == 0:
         raise SceneError(
@@ -267,4 +281,6 @@ def sample_scene(scene: Scene) -> SampledScene:
         body_geometries=body_geometries,
         body_samples=body_samples,
         body_x=np.ascontiguousarray(body_x, dtype=np.float64),
+        colliders=colliders,
+        collider_x=np.ascontiguousarray(collider_x, dtype=np.float64),
     )

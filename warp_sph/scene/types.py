@@ -28,9 +28,11 @@ def _field_default(p: Param):
     return field(default=copy.copy(d))
 
 
-def section_class(section: str, rows, namespace: dict | None = None, doc: str = ""):
-    """The dataclass of table ``section`` from its parameter rows (one field per key, its default)."""
+def section_class(section: str, rows, namespace: dict | None = None, doc: str = "", nested: tuple = ()):
+    """The dataclass of table ``section`` from its parameter rows (one field per key, its default); the
+    table-valued keys named in ``nested`` become fields too (default None: absent)."""
     fields = [(p.key, Any, _field_default(p)) for p in rows if p.kind not in TABLE_KINDS]
+    fields += [(key, Any, field(default=None)) for key in nested]
     name = "".join(part.capitalize() for part in section.replace("[]", "").split("_")) or "Section"
     keys = "; ".join(f"{p.key} [{p.unit}]" for p in rows if p.kind not in TABLE_KINDS)
     cls = dataclasses.make_dataclass(name, fields, namespace=dict(namespace or {}))
@@ -76,9 +78,11 @@ OutputParams = section_class("output", _CORE["output"].values(), doc="What a run
 FluidBlock = section_class("fluid[]", _CORE["fluid[]"].values(), {"bounds": _bounds, "mesh": _mesh, "volume": _volume},
                            doc="A block of fluid sampled on a lattice; keys of the other shapes are None (file: the "
                                "absolute path after loading).")
-Obstacle = section_class("obstacles[]", _CORE["obstacles[]"].values(),
-                         doc="A static obstacle sampled on its surface as boundary particles; keys of the other "
-                             "shape are None (file: the absolute path after loading).")
+Obstacle = section_class("obstacles[]", _CORE["obstacles[]"].values(), {"animated": property(lambda self: bool(
+                             self.keyframes or self.animation))}, nested=("keyframes", "animation"),
+                         doc="An obstacle sampled on its surface as boundary particles, static or (``animated``: "
+                             "keyframes or animation given) moving along a path (``warp_sph.scene.paths``); keys of "
+                             "the other shape are None (file: the absolute path after loading).")
 
 Body = section_class("bodies[]", _CORE["bodies[]"].values(),
                      doc="A moving rigid body (``warp_sph.rigid``); keys of other shapes are None (file: the "

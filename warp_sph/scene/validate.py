@@ -184,7 +184,11 @@ class Validator:
         out = []
         for i, b in enumerate(raw):
             kp = f"{name}[{i}]"
+            nested = {k: b[k] for k in ("keyframes", "animation") if name == "obstacles" and k in b}
+            b = {k: v for k, v in b.items() if k not in nested}
             block = cls(**self.table(b, f"{name}[]", kp, shape_key=shape_key))
+            if nested:
+                self.collider_path(block, nested, kp)
             if getattr(block, "shape", None) == "box" and name != "bodies":
                 self.box(block.min, block.max, kp)
             if name in ("obstacles", "bodies") and block.shape == "mesh":
@@ -193,6 +197,28 @@ class Validator:
                 self.fluid_mesh(block, kp)
             out.append(block)
         return out
+
+    def collider_path(self, block, nested: dict, kp: str) -> None:
+        """An animated obstacle's ``keyframes`` or ``animation`` checked, its Path built (``block.path``)."""
+        from .paths import keyframe_path, usd_path
+
+        if "keyframes" in nested and "animation" in nested:
+            self.fail(f"{kp}.animation", "give keyframes or animation, not both")
+        if "keyframes" in nested:
+            raw = nested["keyframes"]
+            if not isinstance(raw, list) or any(not isinstance(k, dict) for k in raw):
+                self.fail(f"{kp}.keyframes", f"expected an array of tables ({{time = ..., translate = [...], rotation = "
+                          f"[...]}}), got {_short(raw)}")
+            block.keyframes = [self.table(k, "obstacles[].keyframes[]", f"{kp}.keyframes[{j}]") for j, k in enumerate(raw)]
+            block.path = keyframe_path(block.keyframes, block.interpolation, self.fail, kp)
+        else:
+            anim = self.table(nested["animation"], "obstacles[].animation", f"{kp}.animation")
+            anim["file"] = str(self.mesh_path(anim["file"]))
+            block.animation = anim
+            block.path = usd_path(anim["file"], anim["prim"], block.interpolation, self.fail, kp)
+        if block.name and not (block.name.replace("_", "a").isalnum() and block.name.isascii()
+                               and not block.name[0].isdigit()):
+            self.fail(f"{kp}.name", f"expected letters, digits and '_', not starting with a digit, got {block.name!r}")
 
     def forces(self, data) -> list:
         """The ``[[forces]]`` entries: each a ``method`` and that force's keys (``Force.config_class``)."""
@@ -283,9 +309,23 @@ class Validator:
                               f"{list(c.min)}..{list(c.max)}")
             for i, ob in enumerate(scene.obstacles):
                 lo, hi = _obstacle_bounds(ob)
+                if ob.animated:
+                    from .paths import check_inside
+
+                    check_inside(ob.path, lo, hi, c, scene.duration, f"obstacles[{i}]", self.fail)
+                    continue
                 if np.any(hi < np.asarray(c.min)) or np.any(lo > np.asarray(c.max)):
                     self.fail(f"obstacles[{i}]", f"lies entirely outside the container {list(c.min)}..{list(c.max)} "
                               f"(its bounds {lo.round(6).tolist()}..{hi.round(6).tolist()}); move it inside or remove it")
+        moving = [(f"bodies[{i}].name", b.name or f"body{i}") for i, b in enumerate(scene.bodies)]
+        moving += [(f"obstacles[{i}].name", ob.name or f"obstacle{i}") for i, ob in enumerate(scene.obstacles)
+                   if ob.animated]
+        seen: dict[str, str] = {}
+        for key, name in moving:  # one USD prim /sph/bodies/<name> and one run.json entry each
+            if name in seen and (key.startswith("obstacles") or seen[name].startswith("obstacles")):
+                self.fail(key, f"{name!r} is also the name of {seen[name].rsplit('.', 1)[0]}; moving bodies and "
+                          "animated obstacles need distinct names")  # two bodies: rigid.checks says so
+            seen.setdefault(name, key)
         solver = registry.solver(scene.solver)
         boundary = registry.boundary(scene.boundary)
         refusal = solver.refuses_boundary(boundary)
