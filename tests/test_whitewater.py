@@ -253,7 +253,7 @@ def test_full_capacity_drops_new_particles_with_one_warning():
             sim.advance_frame()
     assert len([w for w in record if "max_particles" in str(w.message)]) == 1
     assert sim.whitewater.dropped > 0 and sim.whitewater.count <= 40
-    assert sim.whitewater.generated == sim.whitewater.dropped + 40 or sim.whitewater.count < 40
+    assert sim.whitewater.generated - sim.whitewater.dropped >= sim.whitewater.count  # births kept
 
 
 @pytest.mark.parametrize("table, message", [
