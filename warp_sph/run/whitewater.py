@@ -93,30 +93,37 @@ class Whitewater:
         dev = m.device
         n = m.fluid_count
         seed = self.step_seed()
-        launch(_ww.normals_kernel(m.smoothing.name), n,
-               [m.particle_mass, m.smoothing_length, m.support_radius, 2.0 * float(c.kinetic_energy_min), nl.fluid,
-                f["particle_x"], f["particle_v"], f["particle_density"]],
-               [self.normal], device=dev)
-        launch(_ww.potentials_kernel(), n,
-               [m.support_radius, float(dt), seed, wp.vec2(c.trapped_air_min, c.trapped_air_max),
-                wp.vec2(c.wave_crest_min, c.wave_crest_max), wp.vec2(c.kinetic_energy_min, c.kinetic_energy_max),
-                float(c.trapped_air_rate), float(c.wave_crest_rate), nl.fluid, f["particle_x"], f["particle_v"],
-                self.normal], [self.potential, self._generate], device=dev)
+        # a fluid slower than sqrt(2 kinetic_energy_min) generates nothing: one reduction skips the passes
+        fast = sim.current_speed() ** 2 > 2.0 * float(c.kinetic_energy_min)
+        if fast:
+            launch(_ww.normals_kernel(m.smoothing.name), n,
+                   [m.particle_mass, m.smoothing_length, m.support_radius, 2.0 * float(c.kinetic_energy_min), nl.fluid,
+                    f["particle_x"], f["particle_v"], f["particle_density"]], [self.normal], device=dev)
+            launch(_ww.potentials_kernel(), n,
+                   [m.support_radius, float(dt), seed, wp.vec2(c.trapped_air_min, c.trapped_air_max),
+                    wp.vec2(c.wave_crest_min, c.wave_crest_max), wp.vec2(c.kinetic_energy_min, c.kinetic_energy_max),
+                    float(c.trapped_air_rate), float(c.wave_crest_rate), nl.fluid, f["particle_x"], f["particle_v"],
+                    self.normal], [self.potential, self._generate], device=dev)
+            wp.utils.array_scan(self._generate, self._generate_offset, inclusive=False)
+        else:
+            self.potential.zero_()
         src = self.arrays
         count = self.count
-        fc = nl.fluid_cells
-        use_bounds, lo, hi = self._bounds
-        launch(_ww.advect_kernel(m.smoothing.name), count,
-               [m.smoothing_length, m.support_radius, float(dt), wp.vec3(*m.gravity), float(c.buoyancy), float(c.drag),
-                int(c.spray_neighbors), int(c.bubble_neighbors), use_bounds, lo, hi,
-                fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, nl.search_radius,
-                f["particle_x"], f["particle_v"]],
-               [src["x"], src["v"], src["age"], src["life"], src["kind"], self._alive], device=dev)
         if count:
+            fc = nl.fluid_cells
+            use_bounds, lo, hi = self._bounds
+            launch(_ww.advect_kernel(m.smoothing.name), count,
+                   [m.smoothing_length, m.support_radius, float(dt), wp.vec3(*m.gravity), float(c.buoyancy),
+                    float(c.drag), int(c.spray_neighbors), int(c.bubble_neighbors), use_bounds, lo, hi,
+                    fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, nl.search_radius,
+                    f["particle_x"], f["particle_v"]],
+                   [src["x"], src["v"], src["age"], src["life"], src["kind"], self._alive], device=dev)
             wp.utils.array_scan(self._alive[:count], self._alive_offset[:count], inclusive=False)
-        wp.utils.array_scan(self._generate, self._generate_offset, inclusive=False)
+        if not (count or fast):
+            return
         wp.launch(_ww.scan_totals, 1, inputs=[self._alive, self._alive_offset, count, self._generate,
-                                              self._generate_offset, n], outputs=[self._totals], device=dev)
+                                              self._generate_offset, n if fast else 0], outputs=[self._totals],
+                  device=dev)
         survivors, generated = (int(v) for v in self._totals.numpy())
         dst = self._buffers[1 - self.front]
         launch(_ww.compact, count, [self._alive, self._alive_offset, src["x"], src["v"], src["age"], src["life"],
