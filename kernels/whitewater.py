@@ -9,10 +9,11 @@ Per fluid particle i (neighbours j within the support H, W~_ij = 1 - |x_ij| / H)
 each mapped to [0, 1] by clamp(I, lo, hi) = (min(I, hi) - min(I, lo)) / (hi - lo), and
     n_d = I_k (k_ta I_ta + k_wc I_wc) dt
 particles generated (stochastic rounding), sampled in the cylinder of radius r and height |v_i| dt
-around v_i (velocity v_i plus a radial spread). A secondary particle with fewer than ``spray_n`` fluid neighbours is spray (ballistic),
-with more than ``bubble_n`` an air bubble (buoyancy -k_b g, drag k_d toward the fluid), else foam
-(moves with the fluid's kernel-averaged velocity and ages). Deterministic: one seeded RNG stream per
-fluid slot and step, and every write goes to an index fixed by exclusive scans (no atomics).
+around v_i (velocity v_i plus a radial spread). A secondary particle with fewer than ``spray_n``
+fluid neighbours is spray (ballistic), with more than ``bubble_n`` an air bubble (buoyancy -k_b g,
+drag k_d toward the fluid), else foam (moves with the fluid's kernel-averaged velocity and ages).
+Deterministic: one seeded RNG stream per fluid slot and step, and every write goes to an index fixed
+by exclusive scans (no atomics).
 """
 import functools
 

@@ -259,7 +259,8 @@ def test_full_capacity_drops_new_particles_with_one_warning():
 @pytest.mark.parametrize("table, message", [
     ("lifetime_min = -1.0", "whitewater.lifetime_min: expected a finite number > 0, got -1"),
     ("lifetime_min = 3.0\nlifetime_max = 2.0", "whitewater.lifetime_max: expected >= whitewater.lifetime_min (3)"),
-    ("trapped_air_min = 20.0\ntrapped_air_max = 5.0", "whitewater.trapped_air_max: expected > whitewater.trapped_air_min"),
+    ("trapped_air_min = 20.0\ntrapped_air_max = 5.0",
+     "whitewater.trapped_air_max: expected > whitewater.trapped_air_min"),
     ("wave_crest_max = 0.0", "whitewater.wave_crest_max: expected a finite number > 0"),
     ("foam_rate = 3.0", "whitewater.foam_rate: unknown key; expected one of enabled, seed"),
     ("max_particles = 0", "whitewater.max_particles: expected an integer >= 1"),

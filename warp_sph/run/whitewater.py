@@ -126,8 +126,9 @@ class Whitewater:
                   device=dev)
         survivors, generated = (int(v) for v in self._totals.numpy())
         dst = self._buffers[1 - self.front]
-        launch(_ww.compact, count, [self._alive, self._alive_offset, src["x"], src["v"], src["age"], src["life"],
-                                    src["kind"]], [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev)
+        launch(_ww.compact, count,
+               [self._alive, self._alive_offset, src["x"], src["v"], src["age"], src["life"], src["kind"]],
+               [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev)
         if generated:
             launch(_ww.emit_kernel(), n,
                    [float(dt), seed, survivors, self.capacity, m.particle_radius, float(c.lifetime_min),
@@ -182,7 +183,8 @@ class Whitewater:
                              "[whitewater]?)")
         n = len(arrays["whitewater_x"])
         if n > self.capacity:
-            raise SceneError(f"whitewater: the checkpoint holds {n} particles, more than max_particles = {self.capacity}")
+            raise SceneError(f"whitewater: the checkpoint holds {n} particles, more than max_particles = "
+                             f"{self.capacity}")
         self.front = 0
         for name, dtype in _ARRAYS:
             values = np.asarray(arrays[f"whitewater_{name}"])
