@@ -10,6 +10,7 @@
     warp-sph bench surface                         # surface reconstruction per frame
     warp-sph bench bodies                          # moving rigid bodies against the same static obstacles
     warp-sph bench forces                          # each force's cost per particle-step beside its solver's
+    warp-sph bench whitewater                      # a splash scene with whitewater on against off
     warp-sph bench validation                      # every solver against experiments (benchmarks/validation.py)
     warp-sph bench extremes                        # every solver at the extremes: completed, stopped or refused
     warp-sph bench report                          # RESULTS.md from the JSON lines
@@ -328,6 +329,20 @@ def cmd_forces(args, argv: list[str], log=print) -> int:
     return _finish(_save("forces", records, args, argv, invocation, log), args, records, log)
 
 
+def cmd_whitewater(args, argv: list[str], log=print) -> int:
+    from . import whitewater as W
+
+    specs = W.specs(args.scene, args.frames, args.repeats, device=args.device, overrides=args.set)
+    invocation = now()
+    records = _run(specs, args, log)
+    s = W.summary(records)
+    if s:
+        share = f"; the stage {100 * s['stage_share']:.1f} % of the stage time" if s["stage_share"] is not None else ""
+        log(f"whitewater: {s['on_ms']:.4g} CPU ms per step on, {s['off_ms']:.4g} off (fastest of {args.repeats} each): "
+            f"{100 * s['extra']:+.1f} %{share} (goal <= +{100 * W.GOAL:.0f} %: {'met' if s['met'] else 'not met'})")
+    return _finish(_save("whitewater", records, args, argv, invocation, log), args, records, log)
+
+
 def cmd_validation(args, argv: list[str], log=print) -> int:
     from warp_sph.run.checkpoints import versions
 
@@ -525,6 +540,14 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--forces", default="", help="comma-separated forces (default: every registered force)")
     common(f)
     f.set_defaults(func=cmd_forces)
+
+    w = sub.add_parser("whitewater", help="a splash scene with [whitewater] at its defaults against without: CPU "
+                       "time per step")
+    w.add_argument("--scene", default="dam_break", help="scene (default: dam_break)")
+    w.add_argument("--frames", type=positive_int, default=30, help="frames per run (default 30: 1.25 s of the dam break)")
+    w.add_argument("--repeats", type=positive_int, default=2, help="runs of each variant, alternating; the fastest counts")
+    common(w)
+    w.set_defaults(func=cmd_whitewater)
 
     from .validation import add_arguments as validation_arguments
 

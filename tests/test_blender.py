@@ -349,3 +349,43 @@ def test_a_paddle_keyframed_and_exported_by_blender_drives_an_obstacle(tmp_path)
         np.testing.assert_allclose(T, matrix[:3, 3], atol=1e-5)
         np.testing.assert_allclose(R, matrix[:3, :3], atol=1e-5)
     assert abs(path.channels[-1, 5] - path.channels[0, 5]) == pytest.approx(360.0, abs=0.01)  # unwrapped: a turn
+
+
+def test_blender_imports_whitewater(tmp_path):
+    """The whitewater point sets (/sph/whitewater/{spray,foam,bubbles}) arrive as three point clouds
+    under a 'whitewater' empty, each with its count per frame, velocities and ages, so each can take
+    its own material."""
+    from pxr import Usd
+
+    from warp_sph.run import runner
+    from warp_sph.scene import scene_from_dict
+
+    out = tmp_path / "ww"
+    scene = scene_from_dict({
+        "name": "ww_drop", "particle_radius": 0.02, "fps": 25.0,
+        "container": {"min": [0.0, 0.0, 0.0], "max": [0.6, 0.3, 1.0]},
+        "fluid": [{"min": [0.05, 0.05, 0.3], "max": [0.35, 0.25, 0.6]}],
+        "output": {"checkpoint_every": 0},
+        "whitewater": {"kinetic_energy_min": 0.5, "kinetic_energy_max": 5.0, "trapped_air_min": 1.0,
+                       "trapped_air_max": 8.0, "lifetime_min": 0.1, "lifetime_max": 0.2}})
+    runner.run(scene, out=out, device="cpu", frames=8, progress=False, log=lambda *a: None)
+    usd = out / "ww_drop.usdc"
+    got = blender_import(usd)
+    objects = got["objects"]
+    sets = {name: ob for name, ob in objects.items() if ob["parent"] == "whitewater"}
+    assert objects["whitewater"]["parent"] == "sph"
+    assert len(sets) == 3 and all(ob["type"] == "POINTCLOUD" for ob in sets.values()), sets
+    assert all("MESH_SEQUENCE_CACHE" in ob["modifiers"] for ob in sets.values())
+    stage = Usd.Stage.Open(str(usd))
+    counts = {}
+    for kind in ("spray", "foam", "bubbles"):
+        # Blender names an object after its prim, with a suffix when /sph/spray took the name
+        name = next(n for n in sets if n.split(".")[0] == kind)
+        for f in range(1, 9):
+            frame = got["frames"][str(f)][name]
+            points = np.asarray(stage.GetAttributeAtPath(f"/sph/whitewater/{kind}.points").Get(f))
+            assert frame["points"] == len(points) >= 1
+            assert {"age", "velocity"} <= set(frame["attributes"])
+            assert np.array_equal(np.asarray(frame["position"], np.float32).reshape(-1, 3), points)
+            counts[kind, f] = len(points)
+    assert max(counts.values()) > 50  # the splash made whitewater

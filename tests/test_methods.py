@@ -242,6 +242,8 @@ CONFIGS |= {
     "dfsph-no-divergence-bodies": dict(solver="dfsph", dfsph={"divergence_solve": False}, **BODY),
     "dfsph-stabilize-bodies": dict(solver="dfsph", compressed=True, **BODY),
 }
+#: whitewater (the stage after the solver's): its reads are the step's end state
+CONFIGS |= {f"{s}-whitewater": dict(solver=s, whitewater={"kinetic_energy_min": 0.0}) for s in SOLVERS}
 #: every solver x boundary x force (the forces at their defaults, coarse: r = 0.02 m, 125 fluid particles)
 CONFIGS |= {f"{s}-{b}-forces{k}": dict(solver=s, boundary=b, particle_radius=0.02,
                                        forces=[{"method": name} for name in group])

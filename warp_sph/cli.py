@@ -71,6 +71,10 @@ def print_summary(info: dict) -> None:
           f"in {info['wall_time']:.1f} s wall ({info['fluid_particles']} fluid, {info['boundary_particles']} boundary particles)")
     print(f"density error: mean {100 * mean:.3f} %, max {100 * err:.3f} % (largest of any frame); "
           f"{info['sim_time_per_step_ms']:.2f} ms per simulation step")
+    ww = frames[-1].get("whitewater") if frames else None
+    if ww:  # [whitewater]: the last frame's particles (docs/whitewater.md)
+        print(f"whitewater: {ww['spray']} spray, {ww['foam']} foam, {ww['bubbles']} bubbles at the last frame; "
+              f"{ww['generated']} generated, {ww['dropped']} dropped (max_particles)")
     if info.get("threaded_export", True):
         print(f"export: {info['export_time']:.1f} s on a background thread while simulating; the simulation "
               f"waited {info.get('export_wait_time', 0.0):.1f} s of it"

@@ -35,6 +35,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from ..core.errors import OutputError
 from . import run_folder as rf
+from . import usd_whitewater
 from .crate_guard import crate_tail, restore_crate_tail
 from .usd_layout import (BODIES, RESERVED, clear_after, container_box_mesh, create_stage, extent, file_origin,
                          first_line, open_for_resume, vec3f)
@@ -62,6 +63,8 @@ class UsdWriter:
         with_velocities: write particle velocities [m/s] (Blender 'velocity', motion blur).
         with_normals: write the surface's vertex normals (primvars:normals) when a frame gives them.
         with_spray: write /sph/spray (spray particles as their own point set).
+        with_whitewater: write /sph/whitewater/{spray,foam,bubbles} (``usd_whitewater``), points
+            ``whitewater_width`` [m] wide.
         resume_after_frame: k to reopen the existing file, delete every time sample after frame k
             and continue with frame k + 1; None to create a new file.
         overwrite: replace an existing file when creating a new one (otherwise OutputError).
@@ -86,6 +89,8 @@ class UsdWriter:
         with_velocities: bool = True,
         with_normals: bool = False,
         with_spray: bool = False,
+        with_whitewater: bool = False,
+        whitewater_width: float = 0.0,
         overwrite: bool = False,
         first_frame: int = 1,
         origin=None,
@@ -102,6 +107,8 @@ class UsdWriter:
         self.with_velocities = bool(with_velocities)
         self.with_normals = bool(with_normals) and self.with_surface
         self.with_spray = bool(with_spray)
+        self.with_whitewater = bool(with_whitewater)
+        self.whitewater_width = float(whitewater_width) or self.particle_radius
         #: file size growth [bytes] of each frame written by this writer, and seconds per write
         self.frame_bytes: list[int] = []
         self.write_seconds: list[float] = []
@@ -126,6 +133,8 @@ class UsdWriter:
         self.stage = create_stage(self.path, self.fps, self.particle_radius, self.first_frame, self.origin,
                                   self.primvar_names, self.with_surface, self.with_velocities, self.with_normals,
                                   self.with_spray, static_meshes, overwrite, self._local)
+        if self.with_whitewater:
+            usd_whitewater.define(self.stage, self.with_velocities)
         self._save(0)
         return self.stage
 
@@ -133,6 +142,7 @@ class UsdWriter:
         # every check first: a refused resume changes nothing
         stage, self.first_frame = open_for_resume(self.path, k, self.fps, self.with_surface, self.with_spray,
                                                   self.with_normals)
+        usd_whitewater.check(stage, self.path, self.with_whitewater)
         self.origin = file_origin(stage)
         clear_after(stage, k)
         stage.SetEndTimeCode(max(k, self.first_frame))
@@ -213,6 +223,7 @@ class UsdWriter:
             self._spray_extent = spray.GetExtentAttr()
             self._spray_widths = spray.GetWidthsAttr()
             self._spray_velocities = spray.GetVelocitiesAttr() if self.with_velocities else None
+        self._whitewater = usd_whitewater.WhitewaterPoints(stage, self.with_velocities) if self.with_whitewater else None
         # static meshes: their default points and extent, repeated as a time sample every frame
         self._statics = []
         for prim in stage.GetPrimAtPath("/sph").GetChildren():
@@ -305,6 +316,7 @@ class UsdWriter:
         surface: tuple | None = None,
         bodies: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
         spray: tuple[np.ndarray, np.ndarray | None] | None = None,
+        whitewater: Mapping[str, tuple] | None = None,
     ) -> None:
         """Write frame ``frame`` (time code; 1 = initial state) and save the stage.
 
@@ -319,6 +331,8 @@ class UsdWriter:
                 (x, y, z, w))} for exactly the bodies declared with ``add_body``.
             spray: (positions (S, 3) [m], velocities (S, 3) [m/s] or None) of the spray particles;
                 None or none at all writes the placeholder point (module docstring).
+            whitewater: {"spray" | "foam" | "bubbles": (positions (K, 3) [m], velocities (K, 3) [m/s],
+                ages (K,) [s])} (a missing set is empty: its placeholder point) with with_whitewater.
         """
         if self.stage is None or self._failed:
             raise OutputError(f"{self.path}: write_frame after close" if self.stage is None else
@@ -389,6 +403,10 @@ class UsdWriter:
             if self._spray_velocities is not None:
                 self._spray_velocities.Set(vec3f(sv), t)
             spray_bytes = 2 * sx.nbytes + 64
+        if self._whitewater is not None:
+            low = x[np.argmin(x[:, 2])] if n else np.zeros(3, np.float32)
+            spray_bytes += self._whitewater.write(t, dict(whitewater or {}), self.whitewater_width, low,
+                                                  1e-4 * self.particle_radius, self._local)
         for attr, value in self._statics:
             attr.Set(value, t)
         self._write_bodies(bodies, t)

@@ -26,6 +26,8 @@ Layout (notes/usd_blender.md section 2), one ``.usdc`` file for the whole run:
                            (origin at the centre of mass), written like a static mesh, and whose
                            xformOp:translate (centre of mass [m]) and xformOp:orient (quatf) are
                            time-sampled every frame: Blender plays them with a Transform Cache.
+    /sph/whitewater/<set>  spray, foam, bubbles: Points with widths, velocities, primvars:age
+                           (``usd_whitewater``), only when the scene has [whitewater]
 
 ``export_usd.UsdWriter`` writes the frames into this layout; ``check_resumable`` and a resumed
 writer open an existing file with ``open_for_resume``, which checks it before anything changes.
@@ -40,7 +42,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 from ..core.errors import OutputError
 
 #: prim names under /sph that are not static meshes
-RESERVED = ("particles", "surface", "spray", "bodies")
+RESERVED = ("particles", "surface", "spray", "bodies", "whitewater")
 #: the parent prim of the moving rigid bodies
 BODIES = "/sph/bodies"
 

@@ -61,6 +61,8 @@ def checkpoint_info(sim, frame: int, frame_log: list[dict], digest: str = "") ->
         extra.update(sim.bodies.checkpoint_arrays())
     if getattr(sim, "colliders", None) is not None:  # the work they did so far (the energy rule's account)
         extra.update(sim.colliders.checkpoint_arrays())
+    if getattr(sim, "whitewater", None) is not None:  # the secondary particles: a resume continues bit for bit
+        extra.update(sim.whitewater.checkpoint_arrays())
     # copies: on the CPU ``numpy()`` is a view of the live array, and a checkpoint is written on the
     # export thread while the next frame already runs (a solver's carried warm-start values change)
     extra = {k: np.array(a.numpy() if isinstance(a, wp.array) else a, copy=True) for k, a in extra.items()}

@@ -56,6 +56,9 @@ class Exporter:
                                  primvars=self.primvars, with_surface=self.surface is not None,
                                  with_normals=self.surface is not None and self.surface.with_normals,
                                  with_spray=self.surface is not None and self.surface.grid.spray_neighbors > 0,
+                                 with_whitewater=sim.whitewater is not None,
+                                 whitewater_width=(float(sim.scene.whitewater.point_width) * m.particle_radius
+                                                   if sim.whitewater is not None else 0.0),
                                  resume_after_frame=resume_after_frame, overwrite=False,
                                  origin=m.origin if self.far else None)
             if sim.bodies is not None:  # mesh prims with a time-sampled transform (a resume only checks them)
@@ -105,6 +108,8 @@ class Exporter:
             snap["bodies"] = self.sim.bodies.export_poses()
         if self.sim.colliders is not None:
             snap["bodies"] = {**snap.get("bodies", {}), **self.sim.colliders.export_poses()}
+        if self.sim.whitewater is not None:  # host copies of the live particles, per kind
+            snap["whitewater"] = self.sim.whitewater.snapshot()
         return snap
 
     def write(self, frame: int, t: float, snap: dict) -> None:
@@ -144,7 +149,7 @@ class Exporter:
                 elif name == "pressure" and "pressure" in snap:
                     primvars["pressure"] = snap["pressure"].numpy()
             self.usd.write_frame(frame, x_world, v, primvars=primvars, surface=surface, spray=spray,
-                                 bodies=snap.get("bodies"))
+                                 bodies=snap.get("bodies"), whitewater=snap.get("whitewater"))
         if "checkpoint" in snap:  # after the frame's outputs: checkpoint k implies frames <= k are saved
             (self.out / "checkpoints").mkdir(exist_ok=True)
             rf.atomic_save_npz(rf.checkpoint_path(self.out, frame), particle_x_local=snap["x"].numpy(),

@@ -156,6 +156,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             sim.check_health(stats)
             d = stats.to_dict()
             d["frame"] = frame
+            if sim.whitewater is not None:  # live spray / foam / bubbles, generated and dropped so far
+                d["whitewater"] = sim.whitewater.frame_record()
             frame_log.append(d)
             if probe_files is not None:  # before the frame's checkpoint is queued: its rows are on disk
                 probe_files.append(sim.probes.collect())
@@ -244,6 +246,8 @@ def _restore_state(sim: Simulation, cp, info: dict, start_frame: int) -> list[di
         sim.bodies.restore_arrays(cp)
     if sim.colliders is not None:  # placed at the checkpoint's time, with their work so far
         sim.colliders.restore_arrays(cp)
+    if sim.whitewater is not None:
+        sim.whitewater.restore_arrays(cp)
     sim.refresh_density()
     sim.last_frame = sim.statistics()
     sim.last_frame.max_speed = float(cp["last_max_speed"])

@@ -138,6 +138,14 @@ class Simulation:
             from .probes import Probes
 
             self.probes = Probes(self)
+        #: the scene's whitewater (``warp_sph.run.whitewater.Whitewater``); None without [whitewater]
+        self.whitewater = None
+        if scene.whitewater is not None and scene.whitewater.enabled:
+            from .whitewater import Whitewater
+
+            self.whitewater = Whitewater(self)
+            self.fields["whitewater"] = self.whitewater
+            self._inputs.add("whitewater")
         self.set_solver(solver_cls.name, **(solver_options or {}))
         self.watchdog = Watchdog(self)
         #: sort the per-particle fields into cell order for each frame (``warp_sph.neighbors.particle_order``)
@@ -168,6 +176,9 @@ class Simulation:
             stages = self.colliders.insert_stages(stages, solver)
             self.colliders.place(self.colliders.time)
         self.solver = solver
+        if self.whitewater is not None:  # after the solver's and the bodies' stages: the step's end state
+            self.whitewater.check_solver(solver)
+            stages = stages + [self.whitewater.stage()]
         if self.probes is not None:  # after every other stage: they read the substep's end state
             stages = stages + [self.probes.stage(stages)]
         self.graph = StepGraph(stages, self._inputs | set(solver.carried_fields()) | set(self.forces.carried_fields()),
@@ -190,6 +201,8 @@ class Simulation:
             out["bodies"] = self.bodies.summary()
         if self.colliders is not None:
             out["colliders"] = self.colliders.summary()
+        if self.whitewater is not None:
+            out["whitewater"] = self.whitewater.summary()
         return out
 
     # --- fields ----------------------------------------------------------------------------

@@ -90,6 +90,7 @@ class Watchdog:
         self._start = None      # (time, step, frame) at the frame start
         self._extra = None
         self._bodies = None
+        self._whitewater = None
         #: the energy rule's reference and measurements (``warp_sph.run.energy``)
         self.energy = EnergyWatch(sim)
 
@@ -112,6 +113,7 @@ class Watchdog:
         self._start = (s.time, s.step, s.frame)
         self._bodies = self.sim.bodies.save() if self.sim.bodies is not None else None
         self._colliders = self.sim.colliders.save() if getattr(self.sim, "colliders", None) is not None else None
+        self._whitewater = self.sim.whitewater.save() if getattr(self.sim, "whitewater", None) is not None else None
         if self.mode == "retry":
             arrays = {**self.sim.solver.checkpoint_arrays(), **self.sim.forces.checkpoint_arrays()}
             self._extra = {k: wp.clone(a) if isinstance(a, wp.array) else a for k, a in arrays.items()}
@@ -128,6 +130,8 @@ class Watchdog:
             self.sim.bodies.restore(self._bodies)
         if getattr(self, "_colliders", None) is not None:  # their pose at the frame start and the work so far
             self.sim.colliders.restore(self._colliders)
+        if self._whitewater is not None:  # a redone frame generates the same particles again
+            self.sim.whitewater.restore(self._whitewater)
 
     # --- rules -------------------------------------------------------------------------------
     def read(self) -> dict:

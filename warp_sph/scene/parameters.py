@@ -248,6 +248,44 @@ _TAIL = (
        "body pair on its contact spring (0: sqrt(g / (0.01 r)) with g the magnitude of gravity: a resting body sinks "
        "in by 1 % of r); "
        "Newton steps are at most 1 / (4 w)", ge=0.0, le=1e5, default_text="auto"),
+    # whitewater (warp_sph/run/whitewater.py, docs/whitewater.md): Ihmsen et al. 2012 secondary particles;
+    # defaults are SPlisHSPlasH's FoamGenerator's (r = 0.025 m), off unless the scene has [whitewater]
+    _P("whitewater", "table", "-", None, "spray, foam and air bubbles (Ihmsen et al. 2012) generated from the fluid "
+       "and written to /sph/whitewater (docs/whitewater.md); off unless the scene has this table",
+       default_text="off"),
+    _P("whitewater.enabled", "bool", "-", True, "generate and advect whitewater (false: as if the table were absent)"),
+    _P("whitewater.seed", "int", "-", 0, "seed of the sampling (runs and resumes are reproducible bit for bit)",
+       ge=0, le=2**31 - 1),
+    _P("whitewater.max_particles", "int", "-", 200_000, "capacity, allocated once; particles generated when it "
+       "is full are dropped (one warning)", ge=1, le=100_000_000),
+    _P("whitewater.trapped_air_min", "float", "m/s", 5.0, "trapped-air potential (sum of weighted relative "
+       "speeds of approaching neighbours) mapped to 0 at and below this", ge=0.0),
+    _P("whitewater.trapped_air_max", "float", "m/s", 20.0, "trapped-air potential mapped to 1 at and above this "
+       "(> trapped_air_min)", gt=0.0),
+    _P("whitewater.wave_crest_min", "float", "-", 2.0, "wave-crest potential (weighted normal curvature of a "
+       "convex surface moving along its normal) mapped to 0 at and below this", ge=0.0),
+    _P("whitewater.wave_crest_max", "float", "-", 8.0, "wave-crest potential mapped to 1 at and above this "
+       "(> wave_crest_min)", gt=0.0),
+    _P("whitewater.kinetic_energy_min", "float", "J/kg", 5.0, "kinetic energy per mass v^2/2 mapped to 0 at and "
+       "below this (no generation from slower particles)", ge=0.0),
+    _P("whitewater.kinetic_energy_max", "float", "J/kg", 50.0, "kinetic energy per mass mapped to 1 at and above "
+       "this (> kinetic_energy_min)", gt=0.0),
+    _P("whitewater.trapped_air_rate", "float", "1/s", 4000.0, "k_ta: particles generated per fluid particle and "
+       "second at full trapped-air and kinetic-energy potentials", ge=0.0),
+    _P("whitewater.wave_crest_rate", "float", "1/s", 50000.0, "k_wc: particles generated per fluid particle and "
+       "second at full wave-crest and kinetic-energy potentials", ge=0.0),
+    _P("whitewater.lifetime_min", "float", "s", 2.0, "shortest lifetime of a foam particle (drawn uniformly in "
+       "[lifetime_min, lifetime_max] at birth; it ages only while it is foam)", gt=0.0),
+    _P("whitewater.lifetime_max", "float", "s", 5.0, "longest lifetime of a foam particle (>= lifetime_min)",
+       gt=0.0),
+    _P("whitewater.buoyancy", "float", "-", 2.0, "k_b: an air bubble accelerates by -k_b g (upwards)", ge=0.0),
+    _P("whitewater.drag", "float", "-", 0.8, "k_d: the fraction of its velocity difference to the fluid a bubble "
+       "loses per step", ge=0.0, le=1.0),
+    _P("whitewater.spray_neighbors", "int", "-", 6, "a particle with fewer fluid neighbours than this within the "
+       "kernel support is spray", ge=1),
+    _P("whitewater.bubble_neighbors", "int", "-", 20, "a particle with more fluid neighbours than this is an air "
+       "bubble; between the two it is foam (>= spray_neighbors)", ge=1),
+    _P("whitewater.point_width", "float", "-", 0.5, "width of the written points / r", gt=0.0, le=10.0),
     # output. Surface (warp_sph/surface/reconstruction.py): Phi = sum_j f_j / rho~_j with
     # f = (1 - r^2/R^2)^5 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
     # the bulk); on a rest lattice the 0.6 level lies 1.0 r beyond the last particle layer (ripple

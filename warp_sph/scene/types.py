@@ -92,11 +92,13 @@ Probe = section_class("probes[]", _CORE["probes[]"].values(),
                       doc="A probe sampled during the run (``warp_sph.run.probes``); keys of other kinds are None.")
 Probe.__name__ = Probe.__qualname__ = "Probe"
 RigidParams = section_class("rigid", _CORE["rigid"].values(), doc="Contacts of the rigid bodies.")
+WhitewaterParams = section_class("whitewater", _CORE["whitewater"].values(),
+                                 doc="Spray, foam and air bubbles (``warp_sph.run.whitewater``).")
 
 #: core section name -> class (method sections come from the registry)
 CORE_SECTIONS = {"material": Material, "time": TimeParams, "container": Container, "output": OutputParams,
                  "fluid[]": FluidBlock, "obstacles[]": Obstacle, "bodies[]": Body, "rigid": RigidParams,
-                 "probes[]": Probe}
+                 "probes[]": Probe, "whitewater": WhitewaterParams}
 
 
 @dataclass
@@ -132,6 +134,7 @@ class Scene:
     forces: list = field(default_factory=list)
     probes: list = field(default_factory=list)
     rigid: Any = field(default_factory=RigidParams)
+    whitewater: Any = None  # WhitewaterParams when the scene has [whitewater]
     output: Any = field(default_factory=OutputParams)
     sections: dict = field(default_factory=dict)
     source: str = field(default="<dict>", compare=False, repr=False)

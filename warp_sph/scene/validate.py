@@ -167,6 +167,9 @@ class Validator:
         values["bodies"] = self.blocks(data, "bodies", required=False)
         values["forces"] = self.forces(data)
         values["probes"] = self.blocks(data, "probes", required=False, shape_key="kind")
+        if "whitewater" in data:  # off unless present
+            values["whitewater"] = CORE_SECTIONS["whitewater"](**self.table(data["whitewater"], "whitewater",
+                                                                            "whitewater"))
         scene = Scene(**values, source=self.source)
         self.cross_checks(scene)
         return scene
@@ -344,6 +347,18 @@ class Validator:
             from .probes import check_probes
 
             check_probes(scene, self.fail)
+        if scene.whitewater is not None:
+            w = scene.whitewater
+            for lo, hi in (("trapped_air_min", "trapped_air_max"), ("wave_crest_min", "wave_crest_max"),
+                           ("kinetic_energy_min", "kinetic_energy_max")):
+                if not getattr(w, hi) > getattr(w, lo):
+                    self.fail(f"whitewater.{hi}", f"expected > whitewater.{lo} ({getattr(w, lo):g}), got {getattr(w, hi):g}")
+            if w.lifetime_max < w.lifetime_min:
+                self.fail("whitewater.lifetime_max", f"expected >= whitewater.lifetime_min ({w.lifetime_min:g}), "
+                          f"got {w.lifetime_max:g}")
+            if w.bubble_neighbors < w.spray_neighbors:
+                self.fail("whitewater.bubble_neighbors", f"expected >= whitewater.spray_neighbors "
+                          f"({w.spray_neighbors}), got {w.bubble_neighbors}")
 
 
 def lattice_neighbor_counts(scene) -> tuple[int, int]:
