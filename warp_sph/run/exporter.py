@@ -95,6 +95,8 @@ class Exporter:
                 "density": wp.clone(f["particle_density"])}
         if "particle_pressure" in f:
             snap["pressure"] = wp.clone(f["particle_pressure"])
+        if "particle_id" in f:  # emitters and sinks: persistent particle ids (``warp_sph.run.emission``)
+            snap["id"] = wp.clone(f["particle_id"])
         if checkpoint is not None:
             snap["checkpoint"] = checkpoint
         if self.sim.bodies is not None:
@@ -126,8 +128,9 @@ class Exporter:
             c["band_fallback"] += mesh.stats.get("band_fallback", 0)
         self._check_space(frame, len(x_world), surface, "checkpoint" in snap)
         if self.record:
+            ids = {"id": snap["id"].numpy()} if "id" in snap else {}
             rf.atomic_save_npz(rf.frame_path(self.out, frame), x=x_world.astype(world), v=v, density=rho,
-                               time=np.float64(t))
+                               time=np.float64(t), **ids)
         if surface is not None and self.mesh_writer is not None:
             self.mesh_writer.write_frame(frame, surface[0].astype(world), surface[1])
         if self.usd is not None:

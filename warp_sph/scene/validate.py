@@ -167,6 +167,8 @@ class Validator:
         values["bodies"] = self.blocks(data, "bodies", required=False)
         values["forces"] = self.forces(data)
         values["probes"] = self.blocks(data, "probes", required=False, shape_key="kind")
+        values["emitters"] = self.blocks(data, "emitters", required=False)
+        values["sinks"] = self.blocks(data, "sinks", required=False, shape_key="")
         scene = Scene(**values, source=self.source)
         self.cross_checks(scene)
         return scene
@@ -304,6 +306,10 @@ class Validator:
             from .probes import check_probes
 
             check_probes(scene, self.fail)
+        if scene.emitters or scene.sinks or scene.max_particles:
+            from .emitters import check_emission
+
+            check_emission(scene, self.fail)
 
 
 def lattice_neighbor_counts(scene) -> tuple[int, int]:
