@@ -141,7 +141,7 @@ class Exporter:
                 elif name == "pressure" and "pressure" in snap:
                     primvars["pressure"] = snap["pressure"].numpy()
             self.usd.write_frame(frame, x_world, v, primvars=primvars, surface=surface, spray=spray,
-                                 bodies=snap.get("bodies"))
+                                 bodies=snap.get("bodies"), ids=snap["id"].numpy() if "id" in snap else None)
         if "checkpoint" in snap:  # after the frame's outputs: checkpoint k implies frames <= k are saved
             (self.out / "checkpoints").mkdir(exist_ok=True)
             rf.atomic_save_npz(rf.checkpoint_path(self.out, frame), particle_x_local=snap["x"].numpy(),

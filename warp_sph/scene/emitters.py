@@ -109,6 +109,10 @@ def check_emission(scene, fail) -> None:
     if scene.bodies and (scene.emitters or scene.sinks):
         fail("emitters" if scene.emitters else "sinks", "emitters and sinks do not work with [[bodies]] yet; "
              "remove the bodies or the emitters and sinks")
+    for i, f in enumerate(scene.forces):
+        if getattr(f, "method", "") == "weiler2018" and (scene.emitters or scene.sinks):
+            fail(f"forces[{i}].method", "weiler2018 keeps arrays of the initial particle count and does not work "
+                 "with emitters or sinks yet; use explicit_viscosity")
     for i, e in enumerate(scene.emitters):
         kp = f"emitters[{i}]"
         if (e.speed is None) == (e.flow_rate is None):
