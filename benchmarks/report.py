@@ -14,7 +14,7 @@ import math
 import os
 from pathlib import Path
 
-from . import bodies, executor_speed, extremes, matrix, validation
+from . import bodies, emission, executor_speed, extremes, matrix, validation
 from . import metrics as M
 from .plots import SPEED_KEY, Figures, plot_adaptive, plot_scaling, plot_series, plot_tradeoff
 from .records import host_info
@@ -383,6 +383,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     lines += executor_speed.section(execs, fmt, section_head)
     moving = latest(data.get("bodies", []))
     lines += bodies.section(moving, fmt, section_head)
+    lines += emission.section(latest(data.get("emission", [])), fmt, section_head)
     checked = latest(data.get("validation", []))
     lines += validation.section(checked, fmt, section_head)
 

@@ -275,8 +275,8 @@ class Simulation:
         particle and likely cause (the state is left at the failure).
         """
         wd = self.watchdog
-        if self.flow is not None and self.flow.begin_frame():  # sinks and emitters, outside the cell order
-            self.refresh_density()
+        if self.flow is not None:  # sinks and emitters, outside the cell order (every solver's first stage
+            self.flow.begin_frame()  # computes the density of the new count: no refresh needed here)
         last = self.last_frame if self.last_frame else self.statistics()
         max_speed = max(last.max_speed, last.body_speed)  # the CFL includes the bodies' particles
         if self.flow is not None:  # the particles just emitted enter at the nozzle's speed
