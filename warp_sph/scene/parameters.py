@@ -233,7 +233,8 @@ _TAIL = (
     _P("emitters[].position", "vec3", "m", REQUIRED, "centre of the nozzle"),
     _P("emitters[].direction", "vec3", "-", REQUIRED, "direction of the flow (normalised)"),
     _P("emitters[].radius", "float", "m", REQUIRED, "radius of a circle nozzle", gt=0.0, shapes=("circle",)),
-    _P("emitters[].width", "float", "m", REQUIRED, "width of a rectangle nozzle (along direction x up, or x)",
+    _P("emitters[].width", "float", "m", REQUIRED, "width of a rectangle nozzle: horizontal, along z x direction (along y "
+       "for a vertical direction)",
        gt=0.0, shapes=("rectangle",)),
     _P("emitters[].height", "float", "m", REQUIRED, "height of a rectangle nozzle", gt=0.0, shapes=("rectangle",)),
     _P("emitters[].speed", "float", "m/s", None, "speed of the entering fluid (give speed or flow_rate)", gt=0.0),
