@@ -7,11 +7,13 @@ the arrays, so every launch, the neighbour search and every statistic see n part
 changes at the start of a frame, outside the cell order, decided on the host from the time:
 
 1. sinks: the particles inside a sink box are removed; the others keep their order (a stable
-   compaction: one gather per per-particle field, on the device, with the kept indices);
+   compaction: one gather on the device, with the kept indices, per field that outlives a substep: x, v,
+   the ids and the solver's and forces' carried fields; every other field is written by a stage before
+   any stage reads it, the step graph's contract);
 2. emitters: the layers that entered since the last frame (layer k of an emitter at
    t_k = start + k d / v, ``warp_sph.scene.emitters``) are written into the slots [n, n + k) with
-   their ballistic age a = t - t_k: x = x_nozzle + v n a + g a^2 / 2, v = v n + g a; every other
-   per-particle field of those slots (warm starts, carried force fields) starts at 0.
+   their ballistic age a = t - t_k: x = x_nozzle + v n a + g a^2 / 2, v = v n + g a; the carried fields
+   of those slots (warm starts, carried force fields) start at 0.
 
 Particle ids (``particle_id``, int32) are persistent: the initial fluid has 0..n0-1, emitted particles
 the next ones. A full capacity skips the layers that do not fit (one warning). The energy the particles
@@ -79,6 +81,13 @@ class ParticleFlow:
         sim.state.particle_x = sim.fields["particle_x"]
         sim.state.particle_v = sim.fields["particle_v"]
 
+    def carried(self) -> list[tuple[str, wp.array]]:
+        """(name, capacity array) of the fields that outlive a substep: x, v, the ids, the solver's and the
+        forces' carried fields (the others are produced by a stage before any stage reads them)."""
+        sim = self.sim
+        names = {"particle_x", "particle_v", ID_FIELD} | set(sim.solver.carried_fields()) | set(sim.forces.carried_fields())
+        return [(name, full) for name, full in self.full.items() if name in names]
+
     # --- a frame's start ----------------------------------------------------------------------
     def begin_frame(self) -> bool:
         """Sinks, then emitters, at the state's time (see the module docstring); True when the count changed."""
@@ -113,7 +122,7 @@ class ParticleFlow:
         keep = np.nonzero(~inside)[0].astype(np.int32)
         left = len(keep)
         wp.copy(self._keep, wp.array(keep, dtype=wp.int32, device=sim.device), count=left)
-        for name, full in self.full.items():
+        for name, full in self.carried():
             t = self._tmp.get(full.dtype)
             if t is None:
                 t = self._tmp[full.dtype] = wp.empty(m.capacity, dtype=full.dtype, device=sim.device)
@@ -154,7 +163,7 @@ class ParticleFlow:
         if not k:
             return 0
         self.last_speed = float(np.sqrt(np.max(np.sum(v.astype(np.float64) ** 2, axis=1))))
-        for name, full in self.full.items():
+        for name, full in self.carried():
             full[n:n + k].zero_()
         dev = sim.device
         wp.copy(self.full["particle_x"], wp.array(x, dtype=wp.vec3, device=dev), dest_offset=n, count=k)
