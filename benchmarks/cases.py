@@ -155,7 +155,7 @@ def run_warp_sph(spec: RunSpec) -> dict:
         wall_x = float(scene.container.min[0]) if scene.container is not None else 0.0
         floor = np.asarray(scene.container.min if scene.container is not None else (0.0, 0.0, 0.0), dtype=np.float64)
         series: dict[str, list] = {k: [] for k in (
-            "time", "steps", "dt", "wall", "max_speed", "density_error_mean", "density_error_max",
+            "time", "steps", "particles", "dt", "wall", "max_speed", "density_error_mean", "density_error_max",
             "density_error_min", "kinetic_energy", "potential_energy", "total_energy", "front",
             "volume_drift", "solver_iterations", "solver_iterations_max")}
         if hydro:
@@ -175,6 +175,7 @@ def run_warp_sph(spec: RunSpec) -> dict:
             de = M.density_error_stats(rho, m.rest_density)
             its = (stats.solver or {}).get("iterations", {}) if stats is not None else {}
             for k, val in (("time", sim.state.time), ("steps", stats.steps if stats else 0),
+                           ("particles", m.fluid_count),  # emitters and sinks change it (docs/emitters.md)
                            ("dt", stats.dt_max if stats else 0.0), ("wall", wall),
                            ("max_speed", float(np.linalg.norm(v, axis=1).max())),
                            ("density_error_mean", de["mean"]), ("density_error_max", de["max"]),

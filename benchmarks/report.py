@@ -14,7 +14,7 @@ import math
 import os
 from pathlib import Path
 
-from . import bodies, executor_speed, extremes, matrix, validation, whitewater
+from . import bodies, emission, executor_speed, extremes, matrix, validation, whitewater
 from . import metrics as M
 from .plots import SPEED_KEY, Figures, plot_adaptive, plot_scaling, plot_series, plot_tradeoff
 from .records import host_info
@@ -384,6 +384,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     moving = latest(data.get("bodies", []))
     lines += bodies.section(moving, fmt, section_head)
     lines += whitewater.section(latest(data.get("whitewater", [])), fmt, section_head)
+    lines += emission.section(latest(data.get("emission", [])), fmt, section_head)
     checked = latest(data.get("validation", []))
     lines += validation.section(checked, fmt, section_head)
 

@@ -9,6 +9,7 @@
     warp-sph bench splishsplash                    # side by side with SPlisHSPlasH (pysplishsplash)
     warp-sph bench surface                         # surface reconstruction per frame
     warp-sph bench bodies                          # moving rigid bodies against the same static obstacles
+    warp-sph bench emission                        # emitters and sinks against a fixed particle count
     warp-sph bench forces                          # each force's cost per particle-step beside its solver's
     warp-sph bench whitewater                      # a splash scene with whitewater on against off
     warp-sph bench validation                      # every solver against experiments (benchmarks/validation.py)
@@ -300,6 +301,20 @@ def cmd_surface(args, argv: list[str], log=print) -> int:
     return _finish(out, args, records, log)
 
 
+def cmd_emission(args, argv: list[str], log=print) -> int:
+    from . import emission as E
+
+    specs = E.specs(args.scene, args.frames, args.repeats, device=args.device, overrides=args.set)
+    invocation = now()
+    records = _run(specs, args, log)
+    s = E.summary(records)
+    if s:
+        log(f"emission: {s['flow_ns']:.4g} ns per particle-step with emitters and sinks, {s['fixed_ns']:.4g} without "
+            f"(fastest of {args.repeats} each): {100 * s['extra']:+.1f} % (goal <= +{100 * E.GOAL:.0f} %: "
+            f"{'met' if s['met'] else 'not met'})")
+    return _finish(_save("emission", records, args, argv, invocation, log), args, records, log)
+
+
 def cmd_bodies(args, argv: list[str], log=print) -> int:
     from . import bodies as B
 
@@ -530,6 +545,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="runs of each variant, alternating; the fastest counts (default 3)")
     common(b)
     b.set_defaults(func=cmd_bodies)
+
+    e = sub.add_parser("emission", help="a scene with emitters and sinks against the same scene without them: "
+                       "CPU time per particle-step")
+    e.add_argument("--scene", default="river", help="scene with [[emitters]] or [[sinks]] (default: river)")
+    e.add_argument("--frames", type=positive_int, default=24, help="frames per run after the initial one (default 24: 1 s)")
+    e.add_argument("--repeats", type=positive_int, default=3,
+                   help="runs of each variant, alternating; the fastest counts (default 3)")
+    common(e)
+    e.set_defaults(func=cmd_emission)
 
     f = sub.add_parser("forces", help="each registered force's cost per particle-step beside its solver's (and the "
                        "same scene without forces)")

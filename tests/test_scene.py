@@ -15,7 +15,7 @@ from warp_sph.scene import (
 )
 
 BUILTIN = ["dam_break", "hydrostatic", "radial_expansion", "drop_into_pool", "obstacle", "floating_bodies",
-           "droplet_zero_g", "crown_splash", "honey", "bunny_splash", "paddle"]
+           "droplet_zero_g", "crown_splash", "honey", "bunny_splash", "paddle", "faucet", "river"]
 
 MINIMAL = """
 [[fluid]]

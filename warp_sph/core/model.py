@@ -55,8 +55,12 @@ class Model:
     #: particle has ``boundary_friction``)
     boundary_particle_friction: wp.array | None = None
     max_boundary_friction: float = -1.0  # the largest sigma of any boundary particle [-] (< 0: boundary_friction)
+    #: particles the per-particle arrays hold (``warp_sph.run.emission``): fluid_count, the active particles,
+    #: changes with emitters and sinks and is at most this; 0: fluid_count
+    capacity: int = 0
 
     def __post_init__(self):
+        self.capacity = max(int(self.capacity), int(self.fluid_count))
         if self.max_boundary_friction < 0.0:
             self.max_boundary_friction = self.boundary_friction
 
@@ -192,7 +196,14 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         origin = 0.5 * (fluid_x.min(axis=0) + fluid_x.max(axis=0))
 
     body_x = np.asarray(getattr(sampled, "body_x", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
-    v_ref, c_s, v_source = _speed_of_sound(scene, fluid_x, fluid_v, lo, getattr(sampled, "fluid_block", None),
+    capacity = 0
+    fx_ref, fv_ref = fluid_x, fluid_v
+    if getattr(scene, "emitters", None) or getattr(scene, "sinks", None):
+        from ..scene.emitters import emission_capacity, nozzle_reference
+
+        capacity = emission_capacity(scene, len(fluid_x))
+        fx_ref, fv_ref = nozzle_reference(scene, fluid_x, fluid_v)  # the nozzles count as fluid for v_ref
+    v_ref, c_s, v_source = _speed_of_sound(scene, fx_ref, fv_ref, lo, getattr(sampled, "fluid_block", None),
                                            body_x)
     colliders = list(getattr(sampled, "colliders", []))
     if colliders:  # animated obstacles: moving particles after the bodies'; their top speed counts in v_ref
@@ -245,6 +256,7 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
         container_lo=None if lo is None else (lo - origin), container_hi=None if hi is None else (hi - origin),
         fluid_count=len(fluid_x), boundary_count=len(boundary_x), static_boundary_count=static_count,
         boundary_body=body_of, boundary_particle_friction=particle_friction, max_boundary_friction=max_friction,
+        capacity=capacity,
     )
     state = State(
         particle_x=wp.array((fluid_x - origin).astype(np.float32), dtype=wp.vec3, device=device),

@@ -203,6 +203,8 @@ class UsdWriter:
         self._points = points.GetPointsAttr()
         self._points_extent = points.GetExtentAttr()
         self._velocities = points.GetVelocitiesAttr() if self.with_velocities else None
+        self._points_prim = points
+        self._ids = self._id_primvar = None  # made by the first frame with ids (emitters: a changing count)
         api = UsdGeom.PrimvarsAPI(points)
         self._primvars = {}
         for name in self.primvar_names:
@@ -317,6 +319,7 @@ class UsdWriter:
         bodies: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
         spray: tuple[np.ndarray, np.ndarray | None] | None = None,
         whitewater: Mapping[str, tuple] | None = None,
+        ids: np.ndarray | None = None,
     ) -> None:
         """Write frame ``frame`` (time code; 1 = initial state) and save the stage.
 
@@ -333,6 +336,9 @@ class UsdWriter:
                 None or none at all writes the placeholder point (module docstring).
             whitewater: {"spray" | "foam" | "bubbles": (positions (K, 3) [m], velocities (K, 3) [m/s],
                 ages (K,) [s])} (a missing set is empty: its placeholder point) with with_whitewater.
+            ids: (N,) persistent particle ids (emitters and sinks change N from frame to frame): written as
+                the Points' ``ids`` and as the int primvar ``id`` (vertex), which Blender imports as the
+                point attribute "id"; None writes neither.
         """
         if self.stage is None or self._failed:
             raise OutputError(f"{self.path}: write_frame after close" if self.stage is None else
@@ -358,6 +364,16 @@ class UsdWriter:
             if len(v) != n:
                 raise ValueError(f"{len(v)} velocities for {n} particles")
             self._velocities.Set(vec3f(v), t)
+        if ids is not None:
+            ids = np.ascontiguousarray(ids, dtype=np.int64).reshape(-1)
+            if len(ids) != n:
+                raise ValueError(f"{len(ids)} ids for {n} particles")
+            if self._ids is None:
+                self._ids = self._points_prim.CreateIdsAttr()
+                self._id_primvar = UsdGeom.PrimvarsAPI(self._points_prim).CreatePrimvar(
+                    "id", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex).GetAttr()
+            self._ids.Set(Vt.Int64Array.FromNumpy(ids), t)
+            self._id_primvar.Set(Vt.IntArray.FromNumpy(ids.astype(np.int32)), t)
         for name, attr in self._primvars.items():
             values = np.ascontiguousarray(primvars[name], dtype=np.float32).reshape(-1)
             if len(values) != n:

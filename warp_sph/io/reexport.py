@@ -4,7 +4,8 @@
     warp-sph export runs/dam_break --format obj --frames 10:40    # OBJ sequence of frames 10..40
 
 Inputs, all from the run folder (``run_folder`` describes the layout):
-- ``frames/frame_NNNNNN.npz``: x (world) [m], v [m/s], density [kg/m^3], time [s] of each frame;
+- ``frames/frame_NNNNNN.npz``: x (world) [m], v [m/s], density [kg/m^3], time [s] of each frame (and the
+  particle ids ``id`` with emitters or sinks: the count changes from frame to frame);
 - ``run.json``: the resolved scene (container, obstacles, output settings, fps) and the model
   constants the surface needs: smoothing kernel, smoothing length h, particle mass m, particle
   radius r, and the local origin (positions are meshed relative to it, as during the run, so
@@ -256,7 +257,7 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
         mesh_writer = MeshSequenceWriter(target, fmt)
     try:
         for frame in wanted:
-            data = rf.read_frame(files[frame])
+            data = rf.read_frame(files[frame], keys=("x", "v", "density", "id?"))
             x_dtype = data["x"].dtype  # float64 where the run lies far from (0, 0, 0)
             x_world = np.asarray(data["x"], dtype=np.float64).reshape(-1, 3)
             v = np.asarray(data["v"], dtype=np.float32).reshape(-1, 3)
@@ -268,7 +269,7 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
             if usd is not None:
                 usd.write_frame(frame, x_world, v, primvars={n: rho for n in usd.primvar_names},
                                 surface=(verts, mesh.triangles, mesh.normals), spray=(x_world[mesh.spray], v[mesh.spray]),
-                                bodies=body_poses.get(frame))
+                                bodies=body_poses.get(frame), ids=data["id"] if "id" in data else None)
             else:
                 mesh_writer.write_frame(frame, verts if data_far else verts.astype(np.float32), mesh.triangles)
     finally:

@@ -318,7 +318,7 @@ def simulation_neighbor_lists(sim, margin: float = 0.0) -> NeighborLists:
         radius = m.support_radius + margin
         volume = (radius / m.support_radius) ** 3
         with_boundary = m.boundary_count > 0
-        lists = NeighborLists(radius, lo - pad, hi + pad, m.fluid_count,
+        lists = NeighborLists(radius, lo - pad, hi + pad, m.capacity,
                               m.boundary_x if with_boundary else None,
                               fluid_capacity=int(math.ceil(64 * volume)), boundary_capacity=int(math.ceil(48 * volume)),
                               device=m.device, boundary_volume=m.boundary_volume if with_boundary else None,

@@ -43,7 +43,7 @@ class CellOrder:
             if m.container_lo is not None:
                 lo, hi = np.minimum(lo, m.container_lo), np.maximum(hi, m.container_hi)
             pad = 2.0 * m.support_radius
-            self._cells = CellGrid(m.support_radius, lo - pad, hi + pad, m.fluid_count, device=m.device)
+            self._cells = CellGrid(m.support_radius, lo - pad, hi + pad, m.capacity, device=m.device)
         return self._cells
 
     def _fields(self) -> list[wp.array]:
@@ -53,11 +53,12 @@ class CellOrder:
                 if isinstance(a, wp.array) and a.ndim == 1 and a.shape[0] == m.fluid_count and name not in skip]
 
     def _tmp(self, a: wp.array) -> wp.array:
-        key = (a.dtype, a.shape[0])
+        size = max(a.shape[0], self.sim.model.capacity)  # one scratch per dtype also as the active count changes
+        key = (a.dtype, size)
         t = self._scratch.get(key)
         if t is None:
-            t = self._scratch[key] = wp.empty(a.shape[0], dtype=a.dtype, device=a.device)
-        return t
+            t = self._scratch[key] = wp.empty(size, dtype=a.dtype, device=a.device)
+        return t if size == a.shape[0] else t[: a.shape[0]]
 
     def sort(self) -> bool:
         """Permute every per-particle field into cell order of the current positions (slot k then
@@ -68,7 +69,7 @@ class CellOrder:
         grid = self._grid()
         grid.build(self.sim.state.particle_x)
         if self.order is None:
-            self.order = wp.empty(n, dtype=wp.int32, device=self.sim.model.device)
+            self.order = wp.empty(self.sim.model.capacity, dtype=wp.int32, device=self.sim.model.device)
         wp.copy(self.order, grid.cell_point, count=n)
         for a in self._fields():
             t = self._tmp(a)

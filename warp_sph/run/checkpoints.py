@@ -63,6 +63,8 @@ def checkpoint_info(sim, frame: int, frame_log: list[dict], digest: str = "") ->
         extra.update(sim.colliders.checkpoint_arrays())
     if getattr(sim, "whitewater", None) is not None:  # the secondary particles: a resume continues bit for bit
         extra.update(sim.whitewater.checkpoint_arrays())
+    if sim.flow is not None:  # emitters and sinks: ids, layers emitted, counters, exchanged energy
+        extra.update(sim.flow.checkpoint_arrays())
     # copies: on the CPU ``numpy()`` is a view of the live array, and a checkpoint is written on the
     # export thread while the next frame already runs (a solver's carried warm-start values change)
     extra = {k: np.array(a.numpy() if isinstance(a, wp.array) else a, copy=True) for k, a in extra.items()}
@@ -81,7 +83,11 @@ def check_checkpoint(cp: dict, path: Path, run_scene: dict, sim, log=print) -> N
     solver, checkpoint layout or warp-sph / Warp version than the run it is in."""
     m = sim.model
     n = len(cp["particle_x_local"])
-    if n != m.fluid_count:
+    if sim.flow is not None:  # emitters and sinks: the count changes; the capacity bounds it
+        if n > m.capacity or "flow_ids" not in cp:
+            raise OutputError(f"{path}: holds {n} fluid particles without the emitters' state, or more than the "
+                              f"capacity {m.capacity}; the checkpoint belongs to another scene")
+    elif n != m.fluid_count:
         raise OutputError(f"{path}: holds {n} fluid particles, the scene of run.json has {m.fluid_count}; "
                           "the checkpoint belongs to another scene")
     fmt = int(cp["checkpoint_format"]) if "checkpoint_format" in cp else 1
@@ -91,7 +97,7 @@ def check_checkpoint(cp: dict, path: Path, run_scene: dict, sim, log=print) -> N
     if "scene_hash" in cp and str(cp["scene_hash"]) != scene_hash(run_scene):
         raise OutputError(f"{path}: written for another scene than the one in run.json (scene hash "
                           f"{str(cp['scene_hash'])[:12]} vs {scene_hash(run_scene)[:12]}); was run.json edited?")
-    for key, want in (("fluid_count", m.fluid_count), ("boundary_count", m.boundary_count)):
+    for key, want in ((("fluid_count", m.fluid_count),) if sim.flow is None else ()) + (("boundary_count", m.boundary_count),):
         if key in cp and int(cp[key]) != want:
             raise OutputError(f"{path}: {key.replace('_', ' ')} {int(cp[key])}, the scene of run.json has {want}")
     if "solver" in cp and str(cp["solver"]) != sim.scene.solver:

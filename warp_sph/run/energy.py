@@ -10,8 +10,11 @@ counting it would add the integrator's bounded oscillation of a stiff spring (a 
 0.1 m read 1.05 % with it, 0.11 % without). It enters the start instead (below). PBF and DFSPH, an
 incompressible projection, store nothing in compression. Animated obstacles (``rigid.colliders``) drive the
 fluid: the work they do on it, W = -sum over substeps dt sum_b F_b . v_b (F_b the fluid's force on their
-particle b, the exact negative of the boundary terms), is subtracted (E - W is what the rule watches); any
-other source that puts energy in must add its work likewise before it can run under this rule.
+particle b, the exact negative of the boundary terms), is subtracted (E - W is what the rule watches).
+Emitters and sinks (``warp_sph.run.emission``) add and remove particles: the kinetic + potential energy they
+brought in minus what the removed ones took out (``ParticleFlow.exchanged``) is added to E(0), and the emitted
+energy above the floor to the scale.
+Any other source that puts energy in must add its work to the reference before it can run under this rule.
 
 Rule: E(t) - E(0) - W(t) > allowance + ENERGY_GROWTH_LIMIT * scale at the end of a frame stops the run (or retries
 the frame with ``time.on_instability = "retry"``), with one line naming the likely cause and the key to change.
@@ -91,7 +94,7 @@ class EnergyWatch:
     def __init__(self, sim):
         self.sim = sim
         m = sim.model
-        chunks = max(1, -(-m.fluid_count // _reduce.REDUCE_CHUNK))
+        chunks = max(1, -(-m.capacity // _reduce.REDUCE_CHUNK))
         self._partial = wp.zeros((chunks, _diag.ENERGY_COUNT), dtype=wp.float64, device=sim.device)
         #: a user changed the state or the solver: the next check starts a new reference
         self.stale = False
@@ -152,6 +155,10 @@ class EnergyWatch:
             self.allowance = 0.0
         #: E(0) the rule measures from [J]
         self.reference_total = e.total
+        flow = getattr(sim, "flow", None)
+        #: the emitters' and sinks' exchanged energy at the reference [J] (``warp_sph.run.emission``)
+        self.exchanged_base = flow.exchanged if flow is not None else 0.0
+        self.exchanged_scale_base = flow.exchanged_scale if flow is not None else 0.0
         g = np.asarray(m.gravity, dtype=np.float64)
         gn = float(np.linalg.norm(g))
         masses = np.asarray(sim.bodies.world.masses if sim.bodies is not None else [], dtype=np.float64)
@@ -169,15 +176,22 @@ class EnergyWatch:
                     q = sim.bodies.world.body_q.numpy().astype(np.float64)
                     heights = np.concatenate([heights, q[:, :3] @ up])
                 floor = float(heights.min())
+        #: the floor's height along -g in the local frame [m] (the potential energy's zero for the scale)
+        self.floor = floor
         # potential energy counted from the floor: sum m g.(h - floor) = PE_local - M |g| floor
         above = self.reference_total - total_mass * gn * floor + self.allowance
         self.scale = max(above, SCALE_FLOOR * 0.5 * total_mass * m.reference_speed ** 2)
 
     # --- the rule ----------------------------------------------------------------------------
     def growth(self, e: Energy) -> float:
-        """(E - E(0) - W) / scale [-] (E(0): ``reference_total``; W: the work animated obstacles did on the fluid
-        since then)."""
-        return (e.total - e.work - self.reference_total) / self.scale
+        """(E - E(0) - W - exchanged) / (scale + emitted) [-] (E(0): ``reference_total``; W: the work animated
+        obstacles did on the fluid since then; exchanged: the energy emitters brought in minus what sinks took
+        out since the reference, emitted: its part above the floor)."""
+        flow = getattr(self.sim, "flow", None)
+        if flow is None:
+            return (e.total - e.work - self.reference_total) / self.scale
+        return ((e.total - e.work - self.reference_total - (flow.exchanged - self.exchanged_base))
+                / (self.scale + flow.exchanged_scale - self.exchanged_scale_base))
 
     def limit(self) -> float:
         """The largest allowed (E - E(0)) / scale [-]: allowance / scale + ENERGY_GROWTH_LIMIT."""

@@ -102,6 +102,8 @@ class Exporter:
                 "density": wp.clone(f["particle_density"])}
         if "particle_pressure" in f:
             snap["pressure"] = wp.clone(f["particle_pressure"])
+        if "particle_id" in f:  # emitters and sinks: persistent particle ids (``warp_sph.run.emission``)
+            snap["id"] = wp.clone(f["particle_id"])
         if checkpoint is not None:
             snap["checkpoint"] = checkpoint
         if self.sim.bodies is not None:
@@ -137,8 +139,9 @@ class Exporter:
             c["band_fallback"] += mesh.stats.get("band_fallback", 0)
         self._check_space(frame, len(x_world), surface, "checkpoint" in snap)
         if self.record:
+            ids = {"id": snap["id"].numpy()} if "id" in snap else {}
             rf.atomic_save_npz(rf.frame_path(self.out, frame), x=x_world.astype(world), v=v, density=rho,
-                               time=np.float64(t))
+                               time=np.float64(t), **ids)
         if surface is not None and self.mesh_writer is not None:
             self.mesh_writer.write_frame(frame, surface[0].astype(world), surface[1])
         if self.usd is not None:
@@ -149,7 +152,8 @@ class Exporter:
                 elif name == "pressure" and "pressure" in snap:
                     primvars["pressure"] = snap["pressure"].numpy()
             self.usd.write_frame(frame, x_world, v, primvars=primvars, surface=surface, spray=spray,
-                                 bodies=snap.get("bodies"), whitewater=snap.get("whitewater"))
+                                 bodies=snap.get("bodies"), whitewater=snap.get("whitewater"),
+                                 ids=snap["id"].numpy() if "id" in snap else None)
         if "checkpoint" in snap:  # after the frame's outputs: checkpoint k implies frames <= k are saved
             (self.out / "checkpoints").mkdir(exist_ok=True)
             rf.atomic_save_npz(rf.checkpoint_path(self.out, frame), particle_x_local=snap["x"].numpy(),

@@ -96,6 +96,13 @@ def particle_count_contributions(scene) -> list[tuple[str, str, int]]:
             except Exception:
                 area = 0.0
         out.append((f"obstacles[{i}]", "boundary", int(min(area / d**2, 2**62))))
+    if getattr(scene, "emitters", None) or getattr(scene, "max_particles", 0):  # the capacity beyond the blocks
+        from ..scene.emitters import emitted_total
+
+        initial = sum(n for _, kind, n in out if kind == "fluid")
+        extra = scene.max_particles - initial if scene.max_particles else int(1.05 * emitted_total(scene))
+        if extra > 0:
+            out.append(("max_particles" if scene.max_particles else "emitters", "fluid", int(min(extra, 2**62))))
     return out
 
 

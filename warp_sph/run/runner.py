@@ -235,6 +235,8 @@ def _restore_state(sim: Simulation, cp, info: dict, start_frame: int) -> list[di
     """Put checkpoint ``cp`` into ``sim``: x (model frame), v, step, frame, time, the solver's and the
     bodies' arrays, the density and the last frame's statistics (with the max speed that sizes the
     next substep). Returns the frame log up to ``start_frame`` (the checkpoint's, else run.json's)."""
+    if sim.flow is not None:  # the checkpoint's active count, ids and emitter state first
+        sim.flow.restore(cp)
     sim.state.particle_x.assign(wp.array(cp["particle_x_local"], dtype=wp.vec3, device=sim.device))
     sim.state.particle_v.assign(wp.array(cp["particle_v"], dtype=wp.vec3, device=sim.device))
     sim.state.step = int(cp["step"])

@@ -60,10 +60,14 @@ class FrameStatistics:
     #                                  not part of the total the energy rule checks (``warp_sph.run.energy``)
     body_energy: float = 0.0    # [J] kinetic + potential of the rigid bodies (local origin)
     energy_growth: float = 0.0  # (E - E(0)) / the scene's energy scale [-] (``warp_sph.run.energy``)
+    flow: dict = field(default_factory=dict)  # emitters and sinks: particles, emitted, removed (``ParticleFlow``)
 
     def to_dict(self) -> dict:
-        """The statistics as a plain dict (the per-frame record in run.json)."""
-        return dict(self.__dict__)
+        """The statistics as a plain dict (the per-frame record in run.json; ``flow`` only with emitters or sinks)."""
+        out = dict(self.__dict__)
+        if not out["flow"]:
+            del out["flow"]
+        return out
 
 
 class Simulation:
@@ -87,6 +91,12 @@ class Simulation:
             "particle_v": self.state.particle_v,
         }
         self._inputs = {"particle_x", "particle_v"}
+        #: emitters and sinks (``warp_sph.run.emission.ParticleFlow``); None without: the count never changes
+        self.flow = None
+        if scene.emitters or scene.sinks:
+            from .emission import ParticleFlow
+
+            self.flow = ParticleFlow(self)
         if self.model.boundary_count:
             self.fields.update(boundary_x=self.model.boundary_x, boundary_volume=self.model.boundary_volume,
                                boundary_grid=self.model.boundary_grid)
@@ -122,7 +132,7 @@ class Simulation:
             self.unsorted_fields |= self.colliders.unsorted
         self._stats = wp.zeros(_diag.STAT_COUNT, dtype=float, device=self.device)
         #: per-chunk largest |v|^2 of ``current_speed``
-        self._speed_partial = wp.zeros(max(1, -(-self.model.fluid_count // _reduce.REDUCE_CHUNK)), dtype=float,
+        self._speed_partial = wp.zeros(max(1, -(-self.model.capacity // _reduce.REDUCE_CHUNK)), dtype=float,
                                        device=self.device)
         self.frame_dt = 1.0 / float(scene.fps)
         self.step_bound = 0.0  # set by ``time_step``
@@ -203,13 +213,18 @@ class Simulation:
             out["colliders"] = self.colliders.summary()
         if self.whitewater is not None:
             out["whitewater"] = self.whitewater.summary()
+        if self.flow is not None:
+            out["flow"] = self.flow.summary()
         return out
 
     # --- fields ----------------------------------------------------------------------------
     def allocate(self, name: str, dtype) -> wp.array:
         """Workspace array of one value per fluid particle (allocated once)."""
         if name not in self.fields:
-            self.fields[name] = wp.zeros(self.model.fluid_count, dtype=dtype, device=self.device)
+            if self.flow is not None:  # the capacity, the active particles a prefix view (``ParticleFlow``)
+                self.fields[name] = self.flow.adopt(name, wp.zeros(self.model.capacity, dtype=dtype, device=self.device))
+            else:
+                self.fields[name] = wp.zeros(self.model.fluid_count, dtype=dtype, device=self.device)
         return self.fields[name]
 
     def get_field(self, name: str) -> np.ndarray:
@@ -286,10 +301,14 @@ class Simulation:
         particle and likely cause (the state is left at the failure).
         """
         wd = self.watchdog
+        if self.flow is not None:  # sinks and emitters, outside the cell order (every solver's first stage
+            self.flow.begin_frame()  # computes the density of the new count: no refresh needed here)
         last = self.last_frame if self.last_frame else self.statistics()
         max_speed = max(last.max_speed, last.body_speed)  # the CFL includes the bodies' particles
         if self.colliders is not None:  # and the animated obstacles' top speed over the coming frame
             max_speed = max(max_speed, self.colliders.max_speed(self.state.time, self.state.time + self.frame_dt))
+        if self.flow is not None:  # the particles just emitted enter at the nozzle's speed
+            max_speed = max(max_speed, self.flow.last_speed)
         wd.save()
         retries = 0
         while True:
@@ -443,7 +462,7 @@ class Simulation:
             density_error_min=float(s[_diag.STAT_MIN_DENSITY_ERROR]),
             **energy, non_finite=watch["non_finite"], outside=watch["outside"],
             max_acceleration=float(s[_diag.STAT_MAX_ACCELERATION]),
-            watch=watch,
+            watch=watch, flow=self.flow.record() if self.flow is not None else {},
         )
 
     def check_health(self, stats: FrameStatistics) -> None:

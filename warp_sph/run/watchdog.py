@@ -105,11 +105,11 @@ class Watchdog:
     # --- frame-start snapshot ----------------------------------------------------------------
     def save(self) -> None:
         s = self.sim.state
-        if self._x0 is None:
-            self._x0 = wp.empty_like(s.particle_x)
-            self._v0 = wp.empty_like(s.particle_v)
-        wp.copy(self._x0, s.particle_x)
-        wp.copy(self._v0, s.particle_v)
+        if self._x0 is None:  # the capacity: emitters change the active count (``warp_sph.run.emission``)
+            self._x0 = wp.empty(self.sim.model.capacity, dtype=s.particle_x.dtype, device=self.sim.device)
+            self._v0 = wp.empty(self.sim.model.capacity, dtype=s.particle_v.dtype, device=self.sim.device)
+        wp.copy(self._x0, s.particle_x, count=s.particle_x.shape[0])
+        wp.copy(self._v0, s.particle_v, count=s.particle_v.shape[0])
         self._start = (s.time, s.step, s.frame)
         self._bodies = self.sim.bodies.save() if self.sim.bodies is not None else None
         self._colliders = self.sim.colliders.save() if getattr(self.sim, "colliders", None) is not None else None
@@ -120,8 +120,8 @@ class Watchdog:
 
     def restore(self) -> None:
         s = self.sim.state
-        wp.copy(s.particle_x, self._x0)
-        wp.copy(s.particle_v, self._v0)
+        wp.copy(s.particle_x, self._x0, count=s.particle_x.shape[0])
+        wp.copy(s.particle_v, self._v0, count=s.particle_v.shape[0])
         s.time, s.step, s.frame = self._start
         if self._extra:
             self.sim.solver.restore_arrays(self._extra)

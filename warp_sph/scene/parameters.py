@@ -22,6 +22,7 @@ FLUID_SHAPES = ("box", "sphere", "mesh")
 OBSTACLE_SHAPES = ("box", "mesh")
 BODY_SHAPES = ("box", "sphere", "mesh")
 PROBE_KINDS = ("pressure", "height", "front")
+EMITTER_SHAPES = ("circle", "rectangle")
 TABLE_KINDS = ("table", "tables", "table_or_false")
 
 
@@ -241,6 +242,31 @@ _TAIL = (
        gt=0.0, shapes=("height", "front"), default_text="to the wall"),
     _P("probes[].rate", "float", "Hz", 100.0, "samples per second of simulated time; at most one per substep",
        gt=0.0),
+    # emitters and sinks (warp_sph.run.emission): a changing particle count (docs/emitters.md)
+    _P("max_particles", "int", "-", 0, "fluid particle capacity, allocated once (0: the initial fluid plus "
+       "every emitter's volume over its active time, plus 5 %); emission stops with one warning when it is "
+       "full", ge=0, default_text="auto"),
+    _P("emitters", "tables", "-", [], "emitters ([[emitters]]): fluid entering in lattice layers through a "
+       "nozzle (docs/emitters.md)", default_text="none"),
+    _P("emitters[].shape", "str", "-", "circle", "nozzle shape: a disc or a rectangle, normal to direction",
+       choices=EMITTER_SHAPES),
+    _P("emitters[].position", "vec3", "m", REQUIRED, "centre of the nozzle"),
+    _P("emitters[].direction", "vec3", "-", REQUIRED, "direction of the flow (normalised)"),
+    _P("emitters[].radius", "float", "m", REQUIRED, "radius of a circle nozzle", gt=0.0, shapes=("circle",)),
+    _P("emitters[].width", "float", "m", REQUIRED, "width of a rectangle nozzle: horizontal, along z x direction (along y "
+       "for a vertical direction)",
+       gt=0.0, shapes=("rectangle",)),
+    _P("emitters[].height", "float", "m", REQUIRED, "height of a rectangle nozzle", gt=0.0, shapes=("rectangle",)),
+    _P("emitters[].speed", "float", "m/s", None, "speed of the entering fluid (give speed or flow_rate)", gt=0.0),
+    _P("emitters[].flow_rate", "float", "m^3/s", None, "volume per second (give speed or flow_rate; the speed is "
+       "the rate over the nozzle's lattice area)", gt=0.0),
+    _P("emitters[].start", "float", "s", 0.0, "time the emission starts", ge=0.0),
+    _P("emitters[].end", "float", "s", None, "time the emission ends (absent: the scene's duration)", ge=0.0,
+       default_text="duration"),
+    _P("sinks", "tables", "-", [], "sinks ([[sinks]]): boxes that remove the fluid entering them, checked at "
+       "every frame (docs/emitters.md)", default_text="none"),
+    _P("sinks[].min", "vec3", "m", REQUIRED, "lower corner of the sink box"),
+    _P("sinks[].max", "vec3", "m", REQUIRED, "upper corner of the sink box"),
     _P("rigid", "table", "-", {}, "contacts of the rigid bodies (Newton, penalty contacts)"),
     _P("rigid.contact_friction", "float", "-", 0.5, "Coulomb friction coefficient of every body contact "
        "(body-body, body-wall, body-obstacle)", ge=0.0, le=10.0),

@@ -91,6 +91,11 @@ Body.__name__ = Body.__qualname__ = "Body"
 Probe = section_class("probes[]", _CORE["probes[]"].values(),
                       doc="A probe sampled during the run (``warp_sph.run.probes``); keys of other kinds are None.")
 Probe.__name__ = Probe.__qualname__ = "Probe"
+Emitter = section_class("emitters[]", _CORE["emitters[]"].values(),
+                        doc="A nozzle emitting fluid (``warp_sph.run.emission``); keys of the other shape are None.")
+Emitter.__name__ = Emitter.__qualname__ = "Emitter"
+Sink = section_class("sinks[]", _CORE["sinks[]"].values(), doc="A box that removes fluid (``warp_sph.run.emission``).")
+Sink.__name__ = Sink.__qualname__ = "Sink"
 RigidParams = section_class("rigid", _CORE["rigid"].values(), doc="Contacts of the rigid bodies.")
 WhitewaterParams = section_class("whitewater", _CORE["whitewater"].values(),
                                  doc="Spray, foam and air bubbles (``warp_sph.run.whitewater``).")
@@ -98,7 +103,7 @@ WhitewaterParams = section_class("whitewater", _CORE["whitewater"].values(),
 #: core section name -> class (method sections come from the registry)
 CORE_SECTIONS = {"material": Material, "time": TimeParams, "container": Container, "output": OutputParams,
                  "fluid[]": FluidBlock, "obstacles[]": Obstacle, "bodies[]": Body, "rigid": RigidParams,
-                 "probes[]": Probe, "whitewater": WhitewaterParams}
+                 "probes[]": Probe, "whitewater": WhitewaterParams, "emitters[]": Emitter, "sinks[]": Sink}
 
 
 @dataclass
@@ -133,6 +138,9 @@ class Scene:
     bodies: list = field(default_factory=list)
     forces: list = field(default_factory=list)
     probes: list = field(default_factory=list)
+    max_particles: int = 0
+    emitters: list = field(default_factory=list)
+    sinks: list = field(default_factory=list)
     rigid: Any = field(default_factory=RigidParams)
     whitewater: Any = None  # WhitewaterParams when the scene has [whitewater]
     output: Any = field(default_factory=OutputParams)

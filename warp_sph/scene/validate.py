@@ -170,6 +170,8 @@ class Validator:
         if "whitewater" in data:  # off unless present
             values["whitewater"] = CORE_SECTIONS["whitewater"](**self.table(data["whitewater"], "whitewater",
                                                                             "whitewater"))
+        values["emitters"] = self.blocks(data, "emitters", required=False)
+        values["sinks"] = self.blocks(data, "sinks", required=False, shape_key="")
         scene = Scene(**values, source=self.source)
         self.cross_checks(scene)
         return scene
@@ -359,6 +361,10 @@ class Validator:
             if w.bubble_neighbors < w.spray_neighbors:
                 self.fail("whitewater.bubble_neighbors", f"expected >= whitewater.spray_neighbors "
                           f"({w.spray_neighbors}), got {w.bubble_neighbors}")
+        if scene.emitters or scene.sinks or scene.max_particles:
+            from .emitters import check_emission
+
+            check_emission(scene, self.fail)
 
 
 def lattice_neighbor_counts(scene) -> tuple[int, int]:

@@ -132,7 +132,7 @@ class DfsphSolver(DfsphSearch, Solver):
     # --- workspace -------------------------------------------------------------------------
     def _allocate(self) -> None:
         sim, m = self.sim, self.model
-        n, dev = m.fluid_count, m.device
+        n, dev = m.capacity, m.device  # the particle capacity (emitters: the active count changes)
         for name, dtype in (("particle_density", float), ("dfsph_factor", float), ("dfsph_divergence_source", float),
                             ("dfsph_divergence_pressure", float), ("dfsph_divergence_warm", float),
                             ("dfsph_density_source", float), ("dfsph_pressure", float), ("dfsph_error", float),

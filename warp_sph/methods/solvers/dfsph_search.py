@@ -37,7 +37,7 @@ class DfsphSearch:
     def _allocate_search(self) -> None:
         """The pair cache (the workspace field ``dfsph_pairs``), the search's scratch and its kernels."""
         sim, m = self.sim, self.model
-        n, dev = m.fluid_count, m.device
+        n, dev = m.capacity, m.device
         size = max(n, 1)
         pairs = _search.DfsphPairs()
         for name, dtype in (("offset", wp.int32), ("count", wp.int32), ("gradient_sum", wp.vec3),
@@ -61,7 +61,7 @@ class DfsphSearch:
         pairs = self.sim.fields["dfsph_pairs"]
         capacity = self.nl.capacities[0]
         if capacity != self._pairs_capacity:
-            n, dev = max(self.model.fluid_count, 1), self.model.device
+            n, dev = max(self.model.capacity, 1), self.model.device
             pairs.index = wp.zeros(n * capacity, dtype=wp.int32, device=dev)
             pairs.gradient = wp.zeros(n * capacity, dtype=wp.vec3, device=dev)
             self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)

@@ -25,8 +25,8 @@ class PbfPasses:
     # --- workspace -------------------------------------------------------------------------
     def _allocate(self) -> None:
         sim, m = self.sim, self.model
-        n, dev = m.fluid_count, m.device
-        sim.fields["predicted_x"] = wp.clone(sim.fields["particle_x"])  # x* = x until the first step
+        n, dev = m.capacity, m.device  # the particle capacity (emitters: the active count changes)
+        wp.copy(sim.allocate("predicted_x", wp.vec3), sim.fields["particle_x"])  # x* = x until the first step
         for name, dtype in (("particle_density", float), ("particle_lambda", float), ("pbf_constraint", float),
                             ("pbf_correction_size", float), ("position_correction", wp.vec3),
                             ("boundary_force", wp.vec3), ("particle_acceleration", wp.vec3),
@@ -65,7 +65,7 @@ class PbfPasses:
         pairs = self.sim.fields["pbf_pairs"]
         capacity = self.nl.capacities[0]
         if capacity != self._pairs_capacity:
-            n, dev = max(self.model.fluid_count, 1), self.model.device
+            n, dev = max(self.model.capacity, 1), self.model.device
             pairs.index = wp.zeros((n, capacity), dtype=wp.int32, device=dev)
             pairs.gradient = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
             pairs.value = wp.zeros((n, capacity) if self.config.tensile_correction else (1, 1), dtype=float, device=dev)

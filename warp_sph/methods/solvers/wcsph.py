@@ -78,7 +78,6 @@ class WcsphSolver(Solver):
 
     def stages(self) -> list[Stage]:
         sim, m = self.sim, self.model
-        n = m.fluid_count
         sim.allocate("particle_pressure", float)
         sim.allocate("particle_acceleration", wp.vec3)
         sim.allocate("boundary_force", wp.vec3)
@@ -102,7 +101,7 @@ class WcsphSolver(Solver):
         stiffness = self.stiffness
 
         def run_pressure(sim, dt):
-            launch(pressure_kernel, n, [m.rest_density, stiffness, sim.fields["particle_density"]],
+            launch(pressure_kernel, m.fluid_count, [m.rest_density, stiffness, sim.fields["particle_density"]],
                    [sim.fields["particle_pressure"]], device=m.device, min_range=LIGHT_MIN_RANGE)
 
         def run_forces(sim, dt):
@@ -112,7 +111,7 @@ class WcsphSolver(Solver):
                 bn, fn = nl.boundary, nl.fluid
             else:
                 bn, fn = m.boundary_grid_id, sim.fluid_grid.id
-            launch(force_kernel, n,
+            launch(force_kernel, m.fluid_count,
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, gravity,
                     float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound), params, bn,
                     m.boundary_x, m.boundary_v, m.boundary_volume, fn, f["particle_x"], f["particle_v"],
@@ -121,17 +120,17 @@ class WcsphSolver(Solver):
 
         def run_integrate(sim, dt):
             f = sim.fields
-            launch(_integrate.integrate_symplectic_euler, n, [f["particle_acceleration"], float(dt)],
+            launch(_integrate.integrate_symplectic_euler, m.fluid_count, [f["particle_acceleration"], float(dt)],
                    [f["particle_v"], f["particle_x"]], device=m.device, min_range=LIGHT_MIN_RANGE)
 
         def run_kick(sim, dt):
             f = sim.fields
-            launch(_integrate.kick, n, [f["particle_acceleration"], float(dt)], [f["particle_v"]], device=m.device,
+            launch(_integrate.kick, m.fluid_count, [f["particle_acceleration"], float(dt)], [f["particle_v"]], device=m.device,
                    min_range=LIGHT_MIN_RANGE)
 
         def run_drift(sim, dt):
             f = sim.fields
-            launch(_integrate.drift, n, [float(dt), f["particle_v"]], [f["particle_x"]], device=m.device,
+            launch(_integrate.drift, m.fluid_count, [float(dt), f["particle_v"]], [f["particle_x"]], device=m.device,
                    min_range=LIGHT_MIN_RANGE)
 
         boundary_reads = (("boundary_x", "boundary_volume") + (() if self.lists else ("boundary_grid",))

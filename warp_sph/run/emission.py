@@ -1,0 +1,208 @@
+"""A changing particle count: emitters add fluid, sinks remove it (``[[emitters]]``, ``[[sinks]]``,
+docs/emitters.md).
+
+Every per-particle array holds ``model.capacity`` values, allocated once; the active particles are the
+prefix [0, n) with n = ``model.fluid_count``, and ``sim.fields`` / ``sim.state`` hold prefix views of
+the arrays, so every launch, the neighbour search and every statistic see n particles only. The count
+changes at the start of a frame, outside the cell order, decided on the host from the time:
+
+1. sinks: the particles inside a sink box are removed; the others keep their order (a stable
+   compaction: one gather on the device, with the kept indices, per field that outlives a substep: x, v,
+   the ids and the solver's and forces' carried fields; every other field is written by a stage before
+   any stage reads it, the step graph's contract);
+2. emitters: the layers that entered since the last frame (layer k of an emitter at
+   t_k = start + k d / v, ``warp_sph.scene.emitters``) are written into the slots [n, n + k) with
+   their ballistic age a = t - t_k: x = x_nozzle + v n a + g a^2 / 2, v = v n + g a; the carried fields
+   of those slots (warm starts, carried force fields) start at 0.
+
+Particle ids (``particle_id``, int32) are persistent: the initial fluid has 0..n0-1, emitted particles
+the next ones. A full capacity skips the layers that do not fit (one warning). The energy the particles
+brought in minus what the removed ones took out (kinetic + potential) is ``exchanged``: the energy
+rule measures from E(0) + exchanged (``warp_sph.run.energy``).
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import warp as wp
+
+from ..core.launch import LIGHT_MIN_RANGE, launch
+from ..kernels import neighbors as _dev
+from ..scene.emitters import emitter_plan
+
+ID_FIELD = "particle_id"
+
+
+class ParticleFlow:
+    """The emitters and sinks of a simulation (see the module docstring); ``sim.flow``."""
+
+    def __init__(self, sim):
+        self.sim = sim
+        m, scene = sim.model, sim.scene
+        self.plans = [emitter_plan(e, scene.spacing, scene.duration) for e in scene.emitters]
+        self.local_points = [m.to_local(p.points) for p in self.plans]
+        self.sinks = [(m.to_local(np.asarray(s.min)), m.to_local(np.asarray(s.max))) for s in scene.sinks]
+        self.layers = np.zeros(len(self.plans), dtype=np.int64)  # layers emitted so far, per emitter
+        self.initial = m.fluid_count
+        self.next_id = m.fluid_count
+        self.emitted = 0
+        self.removed = 0
+        self.skipped = 0   # particles not emitted: the capacity was full
+        self.exchanged = 0.0  # [J] kinetic + potential brought in by emission minus taken out by sinks
+        self.exchanged_scale = 0.0  # [J] emitted energy above the floor (grows the energy rule's scale)
+        self.last_speed = 0.0  # [m/s] fastest emitted particle of the last frame
+        self._warned = False
+        #: name -> the capacity-sized array behind the field's prefix view
+        self.full: dict[str, wp.array] = {}
+        for name in ("particle_x", "particle_v"):
+            a = getattr(sim.state, name)
+            full = wp.zeros(m.capacity, dtype=a.dtype, device=sim.device)
+            wp.copy(full, a, count=a.shape[0])
+            self.full[name] = full
+        ids = wp.array(np.arange(m.capacity, dtype=np.int32), dtype=wp.int32, device=sim.device)
+        self.full[ID_FIELD] = ids
+        self._keep = wp.zeros(m.capacity, dtype=wp.int32, device=sim.device)
+        self._tmp: dict = {}
+        self.set_count(m.fluid_count)
+
+    # --- the active prefix ------------------------------------------------------------------
+    def adopt(self, name: str, full: wp.array) -> wp.array:
+        """Register the capacity-sized ``full`` array of field ``name``; returns its active view."""
+        self.full[name] = full
+        return full[: self.sim.model.fluid_count]
+
+    def set_count(self, n: int) -> None:
+        """Make n the active count: model.fluid_count, the prefix views in sim.fields and sim.state."""
+        sim = self.sim
+        sim.model.fluid_count = int(n)
+        for name, full in self.full.items():
+            sim.fields[name] = full[: int(n)]
+        sim.state.particle_x = sim.fields["particle_x"]
+        sim.state.particle_v = sim.fields["particle_v"]
+
+    def carried(self) -> list[tuple[str, wp.array]]:
+        """(name, capacity array) of the fields that outlive a substep: x, v, the ids, the solver's and the
+        forces' carried fields (the others are produced by a stage before any stage reads them)."""
+        sim = self.sim
+        names = {"particle_x", "particle_v", ID_FIELD} | set(sim.solver.carried_fields()) | set(sim.forces.carried_fields())
+        return [(name, full) for name, full in self.full.items() if name in names]
+
+    # --- a frame's start ----------------------------------------------------------------------
+    def begin_frame(self) -> bool:
+        """Sinks, then emitters, at the state's time (see the module docstring); True when the count changed."""
+        removed = self._remove() if self.sinks else 0
+        added = self._emit() if self.plans else 0
+        return bool(removed or added)
+
+    def _energy(self, x: np.ndarray, v: np.ndarray) -> tuple[float, float]:
+        """(kinetic + potential [J] in the local frame, the same above the floor [J]) of particles x, v."""
+        m = self.sim.model
+        g = np.asarray(m.gravity, dtype=np.float64)
+        mass = float(m.particle_mass)
+        ke = 0.5 * mass * float(np.sum(v.astype(np.float64) ** 2))
+        pe = -mass * float(np.sum(x.astype(np.float64) @ g))
+        watch = self.sim.watchdog.energy if getattr(self.sim, "watchdog", None) is not None else None
+        floor_pe = mass * len(x) * float(np.linalg.norm(g)) * (watch.floor if watch is not None else 0.0)
+        return ke + pe, ke + pe - floor_pe
+
+    def _remove(self) -> int:
+        sim, m = self.sim, self.sim.model
+        n = m.fluid_count
+        x = sim.fields["particle_x"].numpy()
+        inside = np.zeros(n, dtype=bool)
+        for lo, hi in self.sinks:
+            inside |= np.all((x >= lo) & (x <= hi), axis=1)
+        k = int(inside.sum())
+        if not k:
+            return 0
+        v = sim.fields["particle_v"].numpy()
+        e, _ = self._energy(x[inside], v[inside])
+        self.exchanged -= e
+        keep = np.nonzero(~inside)[0].astype(np.int32)
+        left = len(keep)
+        wp.copy(self._keep, wp.array(keep, dtype=wp.int32, device=sim.device), count=left)
+        for name, full in self.carried():
+            t = self._tmp.get(full.dtype)
+            if t is None:
+                t = self._tmp[full.dtype] = wp.empty(m.capacity, dtype=full.dtype, device=sim.device)
+            launch(_dev.gather_by_order, left, [self._keep, full], [t], device=sim.device, min_range=LIGHT_MIN_RANGE)
+            wp.copy(full, t, count=left)
+        self.removed += k
+        self.set_count(left)
+        return k
+
+    def _emit(self) -> int:
+        sim, m = self.sim, self.sim.model
+        t = sim.state.time
+        g = np.asarray(m.gravity, dtype=np.float64)
+        xs, vs = [], []
+        for k, plan in enumerate(self.plans):
+            due = plan.layers_by(t)
+            for layer in range(int(self.layers[k]), due):
+                age = t - (plan.start + layer * plan.period)
+                vel = plan.speed * plan.direction
+                xs.append(self.local_points[k] + vel * age + 0.5 * g * age * age)
+                vs.append(np.broadcast_to(vel + g * age, xs[-1].shape))
+            self.layers[k] = max(int(self.layers[k]), due)
+        if not xs:
+            self.last_speed = 0.0
+            return 0
+        x = np.concatenate(xs).astype(np.float32)
+        v = np.concatenate(vs).astype(np.float32)
+        n = m.fluid_count
+        room = m.capacity - n
+        if len(x) > room:
+            self.skipped += len(x) - room
+            if not self._warned:
+                warnings.warn(f"t = {t:.4g} s: the particle capacity max_particles = {m.capacity} is full; emission "
+                              "continues only as sinks free slots (raise max_particles)", RuntimeWarning, stacklevel=3)
+                self._warned = True
+            x, v = x[:room], v[:room]
+        k = len(x)
+        if not k:
+            return 0
+        self.last_speed = float(np.sqrt(np.max(np.sum(v.astype(np.float64) ** 2, axis=1))))
+        for name, full in self.carried():
+            full[n:n + k].zero_()
+        dev = sim.device
+        wp.copy(self.full["particle_x"], wp.array(x, dtype=wp.vec3, device=dev), dest_offset=n, count=k)
+        wp.copy(self.full["particle_v"], wp.array(v, dtype=wp.vec3, device=dev), dest_offset=n, count=k)
+        ids = np.arange(self.next_id, self.next_id + k, dtype=np.int32)
+        wp.copy(self.full[ID_FIELD], wp.array(ids, dtype=wp.int32, device=dev), dest_offset=n, count=k)
+        self.next_id += k
+        self.emitted += k
+        e, above = self._energy(x, v)
+        self.exchanged += e
+        self.exchanged_scale += max(above, 0.0)
+        self.set_count(n + k)
+        return k
+
+    # --- records and checkpoints ----------------------------------------------------------------
+    def record(self) -> dict:
+        """Per-frame counts for run.json: active particles, emitted and removed so far, skipped (capacity)."""
+        return {"particles": int(self.sim.model.fluid_count), "emitted": int(self.emitted),
+                "removed": int(self.removed), "skipped": int(self.skipped)}
+
+    def checkpoint_arrays(self) -> dict:
+        return {"flow_layers": self.layers.copy(), "flow_ids": self.sim.fields[ID_FIELD].numpy().copy(),
+                "flow_counters": np.array([self.next_id, self.emitted, self.removed, self.skipped, int(self._warned)],
+                                          dtype=np.int64),
+                "flow_energy": np.array([self.exchanged, self.exchanged_scale, self.last_speed], dtype=np.float64)}
+
+    def restore(self, cp) -> None:
+        """Before the state's arrays are assigned: the active count of checkpoint ``cp``, the ids, the counters."""
+        n = len(cp["particle_x_local"])
+        self.set_count(n)
+        self.layers = np.array(cp["flow_layers"], dtype=np.int64)
+        self.sim.fields[ID_FIELD].assign(wp.array(np.asarray(cp["flow_ids"], np.int32), dtype=wp.int32,
+                                                  device=self.sim.device))
+        self.next_id, self.emitted, self.removed, self.skipped, warned = (int(c) for c in cp["flow_counters"])
+        self._warned = bool(warned)
+        self.exchanged, self.exchanged_scale, self.last_speed = (float(c) for c in cp["flow_energy"])
+
+    def summary(self) -> dict:
+        return {"capacity": int(self.sim.model.capacity),
+                "emitters": [{"particles_per_layer": len(p.points), "speed": p.speed, "flow_rate": p.flow_rate,
+                              "layer_period": p.period, "layers": p.layers} for p in self.plans],
+                "sinks": len(self.sinks)}
