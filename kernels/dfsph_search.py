@@ -43,7 +43,7 @@ class DfsphPairs:
 
 
 @functools.cache
-def fluid_search_kernel(smoothing: str):
+def fluid_search_kernel(smoothing: str, scaled: bool = True):
     """The fluid half of the step's search, over the fluid cell grid (points sorted by cell): for
     particle i (threads in cell order) every j within the support radius. Writes the fluid neighbour
     list (j != i; the count is exact; when i and its neighbours do not fit the capacity, entries are
@@ -87,6 +87,12 @@ def fluid_search_kernel(smoothing: str):
         vi = particle_v[i]
         h = smoothing_length
         volume = particle_mass / rest_density
+        inv_h = 1.0 / h
+        inv_h3 = inv_h * inv_h * inv_h
+        g_scale = volume * inv_h3 * inv_h
+        w_scale = float(1.0)
+        if wp.static(scaled):
+            w_scale = inv_h3
         q = (xi - grid_lo) * inv_cell_size
         qr = support_radius * inv_cell_size
         radius2 = support_radius * support_radius
@@ -117,10 +123,18 @@ def fluid_search_kernel(smoothing: str):
         while e < e_end:
             k = neighbor_index_out[i, e]
             x_ij = xi - sorted_points[k]
-            w_sum += wp.static(value)(wp.length(x_ij), h)
+            if wp.static(scaled):
+                u = x_ij * inv_h
+                w_sum += wp.static(value)(wp.length(u), 1.0)
+            else:
+                w_sum += wp.static(value)(wp.length(x_ij), h)
             j = cell_point[k]
             if j != i:
-                g = volume * wp.static(gradient)(x_ij, h)
+                g = wp.vec3(0.0)
+                if wp.static(scaled):
+                    g = g_scale * wp.static(gradient)(u, 1.0)
+                else:
+                    g = volume * wp.static(gradient)(x_ij, h)
                 s += g
                 sq += wp.dot(g, g)
                 div += wp.dot(vi - particle_v[j], g)
@@ -133,7 +147,7 @@ def fluid_search_kernel(smoothing: str):
             max_count_out[i] = wp.max(max_count_out[i], found)  # per particle, no atomics
             n = found - 1
         neighbor_count_out[i] = n
-        particle_density_out[i] = particle_mass * w_sum
+        particle_density_out[i] = particle_mass * w_scale * w_sum
         gradient_sum_out[i] = s
         square_sum_out[i] = sq
         divergence_out[i] = div
@@ -190,7 +204,8 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         ratio = ratio_in
         sb = sb_in
         bvel = bvel_in
-        h = smoothing_length
+        inv_h = 1.0 / smoothing_length
+        inv_h3 = inv_h * inv_h * inv_h
         skip = int(0)
         if use_mask != 0:
             c = cell_of(xi, grid_lo, inv_cell_size, grid_dims)
@@ -217,9 +232,12 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
                             nb += 1
                             if wp.static(with_terms):
                                 vol = sorted_volume[k]
-                                ratio += wp.static(density_term)(boundary_params,
-                                                                 wp.static(value)(wp.sqrt(dd), h), vol)
-                                gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
+                                # W and grad W at h = 1 in units of h, scaled back (no division per pair)
+                                u = x_ib * inv_h
+                                w = wp.static(value)(wp.sqrt(dd) * inv_h, 1.0) * inv_h3
+                                ratio += wp.static(density_term)(boundary_params, w, vol)
+                                gw = wp.static(gradient)(u, 1.0) * (inv_h3 * inv_h)
+                                gb = wp.static(gradient_term)(boundary_params, gw, vol)
                                 sb += gb
                                 bvel += wp.dot(boundary_v[b], gb)
                         k += 1
