@@ -24,8 +24,8 @@ Jacobi sweeps, relaxation omega (0.5):
 The error counts compression only and is measured with P before the sweep's update; particles with
 fewer neighbours than a threshold (20 of 26 on a cubic lattice) leave the divergence error.
 
-Neighbours, the factor f_i and the pair cache (``DfsphPairs``: G_ij in padded rows) come from one
-search per step (``kernels/dfsph_search.py``); the passes here read the pair cache row by row and
+Neighbours, the factor f_i and the pair cache (``DfsphPairs``: G_ij in compressed rows) come from one
+search per step (``kernels/dfsph_search.py``); the passes here read the pair cache as one stream and
 evaluate no smoothing kernel.
 Kernels taking ``tid_offset`` are split over CPU cores and write only their own particle (no
 atomics); sums over the particles are chunk sums in a fixed order (``kernels/reduction.py``)
@@ -49,10 +49,10 @@ CONTROL_COUNT = 3
 def pair_pressure_acceleration(pairs: DfsphPairs, pressure: wp.array(dtype=float), i: int) -> wp.vec3:
     """a_i(P) = -P_i s_i - sum_j P_j G_ij [m/s^2] from the pair cache."""
     a = -pressure[i] * pairs.gradient_sum[i]
-    k = int(0)
-    k_end = pairs.count[i]
+    k = pairs.offset[i]
+    k_end = k + pairs.count[i]
     while k < k_end:
-        a -= pressure[pairs.index[i, k]] * pairs.gradient[i, k]
+        a -= pressure[pairs.index[k]] * pairs.gradient[k]
         k += 1
     return a
 
@@ -101,10 +101,10 @@ def jacobi_update(
     i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
     ai = acceleration[i]
     div = wp.dot(ai, pairs.gradient_sum[i])
-    k = int(0)
-    k_end = pairs.count[i]
+    k = pairs.offset[i]
+    k_end = k + pairs.count[i]
     while k < k_end:
-        div -= wp.dot(acceleration[pairs.index[i, k]], pairs.gradient[i, k])
+        div -= wp.dot(acceleration[pairs.index[k]], pairs.gradient[k])
         k += 1
     r = source[i] - scale * div
     p = pressure[i]
@@ -223,10 +223,10 @@ def density_source(
     i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
     vi = particle_v[i]
     div = wp.dot(vi + dt * gravity, pairs.boundary_gradient[i]) - pairs.boundary_velocity[i]
-    k = int(0)
-    k_end = pairs.count[i]
+    k = pairs.offset[i]
+    k_end = k + pairs.count[i]
     while k < k_end:
-        div += wp.dot(vi - particle_v[pairs.index[i, k]], pairs.gradient[i, k])
+        div += wp.dot(vi - particle_v[pairs.index[k]], pairs.gradient[k])
         k += 1
     deficit = 1.0 - particle_density[i] / rest_density
     if deficit < 0.0:

@@ -3,12 +3,11 @@
 s_i, D_i, f_i = 1 / D_i [m^2], delta_i(u)); host half ``warp_sph/methods/solvers/dfsph_search.py``.
 
 Neighbours and the factor come from one search per step (``fluid_search_kernel`` then
-``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``, walked with
-its ``cell_rows`` / ``row_points``): each pair within the support radius is found once, and its G_ij
-goes into row i of the pair cache (``DfsphPairs``), beside j in row i of the fluid neighbour list,
-read by every later pass; the solves evaluate no smoothing kernel. The same search writes the fluid
-and boundary neighbour lists (fluid lists without i itself) that the shared viscosity and XSPH
-stages read.
+``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``): each pair
+within the support radius is found once, and its G_ij goes into a padded row that
+``compact_pairs`` copies into a compressed row layout (``DfsphPairs``), read as one stream by every
+later pass; the solves evaluate no smoothing kernel. The same search writes the fluid and boundary
+neighbour lists (fluid lists without i itself) that the shared viscosity and XSPH stages read.
 Kernels taking ``tid_offset`` are split over CPU cores and write only their own particle (no
 atomics), so results are bitwise reproducible for any thread count.
 """
@@ -22,20 +21,21 @@ from .smoothing import SMOOTHING_FUNCTIONS
 
 @wp.struct
 class DfsphPairs:
-    """The step's fluid pairs in padded rows, and what the solves need per particle.
+    """The step's fluid pairs in compressed rows, and what the solves need per particle.
 
     Pairs of particle i (neighbours j != i closer than the support radius): entries
-    0 .. count[i] - 1 of row i of index (neighbour j: the fluid neighbour list's own array) and of
-    gradient (G_ij = V grad_i W_ij [1/m]), both of shape (fluid_count, list capacity); count[i] is
-    the pairs kept (at most the capacity). gradient_sum[i] = s_i [1/m]; boundary_gradient[i] = sum_b gb_ib [1/m];
+    offset[i] .. offset[i] + count[i] - 1 of index (neighbour j) and gradient (G_ij = V grad_i W_ij
+    [1/m]); the 1-D arrays hold fluid_count x the list capacity entries, of which the rows use the
+    first sum(count). gradient_sum[i] = s_i [1/m]; boundary_gradient[i] = sum_b gb_ib [1/m];
     boundary_velocity[i] = sum_b v_b . gb_ib [1/s]; active[i] = 1 when i has at least the threshold
     of neighbours (fluid, plus boundary when the boundary enters the density): its divergence error
     counts.
     """
 
+    offset: wp.array(dtype=wp.int32)
     count: wp.array(dtype=wp.int32)
-    index: wp.array2d(dtype=wp.int32)
-    gradient: wp.array2d(dtype=wp.vec3)
+    index: wp.array(dtype=wp.int32)
+    gradient: wp.array(dtype=wp.vec3)
     gradient_sum: wp.array(dtype=wp.vec3)
     boundary_gradient: wp.array(dtype=wp.vec3)
     boundary_velocity: wp.array(dtype=float)
@@ -48,7 +48,7 @@ def fluid_search_kernel(smoothing: str, scaled: bool = True):
     particle i (threads in cell order) every j within the support radius. Writes the fluid neighbour
     list (j != i; the count is exact; when i and its neighbours do not fit the capacity, entries are
     dropped and max_count_out[i] keeps the largest such number), the padded row of G_ij,
-    pair_count_out[i] = the pairs kept, and the
+    room_out[i] = the pairs kept, and the
     fluid parts of: rho_i = m sum_j W_ij (self included) [kg/m^3], s_i, sum_j |G_ij|^2 and
     delta_i(v) [1/s] (finished by ``boundary_factor_kernel``)."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
@@ -76,7 +76,7 @@ def fluid_search_kernel(smoothing: str, scaled: bool = True):
         neighbor_index_out: wp.array2d(dtype=wp.int32),
         max_count_out: wp.array(dtype=wp.int32),
         pair_gradient_out: wp.array2d(dtype=wp.vec3),
-        pair_count_out: wp.array(dtype=wp.int32),
+        room_out: wp.array(dtype=wp.int32),
         particle_density_out: wp.array(dtype=float),
         gradient_sum_out: wp.array(dtype=wp.vec3),
         square_sum_out: wp.array(dtype=float),
@@ -142,7 +142,7 @@ def fluid_search_kernel(smoothing: str, scaled: bool = True):
                 pair_gradient_out[i, n] = g
                 n += 1
             e += 1
-        pair_count_out[i] = n
+        room_out[i] = n
         if found > capacity:  # pairs were dropped: the frame is redone with larger lists
             max_count_out[i] = wp.max(max_count_out[i], found)  # per particle, no atomics
             n = found - 1
@@ -354,3 +354,29 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         boundary_force_out[i] = wp.vec3(0.0)
 
     return boundary_factor
+
+
+@wp.kernel(enable_backward=False)
+def compact_pairs(
+    tid_offset: int,
+    # In:
+    neighbor_index: wp.array2d(dtype=wp.int32),
+    pair_gradient: wp.array2d(dtype=wp.vec3),
+    room: wp.array(dtype=wp.int32),
+    offset: wp.array(dtype=wp.int32),
+    # Out:
+    count_out: wp.array(dtype=wp.int32),
+    index_out: wp.array(dtype=wp.int32),
+    gradient_out: wp.array(dtype=wp.vec3),
+):
+    """Row i of the padded pairs to entries offset[i] .. offset[i] + room[i] - 1 (offset: the exclusive
+    prefix sum of room)."""
+    i = wp.tid() + tid_offset
+    base = offset[i]
+    n = room[i]
+    count_out[i] = n
+    k = int(0)
+    while k < n:
+        index_out[base + k] = neighbor_index[i, k]
+        gradient_out[base + k] = pair_gradient[i, k]
+        k += 1

@@ -5,7 +5,7 @@ in ``kernels/dfsph.py`` and ``kernels/dfsph_search.py``, equations there and in 
 Step (one dt per substep):
   the fluid sorted into cells (the shared "neighbors" stage) -> one search at x ("density"): the
   neighbour lists the shared stages read, the density, the factor f_i = 1/D_i, the pair cache
-  G_ij = V grad W_ij in padded rows and the divergence source -> [stabilise: only when the fluid
+  G_ij = V grad W_ij in compressed rows and the divergence source -> [stabilise: only when the fluid
   at x is over-dense far beyond the target, e.g. a compressed start, project the excess out of x
   without velocity] -> divergence solve: Jacobi
   sweeps on P^v until the mean positive compression rate is below target_divergence_error / dt,
@@ -284,7 +284,7 @@ class DfsphSolver(DfsphSearch, Solver):
             self._neighbors,
             Stage("density", self.run_search, reads=search_reads + boundary_reads, writes=search_out,
                   doc=f"one search within H_s (list capacities {self.nl.capacities}): neighbour lists, density (eq. 7"
-                      f"{wall}), pair cache V grad W_ij in padded rows, f_i = 1/(|s_i|^2 + sum_j |V grad W_ij|^2), "
+                      f"{wall}), pair cache V grad W_ij in compressed rows, f_i = 1/(|s_i|^2 + sum_j |V grad W_ij|^2), "
                       f"divergence source -delta(v), warm start {p.warm_start:g} P~v/dt"),
             Stage("stabilize", self.run_stabilize, reads=("particle_v", "dfsph_divergence_warm") + boundary_reads,
                   updates=("particle_x", "neighbor_cells") + search_out,

@@ -1,7 +1,7 @@
 """DFSPH's per-step search on the host (``DfsphSearch``, a base of ``DfsphSolver``): the pair cache
 and search kernels it allocates, and the one search per step that launches ``kernels/dfsph_search.py``
 (neighbour lists, density, factor f_i = 1/D_i [m^2], the pair cache G_ij = V grad W_ij [1/m] in
-padded rows beside the fluid neighbour lists, divergence source and warm start). ``dfsph.py`` decides when it runs (the "density"
+compressed rows, divergence source and warm start). ``dfsph.py`` decides when it runs (the "density"
 and "stabilize" stages) and runs the solves on what it leaves; the attributes the search reads
 (``factor_floor``, ``neighbor_threshold``, ``with_bodies``, ``config``) are set by
 ``DfsphSolver.__init__``.
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ...core.launch import launch
+from ...core.launch import LIGHT_MIN_RANGE, launch
 from ...core.smoothing import get_smoothing_kernel, lattice_offsets
 from ...kernels import dfsph_search as _search
 
@@ -40,10 +40,11 @@ class DfsphSearch:
         n, dev = m.fluid_count, m.device
         size = max(n, 1)
         pairs = _search.DfsphPairs()
-        for name, dtype in (("count", wp.int32), ("gradient_sum", wp.vec3),
+        for name, dtype in (("offset", wp.int32), ("count", wp.int32), ("gradient_sum", wp.vec3),
                             ("boundary_gradient", wp.vec3), ("boundary_velocity", float), ("active", wp.int32)):
             setattr(pairs, name, wp.zeros(size, dtype=dtype, device=dev))
         sim.fields["dfsph_pairs"] = pairs
+        self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle
         self._square_sum = wp.zeros(size, dtype=float, device=dev)  # sum_j |G_ij|^2 (fluid part of D_i)
         self._pairs_capacity = 0
         self._search = _search.fluid_search_kernel(m.smoothing.name)
@@ -55,15 +56,15 @@ class DfsphSearch:
         self._no_cells = wp.zeros(2, dtype=wp.int32, device=dev)  # an empty grid: one cell, no point
 
     def _pairs(self):
-        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): row i of the
-        gradients beside row i of the fluid neighbour list (its index array, shared), no compaction
-        (a compacting copy cost 10 % of the search)."""
+        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): a padded row per
+        particle for the search and the compressed rows the solves read."""
         pairs = self.sim.fields["dfsph_pairs"]
         capacity = self.nl.capacities[0]
-        pairs.index = self.nl.fluid.index
         if capacity != self._pairs_capacity:
             n, dev = max(self.model.fluid_count, 1), self.model.device
-            pairs.gradient = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
+            pairs.index = wp.zeros(n * capacity, dtype=wp.int32, device=dev)
+            pairs.gradient = wp.zeros(n * capacity, dtype=wp.vec3, device=dev)
+            self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
             self._pairs_capacity = capacity
         return pairs
 
@@ -83,7 +84,7 @@ class DfsphSearch:
         launch(self._search, n,
                [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.particle_mass,
                 m.smoothing_length, m.support_radius, m.rest_density, f["particle_x"], f["particle_v"]],
-               [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.gradient, pairs.count, f["particle_density"],
+               [nl.fluid.count, nl.fluid.index, nl.max_count, self._pair_rows, self._room, f["particle_density"],
                 pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
         empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
                  self._no_mask, 0]
@@ -110,3 +111,6 @@ class DfsphSearch:
                [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient, pairs.boundary_velocity,
                 pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"], f["dfsph_acceleration"],
                 f["dfsph_error"], f["boundary_force"]], device=dev)
+        wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
+        launch(_search.compact_pairs, n, [nl.fluid.index, self._pair_rows, self._room, pairs.offset],
+               [pairs.count, pairs.index, pairs.gradient], device=dev, min_range=LIGHT_MIN_RANGE)
