@@ -3,7 +3,8 @@
 s_i, D_i, f_i = 1 / D_i [m^2], delta_i(u)); host half ``warp_sph/methods/solvers/dfsph_search.py``.
 
 Neighbours and the factor come from one search per step (``fluid_search_kernel`` then
-``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``): each pair
+``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``, walked with
+``cell_rows`` / ``row_points`` of ``kernels/neighbors.py`` as every list build is): each pair
 within the support radius is found once, and its G_ij goes into a padded row that
 ``compact_pairs`` copies into a compressed row layout (``DfsphPairs``), read as one stream by every
 later pass; the solves evaluate no smoothing kernel. The same search writes the fluid and boundary
@@ -43,7 +44,7 @@ class DfsphPairs:
 
 
 @functools.cache
-def fluid_search_kernel(smoothing: str, scaled: bool = True):
+def fluid_search_kernel(smoothing: str):
     """The fluid half of the step's search, over the fluid cell grid (points sorted by cell): for
     particle i (threads in cell order) every j within the support radius. Writes the fluid neighbour
     list (j != i; the count is exact; when i and its neighbours do not fit the capacity, entries are
@@ -85,14 +86,10 @@ def fluid_search_kernel(smoothing: str, scaled: bool = True):
         i = int(cell_point[wp.tid() + tid_offset])
         xi = particle_x[i]
         vi = particle_v[i]
-        h = smoothing_length
         volume = particle_mass / rest_density
-        inv_h = 1.0 / h
+        inv_h = 1.0 / smoothing_length
         inv_h3 = inv_h * inv_h * inv_h
         g_scale = volume * inv_h3 * inv_h
-        w_scale = float(1.0)
-        if wp.static(scaled):
-            w_scale = inv_h3
         q = (xi - grid_lo) * inv_cell_size
         qr = support_radius * inv_cell_size
         radius2 = support_radius * support_radius
@@ -123,18 +120,11 @@ def fluid_search_kernel(smoothing: str, scaled: bool = True):
         while e < e_end:
             k = neighbor_index_out[i, e]
             x_ij = xi - sorted_points[k]
-            if wp.static(scaled):
-                u = x_ij * inv_h
-                w_sum += wp.static(value)(wp.length(u), 1.0)
-            else:
-                w_sum += wp.static(value)(wp.length(x_ij), h)
+            u = x_ij * inv_h  # W and grad W at h = 1 in units of h, scaled back (no division per pair)
+            w_sum += wp.static(value)(wp.length(u), 1.0)
             j = cell_point[k]
             if j != i:
-                g = wp.vec3(0.0)
-                if wp.static(scaled):
-                    g = g_scale * wp.static(gradient)(u, 1.0)
-                else:
-                    g = volume * wp.static(gradient)(x_ij, h)
+                g = g_scale * wp.static(gradient)(u, 1.0)
                 s += g
                 sq += wp.dot(g, g)
                 div += wp.dot(vi - particle_v[j], g)
@@ -147,7 +137,7 @@ def fluid_search_kernel(smoothing: str, scaled: bool = True):
             max_count_out[i] = wp.max(max_count_out[i], found)  # per particle, no atomics
             n = found - 1
         neighbor_count_out[i] = n
-        particle_density_out[i] = particle_mass * w_scale * w_sum
+        particle_density_out[i] = particle_mass * inv_h3 * w_sum
         gradient_sum_out[i] = s
         square_sum_out[i] = sq
         divergence_out[i] = div
