@@ -86,10 +86,8 @@ def fluid_search_kernel(smoothing: str):
         i = int(cell_point[wp.tid() + tid_offset])
         xi = particle_x[i]
         vi = particle_v[i]
+        h = smoothing_length
         volume = particle_mass / rest_density
-        inv_h = 1.0 / smoothing_length
-        inv_h3 = inv_h * inv_h * inv_h
-        g_scale = volume * inv_h3 * inv_h
         q = (xi - grid_lo) * inv_cell_size
         qr = support_radius * inv_cell_size
         radius2 = support_radius * support_radius
@@ -120,11 +118,10 @@ def fluid_search_kernel(smoothing: str):
         while e < e_end:
             k = neighbor_index_out[i, e]
             x_ij = xi - sorted_points[k]
-            u = x_ij * inv_h  # W and grad W at h = 1 in units of h, scaled back (no division per pair)
-            w_sum += wp.static(value)(wp.length(u), 1.0)
+            w_sum += wp.static(value)(wp.length(x_ij), h)
             j = cell_point[k]
             if j != i:
-                g = g_scale * wp.static(gradient)(u, 1.0)
+                g = volume * wp.static(gradient)(x_ij, h)
                 s += g
                 sq += wp.dot(g, g)
                 div += wp.dot(vi - particle_v[j], g)
@@ -137,7 +134,7 @@ def fluid_search_kernel(smoothing: str):
             max_count_out[i] = wp.max(max_count_out[i], found)  # per particle, no atomics
             n = found - 1
         neighbor_count_out[i] = n
-        particle_density_out[i] = particle_mass * inv_h3 * w_sum
+        particle_density_out[i] = particle_mass * w_sum
         gradient_sum_out[i] = s
         square_sum_out[i] = sq
         divergence_out[i] = div
@@ -194,8 +191,7 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         ratio = ratio_in
         sb = sb_in
         bvel = bvel_in
-        inv_h = 1.0 / smoothing_length
-        inv_h3 = inv_h * inv_h * inv_h
+        h = smoothing_length
         skip = int(0)
         if use_mask != 0:
             c = cell_of(xi, grid_lo, inv_cell_size, grid_dims)
@@ -222,12 +218,9 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
                             nb += 1
                             if wp.static(with_terms):
                                 vol = sorted_volume[k]
-                                # W and grad W at h = 1 in units of h, scaled back (no division per pair)
-                                u = x_ib * inv_h
-                                w = wp.static(value)(wp.sqrt(dd) * inv_h, 1.0) * inv_h3
-                                ratio += wp.static(density_term)(boundary_params, w, vol)
-                                gw = wp.static(gradient)(u, 1.0) * (inv_h3 * inv_h)
-                                gb = wp.static(gradient_term)(boundary_params, gw, vol)
+                                ratio += wp.static(density_term)(boundary_params,
+                                                                 wp.static(value)(wp.sqrt(dd), h), vol)
+                                gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
                                 sb += gb
                                 bvel += wp.dot(boundary_v[b], gb)
                         k += 1
