@@ -3,7 +3,8 @@
 s_i, D_i, f_i = 1 / D_i [m^2], delta_i(u)); host half ``warp_sph/methods/solvers/dfsph_search.py``.
 
 Neighbours and the factor come from one search per step (``fluid_search_kernel`` then
-``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``): each pair
+``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``, walked with
+``cell_rows`` / ``row_points`` of ``kernels/neighbors.py`` as every list build is): each pair
 within the support radius is found once, and its G_ij goes into a padded row that
 ``compact_pairs`` copies into a compressed row layout (``DfsphPairs``), read as one stream by every
 later pass; the solves evaluate no smoothing kernel. The same search writes the fluid and boundary
@@ -15,7 +16,7 @@ import functools
 
 import warp as wp
 
-from .neighbors import NoBoundaryParams, cell_of
+from .neighbors import NoBoundaryParams, cell_of, cell_rows, row_points
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -40,29 +41,6 @@ class DfsphPairs:
     boundary_gradient: wp.array(dtype=wp.vec3)
     boundary_velocity: wp.array(dtype=float)
     active: wp.array(dtype=wp.int32)
-
-
-@wp.func
-def row_range(q: wp.vec3, qr: float, y: int, z: int, grid_dims: wp.vec3i) -> wp.vec2i:
-    """Cells x0..x1 of grid row (y, z) within qr cells of the point q (in cell units), trimmed to the
-    sphere (border rows extend to infinity, matching the clamped cells of outside points); x1 < x0
-    when the row is out of reach."""
-    dz = float(0.0)
-    if z > 0 and q[2] < float(z):
-        dz = float(z) - q[2]
-    if z < grid_dims[2] - 1 and q[2] > float(z + 1):
-        dz = q[2] - float(z + 1)
-    dy = float(0.0)
-    if y > 0 and q[1] < float(y):
-        dy = float(y) - q[1]
-    if y < grid_dims[1] - 1 and q[1] > float(y + 1):
-        dy = q[1] - float(y + 1)
-    rest = qr * qr - dy * dy - dz * dz
-    if rest <= 0.0:
-        return wp.vec2i(0, -1)
-    xr = wp.sqrt(rest)
-    return wp.vec2i(wp.clamp(int(wp.floor(q[0] - xr)), 0, grid_dims[0] - 1),
-                    wp.clamp(int(wp.floor(q[0] + xr)), 0, grid_dims[0] - 1))
 
 
 @functools.cache
@@ -114,26 +92,21 @@ def fluid_search_kernel(smoothing: str):
         qr = support_radius * inv_cell_size
         radius2 = support_radius * support_radius
         capacity = neighbor_index_out.shape[1]
-        y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
-        y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
-        z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
-        z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
+        rows = cell_rows(q, qr, grid_dims)
         # collect the candidates closer than the support radius without a branch (sorted indices k, in
         # the row of the list; an unpredictable branch per candidate was measured 15 % slower) ...
         last = capacity - 1
         found = int(0)
-        for z in range(z0, z1 + 1):
-            for y in range(y0, y1 + 1):
-                xs = row_range(q, qr, y, z, grid_dims)
-                if xs[1] >= xs[0]:
-                    row = grid_dims[0] * (y + grid_dims[1] * z)
-                    k = cell_start[row + xs[0]]
-                    k_end = cell_start[row + xs[1] + 1]
-                    while k < k_end:
-                        x_ij = xi - sorted_points[k]
-                        neighbor_index_out[i, wp.min(found, last)] = k
-                        found += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
-                        k += 1
+        for z in range(rows[2], rows[3] + 1):
+            for y in range(rows[0], rows[1] + 1):
+                span = row_points(q, qr, y, z, grid_dims, cell_start)
+                k = span[0]
+                k_end = span[1]
+                while k < k_end:
+                    x_ij = xi - sorted_points[k]
+                    neighbor_index_out[i, wp.min(found, last)] = k
+                    found += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
+                    k += 1
         # ... then the pairs (i itself adds W(0) to the density and is dropped from the list)
         w_sum = float(0.0)
         s = wp.vec3(0.0)
@@ -229,33 +202,28 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
             qr = support_radius * inv_cell_size
             radius2 = support_radius * support_radius
             capacity = neighbor_index_out.shape[1]
-            y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
-            y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
-            z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
-            z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
-            for z in range(z0, z1 + 1):  # a branch per candidate: most boundary candidates are kept
-                for y in range(y0, y1 + 1):
-                    xs = row_range(q, qr, y, z, grid_dims)
-                    if xs[1] >= xs[0]:
-                        row = grid_dims[0] * (y + grid_dims[1] * z)
-                        k = cell_start[row + xs[0]]
-                        k_end = cell_start[row + xs[1] + 1]
-                        while k < k_end:
-                            x_ib = xi - sorted_points[k]
-                            dd = wp.dot(x_ib, x_ib)
-                            if dd < radius2:
-                                b = cell_point[k] + index_offset
-                                if nb < capacity:
-                                    neighbor_index_out[i, nb] = b
-                                nb += 1
-                                if wp.static(with_terms):
-                                    vol = sorted_volume[k]
-                                    ratio += wp.static(density_term)(boundary_params,
-                                                                     wp.static(value)(wp.sqrt(dd), h), vol)
-                                    gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
-                                    sb += gb
-                                    bvel += wp.dot(boundary_v[b], gb)
-                            k += 1
+            rows = cell_rows(q, qr, grid_dims)
+            for z in range(rows[2], rows[3] + 1):  # a branch per candidate: most boundary candidates are kept
+                for y in range(rows[0], rows[1] + 1):
+                    span = row_points(q, qr, y, z, grid_dims, cell_start)
+                    k = span[0]
+                    k_end = span[1]
+                    while k < k_end:
+                        x_ib = xi - sorted_points[k]
+                        dd = wp.dot(x_ib, x_ib)
+                        if dd < radius2:
+                            b = cell_point[k] + index_offset
+                            if nb < capacity:
+                                neighbor_index_out[i, nb] = b
+                            nb += 1
+                            if wp.static(with_terms):
+                                vol = sorted_volume[k]
+                                ratio += wp.static(density_term)(boundary_params,
+                                                                 wp.static(value)(wp.sqrt(dd), h), vol)
+                                gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
+                                sb += gb
+                                bvel += wp.dot(boundary_v[b], gb)
+                        k += 1
         return nb, ratio, sb, bvel
 
     @wp.kernel(enable_backward=False, module="unique")

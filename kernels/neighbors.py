@@ -89,6 +89,42 @@ def cell_of(x: wp.vec3, grid_lo: wp.vec3, inv_cell_size: float, grid_dims: wp.ve
     )
 
 
+@wp.func
+def cell_rows(q: wp.vec3, qr: float, grid_dims: wp.vec3i) -> wp.vec4i:
+    """The cell rows a query reaches: (y0, y1, z0, z1), the rows (y, z) with y0 <= y <= y1 and
+    z0 <= z <= z1 within qr cells of the point q (both in cell units: (x - grid_lo) / cell size),
+    clamped to the grid. With ``row_points`` the one cell walk of every search over a ``CellGrid``."""
+    return wp.vec4i(wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1),
+                    wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1),
+                    wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1),
+                    wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1))
+
+
+@wp.func
+def row_points(q: wp.vec3, qr: float, y: int, z: int, grid_dims: wp.vec3i, cell_start: wp.array(dtype=wp.int32)) -> wp.vec2i:
+    """Sorted indices [k0, k1) of the points in the cells of row (y, z) within qr cells of q (cell
+    units): the row's x range trimmed to the sphere (border rows extend to infinity, matching the
+    clamped cells of outside points); k1 <= k0 when the row is out of reach."""
+    dz = float(0.0)
+    if z > 0 and q[2] < float(z):
+        dz = float(z) - q[2]
+    if z < grid_dims[2] - 1 and q[2] > float(z + 1):
+        dz = q[2] - float(z + 1)
+    dy = float(0.0)
+    if y > 0 and q[1] < float(y):
+        dy = float(y) - q[1]
+    if y < grid_dims[1] - 1 and q[1] > float(y + 1):
+        dy = q[1] - float(y + 1)
+    rest = qr * qr - dy * dy - dz * dz
+    if rest <= 0.0:
+        return wp.vec2i(0, 0)
+    xr = wp.sqrt(rest)
+    row = grid_dims[0] * (y + grid_dims[1] * z)
+    x0 = wp.clamp(int(wp.floor(q[0] - xr)), 0, grid_dims[0] - 1)
+    x1 = wp.clamp(int(wp.floor(q[0] + xr)), 0, grid_dims[0] - 1)
+    return wp.vec2i(cell_start[row + x0], cell_start[row + x1 + 1])
+
+
 @wp.kernel(enable_backward=False)
 def compute_cell_keys(
     tid_offset: int,
@@ -223,47 +259,29 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
         qr = search_radius * inv_cell_size
         radius2 = search_radius * search_radius
         capacity = neighbor_index_out.shape[1]
-        y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
-        y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
-        z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
-        z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
+        rows = cell_rows(q, qr, grid_dims)
         n = int(0)
         if append != 0:
             n = neighbor_count_out[i]
         total = float(0.0)
-        for z in range(z0, z1 + 1):
-            dz = float(0.0)  # distance from xi to the slab of cells z (in cells)
-            if z > 0 and q[2] < float(z):
-                dz = float(z) - q[2]
-            if z < grid_dims[2] - 1 and q[2] > float(z + 1):
-                dz = q[2] - float(z + 1)
-            for y in range(y0, y1 + 1):
-                dy = float(0.0)
-                if y > 0 and q[1] < float(y):
-                    dy = float(y) - q[1]
-                if y < grid_dims[1] - 1 and q[1] > float(y + 1):
-                    dy = q[1] - float(y + 1)
-                rest = qr * qr - dy * dy - dz * dz
-                if rest > 0.0:
-                    xr = wp.sqrt(rest)
-                    x0 = wp.clamp(int(wp.floor(q[0] - xr)), 0, grid_dims[0] - 1)
-                    x1 = wp.clamp(int(wp.floor(q[0] + xr)), 0, grid_dims[0] - 1)
-                    row = grid_dims[0] * (y + grid_dims[1] * z)
-                    k = cell_start[row + x0]
-                    k_end = cell_start[row + x1 + 1]
-                    while k < k_end:  # a while loop: measured 20 % faster than range() here
-                        d = xi - sorted_points[k]
-                        dd = wp.dot(d, d)
-                        if dd < radius2:
-                            if n < capacity:
-                                neighbor_index_out[i, n] = cell_point[k] + index_offset
-                            n += 1
-                            if wp.static(with_density):
-                                w = wp.static(value)(wp.sqrt(dd), smoothing_length)
-                                if wp.static(boundary_density):
-                                    w = wp.static(density_term)(boundary_params, w, sorted_weight[k])
-                                total += w
-                        k += 1
+        for z in range(rows[2], rows[3] + 1):
+            for y in range(rows[0], rows[1] + 1):
+                span = row_points(q, qr, y, z, grid_dims, cell_start)
+                k = span[0]
+                k_end = span[1]
+                while k < k_end:  # a while loop: measured 20 % faster than range() here
+                    d = xi - sorted_points[k]
+                    dd = wp.dot(d, d)
+                    if dd < radius2:
+                        if n < capacity:
+                            neighbor_index_out[i, n] = cell_point[k] + index_offset
+                        n += 1
+                        if wp.static(with_density):
+                            w = wp.static(value)(wp.sqrt(dd), smoothing_length)
+                            if wp.static(boundary_density):
+                                w = wp.static(density_term)(boundary_params, w, sorted_weight[k])
+                            total += w
+                    k += 1
         neighbor_count_out[i] = n
         if n > capacity:  # per particle, no atomics: split launches write disjoint particles
             max_count_out[i] = wp.max(max_count_out[i], n)
