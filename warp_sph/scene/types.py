@@ -88,11 +88,12 @@ Probe = section_class("probes[]", _CORE["probes[]"].values(),
                       doc="A probe sampled during the run (``warp_sph.run.probes``); keys of other kinds are None.")
 Probe.__name__ = Probe.__qualname__ = "Probe"
 RigidParams = section_class("rigid", _CORE["rigid"].values(), doc="Contacts of the rigid bodies.")
+PlanParams = section_class("plan", _CORE["plan"].values(), doc="The prediction of warp-sph plan (docs/plan.md).")
 
 #: core section name -> class (method sections come from the registry)
 CORE_SECTIONS = {"material": Material, "time": TimeParams, "container": Container, "output": OutputParams,
                  "fluid[]": FluidBlock, "obstacles[]": Obstacle, "bodies[]": Body, "rigid": RigidParams,
-                 "probes[]": Probe}
+                 "probes[]": Probe, "plan": PlanParams}
 
 
 @dataclass
@@ -129,6 +130,7 @@ class Scene:
     probes: list = field(default_factory=list)
     rigid: Any = field(default_factory=RigidParams)
     output: Any = field(default_factory=OutputParams)
+    plan: Any = None  # PlanParams when the scene has a [plan] table (``warp-sph plan --apply``)
     sections: dict = field(default_factory=dict)
     source: str = field(default="<dict>", compare=False, repr=False)
 

@@ -1,0 +1,88 @@
+"""The fitted models of ``warp-sph plan``: power laws in log space and a line with non-negative coefficients.
+
+Every figure of a plan comes from a fit to measured calibration points (``calibrate.py``):
+- steps per simulated second against the spacing d: S = a d^-q (CFL: dt ~ h / c, so q ~ 1 for WCSPH);
+- mean density error against the spacing: e = A d^p, p the measured convergence order;
+- wall time of one step against the particle count N: t = c0 + c1 N (c0, c1 >= 0: launch overhead and
+  cost per particle-step);
+- wall time outside the steps (set-up, statistics, exports) against N: the same line.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PowerLaw:
+    """y = coefficient * x^exponent, fitted by least squares on (log x, log y)."""
+
+    coefficient: float
+    exponent: float
+
+    def __call__(self, x: float) -> float:
+        return self.coefficient * float(x) ** self.exponent
+
+
+@dataclass(frozen=True)
+class Line:
+    """y = intercept + slope * x with intercept, slope >= 0."""
+
+    intercept: float
+    slope: float
+
+    def __call__(self, x: float) -> float:
+        return self.intercept + self.slope * float(x)
+
+
+def fit_power_law(x, y, exponent_range: tuple[float, float] = (-6.0, 6.0)) -> PowerLaw:
+    """The power law y = a x^p through positive points (x, y): least squares in log space; one point (or
+    points at one x) gives p = 0 (a constant, the mean); p is clipped to ``exponent_range`` and a refitted for it.
+    Points with a non-positive or non-finite value are left out; none left: ValueError."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    ok = np.isfinite(x) & np.isfinite(y) & (x > 0) & (y > 0)
+    if not ok.any():
+        raise ValueError("no positive finite point to fit")
+    lx, ly = np.log(x[ok]), np.log(y[ok])
+    if np.ptp(lx) == 0.0:
+        return PowerLaw(float(np.exp(ly.mean())), 0.0)
+    p, _ = np.polyfit(lx, ly, 1)
+    p = float(np.clip(p, *exponent_range))
+    return PowerLaw(float(np.exp(np.mean(ly - p * lx))), p)
+
+
+def fit_line(x, y) -> Line:
+    """The line y = c0 + c1 x with c0, c1 >= 0 closest to the points in least squares (the unconstrained fit,
+    else the best through the origin, else the best constant). Non-finite points are left out."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if len(x) == 0:
+        raise ValueError("no finite point to fit")
+    candidates = []
+    if len(x) >= 2 and np.ptp(x) > 0:
+        c1, c0 = np.polyfit(x, y, 1)
+        if c0 >= 0 and c1 >= 0:
+            candidates.append(Line(float(c0), float(c1)))
+    sxx = float(np.dot(x, x))
+    if sxx > 0:
+        candidates.append(Line(0.0, max(float(np.dot(x, y)) / sxx, 0.0)))
+    candidates.append(Line(max(float(y.mean()), 0.0), 0.0))
+    return min(candidates, key=lambda f: float(np.sum((f.intercept + f.slope * x - y) ** 2)))
+
+
+def extrapolation(value: float, lo: float, hi: float) -> float:
+    """How far ``value`` lies outside [lo, hi] as a factor (1: inside; 8: 8x the largest; 0.5 -> 2)."""
+    if value > hi:
+        return value / hi
+    if value < lo:
+        return lo / value
+    return 1.0
+
+
+def is_finite(*values) -> bool:
+    return all(v is not None and math.isfinite(v) for v in values)
