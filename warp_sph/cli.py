@@ -77,6 +77,10 @@ def print_summary(info: dict) -> None:
     else:
         print(f"export: {info['export_time']:.1f} s")
     print(f"output: {out}" + (f"  (Blender: File > Import > USD, {usd[0].name})" if usd else ""))
+    if "plan" in info:  # made from warp-sph plan --apply: its prediction beside what happened
+        from .plan.compare import summary_line
+
+        print(summary_line(info["plan"]))
 
 
 def _cmd_scenes(args) -> int:

@@ -171,9 +171,9 @@ def predict(scene, model: SolverModel, radius: float) -> Candidate:
 
 
 def ladder(scene, models: dict) -> list[float]:
-    """The candidate radii [m]: from the coarsest stable radius down to LADDER_DEPTH below the finest calibrated,
-    LADDER_PER_OCTAVE per halving."""
-    r_max = coarsest_radius(scene)
+    """The candidate radii [m]: from the coarsest calibrated radius (the coarsest setting known to run) down to
+    LADDER_DEPTH below the finest calibrated, LADDER_PER_OCTAVE per halving."""
+    r_max = min(coarsest_radius(scene), max(max(m.calibrated_radii) for m in models.values()))
     r_min = min(min(m.calibrated_radii) for m in models.values()) / LADDER_DEPTH
     out, k = [], 0
     while True:
@@ -194,9 +194,10 @@ def mark_pareto(candidates: list) -> None:
 
 def choose(candidates: list, budget_s: float | None, target_error: float | None, memory_limit: float | None,
            source: str) -> Candidate:
-    """The recommendation: within the budget (BUDGET_SAFETY of it) the smallest predicted error; with a target
-    error the cheapest that reaches it (and fits the budget when both are given). PlanError (one line, with the
-    closest feasible setting) when none qualifies."""
+    """The recommendation. With a budget only: the finest resolution whose predicted wall time is within
+    BUDGET_SAFETY of the budget (what a budget buys; between solvers at the same radius the smaller predicted
+    error, then the shorter time). With a target error: the cheapest setting that reaches it (within the budget
+    when both are given). PlanError (one line, with the closest feasible setting) when none qualifies."""
     fits = [c for c in candidates if memory_limit is None or c.memory <= memory_limit]
     if not fits:
         raise PlanError(f"{source}: no candidate setting fits in memory ({memory_limit / 2**30:.3g} GiB available)")
@@ -215,7 +216,7 @@ def choose(candidates: list, budget_s: float | None, target_error: float | None,
                             f"setting{within} reaches: {describe(best)} gives {100 * best.density_error:.3g} % in "
                             f"{best.wall_time:.3g} s")
         return min(ok, key=lambda c: (c.wall_time, c.density_error))
-    return min(in_budget, key=lambda c: (c.density_error, c.wall_time))
+    return min(in_budget, key=lambda c: (c.particle_radius, c.density_error, c.wall_time))
 
 
 def describe(c: Candidate) -> str:
@@ -224,7 +225,14 @@ def describe(c: Candidate) -> str:
 
 def candidates_for(scene, models: dict) -> list:
     """Every solver's prediction at every radius of the ladder."""
-    radii = ladder(scene, models)
-    out = [predict(scene, m, r) for m in models.values() for r in radii]
+    from ..core.errors import WarpSphError
+
+    out = []
+    for m in models.values():
+        for r in ladder(scene, models):
+            try:
+                out.append(predict(scene, m, r))
+            except WarpSphError:  # the scene refuses this radius (e.g. too many substeps): not a candidate
+                continue
     mark_pareto(out)
     return out

@@ -164,6 +164,16 @@ def toml_text(data: dict, header: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
+def check_apply_path(out: Path, force: bool) -> None:
+    """Refuse an --apply path that is not a .toml file in an existing folder, or an existing file without --force."""
+    if out.suffix.lower() != ".toml":
+        raise PlanError(f"--apply {out}: expected a .toml scene file path")
+    if out.exists() and not force:
+        raise PlanError(f"--apply {out}: the file exists; pass --force to replace it")
+    if not out.parent.is_dir():
+        raise PlanError(f"--apply {out}: folder {out.parent} does not exist")
+
+
 def apply_scene(scene, p: Plan, out: Path, force: bool = False) -> Path:
     """Write ``scene`` with the chosen setting and its [plan] prediction to ``out`` (atomic; an existing file
     only with ``force``). The file loads with ``load_scene(out)``."""
@@ -171,12 +181,7 @@ def apply_scene(scene, p: Plan, out: Path, force: bool = False) -> Path:
     from ..scene import scene_from_dict
 
     out = Path(out)
-    if out.suffix.lower() != ".toml":
-        raise PlanError(f"--apply {out}: expected a .toml scene file path")
-    if out.exists() and not force:
-        raise PlanError(f"--apply {out}: the file exists; pass --force to replace it")
-    if not out.parent.is_dir():
-        raise PlanError(f"--apply {out}: folder {out.parent} does not exist")
+    check_apply_path(out, force)
     d = scene.to_dict()
     d["solver"] = p.chosen.solver
     d["particle_radius"] = float(p.chosen.particle_radius)
@@ -199,6 +204,8 @@ def run_command(args, log=print) -> int:
     budget = parse_budget(args.budget) if args.budget is not None else None
     target = parse_error(args.target_error) if args.target_error is not None else None
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()] if args.solvers else None
+    if args.apply:
+        check_apply_path(Path(args.apply), args.force)
     scene = load_scene(args.scene, overrides=args.set)
     p = make_plan(scene, budget_s=budget, target_error=target, device=args.device, solvers=solvers,
                   cache=args.cache, refresh=args.refresh, progress=not args.no_progress, log=log)
