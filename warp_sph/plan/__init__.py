@@ -11,9 +11,13 @@ from __future__ import annotations
 from .advisor import Candidate, Plan, SolverModel
 from .calibrate import PlanError
 
+#: calibration rounds of a plan at most: the default radii, then finer points towards the setting chosen
+MAX_ROUNDS = 4
+
 
 def plan(scene, budget_s: float | None = None, target_error: float | None = None, device: str | None = None,
-         solvers=None, cache=None, refresh: bool = False, progress: bool = False, log=None) -> Plan:
+         solvers=None, cache=None, refresh: bool = False, progress: bool = False, log=None,
+         calibration_radii=None, calibration_frames: int | None = None) -> Plan:
     """Recommend the solver and particle radius for ``scene`` within ``budget_s`` seconds of wall time on this
     machine, or the cheapest setting whose mean density error is at most ``target_error`` (a fraction: 0.005
     for 0.5 %), or both.
@@ -22,8 +26,12 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     second of simulated time at two or three coarse radii for each solver of ``solvers`` (default: every
     registered solver), each an ordinary run with the scene's own outputs; the figures are cached per scene
     content and machine in ``cache`` (default ``~/.cache/warp-sph/plan``, ``$WARP_SPH_CACHE_DIR``),
-    ``refresh=True`` runs them again. Models fitted to them (steps per simulated second and error against the
-    spacing, wall time against the particle count) predict every candidate over the scene's duration.
+    ``refresh=True`` runs them again; ``calibration_radii`` [m] and ``calibration_frames`` (including the
+    initial one) replace the defaults (``calibrate.calibration_radii``, ``calibrate.calibration_frames``).
+    Models fitted to them (steps per simulated second and error against the spacing, wall time against the
+    particle count) predict every candidate over the scene's duration. No setting beyond 8x the largest
+    calibrated particle count is chosen; when the fit would choose one, a finer calibration point of its
+    solver is run first (at a quarter of its count), while the calibration stays within 10 % of the budget.
 
     Returns a ``Plan``: ``chosen`` (a ``Candidate``: solver, particle_radius, tolerance, fluid_particles,
     steps, wall_time [s], memory [bytes], density_error [-] and how far each is extrapolated),
@@ -36,8 +44,8 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     from ..run.memory import available_device_memory, available_host_memory
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
-    from .advisor import candidates_for, choose, fit_models
-    from .calibrate import calibrate
+    from .advisor import CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose, fit_models
+    from .calibrate import calibrate, calibration_frames as cal_frames, calibration_radii as default_radii
 
     if budget_s is None and target_error is None:
         raise PlanError("plan: give a wall-time budget (--budget 10m) or a target error (--target-error 0.5%)")
@@ -52,13 +60,30 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     unknown = [s for s in names if s not in solver_names()]
     if unknown:
         raise PlanError(f"--solvers: unknown {', '.join(unknown)}; expected some of {', '.join(solver_names())}")
-    cal = calibrate(scene, names, device=dev, cache=cache, refresh=refresh, progress=progress,
-                    log=log or (lambda *a, **k: None))
-    models = {s: m for s in names if (m := fit_models(cal, s)) is not None}
-    failed = {p.solver: p.error for p in cal.failures() if p.solver not in models}
-    candidates = candidates_for(scene, models)
+    radii = list(calibration_radii) if calibration_radii else default_radii(scene)
+    frames = calibration_frames or cal_frames(scene)
     limit = available_device_memory(dev) if dev.is_cuda else available_host_memory()
+    spent, cached, todo = 0.0, True, (names, radii)
+    for _ in range(MAX_ROUNDS):
+        cal = calibrate(scene, todo[0], device=dev, radii=todo[1], frames=frames, cache=cache, refresh=refresh,
+                        progress=progress, log=log or (lambda *a, **k: None))
+        # the calibration's whole cost: every point of these solvers, run now or loaded from the cache
+        spent, cached = sum(p.seconds for p in cal.points if p.solver in names), cached and cal.cached
+        models = {s: m for s in names if (m := fit_models(cal, s)) is not None}
+        candidates = candidates_for(scene, models)
+        free = choose(candidates, budget_s, target_error, limit, scene.source, max_extrapolation=None)
+        if free.count_extrapolation <= MAX_COUNT_EXTRAPOLATION:
+            break
+        # the setting the fit would choose lies far beyond the calibration: calibrate its solver at a quarter of
+        # its particle count, when that fits in the calibration's share of the budget
+        r_new = float(f"{free.particle_radius * 4.0 ** (1.0 / 3.0):.4g}")
+        cost = free.wall_time / 4.0 * (frames - 1) / max(scene.duration * scene.fps, 1.0)
+        if budget_s is not None and spent + cost > CALIBRATION_SHARE * budget_s:
+            break
+        todo = ([free.solver], [r_new])
+        refresh = False
     chosen = choose(candidates, budget_s, target_error, limit, scene.source)
+    failed = {p.solver: p.error for p in cal.failures() if p.solver in names and p.solver not in models}
     alternatives = []
     for s in models:
         if s == chosen.solver:
@@ -71,7 +96,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     return Plan(scene=scene.name, source=scene.source, chosen=chosen, alternatives=alternatives,
                 candidates=candidates, models=models, budget_s=budget_s, target_error=target_error,
                 duration=scene.duration, frames=int(round(scene.duration * scene.fps)) + 1,
-                calibration_seconds=cal.seconds, calibration_cached=cal.cached, cache_path=cal.path,
+                calibration_seconds=spent, calibration_cached=cached, cache_path=cal.path,
                 machine=cal.machine, failed_solvers=failed)
 
 

@@ -2,7 +2,7 @@
 
 For each solver that calibrated, the models (``fit.py``) predict at any particle radius r (spacing d = 2r):
 - particles N: the scene's geometric estimate (``run.memory.estimate_particle_counts``) times the ratio
-  sampled / estimated measured at the finest calibration radius;
+  sampled / estimated measured at the nearest calibrated radius;
 - substeps S = (steps per simulated second)(d) * duration, at least one per frame;
 - wall time = setup(N) + S * step(N) + frames * frame_overhead(N), three lines fitted against N;
 - mean density error e(d) = A d^p with the measured order p;
@@ -24,6 +24,11 @@ BUDGET_SAFETY = 0.8
 LADDER_PER_OCTAVE = 6
 #: the finest candidate: this factor below the finest calibrated radius
 LADDER_DEPTH = 64.0
+#: a plan chooses no setting with more particles than this factor times the largest calibrated count; ``plan``
+#: calibrates a finer point first when the budget allows (CALIBRATION_SHARE)
+MAX_COUNT_EXTRAPOLATION = 8.0
+#: the calibration may take at most this fraction of the budget (the points a plan adds to reach a budget)
+CALIBRATION_SHARE = 0.1
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0)
 ORDER_RANGE = (-1.0, 4.0)
 
@@ -38,8 +43,8 @@ class SolverModel:
     step_time: Line                # [s] against N
     setup_time: Line               # [s] against N
     frame_overhead: Line           # [s] against N
-    fluid_ratio: float             # sampled / estimated fluid particles
-    boundary_ratio: float
+    fluid_ratio: list              # sampled / estimated fluid particles at each calibrated radius
+    boundary_ratio: list
     calibrated_radii: list
     calibrated_particles: list
 
@@ -129,7 +134,6 @@ def fit_models(cal: Calibration, solver: str) -> SolverModel | None:
     # the set-up of a solver's first run also loads its kernels: leave it out when two other points remain
     first = min(pts, key=lambda p: cal.points.index(p))
     setup_pts = [p for p in pts if p is not first] if len(pts) >= 3 else pts
-    finest = pts[0]
     return SolverModel(
         solver=solver,
         steps_per_second=fit_power_law(d, [p.steps_per_second for p in pts], (-3.0, 0.5)),
@@ -137,8 +141,8 @@ def fit_models(cal: Calibration, solver: str) -> SolverModel | None:
         step_time=fit_line(n, [p.step_time for p in pts]),
         setup_time=fit_line([p.particles for p in setup_pts], [p.setup_time for p in setup_pts]),
         frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
-        fluid_ratio=finest.fluid / max(finest.estimated_fluid, 1),
-        boundary_ratio=finest.boundary / max(finest.estimated_boundary, 1) if finest.estimated_boundary else 1.0,
+        fluid_ratio=[p.fluid / max(p.estimated_fluid, 1) for p in pts],
+        boundary_ratio=[p.boundary / p.estimated_boundary if p.estimated_boundary else 1.0 for p in pts],
         calibrated_radii=[p.particle_radius for p in pts], calibrated_particles=n)
 
 
@@ -156,7 +160,9 @@ def predict(scene, model: SolverModel, radius: float) -> Candidate:
 
     s = variant(scene, model.solver, radius)
     ef, eb = estimate_particle_counts(s)
-    fluid, boundary = int(round(ef * model.fluid_ratio)), int(round(eb * model.boundary_ratio))
+    # sampled / estimated at the nearest calibrated radius (the lattice's rounding at the walls)
+    k = min(range(len(model.calibrated_radii)), key=lambda i: abs(math.log(model.calibrated_radii[i] / radius)))
+    fluid, boundary = int(round(ef * model.fluid_ratio[k])), int(round(eb * model.boundary_ratio[k]))
     n = fluid + boundary
     d = 2.0 * radius
     frames = int(round(scene.duration * scene.fps))
@@ -193,12 +199,13 @@ def mark_pareto(candidates: list) -> None:
 
 
 def choose(candidates: list, budget_s: float | None, target_error: float | None, memory_limit: float | None,
-           source: str) -> Candidate:
+           source: str, max_extrapolation: float | None = MAX_COUNT_EXTRAPOLATION) -> Candidate:
     """The recommendation. With a budget only: the finest resolution whose predicted wall time is within
     BUDGET_SAFETY of the budget (what a budget buys; between solvers at the same radius the smaller predicted
     error, then the shorter time). With a target error: the cheapest setting that reaches it (within the budget
     when both are given). PlanError (one line, with the closest feasible setting) when none qualifies."""
-    fits = [c for c in candidates if memory_limit is None or c.memory <= memory_limit]
+    fits = [c for c in candidates if (memory_limit is None or c.memory <= memory_limit)
+            and (max_extrapolation is None or c.count_extrapolation <= max_extrapolation)]
     if not fits:
         raise PlanError(f"{source}: no candidate setting fits in memory ({memory_limit / 2**30:.3g} GiB available)")
     in_budget = [c for c in fits if budget_s is None or c.wall_time <= BUDGET_SAFETY * budget_s]

@@ -61,6 +61,7 @@ class Point:
     export_wait: float = 0.0            # [s] the simulation thread spent on exports
     density_error_mean: float = 0.0     # [-] mean over the advanced frames of the frame's mean error
     density_error_max: float = 0.0      # [-] largest of any frame
+    seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
 
     @property
     def spacing(self) -> float:
@@ -138,16 +139,16 @@ def scene_content(scene) -> dict:
     return d
 
 
-def cache_key(scene, device, solvers, radii, frames) -> tuple[str, str]:
-    """(sha256 hex, machine text) of a calibration: scene content, machine, solvers, radii, frames, versions."""
+def cache_key(scene, device, frames) -> tuple[str, str]:
+    """(sha256 hex, machine text) of a scene's calibrations: scene content, machine, frames, versions. The points
+    of every solver and radius calibrated so far share the key (a later plan adds the points it lacks)."""
     from ..run.checkpoints import scene_hash
     from ..core.version import __version__
 
     import warp as wp
 
     machine = machine_text(device)
-    text = json.dumps({"scene": scene_hash(scene_content(scene)), "machine": machine, "solvers": list(solvers),
-                       "radii": [float(f"{r:.6g}") for r in radii], "frames": frames,
+    text = json.dumps({"scene": scene_hash(scene_content(scene)), "machine": machine, "frames": frames,
                        "versions": [__version__, wp.config.version]}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest(), machine
 
@@ -228,50 +229,55 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     return point
 
 
+def _same_radius(a: float, b: float) -> bool:
+    return abs(a - b) <= 1e-6 * max(a, b)
+
+
 def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None, cache: str | Path | None = None,
               refresh: bool = False, progress: bool = True, log=print) -> Calibration:
-    """Calibrate ``scene`` for every solver of ``solvers`` at ``radii`` (default ``calibration_radii``), or
-    load the same calibration from the cache. Raises PlanError when no run completes."""
+    """Calibrate ``scene`` for every solver of ``solvers`` at ``radii`` (default ``calibration_radii``): the
+    points the cache lacks are run, the others loaded (``refresh``: all run again). The Calibration holds
+    every cached point of the scene (other solvers and radii included). Raises PlanError when no run of these completes."""
     from ..core.device import resolve_device
+    from ..io.run_folder import atomic_write_json
     from ..run.progress import Progress
 
     dev = resolve_device(device)
     radii = list(radii) if radii else calibration_radii(scene)
     frames = frames or calibration_frames(scene)
-    key, machine = cache_key(scene, dev, solvers, radii, frames)
+    key, machine = cache_key(scene, dev, frames)
     folder = cache_dir(cache)
     path = folder / f"calibration-{key[:20]}.json"
+    points: list[Point] = []
     if path.is_file() and not refresh:
         try:
-            data = json.loads(path.read_text())
-            return Calibration(key=key, machine=machine, points=[Point(**p) for p in data["points"]],
-                               seconds=float(data["seconds"]), cached=True, path=str(path))
+            points = [Point(**p) for p in json.loads(path.read_text())["points"]]
         except (OSError, ValueError, KeyError, TypeError):
-            pass  # a damaged cache file: calibrate again
-    folder.mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix="calibration-", dir=folder))
-    total = len(solvers) * len(radii)
-    log(f"calibrating {scene.name}: {len(solvers)} solvers x {len(radii)} radii "
-        f"({', '.join(f'{r:.4g}' for r in radii)} m), {frames - 1} frames each ({(frames - 1) / scene.fps:.3g} s simulated)")
-    bar = Progress(total, enabled=progress, unit="runs")
-    t0 = time.perf_counter()
-    points = []
-    try:
-        for solver in solvers:
-            for r in radii:
-                points.append(run_point(scene, solver, r, frames, dev, work / f"{solver}-{len(points)}"))
-                bar.update(len(points), f"{solver} r = {r:.4g} m: {points[-1].status}")
-    finally:
-        bar.close()
-        shutil.rmtree(work, ignore_errors=True)
-    cal = Calibration(key=key, machine=machine, points=points, seconds=time.perf_counter() - t0, path=str(path))
-    if not any(p.status == "completed" for p in points):
-        first = points[0].error if points else "no calibration run"
+            points = []  # a damaged cache file: calibrate again
+    todo = [(s, r) for s in solvers for r in radii
+            if not any(p.solver == s and _same_radius(p.particle_radius, r) for p in points)]
+    if todo:
+        folder.mkdir(parents=True, exist_ok=True)
+        work = Path(tempfile.mkdtemp(prefix="calibration-", dir=folder))
+        log(f"calibrating {scene.name}: {len(todo)} runs ({', '.join(sorted({s for s, _ in todo}))} at "
+            f"{', '.join(f'{r:.4g}' for r in sorted({r for _, r in todo}, reverse=True))} m), {frames - 1} frames each "
+            f"({(frames - 1) / scene.fps:.3g} s simulated)")
+        bar = Progress(len(todo), enabled=progress, unit="runs")
+        try:
+            for i, (solver, r) in enumerate(todo):
+                t0 = time.perf_counter()
+                point = run_point(scene, solver, r, frames, dev, work / f"{solver}-{i}")
+                point.seconds = time.perf_counter() - t0
+                points.append(point)
+                bar.update(i + 1, f"{solver} r = {r:.4g} m: {point.status}")
+        finally:
+            bar.close()
+            shutil.rmtree(work, ignore_errors=True)
+        atomic_write_json(path, {"key": key, "machine": machine, "points": [asdict(p) for p in points]})
+    asked = [p for p in points if p.solver in solvers and any(_same_radius(p.particle_radius, r) for r in radii)]
+    if not any(p.status == "completed" for p in asked):
+        first = asked[0]
         raise PlanError(f"{scene.source}: the scene cannot be calibrated: every calibration run failed; the first "
-                        f"({points[0].solver}, particle_radius {points[0].particle_radius:g} m): {first}")
-    from ..io.run_folder import atomic_write_json
-
-    atomic_write_json(path, {"key": key, "machine": machine, "seconds": cal.seconds,
-                             "points": [asdict(p) for p in points]})
-    return cal
-
+                        f"({first.solver}, particle_radius {first.particle_radius:g} m): {first.error}")
+    ran = points[len(points) - len(todo):] if todo else []
+    return Calibration(key=key, machine=machine, points=points, seconds=sum(p.seconds for p in ran), cached=not todo, path=str(path))
