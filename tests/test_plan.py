@@ -12,7 +12,7 @@ import warp_sph as ws
 from warp_sph.cli import main
 from warp_sph.plan import PlanError, plan
 from warp_sph.plan.calibrate import calibration_frames, calibration_radii, radius_for_count
-from warp_sph.plan.fit import extrapolation, fit_line, fit_power_law
+from warp_sph.plan.fit import extrapolation, fit_lattice_count, fit_line, fit_power_law, fit_step_rate
 from warp_sph.plan.report import apply_scene, parse_budget, parse_error, set_flags, table_lines, toml_text
 from warp_sph.scene import load_scene
 
@@ -86,6 +86,26 @@ def test_line_is_non_negative_and_exact_on_a_line():
     assert h.intercept == 0.0 and h.slope > 0
     assert extrapolation(8e3, 1e2, 1e3) == 8.0 and extrapolation(50, 100, 1e3) == 2.0
     assert extrapolation(5e2, 1e2, 1e3) == 1.0
+
+
+def test_lattice_count_recovers_the_wall_gap():
+    d = np.array([0.1, 0.07, 0.05])
+    n = ((1.0 - 1.1 * d) / d) ** 3  # a 1 m block that loses 1.1 spacings to the walls' gap
+    f = fit_lattice_count(d, n, 3)
+    assert f.a == pytest.approx(1.0) and f.b == pytest.approx(-1.1)
+    assert f(0.01) == round(((1.0 - 0.011) / 0.01) ** 3)
+    assert fit_lattice_count([0.1], [1000], 2)(0.05) == 4000
+
+
+def test_step_rate_floor_and_cfl_order():
+    d = np.array([0.08, 0.06, 0.04])
+    wcsph = fit_step_rate(d, 40.0 / d, floor=200.0)  # dt ~ d above the floor
+    assert wcsph.law.exponent == pytest.approx(-1.0) and wcsph(0.01) == pytest.approx(4000.0)
+    viscous = fit_step_rate(d, 4.0 / d**2, floor=200.0)  # a viscous bound: dt ~ d^2
+    assert viscous.law.exponent == pytest.approx(-2.0)
+    clamped = fit_step_rate(d, np.full(3, 200.0), floor=200.0)  # every point at dt_max: d^-1 through the coarsest
+    assert clamped(0.08) == 200.0 and clamped(0.02) == pytest.approx(800.0)
+    assert fit_step_rate(d, 40.0 / d**0.5, floor=1.0).law.exponent == -1.0  # never slower than d^-1
 
 
 # --- parsing ---------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ from .core.device import apply_log_level as _apply_log_level, set_verbose  # noq
 from .core.errors import OutputError, SceneError, SimulationError, StepGraphError, WarpSphError
 from .scene import Scene, list_scenes, load_scene, parameter_table_markdown, scene_from_dict
 from .run.simulation import FrameStatistics, Simulation
+from .plan import Plan, PlanError, plan  # the function, not the subpackage: ws.plan(scene, budget_s=...)
 from .core.smoothing import SMOOTHING_KERNELS, SmoothingKernel, calibrated_mass, get_smoothing_kernel
 from .core.step_graph import Stage, StepGraph
 
@@ -42,18 +43,9 @@ def run(scene, out=None, **kwargs):
     return _run(scene, out=out, **kwargs)
 
 
-def plan(scene, budget_s=None, target_error=None, **kwargs):
-    """The settings (solver, particle radius) of ``scene`` that fit ``budget_s`` seconds of wall time on this
-    machine or reach ``target_error`` (mean density error, a fraction), predicted from short calibration runs
-    of the scene itself; returns a ``warp_sph.plan.Plan`` (see ``warp_sph.plan.plan``, docs/plan.md)."""
-    from .plan import plan as _plan
-
-    return _plan(scene, budget_s=budget_s, target_error=target_error, **kwargs)
-
-
 __all__ = [
     "FrameStatistics", "OutputError", "Scene", "SceneError", "SimulationError", "Simulation",
     "SMOOTHING_KERNELS", "SmoothingKernel", "Stage", "StepGraph", "StepGraphError", "WarpSphError",
     "calibrated_mass", "get_smoothing_kernel", "list_scenes", "load_scene", "parameter_table_markdown",
-    "plan", "run", "scene_from_dict", "set_verbose",
+    "Plan", "PlanError", "plan", "run", "scene_from_dict", "set_verbose",
 ]

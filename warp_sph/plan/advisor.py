@@ -1,10 +1,11 @@
 """The advisor of ``warp-sph plan``: models fitted to the calibration, the candidates, the recommendation.
 
 For each solver that calibrated, the models (``fit.py``) predict at any particle radius r (spacing d = 2r):
-- particles N: the scene's geometric estimate (``run.memory.estimate_particle_counts``) times the ratio
-  sampled / estimated measured at the nearest calibrated radius;
-- substeps S = (steps per simulated second)(d) * duration, at least one per frame;
-- wall time = setup(N) + S * step(N) + frames * frame_overhead(N), three lines fitted against N;
+- particles N: fluid (a + b d)^3 / d^3 and walls (a + b d)^2 / d^2 through the sampled counts (``LatticeCount``);
+- substeps S = (steps per simulated second)(d) * duration: a power law with exponent <= -1 above the floor of
+  one step per frame or per time.dt_max (``StepRate``);
+- wall time = load + setup(N) + S * step(N) + frames * frame_overhead(N), three lines fitted against N, and
+  the time a fresh process spends loading the kernels (the first calibration run's extra set-up);
 - mean density error e(d) = A d^p with the measured order p;
 - memory: ``run.memory.estimate_memory`` at the predicted counts.
 The candidates are the solvers x a geometric ladder of radii from the coarsest stable one down to 64x finer
@@ -16,7 +17,8 @@ import math
 from dataclasses import asdict, dataclass, field
 
 from .calibrate import Calibration, PlanError, coarsest_radius, variant
-from .fit import Line, PowerLaw, extrapolation, fit_line, fit_power_law
+from .fit import (LatticeCount, Line, PowerLaw, StepRate, extrapolation, fit_lattice_count, fit_line, fit_power_law,
+                  fit_step_rate)
 
 #: a plan chooses settings whose predicted wall time is at most this fraction of the budget
 BUDGET_SAFETY = 0.8
@@ -38,13 +40,14 @@ class SolverModel:
     """The fitted models of one solver (see the module docstring); ``calibrated``: the points' radii [m]."""
 
     solver: str
-    steps_per_second: PowerLaw     # against d [m]
+    steps_per_second: StepRate     # against d [m]
     error: PowerLaw                # against d [m]
     step_time: Line                # [s] against N
     setup_time: Line               # [s] against N
     frame_overhead: Line           # [s] against N
-    fluid_ratio: list              # sampled / estimated fluid particles at each calibrated radius
-    boundary_ratio: list
+    fluid_count: LatticeCount      # against d [m]
+    boundary_count: LatticeCount
+    load_time: float               # [s] a fresh process spends loading the kernels (the first run's extra set-up)
     calibrated_radii: list
     calibrated_particles: list
 
@@ -134,16 +137,24 @@ def fit_models(cal: Calibration, solver: str) -> SolverModel | None:
     # the set-up of a solver's first run also loads its kernels: leave it out when two other points remain
     first = min(pts, key=lambda p: cal.points.index(p))
     setup_pts = [p for p in pts if p is not first] if len(pts) >= 3 else pts
+    setup = fit_line([p.particles for p in setup_pts], [p.setup_time for p in setup_pts])
+    t = cal_scene_time(cal, solver)
     return SolverModel(
         solver=solver,
-        steps_per_second=fit_power_law(d, [p.steps_per_second for p in pts], (-3.0, 0.5)),
+        steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], t),
         error=fit_power_law(d, [max(p.density_error_mean, 1e-9) for p in pts], ORDER_RANGE),
         step_time=fit_line(n, [p.step_time for p in pts]),
-        setup_time=fit_line([p.particles for p in setup_pts], [p.setup_time for p in setup_pts]),
+        setup_time=setup,
         frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
-        fluid_ratio=[p.fluid / max(p.estimated_fluid, 1) for p in pts],
-        boundary_ratio=[p.boundary / p.estimated_boundary if p.estimated_boundary else 1.0 for p in pts],
+        fluid_count=fit_lattice_count(d, [p.fluid for p in pts], 3),
+        boundary_count=fit_lattice_count(d, [max(p.boundary, 0) for p in pts], 2),
+        load_time=max(first.setup_time - setup(first.particles), 0.0) if setup_pts is not pts else 0.0,
         calibrated_radii=[p.particle_radius for p in pts], calibrated_particles=n)
+
+
+def cal_scene_time(cal: Calibration, solver: str) -> float:
+    """The floor of the step rate [1/s]: one step per frame, or per time.dt_max (per fixed_dt when set)."""
+    return cal.step_floor
 
 
 def tolerance_of(scene, solver: str) -> float | None:
@@ -156,18 +167,15 @@ def tolerance_of(scene, solver: str) -> float | None:
 
 def predict(scene, model: SolverModel, radius: float) -> Candidate:
     """The predicted figures of ``scene`` with the model's solver at ``radius`` [m] over the scene's duration."""
-    from ..run.memory import estimate_memory, estimate_particle_counts
+    from ..run.memory import estimate_memory
 
-    s = variant(scene, model.solver, radius)
-    ef, eb = estimate_particle_counts(s)
-    # sampled / estimated at the nearest calibrated radius (the lattice's rounding at the walls)
-    k = min(range(len(model.calibrated_radii)), key=lambda i: abs(math.log(model.calibrated_radii[i] / radius)))
-    fluid, boundary = int(round(ef * model.fluid_ratio[k])), int(round(eb * model.boundary_ratio[k]))
-    n = fluid + boundary
+    s = variant(scene, model.solver, radius)  # a radius the scene refuses raises here
     d = 2.0 * radius
+    fluid, boundary = model.fluid_count(d), model.boundary_count(d)
+    n = fluid + boundary
     frames = int(round(scene.duration * scene.fps))
     steps = max(int(math.ceil(model.steps_per_second(d) * scene.duration)), frames)
-    wall = model.setup_time(n) + steps * model.step_time(n) + frames * model.frame_overhead(n)
+    wall = (model.load_time + model.setup_time(n) + steps * model.step_time(n) + frames * model.frame_overhead(n))
     mem = estimate_memory(s, fluid, boundary)
     return Candidate(solver=model.solver, particle_radius=radius, tolerance=tolerance_of(scene, model.solver),
                      fluid_particles=fluid, boundary_particles=boundary, steps=steps, wall_time=float(wall),

@@ -97,6 +97,7 @@ class Calibration:
     seconds: float = 0.0                # wall time the calibration took when it ran [s]
     cached: bool = False                # loaded from the cache (nothing ran)
     path: str = ""                      # the cache file
+    step_floor: float = 0.0             # [1/s] fewest substeps per simulated second: per frame, or per dt_max
 
     def for_solver(self, solver: str) -> list[Point]:
         return [p for p in self.points if p.solver == solver and p.status == "completed"]
@@ -280,4 +281,6 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
         raise PlanError(f"{scene.source}: the scene cannot be calibrated: every calibration run failed; the first "
                         f"({first.solver}, particle_radius {first.particle_radius:g} m): {first.error}")
     ran = points[len(points) - len(todo):] if todo else []
-    return Calibration(key=key, machine=machine, points=points, seconds=sum(p.seconds for p in ran), cached=not todo, path=str(path))
+    t = scene.time
+    floor = 1.0 / t.fixed_dt if t.fixed_dt > 0 else max(float(scene.fps), 1.0 / t.dt_max)
+    return Calibration(key=key, machine=machine, points=points, step_floor=floor, seconds=sum(p.seconds for p in ran), cached=not todo, path=str(path))

@@ -86,3 +86,53 @@ def extrapolation(value: float, lo: float, hi: float) -> float:
 
 def is_finite(*values) -> bool:
     return all(v is not None and math.isfinite(v) for v in values)
+
+
+@dataclass(frozen=True)
+class LatticeCount:
+    """Particles on a lattice of spacing d: N(d) = (max(a + b d, 0) / d)^k, k = 3 for a volume (fluid), 2 for
+    a surface (walls); b < 0 is the layer the walls' gap takes from each block (N^(1/k) d = a + b d is a line)."""
+
+    a: float
+    b: float
+    k: int
+
+    def __call__(self, d: float) -> int:
+        return int(round((max(self.a + self.b * float(d), 0.0) / float(d)) ** self.k))
+
+
+def fit_lattice_count(d, n, k: int) -> LatticeCount:
+    """The LatticeCount through the measured counts ``n`` at spacings ``d`` (least squares on N^(1/k) d against
+    d; one spacing: b = 0)."""
+    d = np.asarray(d, dtype=np.float64)
+    y = d * np.asarray(n, dtype=np.float64) ** (1.0 / k)
+    if len(d) >= 2 and np.ptp(d) > 0:
+        b, a = np.polyfit(d, y, 1)
+        return LatticeCount(float(a), float(b), k)
+    return LatticeCount(float(y.mean()), 0.0, k)
+
+
+@dataclass(frozen=True)
+class StepRate:
+    """Substeps per simulated second against the spacing d: max(floor, coefficient d^exponent). The floor is
+    one step per frame or per ``time.dt_max``; above it the CFL-type bounds make dt shrink at least as fast as
+    d (exponent <= -1: a viscous bound gives -2)."""
+
+    floor: float
+    law: PowerLaw
+
+    def __call__(self, d: float) -> float:
+        return max(self.floor, self.law(d))
+
+
+def fit_step_rate(d, rate, floor: float) -> StepRate:
+    """The StepRate of measured rates: a power law (exponent in [-3, -1]) through the points above the floor;
+    with one such point, exponent -1 through it; with none, exponent -1 through the largest rate x d (an upper
+    bound: the points sit at the floor)."""
+    d = np.asarray(d, dtype=np.float64)
+    rate = np.asarray(rate, dtype=np.float64)
+    free = rate > 1.05 * floor
+    if free.sum() >= 2 and np.ptp(d[free]) > 0:
+        return StepRate(floor, fit_power_law(d[free], rate[free], (-3.0, -1.0)))
+    i = int(np.argmax(np.where(free, rate * d, -np.inf))) if free.any() else int(np.argmax(rate * d))
+    return StepRate(floor, PowerLaw(float(rate[i] * d[i]), -1.0))

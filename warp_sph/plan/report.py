@@ -74,7 +74,7 @@ def table_lines(p: Plan) -> list[str]:
         out.append(f"{c.solver}: " + (f"extrapolated: {ext}" if ext else "within the calibrated range"))
     m = p.models[p.chosen.solver]
     out.append(f"{p.chosen.solver} models: error ~ d^{m.error.exponent:.2f} (measured order), steps/s ~ "
-               f"d^{m.steps_per_second.exponent:.2f}, {1e9 * m.step_time.slope:.3g} ns per particle-step + "
+               f"d^{m.steps_per_second.law.exponent:.2f} above {m.steps_per_second.floor:.4g}, {1e9 * m.step_time.slope:.3g} ns per particle-step + "
                f"{1e3 * m.step_time.intercept:.3g} ms per step")
     for s, why in p.failed_solvers.items():
         out.append(f"{s}: not a candidate, its calibration failed: {why}")
