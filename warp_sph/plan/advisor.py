@@ -52,6 +52,7 @@ class SolverModel:
     calibrated_particles: list
 
     def to_dict(self) -> dict:
+        """The models as plain JSON types."""
         return asdict(self)
 
 
@@ -74,6 +75,7 @@ class Candidate:
 
     @property
     def particles(self) -> int:
+        """Fluid and boundary particles."""
         return self.fluid_particles + self.boundary_particles
 
     def extrapolated(self) -> str:
@@ -86,6 +88,7 @@ class Candidate:
         return "; ".join(parts)
 
     def to_dict(self) -> dict:
+        """The candidate as plain JSON types, with ``extrapolated`` in words."""
         return {**asdict(self), "extrapolated": self.extrapolated()}
 
 
@@ -118,6 +121,7 @@ class Plan:
                 "budget": float(self.budget_s or 0.0), "target_error": float(self.target_error or 0.0)}
 
     def to_dict(self) -> dict:
+        """The plan as plain JSON types (``warp-sph bench plan`` records it)."""
         return {"scene": self.scene, "source": self.source, "budget_s": self.budget_s,
                 "target_error": self.target_error, "duration": self.duration, "frames": self.frames,
                 "chosen": self.chosen.to_dict(), "alternatives": [c.to_dict() for c in self.alternatives],
@@ -235,6 +239,7 @@ def choose(candidates: list, budget_s: float | None, target_error: float | None,
 
 
 def describe(c: Candidate) -> str:
+    """A candidate in words: solver, radius, fluid particles."""
     return f"{c.solver}, particle_radius {c.particle_radius:.4g} m, {c.fluid_particles:,} fluid particles"
 
 

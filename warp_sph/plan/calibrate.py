@@ -65,10 +65,12 @@ class Point:
 
     @property
     def spacing(self) -> float:
+        """Lattice spacing d = 2 r [m]."""
         return 2.0 * self.particle_radius
 
     @property
     def particles(self) -> int:
+        """Fluid and boundary particles."""
         return self.fluid + self.boundary
 
     @property
@@ -100,9 +102,11 @@ class Calibration:
     step_floor: float = 0.0             # [1/s] fewest substeps per simulated second: per frame, or per dt_max
 
     def for_solver(self, solver: str) -> list[Point]:
+        """The completed points of ``solver``."""
         return [p for p in self.points if p.solver == solver and p.status == "completed"]
 
     def failures(self) -> list[Point]:
+        """The points whose run failed."""
         return [p for p in self.points if p.status != "completed"]
 
 

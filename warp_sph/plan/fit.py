@@ -9,7 +9,6 @@ Every figure of a plan comes from a fit to measured calibration points (``calibr
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,10 +81,6 @@ def extrapolation(value: float, lo: float, hi: float) -> float:
     if value < lo:
         return lo / value
     return 1.0
-
-
-def is_finite(*values) -> bool:
-    return all(v is not None and math.isfinite(v) for v in values)
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,7 @@ def parse_error(text: str) -> float:
 
 
 def duration_text(s: float) -> str:
+    """A wall time [s] in s, min or h."""
     if s < 120:
         return f"{s:.3g} s"
     if s < 7200:
@@ -47,6 +48,7 @@ def duration_text(s: float) -> str:
 
 
 def bytes_text(n: float) -> str:
+    """Bytes in MiB or GiB."""
     return f"{n / 2**30:.3g} GiB" if n >= 2**30 else f"{n / 2**20:.3g} MiB"
 
 
