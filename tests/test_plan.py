@@ -244,3 +244,22 @@ def test_a_scene_that_cannot_be_calibrated(tiny, tmp_path, capsys):
                         "--no-progress", "--set", "time.max_steps=1")
     assert rc == 2 and "cannot be calibrated" in err and "time.max_steps" in err
     assert len(err.strip().splitlines()) == 1, err
+
+
+def test_cli_plan_table_plot_line_and_apply(tiny, tmp_path, capsys):
+    out = tmp_path / "planned.toml"
+    rc, text, err = _cli(capsys, "plan", str(tiny), "--budget", "8s", "--solvers", "wcsph", "--cache",
+                         str(tiny.parent / "cache"), "--no-progress", "--apply", str(out), "--plot",
+                         str(tmp_path / "pareto.png"))
+    assert rc == 0, err
+    lines = text.splitlines()
+    row = next(line for line in lines if line.startswith("*"))
+    assert row.split()[1] == "wcsph" and load_scene(str(out)).solver == "wcsph"
+    try:
+        import matplotlib  # noqa: F401
+        assert (tmp_path / "pareto.png").stat().st_size > 0 and f"Pareto front: {tmp_path / 'pareto.png'}" in text
+    except ImportError:  # one line says why there is no plot; the table is printed all the same
+        assert sum("matplotlib is not installed" in line for line in lines) == 1
+    rc, text, err = _cli(capsys, "plan", str(tiny), "--budget", "8s", "--solvers", "wcsph", "--cache",
+                         str(tiny.parent / "cache"), "--no-progress", "--apply", str(out))
+    assert rc == 2 and "exists; pass --force" in err and text == ""  # refused before any calibration
