@@ -177,7 +177,11 @@ def test_public_api_and_table(calibrated):
     assert "plan" in ws.__all__ and ws.plan.__doc__
     lines = table_lines(p)
     assert lines[1].split()[:3] == ["solver", "radius", "tolerance"] and lines[2].startswith("*")
-    assert f'solver="{p.chosen.solver}"' in set_flags(p)
+    assert f"solver={p.chosen.solver}" in set_flags(p)
+    from warp_sph.scene.load import apply_overrides
+
+    d = apply_overrides(load_scene("hydrostatic").to_dict(), set_flags(p))  # the flags load as scene values
+    assert ws.scene_from_dict(d).plan.wall_time == pytest.approx(p.chosen.wall_time, rel=1e-5)
 
 
 def test_apply_writes_a_scene_that_runs_and_records_the_plan(calibrated, tiny, tmp_path):

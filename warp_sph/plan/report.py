@@ -80,8 +80,8 @@ def table_lines(p: Plan) -> list[str]:
                f"{1e3 * m.step_time.intercept:.3g} ms per step")
     for s, why in p.failed_solvers.items():
         out.append(f"{s}: not a candidate, its calibration failed: {why}")
-    cal = "cached" if p.calibration_cached else "ran"
-    out.append(f"calibration: {duration_text(p.calibration_seconds)} when it ran ({cal}; {p.cache_path})")
+    when = "from the cache, nothing ran now" if p.calibration_cached else "run now"
+    out.append(f"calibration: {duration_text(p.calibration_seconds)} of runs ({when}; {p.cache_path})")
     return out
 
 
@@ -125,8 +125,8 @@ def plot_pareto(p: Plan, path: Path) -> Path | None:
 def set_flags(p: Plan) -> list[str]:
     """The ``--set`` flags of the chosen setting (the [plan] prediction included)."""
     c = p.chosen
-    flags = [f'solver="{c.solver}"', f"particle_radius={c.particle_radius:.6g}"]
-    flags += [f"plan.{k}={v!r}" for k, v in p.prediction().items()]
+    flags = [f"solver={c.solver}", f"particle_radius={c.particle_radius:.6g}"]
+    flags += [f"plan.{k}={v:.6g}" if isinstance(v, float) else f"plan.{k}={v}" for k, v in p.prediction().items()]
     return flags
 
 
