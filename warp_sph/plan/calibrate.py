@@ -29,7 +29,7 @@ from ..core.errors import WarpSphError
 #: simulated time of a calibration run [s] (rounded up to whole frames, at least two frames)
 CALIBRATION_TIME = 0.1
 #: fluid particle counts the calibration radii are chosen for (from the scene's geometry)
-CALIBRATION_COUNTS = (300, 700, 1600)
+CALIBRATION_COUNTS = (300, 1000)
 #: the coarsest radius keeps at least this many particle layers across the thinnest fluid block
 MIN_LAYERS = 3
 #: the keys a plan changes: left out of the scene's content hash
