@@ -142,10 +142,9 @@ def fit_models(cal: Calibration, solver: str) -> SolverModel | None:
     first = min(pts, key=lambda p: cal.points.index(p))
     setup_pts = [p for p in pts if p is not first] if len(pts) >= 3 else pts
     setup = fit_line([p.particles for p in setup_pts], [p.setup_time for p in setup_pts])
-    t = cal_scene_time(cal, solver)
     return SolverModel(
         solver=solver,
-        steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], t),
+        steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], cal.step_floor),
         error=fit_power_law(d, [max(p.density_error_mean, 1e-9) for p in pts], ORDER_RANGE),
         step_time=fit_line(n, [p.step_time for p in pts]),
         setup_time=setup,
@@ -154,11 +153,6 @@ def fit_models(cal: Calibration, solver: str) -> SolverModel | None:
         boundary_count=fit_lattice_count(d, [max(p.boundary, 0) for p in pts], 2),
         load_time=max(first.setup_time - setup(first.particles), 0.0) if setup_pts is not pts else 0.0,
         calibrated_radii=[p.particle_radius for p in pts], calibrated_particles=n)
-
-
-def cal_scene_time(cal: Calibration, solver: str) -> float:
-    """The floor of the step rate [1/s]: one step per frame, or per time.dt_max (per fixed_dt when set)."""
-    return cal.step_floor
 
 
 def tolerance_of(scene, solver: str) -> float | None:

@@ -1,7 +1,8 @@
 """The fitted models of ``warp-sph plan``: power laws in log space and a line with non-negative coefficients.
 
 Every figure of a plan comes from a fit to measured calibration points (``calibrate.py``):
-- steps per simulated second against the spacing d: S = a d^-q (CFL: dt ~ h / c, so q ~ 1 for WCSPH);
+- particles against the spacing d: fluid (a + b d)^3 / d^3, walls (a + b d)^2 / d^2 (``LatticeCount``);
+- steps per simulated second against d: max(floor, a d^q) with q <= -1 (CFL: dt ~ h / v; ``StepRate``);
 - mean density error against the spacing: e = A d^p, p the measured convergence order;
 - wall time of one step against the particle count N: t = c0 + c1 N (c0, c1 >= 0: launch overhead and
   cost per particle-step);
