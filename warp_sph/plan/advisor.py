@@ -5,7 +5,7 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
 - substeps S = (steps per simulated second)(d) * duration: a power law with exponent <= -1 above the floor of
   one step per frame or per time.dt_max (``StepRate``);
 - wall time = load + setup(N) + S * step(N) + frames * frame_overhead(N), three lines fitted against N, and
-  the time a fresh process spends loading the kernels (the first calibration run's extra set-up);
+  the time a fresh process spends loading the step's kernels (the largest first-step excess measured);
 - mean density error e(d) = A d^p with the measured order p;
 - memory: ``run.memory.estimate_memory`` at the predicted counts.
 The candidates are the solvers x a geometric ladder of radii from the coarsest stable one down to 64x finer
@@ -47,7 +47,7 @@ class SolverModel:
     frame_overhead: Line           # [s] against N
     fluid_count: LatticeCount      # against d [m]
     boundary_count: LatticeCount
-    load_time: float               # [s] a fresh process spends loading the kernels (the first run's extra set-up)
+    load_time: float               # [s] a fresh process spends loading the step's kernels (the largest first-step excess)
     calibrated_radii: list
     calibrated_particles: list
 
@@ -138,10 +138,7 @@ def fit_models(cal: Calibration, solver: str) -> SolverModel | None:
         return None
     d = [p.spacing for p in pts]
     n = [p.particles for p in pts]
-    # the set-up of a solver's first run also loads its kernels: leave it out when two other points remain
-    first = min(pts, key=lambda p: cal.points.index(p))
-    setup_pts = [p for p in pts if p is not first] if len(pts) >= 3 else pts
-    setup = fit_line([p.particles for p in setup_pts], [p.setup_time for p in setup_pts])
+    setup = fit_line(n, [p.setup_time for p in pts])
     return SolverModel(
         solver=solver,
         steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], cal.step_floor),
@@ -151,7 +148,8 @@ def fit_models(cal: Calibration, solver: str) -> SolverModel | None:
         frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
         fluid_count=fit_lattice_count(d, [p.fluid for p in pts], 3),
         boundary_count=fit_lattice_count(d, [max(p.boundary, 0) for p in pts], 2),
-        load_time=max(first.setup_time - setup(first.particles), 0.0) if setup_pts is not pts else 0.0,
+        # a fresh process loads the step's kernels as the solver's first calibration run did
+        load_time=max(p.load_time for p in pts),
         calibrated_radii=[p.particle_radius for p in pts], calibrated_particles=n)
 
 

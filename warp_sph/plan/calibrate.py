@@ -59,6 +59,7 @@ class Point:
     wall_time: float = 0.0              # [s] of run.json
     step_time: float = 0.0              # [s] steady wall time of one substep (first call excluded)
     export_wait: float = 0.0            # [s] the simulation thread spent on exports
+    first_step_time: float = 0.0        # [s] the first step's stages, kernel loads included
     density_error_mean: float = 0.0     # [-] mean over the advanced frames of the frame's mean error
     density_error_max: float = 0.0      # [-] largest of any frame
     seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
@@ -79,9 +80,14 @@ class Point:
         return self.steps / self.simulated_time if self.simulated_time > 0 else math.nan
 
     @property
+    def load_time(self) -> float:
+        """[s] the first step took beyond a steady one: loading (or compiling) the step's kernels."""
+        return max(self.first_step_time - self.step_time, 0.0)
+
+    @property
     def setup_time(self) -> float:
-        """[s] of the run outside its steps and its per-frame exports: sampling, model, first-call loads."""
-        return max(self.wall_time - self.steps * self.step_time - self.export_wait, 0.0)
+        """[s] of the run outside its steps, its per-frame exports and its kernel loads: sampling, model, files."""
+        return max(self.wall_time - self.steps * self.step_time - self.export_wait - self.load_time, 0.0)
 
     @property
     def frame_overhead(self) -> float:
@@ -229,6 +235,7 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     point.wall_time = float(info["wall_time"])
     point.step_time = float(info["sim_time_per_step_ms"]) * 1e-3
     point.export_wait = float(info.get("export_wait_time", 0.0))
+    point.first_step_time = float(info.get("first_step_time", 0.0))
     point.density_error_mean = sum(f["density_error_mean"] for f in advanced) / max(len(advanced), 1)
     point.density_error_max = max((f["density_error_max"] for f in advanced), default=0.0)
     return point
