@@ -13,6 +13,8 @@ from .calibrate import PlanError
 
 #: calibration rounds of a plan at most: the default radii, then finer points towards the setting chosen
 MAX_ROUNDS = 4
+#: a calibration round adds a point with at most this factor more particles than the largest calibrated one
+STEP_UP = 4.0
 
 
 def plan(scene, budget_s: float | None = None, target_error: float | None = None, device: str | None = None,
@@ -31,7 +33,8 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     Models fitted to them (steps per simulated second and error against the spacing, wall time against the
     particle count) predict every candidate over the scene's duration. No setting beyond 8x the largest
     calibrated particle count is chosen; when the fit would choose one, a finer calibration point of its
-    solver is run first (at a quarter of its count), while the calibration stays within 10 % of the budget.
+    solver is run first (at a quarter of its count, at most 4x the largest calibrated count), while the
+    calibration stays within 10 % of the budget.
 
     Returns a ``Plan``: ``chosen`` (a ``Candidate``: solver, particle_radius, tolerance, fluid_particles,
     steps, wall_time [s], memory [bytes], density_error [-] and how far each is extrapolated),
@@ -75,10 +78,14 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         if free.count_extrapolation <= MAX_COUNT_EXTRAPOLATION:
             break
         # the setting the fit would choose lies far beyond the calibration: calibrate its solver at a quarter of
-        # its particle count, when that fits in the calibration's share of the budget
-        r_new = float(f"{free.particle_radius * 4.0 ** (1.0 / 3.0):.4g}")
-        cost = free.wall_time / 4.0 * (frames - 1) / max(scene.duration * scene.fps, 1.0)
-        if budget_s is not None and spent + cost > CALIBRATION_SHARE * budget_s:
+        # its particle count, but at most STEP_UP x the largest calibrated count (the fit is least sure there),
+        # when that fits in the calibration's share of the budget (its cost scaled from the largest point run:
+        # particles x steps, the steps ~ 1/d)
+        largest = max(cal.for_solver(free.solver), key=lambda q: q.particles)
+        target = min(free.particles / 4.0, STEP_UP * largest.particles)
+        r_new = float(f"{largest.particle_radius * (largest.particles / target) ** (1.0 / 3.0):.4g}")
+        cost = largest.seconds * (target / largest.particles) * (largest.particle_radius / r_new)
+        if r_new >= largest.particle_radius or (budget_s is not None and spent + cost > CALIBRATION_SHARE * budget_s):
             break
         todo = ([free.solver], [r_new])
         refresh = False
