@@ -267,3 +267,19 @@ def test_cli_plan_table_plot_line_and_apply(tiny, tmp_path, capsys):
     rc, text, err = _cli(capsys, "plan", str(tiny), "--budget", "8s", "--solvers", "wcsph", "--cache",
                          str(tiny.parent / "cache"), "--no-progress", "--apply", str(out))
     assert rc == 2 and "exists; pass --force" in err and text == ""  # refused before any calibration
+
+
+def test_next_calibration_point_steps_at_most_4x():
+    from warp_sph.plan.advisor import Candidate, next_point
+    from warp_sph.plan.calibrate import Calibration, Point
+
+    cal = Calibration(key="k", machine="m", points=[
+        Point("wcsph", 0.04, fluid=300, boundary=200, seconds=1.0),
+        Point("wcsph", 0.02, fluid=800, boundary=200, seconds=2.0)])
+    far = Candidate("wcsph", 0.002, None, 10**6, 0, 1000, 10.0, 0, 0.01, 1000.0, 10.0)
+    r, cost, largest = next_point(cal, far)  # the fit's choice is 1000x beyond: step 4x only
+    assert largest == 0.02 and r == pytest.approx(0.02 * 0.25 ** (1 / 3), rel=1e-3)
+    assert cost == pytest.approx(2.0 * 4.0 * 0.02 / r, rel=1e-3)
+    near = Candidate("wcsph", 0.01, None, 6000, 0, 100, 1.0, 0, 0.01, 6.0, 2.0)
+    r, cost, _ = next_point(cal, near)  # a quarter of its count: 1500 particles
+    assert r == pytest.approx(0.02 * (1000 / 1500) ** (1 / 3), rel=1e-3)

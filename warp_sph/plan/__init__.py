@@ -13,8 +13,6 @@ from .calibrate import PlanError
 
 #: calibration rounds of a plan at most: the default radii, then finer points towards the setting chosen
 MAX_ROUNDS = 4
-#: a calibration round adds a point with at most this factor more particles than the largest calibrated one
-STEP_UP = 4.0
 
 
 def plan(scene, budget_s: float | None = None, target_error: float | None = None, device: str | None = None,
@@ -47,7 +45,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     from ..run.memory import available_device_memory, available_host_memory
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
-    from .advisor import CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose, fit_models
+    from .advisor import CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose, fit_models, next_point
     from .calibrate import calibrate, calibration_frames as cal_frames, calibration_radii as default_radii
 
     if budget_s is None and target_error is None:
@@ -77,15 +75,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         free = choose(candidates, budget_s, target_error, limit, scene.source, max_extrapolation=None)
         if free.count_extrapolation <= MAX_COUNT_EXTRAPOLATION:
             break
-        # the setting the fit would choose lies far beyond the calibration: calibrate its solver at a quarter of
-        # its particle count, but at most STEP_UP x the largest calibrated count (the fit is least sure there),
-        # when that fits in the calibration's share of the budget (its cost scaled from the largest point run:
-        # particles x steps, the steps ~ 1/d)
-        largest = max(cal.for_solver(free.solver), key=lambda q: q.particles)
-        target = min(free.particles / 4.0, STEP_UP * largest.particles)
-        r_new = float(f"{largest.particle_radius * (largest.particles / target) ** (1.0 / 3.0):.4g}")
-        cost = largest.seconds * (target / largest.particles) * (largest.particle_radius / r_new)
-        if r_new >= largest.particle_radius or (budget_s is not None and spent + cost > CALIBRATION_SHARE * budget_s):
+        # the setting the fit would choose lies far beyond the calibration: one more point of its solver, when
+        # that fits in the calibration's share of the budget
+        r_new, cost, largest = next_point(cal, free)
+        if r_new >= largest or (budget_s is not None and spent + cost > CALIBRATION_SHARE * budget_s):
             break
         todo = ([free.solver], [r_new])
         refresh = False

@@ -29,6 +29,8 @@ LADDER_DEPTH = 64.0
 #: a plan chooses no setting with more particles than this factor times the largest calibrated count; ``plan``
 #: calibrates a finer point first when the budget allows (CALIBRATION_SHARE)
 MAX_COUNT_EXTRAPOLATION = 8.0
+#: a calibration round adds a point with at most this factor more particles than the largest calibrated one
+STEP_UP = 4.0
 #: the calibration may take at most this fraction of the budget (the points a plan adds to reach a budget)
 CALIBRATION_SHARE = 0.1
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0)
@@ -248,3 +250,14 @@ def candidates_for(scene, models: dict) -> list:
                 continue
     mark_pareto(out)
     return out
+
+
+def next_point(cal: Calibration, free: Candidate) -> tuple[float, float, float]:
+    """(radius [m], predicted cost [s], largest calibrated radius [m]) of the next calibration point of
+    ``free``'s solver: a quarter of its particle count, but at most STEP_UP x the largest calibrated count (the
+    fit is least sure beyond it); the cost scaled from the largest point run (particles x steps, steps ~ 1/d)."""
+    largest = max(cal.for_solver(free.solver), key=lambda q: q.particles)
+    target = min(free.particles / 4.0, STEP_UP * largest.particles)
+    r_new = float(f"{largest.particle_radius * (largest.particles / target) ** (1.0 / 3.0):.4g}")
+    cost = largest.seconds * (target / largest.particles) * (largest.particle_radius / r_new)
+    return r_new, cost, largest.particle_radius
