@@ -29,7 +29,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     ``refresh=True`` runs them again; ``calibration_radii`` [m] and ``calibration_frames`` (including the
     initial one) replace the defaults (``calibrate.calibration_radii``, ``calibrate.calibration_frames``).
     Models fitted to them (steps per simulated second and error against the spacing, wall time against the
-    particle count) predict every candidate over the scene's duration. No setting beyond 8x the largest
+    particle count) predict every candidate over the scene's duration. No setting beyond 4x the largest
     calibrated particle count is chosen; when the fit would choose one, a finer calibration point of its
     solver is run first (at a quarter of its count, at most 4x the largest calibrated count), while the
     calibration stays within 10 % of the budget.
