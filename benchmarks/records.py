@@ -23,7 +23,8 @@ SCHEMA = "warp-sph-bench/1"
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 #: the default for every command: a user folder, relative to the working directory
 USER_RESULTS_DIR = Path("runs") / "bench"
-KINDS = ("sweep", "scaling", "splishsplash", "surface", "matrix", "executors", "bodies", "emission", "validation", "extremes")
+KINDS = ("sweep", "scaling", "splishsplash", "surface", "matrix", "executors", "bodies", "emission", "validation",
+         "extremes", "whitewater", "plan")
 
 
 def solver_names() -> tuple[str, ...]:

@@ -15,6 +15,7 @@ import os
 from pathlib import Path
 
 from . import bodies, emission, executor_speed, extremes, matrix, validation, whitewater
+from . import plan as plan_bench
 from . import metrics as M
 from .plots import SPEED_KEY, Figures, plot_adaptive, plot_scaling, plot_series, plot_tradeoff
 from .records import host_info
@@ -391,7 +392,11 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     extreme = data.get("extremes", [])  # the latest record of each case (extremes.section)
     lines += extremes.section(extreme, fmt, section_head)
 
-    if not (sweeps or by_solver or by_size or adaptive or surf or mat or execs or moving or checked or extreme):
+    planned = latest(data.get("plan", []))
+    lines += plan_bench.section(planned, fmt, section_head)
+
+    if not (sweeps or by_solver or by_size or adaptive or surf or mat or execs or moving or checked or extreme
+            or planned):
         lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]
     figures.save()
     md_path.parent.mkdir(parents=True, exist_ok=True)

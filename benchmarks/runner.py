@@ -14,6 +14,7 @@
     warp-sph bench whitewater                      # a splash scene with whitewater on against off
     warp-sph bench validation                      # every solver against experiments (benchmarks/validation.py)
     warp-sph bench extremes                        # every solver at the extremes: completed, stopped or refused
+    warp-sph bench plan                            # warp-sph plan: predicted against actual wall time and error
     warp-sph bench report                          # RESULTS.md from the JSON lines
 
 Results go to ``runs/bench/`` (JSON lines and ``RESULTS.md``) unless ``--out DIR``; ``--publish``
@@ -405,6 +406,14 @@ def cmd_extremes(args, argv: list[str], log=print) -> int:
     return 1 if bad else 0
 
 
+def cmd_plan(args, argv: list[str], log=print) -> int:
+    from .plan import run_cases
+
+    invocation = now()
+    records = run_cases(args, _out(args), log=log)
+    return _finish(_save("plan", records, args, argv, invocation, log), args, records, log)
+
+
 def _finish(out: Path, args, records: list[dict], log) -> int:
     if not getattr(args, "no_report", False):
         from .report import write_report
@@ -592,6 +601,14 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--no-report", action="store_true", help="do not regenerate the Markdown report")
     where(x)
     x.set_defaults(func=cmd_extremes)
+
+    from .plan import add_arguments as plan_arguments
+
+    n = sub.add_parser("plan", help="warp-sph plan on built-in scenes: predicted against actual wall time and error "
+                       "(small budgets)")
+    plan_arguments(n)
+    common(n)
+    n.set_defaults(func=cmd_plan)
 
     r = sub.add_parser("report", help="regenerate RESULTS.md, tables and plots from the JSON lines")
     where(r)

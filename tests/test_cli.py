@@ -9,7 +9,7 @@ import pytest
 
 from warp_sph.cli import print_summary, build_parser, main
 
-COMMANDS = ["run", "scenes", "check", "export", "preview", "plot", "sweep", "bench"]
+COMMANDS = ["run", "scenes", "check", "export", "preview", "plot", "sweep", "plan", "bench"]
 
 
 def _subcommands() -> list[str]:

@@ -81,9 +81,10 @@ def test_defaults_resolved(tmp_path):
     assert s.obstacles == [] and s.whitewater is None and "whitewater" not in s.to_dict()
     # every table parameter has a value in to_dict
     d = s.to_dict()
+    optional = {p.path for p in all_parameters() if p.kind == "table" and p.default is None}  # [plan]: absent
     for p in all_parameters():
         if (p.kind in ("table", "tables", "table_or_false") or "[]" in p.path or p.path.startswith("forces[")
-                or p.default is None or p.path.startswith("whitewater.")):  # [whitewater]: absent when off
+                or p.default is None or p.section in optional or p.path.startswith("whitewater.")):
             continue
         section, _, key = p.path.rpartition(".")
         assert key in (d[section] if section else d), p.path

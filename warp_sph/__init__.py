@@ -25,6 +25,7 @@ from .core.device import apply_log_level as _apply_log_level, set_verbose  # noq
 from .core.errors import OutputError, SceneError, SimulationError, StepGraphError, WarpSphError
 from .scene import Scene, list_scenes, load_scene, parameter_table_markdown, scene_from_dict
 from .run.simulation import FrameStatistics, Simulation
+from .plan import Plan, PlanError, plan  # the function, not the subpackage: ws.plan(scene, budget_s=...)
 from .core.smoothing import SMOOTHING_KERNELS, SmoothingKernel, calibrated_mass, get_smoothing_kernel
 from .core.step_graph import Stage, StepGraph
 
@@ -46,5 +47,5 @@ __all__ = [
     "FrameStatistics", "OutputError", "Scene", "SceneError", "SimulationError", "Simulation",
     "SMOOTHING_KERNELS", "SmoothingKernel", "Stage", "StepGraph", "StepGraphError", "WarpSphError",
     "calibrated_mass", "get_smoothing_kernel", "list_scenes", "load_scene", "parameter_table_markdown",
-    "run", "scene_from_dict", "set_verbose",
+    "Plan", "PlanError", "plan", "run", "scene_from_dict", "set_verbose",
 ]

@@ -1,4 +1,4 @@
-"""Command line: ``warp-sph run | scenes | check | export | preview | plot | sweep | bench``.
+"""Command line: ``warp-sph run | scenes | check | export | preview | plot | sweep | plan | bench``.
 
 Errors the user can act on print one line (``warp-sph: error: ...``) and exit with status 2;
 no traceback. Ctrl-C stops a run and keeps every frame written so far (exit status 130).
@@ -83,6 +83,10 @@ def print_summary(info: dict) -> None:
     else:
         print(f"export: {info['export_time']:.1f} s")
     print(f"output: {out}" + (f"  (Blender: File > Import > USD, {usd[0].name})" if usd else ""))
+    if "plan" in info:  # made from warp-sph plan --apply: its prediction beside what happened
+        from .plan.compare import summary_line
+
+        print(summary_line(info["plan"]))
 
 
 def _cmd_scenes(args) -> int:
@@ -226,6 +230,13 @@ def _cmd_plot(args) -> int:
     return 0
 
 
+def _cmd_plan(args) -> int:
+    from .plan.report import run_command
+
+    _quiet_warp()
+    return run_command(args)
+
+
 def _cmd_bench(args) -> int:
     from .benchmarks.runner import main as bench_main
 
@@ -314,6 +325,23 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("run", help="run folder")
     pl.add_argument("--out", help="output folder (default: RUN/plots)")
     pl.set_defaults(func=_cmd_plot)
+
+    n = sub.add_parser("plan", parents=[common], help="the settings that fit a wall-time budget or reach a target "
+                       "error, predicted from calibration runs of the scene (docs/plan.md)")
+    n.add_argument("scene", help="built-in scene name or path to a .toml file")
+    n.add_argument("--budget", help="wall time on this machine: 90s, 10m, 1.5h")
+    n.add_argument("--target-error", help="mean density error: 0.5%% or 0.005")
+    n.add_argument("--apply", metavar="OUT.toml", help="write the chosen settings and the prediction as a scene file "
+                   "(default: print the --set flags)")
+    n.add_argument("--force", action="store_true", help="let --apply replace an existing file")
+    n.add_argument("--plot", metavar="PNG", help="the Pareto plot's path (default: beside the calibration cache)")
+    n.add_argument("--solvers", help="comma-separated candidate solvers (default: every solver)")
+    n.add_argument("--device", default=None, help="Warp device: cpu or cuda:0 (default: Warp's default)")
+    n.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override (repeatable)")
+    n.add_argument("--cache", metavar="DIR", help="calibration cache (default: ~/.cache/warp-sph/plan)")
+    n.add_argument("--refresh", action="store_true", help="calibrate again even when the cache holds it")
+    n.add_argument("--no-progress", action="store_true", help="no progress bar")
+    n.set_defaults(func=_cmd_plan)
 
     b = sub.add_parser("bench", help="benchmarks: speed and accuracy (see warp-sph bench --help)", add_help=False)
     b.add_argument("bench_args", nargs=argparse.REMAINDER)  # main() passes everything after "bench" through

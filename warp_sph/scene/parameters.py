@@ -357,6 +357,16 @@ _TAIL = (
     _P("output.checkpoint_every", "int", "-", 10, "write a checkpoint every this many frames "
        "(0: never)", ge=0),
     _P("output.record_frames", "bool", "-", True, "record per-frame diagnostics in run.json"),
+    # the prediction of ``warp-sph plan --apply`` (docs/plan.md): a run compares it with what happened (run.json "plan")
+    _P("plan", "table", "-", None, "the prediction of warp-sph plan, written by --apply; the run records it "
+       "beside what happened (run.json plan)", default_text="none"),
+    _P("plan.wall_time", "float", "s", 0.0, "predicted wall time of the run", ge=0.0),
+    _P("plan.density_error", "float", "-", 0.0, "predicted mean density error", ge=0.0),
+    _P("plan.steps", "int", "-", 0, "predicted substeps", ge=0),
+    _P("plan.fluid_particles", "int", "-", 0, "predicted fluid particles", ge=0),
+    _P("plan.memory", "float", "B", 0.0, "predicted memory", ge=0.0),
+    _P("plan.budget", "float", "s", 0.0, "the wall-time budget asked for (0: none)", ge=0.0),
+    _P("plan.target_error", "float", "-", 0.0, "the mean density error asked for (0: none)", ge=0.0),
 )
 
 

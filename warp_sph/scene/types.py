@@ -99,11 +99,13 @@ Sink.__name__ = Sink.__qualname__ = "Sink"
 RigidParams = section_class("rigid", _CORE["rigid"].values(), doc="Contacts of the rigid bodies.")
 WhitewaterParams = section_class("whitewater", _CORE["whitewater"].values(),
                                  doc="Spray, foam and air bubbles (``warp_sph.run.whitewater``).")
+PlanParams = section_class("plan", _CORE["plan"].values(), doc="The prediction of warp-sph plan (docs/plan.md).")
 
 #: core section name -> class (method sections come from the registry)
 CORE_SECTIONS = {"material": Material, "time": TimeParams, "container": Container, "output": OutputParams,
                  "fluid[]": FluidBlock, "obstacles[]": Obstacle, "bodies[]": Body, "rigid": RigidParams,
-                 "probes[]": Probe, "whitewater": WhitewaterParams, "emitters[]": Emitter, "sinks[]": Sink}
+                 "probes[]": Probe, "whitewater": WhitewaterParams, "emitters[]": Emitter, "sinks[]": Sink,
+                 "plan": PlanParams}
 
 
 @dataclass
@@ -144,6 +146,7 @@ class Scene:
     rigid: Any = field(default_factory=RigidParams)
     whitewater: Any = None  # WhitewaterParams when the scene has [whitewater]
     output: Any = field(default_factory=OutputParams)
+    plan: Any = None  # PlanParams when the scene has a [plan] table (``warp-sph plan --apply``)
     sections: dict = field(default_factory=dict)
     source: str = field(default="<dict>", compare=False, repr=False)
 

@@ -148,6 +148,8 @@ class Validator:
             self.fail("smoothing_kernel", str(exc))
         for section in ("material", "time", "output", "rigid"):
             values[section] = CORE_SECTIONS[section](**self.table(data.get(section, {}), section, section))
+        if "plan" in data:  # warp-sph plan's prediction (absent: None, left out of to_dict)
+            values["plan"] = CORE_SECTIONS["plan"](**self.table(data["plan"], "plan", "plan"))
         sections = {}
         for name, cls in registry.methods_with_parameters().items():
             sections[name] = cls.config_class()(**self.table(data.get(name, {}), name, name))

@@ -1,0 +1,151 @@
+"""``warp-sph bench plan``: the advisor (``warp-sph plan``) measured on built-in scenes (issue 37).
+
+For each scene and budget: a plan from an empty calibration cache (so the calibration is timed), the chosen
+setting written as a scene (``--apply``), then that scene run whole in a fresh process (``warp-sph run``, the
+scene's own outputs) and its run.json's ``plan`` record: predicted against actual wall time and mean density
+error. Goals: the actual wall time within 25 % of the prediction and within the budget, the actual error
+within 1.5x the predicted, and the calibration under 10 % of the budget.
+
+The scenes are shortened (``--duration``, default 0.5 s simulated) so that the whole benchmark takes minutes.
+The load average before and after each case is recorded: on a loaded machine a run is slower than its
+calibration measured.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .records import SCHEMA, host_info, now
+
+#: the goals of issue 37
+WALL_GOAL = 0.25          # |actual / predicted - 1| at most
+ERROR_GOAL = 1.5          # actual / predicted error at most
+CALIBRATION_GOAL = 0.10   # calibration / budget at most
+DEFAULT_SCENES = ("hydrostatic", "dam_break")
+DEFAULT_BUDGETS = ("60s", "180s")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--scenes", default=",".join(DEFAULT_SCENES), help="comma-separated built-in scenes "
+                   f"(default {','.join(DEFAULT_SCENES)})")
+    p.add_argument("--budgets", default=",".join(DEFAULT_BUDGETS), help="comma-separated wall-time budgets "
+                   f"(default {','.join(DEFAULT_BUDGETS)})")
+    p.add_argument("--duration", type=float, default=0.5, help="simulated time of each scene [s] (default 0.5)")
+    p.add_argument("--solvers", default="", help="comma-separated candidate solvers (default: every solver)")
+
+
+def run_case(scene_name: str, budget_text: str, duration: float, solvers: list[str] | None, work: Path,
+             device=None, overrides=(), log=print) -> dict:
+    """One scene x budget: plan (empty cache), apply, run whole in a fresh process; the record."""
+    from warp_sph.plan import PlanError, plan
+    from warp_sph.plan.report import apply_scene, parse_budget
+    from warp_sph.scene import load_scene
+
+    budget = parse_budget(budget_text)
+    case = f"{scene_name}-{budget_text}"
+    folder = work / case
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    record = {"schema": SCHEMA, "kind": "plan", "label": case, "params": {"scene": scene_name, "budget": budget,
+              "duration": duration, "solvers": solvers or "all"}, "host": host_info(), "date": now()}
+    scene = load_scene(scene_name, overrides=[f"duration={duration}", *overrides])
+    t0 = time.perf_counter()
+    try:
+        p = plan(scene, budget_s=budget, device=device, solvers=solvers, cache=folder / "cache")
+    except PlanError as exc:
+        record.update(status="refused", error=str(exc))
+        return record
+    plan_seconds = time.perf_counter() - t0
+    path = apply_scene(scene, p, folder / "planned.toml")
+    c = p.chosen
+    log(f"{case}: {c.solver} r = {c.particle_radius:.4g} m, {c.fluid_particles} fluid, predicted "
+        f"{c.wall_time:.3g} s, error {100 * c.density_error:.3g} %; calibration {p.calibration_seconds:.3g} s")
+    load_before = host_info()["load_average"]
+    cmd = [sys.executable, "-m", "warp_sph.cli", "run", str(path), "--out", str(folder / "run"), "--no-progress"]
+    if device:
+        cmd += ["--device", str(device)]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ))
+    run_json = folder / "run" / "run.json"
+    record.update(plan=p.to_dict() | {"candidates": len(p.candidates)}, plan_seconds=plan_seconds,
+                  load_before=load_before, load_after=host_info()["load_average"])
+    if r.returncode != 0 or not run_json.is_file():
+        record.update(status="failed", error=(r.stderr.strip().splitlines() or ["no output"])[-1])
+        return record
+    info = json.loads(run_json.read_text())
+    rec = info["plan"]
+    pred, act = rec["predicted"], rec["actual"]
+    wall_ratio = act["wall_time"] / pred["wall_time"]
+    err_ratio = act["density_error"] / pred["density_error"] if pred["density_error"] > 0 else float("inf")
+    record.update(status=info.get("status", "?"), solver=c.solver, particle_radius=c.particle_radius,
+                  fluid_particles=info["fluid_particles"], predicted=pred, actual=act,
+                  wall_ratio=wall_ratio, error_ratio=err_ratio, calibration_seconds=p.calibration_seconds,
+                  calibration_share=p.calibration_seconds / budget,
+                  count_extrapolation=c.count_extrapolation, spacing_extrapolation=c.spacing_extrapolation,
+                  goals={"wall_within_25pct": abs(wall_ratio - 1.0) <= WALL_GOAL,
+                         "within_budget": act["wall_time"] <= budget,
+                         "error_within_1_5x": err_ratio <= ERROR_GOAL,
+                         "calibration_under_10pct": p.calibration_seconds <= CALIBRATION_GOAL * budget})
+    shutil.rmtree(folder / "run", ignore_errors=True)  # the USD of a whole run: only its figures are kept
+    return record
+
+
+def run_cases(args, out: Path, log=print) -> list[dict]:
+    scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    budgets = [b.strip() for b in args.budgets.split(",") if b.strip()]
+    solvers = [s.strip() for s in args.solvers.split(",") if s.strip()] or None
+    work = Path(out) / "plan_cases"
+    records = []
+    for scene in scenes:
+        for budget in budgets:
+            records.append(run_case(scene, budget, args.duration, solvers, work, device=args.device,
+                                    overrides=args.set, log=log))
+            r = records[-1]
+            if "goals" in r:
+                log(f"  actual {r['actual']['wall_time']:.3g} s ({100 * (r['wall_ratio'] - 1):+.0f} %), error "
+                    f"{100 * r['actual']['density_error']:.3g} % ({r['error_ratio']:.2f}x); goals "
+                    + ", ".join(f"{k} {'met' if v else 'NOT met'}" for k, v in r["goals"].items()))
+            else:
+                log(f"  {r['status']}: {r.get('error', '')}")
+    shutil.rmtree(work, ignore_errors=True)
+    return records
+
+
+def section(records: list[dict], fmt, head) -> list[str]:
+    """Markdown of the latest ``bench plan`` run: per scene and budget, predicted against actual."""
+    if not records:
+        return []
+    lines = ["## The advisor: warp-sph plan against what happened", ""] + head(records)
+    lines += ["Each case: `warp-sph plan SCENE --budget B` from an empty calibration cache, the chosen setting "
+              "written with `--apply` and run whole in a fresh process (the scene's own outputs; the scenes "
+              "shortened to the simulated time in the table). *wall*: run.json's wall time, predicted and actual; "
+              "*error*: mean density error (mean over the frames after the first). *calib.*: the calibration's "
+              "wall time. Goals (issue 37): actual wall within 25 % of the prediction and within the budget, "
+              "error within 1.5x the predicted, calibration under 10 % of the budget. The load average (1 min) "
+              "before and after the run says how loaded the machine was.", ""]
+    header = ["scene", "sim. s", "budget", "status", "solver", "r [m]", "fluid N", "count extrap.", "wall pred. [s]",
+              "wall actual [s]", "wall ratio", "error pred. [%]", "error actual [%]", "error ratio", "calib. [s]",
+              "calib. / budget", "goals met", "load before / after"]
+    rows = []
+    for r in records:
+        p = r.get("params") or {}
+        pred, act, goals = r.get("predicted") or {}, r.get("actual") or {}, r.get("goals") or {}
+        loads = "/".join(fmt((x or [None])[0]) for x in (r.get("load_before"), r.get("load_after")))
+        rows.append([p.get("scene", "?"), fmt(p.get("duration")), fmt(p.get("budget")), r.get("status", "?"),
+                     r.get("solver", "-"), fmt(r.get("particle_radius")), fmt(r.get("fluid_particles")),
+                     fmt(r.get("count_extrapolation")), fmt(pred.get("wall_time")), fmt(act.get("wall_time")),
+                     fmt(r.get("wall_ratio")), fmt(pred.get("density_error"), 100), fmt(act.get("density_error"), 100),
+                     fmt(r.get("error_ratio")), fmt(r.get("calibration_seconds")), fmt(r.get("calibration_share")),
+                     f"{sum(goals.values())}/{len(goals)}" if goals else "-", loads])
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows] + [""]
+    done = [r for r in records if r.get("goals")]
+    if done:
+        names = list(done[0]["goals"])
+        lines += ["Goals met: " + ", ".join(f"{k.replace('_', ' ')} {sum(r['goals'][k] for r in done)}/{len(done)}"
+                                            for k in names) + ".", ""]
+    return lines

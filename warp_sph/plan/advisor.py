@@ -1,0 +1,263 @@
+"""The advisor of ``warp-sph plan``: models fitted to the calibration, the candidates, the recommendation.
+
+For each solver that calibrated, the models (``fit.py``) predict at any particle radius r (spacing d = 2r):
+- particles N: fluid (a + b d)^3 / d^3 and walls (a + b d)^2 / d^2 through the sampled counts (``LatticeCount``);
+- substeps S = (steps per simulated second)(d) * duration: a power law with exponent <= -1 above the floor of
+  one step per frame or per time.dt_max (``StepRate``);
+- wall time = load + setup(N) + S * step(N) + frames * frame_overhead(N), three lines fitted against N, and
+  the time a fresh process spends loading the step's kernels (the largest first-step excess measured);
+- mean density error e(d) = A d^p with the measured order p;
+- memory: ``run.memory.estimate_memory`` at the predicted counts.
+The candidates are the solvers x a geometric ladder of radii from the coarsest stable one down to 64x finer
+than the finest calibrated; each says how far it extrapolates beyond the calibrated counts.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+from .calibrate import Calibration, PlanError, coarsest_radius, variant
+from .fit import (LatticeCount, Line, PowerLaw, StepRate, extrapolation, fit_lattice_count, fit_line, fit_power_law,
+                  fit_step_rate)
+
+#: a plan chooses settings whose predicted wall time is at most this fraction of the budget
+BUDGET_SAFETY = 0.8
+#: radii of the candidate ladder per halving of the radius
+LADDER_PER_OCTAVE = 6
+#: the finest candidate: this factor below the finest calibrated radius
+LADDER_DEPTH = 64.0
+#: a plan chooses no setting with more particles than this factor times the largest calibrated count; ``plan``
+#: calibrates a finer point first when the budget allows (CALIBRATION_SHARE)
+MAX_COUNT_EXTRAPOLATION = 4.0  # measured: a 5.7x extrapolation took 1.57x its prediction (bench plan, dam break)
+#: a calibration round adds a point with at most this factor more particles than the largest calibrated one
+STEP_UP = 4.0
+#: the calibration may take at most this fraction of the budget (the points a plan adds to reach a budget)
+CALIBRATION_SHARE = 0.1
+#: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0)
+ORDER_RANGE = (-1.0, 4.0)
+
+
+@dataclass
+class SolverModel:
+    """The fitted models of one solver (see the module docstring); ``calibrated``: the points' radii [m]."""
+
+    solver: str
+    steps_per_second: StepRate     # against d [m]
+    error: PowerLaw                # against d [m]
+    step_time: Line                # [s] against N
+    setup_time: Line               # [s] against N
+    frame_overhead: Line           # [s] against N
+    fluid_count: LatticeCount      # against d [m]
+    boundary_count: LatticeCount
+    load_time: float               # [s] a fresh process spends loading the step's kernels (the largest first-step excess)
+    calibrated_radii: list
+    calibrated_particles: list
+
+    def to_dict(self) -> dict:
+        """The models as plain JSON types."""
+        return asdict(self)
+
+
+@dataclass
+class Candidate:
+    """One setting and its predicted figures (wall time [s], memory [bytes], mean density error [-])."""
+
+    solver: str
+    particle_radius: float
+    tolerance: float | None
+    fluid_particles: int
+    boundary_particles: int
+    steps: int
+    wall_time: float
+    memory: int
+    density_error: float
+    count_extrapolation: float     # N / the largest calibrated N (1: inside the calibrated range)
+    spacing_extrapolation: float   # finest calibrated d / d (1: inside)
+    pareto: bool = False
+
+    @property
+    def particles(self) -> int:
+        """Fluid and boundary particles."""
+        return self.fluid_particles + self.boundary_particles
+
+    def extrapolated(self) -> str:
+        """In words: which figures are extrapolated and how far ("" when inside the calibrated range)."""
+        parts = []
+        if self.count_extrapolation > 1.05:
+            parts.append(f"{self.count_extrapolation:.3g}x the largest calibrated count (wall time)")
+        if self.spacing_extrapolation > 1.05:
+            parts.append(f"{self.spacing_extrapolation:.3g}x finer than calibrated (error, steps)")
+        return "; ".join(parts)
+
+    def to_dict(self) -> dict:
+        """The candidate as plain JSON types, with ``extrapolated`` in words."""
+        return {**asdict(self), "extrapolated": self.extrapolated()}
+
+
+@dataclass
+class Plan:
+    """A recommendation: the chosen candidate, the alternatives, every candidate, the models and the
+    calibration. ``budget_s`` [s] and ``target_error`` [-] as asked (None: not asked)."""
+
+    scene: str
+    source: str
+    chosen: Candidate
+    alternatives: list = field(default_factory=list)   # the best candidate of each other solver
+    candidates: list = field(default_factory=list)
+    models: dict = field(default_factory=dict)          # solver -> SolverModel
+    budget_s: float | None = None
+    target_error: float | None = None
+    duration: float = 0.0
+    frames: int = 0
+    calibration_seconds: float = 0.0
+    calibration_cached: bool = False
+    cache_path: str = ""
+    machine: str = ""
+    failed_solvers: dict = field(default_factory=dict)  # solver -> one-line reason
+
+    def prediction(self) -> dict:
+        """The chosen setting's predicted figures, as the scene's [plan] table stores them."""
+        c = self.chosen
+        return {"wall_time": float(c.wall_time), "density_error": float(c.density_error), "steps": int(c.steps),
+                "fluid_particles": int(c.fluid_particles), "memory": float(c.memory),
+                "budget": float(self.budget_s or 0.0), "target_error": float(self.target_error or 0.0)}
+
+    def to_dict(self) -> dict:
+        """The plan as plain JSON types (``warp-sph bench plan`` records it)."""
+        return {"scene": self.scene, "source": self.source, "budget_s": self.budget_s,
+                "target_error": self.target_error, "duration": self.duration, "frames": self.frames,
+                "chosen": self.chosen.to_dict(), "alternatives": [c.to_dict() for c in self.alternatives],
+                "candidates": [c.to_dict() for c in self.candidates],
+                "models": {k: m.to_dict() for k, m in self.models.items()},
+                "calibration_seconds": self.calibration_seconds, "calibration_cached": self.calibration_cached,
+                "cache_path": self.cache_path, "machine": self.machine, "failed_solvers": self.failed_solvers}
+
+
+def fit_models(cal: Calibration, solver: str) -> SolverModel | None:
+    """The models of ``solver`` from its completed calibration points (None: it has none)."""
+    pts = sorted(cal.for_solver(solver), key=lambda p: p.particle_radius)
+    if not pts:
+        return None
+    d = [p.spacing for p in pts]
+    n = [p.particles for p in pts]
+    setup = fit_line(n, [p.setup_time for p in pts])
+    return SolverModel(
+        solver=solver,
+        steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], cal.step_floor),
+        error=fit_power_law(d, [max(p.density_error_mean, 1e-9) for p in pts], ORDER_RANGE),
+        step_time=fit_line(n, [p.step_time for p in pts]),
+        setup_time=setup,
+        frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
+        fluid_count=fit_lattice_count(d, [p.fluid for p in pts], 3),
+        boundary_count=fit_lattice_count(d, [max(p.boundary, 0) for p in pts], 2),
+        # a fresh process loads the step's kernels as the solver's first calibration run did
+        load_time=max(p.load_time for p in pts),
+        calibrated_radii=[p.particle_radius for p in pts], calibrated_particles=n)
+
+
+def tolerance_of(scene, solver: str) -> float | None:
+    """The solver's density tolerance (its ``target_density_error``), None for a solver without one."""
+    try:
+        return float(scene.section(solver).target_density_error)
+    except (KeyError, AttributeError):
+        return None
+
+
+def predict(scene, model: SolverModel, radius: float) -> Candidate:
+    """The predicted figures of ``scene`` with the model's solver at ``radius`` [m] over the scene's duration."""
+    from ..run.memory import estimate_memory
+
+    s = variant(scene, model.solver, radius)  # a radius the scene refuses raises here
+    d = 2.0 * radius
+    fluid, boundary = model.fluid_count(d), model.boundary_count(d)
+    n = fluid + boundary
+    frames = int(round(scene.duration * scene.fps))
+    steps = max(int(math.ceil(model.steps_per_second(d) * scene.duration)), frames)
+    wall = (model.load_time + model.setup_time(n) + steps * model.step_time(n) + frames * model.frame_overhead(n))
+    mem = estimate_memory(s, fluid, boundary)
+    return Candidate(solver=model.solver, particle_radius=radius, tolerance=tolerance_of(scene, model.solver),
+                     fluid_particles=fluid, boundary_particles=boundary, steps=steps, wall_time=float(wall),
+                     memory=int(mem["device"] + mem["host"]), density_error=float(model.error(d)),
+                     count_extrapolation=extrapolation(n, min(model.calibrated_particles), max(model.calibrated_particles)),
+                     spacing_extrapolation=max(min(model.calibrated_radii) / radius, 1.0))
+
+
+def ladder(scene, models: dict) -> list[float]:
+    """The candidate radii [m]: from the coarsest calibrated radius (the coarsest setting known to run) down to
+    LADDER_DEPTH below the finest calibrated, LADDER_PER_OCTAVE per halving."""
+    r_max = min(coarsest_radius(scene), max(max(m.calibrated_radii) for m in models.values()))
+    r_min = min(min(m.calibrated_radii) for m in models.values()) / LADDER_DEPTH
+    out, k = [], 0
+    while True:
+        r = r_max * 2.0 ** (-k / LADDER_PER_OCTAVE)
+        if r < r_min:
+            return out
+        out.append(float(f"{r:.4g}"))
+        k += 1
+
+
+def mark_pareto(candidates: list) -> None:
+    """Set ``pareto`` on the candidates no other beats in both wall time and error."""
+    from ..sweep.runs import pareto_front
+
+    for c, p in zip(candidates, pareto_front([c.wall_time for c in candidates], [c.density_error for c in candidates])):
+        c.pareto = p
+
+
+def choose(candidates: list, budget_s: float | None, target_error: float | None, memory_limit: float | None,
+           source: str, max_extrapolation: float | None = MAX_COUNT_EXTRAPOLATION) -> Candidate:
+    """The recommendation. With a budget only: the finest resolution whose predicted wall time is within
+    BUDGET_SAFETY of the budget (what a budget buys; between solvers at the same radius the smaller predicted
+    error, then the shorter time). With a target error: the cheapest setting that reaches it (within the budget
+    when both are given). PlanError (one line, with the closest feasible setting) when none qualifies."""
+    fits = [c for c in candidates if (memory_limit is None or c.memory <= memory_limit)
+            and (max_extrapolation is None or c.count_extrapolation <= max_extrapolation)]
+    if not fits:
+        raise PlanError(f"{source}: no candidate setting fits in memory ({memory_limit / 2**30:.3g} GiB available)")
+    in_budget = [c for c in fits if budget_s is None or c.wall_time <= BUDGET_SAFETY * budget_s]
+    if budget_s is not None and not in_budget:
+        best = min(fits, key=lambda c: c.wall_time)
+        raise PlanError(f"{source}: --budget {budget_s:g} s is too small: the cheapest stable setting ({describe(best)}) "
+                        f"is predicted to take {best.wall_time:.3g} s (plans keep {100 * BUDGET_SAFETY:.0f} % of the "
+                        f"budget); give --budget {math.ceil(best.wall_time / BUDGET_SAFETY)}s or more")
+    if target_error is not None:
+        ok = [c for c in in_budget if c.density_error <= target_error]
+        if not ok:
+            best = min(in_budget, key=lambda c: (c.density_error, c.wall_time))
+            within = f" within --budget {budget_s:g} s" if budget_s is not None else " that fits in memory"
+            raise PlanError(f"{source}: --target-error {100 * target_error:.3g} % is below what the finest affordable "
+                            f"setting{within} reaches: {describe(best)} gives {100 * best.density_error:.3g} % in "
+                            f"{best.wall_time:.3g} s")
+        return min(ok, key=lambda c: (c.wall_time, c.density_error))
+    return min(in_budget, key=lambda c: (c.particle_radius, c.density_error, c.wall_time))
+
+
+def describe(c: Candidate) -> str:
+    """A candidate in words: solver, radius, fluid particles."""
+    return f"{c.solver}, particle_radius {c.particle_radius:.4g} m, {c.fluid_particles:,} fluid particles"
+
+
+def candidates_for(scene, models: dict) -> list:
+    """Every solver's prediction at every radius of the ladder."""
+    from ..core.errors import WarpSphError
+
+    out = []
+    for m in models.values():
+        for r in ladder(scene, models):
+            try:
+                out.append(predict(scene, m, r))
+            except WarpSphError:  # the scene refuses this radius (e.g. too many substeps): not a candidate
+                continue
+    mark_pareto(out)
+    return out
+
+
+def next_point(cal: Calibration, free: Candidate) -> tuple[float, float, float]:
+    """(radius [m], predicted cost [s], largest calibrated radius [m]) of the next calibration point of
+    ``free``'s solver: a quarter of its particle count, but at most STEP_UP x the largest calibrated count (the
+    fit is least sure beyond it); the cost scaled from the largest point run (particles x steps, steps ~ 1/d)."""
+    largest = max(cal.for_solver(free.solver), key=lambda q: q.particles)
+    target = min(free.particles / 4.0, STEP_UP * largest.particles)
+    r_new = float(f"{largest.particle_radius * (largest.particles / target) ** (1.0 / 3.0):.4g}")
+    cost = largest.seconds * (target / largest.particles) * (largest.particle_radius / r_new)
+    return r_new, cost, largest.particle_radius

@@ -1,0 +1,297 @@
+"""Calibration runs of ``warp-sph plan``: the user's own scene, a fraction of a second, at coarse radii.
+
+Each calibration point is an ordinary run (``warp_sph.run.runner.run``, the scene's own outputs: USD,
+surface, checkpoints) of the scene with one candidate solver and one coarse particle radius, into a
+temporary folder under the cache directory that is removed afterwards. From its run.json come the
+figures the models are fitted to (``fit.py``): particle counts, substeps per simulated second, the
+steady wall time per step, the wall time outside the steps (set-up, statistics, exports) and the mean
+density error.
+
+The points are cached per scene content, machine and calibration settings (``cache_key``) as one JSON
+file in the cache directory: ``$WARP_SPH_CACHE_DIR``, else ``$XDG_CACHE_HOME/warp-sph/plan``, else
+``~/.cache/warp-sph/plan``. A second plan of the same scene on the same machine runs nothing.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import platform
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from ..core.errors import WarpSphError
+
+#: simulated time of a calibration run [s] (rounded up to whole frames, at least two frames)
+CALIBRATION_TIME = 0.1
+#: fluid particle counts the calibration radii are chosen for (from the scene's geometry)
+CALIBRATION_COUNTS = (300, 1000)
+#: the coarsest radius keeps at least this many particle layers across the thinnest fluid block
+MIN_LAYERS = 3
+#: the keys a plan changes: left out of the scene's content hash
+PLANNED_KEYS = ("particle_radius", "solver", "plan", "name", "description")
+
+
+class PlanError(WarpSphError):
+    """A plan cannot be made (budget too small, target error out of reach, a scene that cannot be
+    calibrated, a malformed --budget): one line, CLI exit status 2."""
+
+
+@dataclass
+class Point:
+    """One calibration run: the scene with ``solver`` at ``particle_radius`` [m] for ``frames`` frames."""
+
+    solver: str
+    particle_radius: float
+    status: str = "completed"           # "completed" or "failed"
+    error: str = ""                     # the one-line reason of a failed run
+    fluid: int = 0
+    boundary: int = 0
+    estimated_fluid: int = 0            # the geometric estimate at this radius (``memory.estimate_particle_counts``)
+    estimated_boundary: int = 0
+    frames: int = 0                     # frames advanced (the initial one not counted)
+    steps: int = 0
+    simulated_time: float = 0.0         # [s]
+    wall_time: float = 0.0              # [s] of run.json
+    step_time: float = 0.0              # [s] steady wall time of one substep (first call excluded)
+    export_wait: float = 0.0            # [s] the simulation thread spent on exports
+    first_step_time: float = 0.0        # [s] the first step's stages, kernel loads included
+    density_error_mean: float = 0.0     # [-] mean over the advanced frames of the frame's mean error
+    density_error_max: float = 0.0      # [-] largest of any frame
+    seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
+
+    @property
+    def spacing(self) -> float:
+        """Lattice spacing d = 2 r [m]."""
+        return 2.0 * self.particle_radius
+
+    @property
+    def particles(self) -> int:
+        """Fluid and boundary particles."""
+        return self.fluid + self.boundary
+
+    @property
+    def steps_per_second(self) -> float:
+        """Substeps per simulated second."""
+        return self.steps / self.simulated_time if self.simulated_time > 0 else math.nan
+
+    @property
+    def load_time(self) -> float:
+        """[s] the first step took beyond a steady one: loading (or compiling) the step's kernels."""
+        return max(self.first_step_time - self.step_time, 0.0)
+
+    @property
+    def setup_time(self) -> float:
+        """[s] of the run outside its steps, its per-frame exports and its kernel loads: sampling, model, files."""
+        return max(self.wall_time - self.steps * self.step_time - self.export_wait - self.load_time, 0.0)
+
+    @property
+    def frame_overhead(self) -> float:
+        """[s] per frame the simulation waited on exports."""
+        return self.export_wait / self.frames if self.frames else 0.0
+
+
+@dataclass
+class Calibration:
+    """The calibration points of one scene on one machine, and where they are cached."""
+
+    key: str
+    machine: str
+    points: list = field(default_factory=list)
+    seconds: float = 0.0                # wall time the calibration took when it ran [s]
+    cached: bool = False                # loaded from the cache (nothing ran)
+    path: str = ""                      # the cache file
+    step_floor: float = 0.0             # [1/s] fewest substeps per simulated second: per frame, or per dt_max
+
+    def for_solver(self, solver: str) -> list[Point]:
+        """The completed points of ``solver``."""
+        return [p for p in self.points if p.solver == solver and p.status == "completed"]
+
+    def failures(self) -> list[Point]:
+        """The points whose run failed."""
+        return [p for p in self.points if p.status != "completed"]
+
+
+def cache_dir(path: str | Path | None = None) -> Path:
+    """Where calibrations are cached: ``path``, ``$WARP_SPH_CACHE_DIR``, ``$XDG_CACHE_HOME/warp-sph/plan`` or
+    ``~/.cache/warp-sph/plan``."""
+    if path:
+        return Path(path).expanduser()
+    if os.environ.get("WARP_SPH_CACHE_DIR"):
+        return Path(os.environ["WARP_SPH_CACHE_DIR"]).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "warp-sph" / "plan"
+
+
+def machine_text(device) -> str:
+    """The machine a timing holds for: host name, CPU model, cores, CPU threads of Warp, the device."""
+    model = platform.processor() or ""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    threads = os.environ.get("WARP_SPH_CPU_THREADS", "")
+    return f"{platform.node()} | {model} | {os.cpu_count()} cores | threads {threads or 'all'} | {device}"
+
+
+def scene_content(scene) -> dict:
+    """The scene as a dict without the keys a plan chooses (radius, solver, the [plan] table, names)."""
+    d = scene.to_dict()
+    for k in PLANNED_KEYS:
+        d.pop(k, None)
+    return d
+
+
+def cache_key(scene, device, frames) -> tuple[str, str]:
+    """(sha256 hex, machine text) of a scene's calibrations: scene content, machine, frames, versions. The points
+    of every solver and radius calibrated so far share the key (a later plan adds the points it lacks)."""
+    from ..run.checkpoints import scene_hash
+    from ..core.version import __version__
+
+    import warp as wp
+
+    machine = machine_text(device)
+    text = json.dumps({"scene": scene_hash(scene_content(scene)), "machine": machine, "frames": frames,
+                       "versions": [__version__, wp.config.version]}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest(), machine
+
+
+def thinnest_fluid(scene) -> float:
+    """The smallest extent [m] of any fluid block's bounding box."""
+    ext = []
+    for b in scene.fluid:
+        lo, hi = b.bounds()
+        ext.append(min(h - l for l, h in zip(lo, hi)))
+    return min(ext)
+
+
+def radius_for_count(scene, count: float) -> float:
+    """The particle radius [m] at which the fluid blocks hold about ``count`` particles (from their volume)."""
+    volume = sum(b.volume() / b.spacing_scale**3 for b in scene.fluid)
+    return 0.5 * (volume / count) ** (1.0 / 3.0)
+
+
+def coarsest_radius(scene) -> float:
+    """The coarsest radius [m] a plan considers: MIN_LAYERS particle layers across the thinnest fluid block."""
+    return thinnest_fluid(scene) / (2.0 * MIN_LAYERS)
+
+
+def calibration_radii(scene, counts=CALIBRATION_COUNTS) -> list[float]:
+    """The calibration radii [m]: one per count of ``counts``, none coarser than ``coarsest_radius``, distinct."""
+    r_max = coarsest_radius(scene)
+    radii = []
+    for c in sorted(counts):
+        r = float(f"{min(radius_for_count(scene, c), r_max):.4g}")
+        if all(abs(r - q) > 1e-3 * q for q in radii):
+            radii.append(r)
+    return sorted(radii, reverse=True)  # coarse first
+
+
+def calibration_frames(scene, seconds: float = CALIBRATION_TIME) -> int:
+    """Frames of a calibration run including the initial one: ``seconds`` of simulated time, at least 2 advanced."""
+    return max(2, math.ceil(seconds * scene.fps - 1e-9)) + 1
+
+
+def variant(scene, solver: str, radius: float):
+    """The scene with ``solver`` and ``particle_radius`` (validated again: a refusal is a SceneError)."""
+    from ..scene import scene_from_dict
+
+    d = scene.to_dict()
+    d["solver"] = solver
+    d["particle_radius"] = float(radius)
+    d.pop("plan", None)
+    base = Path(scene.source).parent if str(scene.source).endswith(".toml") else None
+    return scene_from_dict(d, source=scene.source, base_dir=base)
+
+
+def run_point(scene, solver: str, radius: float, frames: int, device, folder: Path) -> Point:
+    """One calibration run into ``folder`` (removed afterwards); a run that fails gives a failed Point."""
+    from ..run import runner
+    from ..run.memory import estimate_particle_counts
+
+    point = Point(solver=solver, particle_radius=radius)
+    try:
+        s = variant(scene, solver, radius)
+        point.estimated_fluid, point.estimated_boundary = estimate_particle_counts(s)
+        info = runner.run(s, out=folder, device=device, frames=frames, progress=False, log=lambda *a, **k: None)
+    except WarpSphError as exc:
+        point.status, point.error = "failed", str(exc).splitlines()[0]
+        return point
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    advanced = [f for f in info["frames"] if f["frame"] > 1]
+    point.fluid, point.boundary = int(info["fluid_particles"]), int(info["boundary_particles"])
+    point.frames = len(advanced)
+    point.steps = int(info["steps"])
+    point.simulated_time = float(info["simulated_time"])
+    point.wall_time = float(info["wall_time"])
+    point.step_time = float(info["sim_time_per_step_ms"]) * 1e-3
+    point.export_wait = float(info.get("export_wait_time", 0.0))
+    point.first_step_time = float(info.get("first_step_time", 0.0))
+    point.density_error_mean = sum(f["density_error_mean"] for f in advanced) / max(len(advanced), 1)
+    point.density_error_max = max((f["density_error_max"] for f in advanced), default=0.0)
+    return point
+
+
+def _same_radius(a: float, b: float) -> bool:
+    return abs(a - b) <= 1e-6 * max(a, b)
+
+
+def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None, cache: str | Path | None = None,
+              refresh: bool = False, progress: bool = True, log=print) -> Calibration:
+    """Calibrate ``scene`` for every solver of ``solvers`` at ``radii`` (default ``calibration_radii``): the
+    points the cache lacks are run, the others loaded (``refresh``: all run again). The Calibration holds
+    every cached point of the scene (other solvers and radii included). Raises PlanError when no run of these completes."""
+    from ..core.device import resolve_device
+    from ..io.run_folder import atomic_write_json
+    from ..run.progress import Progress
+
+    dev = resolve_device(device)
+    radii = list(radii) if radii else calibration_radii(scene)
+    frames = frames or calibration_frames(scene)
+    key, machine = cache_key(scene, dev, frames)
+    folder = cache_dir(cache)
+    path = folder / f"calibration-{key[:20]}.json"
+    points: list[Point] = []
+    if path.is_file() and not refresh:
+        try:
+            points = [Point(**p) for p in json.loads(path.read_text())["points"]]
+        except (OSError, ValueError, KeyError, TypeError):
+            points = []  # a damaged cache file: calibrate again
+    todo = [(s, r) for s in solvers for r in radii
+            if not any(p.solver == s and _same_radius(p.particle_radius, r) for p in points)]
+    if todo:
+        folder.mkdir(parents=True, exist_ok=True)
+        work = Path(tempfile.mkdtemp(prefix="calibration-", dir=folder))
+        log(f"calibrating {scene.name}: {len(todo)} runs ({', '.join(sorted({s for s, _ in todo}))} at "
+            f"{', '.join(f'{r:.4g}' for r in sorted({r for _, r in todo}, reverse=True))} m), {frames - 1} frames each "
+            f"({(frames - 1) / scene.fps:.3g} s simulated)")
+        bar = Progress(len(todo), enabled=progress, unit="runs")
+        try:
+            for i, (solver, r) in enumerate(todo):
+                t0 = time.perf_counter()
+                point = run_point(scene, solver, r, frames, dev, work / f"{solver}-{i}")
+                point.seconds = time.perf_counter() - t0
+                points.append(point)
+                bar.update(i + 1, f"{solver} r = {r:.4g} m: {point.status}")
+        finally:
+            bar.close()
+            shutil.rmtree(work, ignore_errors=True)
+        atomic_write_json(path, {"key": key, "machine": machine, "points": [asdict(p) for p in points]})
+    asked = [p for p in points if p.solver in solvers and any(_same_radius(p.particle_radius, r) for r in radii)]
+    if not any(p.status == "completed" for p in asked):
+        first = asked[0]
+        raise PlanError(f"{scene.source}: the scene cannot be calibrated: every calibration run failed; the first "
+                        f"({first.solver}, particle_radius {first.particle_radius:g} m): {first.error}")
+    ran = points[len(points) - len(todo):] if todo else []
+    t = scene.time
+    floor = 1.0 / t.fixed_dt if t.fixed_dt > 0 else max(float(scene.fps), 1.0 / t.dt_max)
+    return Calibration(key=key, machine=machine, points=points, step_floor=floor, seconds=sum(p.seconds for p in ran), cached=not todo, path=str(path))

@@ -1,0 +1,228 @@
+"""What ``warp-sph plan`` shows and writes: --budget / --target-error parsing, the table, the Pareto plot
+(matplotlib, the plots extra) and --apply's scene file or ``--set`` flags."""
+from __future__ import annotations
+
+import math
+import os
+import re
+from pathlib import Path
+
+from .advisor import Candidate, Plan
+from .calibrate import PlanError
+
+_UNITS = {"": 1.0, "s": 1.0, "sec": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0, "hr": 3600.0}
+
+
+def parse_budget(text: str) -> float:
+    """Seconds of a wall-time budget: ``90``, ``90s``, ``10m``, ``1.5h``, ``1h30m``. PlanError otherwise."""
+    t = str(text).strip().lower().replace(" ", "")
+    parts = re.findall(r"(\d+(?:\.\d*)?|\.\d+)(h|hr|min|m|sec|s)?", t)
+    if not t or "".join(a + b for a, b in parts) != t or len({u for _, u in parts}) != len(parts):
+        raise PlanError(f"--budget {text!r}: expected a wall time such as 90s, 10m, 1.5h or 1h30m")
+    seconds = sum(float(v) * _UNITS[u] for v, u in parts)
+    if not (seconds > 0 and math.isfinite(seconds)):
+        raise PlanError(f"--budget {text!r}: expected a wall time > 0")
+    return seconds
+
+
+def parse_error(text: str) -> float:
+    """A mean density error as a fraction: ``0.5%`` -> 0.005, ``0.005`` -> 0.005. PlanError otherwise."""
+    t = str(text).strip()
+    pct = t.endswith("%")
+    try:
+        v = float(t[:-1] if pct else t) / (100.0 if pct else 1.0)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and 0 < v < 1):
+        raise PlanError(f"--target-error {text!r}: expected a mean density error such as 0.5% or 0.005 (between 0 and 1)")
+    return v
+
+
+def duration_text(s: float) -> str:
+    """A wall time [s] in s, min or h."""
+    if s < 120:
+        return f"{s:.3g} s"
+    if s < 7200:
+        return f"{s / 60:.3g} min"
+    return f"{s / 3600:.3g} h"
+
+
+def bytes_text(n: float) -> str:
+    """Bytes in MiB or GiB."""
+    return f"{n / 2**30:.3g} GiB" if n >= 2**30 else f"{n / 2**20:.3g} MiB"
+
+
+def _row(c: Candidate, mark: str) -> list[str]:
+    tol = "-" if c.tolerance is None else f"{100 * c.tolerance:.3g} %"
+    return [mark, c.solver, f"{c.particle_radius:.4g} m", tol, f"{c.fluid_particles:,}", f"{c.steps:,}",
+            duration_text(c.wall_time), bytes_text(c.memory), f"{100 * c.density_error:.3g} %"]
+
+
+def table_lines(p: Plan) -> list[str]:
+    """The recommendation and each other solver's best, as an aligned text table, then what is extrapolated."""
+    head = ["", "solver", "radius", "tolerance", "fluid N", "steps", "wall time", "memory", "mean density error"]
+    rows = [_row(p.chosen, "*")] + [_row(c, " ") for c in p.alternatives]
+    widths = [max(len(r[i]) for r in [head] + rows) for i in range(len(head))]
+    out = ["  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip() for r in [head] + rows]
+    asked = []
+    if p.budget_s is not None:
+        asked.append(f"budget {duration_text(p.budget_s)}")
+    if p.target_error is not None:
+        asked.append(f"target error {100 * p.target_error:.3g} %")
+    out.insert(0, f"plan for {p.scene} ({', '.join(asked)}; {p.duration:g} s simulated, {p.frames} frames), "
+                  f"predicted for this machine:")
+    for c in [p.chosen] + p.alternatives:
+        ext = c.extrapolated()
+        out.append(f"{c.solver}: " + (f"extrapolated: {ext}" if ext else "within the calibrated range"))
+    m = p.models[p.chosen.solver]
+    out.append(f"{p.chosen.solver} models: error ~ d^{m.error.exponent:.2f} (measured order), steps/s ~ "
+               f"d^{m.steps_per_second.law.exponent:.2f} above {m.steps_per_second.floor:.4g}, {1e9 * m.step_time.slope:.3g} ns per particle-step + "
+               f"{1e3 * m.step_time.intercept:.3g} ms per step")
+    for s, why in p.failed_solvers.items():
+        out.append(f"{s}: not a candidate, its calibration failed: {why}")
+    when = "from the cache, nothing ran now" if p.calibration_cached else "run now"
+    out.append(f"calibration: {duration_text(p.calibration_seconds)} of runs ({when}; {p.cache_path})")
+    return out
+
+
+def plot_pareto(p: Plan, path: Path) -> Path | None:
+    """The candidates' predicted wall time against error, the Pareto front and the choice, as a PNG; None
+    without matplotlib (the plots extra)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for solver in p.models:
+        cs = [c for c in p.candidates if c.solver == solver]
+        ax.plot([c.wall_time for c in cs], [100 * c.density_error for c in cs], ".", alpha=0.5, label=solver)
+    front = sorted((c for c in p.candidates if c.pareto), key=lambda c: c.wall_time)
+    ax.plot([c.wall_time for c in front], [100 * c.density_error for c in front], "k-", lw=1, label="Pareto front")
+    ax.plot([p.chosen.wall_time], [100 * p.chosen.density_error], "r*", ms=14, label="chosen")
+    if p.budget_s:
+        ax.axvline(p.budget_s, color="grey", ls="--", lw=1, label="budget")
+    if p.target_error:
+        ax.axhline(100 * p.target_error, color="grey", ls=":", lw=1, label="target error")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("predicted wall time [s]")
+    ax.set_ylabel("predicted mean density error [%]")
+    ax.set_title(f"plan: {p.scene}")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def set_flags(p: Plan) -> list[str]:
+    """The ``--set`` flags of the chosen setting (the [plan] prediction included)."""
+    c = p.chosen
+    flags = [f"solver={c.solver}", f"particle_radius={c.particle_radius:.6g}"]
+    flags += [f"plan.{k}={v:.6g}" if isinstance(v, float) else f"plan.{k}={v}" for k, v in p.prediction().items()]
+    return flags
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else "nan"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{_key(k)} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"no TOML form for {v!r}")
+
+
+def _key(k: str) -> str:
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else _toml_value(k)
+
+
+def toml_text(data: dict, header: str = "") -> str:
+    """A scene dict (``Scene.to_dict``) as TOML text: scalars first, then tables, then arrays of tables."""
+    lines = [header.rstrip()] if header else []
+    scalars = {k: v for k, v in data.items() if not isinstance(v, dict)
+               and not (isinstance(v, list) and v and all(isinstance(x, dict) for x in v))}
+    lines += [f"{_key(k)} = {_toml_value(v)}" for k, v in scalars.items()]
+    for k, v in data.items():
+        if isinstance(v, dict):
+            lines += ["", f"[{_key(k)}]"] + [f"{_key(a)} = {_toml_value(b)}" for a, b in v.items()]
+    for k, v in data.items():
+        if isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            for item in v:
+                lines += ["", f"[[{_key(k)}]]"] + [f"{_key(a)} = {_toml_value(b)}" for a, b in item.items()]
+    return "\n".join(lines) + "\n"
+
+
+def check_apply_path(out: Path, force: bool) -> None:
+    """Refuse an --apply path that is not a .toml file in an existing folder, or an existing file without --force."""
+    if out.suffix.lower() != ".toml":
+        raise PlanError(f"--apply {out}: expected a .toml scene file path")
+    if out.exists() and not force:
+        raise PlanError(f"--apply {out}: the file exists; pass --force to replace it")
+    if not out.parent.is_dir():
+        raise PlanError(f"--apply {out}: folder {out.parent} does not exist")
+
+
+def apply_scene(scene, p: Plan, out: Path, force: bool = False) -> Path:
+    """Write ``scene`` with the chosen setting and its [plan] prediction to ``out`` (atomic; an existing file
+    only with ``force``). The file loads with ``load_scene(out)``."""
+    from ..io.run_folder import atomic_write_bytes
+    from ..scene import scene_from_dict
+
+    out = Path(out)
+    check_apply_path(out, force)
+    d = scene.to_dict()
+    d["solver"] = p.chosen.solver
+    d["particle_radius"] = float(p.chosen.particle_radius)
+    d["plan"] = p.prediction()
+    scene_from_dict(d, source=str(out), base_dir=out.parent)  # what is written loads again
+    header = (f"# written by warp-sph plan from {scene.source}: {p.chosen.solver}, particle_radius "
+              f"{p.chosen.particle_radius:.4g} m, predicted {duration_text(p.chosen.wall_time)} wall and "
+              f"{100 * p.chosen.density_error:.3g} % mean density error on {p.machine}")
+    atomic_write_bytes(out, toml_text(d, header).encode())
+    return out
+
+
+def run_command(args, log=print) -> int:
+    """``warp-sph plan``: parse, calibrate (progress bar on stderr), print the table, the plot and --apply."""
+    from ..scene import load_scene
+    from . import plan as make_plan
+
+    if args.budget is None and args.target_error is None:
+        raise PlanError("plan: give --budget (e.g. 10m) or --target-error (e.g. 0.5%)")
+    budget = parse_budget(args.budget) if args.budget is not None else None
+    target = parse_error(args.target_error) if args.target_error is not None else None
+    solvers = [s.strip() for s in args.solvers.split(",") if s.strip()] if args.solvers else None
+    if args.apply:
+        check_apply_path(Path(args.apply), args.force)
+    scene = load_scene(args.scene, overrides=args.set)
+    p = make_plan(scene, budget_s=budget, target_error=target, device=args.device, solvers=solvers,
+                  cache=args.cache, refresh=args.refresh, progress=not args.no_progress, log=log)
+    for line in table_lines(p):
+        log(line)
+    png = Path(args.plot) if args.plot else Path(p.cache_path).with_name(f"pareto-{_safe(p.scene)}.png")
+    path = plot_pareto(p, png)
+    log(f"Pareto front: {path}" if path else "Pareto plot skipped: matplotlib is not installed (the plots extra: "
+        "pip install -e '.[plots]')")
+    if args.apply:
+        log(f"wrote {apply_scene(scene, p, Path(args.apply), force=args.force)}: warp-sph run {args.apply}")
+    else:
+        log("settings: warp-sph run " + args.scene + " " + " ".join(f"--set {f}" for f in set_flags(p)))
+    return 0
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]", "_", name)
