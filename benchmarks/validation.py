@@ -65,8 +65,8 @@ LOBOVSKY_SENSORS = ("sensor1", "sensor3", "sensor4")
 
 
 def load_case_scene(case: Case, solver: str, radius: float, extra: list[str] | None = None):
-    """The case's scene at ``radius`` with ``solver``, no USD or surface, no checkpoints; pressure probes
-    dropped for a solver without a pressure field."""
+    """The case's scene at ``radius`` with ``solver``, no USD or surface, no checkpoints; pressure probes inside
+    the fluid dropped for a solver without a pressure field (those on a wall read the wall load)."""
     from warp_sph.methods import registry
     from warp_sph.scene import load_scene, scene_from_dict
 
@@ -75,8 +75,14 @@ def load_case_scene(case: Case, solver: str, radius: float, extra: list[str] | N
                  "output.checkpoint_every=0"] + [f(d) for f in case.overrides.values()] + list(extra or [])
     scene = load_scene(str(_scene_dir() / case.scene), overrides=overrides)
     if not has_pressure(registry.solver(solver)):
+        from warp_sph.run.probes import probe_lines
+
+        c = scene.container
+        lo, hi = (None, None) if c is None else (c.min, c.max)
+        on_wall = [line.wall(lo, hi, scene.wall_gap) is not None for line in probe_lines(scene)]
         data = scene.to_dict()
-        data["probes"] = [p for p in data.get("probes", []) if p["kind"] != "pressure"]
+        # a probe on a wall reads the walls' force (every solver has one); one inside the fluid its pressure
+        data["probes"] = [p for p, w in zip(data.get("probes", []), on_wall) if p["kind"] != "pressure" or w]
         if not data["probes"]:
             return None
         scene = scene_from_dict(data, source=scene.source)
@@ -141,14 +147,22 @@ def evaluate(case: str, folder: Path, info: dict, pressure_window: float = E.PRE
         t, h = read_probe(folder, "surface")
         late = t >= 0.5 * t[-1]
         out = {}
-        for name, z in (("floor", 0.0), ("middle", 0.25)):
+        # the floor's surface: the fluid rests a wall gap above the floor's particles (on z = 0) and each
+        # particle fills d/2 = r around its centre, so the water starts at z = gap - r (the depth the
+        # floor carries: its load at rest is the weight of the water from there to the surface)
+        from warp_sph.scene import scene_from_dict
+
+        sc = scene_from_dict(info["scene"])
+        floor = sc.wall_gap - sc.particle_radius
+        figures["floor_surface"] = floor
+        for name, z in (("floor", floor), ("middle", 0.25)):
             if name not in probes:
                 continue
             tp, p = read_probe(folder, name)
             ratio = p / (1000.0 * G * (np.interp(tp, t, h) - z))
             out[name] = float(np.mean(ratio[tp >= 0.5 * tp[-1]]) - 1.0)
             series[name] = _series(tp, ratio, 4)
-        figures = {f"{k}_error": v for k, v in out.items()}
+        figures.update({f"{k}_error": v for k, v in out.items()})
         figures["surface_height"] = float(np.mean(h[late]))
         met = {k: abs(v) <= GOALS["hydrostatic_error"] for k, v in figures.items() if k.endswith("_error")}
     return figures, met, series
