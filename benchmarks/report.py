@@ -383,7 +383,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     lines += executor_speed.section(execs, fmt, section_head)
     moving = latest(data.get("bodies", []))
     lines += bodies.section(moving, fmt, section_head)
-    checked = latest(data.get("validation", []))
+    checked = data.get("validation", [])  # the latest record of each run (validation.section)
     lines += validation.section(checked, fmt, section_head)
 
     extreme = data.get("extremes", [])  # the latest record of each case (extremes.section)

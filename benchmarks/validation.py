@@ -192,6 +192,15 @@ def run_one(case: Case, solver: str, resolution: str, out_root: Path, device=Non
                    simulated_time=info["simulated_time"], status=info["status"], out=str(folder))
         figures, met, series = evaluate(case.name, folder, info)
         rec.update(figures=figures, goals_met=met, series=series)
+        frames = [f for f in info.get("frames") or [] if f.get("density_error_mean") is not None]
+        if frames:  # the incompressibility figure beside the error against the experiment
+            rec["density_error_mean_avg"] = float(np.mean([f["density_error_mean"] for f in frames]))
+            last = frames[-1]
+            if last.get("kinetic_energy") is not None:
+                mass = float(info["model"]["particle_mass"]) * float(info["fluid_particles"])
+                rec["rms_speed_final"] = math.sqrt(2.0 * float(last["kinetic_energy"]) / mass)
+        if rec["simulated_time"]:
+            rec["cpu_per_simulated_second"] = rec["cpu_time"] / float(rec["simulated_time"])
     except Exception as exc:  # a failed case is a record, the others still run
         rec["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
     log(f"  {case.name} {solver} {resolution} (r = {radius:g} m): {rec['status']}"
@@ -274,11 +283,84 @@ def plot_case(case: str, records: list[dict], path: Path) -> Path | None:
     return path
 
 
+def latest_per_run(records: list[dict]) -> list[dict]:
+    """The latest record of each (case, solver, resolution), in case order (cases may be re-run one at a time)."""
+    best: dict[tuple, dict] = {}
+    for r in records:
+        key = (r.get("case"), r.get("solver"), r.get("resolution"))
+        if key not in best or r.get("date", "") >= best[key].get("date", ""):
+            best[key] = r
+    order = list(CASES)
+    return sorted(best.values(), key=lambda r: (order.index(r["case"]) if r.get("case") in order else 99,
+                                                 r.get("resolution", ""), r.get("solver", "")))
+
+
+TRADE_CAPTION = ("Cost (CPU seconds per simulated second) against the error that matters to an engineer, the "
+                 "surge-front RMS against Martin & Moyce 1952, beside the mean density error, per solver and "
+                 "resolution (`warp-sph bench validation`).")
+
+
+def plot_trade(records: list[dict], path: Path) -> Path | None:
+    """Cost against the front RMS of the column collapse (and the mean density error where recorded): one point
+    per solver and resolution, solvers by colour, coarse hollow, fine filled; None without matplotlib or data."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    pts = [r for r in records if r.get("case") == "martin_moyce" and (r.get("figures") or {}).get("front_rms") is not None
+           and r.get("cpu_time") and r.get("simulated_time")]
+    if not pts:
+        return None
+    panels = [("front", "surge-front RMS against Martin & Moyce 1952 [%]")]
+    if any(r.get("density_error_mean_avg") is not None for r in pts):
+        panels.append(("density", "mean density error (incompressibility) [%]"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 4.2), squeeze=False)
+    colours = {}
+    for ax, (key, label) in zip(axes[0], panels):
+        for r in pts:
+            y = 100.0 * (r["figures"]["front_rms"] if key == "front" else (r.get("density_error_mean_avg") or math.nan))
+            x = float(r["cpu_time"]) / float(r["simulated_time"])
+            c = colours.setdefault(r["solver"], f"C{len(colours)}")
+            fine = r.get("resolution") == "fine"
+            ax.scatter([x], [y], s=46, color=c if fine else "none", edgecolors=c, zorder=3,
+                       label=f"{r['solver']} {r['resolution']} (r = {r['particle_radius']:g} m, {r.get('fluid_particles')} p.)")
+        for solver, c in colours.items():
+            line = sorted((float(r["cpu_time"]) / float(r["simulated_time"]),
+                           100.0 * (r["figures"]["front_rms"] if key == "front" else (r.get("density_error_mean_avg") or math.nan)))
+                          for r in pts if r["solver"] == solver)
+            ax.plot([a for a, _ in line], [b for _, b in line], color=c, lw=0.8, alpha=0.6)
+        if key == "front":
+            ax.axhline(100.0 * GOALS["front_rms"], color="k", lw=0.8, ls=":", label="goal 4 %")
+        ax.set_xscale("log")
+        ax.set_xlabel("CPU seconds per simulated second (lower is cheaper)")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle("Column collapse: cost against error (coarse hollow, fine filled)", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def section(records: list[dict], fmt, head) -> list[str]:
-    """Markdown of the latest ``bench validation`` run: one table per case, the goals, the plots."""
+    """Markdown of ``bench validation``: the latest record of each case, solver and resolution; one table per case,
+    the goals, the plots."""
+    records = latest_per_run(records)
     if not records:
         return []
-    lines = ["## Validation against experiments", ""] + head(records)
+    lines = ["## Validation against experiments", ""]
+    runs: dict[str, list[dict]] = {}
+    for r in records:
+        runs.setdefault(r.get("invocation", r.get("date", "?")), []).append(r)
+    if len(runs) > 1:
+        lines += [f"The latest record of each case, solver and resolution, from {len(runs)} runs:", ""]
+    for recs in runs.values():
+        lines += head(recs)
     lines += ["Every solver at its defaults against published measurements (`warp-sph bench validation`, "
               "docs/validation.md). Data: benchmarks/validation_data/ (citations in each file). Figures from "
               "benchmarks/validation_errors.py. Goals (issue #31): front RMS <= 4 % with a start-time shift "
@@ -304,15 +386,20 @@ def section(records: list[dict], fmt, head) -> list[str]:
                                  f"T {fmt(v['sim_time'])} vs {fmt(v['exp_time'])} ({100 * v['time_error']:+.1f} %)"
                                  if v else "-")
             else:
-                extra = [fmt(f.get("floor_error"), 100), fmt(f.get("middle_error"), 100), fmt(f.get("surface_height"))]
+                extra = [fmt(f.get("floor_error"), 100), fmt(f.get("middle_error"), 100), fmt(f.get("surface_height")),
+                         fmt(r.get("rms_speed_final"))]
             rows.append(base + extra + [r.get("error", "")])
         header = ["solver", "resolution", "r [m]", "fluid N", "status", "CPU s"]
         header += {"martin_moyce": ["front RMS [%]", "shift [T]", "unshifted [%]", "residual RMS [H0]"],
                    "lobovsky": [f"{s}: peak P (error); peak T (error)" for s in LOBOVSKY_SENSORS],
-                   "hydrostatic": ["floor error [%]", "mid-depth error [%]", "surface h [m]"]}[case] + ["note"]
+                   "hydrostatic": ["floor error [%]", "mid-depth error [%]", "surface h [m]",
+                                   "rms speed at the end [m/s]"]}[case] + ["note"]
         lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         lines += ["| " + " | ".join(row) + " |" for row in rows] + [""]
         lines += [f"![{case}](results/validation_{case}.png)", ""]
+    if any(r.get("case") == "martin_moyce" for r in records):
+        lines += ["### The trade against the truth", "", TRADE_CAPTION, "",
+                  "![cost against error](results/validation_tradeoff.png)", ""]
     return lines
 
 
