@@ -355,8 +355,9 @@ WHY = {
                     "the experiment's gate",
     "lobovsky": "at H/d = 15 the impact is a few particles stopping at the wall: a pulse whose height is set by "
                 "how few carry the front's momentum (refine); WCSPH adds the water hammer rho0 c_s v of its "
-                "artificial speed of sound (c_s = 10 v_ref), a ~4 ms pulse no density diffusion damps; sensor 4's "
-                "maximum is a slow plateau whose time moves with noise",
+                "artificial speed of sound (c_s = 10 v_ref), a ~4 ms pulse no density diffusion damps; sensor 1 "
+                "(3 mm, in the corner) sits below the first fluid layer (a wall gap up) and the probe's disc "
+                "(radius 2 d) is cut by the floor; sensor 4's maximum is a slow plateau whose time moves with noise",
     "hydrostatic": "the tank has not settled at 2 s (the floor load still swings 1-2 % around the weight, rms "
                    "speeds 2-7e-3 m/s); the height probe reads the surface 0.12 d below the level of the water's "
                    "volume (+0.7 to +1.5 %); the mid-depth probe reads the particle pressure field, which alternates "
