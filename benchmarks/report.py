@@ -14,7 +14,7 @@ import math
 import os
 from pathlib import Path
 
-from . import bodies, executor_speed, extremes, matrix, validation
+from . import bodies, executor_speed, extremes, matrix, validation_report
 from . import metrics as M
 from .plots import SPEED_KEY, Figures, plot_adaptive, plot_scaling, plot_series, plot_tradeoff
 from .records import host_info
@@ -383,8 +383,8 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     lines += executor_speed.section(execs, fmt, section_head)
     moving = latest(data.get("bodies", []))
     lines += bodies.section(moving, fmt, section_head)
-    checked = data.get("validation", [])  # the latest record of each run (validation.section)
-    lines += validation.section(checked, fmt, section_head)
+    checked = data.get("validation", [])  # the latest record of each run (validation_report.section)
+    lines += validation_report.section(checked, fmt, section_head)
 
     extreme = data.get("extremes", [])  # the latest record of each case (extremes.section)
     lines += extremes.section(extreme, fmt, section_head)
