@@ -14,7 +14,7 @@ import math
 import os
 from pathlib import Path
 
-from . import bodies, emission, executor_speed, extremes, matrix, validation, whitewater
+from . import bodies, emission, executor_speed, extremes, matrix, validation_report, whitewater
 from . import plan as plan_bench
 from . import metrics as M
 from .plots import SPEED_KEY, Figures, plot_adaptive, plot_scaling, plot_series, plot_tradeoff
@@ -386,8 +386,8 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     lines += bodies.section(moving, fmt, section_head)
     lines += whitewater.section(latest(data.get("whitewater", [])), fmt, section_head)
     lines += emission.section(latest(data.get("emission", [])), fmt, section_head)
-    checked = latest(data.get("validation", []))
-    lines += validation.section(checked, fmt, section_head)
+    checked = data.get("validation", [])  # the latest record of each run (validation_report.section)
+    lines += validation_report.section(checked, fmt, section_head)
 
     extreme = data.get("extremes", [])  # the latest record of each case (extremes.section)
     lines += extremes.section(extreme, fmt, section_head)

@@ -374,10 +374,17 @@ def cmd_validation(args, argv: list[str], log=print) -> int:
     for r in records:
         r.update(host=host_info(), versions=versions(), date=now())
     out = _save("validation", records, args, argv, invocation, log)
+    from . import validation_report as VR
+    from .report import load_records
+
+    merged = VR.latest_per_run(load_records(out).get("validation", []))  # cases re-run one at a time keep the rest
     for case in cases:
-        path = V.plot_case(case, records, out / f"validation_{case}.png")
+        path = VR.plot_case(case, [r for r in merged if r.get("case") == case], out / f"validation_{case}.png")
         if path:
             log(f"plot: {path}")
+    path = VR.plot_trade(merged, out / "validation_tradeoff.png")
+    if path:
+        log(f"plot: {path}")
     return _finish(out, args, records, log)
 
 

@@ -65,8 +65,8 @@ LOBOVSKY_SENSORS = ("sensor1", "sensor3", "sensor4")
 
 
 def load_case_scene(case: Case, solver: str, radius: float, extra: list[str] | None = None):
-    """The case's scene at ``radius`` with ``solver``, no USD or surface, no checkpoints; pressure probes
-    dropped for a solver without a pressure field."""
+    """The case's scene at ``radius`` with ``solver``, no USD or surface, no checkpoints; pressure probes inside
+    the fluid dropped for a solver without a pressure field (those on a wall read the wall load)."""
     from warp_sph.methods import registry
     from warp_sph.scene import load_scene, scene_from_dict
 
@@ -75,8 +75,14 @@ def load_case_scene(case: Case, solver: str, radius: float, extra: list[str] | N
                  "output.checkpoint_every=0"] + [f(d) for f in case.overrides.values()] + list(extra or [])
     scene = load_scene(str(_scene_dir() / case.scene), overrides=overrides)
     if not has_pressure(registry.solver(solver)):
+        from warp_sph.run.probes import probe_lines
+
+        c = scene.container
+        lo, hi = (None, None) if c is None else (c.min, c.max)
+        on_wall = [line.wall(lo, hi, scene.wall_gap) is not None for line in probe_lines(scene)]
         data = scene.to_dict()
-        data["probes"] = [p for p in data.get("probes", []) if p["kind"] != "pressure"]
+        # a probe on a wall reads the walls' force (every solver has one); one inside the fluid its pressure
+        data["probes"] = [p for p, w in zip(data.get("probes", []), on_wall) if p["kind"] != "pressure" or w]
         if not data["probes"]:
             return None
         scene = scene_from_dict(data, source=scene.source)
@@ -141,14 +147,22 @@ def evaluate(case: str, folder: Path, info: dict, pressure_window: float = E.PRE
         t, h = read_probe(folder, "surface")
         late = t >= 0.5 * t[-1]
         out = {}
-        for name, z in (("floor", 0.0), ("middle", 0.25)):
+        # the floor's surface: the fluid rests a wall gap above the floor's particles (on z = 0) and each
+        # particle fills d/2 = r around its centre, so the water starts at z = gap - r (the depth the
+        # floor carries: its load at rest is the weight of the water from there to the surface)
+        from warp_sph.scene import scene_from_dict
+
+        sc = scene_from_dict(info["scene"])
+        floor = sc.wall_gap - sc.particle_radius
+        figures["floor_surface"] = floor
+        for name, z in (("floor", floor), ("middle", 0.25)):
             if name not in probes:
                 continue
             tp, p = read_probe(folder, name)
             ratio = p / (1000.0 * G * (np.interp(tp, t, h) - z))
             out[name] = float(np.mean(ratio[tp >= 0.5 * tp[-1]]) - 1.0)
             series[name] = _series(tp, ratio, 4)
-        figures = {f"{k}_error": v for k, v in out.items()}
+        figures.update({f"{k}_error": v for k, v in out.items()})
         figures["surface_height"] = float(np.mean(h[late]))
         met = {k: abs(v) <= GOALS["hydrostatic_error"] for k, v in figures.items() if k.endswith("_error")}
     return figures, met, series
@@ -178,6 +192,17 @@ def run_one(case: Case, solver: str, resolution: str, out_root: Path, device=Non
                    simulated_time=info["simulated_time"], status=info["status"], out=str(folder))
         figures, met, series = evaluate(case.name, folder, info)
         rec.update(figures=figures, goals_met=met, series=series)
+        frames = [f for f in info.get("frames") or [] if f.get("density_error_mean") is not None]
+        if frames:  # the incompressibility figure beside the error against the experiment
+            rec["density_error_mean_avg"] = float(np.mean([f["density_error_mean"] for f in frames]))
+            last = frames[-1]
+            if last.get("kinetic_energy") is not None:
+                mass = float(info["model"]["particle_mass"]) * float(info["fluid_particles"])
+                rec["rms_speed_final"] = math.sqrt(2.0 * float(last["kinetic_energy"]) / mass)
+        if case.name in ("lobovsky", "hydrostatic"):
+            rec["pressure_probe"] = "wall load"  # wall probes read the walls' force (before: the particle pressure)
+        if rec["simulated_time"]:
+            rec["cpu_per_simulated_second"] = rec["cpu_time"] / float(rec["simulated_time"])
     except Exception as exc:  # a failed case is a record, the others still run
         rec["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
     log(f"  {case.name} {solver} {resolution} (r = {radius:g} m): {rec['status']}"
@@ -213,96 +238,6 @@ def run_validation(cases: list[str], solvers: list[str], resolutions: list[str],
 # --------------------------------------------------------------------------------------------
 # Plots and the report section
 # --------------------------------------------------------------------------------------------
-def plot_case(case: str, records: list[dict], path: Path) -> Path | None:
-    """The experiment (markers) beside every simulation of ``case`` (lines); None without matplotlib."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return None
-    recs = [r for r in records if r["case"] == case and r.get("series")]
-    if not recs:
-        return None
-    if case == "martin_moyce":
-        panels = [("front", "martin_moyce_1952_front", "T = t √(2g/a)", "Z = x / a", (0, 4.5)),
-                  ("residual", "martin_moyce_1952_residual", "τ = t √(g/a)", "η / (2a)", (0, 4.0))]
-    elif case == "lobovsky":
-        panels = [(s, f"lobovsky_2014_{s}", "T = t √(g/H)", "p / (ρ g H)", (0, 4.6)) for s in LOBOVSKY_SENSORS]
-    else:
-        panels = [("floor", None, "t [s]", "p / (ρ0 g (h - z)), floor", None),
-                  ("middle", None, "t [s]", "p / (ρ0 g (h - z)), mid-depth", None)]
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 3.8), squeeze=False)
-    for ax, (key, data, xl, yl, xlim) in zip(axes[0], panels):
-        if data:
-            te, ve, cite = E.load_series(data)
-            ax.plot(te, ve, "ko", ms=3.5, zorder=10, label=cite[0].split("(")[0].strip().rstrip(",") + " (experiment)")
-        else:
-            ax.axhline(1.0, color="k", lw=1, label="ρ0 g (h − z)")
-        for r in recs:
-            s = np.array(r["series"].get(key) or [], dtype=float).reshape(-1, 2)
-            if len(s):
-                ax.plot(s[:, 0], s[:, 1], lw=0.9, alpha=0.8, ls="-" if r["resolution"] == "fine" else "--",
-                        label=f"{r['solver']} {r['resolution']} (r = {r['particle_radius']:g} m)")
-        ax.set_xlabel(xl)
-        ax.set_ylabel(yl)
-        if xlim:
-            ax.set_xlim(*xlim)
-        ax.set_title(key, fontsize=9)
-        ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
-    fig.suptitle(CASES[case].title, fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
-def section(records: list[dict], fmt, head) -> list[str]:
-    """Markdown of the latest ``bench validation`` run: one table per case, the goals, the plots."""
-    if not records:
-        return []
-    lines = ["## Validation against experiments", ""] + head(records)
-    lines += ["Every solver at its defaults against published measurements (`warp-sph bench validation`, "
-              "docs/validation.md). Data: benchmarks/validation_data/ (citations in each file). Figures from "
-              "benchmarks/validation_errors.py. Goals (issue #31): front RMS <= 4 % with a start-time shift "
-              "|s| <= 0.2 T, peak pressure within 10 % and its time within 5 %, hydrostatic within 1 %.", ""]
-    for case in CASES:
-        recs = [r for r in records if r.get("case") == case]
-        if not recs:
-            continue
-        lines += [f"### {CASES[case].title}", ""]
-        rows = []
-        for r in recs:
-            f = r.get("figures") or {}
-            base = [r["solver"], r["resolution"], fmt(r.get("particle_radius")), fmt(r.get("fluid_particles")),
-                    r.get("status", "?"), fmt(r.get("cpu_time"))]
-            if case == "martin_moyce":
-                extra = [fmt(f.get("front_rms"), 100), fmt(f.get("front_shift")), fmt(f.get("front_rms_unshifted"), 100),
-                         fmt(f.get("residual_rms"))]
-            elif case == "lobovsky":
-                extra = []
-                for s in LOBOVSKY_SENSORS:
-                    v = f.get(s)
-                    extra.append(f"{fmt(v['sim_peak'])} vs {fmt(v['exp_peak'])} ({100 * v['peak_error']:+.0f} %); "
-                                 f"T {fmt(v['sim_time'])} vs {fmt(v['exp_time'])} ({100 * v['time_error']:+.1f} %)"
-                                 if v else "-")
-            else:
-                extra = [fmt(f.get("floor_error"), 100), fmt(f.get("middle_error"), 100), fmt(f.get("surface_height"))]
-            rows.append(base + extra + [r.get("error", "")])
-        header = ["solver", "resolution", "r [m]", "fluid N", "status", "CPU s"]
-        header += {"martin_moyce": ["front RMS [%]", "shift [T]", "unshifted [%]", "residual RMS [H0]"],
-                   "lobovsky": [f"{s}: peak P (error); peak T (error)" for s in LOBOVSKY_SENSORS],
-                   "hydrostatic": ["floor error [%]", "mid-depth error [%]", "surface h [m]"]}[case] + ["note"]
-        lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-        lines += ["| " + " | ".join(row) + " |" for row in rows] + [""]
-        lines += [f"![{case}](results/validation_{case}.png)", ""]
-    return lines
-
-
-
 def add_arguments(v) -> None:
     """The options of ``warp-sph bench validation`` (runner.py registers the command)."""
     v.add_argument("--cases", default=None, help=f"comma-separated cases (default: all: {', '.join(CASES)})")

@@ -138,3 +138,57 @@ def probe_readings(
             last = 1
         value_out[row, q] = probe_offset[q] + line_crossing(point_fill, a, b, line_step, last)
         fill_out[row, q] = point_fill[a]
+
+
+@wp.func
+def wall_kernel_2d(s: float, support: float) -> float:
+    """Cubic spline in two dimensions (Liu & Liu: alpha = 15 / (7 pi h^2), h = support / 2) of the
+    in-plane distance s [m]: integrates to 1 over the wall plane [1/m^2]."""
+    h = 0.5 * support
+    q = s / h
+    w = float(0.0)
+    if q < 1.0:
+        w = 2.0 / 3.0 - q * q + 0.5 * q * q * q
+    elif q < 2.0:
+        t = 2.0 - q
+        w = t * t * t / 6.0
+    return w * 15.0 / (7.0 * wp.pi * h * h)
+
+
+@wp.kernel(enable_backward=False)
+def probe_wall_loads(
+    # Model:
+    support_radius: float,
+    # In:
+    fluid_grid: wp.uint64,
+    particle_x: wp.array(dtype=wp.vec3),
+    boundary_force: wp.array(dtype=wp.vec3),
+    wall_point: wp.array(dtype=wp.vec3),
+    wall_normal: wp.array(dtype=wp.vec3),
+    wall_inv_coverage: wp.array(dtype=float),
+    wall_index: wp.array(dtype=int),
+    # Out:
+    point_pressure_out: wp.array(dtype=float),
+):
+    """Pressure on a wall [Pa] at a probe point x_p on it (unit normal n into the fluid): the walls' force on
+    the fluid next to it, spread over the wall plane with the 2D kernel K of the in-plane distance s_i,
+        p = sum_i K(s_i) F_i . n / C,
+    i within H_s of the plane, F_i the boundary force on fluid particle i [N] (the solver's wall reaction,
+    whatever its pressure term), C = the integral of K over the part of the wall the fluid can cover
+    (1 away from edges; host-computed). At rest sum_i F_i . n is the weight of the water above the wall:
+    what a pressure transducer of the kernel's footprint measures. One thread per wall probe."""
+    k = wp.tid()
+    xp = wall_point[k]
+    n = wall_normal[k]
+    reach = support_radius * 1.4143
+    load = float(0.0)
+    query = wp.hash_grid_query(fluid_grid, xp, reach)
+    j = int(0)
+    while wp.hash_grid_query_next(query, j):
+        d = particle_x[j] - xp
+        dn = wp.dot(d, n)
+        if dn < support_radius:
+            s = wp.length(d - dn * n)
+            if s < support_radius:
+                load += wall_kernel_2d(s, support_radius) * wp.dot(boundary_force[j], n)
+    point_pressure_out[wall_index[k]] = load * wall_inv_coverage[k]

@@ -65,6 +65,17 @@ class ProbeLine:
             return self.start.copy()
         return np.clip(self.start, np.asarray(lo) + gap, np.asarray(hi) - gap)
 
+    def wall(self, lo, hi, gap: float):
+        """(axis, side) of the container face a pressure probe lies on (within the wall gap of it; the
+        nearest face), or None for a probe inside the fluid (or no container). side -1: the face at lo
+        (normal +axis into the fluid), +1: at hi."""
+        if self.kind != "pressure" or lo is None:
+            return None
+        dist = [(float(self.start[a] - lo[a]), a, -1) for a in range(3)] + \
+               [(float(hi[a] - self.start[a]), a, 1) for a in range(3)]
+        dmin, axis, side = min(dist)
+        return (axis, side) if dmin <= gap * (1.0 + 1e-9) else None
+
     def points(self, step: float) -> np.ndarray:
         """World points [m] the probe reads: the point, or the line every ``step`` metres (both ends in)."""
         if self.kind == "pressure":
@@ -77,6 +88,24 @@ class ProbeLine:
         if self.kind == "height":
             return float(self.start[2])
         return float(np.dot(self.start, self.direction))
+
+
+def wall_coverage(point, axis: int, lo, hi, gap: float, spacing: float, support: float) -> float:
+    """C = sum_k K(s_k) d^2 over the in-plane positions of a resting first layer on the face normal to ``axis``
+    (the square lattice of ``spacing`` d starting a wall ``gap`` from the face's edges, as the sampler lays a
+    block against walls), K the 2D wall kernel of ``support`` (``kernels/probes.wall_kernel_2d``) around
+    ``point`` [-]: the area weight of the fluid a uniform traction p acts through, so that p reads p on it
+    (1.001 away from the edges, about 1/2 at an edge)."""
+    tang = [a for a in range(3) if a != axis]
+    h = 0.5 * support
+    axes = []
+    for a in tang:
+        u = lo[a] + gap + spacing * np.arange(int(np.floor((hi[a] - lo[a] - 2.0 * gap) / spacing + 1e-6)) + 1)
+        axes.append(u[np.abs(u - point[a]) < support])
+    du, dv = np.meshgrid(axes[0] - point[tang[0]], axes[1] - point[tang[1]], indexing="ij")
+    q = np.hypot(du, dv) / h
+    w = np.where(q < 1.0, 2.0 / 3.0 - q ** 2 + 0.5 * q ** 3, np.where(q < 2.0, (2.0 - np.minimum(q, 2.0)) ** 3 / 6.0, 0.0))
+    return float(w.sum() * 15.0 / (7.0 * math.pi * h * h) * spacing * spacing)
 
 
 def probe_lines(scene) -> list[ProbeLine]:
@@ -123,7 +152,27 @@ class _RateGroup:
         self.start = wp.array(start, dtype=int, device=dev)
         self.end = wp.array(end, dtype=int, device=dev)
         self.offset = wp.array([line.offset() for line in lines], dtype=float, device=dev)
-        self.with_pressure = any(line.kind == "pressure" for line in lines)
+        # pressure probes on a container face read the wall load (``probe_wall_loads``), the others the
+        # fluid's pressure field (``point_values_kernel``)
+        walls = [(start[q], line, line.wall(lo, hi, sim.scene.wall_gap)) for q, line in enumerate(lines)]
+        walls = [(i, line, w) for i, line, w in walls if w is not None]
+        self.with_pressure = any(line.kind == "pressure" and line.wall(lo, hi, sim.scene.wall_gap) is None
+                                 for line in lines)
+        self.wall_count = len(walls)
+        if walls:
+            wx, wn, wc = [], [], []
+            for _, line, (axis, side) in walls:
+                x = line.start.copy()
+                x[axis] = lo[axis] if side < 0 else hi[axis]
+                n = np.zeros(3)
+                n[axis] = -side
+                wx.append(x)
+                wn.append(n)
+                wc.append(1.0 / max(wall_coverage(x, axis, lo, hi, sim.scene.wall_gap, m.spacing, m.support_radius), 1e-6))
+            self.wall_point = wp.array(m.to_local(np.array(wx)), dtype=wp.vec3, device=dev)
+            self.wall_normal = wp.array(np.array(wn), dtype=wp.vec3, device=dev)
+            self.wall_inv_coverage = wp.array(wc, dtype=float, device=dev)
+            self.wall_index = wp.array([i for i, _, _ in walls], dtype=int, device=dev)
         #: rows of one frame (+2: a frame may end just past a sample time and start on one)
         self.capacity = int(math.ceil(rate / float(sim.scene.fps))) + 2
         self.values = wp.zeros((self.capacity, len(lines)), dtype=float, device=dev)
@@ -177,11 +226,19 @@ class Probes:
         for a rate faster than the time step at the scene's reference speed (``preflight``'s estimate)."""
         sim, scene = self.sim, self.sim.scene
         produced = {name for s in stages for name in s.writes + s.updates}
+        c = scene.container
+        lo, hi = (None, None) if c is None else (c.min, c.max)
         for i, line in enumerate(self.lines):
+            if line.kind == "pressure" and line.wall(lo, hi, scene.wall_gap) is not None:
+                if "boundary_force" not in produced:
+                    raise SceneError(f"{scene.source}: probes[{i}]: a pressure probe on a wall reads the walls' "
+                                     f"force on the fluid, which solver {sim.solver.name!r} does not compute")
+                continue
             if line.kind == "pressure" and "particle_pressure" not in produced:
                 raise SceneError(f"{scene.source}: probes[{i}].kind: 'pressure' needs a solver with a pressure field; "
                                  f"solver {sim.solver.name!r} has none (its position correction is not a pressure): "
-                                 "use solver 'dfsph' or 'wcsph', or a 'height' or 'front' probe")
+                                 "use solver 'dfsph' or 'wcsph', a probe on a container wall (it reads the wall load), or a "
+                                 "'height' or 'front' probe")
         t = scene.time
         bound = sim.time_step_bounds(sim.model.reference_speed)[0].seconds
         dt = float(t.fixed_dt) if t.fixed_dt > 0 else min(max(bound, t.dt_min), t.dt_max)
@@ -197,11 +254,13 @@ class Probes:
         """The ``probes`` stage, to run after the solver's ``stages`` (``sim.solver`` set): reads positions
         (and pressures)."""
         self.check(stages)
-        reads = ("particle_x",) + (("particle_pressure",) if any(g.with_pressure for g in self.groups) else ())
+        reads = ("particle_x",) + (("particle_pressure",) if any(g.with_pressure for g in self.groups) else ()) \
+            + (("boundary_force",) if any(g.wall_count for g in self.groups) else ())
         names = ", ".join(f"{line.name} ({line.kind}, {line.rate:g} Hz)" for line in self.lines)
         return Stage("probes", self.run, reads=reads,
                      doc=f"probes {names}: fill sum V W and Shepard pressure (+ rho0 g . (x_p - x_j)) at their "
-                         "points, sampled at k / rate; nothing written to the state")
+                         "points, on a wall its load sum_i K(s_i) F_i . n / C, sampled at k / rate; nothing written "
+                         "to the state")
 
     def run(self, sim, dt) -> None:
         t0 = float(sim.state.time)
@@ -235,6 +294,10 @@ class Probes:
                [m.particle_mass / m.rest_density, m.rest_density, wp.vec3(*m.gravity), m.smoothing_length,
                 m.support_radius, self.grid.id, f["particle_x"], pressure, g.point_x, g.point_target],
                [g.point_fill, g.point_pressure], device=dev)
+        if g.wall_count:
+            launch(_dev.probe_wall_loads, g.wall_count,
+                   [m.support_radius, self.grid.id, f["particle_x"], f["boundary_force"], g.wall_point, g.wall_normal,
+                    g.wall_inv_coverage, g.wall_index], [g.point_pressure], device=dev)
         launch(_dev.probe_readings, len(g.lines),
                [g.kind, g.start, g.end, g.offset, MIN_FILL, self.line_step, len(g.times), g.point_fill,
                 g.point_pressure], [g.values, g.fills], device=dev)
