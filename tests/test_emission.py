@@ -34,10 +34,10 @@ def quiet(*args, **kwargs):
 
 
 @pytest.mark.parametrize("solver", ["wcsph", "dfsph", "pbf"])
-def test_mass_bookkeeping_every_frame(solver):
+def test_mass_bookkeeping_every_frame(solver, device):
     """initial + emitted - removed = active particles at every frame; ids stay unique; no particle is left
     inside a sink at a frame's start; emitted particles carry new ids."""
-    sim = Simulation(scene(solver=solver))
+    sim = Simulation(scene(solver=solver), device=device)
     n0 = sim.model.fluid_count
     before = 0  # particles emitted before this frame
     for _ in range(8):
@@ -56,7 +56,7 @@ def test_mass_bookkeeping_every_frame(solver):
     assert f["emitted"] > 0 and f["removed"] > 0
 
 
-def test_flow_rate_within_2_percent():
+def test_flow_rate_within_2_percent(device):
     """An emitter given a flow rate emits that volume per second (particle volume d^3) within 2 %, measured
     over about 1 s (80 layers) between two frames; zero gravity, no container."""
     q = 0.04  # m^3/s: 4 m/s through the 2 x 2 lattice nozzle, 80 layers per second
@@ -64,7 +64,7 @@ def test_flow_rate_within_2_percent():
                fluid=[{"min": [-1.0, -1.0, -1.0], "max": [-0.9, -0.9, -0.9]}],
                emitters=[{"shape": "rectangle", "position": [0.0, 0.0, 0.0], "direction": [0.0, 0.0, 1.0],
                           "width": 0.1, "height": 0.1, "flow_rate": q}])
-    sim = Simulation(sc)
+    sim = Simulation(sc, device=device)
     d3 = sim.model.spacing ** 3
     counts, times = [], []
     for _ in range(int(1.1 * sc.fps)):
@@ -75,14 +75,14 @@ def test_flow_rate_within_2_percent():
     assert abs(rate / q - 1.0) < 0.02, rate
 
 
-def test_inlet_density_at_rest_lattice():
+def test_inlet_density_at_rest_lattice(device):
     """The layers enter one spacing apart: in zero gravity the particles of the inlet's core (a full
     kernel support of emitted fluid around them) read rest density within the DFSPH tolerance."""
     sc = scene(gravity=[0.0, 0.0, 0.0], container=False, sinks=[], duration=1.0, solver="dfsph", fps=20.0,
                fluid=[{"min": [-1.0, -1.0, -1.0], "max": [-0.9, -0.9, -0.9]}],
                emitters=[{"shape": "rectangle", "position": [0.0, 0.0, 0.0], "direction": [0.0, 0.0, 1.0],
                           "width": 0.35, "height": 0.35, "speed": 1.0}])
-    sim = Simulation(sc)
+    sim = Simulation(sc, device=device)
     for _ in range(8):  # 0.4 s: a jet 0.4 m long
         sim.advance_frame()
     x = sim.get_field("particle_x")
@@ -95,8 +95,8 @@ def test_inlet_density_at_rest_lattice():
     assert np.max(np.abs(rho[core])) <= tol, rho[core]  # measured: 4.2e-4 against 5e-4
 
 
-def test_capacity_full_warns_once():
-    sim = Simulation(scene(max_particles=130, sinks=[]))
+def test_capacity_full_warns_once(device):
+    sim = Simulation(scene(max_particles=130, sinks=[]), device=device)
     with pytest.warns(RuntimeWarning, match="capacity") as rec:
         for _ in range(8):
             s = sim.advance_frame()
@@ -177,7 +177,7 @@ def _toml(d: dict, prefix: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def test_energy_rule_counts_the_flow():
+def test_energy_rule_counts_the_flow(device):
     """The emitted particles bring energy in (0.6 m up, 1 m/s): the total rises far beyond the rule's 1 %, and
     the run goes on because that rise is what the emitter brought; a pump stage inserted by hand on top of
     the same flow is still stopped."""
@@ -185,14 +185,14 @@ def test_energy_rule_counts_the_flow():
     from warp_sph.core.errors import SimulationError
     from warp_sph.run.energy import ENERGY_GROWTH_LIMIT
 
-    sim = Simulation(scene(solver="dfsph", sinks=[]))
+    sim = Simulation(scene(solver="dfsph", sinks=[]), device=device)
     watch = sim.watchdog.energy
     for _ in range(8):
         s = sim.advance_frame()
         assert s.energy_growth <= ENERGY_GROWTH_LIMIT
     raw = (s.kinetic_energy + s.potential_energy - watch.reference_total) / watch.scale
     assert raw > 5 * ENERGY_GROWTH_LIMIT and sim.flow.exchanged > 0.0  # without the flow's account: stopped
-    sim = Simulation(scene(solver="dfsph", sinks=[]))
+    sim = Simulation(scene(solver="dfsph", sinks=[]), device=device)
     sim.graph.insert(_pump(3.0 * 9.81))
     with pytest.raises(SimulationError, match="the total energy rose by"):
         for _ in range(8):
