@@ -150,3 +150,14 @@ keyframes = [{time = 0.0, translate = [0.05, 0.08, 0.15]}]
     assert len(lines) == 1 and "bodies[0].density: not used by a kinematic body" in lines[0], r.stderr
     assert f"{tmp_path / 'bad.toml'}: bodies[0].density" in lines[0], lines[0]
     assert not out.exists()
+
+
+def test_dynamic_bodies_keep_their_names_and_round_trip():
+    """A dynamic body after a kinematic one keeps body<index as written>; the validated scene (run.json's
+    scene, what a resume reads) round-trips, the kinematic body as an animated obstacle."""
+    d = tank()
+    d["bodies"][0].pop("name")
+    d["bodies"].append({"size": [0.05, 0.05, 0.05], "position": [0.3, 0.08, 0.2], "density": 500.0})
+    scene = scene_from_dict(d)
+    assert [b.name for b in scene.bodies] == ["body1"] and [o.name for o in scene.obstacles] == ["body0"]
+    assert scene_from_dict(scene.to_dict()) == scene

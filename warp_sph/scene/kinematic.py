@@ -53,6 +53,7 @@ def kinematic_raw(v, raw: dict, kp: str) -> tuple[dict, dict]:
                "shape = \"mesh\" with a sphere mesh)")
     out = {k: val for k, val in raw.items() if k not in nested}
     out["position"] = (0.0, 0.0, 0.0)  # placeholder for the required key; the path gives the pose
+    out.setdefault("interpolation", "smooth")
     return out, nested
 
 

@@ -232,8 +232,8 @@ _TAIL = (
        "Newton's dynamics: an animated collider that pushes the fluid and is not pushed back; keys give its pose "
        "outright (position, rotation, density, mass, velocity, angular_velocity and fluid_friction are refused); "
        "box and mesh shapes"),
-    _P("bodies[].interpolation", "str", "-", "smooth", "how a kinematic body moves between its keys (as "
-       "obstacles[].interpolation)", choices=("linear", "smooth")),
+    _P("bodies[].interpolation", "str", "-", None, "how a kinematic body moves between its keys (as "
+       "obstacles[].interpolation)", choices=("linear", "smooth"), default_text="\"smooth\""),
     _P("bodies[].keyframes", "tables", "-", [], "keys of a kinematic body's path, as obstacles[].keyframes: "
        "translate = the centre of mass [m], rotation = the orientation [deg] (Euler XYZ)", default_text="none"),
     _P("bodies[].animation", "table", "-", {}, "a kinematic body's path from a transform animated in a USD file, "
