@@ -161,3 +161,29 @@ def test_dynamic_bodies_keep_their_names_and_round_trip():
     scene = scene_from_dict(d)
     assert [b.name for b in scene.bodies] == ["body1"] and [o.name for o in scene.obstacles] == ["body0"]
     assert scene_from_dict(scene.to_dict()) == scene
+
+
+def test_kinematic_body_from_usd_animation_is_written_under_sph_bodies(tmp_path):
+    """A path from a USD file (Blender-like, test_colliders' writer): the run's USD holds the body as
+    /sph/bodies/<name> at the path's pose every frame, run.json records it."""
+    from pxr import Usd, UsdGeom
+    from test_colliders import quiet, write_blender_like_usd
+
+    from warp_sph.io import run_folder as rf
+    from warp_sph.run import runner
+
+    write_blender_like_usd(tmp_path / "anim.usda", lambda t: ((0.05 + 0.5 * t, 0.08, 0.15), (0.0, 0.0, 0.0)), 6)
+    d = tank()
+    b = d["bodies"][0]
+    del b["keyframes"]
+    b["animation"] = {"file": str(tmp_path / "anim.usda"), "prim": "/root/paddle"}
+    scene = scene_from_dict(d)
+    out = tmp_path / "run"
+    runner.run(scene, out=out, device="cpu", frames=3, progress=False, log=quiet, threaded_export=False)
+    stage = Usd.Stage.Open(str(next(out.glob("*.usdc"))))
+    xf = UsdGeom.Xformable(stage.GetPrimAtPath("/sph/bodies/pusher"))
+    for frame in (1, 3):
+        M = np.array(xf.ComputeLocalToWorldTransform(Usd.TimeCode(frame)))
+        np.testing.assert_allclose(M[3, :3], [0.05 + 0.5 * (frame - 1) / FPS, 0.08, 0.15], atol=1e-6)
+    frames = rf.read_run_json(out)["frames"]
+    assert "pusher" in frames[-1]["bodies"]
