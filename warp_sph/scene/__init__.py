@@ -3,6 +3,7 @@
     parameters.py   every key once: type, unit, default, range (methods add their sections)
     types.py        the dataclasses generated from those rows; ``Scene``
     validate.py     dict -> Scene or a one-line SceneError
+    kinematic.py    [[bodies]] kinematic = true turned into animated obstacles
     load.py         built-in names and TOML files, ``--set`` overrides
     sampling.py     fluid lattice, wall and obstacle particles
     meshes.py       triangle meshes: loading, surface sampling, inside test

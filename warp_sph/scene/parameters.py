@@ -217,7 +217,8 @@ _TAIL = (
        "the scene file; it collides as its convex hull and couples to the fluid with its true surface",
        shapes=("mesh",)),
     _P("bodies[].scale", "float", "-", 1.0, "uniform scale of the mesh", gt=0.0, shapes=("mesh",)),
-    _P("bodies[].position", "vec3", "m", REQUIRED, "initial position of the centre of mass"),
+    _P("bodies[].position", "vec3", "m", REQUIRED, "initial position of the centre of mass (not with "
+       "kinematic = true)"),
     _P("bodies[].rotation", "vec3", "deg", (0.0, 0.0, 0.0), "initial orientation as Euler angles about X, "
        "then Y, then Z (Blender's XYZ rotation mode)"),
     _P("bodies[].density", "float", "kg/m^3", None, "density (give density or mass, not both)", gt=0.0, le=1e6,
@@ -226,6 +227,17 @@ _TAIL = (
        default_text="density or mass"),
     _P("bodies[].velocity", "vec3", "m/s", (0.0, 0.0, 0.0), "initial velocity of the centre of mass"),
     _P("bodies[].angular_velocity", "vec3", "rad/s", (0.0, 0.0, 0.0), "initial angular velocity (world axes)"),
+    # kinematic bodies (docs/colliders.md): turned into animated obstacles at validation (scene/kinematic.py)
+    _P("bodies[].kinematic", "bool", "-", False, "the body follows a path (keyframes or animation) instead of "
+       "Newton's dynamics: an animated collider that pushes the fluid and is not pushed back; keys give its pose "
+       "outright (position, rotation, density, mass, velocity, angular_velocity and fluid_friction are refused); "
+       "box and mesh shapes"),
+    _P("bodies[].interpolation", "str", "-", None, "how a kinematic body moves between its keys (as "
+       "obstacles[].interpolation)", choices=("linear", "smooth"), default_text="\"smooth\""),
+    _P("bodies[].keyframes", "tables", "-", [], "keys of a kinematic body's path, as obstacles[].keyframes: "
+       "translate = the centre of mass [m], rotation = the orientation [deg] (Euler XYZ)", default_text="none"),
+    _P("bodies[].animation", "table", "-", {}, "a kinematic body's path from a transform animated in a USD file, "
+       "as obstacles[].animation (the prim's transform is the pose of the body's frame)", default_text="none"),
     _P("bodies[].fluid_friction", "float", "-", None, "Akinci boundary friction sigma between this body and "
        "the fluid (absent: material.boundary_friction)", ge=0.0, default_text="material.boundary_friction"),
     # probes (warp_sph.run.probes): sampled during the run, one CSV per probe in the run folder

@@ -167,6 +167,9 @@ class Validator:
         values["fluid"] = self.blocks(data, "fluid", required=True)
         values["obstacles"] = self.blocks(data, "obstacles", required=False)
         values["bodies"] = self.blocks(data, "bodies", required=False)
+        from .kinematic import kinematic_obstacles  # kinematic bodies become animated obstacles
+
+        values["obstacles"], values["bodies"] = kinematic_obstacles(values["obstacles"], values["bodies"], self.fail)
         values["forces"] = self.forces(data)
         values["probes"] = self.blocks(data, "probes", required=False, shape_key="kind")
         if "whitewater" in data:  # off unless present
@@ -193,6 +196,10 @@ class Validator:
             kp = f"{name}[{i}]"
             nested = {k: b[k] for k in ("keyframes", "animation") if name == "obstacles" and k in b}
             b = {k: v for k, v in b.items() if k not in nested}
+            if name == "bodies":
+                from .kinematic import kinematic_raw
+
+                b, nested = kinematic_raw(self, b, kp)
             block = cls(**self.table(b, f"{name}[]", kp, shape_key=shape_key))
             if nested:
                 self.collider_path(block, nested, kp)
@@ -319,20 +326,21 @@ class Validator:
                 if ob.animated:
                     from .paths import check_inside
 
-                    check_inside(ob.path, lo, hi, c, scene.duration, f"obstacles[{i}]", self.fail)
+                    check_inside(ob.path, lo, hi, c, scene.duration, getattr(ob, "origin", f"obstacles[{i}]"),
+                                 self.fail)
                     continue
                 if np.any(hi < np.asarray(c.min)) or np.any(lo > np.asarray(c.max)):
                     self.fail(f"obstacles[{i}]", f"lies entirely outside the container {list(c.min)}..{list(c.max)} "
                               f"(its bounds {lo.round(6).tolist()}..{hi.round(6).tolist()}); move it inside or remove it")
-        moving = [(f"bodies[{i}].name", b.name or f"body{i}") for i, b in enumerate(scene.bodies)]
-        moving += [(f"obstacles[{i}].name", ob.name or f"obstacle{i}") for i, ob in enumerate(scene.obstacles)
-                   if ob.animated]
-        seen: dict[str, str] = {}
-        for key, name in moving:  # one USD prim /sph/bodies/<name> and one run.json entry each
-            if name in seen and (key.startswith("obstacles") or seen[name].startswith("obstacles")):
-                self.fail(key, f"{name!r} is also the name of {seen[name].rsplit('.', 1)[0]}; moving bodies and "
-                          "animated obstacles need distinct names")  # two bodies: rigid.checks says so
-            seen.setdefault(name, key)
+        moving = [(f"bodies[{i}].name", b.name or f"body{i}", False) for i, b in enumerate(scene.bodies)]
+        moving += [(f"{getattr(ob, 'origin', f'obstacles[{i}]')}.name", ob.name or f"obstacle{i}", True)
+                   for i, ob in enumerate(scene.obstacles) if ob.animated]  # kinematic bodies among them
+        seen: dict[str, tuple[str, bool]] = {}
+        for key, name, collider in moving:  # one USD prim /sph/bodies/<name> and one run.json entry each
+            if name in seen and (collider or seen[name][1]):
+                self.fail(key, f"{name!r} is also the name of {seen[name][0].rsplit('.', 1)[0]}; moving bodies and "
+                          "animated obstacles need distinct names")  # two dynamic bodies: rigid.checks says so
+            seen.setdefault(name, (key, collider))
         solver = registry.solver(scene.solver)
         boundary = registry.boundary(scene.boundary)
         refusal = solver.refuses_boundary(boundary)
