@@ -22,10 +22,8 @@ import numpy as np
 import warp as wp
 
 from ..core.errors import SceneError
-from ..core.launch import launch
 from ..core.step_graph import Stage
-from ..kernels import rigid as _rigid
-from .coupling import BodyParticles
+from .coupling import BodyParticles, boundary_force_stage
 from .spec import body_name
 from .world import RigidWorld, contact_frequency_for, static_colliders
 
@@ -89,28 +87,12 @@ class SimulationBodies:
     def force_stage(self, velocity: str = "particle_v") -> Stage:
         """The gather stage; ``velocity``: the workspace field of the fluid velocities the boundary force
         term was evaluated with (``Solver.body_coupling_velocity``)."""
-        sim, m = self.sim, self.sim.model
-        terms, params = sim.boundary_terms, sim.boundary_params
-        kernel = _rigid.body_particle_force_kernel(m.smoothing.name, terms)
-        with_pressure = terms.pressure is not None
-        no_term = wp.zeros(1, dtype=float, device=m.device)
-
-        def run(sim, dt):
-            f = sim.fields
-            nl = f["neighbor_lists"]
-            fc = nl.fluid_cells
-            term = f["boundary_pressure_term"] if with_pressure else no_term
-            launch(kernel, self.count,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, params, m.static_boundary_count,
-                    m.boundary_x, m.boundary_v, m.boundary_volume, fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start,
-                    fc.cell_point, nl.search_radius, f["particle_x"], f[velocity], f["particle_density"], term],
-                   [self.force], device=m.device)
-
-        reads = ("neighbor_lists", "particle_x", velocity, "particle_density", "boundary_x", "boundary_v",
-                 "boundary_volume") + (("boundary_pressure_term",) if with_pressure else ())
-        return Stage("body_forces", run, reads=reads, writes=("body_particle_force",),
-                     doc=f"the fluid's force on {self.count} moving boundary particles: the negative of the "
-                         f"{terms.name} boundary terms, pair by pair (Akinci et al. 2012)")
+        m = self.sim.model
+        return boundary_force_stage(self.sim, "body_forces", m.static_boundary_count, self.count, self.force,
+                                    "body_particle_force", velocity=velocity,
+                                    doc=f"the fluid's force on {self.count} moving boundary particles: the negative "
+                                        f"of the {self.sim.boundary_terms.name} boundary terms, pair by pair "
+                                        "(Akinci et al. 2012)")
 
     def motion_stage(self) -> Stage:
         def run(sim, dt):

@@ -29,10 +29,9 @@ import warp as wp
 from ..core.launch import LIGHT_MIN_RANGE, launch
 from ..core.step_graph import Stage
 from ..kernels import colliders as _colliders_dev
-from ..kernels import rigid as _rigid
 from ..scene.meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
 from ..scene.paths import Path, matrix_quaternion
-from .coupling import BodyParticles
+from .coupling import BodyParticles, boundary_force_stage
 from .sampling import BodySamples, akinci_volumes
 from .spec import box_mesh
 
@@ -173,28 +172,11 @@ class SimulationColliders:
         return stages[:k] + [self.force_stage(solver.body_coupling_velocity)] + stages[k:] + [self.motion_stage()]
 
     def force_stage(self, velocity: str = "particle_v") -> Stage:
-        sim, m = self.sim, self.sim.model
-        terms, params = sim.boundary_terms, sim.boundary_params
-        kernel = _rigid.body_particle_force_kernel(m.smoothing.name, terms)
-        with_pressure = terms.pressure is not None
-        no_term = wp.zeros(1, dtype=float, device=m.device)
-
-        def run(sim, dt):
-            f = sim.fields
-            nl = f["neighbor_lists"]
-            fc = nl.fluid_cells
-            term = f["boundary_pressure_term"] if with_pressure else no_term
-            launch(kernel, self.count,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, params, self.start,
-                    m.boundary_x, m.boundary_v, m.boundary_volume, fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start,
-                    fc.cell_point, nl.search_radius, f["particle_x"], f[velocity], f["particle_density"], term],
-                   [self.force], device=m.device)
-
-        reads = ("neighbor_lists", "particle_x", velocity, "particle_density", "boundary_x", "boundary_v",
-                 "boundary_volume") + (("boundary_pressure_term",) if with_pressure else ())
-        return Stage("collider_forces", run, reads=reads, writes=("collider_particle_force",),
-                     doc=f"the fluid's force on {self.count} animated-obstacle particles (the negative of the "
-                         f"{terms.name} boundary terms), for the work they do on the fluid")
+        return boundary_force_stage(self.sim, "collider_forces", self.start, self.count, self.force,
+                                    "collider_particle_force", velocity=velocity,
+                                    doc=f"the fluid's force on {self.count} animated-obstacle particles (the "
+                                        f"negative of the {self.sim.boundary_terms.name} boundary terms), for the "
+                                        "work they do on the fluid")
 
     def motion_stage(self) -> Stage:
         def run(sim, dt):

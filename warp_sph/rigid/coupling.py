@@ -12,6 +12,7 @@ import numpy as np
 import warp as wp
 
 from ..core.launch import LIGHT_MIN_RANGE, launch
+from ..core.step_graph import Stage
 from ..kernels import rigid as _rigid
 from .sampling import BodySamples
 
@@ -84,3 +85,32 @@ class BodyParticles:
         launch(_rigid.sum_body_wrench, self.body_count,
                [self._body_chunk_start, self._body_chunk_end, self._chunk_wrench], [body_f_out],
                device=self.device)
+
+
+def boundary_force_stage(sim, name: str, start: int, count: int, force: wp.array, writes: str, doc: str,
+                         velocity: str = "particle_v") -> Stage:
+    """The stage that gathers the fluid's force [N] on the moving boundary particles ``start ..
+    start + count - 1`` into ``force``: the negative of the scene's boundary terms, pair by pair (Akinci
+    et al. 2012). Bodies (the wrench) and animated obstacles (their work) share it; ``velocity``: the
+    workspace field of the fluid velocities the boundary terms were evaluated with
+    (``Solver.body_coupling_velocity``)."""
+    m = sim.model
+    terms, params = sim.boundary_terms, sim.boundary_params
+    kernel = _rigid.body_particle_force_kernel(m.smoothing.name, terms)
+    with_pressure = terms.pressure is not None
+    no_term = wp.zeros(1, dtype=float, device=m.device)
+
+    def run(sim, dt):
+        f = sim.fields
+        nl = f["neighbor_lists"]
+        fc = nl.fluid_cells
+        term = f["boundary_pressure_term"] if with_pressure else no_term
+        launch(kernel, count,
+               [m.particle_mass, m.smoothing_length, m.support_radius, params, start,
+                m.boundary_x, m.boundary_v, m.boundary_volume, fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start,
+                fc.cell_point, nl.search_radius, f["particle_x"], f[velocity], f["particle_density"], term],
+               [force], device=m.device)
+
+    reads = ("neighbor_lists", "particle_x", velocity, "particle_density", "boundary_x", "boundary_v",
+             "boundary_volume") + (("boundary_pressure_term",) if with_pressure else ())
+    return Stage(name, run, reads=reads, writes=(writes,), doc=doc)
