@@ -96,7 +96,7 @@ STIR = [{"time": 0.0, "translate": [0.05, 0.08, 0.15]}, {"time": 0.15, "translat
 
 
 @pytest.mark.parametrize("boundary", ["akinci2012", "penalty"])
-def test_pusher_at_the_step_speed_limit_lets_no_particle_through(boundary):
+def test_pusher_at_the_step_speed_limit_lets_no_particle_through(boundary, device):
     """A wall across the whole tank, at rest for the first frame, then pushed at 4 m/s (linear: full speed
     at once) into the resting fluid: the step bound counts its speed before the fluid has any (it moves at
     most cfl d per substep; sized from the fluid's speed alone the step would stay at dt_max, 0.4 d per
@@ -104,7 +104,7 @@ def test_pusher_at_the_step_speed_limit_lets_no_particle_through(boundary):
     with either boundary method."""
     keys = [{"time": 0.0, "translate": [0.05, 0.08, 0.15]}, {"time": 1 / FPS, "translate": [0.05, 0.08, 0.15]},
             {"time": 1 / FPS + 0.05, "translate": [0.25, 0.08, 0.15]}]
-    sim = Simulation(scene_from_dict({**tank(keyframes=keys, interpolation="linear"), "boundary": boundary}))
+    sim = Simulation(scene_from_dict({**tank(keyframes=keys, interpolation="linear"), "boundary": boundary}), device=device)
     from warp_sph.core.step_graph import Stage
 
     seen = []
@@ -127,11 +127,11 @@ def test_pusher_at_the_step_speed_limit_lets_no_particle_through(boundary):
     assert sim.colliders.work_done() > 0.0  # it pushed
 
 
-def test_work_of_the_paddle_keeps_the_energy_rule_sound():
+def test_work_of_the_paddle_keeps_the_energy_rule_sound(device):
     """The paddle scene's first 0.5 s: the fluid's energy rises above E(0) by more than the 1 % limit (the
     paddle drives it), E - W (W the work the paddle did, the rule's measure) does not."""
     scene = load_scene("paddle", {"output.usd": False, "particle_radius": 0.025})
-    sim = Simulation(scene)
+    sim = Simulation(scene, device=device)
     rise, growth = [], []
     for _ in range(12):
         st = sim.advance_frame()
@@ -218,7 +218,7 @@ def test_usd_path_matches_the_keyframed_path(tmp_path, up, mpu):
     np.testing.assert_allclose(usd.pose(k)[1], keyed.pose(k)[1], atol=1e-6)
 
 
-def test_paddle_scene_from_usd_runs_as_from_keyframes(tmp_path):
+def test_paddle_scene_from_usd_runs_as_from_keyframes(tmp_path, device):
     """The paddle scene with its motion read from a Blender-like USD file: same particles at t = 0 and,
     two frames on, within 1 mm of the keyframed run."""
     keyed_scene = load_scene("paddle", {"output.usd": False})
@@ -229,7 +229,7 @@ def test_paddle_scene_from_usd_runs_as_from_keyframes(tmp_path):
     del d["obstacles"][0]["keyframes"]
     d["obstacles"][0]["animation"] = {"file": "paddle.usda", "prim": "/root/paddle"}
     usd_scene = scene_from_dict(d, source=str(tmp_path / "paddle.toml"), base_dir=tmp_path)
-    a, b = Simulation(keyed_scene), Simulation(usd_scene)
+    a, b = Simulation(keyed_scene, device=device), Simulation(usd_scene, device=device)
     np.testing.assert_allclose(a.get_field("particle_x"), b.get_field("particle_x"), atol=1e-6)
     for _ in range(2):
         a.advance_frame(), b.advance_frame()

@@ -33,12 +33,12 @@ def tank(kinematic: bool = True, **body) -> dict:
                                    "max": [0.04, 0.08, 0.15], "keyframes": PUSH, "interpolation": "linear"}]}
 
 
-def test_kinematic_box_follows_its_keys_and_pushes_the_fluid():
+def test_kinematic_box_follows_its_keys_and_pushes_the_fluid(device):
     """Not a Newton body (no mass given, no rigid world); its particles sit at the keys' poses at the keys'
     times (x = R x_local + T, x_local the box centred at the origin) and it sweeps the fluid ahead of it."""
     scene = scene_from_dict(tank())
     assert scene.bodies == [] and [ob.name for ob in scene.obstacles] == ["pusher"]
-    sim = Simulation(scene)
+    sim = Simulation(scene, device=device)
     assert sim.bodies is None and sim.colliders is not None and sim.colliders.names == ["pusher"]
     start = sim.colliders.start
     local = sim.colliders.colliders[0].samples.local_x
@@ -59,9 +59,9 @@ def test_kinematic_box_follows_its_keys_and_pushes_the_fluid():
     assert sim.colliders.work_done() > 0.0
 
 
-def test_kinematic_body_equals_the_animated_obstacle():
+def test_kinematic_body_equals_the_animated_obstacle(device):
     """Same sampling, same boundary positions and velocities, same fluid, bit for bit, after 2 frames."""
-    sims = [Simulation(scene_from_dict(tank(kinematic=k))) for k in (True, False)]
+    sims = [Simulation(scene_from_dict(tank(kinematic=k)), device=device) for k in (True, False)]
     for sim in sims:
         for _ in range(2):
             sim.advance_frame()
