@@ -197,3 +197,34 @@ def test_energy_rule_counts_the_flow(device):
     with pytest.raises(SimulationError, match="the total energy rose by"):
         for _ in range(8):
             sim.advance_frame()
+
+
+@pytest.mark.parametrize("solver", ["wcsph", "dfsph", "pbf"])
+def test_a_scene_of_emitters_alone_starts_empty(solver, device):
+    """No [[fluid]] block: the run starts with no fluid particle and fills from the nozzle; emitted -
+    removed = the fluid count every frame, the count grows layer by layer and nothing leaves the
+    container. Without a container such a scene is refused in one line (nothing bounds the grid)."""
+    sc = scene_from_dict({k: v for k, v in BASE.items() if k != "fluid"} | {"solver": solver, "sinks": []},
+                         source="flow.toml")
+    sim = Simulation(sc, device=device)
+    assert sim.model.fluid_count == 0
+    counts = []
+    for _ in range(5):
+        stats = sim.advance_frame()
+        flow = stats.flow
+        assert flow["emitted"] - flow["removed"] == flow["particles"] == sim.model.fluid_count
+        counts.append(flow["particles"])
+        assert np.isfinite(sim.get_field("particle_x")).all()
+    assert counts[0] >= 0 and counts[-1] > counts[1] > 0 and counts == sorted(counts)
+    assert stats.outside == 0 and stats.max_speed < 3.0
+
+
+def test_emitters_alone_need_a_container(tmp_path, capsys):
+    d = {k: v for k, v in BASE.items() if k != "fluid"} | {"sinks": [], "container": False}
+    path = tmp_path / "open.toml"
+    path.write_text(_toml(d))
+    out = tmp_path / "out"
+    assert cli_main(["run", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "container" in err and len(err.splitlines()) == 1, err
+    assert not out.exists()

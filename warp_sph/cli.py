@@ -67,8 +67,12 @@ def print_summary(info: dict) -> None:
     mean = sum(f["density_error_mean"] for f in frames) / max(1, len(frames))
     out = Path(info["out"])
     usd = sorted(out.glob("*.usdc"))
+    fluid = f"{info['fluid_particles']} fluid"
+    flow = frames[-1].get("flow") if frames else None
+    if flow:  # emitters / sinks: the count changes; say where it ended
+        fluid = f"{info['fluid_particles']} -> {flow['particles']} fluid ({flow['emitted']} emitted, {flow['removed']} removed)"
     print(f"{info['status']}: {len(frames)} frames, {steps} steps, {info['simulated_time']:.3f} s simulated "
-          f"in {info['wall_time']:.1f} s wall ({info['fluid_particles']} fluid, {info['boundary_particles']} boundary particles)")
+          f"in {info['wall_time']:.1f} s wall ({fluid}, {info['boundary_particles']} boundary particles)")
     print(f"density error: mean {100 * mean:.3f} %, max {100 * err:.3f} % (largest of any frame); "
           f"{info['sim_time_per_step_ms']:.2f} ms per simulation step")
     ww = frames[-1].get("whitewater") if frames else None

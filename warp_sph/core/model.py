@@ -184,8 +184,10 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
     fluid_x = np.asarray(sampled.fluid_x, dtype=np.float64).reshape(-1, 3)
     fluid_v = np.asarray(sampled.fluid_v, dtype=np.float32).reshape(-1, 3)
     boundary_x = np.asarray(sampled.boundary_x, dtype=np.float64).reshape(-1, 3)
-    if len(fluid_x) == 0:
+    if len(fluid_x) == 0 and not getattr(scene, "emitters", None):
         raise SceneError(f"{scene.name}: the scene holds no fluid particles after sampling")
+    if len(fluid_x) == 0 and scene.container is None:
+        raise SceneError(f"{scene.name}: container: a scene whose fluid all comes from emitters needs a [container]")
 
     if scene.container is not None:
         lo = np.asarray(scene.container.min, dtype=np.float64)

@@ -306,7 +306,7 @@ def simulation_neighbor_lists(sim, margin: float = 0.0) -> NeighborLists:
     if lists is None:
         m = sim.model
         x = sim.state.particle_x.numpy()
-        boxes = [x.min(axis=0), x.max(axis=0)]
+        boxes = [x.min(axis=0), x.max(axis=0)] if len(x) else []  # (none yet: a scene that starts empty)
         if m.boundary_count:
             bx = m.boundary_x.numpy()
             boxes += [bx.min(axis=0), bx.max(axis=0)]

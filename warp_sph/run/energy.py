@@ -180,7 +180,8 @@ class EnergyWatch:
         self.floor = floor
         # potential energy counted from the floor: sum m g.(h - floor) = PE_local - M |g| floor
         above = self.reference_total - total_mass * gn * floor + self.allowance
-        self.scale = max(above, SCALE_FLOOR * 0.5 * total_mass * m.reference_speed ** 2)
+        # (at least one particle's worth: a scene whose fluid all comes from emitters starts with none)
+        self.scale = max(above, SCALE_FLOOR * 0.5 * max(total_mass, m.particle_mass) * m.reference_speed ** 2)
 
     # --- the rule ----------------------------------------------------------------------------
     def growth(self, e: Energy) -> float:

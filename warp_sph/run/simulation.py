@@ -457,9 +457,9 @@ class Simulation:
             body_speed=body_speed, bodies=bodies,
             frame=self.state.frame, time=self.state.time, steps=steps, dt_min=dt_min, dt_max=dt_max,
             max_speed=float(s[_diag.STAT_MAX_SPEED]),
-            density_error_mean=float(s[_diag.STAT_SUM_COMPRESSION]) / n,
-            density_error_max=float(s[_diag.STAT_MAX_DENSITY_ERROR]),
-            density_error_min=float(s[_diag.STAT_MIN_DENSITY_ERROR]),
+            density_error_mean=float(s[_diag.STAT_SUM_COMPRESSION]) / n if n else 0.0,  # (none yet: emitters)
+            density_error_max=float(s[_diag.STAT_MAX_DENSITY_ERROR]) if n else 0.0,
+            density_error_min=float(s[_diag.STAT_MIN_DENSITY_ERROR]) if n else 0.0,
             **energy, non_finite=watch["non_finite"], outside=watch["outside"],
             max_acceleration=float(s[_diag.STAT_MAX_ACCELERATION]),
             watch=watch, flow=self.flow.record() if self.flow is not None else {},

@@ -234,9 +234,9 @@ def sample_scene(scene: Scene) -> SampledScene:
         fx.append(p)
         fv.append(np.broadcast_to(np.asarray(block.velocity, dtype=np.float64), p.shape))
         fb.append(np.full(len(p), i, dtype=np.int32))
-    fluid_x = np.concatenate(fx)
-    fluid_v = np.concatenate(fv)
-    fluid_b = np.concatenate(fb)
+    fluid_x = np.concatenate(fx) if fx else np.zeros((0, 3))  # none: a scene that starts empty (emitters)
+    fluid_v = np.concatenate(fv) if fv else np.zeros((0, 3))
+    fluid_b = np.concatenate(fb) if fb else np.zeros(0, dtype=np.int32)
 
     keep = np.ones(len(fluid_x), dtype=bool)
     for test in inside_tests:
@@ -262,7 +262,7 @@ def sample_scene(scene: Scene) -> SampledScene:
             keep &= ~col.inside(fluid_x, 0.0)
         keep &= PointGrid(collider_x, gap).nearest_distance(fluid_x, gap) >= gap * (1.0 - _EPS)
     fluid_x, fluid_v, fluid_b = fluid_x[keep], fluid_v[keep], fluid_b[keep]
-    if len(fluid_x) == 0:
+    if len(fluid_x) == 0 and scene.fluid:  # (a scene of emitters alone starts empty)
         raise SceneError(
             f"{scene.source}: fluid: no fluid particle left after sampling at spacing d = {d:g} m "
             f"(blocks smaller than d, inside obstacles, or within boundary_gap of the walls)"

@@ -164,7 +164,7 @@ class Validator:
             c = Container(**self.table(raw, "container", "container"))
             self.box(c.min, c.max, "container")
             values["container"] = c
-        values["fluid"] = self.blocks(data, "fluid", required=True)
+        values["fluid"] = self.blocks(data, "fluid", required=not data.get("emitters"))  # emitters may start empty
         values["obstacles"] = self.blocks(data, "obstacles", required=False)
         values["bodies"] = self.blocks(data, "bodies", required=False)
         from .kinematic import kinematic_obstacles  # kinematic bodies become animated obstacles
@@ -189,7 +189,7 @@ class Validator:
         if not isinstance(raw, list) or any(not isinstance(b, dict) for b in raw):
             self.fail(name, f"expected an array of tables ([[{name}]]), got {_short(raw)}")
         if required and not raw:
-            self.fail(name, f"expected at least one [[{name}]] block")
+            self.fail(name, f"expected at least one [[{name}]] block" + (" (or an [[emitters]] block)" if name == "fluid" else ""))
         cls = CORE_SECTIONS[f"{name}[]"]
         out = []
         for i, b in enumerate(raw):
