@@ -308,9 +308,9 @@ _TAIL = (
        "below this (no generation from slower particles)", ge=0.0),
     _P("whitewater.kinetic_energy_max", "float", "J/kg", 50.0, "kinetic energy per mass mapped to 1 at and above "
        "this (> kinetic_energy_min)", gt=0.0),
-    _P("whitewater.trapped_air_rate", "float", "1/s", 4000.0, "k_ta: particles generated per fluid particle and "
+    _P("whitewater.trapped_air_rate", "float", "1/s", 500.0, "k_ta: particles generated per fluid particle and "
        "second at full trapped-air and kinetic-energy potentials", ge=0.0),
-    _P("whitewater.wave_crest_rate", "float", "1/s", 50000.0, "k_wc: particles generated per fluid particle and "
+    _P("whitewater.wave_crest_rate", "float", "1/s", 6250.0, "k_wc: particles generated per fluid particle and "
        "second at full wave-crest and kinetic-energy potentials", ge=0.0),
     _P("whitewater.lifetime_min", "float", "s", 2.0, "shortest lifetime of a foam particle (drawn uniformly in "
        "[lifetime_min, lifetime_max] at birth; it ages only while it is foam)", gt=0.0),
