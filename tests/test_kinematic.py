@@ -70,6 +70,43 @@ def test_kinematic_body_equals_the_animated_obstacle(device):
         assert a.shape == b.shape and np.array_equal(a, b), name
 
 
+def _sphere_tank(kinematic: bool) -> dict:
+    """The tank with a sphere of radius 0.05 m pushed through the fluid (centre z = 0.06 m), as a kinematic body
+    or as the equivalent animated sphere obstacle (center = the local origin)."""
+    keys = [{"time": 0.0, "translate": [0.06, 0.08, 0.06]}, {"time": 0.2, "translate": [0.25, 0.08, 0.06]}]
+    d = tank()
+    if kinematic:
+        d["bodies"] = [{"name": "ball", "kinematic": True, "shape": "sphere", "radius": 0.05, "keyframes": keys}]
+    else:
+        d["bodies"] = []
+        d["obstacles"] = [{"name": "ball", "shape": "sphere", "center": [0, 0, 0], "radius": 0.05, "keyframes": keys}]
+    return d
+
+
+def test_kinematic_sphere_follows_its_keys_and_equals_the_animated_sphere(device):
+    """A kinematic sphere is a sphere obstacle centred at the local origin: its particles on |x_local| = R sit at
+    x_local + T at the keys, and the run equals the animated sphere obstacle's bit for bit after 2 frames."""
+    scene = scene_from_dict(_sphere_tank(True))
+    ob = scene.obstacles[0]
+    assert scene.bodies == [] and (ob.shape, tuple(ob.center), ob.radius) == ("sphere", (0.0, 0.0, 0.0), 0.05)
+    sims = [Simulation(scene, device=device), Simulation(scene_from_dict(_sphere_tank(False)), device=device)]
+    start, local = sims[0].colliders.start, sims[0].colliders.colliders[0].samples.local_x
+    np.testing.assert_allclose(np.linalg.norm(local, axis=1), 0.05, atol=1e-12)
+    np.testing.assert_allclose(sims[0].get_field("boundary_x")[start:start + len(local)], local + [0.06, 0.08, 0.06],
+                               atol=1e-6)
+    for sim in sims:
+        for _ in range(2):
+            sim.advance_frame()
+    for name in ("boundary_x", "boundary_v", "particle_x", "particle_v"):
+        a, b = (s.get_field(name) for s in sims)
+        assert a.shape == b.shape and np.array_equal(a, b), name
+    sim = sims[0]
+    while sim.state.time < 0.2 - 1e-9:
+        sim.advance_frame()
+    np.testing.assert_allclose(sim.get_field("boundary_x")[start:start + len(local)], local + [0.25, 0.08, 0.06],
+                               atol=1e-5)
+
+
 def test_kinematic_mesh_body_is_centred_at_its_centroid(tmp_path):
     """A mesh body's frame has its origin at the centroid of its volume, as a dynamic body's."""
     from warp_sph.rigid.spec import box_mesh
@@ -104,7 +141,7 @@ def _mesh_tank(tmp_path) -> dict:
     ({"position": [0.2, 0.08, 0.15]}, "bodies[0].position: not used by a kinematic body"),
     ({"kinematic": False, "density": 500.0, "position": [0.2, 0.08, 0.15]},
      "bodies[0].keyframes: only a kinematic body follows a path"),
-    ({"shape": "sphere", "radius": 0.05, "size": None}, "bodies[0].shape: a kinematic body is a box or a mesh"),
+    ({"shape": "sphere", "radius": 0.0, "size": None}, "bodies[0].radius: expected a finite number > 0"),
     ({"keyframes": [PUSH[0], {"time": 0.3, "translate": [0.5, 0.08, 0.15]}]}, "bodies[0]: its path leaves the container"),
 ])
 def test_bad_kinematic_bodies_are_one_line_errors(change, message):

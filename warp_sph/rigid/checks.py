@@ -104,6 +104,12 @@ def check_bodies(scene, fail) -> list[BodyGeometry]:
                 lo, hi = np.asarray(ob.min, dtype=np.float64), np.asarray(ob.max, dtype=np.float64)
                 in_ob = np.all((samples[i] > lo + tol) & (samples[i] < hi - tol), axis=1)
                 ob_points, _ = box_surface(lo, hi, 0.5 * d, inward=False)
+            elif ob.shape == "sphere":
+                from ..scene.sphere_obstacle import sphere_surface
+
+                c, r = np.asarray(ob.center, dtype=np.float64), float(ob.radius)
+                in_ob = np.linalg.norm(samples[i] - c, axis=1) < r - tol
+                ob_points = sphere_surface(ob, 0.5 * d)[0]
             else:
                 mesh = load_triangle_mesh(ob.file).transformed(ob.scale, ob.translate)
                 in_ob = points_inside(mesh, samples[i])

@@ -2,7 +2,7 @@
 ``warp_sph.scene.paths``) whose boundary particles follow the path every substep.
 
 Sampling (``sample_colliders``): the obstacle's surface as written (its local frame) is sampled like a
-static obstacle's (``box_surface``, ``sample_surface``, about d apart, on the true surface) and gets
+static obstacle's (``box_surface``, ``sphere_obstacle.sphere_surface``, ``sample_surface``, about d apart, on the true surface) and gets
 Akinci volumes from its own samples (``rigid.sampling.akinci_volumes``), since it moves away from the
 walls. Its particles follow the moving bodies' in the Model's boundary arrays (``build_model``), so the
 solvers, the neighbour lists (``moving_boundary_grid``) and the boundary methods treat them as moving
@@ -31,6 +31,7 @@ from ..core.step_graph import Stage
 from ..kernels import colliders as _colliders_dev
 from ..scene.meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
 from ..scene.paths import Path, matrix_quaternion
+from ..scene.sphere_obstacle import sphere_inside, sphere_surface, sphere_triangle_mesh
 from .coupling import BodyParticles, boundary_force_stage
 from .sampling import BodySamples, akinci_volumes
 from .spec import box_mesh
@@ -57,11 +58,14 @@ class Collider:
         if self.triangles.shape[0] == 12 and self._box is not None:
             lo, hi = self._box
             return np.all((local >= lo) & (local <= hi), axis=1)
+        if self._sphere is not None:
+            return sphere_inside(self._sphere, local)
         from ..scene.meshes import TriangleMesh
 
         return points_inside(TriangleMesh(self.vertices, self.triangles), local)
 
     _box = None
+    _sphere = None
 
 
 def collider_name(ob, index: int) -> str:
@@ -81,6 +85,10 @@ def sample_colliders(scene, device=None) -> tuple[list[Collider], np.ndarray]:
             p, n = box_surface(lo, hi, d, inward=False)
             verts, tris = box_mesh(0.5 * (hi - lo))
             verts = verts + 0.5 * (lo + hi)
+        elif ob.shape == "sphere":
+            p, n = sphere_surface(ob, d)
+            mesh = sphere_triangle_mesh(ob)
+            verts, tris = mesh.vertices, mesh.triangles
         else:
             mesh = load_triangle_mesh(ob.file).transformed(ob.scale, ob.translate)
             p, n = sample_surface(mesh, d)
@@ -92,6 +100,8 @@ def sample_colliders(scene, device=None) -> tuple[list[Collider], np.ndarray]:
                      np.asarray(tris, np.int64), float(np.max(np.linalg.norm(p, axis=1))) if len(p) else 0.0)
         if ob.shape == "box":
             c._box = (lo, hi)
+        elif ob.shape == "sphere":
+            c._sphere = ob
         R, T = ob.path.pose(0.0)
         out.append(c)
         world.append(p @ R.T + T)

@@ -94,6 +94,10 @@ def static_colliders(scene) -> list[StaticCollider]:
     for ob in scene.obstacles:
         if ob.shape == "box":
             out.append(StaticCollider("box", tuple(ob.min), tuple(ob.max)))
+        elif ob.shape == "sphere":
+            from ..scene.sphere_obstacle import sphere_triangle_mesh
+
+            out.append(StaticCollider("mesh", mesh=sphere_triangle_mesh(ob)))
         else:
             mesh = load_triangle_mesh(ob.file).transformed(ob.scale, ob.translate)
             out.append(StaticCollider("mesh", mesh=mesh))

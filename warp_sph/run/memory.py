@@ -86,6 +86,8 @@ def particle_count_contributions(scene) -> list[tuple[str, str, int]]:
     for i, ob in enumerate(scene.obstacles):
         if ob.shape == "box":
             area = box_area(ob.min, ob.max)
+        elif ob.shape == "sphere":
+            area = 4.0 * np.pi * float(ob.radius) ** 2
         else:
             try:
                 from ..scene.meshes import load_triangle_mesh

@@ -92,9 +92,13 @@ def emitted_total(scene) -> int:
 
 
 def _obstacle_inside(ob, points: np.ndarray) -> np.ndarray:
-    """Mask of ``points`` [m] inside obstacle ``ob`` (a box, or a closed mesh by its winding number)."""
+    """Mask of ``points`` [m] inside obstacle ``ob`` (a box, a sphere, or a closed mesh by its winding number)."""
     if ob.shape == "box":
         return np.all((points >= np.asarray(ob.min)) & (points <= np.asarray(ob.max)), axis=1)
+    if ob.shape == "sphere":
+        from .sphere_obstacle import sphere_inside
+
+        return sphere_inside(ob, points)
     from .meshes import load_triangle_mesh_cached, points_inside
 
     return points_inside(load_triangle_mesh_cached(ob.file).transformed(ob.scale, ob.translate), points)

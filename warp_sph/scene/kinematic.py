@@ -2,14 +2,15 @@
 
 A kinematic body follows its path (``keyframes`` or ``animation``, as an animated obstacle's) whatever the
 fluid does: x = R(t) x_local + T(t), with x_local the body's shape in its own frame, as a dynamic body's
-(a box of ``size`` centred at the origin; a mesh scaled by ``scale`` and moved so that the centroid of its
-enclosed volume is the origin), T(t) the key's ``translate`` (the centre) and R(t) its ``rotation``. The
-keys give the pose outright, so ``position`` and ``rotation`` are refused, as are the keys of the dynamics
-(density, mass, velocity, angular_velocity) and ``fluid_friction`` (an animated obstacle's friction is
-material.boundary_friction). At validation each becomes an ``Obstacle`` (box min/max = -/+ size/2, or the
-mesh with translate = -centroid) with the same path and the name ``body<index>`` unless named, appended
-to ``scene.obstacles`` and removed from ``scene.bodies``: it is sampled, stepped, written to
-/sph/bodies/<name> and counted in the work like an animated obstacle, and it is not a Newton body.
+(a box of ``size`` or a sphere of ``radius`` centred at the origin; a mesh scaled by ``scale`` and moved so
+that the centroid of its enclosed volume is the origin), T(t) the key's ``translate`` (the centre) and R(t)
+its ``rotation``. The keys give the pose outright, so ``position`` and ``rotation`` are refused, as are the
+keys of the dynamics (density, mass, velocity, angular_velocity) and ``fluid_friction`` (an animated
+obstacle's friction is material.boundary_friction). At validation each becomes an ``Obstacle`` (box min/max
+= -/+ size/2, sphere of ``radius`` with center = the origin, or the mesh with translate = -centroid) with the
+same path and the name ``body<index>`` unless named, appended to ``scene.obstacles`` and removed from
+``scene.bodies``: it is sampled, stepped, written to /sph/bodies/<name> and counted in the work like an
+animated obstacle, and it is not a Newton body.
 """
 from __future__ import annotations
 
@@ -48,9 +49,6 @@ def kinematic_raw(v, raw: dict, kp: str) -> tuple[dict, dict]:
     if not nested:
         v.fail(f"{kp}.kinematic", "a kinematic body needs a path: keyframes = [{time = ..., translate = [...]}, "
                "...] or animation = {file = ..., prim = ...}")
-    if raw.get("shape") == "sphere":
-        v.fail(f"{kp}.shape", "a kinematic body is a box or a mesh (a kinematic sphere is not supported: use "
-               "shape = \"mesh\" with a sphere mesh)")
     out = {k: val for k, val in raw.items() if k not in nested}
     out["position"] = (0.0, 0.0, 0.0)  # placeholder for the required key; the path gives the pose
     out.setdefault("interpolation", "smooth")
@@ -80,6 +78,8 @@ def kinematic_obstacles(obstacles: list, bodies: list, fail) -> tuple[list, list
             if not np.all(half > 0.0):
                 fail(f"{kp}.size", f"expected every component > 0, got {list(b.size)}")
             ob = Obstacle(shape="box", min=tuple(map(float, -half)), max=tuple(map(float, half)), **common)
+        elif b.shape == "sphere":
+            ob = Obstacle(shape="sphere", center=(0.0, 0.0, 0.0), radius=float(b.radius), **common)
         else:
             mesh = load_triangle_mesh(b.file)
             volume, centroid = volume_and_centroid(mesh.vertices * float(b.scale), np.asarray(mesh.triangles))

@@ -19,7 +19,7 @@ from ..core.smoothing import SMOOTHING_KERNELS
 MESH_SEQUENCE_FORMATS = ("", "obj", "ply", "vtk")
 PARTICLE_PRIMVARS = ("density", "pressure")
 FLUID_SHAPES = ("box", "sphere", "mesh")
-OBSTACLE_SHAPES = ("box", "mesh")
+OBSTACLE_SHAPES = ("box", "sphere", "mesh")
 BODY_SHAPES = ("box", "sphere", "mesh")
 PROBE_KINDS = ("pressure", "height", "front")
 EMITTER_SHAPES = ("circle", "rectangle")
@@ -180,6 +180,9 @@ _TAIL = (
     _P("obstacles[].shape", "str", "-", "box", "obstacle shape", choices=OBSTACLE_SHAPES),
     _P("obstacles[].min", "vec3", "m", REQUIRED, "lower corner of a box obstacle", shapes=("box",)),
     _P("obstacles[].max", "vec3", "m", REQUIRED, "upper corner of a box obstacle", shapes=("box",)),
+    _P("obstacles[].center", "vec3", "m", REQUIRED, "centre of a sphere obstacle (an animated one: in its local "
+       "frame, the path moves it)", shapes=("sphere",)),
+    _P("obstacles[].radius", "float", "m", REQUIRED, "radius of a sphere obstacle", gt=0.0, shapes=("sphere",)),
     _P("obstacles[].file", "str", "-", REQUIRED, "closed triangle mesh (.obj .stl .ply .usd .usda .usdc); "
        "relative to the scene file", shapes=("mesh",)),
     _P("obstacles[].scale", "float", "-", 1.0, "uniform scale of the mesh (x -> scale x + translate)",

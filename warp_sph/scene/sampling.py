@@ -16,10 +16,10 @@ gap at which the first fluid layer over one Akinci wall layer is at rest density
   r = d/2 from the wall particles and start far over-dense; physics notes section 7 measured
   +6 % density at a gap of 1.0 d and rest density at 1.1 d with one Akinci layer (cubic kernel),
   which ``smoothing.wall_gap`` reproduces per kernel and h.
-- Obstacles: boxes are sampled on their faces like the container; meshes with
-  ``meshes.sample_surface`` (spacing about d). Obstacle particles closer than d/2 to an
+- Obstacles: boxes are sampled on their faces like the container; spheres on a Fibonacci lattice
+  (``sphere_obstacle``, on |x - c| = R); meshes with ``meshes.sample_surface`` (spacing about d). Obstacle particles closer than d/2 to an
   earlier boundary particle (e.g. a mesh resting on the floor) are dropped.
-- Fluid removal: fluid inside an obstacle (box test, mesh winding number) and fluid whose
+- Fluid removal: fluid inside an obstacle (box test, |x - c| <= R, mesh winding number) and fluid whose
   centre is closer than g d to any boundary particle are removed; a fluid particle closer than
   d/2 to a particle of an earlier fluid block is removed (overlapping blocks).
 - Moving bodies (``[[bodies]]``, ``warp_sph.rigid.sampling``): their particles sit g d - r below
@@ -38,6 +38,7 @@ import numpy as np
 from ..core.errors import SceneError
 from .mesh_volume import lattice_inside
 from .meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
+from .sphere_obstacle import sphere_inside, sphere_surface
 from .types import FluidBlock, Scene
 
 #: Points this close (relative to d) are one point (overlapping fluid blocks, shared boundary).
@@ -208,6 +209,9 @@ def sample_scene(scene: Scene) -> SampledScene:
             p, n = box_surface(ob.min, ob.max, d, inward=False)
             lo, hi = np.asarray(ob.min), np.asarray(ob.max)
             inside_tests.append(lambda x, lo=lo, hi=hi: np.all((x >= lo) & (x <= hi), axis=1))
+        elif ob.shape == "sphere":
+            p, n = sphere_surface(ob, d)
+            inside_tests.append(lambda x, ob=ob: sphere_inside(ob, x))
         else:
             mesh = load_triangle_mesh(ob.file).transformed(ob.scale, ob.translate)
             p, n = sample_surface(mesh, d)

@@ -388,5 +388,9 @@ def lattice_neighbor_counts(scene) -> tuple[int, int]:
 def _obstacle_bounds(ob) -> tuple[np.ndarray, np.ndarray]:
     if ob.shape == "box":
         return np.asarray(ob.min, dtype=float), np.asarray(ob.max, dtype=float)
+    if ob.shape == "sphere":  # an animated one: its path moves the corners of this box (conservative)
+        from .sphere_obstacle import sphere_bounds
+
+        return sphere_bounds(ob)
     lo, hi = load_triangle_mesh(ob.file).transformed(ob.scale, ob.translate).bounds
     return lo, hi
