@@ -90,13 +90,13 @@ def oracle_potentials(x, v, rho, m, H, kernel_grad, c):
                      np.where(ik > 0, clamp(curv, c.wave_crest_min, c.wave_crest_max), 0), ik], axis=1)
 
 
-def test_potentials_match_numpy_oracle():
+def test_potentials_match_numpy_oracle(device):
     """A block with a random velocity field: (I_ta, I_wc, I_k) of every particle as the brute-force oracle."""
     scene = small_tank("pot", container=False, gravity=[0.0, 0.0, 0.0],
                        fluid=[{"min": [0.0, 0.0, 0.0], "max": [0.4, 0.3, 0.3]}],
                        whitewater={"kinetic_energy_min": 0.5, "kinetic_energy_max": 8.0, "trapped_air_min": 0.5,
                                    "trapped_air_max": 6.0, "wave_crest_min": 0.2, "wave_crest_max": 2.0})
-    sim = Simulation(scene)
+    sim = Simulation(scene, device=device)
     sim.cell_order = False
     rng = np.random.default_rng(1)
     x = sim.get_field("particle_x") + rng.normal(0, 0.1 * scene.spacing, (sim.model.fluid_count, 3))
@@ -118,8 +118,8 @@ def test_potentials_match_numpy_oracle():
     np.testing.assert_allclose(got, want, atol=2e-4)
 
 
-def test_counts_grow_at_impact_and_decay_with_lifetimes():
-    sim = Simulation(scene_from_dict(drop_scene()))
+def test_counts_grow_at_impact_and_decay_with_lifetimes(device):
+    sim = Simulation(scene_from_dict(drop_scene()), device=device)
     counts, times = [], []
     for _ in range(15):
         sim.advance_frame()
@@ -134,24 +134,24 @@ def test_counts_grow_at_impact_and_decay_with_lifetimes():
     assert sim.whitewater.dropped == 0
 
 
-def test_none_generated_in_a_tank_at_rest():
+def test_none_generated_in_a_tank_at_rest(device):
     """A pool filling its tank (settling: the coarse lattice moves at up to ~0.9 m/s in its first frames).
     Default thresholds: nothing (slower than sqrt(2 kinetic_energy_min) = 3.2 m/s). With the kinetic gate
     open (kinetic_energy_min = 0) its relative speeds still give no trapped air (0 below 5 m/s)."""
     pool = [{"min": [0.0, 0.0, 0.0], "max": [0.8, 0.6, 0.3]}]
-    sim = Simulation(small_tank("rest", fluid=pool, whitewater={}))
+    sim = Simulation(small_tank("rest", fluid=pool, whitewater={}), device=device)
     for _ in range(3):
         sim.advance_frame()
     assert sim.last_frame.max_speed < 3.16
     assert sim.whitewater.generated == 0 and sim.whitewater.count == 0
-    gate_open = Simulation(small_tank("rest", fluid=pool, whitewater={"kinetic_energy_min": 0.0}))
+    gate_open = Simulation(small_tank("rest", fluid=pool, whitewater={"kinetic_energy_min": 0.0}), device=device)
     for _ in range(3):
         gate_open.advance_frame()
         assert gate_open.whitewater.potential.numpy()[:, 0].max() == 0.0
 
 
-def test_spray_follows_the_ballistic_parabola():
-    sim = Simulation(small_tank("spray", whitewater={}, output={"usd": False, "surface": False}))
+def test_spray_follows_the_ballistic_parabola(device):
+    sim = Simulation(small_tank("spray", whitewater={}, output={"usd": False, "surface": False}), device=device)
     x0, v0 = np.array([0.4, 0.3, 0.7]), np.array([0.5, -0.2, 1.0])
     inject(sim, x0, v0, kind=1)
     dt, n = 1e-3, 100
@@ -175,11 +175,12 @@ def fluid_average(sim, p):
     return (w[:, None] * v).sum(axis=0) / w.sum()
 
 
-def test_bubbles_rise_through_the_fluid():
+def test_bubbles_rise_through_the_fluid(device):
     """Each step v <- v - dt k_b g + k_d (v~_f - v), x <- x + dt v with v~_f the fluid's kernel average
     (oracle), inside a settling pool; relative to the fluid the bubble rises."""
     c = {"buoyancy": 2.0, "drag": 0.5}
-    sim = Simulation(small_tank("bubble", fluid=[{"min": [0.0, 0.0, 0.0], "max": [0.8, 0.6, 0.3]}], whitewater=c))
+    sim = Simulation(small_tank("bubble", fluid=[{"min": [0.0, 0.0, 0.0], "max": [0.8, 0.6, 0.3]}], whitewater=c),
+                     device=device)
     inject(sim, [0.4, 0.3, 0.15], [0.0, 0.0, 0.0], kind=3)
     dt = 2e-3
     g = np.array([0.0, 0.0, -G])
@@ -196,11 +197,11 @@ def test_bubbles_rise_through_the_fluid():
     assert (v[0] - vf)[2] == pytest.approx(dt * c["buoyancy"] * G / c["drag"], rel=0.5)
 
 
-def test_foam_moves_with_a_uniform_flow_and_ages():
+def test_foam_moves_with_a_uniform_flow_and_ages(device):
     u = np.array([1.0, 0.5, 0.0])
     sim = Simulation(small_tank("flow", container=False, gravity=[0.0, 0.0, 0.0],
                                 fluid=[{"min": [0.0, 0.0, 0.0], "max": [0.6, 0.5, 0.5], "velocity": u.tolist()}],
-                                whitewater={"spray_neighbors": 1, "bubble_neighbors": 10_000}))
+                                whitewater={"spray_neighbors": 1, "bubble_neighbors": 10_000}), device=device)
     x0 = np.array([0.3, 0.25, 0.25])
     inject(sim, x0, [0.0, 0.0, 0.0], kind=2, life=0.015)
     dt = 1e-3
@@ -246,8 +247,8 @@ def test_resume_continues_bit_for_bit(tmp_path):
     assert len(ages[0]) == len(UsdGeom.Points(stages[0].GetPrimAtPath("/sph/whitewater/foam")).GetPointsAttr().Get(9))
 
 
-def test_full_capacity_drops_new_particles_with_one_warning():
-    sim = Simulation(scene_from_dict(drop_scene(max_particles=40)))
+def test_full_capacity_drops_new_particles_with_one_warning(device):
+    sim = Simulation(scene_from_dict(drop_scene(max_particles=40)), device=device)
     with pytest.warns(RuntimeWarning, match="whitewater.max_particles = 40 is full") as record:
         for _ in range(9):
             sim.advance_frame()
