@@ -57,15 +57,9 @@ def report_path(results: Path) -> Path:
 
 def host_info() -> dict:
     """nproc, CPU model (from /proc/cpuinfo), platform, load average and thread-related environment."""
-    model = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    model = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
+    from warp_sph.core.device import cpu_model
+
+    model = cpu_model()
     try:
         load = [round(v, 2) for v in os.getloadavg()]
     except OSError:

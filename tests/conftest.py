@@ -8,6 +8,9 @@ if hasattr(wp.config, "log_level"):
 
 def _cuda_count() -> int:
     try:
+        from warp_sph.core.device import init_warp
+
+        init_warp()  # Warp's start-up without its "no CUDA driver" line (warp_sph.core.device)
         return wp.get_cuda_device_count()
     except Exception:
         return 0

@@ -114,3 +114,18 @@ def resolve_device(name: str | None = None):
         return wp.get_device(text)
     except (ValueError, RuntimeError) as exc:
         raise WarpSphError(f"--device {name}: {exc}; available: {', '.join(available)}") from None
+
+
+def cpu_model() -> str:
+    """The host CPU's model name (Linux: /proc/cpuinfo; elsewhere ``platform.processor()``), for the
+    records that say which machine a timing holds for (benchmarks, plan calibrations)."""
+    import platform
+
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or ""

@@ -24,6 +24,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from ..core.device import cpu_model
 from ..core.errors import WarpSphError
 
 #: simulated time of a calibration run [s] (rounded up to whole frames, at least two frames)
@@ -129,15 +130,7 @@ def cache_dir(path: str | Path | None = None) -> Path:
 
 def machine_text(device) -> str:
     """The machine a timing holds for: host name, CPU model, cores, CPU threads of Warp, the device."""
-    model = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    model = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
+    model = cpu_model()
     threads = os.environ.get("WARP_SPH_CPU_THREADS", "")
     return f"{platform.node()} | {model} | {os.cpu_count()} cores | threads {threads or 'all'} | {device}"
 
