@@ -116,6 +116,9 @@ def max_path_speed(colliders, t0: float, t1: float) -> float:
 class SimulationColliders:
     """The animated colliders of ``sim`` (built by the Simulation when an obstacle has a path)."""
 
+    #: key of this part in run.json's summary (``Simulation.parts``)
+    name = "colliders"
+
     def __init__(self, sim):
         m = sim.model
         self.sim = sim

@@ -59,12 +59,8 @@ def checkpoint_info(sim, frame: int, frame_log: list[dict], digest: str = "") ->
     extra.update(sim.forces.checkpoint_arrays())  # e.g. a warm start or a carried angular velocity
     if sim.bodies is not None:  # Newton's state: a resume continues bit for bit
         extra.update(sim.bodies.checkpoint_arrays())
-    if getattr(sim, "colliders", None) is not None:  # the work they did so far (the energy rule's account)
-        extra.update(sim.colliders.checkpoint_arrays())
-    if getattr(sim, "whitewater", None) is not None:  # the secondary particles: a resume continues bit for bit
-        extra.update(sim.whitewater.checkpoint_arrays())
-    if sim.flow is not None:  # emitters and sinks: ids, layers emitted, counters, exchanged energy
-        extra.update(sim.flow.checkpoint_arrays())
+    for part in sim.parts:  # animated obstacles' work, whitewater particles, emitters' and sinks' state
+        extra.update(part.checkpoint_arrays())
     # copies: on the CPU ``numpy()`` is a view of the live array, and a checkpoint is written on the
     # export thread while the next frame already runs (a solver's carried warm-start values change)
     extra = {k: np.array(a.numpy() if isinstance(a, wp.array) else a, copy=True) for k, a in extra.items()}

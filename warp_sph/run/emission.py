@@ -37,6 +37,9 @@ ID_FIELD = "particle_id"
 class ParticleFlow:
     """The emitters and sinks of a simulation (see the module docstring); ``sim.flow``."""
 
+    #: key of this part in run.json's summary (``Simulation.parts``)
+    name = "flow"
+
     def __init__(self, sim):
         self.sim = sim
         m, scene = sim.model, sim.scene
@@ -190,7 +193,7 @@ class ParticleFlow:
                                           dtype=np.int64),
                 "flow_energy": np.array([self.exchanged, self.exchanged_scale, self.last_speed], dtype=np.float64)}
 
-    def restore(self, cp) -> None:
+    def restore_arrays(self, cp) -> None:
         """Before the state's arrays are assigned: the active count of checkpoint ``cp``, the ids, the counters."""
         n = len(cp["particle_x_local"])
         self.set_count(n)

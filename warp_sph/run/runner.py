@@ -240,7 +240,7 @@ def _restore_state(sim: Simulation, cp, info: dict, start_frame: int) -> list[di
     bodies' arrays, the density and the last frame's statistics (with the max speed that sizes the
     next substep). Returns the frame log up to ``start_frame`` (the checkpoint's, else run.json's)."""
     if sim.flow is not None:  # the checkpoint's active count, ids and emitter state first
-        sim.flow.restore(cp)
+        sim.flow.restore_arrays(cp)
     sim.state.particle_x.assign(wp.array(cp["particle_x_local"], dtype=wp.vec3, device=sim.device))
     sim.state.particle_v.assign(wp.array(cp["particle_v"], dtype=wp.vec3, device=sim.device))
     sim.state.step = int(cp["step"])
@@ -250,10 +250,9 @@ def _restore_state(sim: Simulation, cp, info: dict, start_frame: int) -> list[di
     sim.forces.restore_arrays(cp)
     if sim.bodies is not None:
         sim.bodies.restore_arrays(cp)
-    if sim.colliders is not None:  # placed at the checkpoint's time, with their work so far
-        sim.colliders.restore_arrays(cp)
-    if sim.whitewater is not None:
-        sim.whitewater.restore_arrays(cp)
+    for part in sim.parts:  # the others (emitters and sinks came first, above): obstacles, whitewater
+        if part is not sim.flow:
+            part.restore_arrays(cp)
     sim.refresh_density()
     sim.last_frame = sim.statistics()
     sim.last_frame.max_speed = float(cp["last_max_speed"])

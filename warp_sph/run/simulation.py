@@ -209,13 +209,18 @@ class Simulation:
             out["boundary"] = {"name": self.boundary.name, **self.boundary.summary()}
         if self.bodies is not None:
             out["bodies"] = self.bodies.summary()
-        if self.colliders is not None:
-            out["colliders"] = self.colliders.summary()
-        if self.whitewater is not None:
-            out["whitewater"] = self.whitewater.summary()
-        if self.flow is not None:
-            out["flow"] = self.flow.summary()
+        for part in self.parts:
+            out[part.name] = part.summary()
         return out
+
+    @property
+    def parts(self) -> tuple:
+        """The optional parts the scene turned on, emitters and sinks first (their restore sets the active
+        count the other arrays follow): each has ``name``, ``summary()``, ``checkpoint_arrays()`` and
+        ``restore_arrays(cp)``; those with state inside a frame also ``save()`` / ``restore(saved)`` (the
+        watchdog's frame retry)."""
+        return tuple(p for p in (getattr(self, "flow", None), getattr(self, "colliders", None),
+                                 getattr(self, "whitewater", None)) if p is not None)
 
     # --- fields ----------------------------------------------------------------------------
     def allocate(self, name: str, dtype) -> wp.array:

@@ -90,7 +90,7 @@ class Watchdog:
         self._start = None      # (time, step, frame) at the frame start
         self._extra = None
         self._bodies = None
-        self._whitewater = None
+        self._parts = ()        # (part, its saved state) of the optional parts with a frame-start state
         #: the energy rule's reference and measurements (``warp_sph.run.energy``)
         self.energy = EnergyWatch(sim)
 
@@ -112,8 +112,8 @@ class Watchdog:
         wp.copy(self._v0, s.particle_v, count=s.particle_v.shape[0])
         self._start = (s.time, s.step, s.frame)
         self._bodies = self.sim.bodies.save() if self.sim.bodies is not None else None
-        self._colliders = self.sim.colliders.save() if getattr(self.sim, "colliders", None) is not None else None
-        self._whitewater = self.sim.whitewater.save() if getattr(self.sim, "whitewater", None) is not None else None
+        # animated obstacles (pose, work so far) and whitewater (a redone frame generates the same particles)
+        self._parts = tuple((p, p.save()) for p in self.sim.parts if hasattr(p, "save"))
         if self.mode == "retry":
             arrays = {**self.sim.solver.checkpoint_arrays(), **self.sim.forces.checkpoint_arrays()}
             self._extra = {k: wp.clone(a) if isinstance(a, wp.array) else a for k, a in arrays.items()}
@@ -128,10 +128,8 @@ class Watchdog:
             self.sim.forces.restore_arrays(self._extra)
         if self._bodies is not None:  # the bodies' Newton state and their boundary particles
             self.sim.bodies.restore(self._bodies)
-        if getattr(self, "_colliders", None) is not None:  # their pose at the frame start and the work so far
-            self.sim.colliders.restore(self._colliders)
-        if self._whitewater is not None:  # a redone frame generates the same particles again
-            self.sim.whitewater.restore(self._whitewater)
+        for part, saved in self._parts:
+            part.restore(saved)
 
     # --- rules -------------------------------------------------------------------------------
     def read(self) -> dict:

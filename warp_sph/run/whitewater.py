@@ -35,6 +35,9 @@ _ARRAYS = (("x", wp.vec3), ("v", wp.vec3), ("age", float), ("life", float), ("ki
 class Whitewater:
     """The secondary particles of ``sim`` (built by the Simulation when the scene's whitewater is on)."""
 
+    #: key of this part in run.json's summary (``Simulation.parts``)
+    name = "whitewater"
+
     def __init__(self, sim):
         self.sim = sim
         self.config = c = sim.scene.whitewater
