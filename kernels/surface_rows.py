@@ -1,24 +1,26 @@
 """Device helpers of the surface's block grid (``kernels/surface_grid.py``): the particle range
-of a row of three neighbour blocks, whole (``row_range``) or restricted to the blocks within a
-reach of a point (``row_range_near``), and a point's position in a block's node units. Used by the
-grid, band, field and smoothing kernels; no host counterpart."""
+of a row of three neighbour blocks (``row_span``), whole (``row_range``) or restricted to the blocks
+within a reach of a point (``row_range_near``), and a point's position in a block's node units. Used
+by the grid, band, field and smoothing kernels; no host counterpart."""
 import warp as wp
 
 
 @wp.func
-def row_range(
+def row_span(
     block_neighbor: wp.array2d(dtype=wp.int32),
     block_start: wp.array(dtype=wp.int32),
     block_count: wp.array(dtype=wp.int32),
     c: int,
     row: int,
+    dx0: int,
+    dx1: int,
 ) -> wp.vec2i:
-    """Sorted particle range [begin, end) of the three blocks dx = -1..1 of neighbour row ``row``
-    (dy = row % 3 - 1, dz = row / 3 - 1) around block c: their keys are consecutive, so their
+    """Sorted particle range [begin, end) of the blocks dx0..dx1 (0..2 for dx = -1..1) of neighbour row
+    ``row`` (dy = row % 3 - 1, dz = row / 3 - 1) around block c: their keys are consecutive, so their
     particles are contiguous."""
     begin = int(2147483647)
     end = int(-1)
-    for dx in range(3):
+    for dx in range(dx0, dx1 + 1):
         n = block_neighbor[c, row * 3 + dx]
         if n >= 0:
             cnt = block_count[n]
@@ -29,6 +31,18 @@ def row_range(
     if end < 0:
         return wp.vec2i(0, 0)
     return wp.vec2i(begin, end)
+
+
+@wp.func
+def row_range(
+    block_neighbor: wp.array2d(dtype=wp.int32),
+    block_start: wp.array(dtype=wp.int32),
+    block_count: wp.array(dtype=wp.int32),
+    c: int,
+    row: int,
+) -> wp.vec2i:
+    """``row_span`` of the whole row: the three blocks dx = -1..1."""
+    return row_span(block_neighbor, block_start, block_count, c, row, 0, 2)
 
 
 @wp.func
@@ -61,19 +75,7 @@ def row_range_near(
         dx0 = 1
     if bn - local[0] > reach_m:
         dx1 = 1
-    begin = int(2147483647)
-    end = int(-1)
-    for dx in range(dx0, dx1 + 1):
-        n = block_neighbor[c, row * 3 + dx]
-        if n >= 0:
-            cnt = block_count[n]
-            if cnt > 0:
-                st = block_start[n]
-                begin = wp.min(begin, st)
-                end = wp.max(end, st + cnt)
-    if end < 0:
-        return wp.vec2i(0, 0)
-    return wp.vec2i(begin, end)
+    return row_span(block_neighbor, block_start, block_count, c, row, dx0, dx1)
 
 
 @wp.func
