@@ -138,8 +138,10 @@ def test_blender_imports_run(tmp_path):
         assert imported["custom"]
         corner = np.asarray(imported["corner_normals"])
         err = np.linalg.norm(corner - normals[np.asarray(imported["corner_vertex"])], axis=1)
-        # Blender stores custom normals in its own compressed form: measured 7e-5 (99 %), 1.5e-3 (max)
-        assert np.percentile(err, 99) < 1e-3 and err.max() < 5e-3, np.sort(err)[-5:]
+        # Blender stores custom normals in its own compressed form: measured 8e-5 (99 %); its max varies from
+        # import to import of the same byte-identical file (0.0031, 0.0041 or 0.0065 over 8 imports of this
+        # run: Blender's threaded normal spaces), so the max is bounded at 1e-2, not at the 5e-3 one import gave
+        assert np.percentile(err, 99) < 1e-3 and err.max() < 1e-2, np.sort(err)[-5:]
         spray = stage.GetAttributeAtPath("/sph/spray.points").Get(f)
         assert frame["spray"]["points"] == len(spray) >= 1
         assert frame["container"] == {"verts": 8, "faces": 10}
