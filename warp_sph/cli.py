@@ -180,7 +180,7 @@ def _cmd_preview(args) -> int:
     _quiet_warp()
     paths = preview_run(Path(args.run), frames=frames, mode="surface" if args.surface else "particles",
                         camera=camera, size=size, out=Path(args.out) if args.out else None,
-                        gif=args.gif)
+                        gif=args.gif, overwrite=args.overwrite)
     for p in paths:
         print(p)
     return 0
@@ -301,6 +301,8 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--size", default="640x360", help="WxH pixels (default 640x360)")
     v.add_argument("--gif", action="store_true", help="also write an animated GIF of the frames")
     v.add_argument("--out", help="output folder (default: RUN/preview)")
+    v.add_argument("--overwrite", action="store_true", help="replace pictures of the same names in --out "
+                   "(those in RUN/preview are always replaced)")
     v.set_defaults(func=_cmd_preview)
 
     w = sub.add_parser("sweep", help="run the product of --param values (or a TOML sweep file), in this process "
