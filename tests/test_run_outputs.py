@@ -360,6 +360,18 @@ def test_export_of_a_damaged_frame_keeps_the_last_good_export(reference, tmp_pat
     assert not [p for p in run.rglob("*") if p.is_file() and p.parent.name != "frames" and p.name != "run.json"]
 
 
+def test_export_to_a_file_that_is_not_usd_is_refused(reference, tmp_path, capsys):
+    """``export RUN --out notes.txt --overwrite`` removed the user's notes.txt, then failed in USD's own
+    traceback-like message (no file format for .txt). Now: one line before anything, the file kept."""
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    assert cli_main(["export", str(reference), "--out", str(notes), "--frames", "1:1", "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0] == (f"warp-sph: error: --out {notes}: a USD export is written to a .usdc file "
+                                        "(or .usd, .usda); name it so, or give a folder"), err
+    assert notes.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
 def test_export_default_location_and_errors(reference, tmp_path, capsys):
     assert cli_main(["export", str(reference), "--format", "obj", "--frames", "7:"]) == 0
     assert (reference / "export" / "obj" / "surface_000007.obj").is_file()

@@ -232,6 +232,9 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
         target = Path(out) if out is not None else run_dir / "export" / f"{name}.usdc"
         if target.is_dir():
             target = target / f"{name}.usdc"
+        if target.suffix.lower() not in (".usdc", ".usd", ".usda"):
+            raise OutputError(f"--out {target}: a USD export is written to a .usdc file (or .usd, .usda); "
+                              "name it so, or give a folder")
         if target.exists() and not overwrite:
             raise OutputError(f"{target} exists; pass --overwrite to replace it or choose another --out")
         target.parent.mkdir(parents=True, exist_ok=True)
