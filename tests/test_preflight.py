@@ -164,6 +164,17 @@ def test_whitewater_capacity_is_counted_and_blamed(two_gib, tmp_path, monkeypatc
     assert not (tmp_path / "runs").exists()
 
 
+def test_emitters_that_cannot_fit_are_blamed_on_the_emitters(two_gib):
+    """A faucet pouring 100 m^3/s for 4 s needs about 27 M particle slots; the refusal named particle_radius and
+    told to "shrink the fluid blocks", though the emitters are what fills the memory."""
+    scene = load_scene("faucet", ['emitters=[{shape="circle", position=[0.4, 0.4, 0.8], direction=[0, 0, -1], '
+                                  'radius=0.1, flow_rate=100.0}]'])
+    fluid, boundary = two_gib.estimate_particle_counts(scene)
+    kind, msg = two_gib.memory_verdict(scene, fluid, boundary, "cpu", estimated=True)
+    assert kind == "refuse" and ": emitters: " in msg and "lower the emitters' flow_rate or speed" in msg, msg
+    assert "fluid blocks" not in msg
+
+
 def test_export_snapshot_queue_is_counted(monkeypatch):
     """The export thread queues frame snapshots (x, v, density, pressure, id: 36 B a particle) while they
     hold at most SNAPSHOT_QUEUE_BYTES (1 GiB), one more waits in the simulation's hands; the model counted

@@ -207,6 +207,11 @@ def _largest_cost(scene, fluid: int, boundary: int, surface_to_blame: int = 0,
     if key.startswith("obstacles"):
         return key, (f"{key} needs about {n:,} boundary particles at spacing d = {scene.spacing:g} m; check its "
                      "size (scale, min/max) or raise particle_radius")
+    if key in ("emitters", "max_particles"):  # the capacity beyond the initial fluid (docs/emitters.md)
+        what = ("the emitters add" if key == "emitters" else f"max_particles = {scene.max_particles:,} allocates") + \
+            f" about {n:,} particle slots"
+        return key, (f"{what}; lower the emitters' flow_rate or speed or their start..end, or set max_particles "
+                     "lower (layers that do not fit are skipped with a warning)")
     if key == "container":
         return key, (f"the container walls need about {n:,} boundary particles at spacing d = {scene.spacing:g} m; "
                      "shrink the container or raise particle_radius")
