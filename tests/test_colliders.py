@@ -361,3 +361,22 @@ def test_solids_clear_of_the_path_and_fluid_it_runs_through_are_fine():
     x = sample_scene(scene_from_dict(d)).fluid_x
     assert not np.any((x[:, 0] > 0.18) & (x[:, 0] < 0.26))  # the world box: empty
     assert np.count_nonzero((x[:, 0] > 0.04) & (x[:, 0] < 0.12)) > 0  # where the box is written: fluid kept
+
+
+def test_a_short_smooth_segment_counts_at_its_peak_speed(tmp_path, capsys):
+    """A smooth path from rest to rest moves 0.5 m in 1 us: its speed peaks at 1.5 x 0.5 m / 1 us mid-segment,
+    but the step bound sampled 64 times over the run and the keys, where a smooth path is at rest, and saw 0
+    m/s: the obstacle jumped through the fluid in one 5 ms substep. Now the peak counts and the run is
+    refused before any step (one line, exit 2, nothing written)."""
+    from warp_sph.cli import main as cli_main
+
+    jump = [{"time": 0.0, "translate": [0.05, 0.08, 0.15]}, {"time": 1e-6, "translate": [0.3, 0.08, 0.15]}]
+    path = PosePath(np.array([0.0, 1e-6]), np.array([[0.05, 0.08, 0.15, 0, 0, 0], [0.3, 0.08, 0.15, 0, 0, 0]]),
+                    "smooth")
+    assert path.max_speed(0.0, 0.0, 0.5) == pytest.approx(1.5 * 0.25 / 1e-6, rel=1e-9)
+    (tmp_path / "jump.toml").write_text(_toml(tank(keyframes=jump, interpolation="smooth")))
+    out = tmp_path / "out"
+    assert cli_main(["run", str(tmp_path / "jump.toml"), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "comes from the animated obstacles' top speed" in err[0], err
+    assert not out.exists()
