@@ -339,7 +339,7 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--target-error", help="mean density error: 0.5%% or 0.005")
     n.add_argument("--apply", metavar="OUT.toml", help="write the chosen settings and the prediction as a scene file "
                    "(default: print the --set flags)")
-    n.add_argument("--force", action="store_true", help="let --apply replace an existing file")
+    n.add_argument("--force", action="store_true", help="let --apply and --plot replace an existing file")
     n.add_argument("--plot", metavar="PNG", help="the Pareto plot's path (default: beside the calibration cache)")
     n.add_argument("--solvers", help="comma-separated candidate solvers (default: every solver)")
     n.add_argument("--device", default=None, help="Warp device: cpu or cuda:0 (default: Warp's default)")
