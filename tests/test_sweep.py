@@ -402,3 +402,22 @@ def test_malformed_or_binary_sweep_file_is_refused(content, pattern, tmp_path, c
     (line,) = out.err.strip().splitlines()
     assert line.startswith("warp-sph: error: ") and re.search(pattern, line), line
     assert not (tmp_path / "o").exists() and out.out == ""
+
+
+def test_sweep_folder_among_a_users_files_or_a_file_is_refused(tmp_path, capsys):
+    """``sweep --out FILE`` ended in a FileExistsError traceback; ``--out`` a folder of the user's wrote
+    sweep.jsonl, sweep.md (replacing one of theirs) and case folders among their files. Now one line, exit 2,
+    before any case, the files as they were; an earlier sweep's folder is still resumed."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "sweep.md").write_text("my notes")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    args = ["dam_break", "--param", "particle_radius=0.1", "--frames", "2", "--no-progress", "--set"] + TINY[1:2]
+    for out, what in ((notes, "is a file; expected a folder"), (notes / "sub", f"lies under the file {notes}"),
+                      (mine, "is not empty and holds no sweep (no sweep.jsonl)")):
+        code, res = _sweep_cli(args + ["--out", str(out)], capsys)
+        assert code == 2 and res.err.strip().startswith(f"warp-sph: error: --out {out} {what}"), res.err
+        assert len(res.err.strip().splitlines()) == 1 and res.out == ""
+    assert (mine / "sweep.md").read_text() == "my notes" and [p.name for p in mine.iterdir()] == ["sweep.md"]
+    assert notes.read_text() == "mine"

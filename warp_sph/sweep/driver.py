@@ -5,9 +5,25 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from .cases import Case
+from .cases import Case, SweepError
 from .runs import ROW_KEYS, folder_state, requested_frames, row_from_run, run_case
-from .summary import SweepSummary, read_rows
+from .summary import JSONL, SweepSummary, read_rows
+
+
+def check_sweep_folder(out: Path) -> None:
+    """Refuse (SweepError, one line) a sweep folder that is a file or lies under one, or a folder holding
+    files and no sweep (no sweep.jsonl): a sweep writes sweep.jsonl, sweep.md and a folder per case there,
+    never among a user's files. A new or empty folder, or an earlier sweep's (resumed), is fine."""
+    out = Path(out)
+    p = out
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    if p.exists() and not p.is_dir():
+        raise SweepError(f"--out {out} " + ("is a file" if p == out else f"lies under the file {p}") +
+                         "; expected a folder for the sweep")
+    if out.is_dir() and any(out.iterdir()) and not (out / JSONL).is_file():
+        raise SweepError(f"--out {out} is not empty and holds no sweep (no {JSONL}); choose a new or empty folder, "
+                         "or the folder of an earlier sweep to resume it")
 
 
 def _failed_row(case: Case, folder: Path, error: str) -> dict:
@@ -70,6 +86,7 @@ def run_sweep(cases: list[Case], out: Path, executor, device: str | None = None,
     from ..run.progress import Progress
 
     out = Path(out)
+    check_sweep_folder(out)
     out.mkdir(parents=True, exist_ok=True)
     previous = read_rows(out)
     todo, done = plan(cases, out, previous)
