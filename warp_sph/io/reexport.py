@@ -253,6 +253,7 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
     # written beside the target and moved into place at the end: a failed export leaves the old one
     usd = mesh_writer = None
     body_poses: dict = {}
+    existed = target.exists() if fmt == "usd" else any(target.glob(f"surface_*.{fmt}"))
     partial = _partial_path(target, fmt)
     done = False
     try:
@@ -280,7 +281,8 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
         done = True
     except OutputError as exc:
         frame = getattr(exc, "frame", None)
-        raise OutputError(_damaged(exc, frame, wanted, target) if frame is not None else str(exc)) from None
+        raise OutputError(_damaged(exc, frame, wanted, target if existed else None) if frame is not None
+                          else str(exc)) from None
     finally:
         if usd is not None:
             usd.close()
@@ -290,7 +292,8 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
 
 
 def _damaged(exc: OutputError, frame: int, wanted: list[int], target: Path | None = None) -> str:
-    """The one line of a damaged frame file: the reader's, what the export left, and the frames it can export."""
+    """The one line of a damaged frame file: the reader's, what the export left (``target``: an earlier export
+    there, kept), and the frames it can export."""
     left = "wrote nothing" if target is None else f"left {target} as it was"
     hint = f"; --frames {wanted[0]}:{frame - 1} exports the frames before it" if frame > wanted[0] else ""
     return f"{exc}; the export stopped and {left}{hint}"
