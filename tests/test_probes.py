@@ -180,6 +180,25 @@ def test_plot_writes_png_or_names_the_extra(tmp_path, monkeypatch, capsys):
     assert len(err) == 1 and "pip install -e '.[plots]'" in err[0]
 
 
+def test_plot_never_replaces_a_users_file(tmp_path, capsys):
+    """``plot RUN --out DIR`` replaced a probe_floor.png the user kept in DIR, and ``--out FILE`` ended in a
+    FileExistsError traceback (once matplotlib was there). Both are refused before plotting, in one line."""
+    out = tmp_path / "run"
+    run_tank(out, 2, PROBES[:2])
+    mine = tmp_path / "pictures"
+    mine.mkdir()
+    (mine / "probe_floor.png").write_bytes(b"my own picture")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    for where, line in ((mine, f"--out {mine} already holds probe_floor.png; pass --overwrite"),
+                        (notes, f"--out {notes} is a file; expected a folder for the plots"),
+                        (notes / "sub", f"--out {notes / 'sub'} lies under the file {notes}")):
+        assert main(["plot", str(out), "--out", str(where)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"warp-sph: error: {line}"), err
+    assert (mine / "probe_floor.png").read_bytes() == b"my own picture" and notes.read_text() == "mine"
+
+
 @pytest.mark.parametrize("probe, where, what", [
     ({"kind": "pressure", "position": [0.3, 0.25, -0.1]}, "probes[0].position", "outside the container"),
     ({"kind": "height", "position": [0.3, 0.25, 0.0], "length": 2.0}, "probes[0].length", "outside the container"),

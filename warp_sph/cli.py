@@ -229,7 +229,7 @@ def _cmd_sweep(args) -> int:
 def _cmd_plot(args) -> int:
     from .preview.plot_probes import plot_run
 
-    for path in plot_run(Path(args.run), out=Path(args.out) if args.out else None):
+    for path in plot_run(Path(args.run), out=Path(args.out) if args.out else None, overwrite=args.overwrite):
         print(path)
     return 0
 
@@ -330,6 +330,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl = sub.add_parser("plot", parents=[common], help="plot a run's probes ([[probes]]) to PNG (needs the plots extra)")
     pl.add_argument("run", help="run folder")
     pl.add_argument("--out", help="output folder (default: RUN/plots)")
+    pl.add_argument("--overwrite", action="store_true", help="replace plots of the same names in --out "
+                    "(those in RUN/plots are always replaced)")
     pl.set_defaults(func=_cmd_plot)
 
     n = sub.add_parser("plan", parents=[common], help="the settings that fit a wall-time budget or reach a target "
