@@ -415,7 +415,7 @@ def test_sweep_folder_among_a_users_files_or_a_file_is_refused(tmp_path, capsys)
     notes.write_text("mine")
     args = ["dam_break", "--param", "particle_radius=0.1", "--frames", "2", "--no-progress", "--set"] + TINY[1:2]
     for out, what in ((notes, "is a file; expected a folder"), (notes / "sub", f"lies under the file {notes}"),
-                      (mine, "is not empty and holds no sweep (no sweep.jsonl)")):
+                      (mine, "holds sweep.md and no sweep (sweep.jsonl)")):
         code, res = _sweep_cli(args + ["--out", str(out)], capsys)
         assert code == 2 and res.err.strip().startswith(f"warp-sph: error: --out {out} {what}"), res.err
         assert len(res.err.strip().splitlines()) == 1 and res.out == ""
