@@ -634,6 +634,15 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "command", None):
         parser.print_help()
         return 2
+    if getattr(args, "out", None):  # a results folder: a file there ended the benchmark's run in a traceback
+        from warp_sph.core.errors import OutputError
+
+        out = q = Path(args.out)
+        while not q.exists() and q != q.parent:
+            q = q.parent
+        if q.exists() and not q.is_dir():
+            raise OutputError(f"--out {out} " + ("is a file" if q == out else f"lies under the file {q}") +
+                              "; expected a results folder")
     init_warp()
     return args.func(args, argv)
 

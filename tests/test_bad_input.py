@@ -544,3 +544,20 @@ def test_export_flags_take_the_scene_keys_range(flag, value, pattern, workdir, c
     assert code == 2
     assert re.search(pattern, error_line(err)), err
     assert snapshot(workdir) == before and not (run / "export").exists()
+
+
+def test_python_api_bad_input_says_what_was_expected():
+    """Scripts (docs/scripting.md): ``load_scene(name, "particle_radius=0.05")`` read the string character by
+    character ("--set 'p': expected KEY=VALUE"); ``sim.step(-1.0)`` stepped backwards without a word; an
+    unknown field was a bare KeyError 'name'."""
+    from warp_sph.run.simulation import Simulation
+
+    scene = load_scene("dam_break", "particle_radius=0.1")
+    assert scene.particle_radius == 0.1
+    sim = Simulation(load_scene("dam_break", ["particle_radius=0.1", "output.usd=false"]))
+    for dt in (-1.0, 0.0, float("nan"), "1e-3"):
+        with pytest.raises(ValueError, match=r"Simulation.step: dt must be a finite number of seconds > 0"):
+            sim.step(dt)
+    assert sim.state.step == 0 and sim.state.time == 0.0
+    with pytest.raises(KeyError, match=r"field 'nope' is not an array of this simulation; its arrays: .*particle_x"):
+        sim.get_field("nope")

@@ -563,3 +563,17 @@ def test_publish_without_the_reference_tool_is_refused(tmp_path, capsys, monkeyp
     assert main(["bench", "splishsplash", "--adaptive", "--publish"]) == 2
     assert "pip install pysplishsplash" in capsys.readouterr().err
     assert (published.read_bytes() if published.is_file() else None) == before
+
+
+def test_results_folder_that_is_a_file_is_refused_before_the_benchmark(tmp_path, capsys):
+    """``bench emission --out FILE`` ran the whole benchmark, then ended in a FileExistsError traceback
+    writing its results. Now one line, exit 2, before anything runs; the file is kept."""
+    from warp_sph.cli import main
+
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    for out, what in ((notes, "is a file"), (notes / "sub", f"lies under the file {notes}")):
+        assert main(["bench", "emission", "--frames", "2", "--repeats", "1", "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"warp-sph: error: --out {out} {what}; expected a results folder"], err
+    assert notes.read_text() == "mine" and [p.name for p in tmp_path.iterdir()] == ["notes.txt"]

@@ -2,6 +2,7 @@
 obstacles that move along them (``rigid/colliders.py``), their USD prims, checkpoints and bad input."""
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -303,3 +304,81 @@ def test_two_animated_obstacles_need_distinct_names():
     d["obstacles"].append(dict(d["obstacles"][0]))
     with pytest.raises(SceneError, match=r"obstacles\[1\]\.name: 'pusher' is also the name of obstacles\[0\]"):
         scene_from_dict(d)
+
+
+# --- overlaps along the path, in world coordinates -------------------------------------------------
+def _with(obstacles=(), bodies=(), **keys):
+    d = tank(keyframes=PUSH, **keys)
+    d["obstacles"] += list(obstacles)
+    if bodies:
+        d["bodies"] = list(bodies)
+    return d
+
+
+CROSS = [{"time": 0.0, "translate": [0.35, 0.08, 0.15]}, {"time": 0.2, "translate": [0.1, 0.08, 0.15]}]
+
+
+@pytest.mark.parametrize("extra, message", [
+    # the pusher (x 0.01..0.09 at t = 0, pushed to x = 0.3 by t = 0.2 s) through a static box on its way
+    ({"obstacles": [{"shape": "box", "min": [0.18, 0.0, 0.2], "max": [0.22, 0.16, 0.3]}]},
+     r"obstacles\[0\]: its path runs into obstacles\[1\] \(static\) at t = 0\.0[5-9]\d* s"),
+    # ... through a sphere, and through an animated obstacle coming the other way
+    ({"obstacles": [{"shape": "sphere", "center": [0.2, 0.08, 0.25], "radius": 0.03}]},
+     r"obstacles\[0\]: its path runs into obstacles\[1\] \(static\)"),
+    ({"obstacles": [{"name": "other", "shape": "box", "min": [-0.02, -0.08, -0.05], "max": [0.02, 0.08, 0.05],
+                     "keyframes": CROSS}]},
+     r"obstacles\[0\]: its path runs into obstacles\[1\] \(animated\) at t = 0\.1\d* s"),
+    # a dynamic body where the pusher's path puts it at t = 0 (its local box lies about the origin)
+    ({"bodies": [{"shape": "box", "size": [0.06, 0.06, 0.06], "position": [0.05, 0.08, 0.25], "density": 800}]},
+     r"bodies\[0\]: overlaps obstacles\[0\] at t = 0"),
+])
+def test_solids_on_an_obstacles_path_are_refused_in_world_coordinates(extra, message):
+    """Obstacles were checked where their geometry is written (their own frame about the origin), not where
+    their path moves them: a path through a static obstacle or another animated one passed, and so did a
+    dynamic body inside the obstacle at t = 0, while a body where the unmoved box would be was refused."""
+    with pytest.raises(SceneError) as info:
+        scene_from_dict(_with(**extra))
+    text = str(info.value)
+    assert "\n" not in text and re.search(message, text), text
+
+
+def test_solids_clear_of_the_path_and_fluid_it_runs_through_are_fine(monkeypatch):
+    """A static box past the path's end, an animated obstacle the pusher never reaches, a body where the pusher's
+    local box would be (about the origin, not where its path puts it): accepted. The fluid on the path is what
+    a paddle is for; at t = 0 the fluid inside the obstacle's world pose is removed, none elsewhere."""
+    from warp_sph.rigid import world
+    from warp_sph.scene.sampling import sample_scene
+
+    monkeypatch.setattr(world, "require_newton", lambda: None)  # validation only: Newton's import takes seconds
+    late = [{"time": 0.0, "translate": [0.38, 0.08, 0.2]}, {"time": 0.5, "translate": [0.38, 0.08, 0.25]}]
+    scene_from_dict(_with(obstacles=[{"shape": "box", "min": [0.36, 0.0, 0.0], "max": [0.4, 0.16, 0.05]},
+                                     {"shape": "box", "min": [-0.02, -0.08, -0.05], "max": [0.02, 0.08, 0.05],
+                                      "name": "late", "keyframes": late}]))
+    held = tank(keyframes=[{"time": 0.0, "translate": [0.3, 0.08, 0.15]}])  # x 0.26..0.34 all the time
+    held["bodies"] = [{"shape": "box", "size": [0.06, 0.06, 0.06], "position": [0.05, 0.08, 0.05], "density": 800}]
+    scene_from_dict(held)
+    # written at x 0.04..0.12, moved by 0.14 m: in the world at x 0.18..0.26 from t = 0 on
+    d = tank(keyframes=[{"time": 0.0, "translate": [0.14, 0.0, 0.0]}], min=[0.04, 0.0, 0.0], max=[0.12, 0.16, 0.3])
+    d["fluid"] = [{"min": [0.0, 0.0, 0.0], "max": [0.4, 0.16, 0.08]}]
+    x = sample_scene(scene_from_dict(d)).fluid_x
+    assert not np.any((x[:, 0] > 0.18) & (x[:, 0] < 0.26))  # the world box: empty
+    assert np.count_nonzero((x[:, 0] > 0.04) & (x[:, 0] < 0.12)) > 0  # where the box is written: fluid kept
+
+
+def test_a_short_smooth_segment_counts_at_its_peak_speed(tmp_path, capsys):
+    """A smooth path from rest to rest moves 0.5 m in 1 us: its speed peaks at 1.5 x 0.5 m / 1 us mid-segment,
+    but the step bound sampled 64 times over the run and the keys, where a smooth path is at rest, and saw 0
+    m/s: the obstacle jumped through the fluid in one 5 ms substep. Now the peak counts and the run is
+    refused before any step (one line, exit 2, nothing written)."""
+    from warp_sph.cli import main as cli_main
+
+    jump = [{"time": 0.0, "translate": [0.05, 0.08, 0.15]}, {"time": 1e-6, "translate": [0.3, 0.08, 0.15]}]
+    path = PosePath(np.array([0.0, 1e-6]), np.array([[0.05, 0.08, 0.15, 0, 0, 0], [0.3, 0.08, 0.15, 0, 0, 0]]),
+                    "smooth")
+    assert path.max_speed(0.0, 0.0, 0.5) == pytest.approx(1.5 * 0.25 / 1e-6, rel=1e-9)
+    (tmp_path / "jump.toml").write_text(_toml(tank(keyframes=jump, interpolation="smooth")))
+    out = tmp_path / "out"
+    assert cli_main(["run", str(tmp_path / "jump.toml"), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "comes from the animated obstacles' top speed" in err[0], err
+    assert not out.exists()

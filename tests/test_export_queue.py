@@ -68,3 +68,11 @@ def test_an_export_error_reaches_the_simulation_thread():
         assert "disk full" in str(e)
     else:
         raise AssertionError("the export error was not raised")
+
+
+def test_whitewater_copies_count_toward_the_budget():
+    """A snapshot's whitewater is host copies (up to whitewater.max_particles of them); the budget counted the
+    device arrays only, so frames with a large whitewater queued without bound."""
+    n = 500
+    ww = {"spray": (np.zeros((n, 3)), np.zeros((n, 3), np.float32), np.zeros(n, np.float32))}
+    assert snapshot_bytes({**snap(), "whitewater": ww}) == 1000 * 12 + n * (24 + 12 + 4)

@@ -283,3 +283,24 @@ def test_next_calibration_point_steps_at_most_4x():
     near = Candidate("wcsph", 0.01, None, 6000, 0, 100, 1.0, 0, 0.01, 6.0, 2.0)
     r, cost, _ = next_point(cal, near)  # a quarter of its count: 1500 particles
     assert r == pytest.approx(0.02 * (1000 / 1500) ** (1 / 3), rel=1e-3)
+
+
+def test_plot_and_cache_paths_refused_before_any_calibration(tiny, tmp_path, capsys):
+    """``plan --cache FILE`` ended in a FileExistsError traceback after loading the scene, and ``--plot`` replaced
+    whatever file it named (a user's picture) without a word. Both are checked first: one line, exit 2, nothing
+    calibrated or written; --force lets --plot replace a file, as --apply."""
+    mine = tmp_path / "mine.png"
+    mine.write_bytes(b"my own picture")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    for args, line in (
+            (["--cache", str(notes)], f"--cache {notes}: is a file; expected a folder for the calibration cache"),
+            (["--cache", str(notes / "sub")], f"--cache {notes / 'sub'}: lies under the file {notes}; expected a "
+                                              "folder for the calibration cache"),
+            (["--plot", str(mine), "--cache", str(tmp_path / "c")], f"--plot {mine}: the file exists; pass --force "
+                                                                    "to replace it"),
+            (["--plot", str(notes), "--cache", str(tmp_path / "c")], f"--plot {notes}: expected a .png file path")):
+        rc, out, err = _cli(capsys, "plan", str(tiny), "--budget", "8s", "--no-progress", *args)
+        assert rc == 2 and out == "" and err.strip() == f"warp-sph: error: {line}", err
+    assert mine.read_bytes() == b"my own picture" and notes.read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.png", "notes.txt"]

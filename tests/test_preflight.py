@@ -145,6 +145,54 @@ def test_surface_grid_of_a_large_container_is_sparse(two_gib):
     assert two_gib._surface_bytes(full, 10**6) == pytest.approx(per_cell * 0.5 / cell**3, abs=1)
 
 
+def test_whitewater_capacity_is_counted_and_blamed(two_gib, tmp_path, monkeypatch, capsys):
+    """whitewater.max_particles slots are allocated at the start (two buffers of 36 B, flags) and copied for
+    the export of every frame, yet the memory check counted none of them: 10^8 slots (about 35 GiB with
+    the copies) beside 80 fluid particles passed and failed in the allocation."""
+    from warp_sph.cli import main as cli_main
+
+    scene = small(whitewater={"max_particles": 100_000_000})
+    fluid, boundary = two_gib.estimate_particle_counts(scene)
+    kind, msg = two_gib.memory_verdict(scene, fluid, boundary, "cpu", estimated=True)
+    assert kind == "refuse" and msg.startswith("<dict>: whitewater.max_particles: "), msg
+    assert re.search(r"\(whitewater \d+(\.\d+)? GiB of it\)", msg) and "100,000,000 slots" in msg, msg
+    assert two_gib.memory_verdict(small(whitewater={}), fluid, boundary, "cpu", estimated=True) is None  # 200,000
+    monkeypatch.chdir(tmp_path)  # the command line: one line, exit 2, before sampling, no run folder
+    code = cli_main(["run", "dam_break", "--set", "particle_radius=0.1", "--set", "whitewater.max_particles=100000000"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "whitewater.max_particles: " in err[0], err
+    assert not (tmp_path / "runs").exists()
+
+
+def test_emitters_that_cannot_fit_are_blamed_on_the_emitters(two_gib):
+    """A faucet pouring 100 m^3/s for 4 s needs about 27 M particle slots; the refusal named particle_radius and
+    told to "shrink the fluid blocks", though the emitters are what fills the memory."""
+    scene = load_scene("faucet", ['emitters=[{shape="circle", position=[0.4, 0.4, 0.8], direction=[0, 0, -1], '
+                                  'radius=0.1, flow_rate=100.0}]'])
+    fluid, boundary = two_gib.estimate_particle_counts(scene)
+    kind, msg = two_gib.memory_verdict(scene, fluid, boundary, "cpu", estimated=True)
+    assert kind == "refuse" and ": emitters: " in msg and "lower the emitters' flow_rate or speed" in msg, msg
+    assert "fluid blocks" not in msg
+
+
+def test_export_snapshot_queue_is_counted(monkeypatch):
+    """The export thread queues frame snapshots (x, v, density, pressure, id: 36 B a particle) while they
+    hold at most SNAPSHOT_QUEUE_BYTES (1 GiB), one more waits in the simulation's hands; the model counted
+    three (96 B a particle). 10^6 particles over 49 frames hold about 1.1 GB of snapshots: with 1.2 GB free
+    the run was let through (67 %) and now is refused, with the figure."""
+    from warp_sph.run import exporter, memory
+
+    monkeypatch.setattr(memory, "available_host_memory", lambda: 1_200_000_000)
+    scene = small(duration=2.0, fps=24.0, output={"usd": True, "surface": False})
+    kind, msg = memory.memory_verdict(scene, 10**6, 0, "cpu", estimated=False)
+    size = memory.SNAPSHOT_BYTES_PER_FLUID * 10**6
+    held = min(49, exporter.SNAPSHOT_QUEUE_BYTES // size + 1)  # the queue's admission rule (test_export_queue)
+    assert memory.estimate_memory(scene, 10**6, 0)["device"] >= held * size
+    assert kind == "refuse" and f"the export's frame snapshots {held * size / 2**30:.3g} GiB of it" in msg, msg
+    # a run of 3 frames holds 3 snapshots at most, and fits
+    assert memory.memory_verdict(scene, 10**6, 0, "cpu", estimated=False, frames=3)[0] == "warn"
+
+
 def test_huge_obstacle_blamed_on_the_obstacle(tmp_path):
     mesh = tmp_path / "tet.obj"
     mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")

@@ -290,3 +290,28 @@ def test_preview_of_a_damaged_frame_is_one_line(tmp_path, capsys, damage):
     code, line = _cli_error(["preview", str(run), "--frame", "5"], capsys)
     assert code == 2
     assert line == f"warp-sph: error: {frame}: unreadable recorded frame (not an npz archive: damaged or truncated)"
+
+
+def test_preview_never_replaces_a_users_picture(tmp_path, capsys):
+    """``preview --out ~/Pictures`` replaced a particles_000005.png the user kept there without a word. Now a
+    folder other than the run's own preview/ is checked before rendering: a file of a name preview would write
+    is refused (one line, exit 2, the file as it was) unless --overwrite; the run's preview/ is rewritten."""
+    pytest.importorskip("PIL")
+    from warp_sph.cli import main
+
+    run = _fake_run(tmp_path, frames=(4, 5))
+    pictures = tmp_path / "pictures"
+    pictures.mkdir()
+    mine = pictures / "particles_000005.png"
+    mine.write_bytes(b"my own picture")
+    args = ["preview", str(run), "--frames", "4:5", "--gif", "--size", "32x24", "--out", str(pictures)]
+    code, line = _cli_error(args, capsys)
+    assert code == 2 and line.startswith(f"warp-sph: error: --out {pictures} already holds particles_000005.png; "
+                                         "pass --overwrite"), line
+    assert "(and" not in line  # particles_000004.png and particles.gif are not there
+    assert mine.read_bytes() == b"my own picture" and sorted(p.name for p in pictures.iterdir()) == [mine.name]
+    assert main(args + ["--overwrite"]) == 0
+    assert mine.read_bytes().startswith(b"\x89PNG")
+    for _ in range(2):  # the run's own preview folder: its pictures are the run's files, replaced each time
+        assert main(["preview", str(run), "--frame", "5", "--size", "32x24"]) == 0
+    assert (run / "preview" / "particles_000005.png").read_bytes().startswith(b"\x89PNG")

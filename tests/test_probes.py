@@ -180,6 +180,25 @@ def test_plot_writes_png_or_names_the_extra(tmp_path, monkeypatch, capsys):
     assert len(err) == 1 and "pip install -e '.[plots]'" in err[0]
 
 
+def test_plot_never_replaces_a_users_file(tmp_path, capsys):
+    """``plot RUN --out DIR`` replaced a probe_floor.png the user kept in DIR, and ``--out FILE`` ended in a
+    FileExistsError traceback (once matplotlib was there). Both are refused before plotting, in one line."""
+    out = tmp_path / "run"
+    run_tank(out, 2, PROBES[:2])
+    mine = tmp_path / "pictures"
+    mine.mkdir()
+    (mine / "probe_floor.png").write_bytes(b"my own picture")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    for where, line in ((mine, f"--out {mine} already holds probe_floor.png; pass --overwrite"),
+                        (notes, f"--out {notes} is a file; expected a folder for the plots"),
+                        (notes / "sub", f"--out {notes / 'sub'} lies under the file {notes}")):
+        assert main(["plot", str(out), "--out", str(where)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"warp-sph: error: {line}"), err
+    assert (mine / "probe_floor.png").read_bytes() == b"my own picture" and notes.read_text() == "mine"
+
+
 @pytest.mark.parametrize("probe, where, what", [
     ({"kind": "pressure", "position": [0.3, 0.25, -0.1]}, "probes[0].position", "outside the container"),
     ({"kind": "height", "position": [0.3, 0.25, 0.0], "length": 2.0}, "probes[0].length", "outside the container"),
@@ -280,3 +299,34 @@ def test_floor_probe_reads_the_weight_of_the_water(solver):
     depth = m.fluid_count * m.particle_mass / m.rest_density / side ** 2
     p = np.mean([v for t, v in samples if t >= 1.0])
     assert p == pytest.approx(RHO0 * G * depth, rel=1.5e-2)
+
+
+@pytest.mark.parametrize("solver", ["dfsph", "wcsph", "pbf"])
+def test_wall_force_after_advance_frame_is_the_last_substeps(solver):
+    """After ``Simulation.advance_frame`` (scripts, docs/scripting.md) DFSPH's walls' force read zero: its
+    density pass at the frame's end (finish_frame) starts a substep's accumulation, which zeroes it, so a
+    wall probe sampled after the frame (``probes.sample_now``) read 0 Pa. The oracle: a user stage at the
+    end of every substep copies boundary_force into a field of its own."""
+    import warp as wp
+
+    from warp_sph.core.step_graph import Stage
+
+    sim = Simulation(tank_with([{"name": "floor", "kind": "pressure", "position": [0.3, 0.25, 0.0], "rate": 24.0}],
+                               solver=solver))
+    kept = sim.allocate("last_wall_force", wp.vec3)  # kept in the particles' order, as every field
+
+    def copy(sim, dt):
+        wp.copy(kept, sim.fields["boundary_force"])
+
+    sim.graph.insert(Stage("keep_wall_force", copy, reads=("boundary_force",), writes=("last_wall_force",)),
+                     after=sim.graph.names()[-1])
+    for _ in range(2):
+        sim.advance_frame()
+    scheduled = sim.probes.collect()["floor"][-1]  # taken in the frame's last substep, at the frame's time
+    F, expect = sim.get_field("boundary_force"), sim.get_field("last_wall_force")
+    assert expect[:, 2].sum() > 0.1 * sim.model.particle_mass * sim.model.fluid_count * G  # the floor holds
+    assert np.array_equal(F, expect)
+    sim.probes.sample_now()
+    (after,) = sim.probes.collect()["floor"]
+    assert scheduled[0] == pytest.approx(after[0]) and after[1] == pytest.approx(scheduled[1], rel=1e-6)
+    assert after[1] > 0.0

@@ -9,6 +9,7 @@ import io
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -305,6 +306,70 @@ def test_export_mesh_sequence(reference, tmp_path, fmt):
     assert cli_main(["export", str(reference), "--format", fmt, "--out", str(out), "--frames", "5",
                      "--overwrite"]) == 0
     assert sorted(p.name for p in out.iterdir()) == [f"surface_000005.{fmt}"]
+
+
+def _copy_run(reference: Path, dest: Path, frames=(1, 2, 3, 4)) -> Path:
+    """run.json and the recorded frames ``frames`` of the reference run, in a folder of their own."""
+    (dest / "frames").mkdir(parents=True)
+    shutil.copy(reference / "run.json", dest / "run.json")
+    for f in frames:
+        shutil.copy(rf.frame_path(reference, f), rf.frame_path(dest, f))
+    return dest
+
+
+def _crc_damaged(path: Path) -> None:
+    """Flip bytes inside the stored x array: the archive's directory still reads, its data fails the CRC."""
+    data = bytearray(path.read_bytes())
+    start = data.index(b"x.npy") + 200
+    data[start:start + 16] = bytes(16)
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("damage", ["truncated", "crc"])
+def test_export_of_a_damaged_frame_keeps_the_last_good_export(reference, tmp_path, capsys, damage):
+    """``export --overwrite`` removed the good USD first and then stopped at a damaged frame, leaving a partial
+    one (and a mesh sequence lost its old files first). Now the export goes to a hidden file beside it and
+    replaces it only when every frame is in: one line naming the frame file, exit 2, the old files as they
+    were, nothing left behind."""
+    run = _copy_run(reference, tmp_path / "run")
+    out = tmp_path / "out.usdc"
+    assert cli_main(["export", str(run), "--out", str(out), "--frames", "1:4"]) == 0
+    meshes = tmp_path / "obj"
+    assert cli_main(["export", str(run), "--format", "obj", "--out", str(meshes), "--frames", "1:4"]) == 0
+    good, good_obj = out.read_bytes(), {p.name: p.read_bytes() for p in meshes.iterdir()}
+    capsys.readouterr()
+    frame = rf.frame_path(run, 3)
+    if damage == "truncated":
+        frame.write_bytes(frame.read_bytes()[:1000])
+    else:
+        _crc_damaged(frame)
+    errors = []
+    assert cli_main(["export", str(run), "--out", str(out), "--frames", "1:4", "--overwrite"]) == 2
+    assert out.read_bytes() == good
+    errors.append(capsys.readouterr().err)
+    assert cli_main(["export", str(run), "--format", "obj", "--out", str(meshes), "--frames", "1:4", "--overwrite"]) == 2
+    assert {p.name: p.read_bytes() for p in meshes.iterdir()} == good_obj
+    errors.append(capsys.readouterr().err)
+    for err in errors:
+        err = err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"warp-sph: error: {frame}: unreadable recorded frame ("), err
+        assert err[0].endswith("; --frames 1:2 exports the frames before it"), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["obj", "out.usdc", "run"]  # no temporary file left
+    # a new export is not created at all
+    assert cli_main(["export", str(run), "--frames", "1:4"]) == 2
+    assert not [p for p in run.rglob("*") if p.is_file() and p.parent.name != "frames" and p.name != "run.json"]
+
+
+def test_export_to_a_file_that_is_not_usd_is_refused(reference, tmp_path, capsys):
+    """``export RUN --out notes.txt --overwrite`` removed the user's notes.txt, then failed in USD's own
+    traceback-like message (no file format for .txt). Now: one line before anything, the file kept."""
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    assert cli_main(["export", str(reference), "--out", str(notes), "--frames", "1:1", "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0] == (f"warp-sph: error: --out {notes}: a USD export is written to a .usdc file "
+                                        "(or .usd, .usda); name it so, or give a folder"), err
+    assert notes.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
 
 def test_export_default_location_and_errors(reference, tmp_path, capsys):

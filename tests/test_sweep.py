@@ -59,6 +59,25 @@ def test_sweep_file_lists_cases(tmp_path):
         load_sweep_file(str(f))
 
 
+def test_negative_values_keep_their_sign_and_no_folder_starts_with_a_minus(tmp_path):
+    """The leading minus of a value was stripped: ``x=-1`` and ``x=1`` got one folder name (the sweep was
+    refused: two cases share it) and ``gravity=-9.81`` read as +9.81; a [[case]] name "-rf" made a folder
+    that shell tools take for an option."""
+    assert case_name({"gravity": "-9.81"}) == "gravity=-9.81"
+    assert case_name({"v": "[-1, 0]"}) != case_name({"v": "[1, 0]"})
+    assert case_name({"gravity": "[0,0,-9.81]"}) == "gravity=0-0--9.81"  # names without a leading sign: as before
+    cases = build_cases("dam_break", {"material.xsph": ["-0.1", "0.1"], "gravity": ["[-1,0,0]", "[1,0,0]"]})
+    names = [c.name for c in cases]
+    assert len(set(names)) == 4 and names[0] == "material.xsph=-0.1,gravity=-1-0-0"
+    assert case_name({"x": "-1"}, scene="-odd.toml") == "odd,x=-1"
+    assert not any(n.startswith(("-", ".")) for n in names)
+    f = tmp_path / "s.toml"
+    for bad in ("-rf", ".hidden", ".."):
+        f.write_text(f'[sweep]\nscene = "dam_break"\n\n[[case]]\nname = "{bad}"\n')
+        with pytest.raises(SweepError, match=r"case\[0\]\.name = .*not starting with '-' or '\.'"):
+            load_sweep_file(str(f))
+
+
 # --- helpers ------------------------------------------------------------------------------------
 class CountingExecutor(SerialExecutor):
     """The serial executor, remembering which cases it was given."""
@@ -364,7 +383,7 @@ def test_cases_refused_by_validation_print_their_reason(tmp_path, capsys):
                             "--no-progress"], capsys)
     assert code == 1
     lines = out.out.strip().splitlines()
-    assert re.fullmatch(r"particle_radius=0\.5: failed; .*dam_break\.toml: particle_radius: expected a finite "
+    assert re.fullmatch(r"particle_radius=-0\.5: failed; .*dam_break\.toml: particle_radius: expected a finite "
                         r"number > 0 and <= 1000, got -0\.5", lines[0]), lines
     assert re.fullmatch(r"particle_radius=2000: failed; .*particle_radius: expected .* got 2000", lines[1]), lines
     assert lines[-1].startswith("2 cases: 2 failed")
@@ -383,3 +402,22 @@ def test_malformed_or_binary_sweep_file_is_refused(content, pattern, tmp_path, c
     (line,) = out.err.strip().splitlines()
     assert line.startswith("warp-sph: error: ") and re.search(pattern, line), line
     assert not (tmp_path / "o").exists() and out.out == ""
+
+
+def test_sweep_folder_among_a_users_files_or_a_file_is_refused(tmp_path, capsys):
+    """``sweep --out FILE`` ended in a FileExistsError traceback; ``--out`` a folder of the user's wrote
+    sweep.jsonl, sweep.md (replacing one of theirs) and case folders among their files. Now one line, exit 2,
+    before any case, the files as they were; an earlier sweep's folder is still resumed."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "sweep.md").write_text("my notes")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    args = ["dam_break", "--param", "particle_radius=0.1", "--frames", "2", "--no-progress", "--set"] + TINY[1:2]
+    for out, what in ((notes, "is a file; expected a folder"), (notes / "sub", f"lies under the file {notes}"),
+                      (mine, "holds sweep.md and no sweep (sweep.jsonl)")):
+        code, res = _sweep_cli(args + ["--out", str(out)], capsys)
+        assert code == 2 and res.err.strip().startswith(f"warp-sph: error: --out {out} {what}"), res.err
+        assert len(res.err.strip().splitlines()) == 1 and res.out == ""
+    assert (mine / "sweep.md").read_text() == "my notes" and [p.name for p in mine.iterdir()] == ["sweep.md"]
+    assert notes.read_text() == "mine"

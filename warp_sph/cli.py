@@ -180,7 +180,7 @@ def _cmd_preview(args) -> int:
     _quiet_warp()
     paths = preview_run(Path(args.run), frames=frames, mode="surface" if args.surface else "particles",
                         camera=camera, size=size, out=Path(args.out) if args.out else None,
-                        gif=args.gif)
+                        gif=args.gif, overwrite=args.overwrite)
     for p in paths:
         print(p)
     return 0
@@ -229,7 +229,7 @@ def _cmd_sweep(args) -> int:
 def _cmd_plot(args) -> int:
     from .preview.plot_probes import plot_run
 
-    for path in plot_run(Path(args.run), out=Path(args.out) if args.out else None):
+    for path in plot_run(Path(args.run), out=Path(args.out) if args.out else None, overwrite=args.overwrite):
         print(path)
     return 0
 
@@ -301,6 +301,8 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--size", default="640x360", help="WxH pixels (default 640x360)")
     v.add_argument("--gif", action="store_true", help="also write an animated GIF of the frames")
     v.add_argument("--out", help="output folder (default: RUN/preview)")
+    v.add_argument("--overwrite", action="store_true", help="replace pictures of the same names in --out "
+                   "(those in RUN/preview are always replaced)")
     v.set_defaults(func=_cmd_preview)
 
     w = sub.add_parser("sweep", help="run the product of --param values (or a TOML sweep file), in this process "
@@ -328,6 +330,8 @@ def build_parser() -> argparse.ArgumentParser:
     pl = sub.add_parser("plot", parents=[common], help="plot a run's probes ([[probes]]) to PNG (needs the plots extra)")
     pl.add_argument("run", help="run folder")
     pl.add_argument("--out", help="output folder (default: RUN/plots)")
+    pl.add_argument("--overwrite", action="store_true", help="replace plots of the same names in --out "
+                    "(those in RUN/plots are always replaced)")
     pl.set_defaults(func=_cmd_plot)
 
     n = sub.add_parser("plan", parents=[common], help="the settings that fit a wall-time budget or reach a target "
@@ -337,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--target-error", help="mean density error: 0.5%% or 0.005")
     n.add_argument("--apply", metavar="OUT.toml", help="write the chosen settings and the prediction as a scene file "
                    "(default: print the --set flags)")
-    n.add_argument("--force", action="store_true", help="let --apply replace an existing file")
+    n.add_argument("--force", action="store_true", help="let --apply and --plot replace an existing file")
     n.add_argument("--plot", metavar="PNG", help="the Pareto plot's path (default: beside the calibration cache)")
     n.add_argument("--solvers", help="comma-separated candidate solvers (default: every solver)")
     n.add_argument("--device", default=None, help="Warp device: cpu or cuda:0 (default: Warp's default)")

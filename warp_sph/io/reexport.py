@@ -14,11 +14,18 @@ Inputs, all from the run folder (``run_folder`` describes the layout):
 Outputs (default under ``DIR/export/``): ``<scene>.usdc`` (particles, surface, container and
 obstacles, rigid bodies at the poses run.json recorded; the run's frame numbers are kept as time
 codes) or ``<fmt>/surface_NNNNNN.<fmt>``.
-An existing output is never replaced without ``overwrite``.
+An existing output is never replaced without ``overwrite``, and never by a part: the export is written
+beside it (a hidden temporary file or folder) and moved into place once every frame is in. A damaged
+or truncated frame file stops the export with one line naming it (as ``run --resume`` stops at a
+damaged checkpoint); what was there before is left as it was. The frames' archives are checked
+before any surface is made, so a truncated file stops it at once.
 """
 from __future__ import annotations
 
+import os
 import re
+import shutil
+import tempfile
 import warnings
 from collections.abc import Iterable
 from pathlib import Path
@@ -210,6 +217,11 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
     wanted = parse_frame_range(frames, files)
     if fmt == "usd" and wanted != list(range(wanted[0], wanted[-1] + 1)):
         raise WarpSphError("a USD export needs consecutive frames")
+    for frame in wanted:  # a truncated or damaged archive: one line before anything is made or written
+        try:
+            rf.check_frame_file(files[frame], keys=("x", "v", "density"))
+        except OutputError as exc:
+            raise OutputError(_damaged(exc, frame, wanted)) from None
     origin = np.asarray((info.get("model") or {}).get("origin", (0.0, 0.0, 0.0)), dtype=np.float64)
     device = wp.get_device(device)
     surface = _surface_reconstructor(info, cell_per_radius, iso, device)
@@ -220,6 +232,9 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
         target = Path(out) if out is not None else run_dir / "export" / f"{name}.usdc"
         if target.is_dir():
             target = target / f"{name}.usdc"
+        if target.suffix.lower() not in (".usdc", ".usd", ".usda"):
+            raise OutputError(f"--out {target}: a USD export is written to a .usdc file (or .usd, .usda); "
+                              "name it so, or give a folder")
         if target.exists() and not overwrite:
             raise OutputError(f"{target} exists; pass --overwrite to replace it or choose another --out")
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -234,45 +249,125 @@ def export_run(run_dir, fmt: str = "usd", out=None, cell_per_radius: float | Non
             raise OutputError(f"{target} already holds {len(existing)} surface_*.{fmt} files; pass --overwrite "
                               "to replace them or choose another --out")
         target.mkdir(parents=True, exist_ok=True)
-        for p in existing:  # a shorter export must not leave stale frames behind
-            p.unlink()
 
+    # written beside the target and moved into place at the end: a failed export leaves the old one
     usd = mesh_writer = None
-    if fmt == "usd":
-        from .export_usd import UsdWriter
-
-        primvars = tuple(n for n in (scene.get("output") or {}).get("particle_primvars", ("density",))
-                         if n == "density")  # pressure is not recorded
-        far = float(np.abs(origin).max()) > 0.0 and _far_from_origin(files[wanted[0]])
-        usd = UsdWriter(target, fps=float(info.get("fps") or scene.get("fps") or 24.0), particle_radius=radius,
-                        static_meshes=scene_static_meshes(scene), primvars=primvars, with_surface=True,
-                        with_normals=surface.with_normals, with_spray=surface.grid.spray_neighbors > 0,
-                        overwrite=overwrite, first_frame=wanted[0], origin=origin if far else None)
-        shapes, body_poses = _body_shapes(scene, info, wanted)
-        for body, vertices, triangles in shapes:  # moving rigid bodies at the poses run.json recorded
-            usd.add_body(body, vertices, triangles)
-    else:
-        from .export_mesh import MeshSequenceWriter
-
-        mesh_writer = MeshSequenceWriter(target, fmt)
+    body_poses: dict = {}
+    existed = target.exists() if fmt == "usd" else any(target.glob(f"surface_*.{fmt}"))
+    partial = _partial_path(target, fmt)
+    done = False
     try:
-        for frame in wanted:
-            data = rf.read_frame(files[frame], keys=("x", "v", "density", "id?"))
-            x_dtype = data["x"].dtype  # float64 where the run lies far from (0, 0, 0)
-            x_world = np.asarray(data["x"], dtype=np.float64).reshape(-1, 3)
-            v = np.asarray(data["v"], dtype=np.float32).reshape(-1, 3)
-            rho = np.asarray(data["density"], dtype=np.float32).reshape(-1)
-            x_local = wp.array((x_world - origin).astype(np.float32), dtype=wp.vec3, device=device)
-            mesh = surface.reconstruct(x_local)
-            verts = mesh.vertices.astype(np.float64) + origin  # world [m]; float32 on writing unless far
-            data_far = x_dtype == np.float64
-            if usd is not None:
-                usd.write_frame(frame, x_world, v, primvars={n: rho for n in usd.primvar_names},
-                                surface=(verts, mesh.triangles, mesh.normals), spray=(x_world[mesh.spray], v[mesh.spray]),
-                                bodies=body_poses.get(frame), ids=data["id"] if "id" in data else None)
-            else:
-                mesh_writer.write_frame(frame, verts if data_far else verts.astype(np.float32), mesh.triangles)
+        if fmt == "usd":
+            from .export_usd import UsdWriter
+
+            primvars = tuple(n for n in (scene.get("output") or {}).get("particle_primvars", ("density",))
+                             if n == "density")  # pressure is not recorded
+            far = float(np.abs(origin).max()) > 0.0 and _far_from_origin(files[wanted[0]])
+            usd = UsdWriter(partial, fps=float(info.get("fps") or scene.get("fps") or 24.0), particle_radius=radius,
+                            static_meshes=scene_static_meshes(scene), primvars=primvars, with_surface=True,
+                            with_normals=surface.with_normals, with_spray=surface.grid.spray_neighbors > 0,
+                            overwrite=True, first_frame=wanted[0], origin=origin if far else None)
+            shapes, body_poses = _body_shapes(scene, info, wanted)
+            for body, vertices, triangles in shapes:  # moving rigid bodies at the poses run.json recorded
+                usd.add_body(body, vertices, triangles)
+        else:
+            from .export_mesh import MeshSequenceWriter
+
+            mesh_writer = MeshSequenceWriter(partial, fmt)
+        _write_frames(wanted, files, origin, surface, device, usd, mesh_writer, body_poses)
+        if usd is not None:
+            usd.close()
+        _move_into_place(partial, target, fmt, overwrite)
+        done = True
+    except OutputError as exc:
+        frame = getattr(exc, "frame", None)
+        raise OutputError(_damaged(exc, frame, wanted, target if existed else None) if frame is not None
+                          else str(exc)) from None
     finally:
         if usd is not None:
             usd.close()
+        if not done:
+            _remove_partial(partial)
     return target
+
+
+def _damaged(exc: OutputError, frame: int, wanted: list[int], target: Path | None = None) -> str:
+    """The one line of a damaged frame file: the reader's, what the export left (``target``: an earlier export
+    there, kept), and the frames it can export."""
+    left = "wrote nothing" if target is None else f"left {target} as it was"
+    hint = f"; --frames {wanted[0]}:{frame - 1} exports the frames before it" if frame > wanted[0] else ""
+    return f"{exc}; the export stopped and {left}{hint}"
+
+
+def _partial_path(target: Path, fmt: str) -> Path:
+    """A new hidden file (usd, same suffix: the same file format) or folder beside ``target``."""
+    if fmt == "usd":
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".export-tmp{target.suffix or '.usdc'}",
+                                   dir=target.parent)
+        os.close(fd)
+        os.unlink(tmp)  # the USD writer creates it
+        return Path(tmp)
+    return Path(tempfile.mkdtemp(prefix=".export-tmp-", dir=target))
+
+
+def _remove_partial(partial: Path) -> None:
+    try:
+        if partial.is_dir():
+            shutil.rmtree(partial)
+        else:
+            partial.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+def _move_into_place(partial: Path, target: Path, fmt: str, overwrite: bool) -> None:
+    """The finished export moved onto ``target`` (os.replace: atomic per file); a mesh sequence's
+    earlier surface_* files not in the new one removed (a shorter export leaves no stale frames)."""
+    try:
+        if fmt == "usd":
+            if target.exists() and not overwrite:  # appeared while exporting
+                raise OutputError(f"{target} appeared while exporting; the export is left in {partial}")
+            os.replace(partial, target)
+            from pxr import Sdf
+
+            layer = Sdf.Layer.Find(str(target))
+            if layer is not None:  # a stage of the old file open in this process reads the new one
+                layer.Reload(force=True)
+            return
+        pattern = re.compile(rf"surface_\d{{6}}\.{fmt}")
+        new = sorted(p.name for p in partial.iterdir() if pattern.fullmatch(p.name))
+        for p in target.iterdir():
+            if p.is_file() and pattern.fullmatch(p.name) and p.name not in new:
+                p.unlink()
+        for name in new:
+            os.replace(partial / name, target / name)
+        partial.rmdir()
+    except OSError as exc:
+        raise rf.write_error(target, exc) from None
+
+
+def _write_frames(wanted, files, origin, surface, device, usd, mesh_writer, body_poses) -> None:
+    """Every wanted frame read, meshed and written; an unreadable frame file raises the reader's
+    OutputError with ``frame`` set."""
+    import warp as wp
+
+    for frame in wanted:
+        try:
+            data = rf.read_frame(files[frame], keys=("x", "v", "density", "id?"))
+        except OutputError as exc:
+            exc.frame = frame
+            raise
+        x_dtype = data["x"].dtype  # float64 where the run lies far from (0, 0, 0)
+        x_world = np.asarray(data["x"], dtype=np.float64).reshape(-1, 3)
+        v = np.asarray(data["v"], dtype=np.float32).reshape(-1, 3)
+        rho = np.asarray(data["density"], dtype=np.float32).reshape(-1)
+        x_local = wp.array((x_world - origin).astype(np.float32), dtype=wp.vec3, device=device)
+        mesh = surface.reconstruct(x_local)
+        verts = mesh.vertices.astype(np.float64) + origin  # world [m]; float32 on writing unless far
+        data_far = x_dtype == np.float64
+        if usd is not None:
+            usd.write_frame(frame, x_world, v, primvars={n: rho for n in usd.primvar_names},
+                            surface=(verts, mesh.triangles, mesh.normals), spray=(x_world[mesh.spray], v[mesh.spray]),
+                            bodies=body_poses.get(frame), ids=data["id"] if "id" in data else None)
+        else:
+            mesh_writer.write_frame(frame, verts if data_far else verts.astype(np.float32), mesh.triangles)

@@ -352,6 +352,25 @@ def read_run_json(out: Path) -> dict:
     return info
 
 
+def check_frame_file(path: Path, keys=("x", "v", "density")) -> None:
+    """OutputError (the line ``read_frame`` gives) unless ``path`` opens as an npz archive holding the
+    arrays ``keys`` ("v?" optional): reads the archive's directory only, not the arrays, so a long run's
+    frames are checked before an export writes anything (a damaged array's data still fails in
+    ``read_frame``)."""
+    path = Path(path)
+    try:
+        if not zipfile.is_zipfile(path):
+            raise ValueError("not an npz archive: damaged or truncated")
+        with zipfile.ZipFile(path) as z:
+            names = set(z.namelist())
+        for k in keys:
+            if not k.endswith("?") and f"{k}.npy" not in names:
+                raise KeyError(f"{k} is not a file in the archive")
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as exc:
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__  # as read_frame says it
+        raise OutputError(f"{path}: unreadable recorded frame ({text})") from None
+
+
 def read_frame(path: Path, keys=("x", "v", "density")) -> dict[str, np.ndarray]:
     """The arrays ``keys`` of a recorded frame file (``frames/frame_NNNNNN.npz``); OutputError (one
     line, naming the file) when it is missing, truncated, not an npz or lacks one of them. A key

@@ -176,6 +176,24 @@ def check_apply_path(out: Path, force: bool) -> None:
         raise PlanError(f"--apply {out}: folder {out.parent} does not exist")
 
 
+def check_plot_and_cache(args) -> None:
+    """Before any calibration: refuse a --plot that is not a .png path or names an existing file (without
+    --force: a picture of the user's is never replaced silently), and a --cache that is not a folder."""
+    if args.plot:
+        png = Path(args.plot)
+        if png.suffix.lower() != ".png":
+            raise PlanError(f"--plot {png}: expected a .png file path")
+        if png.exists() and not args.force:
+            raise PlanError(f"--plot {png}: the file exists; pass --force to replace it")
+    cache = Path(args.cache).expanduser() if args.cache else None
+    p = cache
+    while p is not None and not p.exists() and p != p.parent:
+        p = p.parent
+    if p is not None and not p.is_dir():
+        raise PlanError(f"--cache {cache}: " + ("is a file" if p == cache else f"lies under the file {p}") +
+                        "; expected a folder for the calibration cache")
+
+
 def apply_scene(scene, p: Plan, out: Path, force: bool = False) -> Path:
     """Write ``scene`` with the chosen setting and its [plan] prediction to ``out`` (atomic; an existing file
     only with ``force``). The file loads with ``load_scene(out)``."""
@@ -208,6 +226,7 @@ def run_command(args, log=print) -> int:
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()] if args.solvers else None
     if args.apply:
         check_apply_path(Path(args.apply), args.force)
+    check_plot_and_cache(args)
     scene = load_scene(args.scene, overrides=args.set)
     p = make_plan(scene, budget_s=budget, target_error=target, device=args.device, solvers=solvers,
                   cache=args.cache, refresh=args.refresh, progress=not args.no_progress, log=log)

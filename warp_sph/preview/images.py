@@ -26,11 +26,13 @@ def _pil():
 
 def _atomic_save(path, save) -> Path:
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         save(tmp)
         os.replace(tmp, path)
+    except OSError as exc:  # a read-only folder, a full disk, a folder of that name: one line
+        raise PreviewError(f"cannot write {path}: {exc.strerror or exc}") from None
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -44,15 +44,36 @@ def save_figure(fig, path: Path) -> Path:
     return path
 
 
-def plot_run(run: Path, out: Path | None = None) -> list[Path]:
-    """PNG of every probe of the run folder ``run``; returns the files written."""
+def _check_out(folder: Path, run: Path, names: list[str], overwrite: bool) -> None:
+    """Refuse, before plotting, an output folder that is a file or lies under one, and (without
+    ``overwrite``) a file of a name it would write in a folder other than the run's own plots/."""
+    p = folder
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    if p.exists() and not p.is_dir():
+        raise OutputError(f"--out {folder} " + ("is a file" if p == folder else f"lies under the file {p}") +
+                          "; expected a folder for the plots")
+    if overwrite or folder.resolve() == (run / "plots").resolve():
+        return
+    there = [n for n in names if (folder / n).exists()]
+    if there:
+        more = f" (and {len(there) - 1} more)" if len(there) > 1 else ""
+        raise OutputError(f"--out {folder} already holds {there[0]}{more}; pass --overwrite to replace them, or "
+                          f"choose another --out (plots in the run's own folder {run / 'plots'} are replaced without "
+                          "asking)")
+
+
+def plot_run(run: Path, out: Path | None = None, overwrite: bool = False) -> list[Path]:
+    """PNG of every probe of the run folder ``run``; returns the files written. ``out``: another folder
+    (default ``run/plots``), where files of the same names are replaced only with ``overwrite``."""
     run = Path(run)
     info = rf.read_run_json(run)
     probes = info.get("probes") or {}
     if not probes:
         raise OutputError(f"{run}: the run has no probes ([[probes]] in its scene); nothing to plot")
-    plt = pyplot()
     folder = Path(out) if out else run / "plots"
+    _check_out(folder, run, [f"probe_{name}.png" for name in probes], overwrite)
+    plt = pyplot()
     written = []
     for name, meta in probes.items():
         path = probe_csv_path(run, name)

@@ -67,6 +67,20 @@ def _check_out_dir(out_dir: Path) -> None:
                            "folder: choose a new or existing folder")
 
 
+def _check_not_users(out_dir: Path, run_dir: Path, names: list[str], overwrite: bool) -> None:
+    """Refuse, before any rendering, to replace a file in a folder other than the run's own
+    ``preview/`` (where these names are the run's files, ``run_folder.RUN_FILE_PATTERNS``) unless
+    ``overwrite``: a picture a user keeps under one of those names is never replaced silently."""
+    if overwrite or out_dir.resolve() == (run_dir / "preview").resolve():
+        return
+    there = [n for n in names if (out_dir / n).exists()]
+    if there:
+        more = f" (and {len(there) - 1} more of the files it would write)" if len(there) > 1 else ""
+        raise PreviewError(f"--out {out_dir} already holds {there[0]}{more}; pass --overwrite to replace them, or "
+                           f"choose another --out (previews in the run's own folder {run_dir / 'preview'} are "
+                           "replaced without asking)")
+
+
 def preview_run(
     run_dir,
     frames: list[int] | None = None,
@@ -79,15 +93,18 @@ def preview_run(
     fps: float | None = None,
     device="cpu",
     light: Light | None = None,
+    overwrite: bool = False,
 ) -> list[Path]:
     """Render recorded frames of a run folder to ``out/<mode>_{frame:06d}.png``; returns the paths written.
 
     frames: frame numbers; None means the last recorded frame (every recorded frame when ``gif``).
     mode: "particles" (spheres coloured by speed) or "surface" (the USD surface mesh).
     camera: None frames the container (or, without one, the fluid over all chosen frames).
-    out: output folder, default ``run_dir/preview``. gif: also write ``out/preview.gif`` when more
+    out: output folder, default ``run_dir/preview``. gif: also write ``out/<mode>.gif`` when more
     than one frame is rendered, at ``fps`` (default: the scene's frame rate). The mode is in every
     file name, so particle and surface previews of one frame sit side by side.
+    overwrite: replace files of those names in an ``out`` other than ``run_dir/preview`` (otherwise
+    PreviewError before rendering); the run's own preview folder is always rewritten.
     """
     run_dir = Path(run_dir)
     if mode not in ("particles", "surface"):
@@ -111,6 +128,8 @@ def preview_run(
     container = (box["min"], box["max"]) if box else None
     out_dir = Path(out) if out is not None else run_dir / "preview"
     _check_out_dir(out_dir)
+    names = [f"{mode}_{frame:06d}.png" for frame in frames] + ([f"{mode}.gif"] if gif and len(frames) > 1 else [])
+    _check_not_users(out_dir, run_dir, names, overwrite)
 
     surface = SurfaceReader(run_dir) if mode == "surface" else None
     solids = obstacle_meshes(run_dir, scene, surface)

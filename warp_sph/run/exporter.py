@@ -205,8 +205,10 @@ SNAPSHOT_QUEUE_BYTES = 1 << 30
 
 
 def snapshot_bytes(snap: dict) -> int:
-    """Bytes of the device arrays in a frame snapshot."""
-    return sum(int(a.capacity) for a in snap.values() if isinstance(a, wp.array))
+    """Bytes of the device arrays in a frame snapshot, and of its whitewater's host copies (a queue of
+    frames with a large whitewater capacity is bounded by them too)."""
+    ww = sum(int(np.asarray(a).nbytes) for arrays in (snap.get("whitewater") or {}).values() for a in arrays)
+    return sum(int(a.capacity) for a in snap.values() if isinstance(a, wp.array)) + ww
 
 
 class ExportThread:

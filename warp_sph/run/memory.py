@@ -18,9 +18,20 @@ MEMORY_WARN = 0.5
 
 # Memory model [bytes], from the arrays a WCSPH run allocates (x, v, density, pressure, acceleration,
 # boundary force, XSPH correction: 68 B), hash-grid indices (~32 B), the watchdog's frame-start copy
-# (24 B) and up to three export snapshots in flight (96 B); host: sampling temporaries in float64 and
-# the export copies. A rough but conservative model; the check refuses only what cannot fit.
-DEVICE_BYTES_PER_FLUID = 256
+# (24 B) and solver workspace; host: sampling temporaries in float64 and the export copies. A rough but
+# conservative model; the check refuses only what cannot fit. The export's queue of frame snapshots and
+# the whitewater capacity are counted on their own (``_export_queue_bytes``, ``_whitewater_bytes``).
+DEVICE_BYTES_PER_FLUID = 160
+#: a frame snapshot of the export (``Exporter.snapshot``), per fluid slot: x, v (12 B each), density,
+#: pressure, id (4 B each)
+SNAPSHOT_BYTES_PER_FLUID = 36
+#: whitewater (``run.whitewater``) per slot of ``whitewater.max_particles``: two buffers of x, v, age, life,
+#: kind (36 B each) and the alive flags and offsets (8 B) on the device; per fluid particle: its
+#: generation flags and offsets (8 B), normal and potentials (24 B)
+WHITEWATER_BYTES_PER_SLOT = 80
+WHITEWATER_BYTES_PER_FLUID = 32
+#: a frame snapshot's whitewater (host copies: the live arrays, world x in float64, per-kind selections)
+WHITEWATER_SNAPSHOT_BYTES_PER_SLOT = 100
 DEVICE_BYTES_PER_BOUNDARY = 64
 HOST_BYTES_PER_FLUID = 512
 HOST_BYTES_PER_BOUNDARY = 128
@@ -129,12 +140,43 @@ def _surface_bytes(scene, fluid_count: int) -> int:
     return int(min(SURFACE_BYTES_PER_CELL * volume / cell**3, 2**62))
 
 
-def estimate_memory(scene, fluid_count: int, boundary_count: int) -> dict[str, int]:
-    """{"device": bytes, "host": bytes} a run of ``scene`` needs at its peak (rough, conservative).
+def _whitewater_capacity(scene) -> int:
+    """``whitewater.max_particles`` when the scene generates whitewater, else 0."""
+    ww = getattr(scene, "whitewater", None)
+    return int(ww.max_particles) if ww is not None and ww.enabled else 0
+
+
+def _whitewater_bytes(scene, fluid_count: int) -> int:
+    """Device bytes of the whitewater state, allocated whole at the start (``max_particles`` slots)."""
+    slots = _whitewater_capacity(scene)
+    return WHITEWATER_BYTES_PER_SLOT * slots + WHITEWATER_BYTES_PER_FLUID * fluid_count if slots else 0
+
+
+def _export_queue_bytes(scene, fluid_count: int, frames: int | None = None) -> tuple[int, int]:
+    """(device, host) bytes of the frame snapshots the export holds at its peak: the queue of
+    ``ExportThread`` admits frames while they hold at most ``SNAPSHOT_QUEUE_BYTES`` (always ``depth``
+    frames), and the simulation holds one more while it waits for room; never more than the run's
+    frames (``frames``, default duration * fps + 1). Device: the particles' copies; host: whitewater's."""
+    from .exporter import SNAPSHOT_QUEUE_BYTES
+
+    dev = SNAPSHOT_BYTES_PER_FLUID * fluid_count
+    host = WHITEWATER_SNAPSHOT_BYTES_PER_SLOT * _whitewater_capacity(scene)
+    size = max(dev + host, 1)
+    total = int(round(scene.duration * scene.fps)) + 1 if frames is None else int(frames)
+    held = min(max(total, 1), max(2, SNAPSHOT_QUEUE_BYTES // size) + 1)
+    return held * dev, held * host
+
+
+def estimate_memory(scene, fluid_count: int, boundary_count: int, frames: int | None = None) -> dict[str, int]:
+    """{"device": bytes, "host": bytes} a run of ``scene`` needs at its peak (rough, conservative):
+    the particles, the hash grid, the surface grid, the whitewater capacity and the export's
+    queue of frame snapshots (``frames``: the frames the run writes, default duration * fps + 1).
     On the CPU both live in host memory."""
+    queue_dev, queue_host = _export_queue_bytes(scene, fluid_count, frames)
     device = (DEVICE_BYTES_PER_FLUID * fluid_count + DEVICE_BYTES_PER_BOUNDARY * boundary_count
-              + HASH_GRID_BYTES + _surface_bytes(scene, fluid_count))
-    host = HOST_BYTES_PER_FLUID * fluid_count + HOST_BYTES_PER_BOUNDARY * boundary_count
+              + HASH_GRID_BYTES + _surface_bytes(scene, fluid_count) + _whitewater_bytes(scene, fluid_count)
+              + queue_dev)
+    host = HOST_BYTES_PER_FLUID * fluid_count + HOST_BYTES_PER_BOUNDARY * boundary_count + queue_host
     return {"device": int(device), "host": int(host)}
 
 
@@ -142,13 +184,21 @@ def _gib(n: float) -> str:
     return f"{n / 2**30:.3g} GiB" if n >= 2**28 else f"{n / 2**20:.3g} MiB"
 
 
-def _largest_cost(scene, fluid: int, boundary: int, surface_to_blame: int = 0) -> tuple[str, str]:
-    """(key path, advice) of what to change: the surface grid when ``surface_to_blame`` > 0 (the
-    particles alone would fit), else the particles' largest part: a fluid block, the walls or an obstacle."""
+def _largest_cost(scene, fluid: int, boundary: int, surface_to_blame: int = 0,
+                  whitewater_to_blame: int = 0) -> tuple[str, str]:
+    """(key path, advice) of what to change: the whitewater capacity or the surface grid when
+    ``whitewater_to_blame`` / ``surface_to_blame`` > 0 (the particles alone would fit), else the particles'
+    largest part: a fluid block, the walls or an obstacle."""
     per = {"fluid": DEVICE_BYTES_PER_FLUID + HOST_BYTES_PER_FLUID,
            "boundary": DEVICE_BYTES_PER_BOUNDARY + HOST_BYTES_PER_BOUNDARY}
     parts = [(n * per[kind], key, kind, n) for key, kind, n in particle_count_contributions(scene)]
     cost, key, kind, n = max(parts) if parts else (0, "particle_radius", "fluid", fluid)
+    if whitewater_to_blame > 0:
+        slots = _whitewater_capacity(scene)
+        return ("whitewater.max_particles",
+                f"the fluid alone fits, but whitewater.max_particles = {slots:,} slots need "
+                f"{_gib(whitewater_to_blame)} (allocated at the start, and copied for the export of each frame); "
+                "lower whitewater.max_particles")
     if surface_to_blame > 0:
         return ("output.surface_cell_per_radius",
                 f"the particles alone fit, but the surface grid at {scene.output.surface_cell_per_radius:g} r "
@@ -157,15 +207,22 @@ def _largest_cost(scene, fluid: int, boundary: int, surface_to_blame: int = 0) -
     if key.startswith("obstacles"):
         return key, (f"{key} needs about {n:,} boundary particles at spacing d = {scene.spacing:g} m; check its "
                      "size (scale, min/max) or raise particle_radius")
+    if key in ("emitters", "max_particles"):  # the capacity beyond the initial fluid (docs/emitters.md)
+        what = ("the emitters add" if key == "emitters" else f"max_particles = {scene.max_particles:,} allocates") + \
+            f" about {n:,} particle slots"
+        return key, (f"{what}; lower the emitters' flow_rate or speed or their start..end, or set max_particles "
+                     "lower (layers that do not fit are skipped with a warning)")
     if key == "container":
         return key, (f"the container walls need about {n:,} boundary particles at spacing d = {scene.spacing:g} m; "
                      "shrink the container or raise particle_radius")
     return "particle_radius", f"{key} needs about {n:,} fluid particles; raise particle_radius or shrink the fluid blocks"
 
 
-def memory_verdict(scene, fluid: int, boundary: int, device, estimated: bool) -> tuple[str, str] | None:
-    """("refuse" | "warn", message) or None."""
-    need = estimate_memory(scene, fluid, boundary)
+def memory_verdict(scene, fluid: int, boundary: int, device, estimated: bool,
+                   frames: int | None = None) -> tuple[str, str] | None:
+    """("refuse" | "warn", message) or None. ``frames``: the frames the run writes (default duration *
+    fps + 1), which bound the export's snapshot queue."""
+    need = estimate_memory(scene, fluid, boundary, frames)
     host_avail = available_host_memory()
     dev_avail = available_device_memory(device)
     if dev_avail is None:
@@ -185,12 +242,23 @@ def memory_verdict(scene, fluid: int, boundary: int, device, estimated: bool) ->
     ratio, pool, n, avail = worst
     # the surface grid lives in device memory (host memory on the CPU); blame it only when the
     # particles alone would fit (in the half of the memory a run should leave free)
-    surface = _surface_bytes(scene, fluid) if pool == "device" or dev_avail is None else 0
+    on_device = pool == "device" or dev_avail is None
+    surface = _surface_bytes(scene, fluid) if on_device else 0
+    queue_dev, queue_host = _export_queue_bytes(scene, fluid, frames)
+    queue = queue_dev if on_device else 0  # the particles' copies (whitewater's are counted as whitewater)
+    whitewater = (_whitewater_bytes(scene, fluid) if on_device else 0) + (
+        queue_host if pool == "host" else 0)  # its share of the export's copies lives on the host
     # memory scales as 1/r^3: the radius that would fit in half the available memory
     r_fit = scene.particle_radius * max(ratio / MEMORY_WARN, 1.0) ** (1.0 / 3.0)
-    text = f"{count} need about {_gib(n)} of {pool} memory, {100 * ratio:.0f} % of the {_gib(avail)} available"
+    extra = [f"{what} {_gib(b)}" for what, b in (("whitewater", whitewater), ("the export's frame snapshots", queue))
+             if b >= 0.05 * n]
+    text = (f"{count} need about {_gib(n)} of {pool} memory{' (' + ', '.join(extra) + ' of it)' if extra else ''}, "
+            f"{100 * ratio:.0f} % of the {_gib(avail)} available")
     if ratio > 1.0:
-        key, advice = _largest_cost(scene, fluid, boundary, surface if n - surface <= MEMORY_WARN * avail else 0)
+        fits_without = n - whitewater <= MEMORY_WARN * avail
+        key, advice = _largest_cost(scene, fluid, boundary,
+                                    surface if not (whitewater and fits_without) and n - surface <= MEMORY_WARN * avail
+                                    else 0, whitewater if whitewater and fits_without else 0)
         if key == "particle_radius":
             advice += f" (particle_radius about {r_fit:.3g} m would fit; memory scales as 1/r^3)"
         return "refuse", f"{scene.source}: {key}: {text}; {advice}"

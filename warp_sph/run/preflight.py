@@ -230,7 +230,9 @@ def preflight_checks(scene, sim, warn: bool = True, frames: int | None = None) -
                        f"another block; the first steps will push it apart")
 
     # memory ------------------------------------------------------------------------------------
-    verdict = memory_verdict(scene, m.fluid_count, m.boundary_count, sim.device, estimated=False)
+    # the arrays' capacity (emitters: max_particles or what they emit), not just the particles at t = 0
+    verdict = memory_verdict(scene, max(m.capacity, m.fluid_count), m.boundary_count, sim.device, estimated=False,
+                             frames=frames)
     if verdict is not None:
         if verdict[0] == "refuse":
             raise SceneError(verdict[1])

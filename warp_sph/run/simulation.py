@@ -15,6 +15,7 @@ with half the step
 from __future__ import annotations
 
 import math
+import numbers
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -234,9 +235,10 @@ class Simulation:
 
     def get_field(self, name: str) -> np.ndarray:
         """NumPy copy of a field; positions come back in world coordinates [m]."""
-        a = self.fields[name]
+        a = self.fields.get(name)
         if not isinstance(a, wp.array):
-            raise KeyError(f"field {name!r} is not an array")
+            arrays = sorted(k for k, v in self.fields.items() if isinstance(v, wp.array))
+            raise KeyError(f"field {name!r} is not an array of this simulation; its arrays: {', '.join(arrays)}")
         out = a.numpy().copy()
         if name in ("particle_x", "boundary_x"):
             out = self.model.to_world(out)
@@ -260,7 +262,9 @@ class Simulation:
         self.solver.refresh_density()
 
     def step(self, dt: float) -> None:
-        """One substep of dt seconds through every stage of the graph."""
+        """One substep of dt seconds (> 0) through every stage of the graph."""
+        if not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"Simulation.step: dt must be a finite number of seconds > 0, got {dt!r}")
         self.graph.run(self, dt)
         self.state.step += 1
         self.state.time += dt

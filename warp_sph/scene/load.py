@@ -152,11 +152,14 @@ def load_scene(name_or_path: str, overrides: list[str] | dict | None = None) -> 
 
     name_or_path: the name of a built-in scene (``dam_break``) or a path to a .toml file;
     relative mesh paths resolve against the file's folder.
-    overrides: ``["particle_radius=0.02", "fluid[0].max=[1,1,1]", "output.usd=false"]`` or a dict.
+    overrides: ``["particle_radius=0.02", "fluid[0].max=[1,1,1]", "output.usd=false"]``, one such string, or a
+    dict.
     Raises SceneError naming the file, the key path and what was expected.
     """
     path = _resolve(name_or_path)
     data = read_toml(path)
+    if isinstance(overrides, str):  # one "KEY=VALUE" (it was read character by character: --set 'p')
+        overrides = [overrides]
     data = apply_overrides(data, overrides, str(path))
     return scene_from_dict(data, source=str(path), base_dir=path.parent)
 

@@ -332,6 +332,10 @@ class Validator:
                 if np.any(hi < np.asarray(c.min)) or np.any(lo > np.asarray(c.max)):
                     self.fail(f"obstacles[{i}]", f"lies entirely outside the container {list(c.min)}..{list(c.max)} "
                               f"(its bounds {lo.round(6).tolist()}..{hi.round(6).tolist()}); move it inside or remove it")
+        if any(ob.animated for ob in scene.obstacles):  # along its path, in world coordinates
+            from ..rigid.checks import check_obstacle_paths
+
+            check_obstacle_paths(scene, self.fail)
         moving = [(f"bodies[{i}].name", b.name or f"body{i}", False) for i, b in enumerate(scene.bodies)]
         moving += [(f"{getattr(ob, 'origin', f'obstacles[{i}]')}.name", ob.name or f"obstacle{i}", True)
                    for i, ob in enumerate(scene.obstacles) if ob.animated]  # kinematic bodies among them

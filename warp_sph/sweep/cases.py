@@ -118,16 +118,23 @@ def _value_label(text: str) -> str:
     return t
 
 
-def _safe(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._+-]+", "-", text).strip("-") or "x"
+def _safe(text: str, signed: bool = False) -> str:
+    """``text`` in a folder name: each run of characters other than letters, digits, ``.`` ``_`` ``+``
+    and ``-`` becomes one ``-``, and those at either end go. ``signed`` (a value): a minus sign is kept,
+    also the first one (``-9.81``, ``[-1, 0]`` -> ``-1-0``), so a value and its negative get two folders."""
+    sep = "\0" if signed else "-"
+    out = re.sub(r"[^A-Za-z0-9._+-]+", sep, text).strip(sep)
+    return (out.replace(sep, "-") if signed else out) or "x"
 
 
 def case_name(params: dict[str, str], scene: str | None = None) -> str:
     """Folder name of a case: ``solver=pbf,time.cfl=0.2`` (in keys and values, characters other than
-    letters, digits, ``.`` ``_`` ``+`` and ``-`` become ``-``; names over 120 characters are
-    shortened with a hash); ``default`` for a sweep of one case without parameters."""
-    parts = ([_safe(Path(scene).stem)] if scene else []) + [f"{_safe(k)}={_safe(_value_label(v))}"
-                                                             for k, v in params.items()]
+    letters, digits, ``.`` ``_`` ``+`` and ``-`` become ``-``; a value keeps its minus sign,
+    ``gravity=-9.81``; names over 120 characters are shortened with a hash); ``default`` for a sweep
+    of one case without parameters. The name never starts with ``-`` (shell tools would read it as an
+    option): it starts with a key or the scene's name."""
+    parts = ([_safe(Path(scene).stem).lstrip("-.") or "scene"] if scene else []) + \
+        [f"{_safe(k).lstrip('-') or 'x'}={_safe(_value_label(v), signed=True)}" for k, v in params.items()]
     name = ",".join(parts) or "default"
     if len(name) > 120:
         digest = hashlib.sha1(name.encode()).hexdigest()[:10]
@@ -268,8 +275,9 @@ def load_sweep_file(path: str, frames: int | None = None, fixed: list[str] | Non
         scene = str(c.get("scene", default_scene))
         params = {o.split("=", 1)[0]: _value_label(o.split("=", 1)[1]) for o in own}
         name = c.get("name") or case_name(params, scene if len(scenes) > 1 else None)
-        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9._+=,-]+", name) or name in (".", ".."):
-            raise SweepError(f"{where}.name = {name!r}: expected letters, digits and . _ + - = ,")
+        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_+=,][A-Za-z0-9._+=,-]*", name):
+            raise SweepError(f"{where}.name = {name!r}: expected letters, digits and . _ + - = , not starting with "
+                             "'-' or '.' (a folder name that shell tools would read as an option, or a hidden one)")
         f = frames if frames is not None else (_frames(c.get("frames"), where) or sweep_frames)
         cases.append(Case(name=name, scene=_scene_ref(scene, base), overrides=sweep_fixed + own,
                           params=({"scene": Path(scene).stem} if len(scenes) > 1 else {}) | params, frames=f))

@@ -5,9 +5,40 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from .cases import Case
+from .cases import Case, SweepError
 from .runs import ROW_KEYS, folder_state, requested_frames, row_from_run, run_case
-from .summary import SweepSummary, read_rows
+from .summary import JSONL, PAGE, PLOT, SweepSummary, read_rows
+
+
+def check_sweep_folder(out: Path) -> None:
+    """Refuse (SweepError, one line) a sweep folder that is a file or lies under one, or a folder that holds
+    no sweep.jsonl and files of its own beside the sweep's (sweep.md, sweep.png and their temporary files; a
+    sweep.md only when it is a sweep's page): a sweep writes sweep.jsonl, sweep.md, sweep.png and a folder per
+    case there, never over a user's file. A new or empty folder, an earlier sweep's (resumed, also one killed
+    before its first case finished) or one of folders only is fine: each case folder is checked on its own."""
+    out = Path(out)
+    p = out
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    if p.exists() and not p.is_dir():
+        raise SweepError(f"--out {out} " + ("is a file" if p == out else f"lies under the file {p}") +
+                         "; expected a folder for the sweep")
+    if not out.is_dir() or (out / JSONL).is_file():
+        return
+    foreign = sorted(f.name for f in out.iterdir() if not f.is_dir() and f.name not in (PAGE, PLOT)
+                     and not f.name.startswith(f".{JSONL.split('.')[0]}."))
+    page = out / PAGE
+    if page.is_file():
+        try:
+            ours = f"Rows: `{JSONL}`" in page.read_text(errors="replace")
+        except OSError:
+            ours = False
+        if not ours:
+            foreign.insert(0, PAGE)
+    if foreign:
+        raise SweepError(f"--out {out} holds {foreign[0]}" + (f" and {len(foreign) - 1} more files" if len(foreign) > 1
+                         else "") + f" and no sweep ({JSONL}); choose a new or empty folder, or the folder of an "
+                         "earlier sweep to resume it")
 
 
 def _failed_row(case: Case, folder: Path, error: str) -> dict:
@@ -70,6 +101,7 @@ def run_sweep(cases: list[Case], out: Path, executor, device: str | None = None,
     from ..run.progress import Progress
 
     out = Path(out)
+    check_sweep_folder(out)
     out.mkdir(parents=True, exist_ok=True)
     previous = read_rows(out)
     todo, done = plan(cases, out, previous)

@@ -120,6 +120,7 @@ class DfsphSolver(DfsphSearch, Solver):
         target = float(self.config.target_density_error)
         self.stabilize_threshold = max(STABILIZE_FACTOR * target, STABILIZE_FLOOR)
         self.max_shift = 0.5 * m.particle_radius
+        self._kept_force = None  # finish_frame's copy of the walls' force (allocated on the first frame)
         # figures of the last step (host values, read by step_statistics and tests)
         self.last_iterations = 0
         self.last_density_error = 0.0        # mean predicted over-density of the last sweep [-]
@@ -370,8 +371,16 @@ class DfsphSolver(DfsphSearch, Solver):
                 "stabilization_rounds": float(self.last_stabilization)}
 
     def finish_frame(self) -> None:
-        """The density at the frame's positions (for the statistics and the watchdog)."""
+        """The density at the frame's positions (for the statistics and the watchdog). The walls' force of
+        the frame's last substep is kept: the density pass starts a substep's sum of it (zeroes it), and
+        wall probes and scripts read it after the frame."""
+        force = self.sim.fields["boundary_force"]
+        n = force.shape[0]  # the active particles (emitters: a prefix of the capacity)
+        if self._kept_force is None or self._kept_force.shape[0] < n:
+            self._kept_force = wp.empty(max(n, self.model.capacity), dtype=wp.vec3, device=force.device)
+        wp.copy(self._kept_force, force, count=n)
         self.refresh_density()
+        wp.copy(force, self._kept_force, count=n)
 
     def checkpoint_arrays(self) -> dict:
         f = self.sim.fields
