@@ -7,7 +7,7 @@
 import warp as wp
 
 from .surface_grid import CLASS_BAND, CLASS_INSIDE, field_kernel
-from .surface_rows import row_range
+from .surface_rows import row_range_block
 
 
 @wp.kernel(enable_backward=False)
@@ -25,7 +25,7 @@ def splat_band(
     block_class: wp.array(dtype=wp.int32),
     block_coord: wp.array(dtype=wp.vec3i),
     block_neighbor: wp.array2d(dtype=wp.int32),
-    block_start: wp.array(dtype=wp.int32),
+    layer_start: wp.array2d(dtype=wp.int32),
     block_count: wp.array(dtype=wp.int32),
     sorted_x: wp.array(dtype=wp.vec3),
     inv_kernel_sum: wp.array(dtype=float),
@@ -64,7 +64,7 @@ def splat_band(
     k_lo = n0[2]
     k_hi = n0[2] + bsz - 1
     for row in range(9):
-        rng = row_range(block_neighbor, block_start, block_count, c, row)
+        rng = row_range_block(block_neighbor, layer_start, block_count, c, row, s_nodes, bsz)
         t = rng[0]
         while t < rng[1]:
             weight = inv_kernel_sum[t]

@@ -109,7 +109,7 @@ def feature_weights(
     vertex_x: wp.array(dtype=wp.vec3),
     vertex_block: wp.array(dtype=wp.int32),
     block_neighbor: wp.array2d(dtype=wp.int32),
-    block_start: wp.array(dtype=wp.int32),
+    layer_start: wp.array2d(dtype=wp.int32),
     block_count: wp.array(dtype=wp.int32),
     sorted_x: wp.array(dtype=wp.vec3),
     weighted_count: wp.array(dtype=float),
@@ -129,7 +129,7 @@ def feature_weights(
     local = block_local(xv, grid_origin, cell_size, block_nodes, block_coord[c])
     reach = support_radius / cell_size
     for row in range(9):
-        rng = row_range_near(block_neighbor, block_start, block_count, c, row, local, reach, block_nodes)
+        rng = row_range_near(block_neighbor, layer_start, block_count, c, row, local, reach, block_nodes)
         t = rng[0]
         while t < rng[1]:
             d = sorted_x[t] - xv

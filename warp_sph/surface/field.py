@@ -18,7 +18,7 @@ def compute_field(grid: SparseGrid) -> wp.array:
     grid.field = grid._buf.get("field", grid.meshed_count * b**3, float)
     launch(_dev.splat_band, grid.meshed_count * grid.slabs,
            [grid.support_radius, wp.vec3(*grid.grid_origin), grid.cell_size, b, grid.slabs,
-            grid.meshed_block, grid.block_class, grid.block_coord, grid.block_neighbor, grid.block_start,
+            grid.meshed_block, grid.block_class, grid.block_coord, grid.block_neighbor, grid.layer_start,
             grid.block_count, grid.sorted_x, grid.inv_kernel_sum],
            [grid.field], device=grid.device, min_range=max(1, BLOCK_MIN_RANGE * grid.slabs))
     return grid.field

@@ -86,7 +86,7 @@ class MeshSmoother:
         w = self._buf.get("w", n, float)
         launch(_dev.feature_weights, n, [self.support_radius, self.normalization, wp.vec3(*grid.grid_origin),
                                          grid.cell_size, grid.block_nodes, grid.block_coord, vertex_x, vertex_block,
-                                  grid.block_neighbor, grid.block_start, grid.block_count, grid.sorted_x,
+                                  grid.block_neighbor, grid.layer_start, grid.block_count, grid.sorted_x,
                                   grid.weighted_count, grid.inv_kernel_sum], [w], device=self.device)
         return w[:n]
 
