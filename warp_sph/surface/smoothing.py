@@ -3,7 +3,7 @@ area-weighted vertex normals and normal smoothing.
 
 Device code: ``kernels/surface_smoothing.py``. Smoothing after Loeschner et al. (VMV 2023), the
 scheme splashsurf uses: per-vertex weight w = smoothstep(n_v / N) from the particles' weighted
-neighbour count, then ``iterations`` Jacobi steps x <- x + w (mean(one ring) - x). A Taubin pair
+neighbour count (given by the extraction, ``marching.py``), then ``iterations`` Jacobi steps x <- x + w (mean(one ring) - x). A Taubin pair
 (lambda = 0.5, mu = -0.53; Taubin 1995) per iteration keeps the volume: plain Laplacian steps
 shrink a sphere (splashsurf: -4.5 % after 25 steps on a ball of radius 16 r), Taubin's negative
 step inflates it back while the lattice ripple (a few edges long) is still damped.
@@ -16,7 +16,7 @@ import warp as wp
 from ..core.buffers import ArrayPool
 from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_smoothing as _dev
-from .grid import SparseGrid, launch
+from .grid import launch
 
 #: Taubin's pass band pair (lambda, mu): k_PB = 1/lambda + 1/mu ~ 0.11
 TAUBIN_LAMBDA = 0.5
@@ -60,10 +60,10 @@ class MeshConnectivity:
 
 
 class MeshSmoother:
-    """Feature weights, position smoothing and normals for the meshes of a :class:`SparseGrid`.
+    """Position smoothing and normals for the meshes of a :class:`~warp_sph.surface.grid.SparseGrid`.
 
     Args:
-        smoothing: kernel name of the grid (the interpolation of the weights uses its shape).
+        smoothing: kernel name of the grid.
         h: smoothing length [m].
         support_radius: kernel support radius [m].
         weighted_count_normalization: N in w = smoothstep(n / N); splashsurf's 13 (for a support
@@ -79,16 +79,6 @@ class MeshSmoother:
         self.normalization = float(weighted_count_normalization)
         self.connectivity = MeshConnectivity(self.device)
         self._buf = ArrayPool(self.device)
-
-    def weights(self, grid: SparseGrid, vertex_x: wp.array, vertex_block: wp.array) -> wp.array:
-        """w in [0, 1] per vertex (1: bulk fluid, smoothed fully; 0: droplets and thin features)."""
-        n = len(vertex_x)
-        w = self._buf.get("w", n, float)
-        launch(_dev.feature_weights, n, [self.support_radius, self.normalization, wp.vec3(*grid.grid_origin),
-                                         grid.cell_size, grid.block_nodes, grid.block_coord, vertex_x, vertex_block,
-                                  grid.block_neighbor, grid.layer_start, grid.block_count, grid.sorted_x,
-                                  grid.weighted_count, grid.inv_kernel_sum], [w], device=self.device)
-        return w[:n]
 
     def _volume(self, x: wp.array, triangles: wp.array) -> float:
         nt = len(triangles)
