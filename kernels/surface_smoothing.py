@@ -175,23 +175,7 @@ def smooth_normals_step(
 
 
 @wp.kernel(enable_backward=False)
-def volume_terms(
-    tid_offset: int,
-    # In:
-    vertex_x: wp.array(dtype=wp.vec3),
-    triangles: wp.array(dtype=wp.vec3i),
-    # Out: per triangle 6 x its signed volume term x_a . (x_b x x_c) [m^3], relative to ``origin`` = x of
-    # vertex 0 (so float32 keeps its precision)
-    triangle_volume_out: wp.array(dtype=float),
-):
-    t = wp.tid() + tid_offset
-    tri = triangles[t]
-    o = vertex_x[0]
-    triangle_volume_out[t] = wp.dot(vertex_x[tri[0]] - o, wp.cross(vertex_x[tri[1]] - o, vertex_x[tri[2]] - o))
-
-
-@wp.kernel(enable_backward=False)
-def weighted_vertex_area(
+def volume_area_terms(
     tid_offset: int,
     # In:
     vertex_x: wp.array(dtype=wp.vec3),
@@ -200,17 +184,27 @@ def weighted_vertex_area(
     vertex_face_start: wp.array(dtype=wp.int32),
     vertex_face_count: wp.array(dtype=wp.int32),
     vertex_face: wp.array(dtype=wp.int32),
-    # Out: w_v A_v, A_v = a third of the area of the faces around v [m^2]; and the unit normal
-    weighted_area_out: wp.array(dtype=float),
+    # Out: per vertex (w_v A_v [m^2], 6 x the signed volume terms of the faces whose first corner it is
+    # [m^3]), A_v = a third of the area of the faces around v; and the unit vertex normal
+    terms_out: wp.array(dtype=wp.vec2),
     vertex_normal_out: wp.array(dtype=wp.vec3),
 ):
+    """One pass for the volume restoration: the enclosed volume V = sum_t (x_a - o) . ((x_b - o) x
+    (x_c - o)) / 6 = sum_t (x_a - o) . ((x_b - x_a) x (x_c - x_a)) / 6 (o = x of vertex 0, so float32
+    keeps its precision; each face counted at its first corner), the weighted vertex areas and the
+    area-weighted normals."""
     v = wp.tid() + tid_offset
+    o = vertex_x[0]
     acc = wp.vec3(0.0)
+    vol = float(0.0)
     s = vertex_face_start[v]
     while s < vertex_face_start[v] + vertex_face_count[v]:
         tri = triangles[vertex_face[s]]
         a = vertex_x[tri[0]]
-        acc += wp.cross(vertex_x[tri[1]] - a, vertex_x[tri[2]] - a)
+        cr = wp.cross(vertex_x[tri[1]] - a, vertex_x[tri[2]] - a)
+        acc += cr
+        if tri[0] == v:
+            vol += wp.dot(a - o, cr)
         s += 1
     length = wp.length(acc)
     n = wp.vec3(0.0)
@@ -218,7 +212,7 @@ def weighted_vertex_area(
         n = acc / length
     vertex_normal_out[v] = n
     # sum of face areas = sum |cross| / 2 >= |sum cross| / 2 (equal on a flat fan): good enough for a weight
-    weighted_area_out[v] = vertex_weight[v] * length / 6.0
+    terms_out[v] = wp.vec2(vertex_weight[v] * length / 6.0, vol)
 
 
 @wp.kernel(enable_backward=False)

@@ -80,11 +80,15 @@ class MeshSmoother:
         self.connectivity = MeshConnectivity(self.device)
         self._buf = ArrayPool(self.device)
 
-    def _volume(self, x: wp.array, triangles: wp.array) -> float:
-        nt = len(triangles)
-        terms = self._buf.get("vol", nt, float)[:nt]
-        launch(_dev.volume_terms, nt, [x, triangles], [terms], device=self.device, min_range=LIGHT_MIN_RANGE)
-        return float(wp.utils.array_sum(terms)) / 6.0
+    def _volume_area(self, x: wp.array, weight: wp.array, triangles: wp.array, conn: MeshConnectivity,
+                     normal: wp.array) -> tuple[float, float]:
+        """(enclosed volume [m^3], sum_v w_v A_v [m^2]) of the mesh; unit vertex normals into ``normal``."""
+        n = len(x)
+        terms = self._buf.get("vterms", n, wp.vec2)[:n]
+        launch(_dev.volume_area_terms, n, [x, weight, triangles, conn.face_start, conn.face_count, conn.faces],
+               [terms, normal], device=self.device, min_range=LIGHT_MIN_RANGE // 4)
+        total = wp.utils.array_sum(terms)
+        return float(total[1]) / 6.0, float(total[0])
 
     def smooth(self, vertex_x: wp.array, weight: wp.array, conn: MeshConnectivity, iterations: int,
                scheme: str = "laplacian", triangles: wp.array | None = None) -> wp.array:
@@ -98,8 +102,9 @@ class MeshSmoother:
         b = self._buf.get("xb", n, wp.vec3)[:n]
         wp.copy(a, vertex_x)
         restore = scheme == "laplacian" and triangles is not None and len(triangles) > 0 and iterations > 0
+        normal = self._buf.get("wnormal", n, wp.vec3)[:n]
         if restore:
-            volume0 = self._volume(a, triangles)
+            volume0, _ = self._volume_area(a, weight, triangles, conn, normal)
         betas = [TAUBIN_LAMBDA, TAUBIN_MU] if scheme == "taubin" else [1.0]
         for _ in range(int(iterations)):
             for beta in betas:
@@ -108,14 +113,8 @@ class MeshSmoother:
                 a, b = b, a
         if restore:
             # V(delta) ~ V1 + delta sum_v w_v A_v: solve for V(delta) = V0 (two Newton steps)
-            area = self._buf.get("warea", n, float)[:n]
-            normal = self._buf.get("wnormal", n, wp.vec3)[:n]
             for _ in range(2):
-                volume1 = self._volume(a, triangles)
-                launch(_dev.weighted_vertex_area, n, [a, weight, triangles, conn.face_start, conn.face_count,
-                                                      conn.faces], [area, normal], device=self.device,
-                       min_range=LIGHT_MIN_RANGE // 4)
-                wa = float(wp.utils.array_sum(area))
+                volume1, wa = self._volume_area(a, weight, triangles, conn, normal)
                 if not wa > 0.0:
                     break
                 launch(_dev.offset_along_normals, n, [(volume0 - volume1) / wa, weight, normal], [a],
