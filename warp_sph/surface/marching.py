@@ -12,6 +12,7 @@ import warp as wp
 
 from ..core.buffers import ArrayPool
 from ..core.errors import SimulationError
+from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_marching as _dev
 from .grid import BLOCK_MIN_RANGE, SparseGrid, launch
 
@@ -77,10 +78,11 @@ class MarchingCubes:
         triangles = self._buf.get("tri", n_t, wp.vec3i)
         missing = self._buf.get("um", units, wp.int32)
         launch(_dev.emit_vertices, units,
-               [wp.vec3(*grid.grid_origin), grid.cell_size, b, grid.slabs, float(iso_level), float(weight_normalization),
-                grid.field, grid.weighted_field, grid.meshed_upper, grid.meshed_block, grid.block_coord, self.node_code,
+               [wp.vec3(*grid.grid_origin), grid.cell_size, b, grid.slabs, float(iso_level), grid.field, grid.weighted_field, grid.meshed_upper, grid.meshed_block, grid.block_coord, self.node_code,
                 self.unit_vertices, v_start],
                [node_vertex, vertex_x, vertex_weight], device=self.device, min_range=max(1, BLOCK_MIN_RANGE * grid.slabs))
+        launch(_dev.vertex_weights, n_v, [float(iso_level), float(weight_normalization)], [vertex_weight],
+               device=self.device, min_range=LIGHT_MIN_RANGE)
         launch(_dev.emit_triangles, units,
                [b, grid.slabs, grid.meshed_upper, self.node_code, node_vertex, self.unit_triangles, t_start, self.tri_range,
                 self.tri_edges, self.edge_owner],
