@@ -365,18 +365,22 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
             usd = (f"{fmt(r.get('usd_write_ms'))} ms, {fmt(r.get('usd_bytes_per_frame'))} B"
                    if r.get("usd_write_ms") is not None else "")
             rows.append([fmt(r.get("fluid_particles")), fmt(r.get("cell_per_radius")), fmt(r.get("threads")),
-                         r.get("engine", "?"), r.get("variant", "?"), fmt(r.get("ms")), fmt(r.get("triangles")),
-                         fmt(r.get("ratio_to_splashsurf")), stages, usd])
-        lines += _table(["fluid N", "cell / r", "threads", "engine", "variant", "ms/frame", "triangles",
-                         "x splashsurf", "warp-sph stages [ms]: particles (spray split included) / band / field / "
+                         r.get("engine", "?"), r.get("variant", "?"), fmt(r.get("ms")), fmt(r.get("cpu_ms")),
+                         fmt(r.get("triangles")), fmt(r.get("ratio_to_splashsurf")),
+                         fmt(r.get("cpu_ratio_to_splashsurf")), stages, usd])
+        lines += _table(["fluid N", "cell / r", "threads", "engine", "variant", "ms/frame", "CPU ms/frame",
+                         "triangles", "x splashsurf", "x splashsurf (CPU)",
+                         "warp-sph stages [ms]: particles (spray split included) / band / field / "
                          "extraction / smoothing / decimation / normals", "USD write of the frame"], rows) + [""]
         lines += ["Both tools on the same dam-break particles, cell size, iso level 0.6, kernel support and "
-                  "thread count, in the same run (benchmarks/surface.py); median of the timed calls, warm. "
+                  "thread count, in the same run (benchmarks/surface.py); median of the timed calls, warm "
+                  "(*run*: mean over every frame of the default run, benchmarks/surface_run.py). "
                   "*raw*: field and marching cubes (warp-sph: spray split and narrow band included); "
                   "*pipeline*: raw + 25 weighted smoothing steps + normals + 10 normal smoothing steps "
                   "(splashsurf: with mesh cleanup); *default*: warp-sph's run settings (its cell size, "
                   "smoothing and decimation). *x splashsurf*: warp-sph time / splashsurf time of the same "
-                  "variant.", ""]
+                  "variant; *(CPU)*: the same with the CPU time of the process (all its threads), the figure that compares on a "
+                  "loaded machine.", ""]
 
     mat = data.get("matrix", [])  # the latest record of each case (matrix.section)
     lines += matrix.section(mat, fmt, section_head)

@@ -5,7 +5,7 @@ their cells see beyond their upper faces. Host launcher: ``warp_sph/surface/band
 import warp as wp
 
 from .surface_grid import CLASS_BAND, CLASS_INSIDE, CLASS_OUTSIDE, SPRAY, STATE_INSIDE, STATE_OUTSIDE, SURFACE
-from .surface_rows import row_range
+from .surface_rows import row_range_block
 
 
 @wp.kernel(enable_backward=False)
@@ -23,7 +23,7 @@ def classify_blocks(
     # In:
     block_coord: wp.array(dtype=wp.vec3i),
     block_neighbor: wp.array2d(dtype=wp.int32),
-    block_start: wp.array(dtype=wp.int32),
+    layer_start: wp.array2d(dtype=wp.int32),
     block_count: wp.array(dtype=wp.int32),
     sorted_x: wp.array(dtype=wp.vec3),
     particle_flag: wp.array(dtype=wp.int32),
@@ -39,8 +39,9 @@ def classify_blocks(
     if exact != 0:
         band2 = support_radius * support_radius
     cls = CLASS_OUTSIDE
+    reach = wp.sqrt(band2) / cell_size
     for row in range(9):
-        rng = row_range(block_neighbor, block_start, block_count, c, row)
+        rng = row_range_block(block_neighbor, layer_start, block_count, c, row, reach, block_nodes)
         t = rng[0]
         while t < rng[1]:
             flag = particle_flag[t]

@@ -2,12 +2,14 @@
 (``surface_grid.py``). Host launcher: ``warp_sph/surface/field.py``.
 
     Phi(x) = sum_j f(|x - x_j|) / rho~_j,   rho~_j = sum_k f(|x_j - x_k|)  (k includes j),
-    f(r) = (1 - r^2 / R^2)^5 for r < R (R: the smoothing kernel's support radius)
+    f(r) = (1 - r^2 / R^2)^5 for r < R (R: the smoothing kernel's support radius),
+    Psi(x) = sum_j n_j f(|x - x_j|) / rho~_j  (n_j: weighted neighbour count; Psi / Phi feeds the
+    smoothing's feature weights, ``surface_marching.emit_vertices``)
 """
 import warp as wp
 
 from .surface_grid import CLASS_BAND, CLASS_INSIDE, field_kernel
-from .surface_rows import row_range
+from .surface_rows import row_range_block
 
 
 @wp.kernel(enable_backward=False)
@@ -25,17 +27,21 @@ def splat_band(
     block_class: wp.array(dtype=wp.int32),
     block_coord: wp.array(dtype=wp.vec3i),
     block_neighbor: wp.array2d(dtype=wp.int32),
-    block_start: wp.array(dtype=wp.int32),
+    layer_start: wp.array2d(dtype=wp.int32),
     block_count: wp.array(dtype=wp.int32),
     sorted_x: wp.array(dtype=wp.vec3),
     inv_kernel_sum: wp.array(dtype=float),
+    weighted_count: wp.array(dtype=float),
     # Out: Phi at the nodes of the meshed blocks, B^3 values per block, node (i, j, k) of block k
-    # at k B^3 + (i B + j) B + k (local indices)
+    # at k B^3 + (i B + j) B + k (local indices); Psi = sum_j n_j f_j / rho~_j at the same nodes
     field_out: wp.array(dtype=float),
+    weighted_field_out: wp.array(dtype=float),
 ):
-    """Band blocks: Phi(node) = sum_j f(|node - x_j|) / rho~_j over the particles near the block,
-    each thread writing only its own nodes (no atomics), adding each particle over its support
-    sphere. Ghost blocks: 1 (inside) or 0 (outside) by class."""
+    """Band blocks: Phi(node) = sum_j f(|node - x_j|) / rho~_j and Psi(node) = sum_j n_j f(|node - x_j|)
+    / rho~_j (n_j: weighted neighbour count; Psi / Phi is its Shepard interpolation, the feature
+    measure of the smoothing) over the particles near the block, each thread writing only its own
+    nodes (no atomics), adding each particle over its support sphere. Ghost blocks: Phi 1 (inside)
+    or 0 (outside) by class, Psi 0 (no crossing edge ends at a ghost node in an extracted mesh)."""
     tid = wp.tid() + tid_offset
     k = tid / slabs
     slab = tid - k * slabs
@@ -55,6 +61,7 @@ def splat_band(
     last = base + (i_hi - n0[0] + 1) * bsz * bsz
     while node < last:
         field_out[node] = fill
+        weighted_field_out[node] = 0.0
         node += 1
     if cls != CLASS_BAND:
         return
@@ -64,11 +71,12 @@ def splat_band(
     k_lo = n0[2]
     k_hi = n0[2] + bsz - 1
     for row in range(9):
-        rng = row_range(block_neighbor, block_start, block_count, c, row)
+        rng = row_range_block(block_neighbor, layer_start, block_count, c, row, s_nodes, bsz)
         t = rng[0]
         while t < rng[1]:
             weight = inv_kernel_sum[t]
             if weight > 0.0:
+                weight_n = weight * weighted_count[t]
                 g = (sorted_x[t] - grid_origin) / cell_size
                 i0 = wp.max(int(wp.ceil(g[0] - s_nodes)), i_lo)
                 i1 = wp.min(int(wp.floor(g[0] + s_nodes)), i_hi)
@@ -94,7 +102,9 @@ def splat_band(
                             kk = kk0
                             dz = dz0
                             while kk <= kk1:
-                                field_out[col + kk] = field_out[col + kk] + weight * field_kernel(r2_xy + dz * dz, inv_s2)
+                                fk = field_kernel(r2_xy + dz * dz, inv_s2)
+                                field_out[col + kk] = field_out[col + kk] + weight * fk
+                                weighted_field_out[col + kk] = weighted_field_out[col + kk] + weight_n * fk
                                 kk += 1
                                 dz += 1.0
                         j += 1

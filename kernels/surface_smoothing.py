@@ -1,16 +1,13 @@
-"""Device code of the surface mesh post-processing: connectivity, feature weights, weighted
-Laplacian smoothing of positions, vertex normals and their smoothing.
+"""Device code of the surface mesh post-processing: connectivity, weighted Laplacian smoothing of
+positions, vertex normals and their smoothing.
 
 Feature-weighted smoothing after Loeschner, Boettcher, Jeske & Bender (VMV 2023, as in splashsurf):
-each vertex gets w = smoothstep(n_v / N) from the weighted neighbour count n of the particles
-around it, so vertices near well-supported particles (flat, bulk fluid) are smoothed fully and
-those near thin sheets, jets and droplets (few neighbours) barely move. Host launcher:
-``warp_sph/surface/smoothing.py``.
+each vertex has a weight w = smoothstep(n_v / N) from the weighted neighbour count n of the
+particles around it (computed with the vertex, ``surface_marching.emit_vertices``), so vertices
+near well-supported particles (flat, bulk fluid) are smoothed fully and those near thin sheets,
+jets and droplets (few neighbours) barely move. Host launcher: ``warp_sph/surface/smoothing.py``.
 """
 import warp as wp
-
-from .surface_grid import field_kernel
-from .surface_rows import block_local, row_range_near
 
 
 @wp.kernel(enable_backward=False)
@@ -92,59 +89,6 @@ def vertex_neighbors(
                     count += 1
         s += 1
     neighbor_count_out[v] = count
-
-
-@wp.kernel(enable_backward=False)
-def feature_weights(
-    tid_offset: int,
-    # Model:
-    support_radius: float,
-    weighted_count_normalization: float,
-    # Grid:
-    grid_origin: wp.vec3,
-    cell_size: float,
-    block_nodes: int,
-    block_coord: wp.array(dtype=wp.vec3i),
-    # In:
-    vertex_x: wp.array(dtype=wp.vec3),
-    vertex_block: wp.array(dtype=wp.int32),
-    block_neighbor: wp.array2d(dtype=wp.int32),
-    block_start: wp.array(dtype=wp.int32),
-    block_count: wp.array(dtype=wp.int32),
-    sorted_x: wp.array(dtype=wp.vec3),
-    weighted_count: wp.array(dtype=float),
-    inv_kernel_sum: wp.array(dtype=float),
-    # Out: w in [0, 1] per vertex
-    vertex_weight_out: wp.array(dtype=float),
-):
-    """n_v = sum_j V_j n_j f_vj / sum_j V_j f_vj (Shepard-normalised interpolation with the field kernel f,
-    V_j = 1 / rho~_j, spray excluded), x = clamp(n_v / N, 0, 1), w = 6 x^5 - 15 x^4 + 10 x^3."""
-    v = wp.tid() + tid_offset
-    xv = vertex_x[v]
-    c = vertex_block[v]
-    r2max = support_radius * support_radius
-    inv_r2max = 1.0 / r2max
-    num = float(0.0)
-    den = float(0.0)
-    local = block_local(xv, grid_origin, cell_size, block_nodes, block_coord[c])
-    reach = support_radius / cell_size
-    for row in range(9):
-        rng = row_range_near(block_neighbor, block_start, block_count, c, row, local, reach, block_nodes)
-        t = rng[0]
-        while t < rng[1]:
-            d = sorted_x[t] - xv
-            r2 = wp.dot(d, d)
-            vol = inv_kernel_sum[t]
-            if r2 < r2max and vol > 0.0:
-                f = vol * field_kernel(r2, inv_r2max)
-                num += f * weighted_count[t]
-                den += f
-            t += 1
-    x = float(0.0)
-    if den > 0.0:
-        x = wp.clamp(num / den / weighted_count_normalization, 0.0, 1.0)
-    vertex_weight_out[v] = x * x * x * (10.0 + x * (6.0 * x - 15.0))
-
 
 
 @wp.kernel(enable_backward=False)
@@ -231,23 +175,7 @@ def smooth_normals_step(
 
 
 @wp.kernel(enable_backward=False)
-def volume_terms(
-    tid_offset: int,
-    # In:
-    vertex_x: wp.array(dtype=wp.vec3),
-    triangles: wp.array(dtype=wp.vec3i),
-    # Out: per triangle 6 x its signed volume term x_a . (x_b x x_c) [m^3], relative to ``origin`` = x of
-    # vertex 0 (so float32 keeps its precision)
-    triangle_volume_out: wp.array(dtype=float),
-):
-    t = wp.tid() + tid_offset
-    tri = triangles[t]
-    o = vertex_x[0]
-    triangle_volume_out[t] = wp.dot(vertex_x[tri[0]] - o, wp.cross(vertex_x[tri[1]] - o, vertex_x[tri[2]] - o))
-
-
-@wp.kernel(enable_backward=False)
-def weighted_vertex_area(
+def volume_area_terms(
     tid_offset: int,
     # In:
     vertex_x: wp.array(dtype=wp.vec3),
@@ -256,17 +184,27 @@ def weighted_vertex_area(
     vertex_face_start: wp.array(dtype=wp.int32),
     vertex_face_count: wp.array(dtype=wp.int32),
     vertex_face: wp.array(dtype=wp.int32),
-    # Out: w_v A_v, A_v = a third of the area of the faces around v [m^2]; and the unit normal
-    weighted_area_out: wp.array(dtype=float),
+    # Out: per vertex (w_v A_v [m^2], 6 x the signed volume terms of the faces whose first corner it is
+    # [m^3]), A_v = a third of the area of the faces around v; and the unit vertex normal
+    terms_out: wp.array(dtype=wp.vec2),
     vertex_normal_out: wp.array(dtype=wp.vec3),
 ):
+    """One pass for the volume restoration: the enclosed volume V = sum_t (x_a - o) . ((x_b - o) x
+    (x_c - o)) / 6 = sum_t (x_a - o) . ((x_b - x_a) x (x_c - x_a)) / 6 (o = x of vertex 0, so float32
+    keeps its precision; each face counted at its first corner), the weighted vertex areas and the
+    area-weighted normals."""
     v = wp.tid() + tid_offset
+    o = vertex_x[0]
     acc = wp.vec3(0.0)
+    vol = float(0.0)
     s = vertex_face_start[v]
     while s < vertex_face_start[v] + vertex_face_count[v]:
         tri = triangles[vertex_face[s]]
         a = vertex_x[tri[0]]
-        acc += wp.cross(vertex_x[tri[1]] - a, vertex_x[tri[2]] - a)
+        cr = wp.cross(vertex_x[tri[1]] - a, vertex_x[tri[2]] - a)
+        acc += cr
+        if tri[0] == v:
+            vol += wp.dot(a - o, cr)
         s += 1
     length = wp.length(acc)
     n = wp.vec3(0.0)
@@ -274,7 +212,7 @@ def weighted_vertex_area(
         n = acc / length
     vertex_normal_out[v] = n
     # sum of face areas = sum |cross| / 2 >= |sum cross| / 2 (equal on a flat fan): good enough for a weight
-    weighted_area_out[v] = vertex_weight[v] * length / 6.0
+    terms_out[v] = wp.vec2(vertex_weight[v] * length / 6.0, vol)
 
 
 @wp.kernel(enable_backward=False)

@@ -10,15 +10,22 @@ from warp_sph.run.exporter import ExportThread, snapshot_bytes
 
 
 class SlowExporter:
-    """Writes nothing until ``release`` is set; records the order of the frames."""
+    """Writes nothing until ``release`` is set; records the order of the frames and whether each was
+    written on every core (``Exporter.use_all_cores``)."""
 
     def __init__(self):
         self.release = threading.Event()
         self.frames = []
+        self.all_cores = True
+        self.frame_all_cores = []
+
+    def use_all_cores(self, enabled):
+        self.all_cores = enabled
 
     def write(self, frame, t, snap):
         self.release.wait(timeout=30)
         self.frames.append(frame)
+        self.frame_all_cores.append(self.all_cores)
 
 
 def snap(n=1000):
@@ -37,6 +44,23 @@ def test_frames_queue_within_the_budget_and_the_simulation_never_waits():
     assert ex.frames == list(range(1, 41)) and worker.queued == 0 and worker.queued_bytes == 0
 
 
+def test_the_export_uses_every_core_only_after_the_last_step():
+    """Beside the simulation the surface runs on one core; the frames still queued when the
+    simulation has finished (``finish``) are written on every core."""
+    ex = SlowExporter()
+    worker = ExportThread(ex, depth=2, max_bytes=64 * snapshot_bytes(snap()))
+    worker.submit(1, 0.0, snap())
+    ex.release.set()
+    while not ex.frames:
+        time.sleep(0.01)
+    ex.release.clear()
+    for f in range(2, 5):
+        worker.submit(f, 0.0, snap())
+    threading.Timer(0.2, ex.release.set).start()
+    worker.finish()
+    assert ex.frames == [1, 2, 3, 4] and ex.frame_all_cores[0] is False and ex.frame_all_cores[-1] is True
+
+
 def test_submit_waits_for_a_slot_beyond_the_budget():
     ex = SlowExporter()
     assert snapshot_bytes(snap()) == 1000 * 12
@@ -53,7 +77,7 @@ def test_submit_waits_for_a_slot_beyond_the_budget():
 
 
 def test_an_export_error_reaches_the_simulation_thread():
-    class Failing:
+    class Failing(SlowExporter):
         def write(self, frame, t, snap):
             raise OSError("disk full")
 

@@ -40,10 +40,9 @@ class Exporter:
         if o.surface and (o.usd or o.mesh_sequence):
             from ..surface.reconstruction import SurfaceReconstructor, surface_settings
 
-            # split_threads off: it runs beside the simulation, which keeps every core busy
+            # split over the CPU threads unless an ExportThread runs it beside the simulation (use_all_cores)
             self.surface = SurfaceReconstructor(m.smoothing.name, m.smoothing_length, m.particle_radius,
-                                                device=sim.device, split_threads=False,
-                                                **surface_settings(o, m.particle_radius))
+                                                device=sim.device, **surface_settings(o, m.particle_radius))
         if o.usd:
             from ..io.reexport import scene_static_meshes
             from ..io.export_usd import UsdWriter
@@ -77,6 +76,15 @@ class Exporter:
         self.seconds = 0.0
         self.surface_seconds: dict[str, float] = {}  # filled with every stage on the first frame
         self.surface_counts = {"frames": 0, "triangles": 0, "vertices": 0, "spray": 0, "band_fallback": 0}
+
+    def use_all_cores(self, enabled: bool) -> None:
+        """Whether the surface splits its kernels over the CPU threads (from the next frame on; the
+        mesh is bitwise the same either way). Off while the simulation runs beside the export: the
+        simulation's split launches keep every core busy, and a split export would take its cores and
+        queue behind its launches (run.json ``export_wait_time`` stays 0 either way: the export runs
+        behind, from queued snapshots); on for the frames still queued after the last step."""
+        if self.surface is not None:
+            self.surface.split_threads = bool(enabled)
 
     def report(self) -> dict:
         """Per-frame export figures for run.json: USD bytes per frame, surface stage times [ms],
@@ -227,6 +235,7 @@ class ExportThread:
         self.queued_bytes = 0
         self.blocked_seconds = 0.0  # time submit waited for room in the queue
         self.error: BaseException | None = None
+        exporter.use_all_cores(False)  # beside the simulation
         self.thread = threading.Thread(target=self._work, name="warp-sph-export", daemon=True)
         self.thread.start()
 
@@ -264,6 +273,8 @@ class ExportThread:
             raise self.error
 
     def finish(self):
+        """Called after the last step: writes the queued frames (on every core: the simulation is done)."""
+        self.exporter.use_all_cores(True)
         self.q.put(None)
         self.thread.join()
         if not getattr(self, "reported", False):  # raised once only (a submit may have raised it)

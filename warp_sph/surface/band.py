@@ -24,7 +24,7 @@ def classify(grid: SparseGrid, exact: bool = False) -> bool:
     scan = grid._buf.get("bscan", n_cand, wp.int32)
     launch(_band.classify_blocks, n_cand,
            [wp.vec3(*grid.grid_origin), grid.cell_size, grid.block_nodes, grid.band_radius, grid.support_radius,
-            int(exact), grid.block_coord, grid.block_neighbor, grid.block_start, grid.block_count, grid.sorted_x,
+            int(exact), grid.block_coord, grid.block_neighbor, grid.layer_start, grid.block_count, grid.sorted_x,
             grid.particle_flag],
            [grid.block_class], device=dev, min_range=BLOCK_MIN_RANGE)
     meshed.zero_()

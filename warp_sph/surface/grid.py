@@ -7,7 +7,8 @@ read the built grid (they import this one, never the reverse):
 
 1. particle bounds (one host read), grid origin and block size B (nodes per block edge, so that
    a block edge B c >= max(support radius, band radius));
-2. particles sorted by block key (radix sort); occupied blocks; *candidate* blocks = occupied
+2. particles sorted by block key and, within a block, by node layer along x (radix sort;
+   ``kernels/surface_rows.py``); occupied blocks; *candidate* blocks = occupied
    blocks and their 26 neighbours (every block a particle's support reaches), in a hash table;
 3. per particle, over the 27 blocks around it: neighbour count, weighted neighbour count
    n_i = sum_j (1 - r_ij^2/R^2) and rho~_i = sum_j W_ij. Spray: fewer than ``spray_neighbors``
@@ -123,17 +124,18 @@ class SparseGrid:
             raise SimulationError(f"surface reconstruction: {int(b[6])} particle positions are not finite")
         return b[:3], b[3:6]
 
-    def _unique(self, keys: wp.array, n: int, prefix: str) -> tuple[int, wp.array, wp.array, wp.array]:
-        """Runs of equal keys in sorted keys[:n]: (count, run keys, run starts, run lengths)."""
+    def _unique(self, keys: wp.array, n: int, prefix: str, divisor: int = 1) -> tuple[int, wp.array, wp.array, wp.array]:
+        """Runs of equal keys // divisor in sorted keys[:n]: (count, run keys // divisor, run starts, run lengths)."""
         head = self._buf.get(prefix + "_head", n, wp.int32)
         scan = self._buf.get(prefix + "_scan", n, wp.int32)
-        launch(_dev.mark_runs, n, [keys], [head], device=self.device, min_range=LIGHT_MIN_RANGE)
+        div = wp.int64(divisor)
+        launch(_dev.mark_runs, n, [keys, div], [head], device=self.device, min_range=LIGHT_MIN_RANGE)
         wp.utils.array_scan(head[:n], scan[:n], inclusive=True)
         runs = int(scan[n - 1: n].numpy()[0])
         run_key = self._buf.get(prefix + "_key", runs, wp.int64)
         run_start = self._buf.get(prefix + "_start", runs, wp.int32)
         run_len = self._buf.get(prefix + "_len", runs, wp.int32)
-        launch(_dev.compact_runs, n, [keys, head, scan], [run_key, run_start], device=self.device,
+        launch(_dev.compact_runs, n, [keys, div, head, scan], [run_key, run_start], device=self.device,
                min_range=LIGHT_MIN_RANGE)
         launch(_dev.run_lengths, runs, [run_start, runs, n], [run_len], device=self.device, min_range=LIGHT_MIN_RANGE)
         return runs, run_key, run_start, run_len
@@ -160,15 +162,16 @@ class SparseGrid:
                                   f"{(upper - lower).tolist()} m)")
         self.block_dims = wp.vec3i(*(int(v) for v in dims))
         key_bits = max(1, int(np.prod(dims) - 1).bit_length())
+        layer_bits = max(1, int(b * np.prod(dims) - 1).bit_length())  # particle keys: block key B + x layer
         o = wp.vec3(*origin)
 
         keys = self._buf.get("pkeys", 2 * n, wp.int64)
         index = self._buf.get("pindex", 2 * n, wp.int32)
         launch(_dev.particle_block_keys, n, [o, c, b, self.block_dims, particle_x], [keys, index], device=dev,
                min_range=LIGHT_MIN_RANGE)
-        wp.utils.radix_sort_pairs(keys, index, n, 0, key_bits)
+        wp.utils.radix_sort_pairs(keys, index, n, 0, layer_bits)
         self.sorted_index = index
-        n_occ, occ_key, occ_start, occ_len = self._unique(keys, n, "occ")
+        n_occ, occ_key, occ_start, occ_len = self._unique(keys, n, "occ", divisor=b)
 
         dkeys = self._buf.get("dkeys", 2 * 27 * n_occ, wp.int64)
         dindex = self._buf.get("dindex", 2 * 27 * n_occ, wp.int32)
@@ -187,12 +190,12 @@ class SparseGrid:
         self.block_neighbor = self._buf.get("nbr", n_cand, wp.int32, width=27)
         launch(_dev.block_neighbors, n_cand, [cand_key, self.block_dims, table_key, table_value],
                [self.block_coord, self.block_neighbor], device=dev, min_range=BLOCK_MIN_RANGE)
-        self.block_start = self._buf.get("bstart", n_cand, wp.int32)
         self.block_count = self._buf.get("bcount", n_cand, wp.int32)
         self.block_count.zero_()
+        self.layer_start = self._buf.get("lstart", n_cand, wp.int32, width=b + 1)
         self.particle_block = self._buf.get("pblock", n, wp.int32)
-        launch(_dev.block_particle_ranges, n_occ, [occ_key, occ_start, occ_len, table_key, table_value],
-               [self.block_start, self.block_count, self.particle_block], device=dev)
+        launch(_dev.block_particle_ranges, n_occ, [occ_key, occ_start, occ_len, keys, b, table_key, table_value],
+               [self.block_count, self.layer_start, self.particle_block], device=dev)
 
         self.sorted_x = self._buf.get("sorted_x", n, wp.vec3)
         launch(_dev.gather_sorted, n, [particle_x, index], [self.sorted_x], device=dev, min_range=LIGHT_MIN_RANGE)
@@ -201,7 +204,7 @@ class SparseGrid:
         self.kernel_sum = self._buf.get("ksum", n, float)
         launch(_dev.particle_stats, n, [self.support_radius, wp.vec3(*self.grid_origin), self.cell_size, self.block_nodes,
                                         self.block_coord, self.sorted_x, self.particle_block, self.block_neighbor,
-                                        self.block_start, self.block_count],
+                                        self.layer_start, self.block_count],
                [self.neighbor_count, self.weighted_count, self.kernel_sum], device=dev)
         self.particle_flag = self._buf.get("pflag", n, wp.int32)
         self.inv_kernel_sum = self._buf.get("invk", n, float)

@@ -12,6 +12,7 @@ import warp as wp
 
 from ..core.buffers import ArrayPool
 from ..core.errors import SimulationError
+from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_marching as _dev
 from .grid import BLOCK_MIN_RANGE, SparseGrid, launch
 
@@ -50,14 +51,17 @@ class MarchingCubes:
             return 0
         return int(unit_inexact.numpy()[:units].sum())
 
-    def extract(self, grid: SparseGrid, iso_level: float) -> tuple[wp.array, wp.array, wp.array]:
-        """Passes 2 and 3 (after :meth:`count`): vertex positions [m] (V,) vec3, the candidate block of
-        each vertex (V,) int32, and triangles (T,) vec3i wound counter-clockwise seen from outside."""
+    def extract(self, grid: SparseGrid, iso_level: float, weight_normalization: float = 1.0
+                ) -> tuple[wp.array, wp.array, wp.array]:
+        """Passes 2 and 3 (after :meth:`count`): vertex positions [m] (V,) vec3, the smoothing's feature
+        weight of each vertex (V,) float in [0, 1] (smoothstep of the interpolated weighted neighbour
+        count / ``weight_normalization``; ``kernels/surface_marching.emit_vertices``), and triangles
+        (T,) vec3i wound counter-clockwise seen from outside."""
         units = self.units
         b = grid.block_nodes
         if units == 0:
             self.vertex_count = self.triangle_count = 0
-            return (self._buf.get("vx", 1, wp.vec3)[:0], self._buf.get("vb", 1, wp.int32)[:0],
+            return (self._buf.get("vx", 1, wp.vec3)[:0], self._buf.get("vw", 1, float)[:0],
                     self._buf.get("tri", 1, wp.vec3i)[:0])
         v_start = self._buf.get("uvs", units, wp.int32)
         t_start = self._buf.get("uts", units, wp.int32)
@@ -70,13 +74,15 @@ class MarchingCubes:
         self.vertex_count, self.triangle_count = n_v, n_t
         node_vertex = self._buf.get("nv", grid.meshed_count * b**3, wp.int32)
         vertex_x = self._buf.get("vx", n_v, wp.vec3)
-        vertex_block = self._buf.get("vb", n_v, wp.int32)
+        vertex_weight = self._buf.get("vw", n_v, float)
         triangles = self._buf.get("tri", n_t, wp.vec3i)
         missing = self._buf.get("um", units, wp.int32)
         launch(_dev.emit_vertices, units,
-               [wp.vec3(*grid.grid_origin), grid.cell_size, b, grid.slabs, float(iso_level), grid.field,
-                grid.meshed_upper, grid.meshed_block, grid.block_coord, self.node_code, self.unit_vertices, v_start],
-               [node_vertex, vertex_x, vertex_block], device=self.device, min_range=max(1, BLOCK_MIN_RANGE * grid.slabs))
+               [wp.vec3(*grid.grid_origin), grid.cell_size, b, grid.slabs, float(iso_level), grid.field, grid.weighted_field, grid.meshed_upper, grid.meshed_block, grid.block_coord, self.node_code,
+                self.unit_vertices, v_start],
+               [node_vertex, vertex_x, vertex_weight], device=self.device, min_range=max(1, BLOCK_MIN_RANGE * grid.slabs))
+        launch(_dev.vertex_weights, n_v, [float(iso_level), float(weight_normalization)], [vertex_weight],
+               device=self.device, min_range=LIGHT_MIN_RANGE)
         launch(_dev.emit_triangles, units,
                [b, grid.slabs, grid.meshed_upper, self.node_code, node_vertex, self.unit_triangles, t_start, self.tri_range,
                 self.tri_edges, self.edge_owner],
@@ -85,4 +91,4 @@ class MarchingCubes:
         if lost:
             raise SimulationError(f"surface reconstruction: {lost} triangle corners lost their vertex "
                                   "(inconsistent block classification)")
-        return vertex_x[:n_v], vertex_block[:n_v], triangles[:n_t]
+        return vertex_x[:n_v], vertex_weight[:n_v], triangles[:n_t]

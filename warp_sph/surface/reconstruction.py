@@ -11,9 +11,10 @@ Stages of :meth:`SurfaceReconstructor.reconstruct` (each timed, ``SurfaceFrame.t
 3. ``field``: Phi(x) = sum_j f(|x - x_j| / h) / rho~_j (f the kernel's shape; mass and rest density
    cancel, ~1 inside, 0 outside) on the band's nodes only;
 4. ``extraction``: marching cubes (``marching.py``), welded by construction (one vertex per
-   crossing edge) and wound outward; where the band missed part of the surface the field is
+   crossing edge) and wound outward, with each vertex's smoothing weight (from the weighted
+   neighbour count field Psi beside Phi); where the band missed part of the surface the field is
    rebuilt exact everywhere within the support (``SurfaceFrame.stats["band_fallback"]``);
-5. ``smoothing``: connectivity, feature weights, ``smoothing_iterations`` Taubin steps
+5. ``smoothing``: connectivity, ``smoothing_iterations`` weighted Laplacian steps
    (``smoothing.py``); 6. ``decimation`` (``decimation.py``, optional); 7. ``normals``.
 
 Why iso 0.6 and this Phi: with rho~ from the same kernel, unclamped and without walls, Phi is 1 in
@@ -174,7 +175,7 @@ class SurfaceReconstructor:
                 break
             exact = True  # the band missed part of the surface: exact everywhere within the support
             stats["band_fallback"] = 1
-        vertex_x, vertex_block, triangles = mc.extract(grid, self.iso_level)
+        vertex_x, vertex_weight, triangles = mc.extract(grid, self.iso_level, self.smoother.normalization)
         t = self._tick(timings, "extraction", t)
         stats.update(candidate_blocks=grid.candidate_count, meshed_blocks=grid.meshed_count,
                      band_blocks=int(grid.meshed_band.numpy()[: grid.meshed_count].sum()),
@@ -183,8 +184,7 @@ class SurfaceReconstructor:
         conn = None
         if self.smoothing_iterations > 0 and len(triangles):
             conn = sm.connectivity.build(len(vertex_x), triangles)
-            w = sm.weights(grid, vertex_x, vertex_block)
-            vertex_x = sm.smooth(vertex_x, w, conn, self.smoothing_iterations, self.smoothing_scheme, triangles)
+            vertex_x = sm.smooth(vertex_x, vertex_weight, conn, self.smoothing_iterations, self.smoothing_scheme, triangles)
             t = self._tick(timings, "smoothing", t)
         if self.decimation is not None and len(triangles):
             vertex_x, triangles = self.decimation.decimate(vertex_x, triangles, conn)

@@ -3,7 +3,7 @@ area-weighted vertex normals and normal smoothing.
 
 Device code: ``kernels/surface_smoothing.py``. Smoothing after Loeschner et al. (VMV 2023), the
 scheme splashsurf uses: per-vertex weight w = smoothstep(n_v / N) from the particles' weighted
-neighbour count, then ``iterations`` Jacobi steps x <- x + w (mean(one ring) - x). A Taubin pair
+neighbour count (given by the extraction, ``marching.py``), then ``iterations`` Jacobi steps x <- x + w (mean(one ring) - x). A Taubin pair
 (lambda = 0.5, mu = -0.53; Taubin 1995) per iteration keeps the volume: plain Laplacian steps
 shrink a sphere (splashsurf: -4.5 % after 25 steps on a ball of radius 16 r), Taubin's negative
 step inflates it back while the lattice ripple (a few edges long) is still damped.
@@ -16,7 +16,7 @@ import warp as wp
 from ..core.buffers import ArrayPool
 from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_smoothing as _dev
-from .grid import SparseGrid, launch
+from .grid import launch
 
 #: Taubin's pass band pair (lambda, mu): k_PB = 1/lambda + 1/mu ~ 0.11
 TAUBIN_LAMBDA = 0.5
@@ -60,10 +60,10 @@ class MeshConnectivity:
 
 
 class MeshSmoother:
-    """Feature weights, position smoothing and normals for the meshes of a :class:`SparseGrid`.
+    """Position smoothing and normals for the meshes of a :class:`~warp_sph.surface.grid.SparseGrid`.
 
     Args:
-        smoothing: kernel name of the grid (the interpolation of the weights uses its shape).
+        smoothing: kernel name of the grid.
         h: smoothing length [m].
         support_radius: kernel support radius [m].
         weighted_count_normalization: N in w = smoothstep(n / N); splashsurf's 13 (for a support
@@ -80,21 +80,15 @@ class MeshSmoother:
         self.connectivity = MeshConnectivity(self.device)
         self._buf = ArrayPool(self.device)
 
-    def weights(self, grid: SparseGrid, vertex_x: wp.array, vertex_block: wp.array) -> wp.array:
-        """w in [0, 1] per vertex (1: bulk fluid, smoothed fully; 0: droplets and thin features)."""
-        n = len(vertex_x)
-        w = self._buf.get("w", n, float)
-        launch(_dev.feature_weights, n, [self.support_radius, self.normalization, wp.vec3(*grid.grid_origin),
-                                         grid.cell_size, grid.block_nodes, grid.block_coord, vertex_x, vertex_block,
-                                  grid.block_neighbor, grid.block_start, grid.block_count, grid.sorted_x,
-                                  grid.weighted_count, grid.inv_kernel_sum], [w], device=self.device)
-        return w[:n]
-
-    def _volume(self, x: wp.array, triangles: wp.array) -> float:
-        nt = len(triangles)
-        terms = self._buf.get("vol", nt, float)[:nt]
-        launch(_dev.volume_terms, nt, [x, triangles], [terms], device=self.device, min_range=LIGHT_MIN_RANGE)
-        return float(wp.utils.array_sum(terms)) / 6.0
+    def _volume_area(self, x: wp.array, weight: wp.array, triangles: wp.array, conn: MeshConnectivity,
+                     normal: wp.array) -> tuple[float, float]:
+        """(enclosed volume [m^3], sum_v w_v A_v [m^2]) of the mesh; unit vertex normals into ``normal``."""
+        n = len(x)
+        terms = self._buf.get("vterms", n, wp.vec2)[:n]
+        launch(_dev.volume_area_terms, n, [x, weight, triangles, conn.face_start, conn.face_count, conn.faces],
+               [terms, normal], device=self.device, min_range=LIGHT_MIN_RANGE // 4)
+        total = wp.utils.array_sum(terms)
+        return float(total[1]) / 6.0, float(total[0])
 
     def smooth(self, vertex_x: wp.array, weight: wp.array, conn: MeshConnectivity, iterations: int,
                scheme: str = "laplacian", triangles: wp.array | None = None) -> wp.array:
@@ -108,8 +102,9 @@ class MeshSmoother:
         b = self._buf.get("xb", n, wp.vec3)[:n]
         wp.copy(a, vertex_x)
         restore = scheme == "laplacian" and triangles is not None and len(triangles) > 0 and iterations > 0
+        normal = self._buf.get("wnormal", n, wp.vec3)[:n]
         if restore:
-            volume0 = self._volume(a, triangles)
+            volume0, _ = self._volume_area(a, weight, triangles, conn, normal)
         betas = [TAUBIN_LAMBDA, TAUBIN_MU] if scheme == "taubin" else [1.0]
         for _ in range(int(iterations)):
             for beta in betas:
@@ -118,14 +113,8 @@ class MeshSmoother:
                 a, b = b, a
         if restore:
             # V(delta) ~ V1 + delta sum_v w_v A_v: solve for V(delta) = V0 (two Newton steps)
-            area = self._buf.get("warea", n, float)[:n]
-            normal = self._buf.get("wnormal", n, wp.vec3)[:n]
             for _ in range(2):
-                volume1 = self._volume(a, triangles)
-                launch(_dev.weighted_vertex_area, n, [a, weight, triangles, conn.face_start, conn.face_count,
-                                                      conn.faces], [area, normal], device=self.device,
-                       min_range=LIGHT_MIN_RANGE // 4)
-                wa = float(wp.utils.array_sum(area))
+                volume1, wa = self._volume_area(a, weight, triangles, conn, normal)
                 if not wa > 0.0:
                     break
                 launch(_dev.offset_along_normals, n, [(volume0 - volume1) / wa, weight, normal], [a],
