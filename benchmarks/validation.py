@@ -165,15 +165,16 @@ def evaluate(case: str, folder: Path, info: dict, pressure_window: float = E.PRE
             series[name] = _series(tp, ratio, 4)
         figures.update({f"{k}_error": v for k, v in out.items()})
         figures["surface_height"] = float(np.mean(h[late]))
-        # the depth the water's volume gives over the footprint it was sampled on (columns d apart between the
-        # walls' gaps), and how far below that level the surface settled [d]: the water spreads into the side
-        # walls' gaps and its packing rearranges (docs/validation.md), the height probe reads where it is
+        # the depth the water's volume gives over the floor it covers once spread to the walls (its edges
+        # gap - r from the wall particles, as on the floor), and how far below that level the surface settled
+        # [d]: the sampled columns need not fill the tank (r = 0.0125 m leaves 0.22 d of slack at one side of
+        # each axis), the water spreads into the slack and re-packs, and the height probe reads where it is
         c, d = sc.container, 2.0 * sc.particle_radius
         model = info.get("model") or {}
         if c is not None and model.get("particle_mass") and info.get("fluid_particles"):
-            footprint = np.prod([np.floor((c.max[a] - c.min[a] - 2.0 * sc.wall_gap) / d + 1e-6) + 1.0 for a in (0, 1)])
+            area = float(np.prod([c.max[a] - c.min[a] - 2.0 * floor for a in (0, 1)]))
             volume = float(info["fluid_particles"]) * float(model["particle_mass"]) / float(model.get("rest_density", 1000.0))
-            figures["depth_by_volume"] = volume / (footprint * d * d)
+            figures["depth_by_volume"] = volume / area
             figures["surface_drop_d"] = (floor + figures["depth_by_volume"] - figures["surface_height"]) / d
         met = {k: abs(v) <= GOALS["hydrostatic_error"] for k, v in figures.items() if k.endswith("_error")}
     return figures, met, series
