@@ -130,3 +130,19 @@ def test_hydrostatic_evaluation_figures(tmp_path):
     assert fig["surface_drop_d"] == pytest.approx((floor + depth - h[t >= 1.0].mean()) / d, rel=1e-9)
     assert fig["surface_drop_d"] == pytest.approx(0.1, abs=3e-3)
     assert met == {"floor_error": True, "middle_error": True}
+
+
+def test_hydrostatic_misses_name_the_unsettled_tank():
+    """The report's 'Misses' line names a hydrostatic run that is not at rest (rms speed >= 1e-3 m/s) with its
+    speed, and a figure outside 1 % with its value; a run within both goals is not named."""
+    from benchmarks.validation_report import misses
+
+    base = {"case": "hydrostatic", "resolution": "coarse", "pressure_probe": "wall load"}
+    moving = {**base, "solver": "dfsph", "rms_speed_final": 7.1e-3,
+              "figures": {"floor_error": 0.012}, "goals_met": {"floor_error": False, "settled": False}}
+    still = {**base, "solver": "pbf", "rms_speed_final": 5e-4,
+             "figures": {"floor_error": 0.004}, "goals_met": {"floor_error": True, "settled": True}}
+    line = " ".join(misses("hydrostatic", [moving, still]))
+    assert "dfsph coarse floor: +1.20 %" in line and "dfsph coarse: rms speed 7.1e-03 m/s" in line
+    assert "pbf" not in line.split(". Why:")[0]
+    assert misses("hydrostatic", [still]) == []
