@@ -132,10 +132,14 @@ WHY = {
                 "artificial speed of sound (c_s = 10 v_ref), a ~4 ms pulse no density diffusion damps; sensor 1 "
                 "(3 mm, in the corner) sits below the first fluid layer (a wall gap up) and the probe's disc "
                 "(radius 2 d) is cut by the floor; sensor 4's maximum is a slow plateau whose time moves with noise",
-    "hydrostatic": "the tank has not settled at 2 s (the floor load still swings 1-2 % around the weight, rms "
-                   "speeds 2-7e-3 m/s); the height probe reads the surface 0.12 d below the level of the water's "
-                   "volume (+0.7 to +1.5 %); the mid-depth probe reads the particle pressure field, which alternates "
-                   "layer by layer from the walls",
+    "hydrostatic": "the tank does not come to rest: the start is off the discrete equilibrium (DFSPH's first step "
+                   "lets the interior fall freely, g dt; WCSPH starts uncompressed) and every step from rest leaves "
+                   "velocity the pressure solve cannot see (an alternating-layer mode the divergence of the cubic "
+                   "lattice misses, 7 % of g dt per DFSPH step at any tolerance), so the floor load swings around "
+                   "the weight while the scene's damping works it off; at r = 0.0125 m the surface settles 0.13 d "
+                   "below its volume's level (0.7 % of the depth) and the floor's centre carries ~0.6 % more than "
+                   "the mean (the water spreads and re-packs); the mid-depth probe reads the particle pressure "
+                   "field, which alternates layer by layer from the walls",
 }
 
 
@@ -157,11 +161,15 @@ def misses(case: str, records: list[dict]) -> list[str]:
                 if bad:
                     out.append(f"{who} {s_}: " + ", ".join(bad))
         elif case == "hydrostatic":
-            out += [f"{who} {k.replace('_error', '')}: {100 * f[k]:+.2f} %" for k, ok in met.items() if not ok]
+            out += [f"{who} {k.replace('_error', '')}: {100 * f[k]:+.2f} %" for k, ok in met.items()
+                    if not ok and k in f]
+            if met.get("settled") is False:
+                out.append(f"{who}: rms speed {r['rms_speed_final']:.1e} m/s at the end (goal < "
+                           f"{GOALS['settled_speed']:.0e})")
     if not out:
         return []
     goal = {"martin_moyce": "front RMS <= 4 %", "lobovsky": "peak within 10 %, time within 5 %",
-            "hydrostatic": "within 1 %"}[case]
+            "hydrostatic": "within 1 %, at rest below 1e-3 m/s"}[case]
     return [f"Misses ({goal}): " + "; ".join(out) + f". Why: {WHY[case]} (docs/validation.md).", ""]
 
 
