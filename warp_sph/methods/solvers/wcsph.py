@@ -92,6 +92,7 @@ class WcsphSolver(Solver):
         self.stiffness = float(self.config.stiffness) if self.config.stiffness > 0 else (
             m.rest_density * c_s * c_s / (7.0 if eos == "tait" else 1.0))
         self.density_diffusion = float(self.config.density_diffusion)
+        self._started = False  # the start's correction is set once (``refresh_density``)
 
     def density_diffusion_constants(self) -> tuple[float, wp.vec3]:
         """(2 delta h c_s [m^2/s], rho0 g / c^2 [kg/m^4]) of the delta-SPH term, c^2 = dp/drho at rho0
@@ -213,10 +214,11 @@ class WcsphSolver(Solver):
         return stages
 
     def refresh_density(self) -> None:
-        """The density at the current positions; at the start (step 0) with delta-SPH, the correction is
-        set so that every particle starts at rho0 (``start_density_correction``); later (a resume, a retry)
-        the carried correction is added."""
-        if self.density_diffusion > 0.0 and self.sim.state.step == 0:
+        """The density at the current positions; at the start (the first refresh of a run's first step, unless
+        a checkpoint was restored) with delta-SPH, the correction is set so that every particle starts at rho0
+        (``start_density_correction``); otherwise (a resume, a retry, later) the carried correction is added."""
+        if self.density_diffusion > 0.0 and not self._started and self.sim.state.step == 0:
+            self._started = True
             f = self.sim.fields
             f["wcsph_density_correction"].zero_()
             super().refresh_density()
@@ -236,6 +238,7 @@ class WcsphSolver(Solver):
     def restore_arrays(self, arrays) -> None:
         if not self.carried_fields():
             return
+        self._started = True  # the restored correction is the state: no start rule after it
         f = self.sim.fields["wcsph_density_correction"]
         a = arrays.get("wcsph_density_correction")
         if a is None:
