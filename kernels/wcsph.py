@@ -2,7 +2,9 @@
 
 Pressure acceleration (report eq. 10), the boundary method's terms (``kernels/boundary.py``: Akinci
 2012 pressure eq. 16 and friction eq. 22-24, or the penalty force eq. 12), artificial viscosity, the
-accelerations of the scene's explicit forces (``force_acceleration``, summed before), gravity.
+accelerations of the scene's explicit forces (``force_acceleration``, summed before), gravity; and the
+delta-SPH density diffusion (Molteni & Colagrossi 2009, in the hydrostatic-corrected form of Fourtakas
+et al. 2019 that DualSPHysics uses), integrated into a per-particle density correction.
 """
 import functools
 
@@ -24,6 +26,47 @@ def artificial_viscosity_acceleration(alpha_h_c: float, particle_mass: float, rh
         return wp.vec3(0.0)
     nu = 2.0 * alpha_h_c / (rho_i + rho_j)
     return (particle_mass * nu * vx / (wp.dot(x_ij, x_ij) + eps_h2)) * grad
+
+
+@wp.func
+def density_diffusion_pair(coefficient: float, hydrostatic_density: wp.vec3, rho_i: float, rho_j: float,
+                           x_ij: wp.vec3, grad: wp.vec3, eps_h2: float, volume_j: float) -> float:
+    """delta-SPH density diffusion of i due to fluid neighbour j [kg/(m^3 s)] (Molteni & Colagrossi 2009;
+    Fourtakas et al. 2019): 2 delta h c_s (rho_j - rho_i - rho^H_ji) (x_ji . grad_i W_ij) / (|x_ij|^2 + 0.01 h^2) V_j,
+    coefficient = 2 delta h c_s [m^2/s], V_j = m / rho_j. rho^H_ji = rho0 g . x_ji / c_s^2 (hydrostatic_density =
+    rho0 g / c_s^2 [kg/m^4]) is the density difference of a fluid at hydrostatic rest, so that state is not
+    diffused away. (rho_j - rho_i - rho^H_ji) is antisymmetric in ij and the rest symmetric: sum_i V_i D_i = 0."""
+    x_ji = -x_ij
+    rho_h = wp.dot(hydrostatic_density, x_ji)
+    return coefficient * (rho_j - rho_i - rho_h) * wp.dot(x_ji, grad) / (wp.dot(x_ij, x_ij) + eps_h2) * volume_j
+
+
+@wp.kernel(enable_backward=False)
+def add_density_correction(
+    tid_offset: int,
+    # In:
+    density_correction: wp.array(dtype=float),
+    # Out:
+    particle_density_out: wp.array(dtype=float),
+):
+    """rho_i += delta rho_i: the summed density plus the density the delta-SPH diffusion moved [kg/m^3]."""
+    i = wp.tid() + tid_offset
+    particle_density_out[i] = particle_density_out[i] + density_correction[i]
+
+
+@wp.kernel(enable_backward=False)
+def start_density_correction(
+    tid_offset: int,
+    rest_density: float,
+    # In/out: the summed density in, the start's correction out
+    particle_density: wp.array(dtype=float),
+    density_correction_out: wp.array(dtype=float),
+):
+    """The start: delta rho_i = rho0 - sum_j m W_ij, and rho_i = rho0 (the continuity equation's usual
+    initial density: the kernel's deficit at a free surface and the walls' excess are not density)."""
+    i = wp.tid() + tid_offset
+    density_correction_out[i] = rest_density - particle_density[i]
+    particle_density[i] = rest_density
 
 
 @functools.cache
@@ -59,7 +102,7 @@ def pressure_kernel(equation_of_state: str):
 @functools.cache
 def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirrored_pressure: bool,
                         neighbors: str = "grid", with_artificial_viscosity: bool = False,
-                        write_pressure_term: bool = False):
+                        write_pressure_term: bool = False, with_density_diffusion: bool = False):
     """a_i = -sum_j m (p_i/rho_i^2 + p_j/rho_j^2) grad W_ij (eq. 10)
              + a_forces,i (``force_acceleration``, with_forces: the scene's explicit forces)
              + sum_b [pressure_b(grad W_ib, V_b, (p/rho^2)_b) + force_b(x_ib, v_ib, ...)] + g    [m/s^2]
@@ -70,6 +113,10 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
     the wall load). neighbors: "grid" or "list" (see ``density.NEIGHBOR_TYPES``).
     write_pressure_term: also write the wall's p/rho^2 of each particle to ``boundary_pressure_term_out``
     [m^5/(kg s^2)] (moving bodies gather their force from it; otherwise the array is not touched).
+    with_density_diffusion: also delta rho_i += dt D_i with D_i = sum_j ``density_diffusion_pair`` over the
+    fluid neighbours (delta-SPH; ``density_correction`` [kg/m^3], in place: no thread reads another's).
+    The density it acts on is particle_density: the summation (eq. 7) plus delta rho, whose rate is then
+    sum_j m v_ij . grad W_ij + D_i, the continuity equation with the delta-SPH term.
     """
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
     lists = neighbors == "list"
@@ -82,10 +129,10 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
     force_term = boundary_terms.force if with_force else None
 
     @wp.func(module="unique")
-    def fluid_pair(x_ij: wp.vec3, v_ij: wp.vec3, p_rho2_i: float, p_rho2_j: float, rho_i: float, rho_j: float,
-                   particle_mass: float, h: float, eps_h2: float, alpha_h_c: float) -> wp.vec3:
-        """Pressure (eq. 10) and artificial viscosity acceleration of i due to fluid neighbour j != i."""
-        grad = wp.static(gradient)(x_ij, h)
+    def fluid_pair(x_ij: wp.vec3, v_ij: wp.vec3, grad: wp.vec3, p_rho2_i: float, p_rho2_j: float, rho_i: float,
+                   rho_j: float, particle_mass: float, eps_h2: float, alpha_h_c: float) -> wp.vec3:
+        """Pressure (eq. 10) and artificial viscosity acceleration of i due to fluid neighbour j != i;
+        grad = grad_i W_ij."""
         a = -particle_mass * (p_rho2_i + p_rho2_j) * grad
         if wp.static(with_artificial_viscosity):
             a += artificial_viscosity_acceleration(alpha_h_c, particle_mass, rho_i, rho_j, v_ij, x_ij, eps_h2, grad)
@@ -113,6 +160,9 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
         rest_density: float,
         gravity: wp.vec3,
         alpha_h_c: float,
+        diffusion_coefficient: float,
+        hydrostatic_density: wp.vec3,
+        dt: float,
         boundary_params: BoundaryParams,
         boundary_neighbors: Neighbors,
         boundary_x: wp.array(dtype=wp.vec3),
@@ -129,6 +179,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
         particle_acceleration_out: wp.array(dtype=wp.vec3),
         boundary_force_out: wp.array(dtype=wp.vec3),
         boundary_pressure_term_out: wp.array(dtype=float),
+        density_correction: wp.array(dtype=float),
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
@@ -145,6 +196,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
         h = smoothing_length
         eps_h2 = 0.01 * h * h
         a = wp.vec3(0.0)
+        drho = float(0.0)
         if wp.static(lists):
             k = int(0)
             k_end = int(neighbor_count(fluid_neighbors, i))
@@ -152,8 +204,13 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                 j = fluid_neighbors.index[i, k]
                 if j != i:
                     rho_j = particle_density[j]
-                    a += fluid_pair(xi - particle_x[j], vi - particle_v[j], p_rho2_i,
-                                    particle_pressure[j] / (rho_j * rho_j), rho_i, rho_j, particle_mass, h, eps_h2, alpha_h_c)
+                    x_ij = xi - particle_x[j]
+                    grad = wp.static(gradient)(x_ij, h)
+                    a += fluid_pair(x_ij, vi - particle_v[j], grad, p_rho2_i, particle_pressure[j] / (rho_j * rho_j),
+                                    rho_i, rho_j, particle_mass, eps_h2, alpha_h_c)
+                    if wp.static(with_density_diffusion):
+                        drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i, rho_j, x_ij,
+                                                       grad, eps_h2, particle_mass / rho_j)
                 k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
@@ -163,8 +220,14 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                     x_ij = xi - particle_x[j]
                     if wp.length(x_ij) < support_radius:
                         rho_j = particle_density[j]
-                        a += fluid_pair(x_ij, vi - particle_v[j], p_rho2_i, particle_pressure[j] / (rho_j * rho_j),
-                                        rho_i, rho_j, particle_mass, h, eps_h2, alpha_h_c)
+                        grad = wp.static(gradient)(x_ij, h)
+                        a += fluid_pair(x_ij, vi - particle_v[j], grad, p_rho2_i, particle_pressure[j] / (rho_j * rho_j),
+                                        rho_i, rho_j, particle_mass, eps_h2, alpha_h_c)
+                        if wp.static(with_density_diffusion):
+                            drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i, rho_j,
+                                                           x_ij, grad, eps_h2, particle_mass / rho_j)
+        if wp.static(with_density_diffusion):
+            density_correction[i] = density_correction[i] + dt * drho
         a_boundary = wp.vec3(0.0)
         if wp.static(with_boundary):
             if wp.static(lists):

@@ -47,6 +47,18 @@ def test_peak_and_gauge_figures():
     assert E.gauge_rms(tau, h + 0.05, tau, h)["rms"] == pytest.approx(0.05)
 
 
+def test_lobovsky_peak_table():
+    """Table 2 of Lobovsky et al. 2014 (per-run peak statistics) ships with its citation; a simulated peak equal to
+    the median scores 0 and lies in the band, one at the 97.5 % percentile's double lies outside."""
+    table, cite = E.load_table("lobovsky_2014_peaks")
+    assert any("doi:" in line for line in cite) and list(table["z_mm"]) == [3, 15, 30, 80]
+    assert np.all(table["p2_5_mbar"] < table["median_mbar"]) and np.all(table["median_mbar"] < table["p97_5_mbar"])
+    med, lo, hi = table["median_mbar"][0], table["p2_5_mbar"][0], table["p97_5_mbar"][0]
+    assert E.peak_statistics(med, med, lo, hi) == {"median": med, "band": [lo, hi], "median_error": 0.0, "in_band": True}
+    out = E.peak_statistics(2 * hi, med, lo, hi)
+    assert not out["in_band"] and out["median_error"] == pytest.approx(2 * hi / med - 1)
+
+
 def test_moving_average():
     t = np.arange(0.0, 0.05, 0.001)
     assert np.allclose(E.moving_average(t, np.full_like(t, 3.0), 0.004), 3.0)
@@ -82,9 +94,14 @@ def test_bench_evaluation_of_the_experiment_itself_scores_zero(tmp_path):
         t, p, _ = E.load_series(f"lobovsky_2014_{s}")
         _write_probe(lob, s, t / math.sqrt(g / 0.3), p * 1000.0 * g * 0.3)
     fig, met, _ = V.evaluate("lobovsky", lob, {"probes": {s: {} for s in V.LOBOVSKY_SENSORS}}, pressure_window=0.0)
+    table, _ = E.load_table("lobovsky_2014_peaks")
     for s in V.LOBOVSKY_SENSORS:
         assert abs(fig[s]["peak_error"]) < 1e-9 and abs(fig[s]["time_error"]) < 1e-9 and met[s] == {"peak": True,
                                                                                                     "time": True}
+        # the digitised curve's peak against the per-run peaks of Table 2 (mbar -> p / (rho g H))
+        median = table["median_mbar"][list(table["z_mm"]).index(V.LOBOVSKY_HEIGHTS_MM[s])] * 100.0 / (1000.0 * g * 0.3)
+        assert fig[s]["table2"]["median"] == pytest.approx(median)
+        assert fig[s]["table2"]["median_error"] == pytest.approx(fig[s]["sim_peak"] / median - 1)
 
 
 @pytest.mark.parametrize("case", list(V.CASES))

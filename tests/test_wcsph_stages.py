@@ -172,12 +172,14 @@ def test_graph_holds_only_what_the_scene_needs(device):
 
 @pytest.mark.parametrize("boundary", ["akinci2012", "penalty"])
 def test_neighbor_lists_match_grid_queries(boundary, device):
-    """The list variant of every neighbour loop (the default) equals the hash-grid variant."""
-    sim = Simulation(small_scene(boundary=boundary), device=device)
+    """The list variant of every neighbour loop (the default) equals the hash-grid variant (with the delta-SPH
+    density diffusion on, so that its pair loop is compared too)."""
+    sim = Simulation(small_scene(boundary=boundary, wcsph={"density_diffusion": 0.1}), device=device)
     jittered(sim, seed=5, amp=0.3)
     results = {}
     for lists in (True, False):
         sim.set_solver(lists=lists)
+        sim.fields["wcsph_density_correction"].zero_()  # delta-SPH: the forces stage moves it; both start from 0
         stages = {s.name: s for s in sim.graph.stages}
         assert ("neighbor_lists" in stages["density"].writes) == lists  # lists: search and density in one pass
         for name in ("neighbors", "density", "xsph", "viscosity", "pressure", "forces"):
@@ -188,6 +190,6 @@ def test_neighbor_lists_match_grid_queries(boundary, device):
                 v1 = sim.get_field("particle_v")
                 sim.set_field("particle_v", v0)
         results[lists] = [sim.get_field(f) for f in ("particle_density", "particle_pressure", "particle_acceleration",
-                                                     "boundary_force", "force_acceleration")] + [v1]
+                                                     "boundary_force", "force_acceleration", "wcsph_density_correction")] + [v1]
     for a, b in zip(results[True], results[False]):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max())

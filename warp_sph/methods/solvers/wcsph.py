@@ -1,10 +1,20 @@
 """Weakly compressible SPH (Becker & Teschner 2007); kernels in ``kernels/wcsph.py``.
 
-Step: neighbours -> density (eq. 7/13) -> [filters: XSPH, eq. 21] -> [explicit forces: their
+Step: neighbours -> density (eq. 7/13, + the delta-SPH density correction) -> [filters: XSPH, eq. 21] -> [explicit forces: their
 accelerations] -> pressure (eq. 9 or Tait) -> forces (eq. 10, the boundary method's terms, artificial
-viscosity, the explicit forces' accelerations, gravity) -> semi-implicit Euler (eq. 11); with an
+viscosity, the explicit forces' accelerations, gravity; the delta-SPH diffusion: delta rho += dt D) ->
+semi-implicit Euler (eq. 11); with an
 implicit force: kick (v += dt a) -> [implicit forces on v*] -> drift (x += dt v). The forces' slot is
 "before_pressure" (``warp_sph.methods.force``).
+
+delta-SPH (``wcsph.density_diffusion`` = delta > 0; Molteni & Colagrossi 2009, the hydrostatic-corrected
+form of Fourtakas et al. 2019, DualSPHysics' "DDT" type 2): the continuity equation gains
+D_i = 2 delta h c_s sum_j (rho_j - rho_i - rho^H_ji) (x_ji . grad_i W_ij) / (|x_ij|^2 + 0.01 h^2) V_j, a diffusion
+of the density that damps the acoustic noise and the water hammer rho0 c_s v of an impact. Here the density
+is a summation (eq. 7), which is the exact time integral of the continuity equation's convective part
+sum_j m v_ij . grad W_ij; the diffusion's part is integrated into a per-particle correction delta rho
+(``wcsph_density_correction``, carried, checkpointed) that the density stage adds: rho = sum_j m W_ij + delta rho,
+whose rate is the delta-SPH continuity equation.
 """
 from __future__ import annotations
 
@@ -61,6 +71,12 @@ class WcsphSolver(Solver):
               "'eq16' (report eq. 16, p_i/rho_i^2: energy-consistent, but layers near a wall read 15-70 % over "
               "rho0 g depth) or 'mirrored' (p_i/rho_i^2 + p_i/rho0^2, as SPlisHSPlasH: hydrostatic profile within "
               "4 %, but not energy-consistent: it pumps energy into a resting tank, which then never settles)", choices=("eq16", "mirrored")),
+        Param("wcsph.density_diffusion", "float", "-", 0.0, "delta of the delta-SPH density diffusion (Molteni & "
+              "Colagrossi 2009; the hydrostatic-corrected form of Fourtakas et al. 2019 that DualSPHysics uses, usually "
+              "0.1): D_i = 2 delta h c_s sum_j (rho_j - rho_i - rho^H_ji) x_ji . grad W_ij / |x_ij|^2 V_j in the "
+              "continuity equation, every particle starting at rho0; damps acoustic noise (a settling tank) but on the "
+              "Lobovsky dam break lets particles through the one-layer walls (docs/validation.md), hence off (0) by "
+              "default", ge=0.0, le=1.0),
         Param("wcsph.artificial_viscosity", "float", "-", 0.0, "artificial viscosity alpha (Monaghan 1992, "
               "Becker & Teschner 2007): nu = 2 alpha h c_s / (rho_i + rho_j) on approaching pairs only; dissipates "
               "impacts (a 14 m/s drop keeps 30 % of its energy with 0.5 instead of 100 %), the acoustic step shrinks "
@@ -75,6 +91,19 @@ class WcsphSolver(Solver):
         eos = self.config.equation_of_state
         self.stiffness = float(self.config.stiffness) if self.config.stiffness > 0 else (
             m.rest_density * c_s * c_s / (7.0 if eos == "tait" else 1.0))
+        self.density_diffusion = float(self.config.density_diffusion)
+        self._started = False  # the start's correction is set once (``refresh_density``)
+
+    def density_diffusion_constants(self) -> tuple[float, wp.vec3]:
+        """(2 delta h c_s [m^2/s], rho0 g / c^2 [kg/m^4]) of the delta-SPH term, c^2 = dp/drho at rho0
+        (K / rho0 linear, 7 B / rho0 Tait: the hydrostatic density difference is linearised, so that it is
+        exactly antisymmetric and the term conserves sum_i V_i delta rho_i)."""
+        m = self.model
+        bulk = self.stiffness * (7.0 if self.config.equation_of_state == "tait" else 1.0)  # rho0 c^2 [Pa]
+        c = math.sqrt(bulk / m.rest_density)
+        coefficient = 2.0 * self.density_diffusion * m.smoothing_length * c
+        g = np.asarray(m.gravity, dtype=np.float64) * m.rest_density * m.rest_density / bulk
+        return float(coefficient), wp.vec3(*[float(v) for v in g])
 
     def stages(self) -> list[Stage]:
         sim, m = self.sim, self.model
@@ -92,9 +121,13 @@ class WcsphSolver(Solver):
         implicit = forces.implicit_stages(slot)
         with_forces = bool(explicit)
         accel = sim.fields[FORCE_ACCELERATION] if with_forces else wp.zeros(1, dtype=wp.vec3, device=m.device)
+        diffusion = self.density_diffusion > 0.0
         force_kernel = _wcsph.acceleration_kernel(m.smoothing.name, terms, with_forces, mirrored,
                                                   "list" if self.lists else "grid",
-                                                  self.config.artificial_viscosity > 0.0, bodies)
+                                                  self.config.artificial_viscosity > 0.0, bodies, diffusion)
+        correction = (sim.allocate("wcsph_density_correction", float) if diffusion
+                      else wp.zeros(1, dtype=float, device=m.device))
+        coefficient, hydrostatic = self.density_diffusion_constants()
         term = sim.allocate("boundary_pressure_term", float) if bodies else wp.zeros(1, dtype=float, device=m.device)
         gravity = wp.vec3(*m.gravity)
         neighbors = "neighbor_lists" if self.lists else "fluid_grid"
@@ -113,10 +146,11 @@ class WcsphSolver(Solver):
                 bn, fn = m.boundary_grid_id, sim.fluid_grid.id
             launch(force_kernel, m.fluid_count,
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, gravity,
-                    float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound), params, bn,
+                    float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound),
+                    coefficient, hydrostatic, float(dt), params, bn,
                     m.boundary_x, m.boundary_v, m.boundary_volume, fn, f["particle_x"], f["particle_v"],
                     f["particle_density"], f["particle_pressure"], accel],
-                   [f["particle_acceleration"], f["boundary_force"], term], device=m.device)
+                   [f["particle_acceleration"], f["boundary_force"], term, correction], device=m.device)
 
         def run_integrate(sim, dt):
             f = sim.fields
@@ -140,10 +174,24 @@ class WcsphSolver(Solver):
             terms_doc.append(f"{terms.name} boundary" + (" (mirrored pressure)" if mirrored and terms.pressure else ""))
         if self.config.artificial_viscosity > 0.0:
             terms_doc.append("artificial viscosity")
+        if diffusion:
+            terms_doc.append(f"delta-SPH density diffusion (delta = {self.density_diffusion:g}: delta rho += dt D)")
         if with_forces:
             terms_doc.append("forces (" + ", ".join(f.name for f in forces.of_mode("explicit")) + ")")
         terms_doc.append("gravity")
-        stages = [neighbors_stage(sim, self.lists), density_stage(sim, self.lists)]
+        density = density_stage(sim, self.lists)
+        if diffusion:  # rho = the summation + the density the diffusion moved (module docstring)
+            summation = density.run
+
+            def run_density(sim, dt):
+                summation(sim, dt)
+                launch(_wcsph.add_density_correction, m.fluid_count, [correction], [sim.fields["particle_density"]],
+                       device=m.device, min_range=LIGHT_MIN_RANGE)
+
+            density = Stage("density", run_density, reads=density.reads + ("wcsph_density_correction",),
+                            writes=density.writes, updates=density.updates,
+                            doc=density.doc + " + delta rho (delta-SPH density correction)")
+        stages = [neighbors_stage(sim, self.lists), density]
         stages += forces.filter_stages(slot) + explicit
         stages += [
             Stage("pressure", run_pressure, reads=("particle_density",), writes=("particle_pressure",),
@@ -152,6 +200,7 @@ class WcsphSolver(Solver):
                   reads=(neighbors, "particle_x", "particle_v", "particle_density", "particle_pressure") + boundary_reads
                   + ((FORCE_ACCELERATION,) if with_forces else ()),
                   writes=("particle_acceleration", "boundary_force") + (("boundary_pressure_term",) if bodies else ()),
+                  updates=("wcsph_density_correction",) if diffusion else (),
                   doc=" + ".join(terms_doc)),
         ]
         if implicit:  # the implicit forces act on v* = v + dt a, before the positions move
@@ -163,6 +212,39 @@ class WcsphSolver(Solver):
             stages += [Stage("integrate", run_integrate, reads=("particle_acceleration",),
                              updates=("particle_v", "particle_x"), doc="semi-implicit Euler (eq. 11)")]
         return stages
+
+    def refresh_density(self) -> None:
+        """The density at the current positions; at the start (the first refresh of a run's first step, unless
+        a checkpoint was restored) with delta-SPH, the correction is set so that every particle starts at rho0
+        (``start_density_correction``); otherwise (a resume, a retry, later) the carried correction is added."""
+        if self.density_diffusion > 0.0 and not self._started and self.sim.state.step == 0:
+            self._started = True
+            f = self.sim.fields
+            f["wcsph_density_correction"].zero_()
+            super().refresh_density()
+            launch(_wcsph.start_density_correction, self.model.fluid_count, [self.model.rest_density],
+                   [f["particle_density"], f["wcsph_density_correction"]], device=self.model.device,
+                   min_range=LIGHT_MIN_RANGE)
+            return
+        super().refresh_density()
+
+    def carried_fields(self) -> tuple[str, ...]:
+        """The delta-SPH density correction (when on): the density the diffusion moved so far."""
+        return ("wcsph_density_correction",) if self.density_diffusion > 0.0 else ()
+
+    def checkpoint_arrays(self) -> dict:
+        return {"wcsph_density_correction": self.sim.fields["wcsph_density_correction"]} if self.carried_fields() else {}
+
+    def restore_arrays(self, arrays) -> None:
+        if not self.carried_fields():
+            return
+        self._started = True  # the restored correction is the state: no start rule after it
+        f = self.sim.fields["wcsph_density_correction"]
+        a = arrays.get("wcsph_density_correction")
+        if a is None:
+            f.zero_()
+        else:
+            f.assign(a if isinstance(a, wp.array) else wp.array(np.asarray(a), dtype=float, device=self.model.device))
 
     def time_step_bounds(self, speed: float) -> list[TimeStepBound]:
         m = self.model
@@ -237,4 +319,5 @@ class WcsphSolver(Solver):
 
     def summary(self) -> dict:
         return {"stiffness": self.stiffness, "equation_of_state": self.config.equation_of_state,
+                "density_diffusion": self.density_diffusion,
                 "acoustic_period": 2.0 * self.model.support_radius / max(self.model.speed_of_sound, 1e-30)}
