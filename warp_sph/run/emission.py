@@ -66,7 +66,8 @@ class ParticleFlow:
         ids = wp.array(np.arange(m.capacity, dtype=np.int32), dtype=wp.int32, device=sim.device)
         self.full[ID_FIELD] = ids
         self._keep = wp.zeros(m.capacity, dtype=wp.int32, device=sim.device)
-        self._tmp: dict = {}
+        self._tmp: dict = {}   # dtype -> capacity-sized scratch of the removal's gather
+        self._host: dict = {}  # dtype -> host staging array (``_staging``)
         self.set_count(m.fluid_count)
 
     # --- the active prefix ------------------------------------------------------------------
@@ -93,10 +94,27 @@ class ParticleFlow:
 
     # --- a frame's start ----------------------------------------------------------------------
     def begin_frame(self) -> bool:
-        """Sinks, then emitters, at the state's time (see the module docstring); True when the count changed."""
-        removed = self._remove() if self.sinks else 0
-        added = self._emit() if self.plans else 0
-        return bool(removed or added)
+        """Sinks, then emitters, at the state's time (see the module docstring); True when particles were
+        removed or added.
+
+        Timed as per-frame stages of the step graph (``StepGraph.timed``, run.json ``frame_stage_times``):
+        ``flow_sinks`` (the sink test and the gather), ``flow_emitters`` (the new layers) and ``flow_count``
+        (the active prefix views of the new count, made once per frame). Nothing else runs for them: no
+        density refresh (every solver's first stages compute the density of the new count) and no extra
+        neighbour search or sort (the substeps search, and the frame sorts into cell order, as without them).
+        """
+        graph, n0 = self.sim.graph, self.sim.model.fluid_count
+        n, before = n0, (self.removed, self.emitted)
+        if self.sinks:
+            with graph.timed("flow_sinks"):
+                n = self._remove(n)
+        if self.plans:
+            with graph.timed("flow_emitters"):
+                n = self._emit(n)
+        if n != n0:  # (as many removed as emitted: the views of n0 are those of n)
+            with graph.timed("flow_count"):
+                self.set_count(n)
+        return (self.removed, self.emitted) != before
 
     def _energy(self, x: np.ndarray, v: np.ndarray) -> tuple[float, float]:
         """(kinetic + potential [J] in the local frame, the same above the floor [J]) of particles x, v."""
@@ -109,33 +127,51 @@ class ParticleFlow:
         floor_pe = mass * len(x) * float(np.linalg.norm(g)) * (watch.floor if watch is not None else 0.0)
         return ke + pe, ke + pe - floor_pe
 
-    def _remove(self) -> int:
-        sim, m = self.sim, self.sim.model
-        n = m.fluid_count
+    def _staging(self, dtype) -> wp.array:
+        """A host array of 2 x capacity values of ``dtype``, allocated once (pinned for a CUDA device): values
+        written into its ``numpy()`` view reach the device's arrays by one copy, with no allocation."""
+        buf = self._host.get(dtype)
+        if buf is None:
+            size = 2 * self.sim.model.capacity  # x and v of the emitted particles side by side
+            buf = self._host[dtype] = wp.empty(size, dtype=dtype, device="cpu", pinned=self.sim.device.is_cuda)
+        return buf
+
+    def _remove(self, n: int) -> int:
+        """The particles of [0, n) inside a sink box removed, the others in order in [0, left); returns left."""
+        sim = self.sim
         x = sim.fields["particle_x"].numpy()
         inside = np.zeros(n, dtype=bool)
         for lo, hi in self.sinks:
             inside |= np.all((x >= lo) & (x <= hi), axis=1)
         k = int(inside.sum())
         if not k:
-            return 0
+            return n
         v = sim.fields["particle_v"].numpy()
         e, _ = self._energy(x[inside], v[inside])
         self.exchanged -= e
-        keep = np.nonzero(~inside)[0].astype(np.int32)
-        left = len(keep)
-        wp.copy(self._keep, wp.array(keep, dtype=wp.int32, device=sim.device), count=left)
+        left = n - k
+        host = self._staging(wp.int32)
+        host.numpy()[:left] = np.flatnonzero(~inside)
+        wp.copy(self._keep, host, count=left)
+        # the stable compaction: one copy through an index view into a scratch array of the field's type
+        # (a native copy, on the host or the device), and one copy back, per field that outlives a substep
+        order = self._keep[:left]
+        views = {}
         for name, full in self.carried():
-            t = self._tmp.get(full.dtype)
+            t = views.get(full.dtype)
             if t is None:
-                t = self._tmp[full.dtype] = wp.empty(m.capacity, dtype=full.dtype, device=sim.device)
-            launch(_dev.gather_by_order, left, [self._keep, full], [t], device=sim.device, min_range=LIGHT_MIN_RANGE)
+                scratch = self._tmp.get(full.dtype)
+                if scratch is None:
+                    scratch = self._tmp[full.dtype] = wp.empty(self.sim.model.capacity, dtype=full.dtype,
+                                                               device=sim.device)
+                t = views[full.dtype] = scratch[:left]
+            wp.copy(t, wp.indexedarray(full, [order]))
             wp.copy(full, t, count=left)
         self.removed += k
-        self.set_count(left)
-        return k
+        return left
 
-    def _emit(self) -> int:
+    def _emit(self, n: int) -> int:
+        """The layers due by the state's time written into the slots [n, n + k); returns n + k."""
         sim, m = self.sim, self.sim.model
         t = sim.state.time
         g = np.asarray(m.gravity, dtype=np.float64)
@@ -150,10 +186,9 @@ class ParticleFlow:
             self.layers[k] = max(int(self.layers[k]), due)
         if not xs:
             self.last_speed = 0.0
-            return 0
+            return n
         x = np.concatenate(xs).astype(np.float32)
         v = np.concatenate(vs).astype(np.float32)
-        n = m.fluid_count
         room = m.capacity - n
         if len(x) > room:
             self.skipped += len(x) - room
@@ -164,22 +199,25 @@ class ParticleFlow:
             x, v = x[:room], v[:room]
         k = len(x)
         if not k:
-            return 0
+            return n
         self.last_speed = float(np.sqrt(np.max(np.sum(v.astype(np.float64) ** 2, axis=1))))
+        own = ("particle_x", "particle_v", ID_FIELD)  # written whole below
         for name, full in self.carried():
-            full[n:n + k].zero_()
-        dev = sim.device
-        wp.copy(self.full["particle_x"], wp.array(x, dtype=wp.vec3, device=dev), dest_offset=n, count=k)
-        wp.copy(self.full["particle_v"], wp.array(v, dtype=wp.vec3, device=dev), dest_offset=n, count=k)
-        ids = np.arange(self.next_id, self.next_id + k, dtype=np.int32)
-        wp.copy(self.full[ID_FIELD], wp.array(ids, dtype=wp.int32, device=dev), dest_offset=n, count=k)
+            if name not in own:
+                full[n:n + k].zero_()
+        xv = self._staging(wp.vec3)
+        xv.numpy()[: 2 * k] = np.concatenate([x, v])
+        wp.copy(self.full["particle_x"], xv, dest_offset=n, count=k)
+        wp.copy(self.full["particle_v"], xv, dest_offset=n, src_offset=k, count=k)
+        ids = self._staging(wp.int32)
+        ids.numpy()[:k] = np.arange(self.next_id, self.next_id + k, dtype=np.int32)
+        wp.copy(self.full[ID_FIELD], ids, dest_offset=n, count=k)
         self.next_id += k
         self.emitted += k
         e, above = self._energy(x, v)
         self.exchanged += e
         self.exchanged_scale += max(above, 0.0)
-        self.set_count(n + k)
-        return k
+        return n + k
 
     # --- records and checkpoints ----------------------------------------------------------------
     def record(self) -> dict:
