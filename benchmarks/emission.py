@@ -23,7 +23,6 @@ from __future__ import annotations
 
 #: the issue's goal: emitters and sinks cost at most this much more per particle-step
 GOAL = 0.05
-SOLVERS = ("dfsph", "pbf", "wcsph")
 
 
 def radii(scene, text: str | None = None) -> list[float]:
@@ -33,13 +32,15 @@ def radii(scene, text: str | None = None) -> list[float]:
     return [float(scene.particle_radius), 0.5 * float(scene.particle_radius)]
 
 
-def specs(scene_name: str, frames: int, repeats: int, solvers=SOLVERS, radius_text: str | None = None,
+def specs(scene_name: str, frames: int, repeats: int, solvers=None, radius_text: str | None = None,
           fixed: bool = True, device=None, overrides=()) -> list:
-    """RunSpecs: repeats x radii x solvers x (flow[, fixed]), alternating."""
+    """RunSpecs: repeats x radii x solvers (default: every solver) x (flow[, fixed]), alternating."""
     from warp_sph.scene import load_scene
 
     from .cases import RunSpec
+    from .records import solver_names
 
+    solvers = list(solvers or solver_names())
     scene = load_scene(scene_name, overrides=list(overrides))
     if not (scene.emitters or scene.sinks):
         raise SystemExit(f"warp-sph bench emission: scene {scene_name!r} has no [[emitters]] or [[sinks]]")

@@ -303,12 +303,12 @@ def cmd_surface(args, argv: list[str], log=print) -> int:
 
 
 def cmd_emission(args, argv: list[str], log=print) -> int:
-    from warp_sph.methods import registry
-
     from . import emission as E
+    from .records import solver_names
 
-    check_names("--solvers", args.solvers, registry.solver_names())
-    specs = E.specs(args.scene, args.frames, args.repeats, solvers=[s.strip() for s in args.solvers.split(",") if s.strip()],
+    check_names("--solvers", args.solvers, solver_names())
+    solvers = [s.strip() for s in args.solvers.split(",") if s.strip()] if args.solvers else list(solver_names())
+    specs = E.specs(args.scene, args.frames, args.repeats, solvers=solvers,
                     radius_text=args.radii, fixed=not args.no_fixed, device=args.device, overrides=args.set)
     invocation = now()
     records = _run(specs, args, log)
@@ -575,8 +575,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--frames", type=positive_int, default=24, help="frames per run after the initial one (default 24: 1 s)")
     e.add_argument("--repeats", type=positive_int, default=2,
                    help="runs of each case, alternating; the fastest counts (default 2)")
-    e.add_argument("--solvers", default=",".join(("dfsph", "pbf", "wcsph")), help="comma-separated solvers "
-                   "(default: dfsph,pbf,wcsph)")
+    e.add_argument("--solvers", default=None, help="comma-separated solvers (default: every solver)")
     e.add_argument("--radii", type=positive_floats, default=None, help="comma-separated particle radii [m] (default: "
                    "the scene's and half of it: river 0.025,0.0125)")
     e.add_argument("--no-fixed", action="store_true", help="skip the side-by-side runs without emitters and sinks")
