@@ -1,15 +1,16 @@
-"""A changing particle count: emitters add fluid, sinks remove it (``[[emitters]]``, ``[[sinks]]``,
-docs/emitters.md).
+"""A changing particle count: emitters add fluid, sinks and open container faces remove it (``[[emitters]]``,
+``[[sinks]]``, ``container.open``, docs/emitters.md).
 
 Every per-particle array holds ``model.capacity`` values, allocated once; the active particles are the
 prefix [0, n) with n = ``model.fluid_count``, and ``sim.fields`` / ``sim.state`` hold prefix views of
 the arrays, so every launch, the neighbour search and every statistic see n particles only. The count
 changes at the start of a frame, outside the cell order, decided on the host from the time:
 
-1. sinks: the particles inside a sink box are removed; the others keep their order (a stable
-   compaction: one gather on the device, with the kept indices, per field that outlives a substep: x, v,
-   the ids and the solver's and forces' carried fields; every other field is written by a stage before
-   any stage reads it, the step graph's contract);
+1. sinks: the particles inside a sink box, or past an open face of the container (``container.open``: a
+   half-space sink), are removed; the others keep their order (a stable compaction: one indexed copy with
+   the kept indices, on the device, and one copy back, per field that outlives a substep: x, v, the ids and
+   the solver's and forces' carried fields; every other field is written by a stage before any stage reads
+   it, the step graph's contract);
 2. emitters: the layers that entered since the last frame (layer k of an emitter at
    t_k = start + k d / v, ``warp_sph.scene.emitters``) are written into the slots [n, n + k) with
    their ballistic age a = t - t_k: x = x_nozzle + v n a + g a^2 / 2, v = v n + g a; the carried fields
@@ -29,7 +30,7 @@ import warp as wp
 
 from ..core.launch import LIGHT_MIN_RANGE, launch
 from ..kernels import neighbors as _dev
-from ..scene.emitters import emitter_plan
+from ..scene.emitters import emitter_plan, open_faces
 
 ID_FIELD = "particle_id"
 
@@ -46,6 +47,12 @@ class ParticleFlow:
         self.plans = [emitter_plan(e, scene.spacing, scene.duration) for e in scene.emitters]
         self.local_points = [m.to_local(p.points) for p in self.plans]
         self.sinks = [(m.to_local(np.asarray(s.min)), m.to_local(np.asarray(s.max))) for s in scene.sinks]
+        #: the container's open faces (axis, side), each removing what lies past it as a half-space sink
+        self.open_faces = open_faces(scene)
+        for axis, side in self.open_faces:
+            lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
+            (lo if side else hi)[axis] = (m.container_hi if side else m.container_lo)[axis]
+            self.sinks.append((lo, hi))
         self.layers = np.zeros(len(self.plans), dtype=np.int64)  # layers emitted so far, per emitter
         self.initial = m.fluid_count
         self.next_id = m.fluid_count
@@ -246,4 +253,5 @@ class ParticleFlow:
         return {"capacity": int(self.sim.model.capacity),
                 "emitters": [{"particles_per_layer": len(p.points), "speed": p.speed, "flow_rate": p.flow_rate,
                               "layer_period": p.period, "layers": p.layers} for p in self.plans],
-                "sinks": len(self.sinks)}
+                "sinks": len(self.sinks) - len(self.open_faces),
+                "open_faces": [("-+"[side] + "xyz"[axis]) for axis, side in self.open_faces]}
