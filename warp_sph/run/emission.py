@@ -74,7 +74,7 @@ class ParticleFlow:
         self.full[ID_FIELD] = ids
         self._keep = wp.zeros(m.capacity, dtype=wp.int32, device=sim.device)
         self._tmp: dict = {}   # dtype -> capacity-sized scratch of the removal's gather
-        self._host: dict = {}  # dtype -> host staging array (``_staging``)
+        self._host: dict = {}  # use -> host staging array (``_staging``)
         self.set_count(m.fluid_count)
 
     # --- the active prefix ------------------------------------------------------------------
@@ -134,13 +134,15 @@ class ParticleFlow:
         floor_pe = mass * len(x) * float(np.linalg.norm(g)) * (watch.floor if watch is not None else 0.0)
         return ke + pe, ke + pe - floor_pe
 
-    def _staging(self, dtype) -> wp.array:
-        """A host array of 2 x capacity values of ``dtype``, allocated once (pinned for a CUDA device): values
-        written into its ``numpy()`` view reach the device's arrays by one copy, with no allocation."""
-        buf = self._host.get(dtype)
+    def _staging(self, use: str, dtype) -> wp.array:
+        """The host array of ``use`` (capacity values of ``dtype``, twice that for "xv"; allocated once, pinned
+        for a CUDA device): values written into its ``numpy()`` view reach the device's arrays by one copy, with no
+        allocation. One per use: a copy from pinned memory may still be queued when the next use writes
+        (each is written once per frame, and every frame reads the device back before the next one)."""
+        buf = self._host.get(use)
         if buf is None:
-            size = 2 * self.sim.model.capacity  # x and v of the emitted particles side by side
-            buf = self._host[dtype] = wp.empty(size, dtype=dtype, device="cpu", pinned=self.sim.device.is_cuda)
+            size = (2 if use == "xv" else 1) * self.sim.model.capacity  # "xv": x and v of the new particles
+            buf = self._host[use] = wp.empty(size, dtype=dtype, device="cpu", pinned=self.sim.device.is_cuda)
         return buf
 
     def _remove(self, n: int) -> int:
@@ -157,7 +159,7 @@ class ParticleFlow:
         e, _ = self._energy(x[inside], v[inside])
         self.exchanged -= e
         left = n - k
-        host = self._staging(wp.int32)
+        host = self._staging("keep", wp.int32)
         host.numpy()[:left] = np.flatnonzero(~inside)
         wp.copy(self._keep, host, count=left)
         # the stable compaction: one copy through an index view into a scratch array of the field's type
@@ -212,11 +214,11 @@ class ParticleFlow:
         for name, full in self.carried():
             if name not in own:
                 full[n:n + k].zero_()
-        xv = self._staging(wp.vec3)
+        xv = self._staging("xv", wp.vec3)
         xv.numpy()[: 2 * k] = np.concatenate([x, v])
         wp.copy(self.full["particle_x"], xv, dest_offset=n, count=k)
         wp.copy(self.full["particle_v"], xv, dest_offset=n, src_offset=k, count=k)
-        ids = self._staging(wp.int32)
+        ids = self._staging("ids", wp.int32)
         ids.numpy()[:k] = np.arange(self.next_id, self.next_id + k, dtype=np.int32)
         wp.copy(self.full[ID_FIELD], ids, dest_offset=n, count=k)
         self.next_id += k
