@@ -129,7 +129,7 @@ def check_emission(scene, fail) -> None:
     for i, f in enumerate(scene.forces):
         if getattr(f, "method", "") == "weiler2018" and has_flow(scene):
             fail(f"forces[{i}].method", "weiler2018 keeps arrays of the initial particle count and does not work "
-                 "with emitters or sinks yet; use explicit_viscosity")
+                 "with emitters, sinks or open container faces yet; use explicit_viscosity")
     for i, e in enumerate(scene.emitters):
         kp = f"emitters[{i}]"
         if (e.speed is None) == (e.flow_rate is None):

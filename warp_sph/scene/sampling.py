@@ -36,8 +36,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.errors import SceneError
-from .mesh_volume import lattice_inside
 from .emitters import open_faces
+from .mesh_volume import lattice_inside
 from .meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
 from .sphere_obstacle import sphere_inside, sphere_surface
 from .types import FluidBlock, Scene
