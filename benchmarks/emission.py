@@ -66,25 +66,30 @@ def particle_steps(record: dict, first: int = 1) -> int:
     return int(sum(s * n for s, n in list(zip(steps, particles))[first:]))
 
 
+#: runs whose frames so far measure the cost: completed, or stopped by the watchdog or the time limit
+MEASURED = ("ok", "unstable", "time_limit")
+
+
 def in_run(record: dict) -> dict | None:
-    """The flow's cost measured in its own run, over the frames after the first: {flow_ms, run_ms (per frame,
-    process CPU), share = flow / (run - flow), ns (run CPU per particle-step), particles (first, last),
-    steps_per_frame, stages: {name: CPU ms per frame}}; None without the figures."""
+    """The flow's cost measured in its own run, over the frames after the first (of a run the watchdog
+    stopped: the frames it completed): {flow_ms, run_ms (per frame, process CPU), share = flow / (run - flow),
+    ns (run CPU per particle-step), particles (frame 2, last), steps_per_frame, frames, stages: {name: CPU ms
+    per call after the first}}; None without the figures."""
     s = record.get("series") or {}
     cpu, flow = s.get("cpu") or [], s.get("frame_stage_cpu") or []
     frames = len(cpu) - 2  # after the initial state and the first frame
-    if record.get("status") != "ok" or frames < 1 or None in (cpu[1], cpu[-1], flow[1], flow[-1]):
+    if record.get("status") not in MEASURED or frames < 1 or None in (cpu[1], cpu[-1], flow[1], flow[-1]):
         return None
     run, own = cpu[-1] - cpu[1], flow[-1] - flow[1]
     ps = particle_steps(record, first=2)
     if run <= own or not ps:
         return None
-    stages = {t["stage"]: 1e3 * (t["cpu_seconds"] - t["first_call_cpu_seconds"]) / frames
-              for t in record.get("frame_stage_times") or []}  # (a stage that skipped frame 1: one call more)
+    stages = {t["stage"]: t["cpu_ms_per_call"] for t in record.get("frame_stage_times") or []}
     n = s.get("particles") or [None]
     return {"flow_ms": 1e3 * own / frames, "run_ms": 1e3 * run / frames, "share": own / (run - own),
-            "ns": 1e9 * run / ps, "particles": (n[1] if len(n) > 1 else n[0], n[-1]),
-            "steps_per_frame": sum((s.get("steps") or [])[2:]) / frames, "stages": stages}
+            "ns": 1e9 * run / ps, "particles": (n[2] if len(n) > 2 else n[-1], n[-1]), "frames": frames + 1,
+            "steps_per_frame": sum((s.get("steps") or [])[2:]) / frames, "stages": stages,
+            "status": record.get("status")}
 
 
 def side_ns(record: dict) -> float | None:
@@ -144,14 +149,16 @@ def section(records: list[dict], fmt, head) -> list[str]:
               "work; nothing else runs for them: no density refresh, no extra neighbour search or sort). "
               "*Side by side*: the same scene without emitters and sinks in its own process, CPU ns per "
               "particle-step; a different flow (other neighbour counts and substeps), so that column mixes the "
-              "flow's cost with the physics'. Fastest repeat per case; *shares* lists every repeat's.", ""]
-    header = ["solver", "r [m]", "particles (frame 2, last)", "substeps/frame", "flow ms/frame", "run ms/frame",
+              "flow's cost with the physics'. Fastest repeat per case; *shares* lists every repeat's. A run the "
+              "watchdog stopped counts over the frames it completed (its error below).", ""]
+    header = ["solver", "r [m]", "frames", "particles (frame 2, last)", "substeps/frame", "flow ms/frame", "run ms/frame",
               "share", "shares (repeats)", "ns/particle-step", "without: ns/particle-step", "side by side", "goal"]
     rows = []
     for c in summary(records):
         b = c["best"] or {}
         n = b.get("particles") or (None, None)
-        rows.append([str(c["solver"]), fmt(c["particle_radius"]), f"{fmt(n[0])}, {fmt(n[1])}",
+        frames = fmt(b.get("frames")) + ("" if b.get("status", "ok") == "ok" else f" ({b['status']})")
+        rows.append([str(c["solver"]), fmt(c["particle_radius"]), frames, f"{fmt(n[0])}, {fmt(n[1])}",
                      fmt(b.get("steps_per_frame")), fmt(b.get("flow_ms")), fmt(b.get("run_ms")),
                      f"{100 * b['share']:.2f} %" if b else "-",
                      ", ".join(f"{100 * s:.2f} %" for s in c["shares"]) or "-", fmt(b.get("ns")),

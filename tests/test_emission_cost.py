@@ -83,8 +83,7 @@ def _record(solver, radius, variant, cpu, flow, steps, particles, repeat=1):
             "params": {"scene": "river", "solver": solver, "particle_radius": radius, "variant": variant,
                        "repeat": repeat},
             "series": {"cpu": cpu, "frame_stage_cpu": flow, "steps": steps, "particles": particles},
-            "frame_stage_times": [{"stage": "flow_sinks", "calls": len(cpu) - 1, "cpu_seconds": flow[-1],
-                                   "first_call_cpu_seconds": flow[1]}]}
+            "frame_stage_times": [{"stage": "flow_sinks", "calls": len(cpu) - 1, "cpu_ms_per_call": 7.5}]}
 
 
 def test_in_run_share_and_side_by_side():
@@ -100,15 +99,17 @@ def test_in_run_share_and_side_by_side():
     ps = 10 * (110 + 120 + 130)
     assert m["flow_ms"] == pytest.approx(10.0) and m["run_ms"] == pytest.approx(200.0)
     assert m["share"] == pytest.approx(0.03 / 0.57) and m["ns"] == pytest.approx(1e9 * 0.6 / ps)
-    assert m["particles"] == (100, 130) and m["steps_per_frame"] == 10
-    assert m["stages"]["flow_sinks"] == pytest.approx(10.0)
+    assert m["particles"] == (110, 130) and m["steps_per_frame"] == 10 and m["frames"] == 4
+    assert m["stages"]["flow_sinks"] == 7.5
     (c,) = E.summary([a, fixed, b])
     assert c["best"]["ns"] == m["ns"] and c["shares"] == pytest.approx([0.03 / 0.57, 0.06 / 0.84])
     assert c["fixed_ns"] == pytest.approx(1e9 * 0.3 / 3000)
     assert c["side_by_side"] == pytest.approx(m["ns"] / c["fixed_ns"] - 1.0) and c["met"] is False
     lines = "\n".join(E.section([a, fixed, b], lambda v, *s: str(v), lambda r: []))
     assert "5.26 %, 7.14 %" in lines and "not met for 0 of 1 cases" in lines
-    assert E.in_run({**a, "status": "unstable"}) is None
+    stopped = E.in_run({**a, "status": "unstable"})  # the watchdog stopped it: the frames it completed count
+    assert stopped["share"] == m["share"] and stopped["status"] == "unstable"
+    assert E.in_run({**a, "status": "failed"}) is None
     assert E.in_run(_record("pbf", 0.025, "flow", [0.0, 1.0], [0.0, 0.5], [0, 9], [100, 100])) is None  # one frame
 
 
