@@ -143,3 +143,21 @@ def test_bench_emission_bad_solver_is_one_line_exit_2(tmp_path, capsys, monkeypa
     err = capsys.readouterr().err
     assert "--solvers 'sph': unknown 'sph'" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "runs").exists()
+
+
+def test_run_json_lists_the_flow_stages(tmp_path):
+    """run.json's frame_stage_times: the flow's per-frame stages with one call per frame (and none in a scene
+    without emitters and sinks); the substeps' stage_times do not hold them."""
+    from warp_sph.run import runner
+
+    out = tmp_path / "flow"
+    sc = {**BASE, "solver": "wcsph", "output": {"surface": False, "usd": False}}
+    info = runner.run(scene_from_dict(sc, source="flow.toml"), out=out, device="cpu", frames=3, progress=False,
+                      log=lambda *a, **k: None)
+    rows = {r["stage"]: r for r in json.loads((out / "run.json").read_text())["frame_stage_times"]}
+    assert rows["flow_sinks"]["calls"] == rows["flow_emitters"]["calls"] == 2  # frames 1-2 (frame 0: the start)
+    assert not {r["stage"] for r in info["stage_times"]} & set(rows)
+    plain = {k: v for k, v in sc.items() if k not in ("emitters", "sinks")}
+    info = runner.run(scene_from_dict(plain, source="plain.toml"), out=tmp_path / "plain", device="cpu", frames=2,
+                      progress=False, log=lambda *a, **k: None)
+    assert "frame_stage_times" not in info
