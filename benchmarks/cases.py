@@ -155,14 +155,14 @@ def run_warp_sph(spec: RunSpec) -> dict:
         wall_x = float(scene.container.min[0]) if scene.container is not None else 0.0
         floor = np.asarray(scene.container.min if scene.container is not None else (0.0, 0.0, 0.0), dtype=np.float64)
         series: dict[str, list] = {k: [] for k in (
-            "time", "steps", "particles", "dt", "wall", "max_speed", "density_error_mean", "density_error_max",
+            "time", "steps", "particles", "dt", "wall", "cpu", "frame_stage_cpu", "max_speed", "density_error_mean", "density_error_max",
             "density_error_min", "kinetic_energy", "potential_energy", "total_energy", "front",
             "volume_drift", "solver_iterations", "solver_iterations_max")}
         if hydro:
             series["pressure_error_mean_abs"] = []
         state = {"v0": None, "hydro": None}
 
-        def observe(stats, wall):
+        def observe(stats, wall, cpu=None):
             x = sim.get_field("particle_x")
             v = sim.get_field("particle_v")
             rho = sim.get_field("particle_density")
@@ -176,7 +176,9 @@ def run_warp_sph(spec: RunSpec) -> dict:
             its = (stats.solver or {}).get("iterations", {}) if stats is not None else {}
             for k, val in (("time", sim.state.time), ("steps", stats.steps if stats else 0),
                            ("particles", m.fluid_count),  # emitters and sinks change it (docs/emitters.md)
-                           ("dt", stats.dt_max if stats else 0.0), ("wall", wall),
+                           ("dt", stats.dt_max if stats else 0.0), ("wall", wall), ("cpu", cpu),
+                           # per-frame stages outside the substeps (emitters, sinks): their CPU seconds so far
+                           ("frame_stage_cpu", sum(t.cpu_seconds for t in sim.graph.frame_timings.values())),
                            ("max_speed", float(np.linalg.norm(v, axis=1).max())),
                            ("density_error_mean", de["mean"]), ("density_error_max", de["max"]),
                            ("density_error_min", de["min"]), ("kinetic_energy", ke), ("potential_energy", pe),
@@ -226,7 +228,7 @@ def run_warp_sph(spec: RunSpec) -> dict:
                 status, record["error"] = "unstable", str(e)
             observe(stats, wall)
         else:
-            observe(None, 0.0)
+            observe(None, 0.0, 0.0)
             for _ in range(spec.frames):
                 t1 = time.perf_counter()
                 c1 = time.process_time()
@@ -245,7 +247,7 @@ def run_warp_sph(spec: RunSpec) -> dict:
                     cpu += time.process_time() - c1
                     status, record["error"] = "unstable", str(e)
                     break
-                observe(stats, wall)
+                observe(stats, wall, cpu)  # cumulative seconds of the frames so far
                 if spec.time_limit is not None and wall > spec.time_limit:
                     status = "time_limit"
                     break
@@ -291,6 +293,8 @@ def run_warp_sph(spec: RunSpec) -> dict:
                 record["pressure_profile"] = h["profile"]
         record["metrics"] = met
         record["stage_times"] = M.stage_fractions(sim.graph.timing_table())
+        if sim.graph.frame_timings:  # per-frame work outside the substeps: emitters and sinks
+            record["frame_stage_times"] = sim.graph.frame_timing_table()
         record["series"] = series
         record["status"] = status
     except Exception as e:  # noqa: BLE001 - a failed case is a record, not the end of the sweep

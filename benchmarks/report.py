@@ -389,7 +389,8 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     moving = latest(data.get("bodies", []))
     lines += bodies.section(moving, fmt, section_head)
     lines += whitewater.section(latest(data.get("whitewater", [])), fmt, section_head)
-    lines += emission.section(latest(data.get("emission", [])), fmt, section_head)
+    emitted = latest(data.get("emission", []))
+    lines += emission.section(emitted, fmt, section_head)
     checked = data.get("validation", [])  # the latest record of each run (validation_report.section)
     lines += validation_report.section(checked, fmt, section_head)
 
@@ -400,7 +401,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     lines += plan_bench.section(planned, fmt, section_head)
 
     if not (sweeps or by_solver or by_size or adaptive or surf or mat or execs or moving or checked or extreme
-            or planned):
+            or planned or emitted):
         lines += [f"No results yet in `{rel}/`: run `warp-sph bench sweep --preset tradeoff`.", ""]
     figures.save()
     md_path.parent.mkdir(parents=True, exist_ok=True)

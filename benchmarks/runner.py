@@ -9,7 +9,7 @@
     warp-sph bench splishsplash                    # side by side with SPlisHSPlasH (pysplishsplash)
     warp-sph bench surface                         # surface reconstruction per frame
     warp-sph bench bodies                          # moving rigid bodies against the same static obstacles
-    warp-sph bench emission                        # emitters and sinks against a fixed particle count
+    warp-sph bench emission                        # what emitters and sinks add per particle-step, per solver
     warp-sph bench forces                          # each force's cost per particle-step beside its solver's
     warp-sph bench whitewater                      # a splash scene with whitewater on against off
     warp-sph bench validation                      # every solver against experiments (benchmarks/validation.py)
@@ -304,15 +304,22 @@ def cmd_surface(args, argv: list[str], log=print) -> int:
 
 def cmd_emission(args, argv: list[str], log=print) -> int:
     from . import emission as E
+    from .records import solver_names
 
-    specs = E.specs(args.scene, args.frames, args.repeats, device=args.device, overrides=args.set)
+    check_names("--solvers", args.solvers, solver_names())
+    solvers = [s.strip() for s in args.solvers.split(",") if s.strip()] if args.solvers else list(solver_names())
+    specs = E.specs(args.scene, args.frames, args.repeats, solvers=solvers,
+                    radius_text=args.radii, fixed=not args.no_fixed, device=args.device, overrides=args.set)
     invocation = now()
     records = _run(specs, args, log)
-    s = E.summary(records)
-    if s:
-        log(f"emission: {s['flow_ns']:.4g} ns per particle-step with emitters and sinks, {s['fixed_ns']:.4g} without "
-            f"(fastest of {args.repeats} each): {100 * s['extra']:+.1f} % (goal <= +{100 * E.GOAL:.0f} %: "
-            f"{'met' if s['met'] else 'not met'})")
+    for c in E.summary(records):
+        b = c["best"]
+        if b is None:
+            continue
+        side = f"; side by side {100 * c['side_by_side']:+.1f} %" if c["side_by_side"] is not None else ""
+        log(f"emission {c['solver']} r = {c['particle_radius']:g} m: flow {b['flow_ms']:.3g} of {b['run_ms']:.4g} ms "
+            f"CPU per frame, +{100 * b['share']:.2f} % per particle-step (goal <= +{100 * E.GOAL:.0f} %: "
+            f"{'met' if c['met'] else 'not met'}){side}")
     return _finish(_save("emission", records, args, argv, invocation, log), args, records, log)
 
 
@@ -562,12 +569,16 @@ def build_parser() -> argparse.ArgumentParser:
     common(b)
     b.set_defaults(func=cmd_bodies)
 
-    e = sub.add_parser("emission", help="a scene with emitters and sinks against the same scene without them: "
-                       "CPU time per particle-step")
+    e = sub.add_parser("emission", help="the cost emitters and sinks add per particle-step: their own stages timed "
+                       "in the run (CPU), each solver at two sizes; and the scene without them side by side")
     e.add_argument("--scene", default="river", help="scene with [[emitters]] or [[sinks]] (default: river)")
     e.add_argument("--frames", type=positive_int, default=24, help="frames per run after the initial one (default 24: 1 s)")
-    e.add_argument("--repeats", type=positive_int, default=3,
-                   help="runs of each variant, alternating; the fastest counts (default 3)")
+    e.add_argument("--repeats", type=positive_int, default=2,
+                   help="runs of each case, alternating; the fastest counts (default 2)")
+    e.add_argument("--solvers", default=None, help="comma-separated solvers (default: every solver)")
+    e.add_argument("--radii", type=positive_floats, default=None, help="comma-separated particle radii [m] (default: "
+                   "the scene's and half of it: river 0.025,0.0125)")
+    e.add_argument("--no-fixed", action="store_true", help="skip the side-by-side runs without emitters and sinks")
     common(e)
     e.set_defaults(func=cmd_emission)
 

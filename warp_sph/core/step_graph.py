@@ -3,11 +3,13 @@
 A stage *writes* a field it produces from scratch (one writer per field), *updates* a field that
 already exists (read-modify-write, e.g. the integrator on positions), and *reads* fields that must
 exist before it runs: state fields (positions, velocities) or fields an earlier stage wrote.
-The graph checks this when it is built or changed, and times each stage.
+The graph checks this when it is built or changed, and times each stage; work a frame does outside the
+substeps (emitters and sinks) is timed with the same timers under its own names (``timed``).
 """
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable
 
@@ -33,6 +35,8 @@ class StageTiming:
     calls: int = 0
     seconds: float = 0.0              # all calls [s]
     first_call_seconds: float = 0.0   # the first call alone [s]: it loads (or compiles) the kernels
+    cpu_seconds: float = 0.0          # process CPU time of all calls [s] (``StepGraph.timed`` only)
+    first_call_cpu_seconds: float = 0.0
 
 
 class StepGraph:
@@ -47,6 +51,8 @@ class StepGraph:
         self.device = device
         self.synchronize_timing = synchronize_timing
         self.timings: dict[str, StageTiming] = {}
+        #: per-frame work outside the stages, by name (``timed``)
+        self.frame_timings: dict[str, StageTiming] = {}
         for s in stages:
             self.stages.append(s)
         self.validate()
@@ -134,6 +140,39 @@ class StepGraph:
                 t.first_call_seconds = elapsed
             t.calls += 1
             t.seconds += elapsed
+
+    @contextmanager
+    def timed(self, name: str):
+        """Context: time the block as the per-frame stage ``name`` (wall and process CPU time; the device
+        synchronised at its end when stages are), e.g. a frame's sinks and emitters before its substeps.
+        Rows in ``frame_timing_table``, not in ``timing_table`` (the substep's stages)."""
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            yield
+        finally:
+            if self.synchronize_timing:
+                wp.synchronize_device(self.device)
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            t = self.frame_timings.get(name)
+            if t is None:
+                t = self.frame_timings[name] = StageTiming(first_call_seconds=wall, first_call_cpu_seconds=cpu)
+            t.calls += 1
+            t.seconds += wall
+            t.cpu_seconds += cpu
+
+    def frame_timing_table(self) -> list[dict]:
+        """[{stage, calls, seconds, first_call_seconds, cpu_seconds, first_call_cpu_seconds, ms_per_call,
+        cpu_ms_per_call}] of the ``timed`` blocks in the order they first ran (per-call means without the
+        first call, as ``timing_table``)."""
+        out = []
+        for name, t in self.frame_timings.items():
+            row = {"stage": name, "calls": t.calls, "seconds": t.seconds, "first_call_seconds": t.first_call_seconds,
+                   "cpu_seconds": t.cpu_seconds, "first_call_cpu_seconds": t.first_call_cpu_seconds}
+            for key, total, first in (("ms_per_call", t.seconds, t.first_call_seconds),
+                                      ("cpu_ms_per_call", t.cpu_seconds, t.first_call_cpu_seconds)):
+                row[key] = 1e3 * ((total - first) / (t.calls - 1) if t.calls > 1 else total)
+            out.append(row)
+        return out
 
     def timing_table(self) -> list[dict]:
         """[{stage, calls, seconds, first_call_seconds, ms_per_call}] in graph order.

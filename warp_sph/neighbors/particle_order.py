@@ -53,12 +53,12 @@ class CellOrder:
                 if isinstance(a, wp.array) and a.ndim == 1 and a.shape[0] == m.fluid_count and name not in skip]
 
     def _tmp(self, a: wp.array) -> wp.array:
-        size = max(a.shape[0], self.sim.model.capacity)  # one scratch per dtype also as the active count changes
-        key = (a.dtype, size)
-        t = self._scratch.get(key)
+        """A scratch array of a's dtype with room for the capacity (one per dtype, also as emitters and sinks
+        change the active count; the launches and copies below use its first n values)."""
+        t = self._scratch.get(a.dtype)
         if t is None:
-            t = self._scratch[key] = wp.empty(size, dtype=a.dtype, device=a.device)
-        return t if size == a.shape[0] else t[: a.shape[0]]
+            t = self._scratch[a.dtype] = wp.empty(self.sim.model.capacity, dtype=a.dtype, device=a.device)
+        return t
 
     def sort(self) -> bool:
         """Permute every per-particle field into cell order of the current positions (slot k then
@@ -74,7 +74,7 @@ class CellOrder:
         for a in self._fields():
             t = self._tmp(a)
             launch(_dev.gather_by_order, n, [self.order, a], [t], device=a.device, min_range=LIGHT_MIN_RANGE)
-            wp.copy(a, t)
+            wp.copy(a, t, count=n)
         return True
 
     def unsort(self) -> None:
@@ -83,5 +83,5 @@ class CellOrder:
         for a in self._fields():
             t = self._tmp(a)
             launch(_dev.scatter_by_order, n, [self.order, a], [t], device=a.device, min_range=LIGHT_MIN_RANGE)
-            wp.copy(a, t)
+            wp.copy(a, t, count=n)
 

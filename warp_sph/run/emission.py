@@ -1,15 +1,16 @@
-"""A changing particle count: emitters add fluid, sinks remove it (``[[emitters]]``, ``[[sinks]]``,
-docs/emitters.md).
+"""A changing particle count: emitters add fluid, sinks and open container faces remove it (``[[emitters]]``,
+``[[sinks]]``, ``container.open``, docs/emitters.md).
 
 Every per-particle array holds ``model.capacity`` values, allocated once; the active particles are the
 prefix [0, n) with n = ``model.fluid_count``, and ``sim.fields`` / ``sim.state`` hold prefix views of
 the arrays, so every launch, the neighbour search and every statistic see n particles only. The count
 changes at the start of a frame, outside the cell order, decided on the host from the time:
 
-1. sinks: the particles inside a sink box are removed; the others keep their order (a stable
-   compaction: one gather on the device, with the kept indices, per field that outlives a substep: x, v,
-   the ids and the solver's and forces' carried fields; every other field is written by a stage before
-   any stage reads it, the step graph's contract);
+1. sinks: the particles inside a sink box, or past an open face of the container (``container.open``: a
+   half-space sink), are removed; the others keep their order (a stable compaction: one indexed copy with
+   the kept indices, on the device, and one copy back, per field that outlives a substep: x, v, the ids and
+   the solver's and forces' carried fields; every other field is written by a stage before any stage reads
+   it, the step graph's contract);
 2. emitters: the layers that entered since the last frame (layer k of an emitter at
    t_k = start + k d / v, ``warp_sph.scene.emitters``) are written into the slots [n, n + k) with
    their ballistic age a = t - t_k: x = x_nozzle + v n a + g a^2 / 2, v = v n + g a; the carried fields
@@ -29,7 +30,7 @@ import warp as wp
 
 from ..core.launch import LIGHT_MIN_RANGE, launch
 from ..kernels import neighbors as _dev
-from ..scene.emitters import emitter_plan
+from ..scene.emitters import emitter_plan, open_faces
 
 ID_FIELD = "particle_id"
 
@@ -46,6 +47,12 @@ class ParticleFlow:
         self.plans = [emitter_plan(e, scene.spacing, scene.duration) for e in scene.emitters]
         self.local_points = [m.to_local(p.points) for p in self.plans]
         self.sinks = [(m.to_local(np.asarray(s.min)), m.to_local(np.asarray(s.max))) for s in scene.sinks]
+        #: the container's open faces (axis, side), each removing what lies past it as a half-space sink
+        self.open_faces = open_faces(scene)
+        for axis, side in self.open_faces:
+            lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
+            (lo if side else hi)[axis] = (m.container_hi if side else m.container_lo)[axis]
+            self.sinks.append((lo, hi))
         self.layers = np.zeros(len(self.plans), dtype=np.int64)  # layers emitted so far, per emitter
         self.initial = m.fluid_count
         self.next_id = m.fluid_count
@@ -66,7 +73,8 @@ class ParticleFlow:
         ids = wp.array(np.arange(m.capacity, dtype=np.int32), dtype=wp.int32, device=sim.device)
         self.full[ID_FIELD] = ids
         self._keep = wp.zeros(m.capacity, dtype=wp.int32, device=sim.device)
-        self._tmp: dict = {}
+        self._tmp: dict = {}   # dtype -> capacity-sized scratch of the removal's gather
+        self._host: dict = {}  # use -> host staging array (``_staging``)
         self.set_count(m.fluid_count)
 
     # --- the active prefix ------------------------------------------------------------------
@@ -93,10 +101,27 @@ class ParticleFlow:
 
     # --- a frame's start ----------------------------------------------------------------------
     def begin_frame(self) -> bool:
-        """Sinks, then emitters, at the state's time (see the module docstring); True when the count changed."""
-        removed = self._remove() if self.sinks else 0
-        added = self._emit() if self.plans else 0
-        return bool(removed or added)
+        """Sinks, then emitters, at the state's time (see the module docstring); True when particles were
+        removed or added.
+
+        Timed as per-frame stages of the step graph (``StepGraph.timed``, run.json ``frame_stage_times``):
+        ``flow_sinks`` (the sink test and the gather), ``flow_emitters`` (the new layers) and ``flow_count``
+        (the active prefix views of the new count, made once per frame). Nothing else runs for them: no
+        density refresh (every solver's first stages compute the density of the new count) and no extra
+        neighbour search or sort (the substeps search, and the frame sorts into cell order, as without them).
+        """
+        graph, n0 = self.sim.graph, self.sim.model.fluid_count
+        n, before = n0, (self.removed, self.emitted)
+        if self.sinks:
+            with graph.timed("flow_sinks"):
+                n = self._remove(n)
+        if self.plans:
+            with graph.timed("flow_emitters"):
+                n = self._emit(n)
+        if n != n0:  # (as many removed as emitted: the views of n0 are those of n)
+            with graph.timed("flow_count"):
+                self.set_count(n)
+        return (self.removed, self.emitted) != before
 
     def _energy(self, x: np.ndarray, v: np.ndarray) -> tuple[float, float]:
         """(kinetic + potential [J] in the local frame, the same above the floor [J]) of particles x, v."""
@@ -109,33 +134,53 @@ class ParticleFlow:
         floor_pe = mass * len(x) * float(np.linalg.norm(g)) * (watch.floor if watch is not None else 0.0)
         return ke + pe, ke + pe - floor_pe
 
-    def _remove(self) -> int:
-        sim, m = self.sim, self.sim.model
-        n = m.fluid_count
+    def _staging(self, use: str, dtype) -> wp.array:
+        """The host array of ``use`` (capacity values of ``dtype``, twice that for "xv"; allocated once, pinned
+        for a CUDA device): values written into its ``numpy()`` view reach the device's arrays by one copy, with no
+        allocation. One per use: a copy from pinned memory may still be queued when the next use writes
+        (each is written once per frame, and every frame reads the device back before the next one)."""
+        buf = self._host.get(use)
+        if buf is None:
+            size = (2 if use == "xv" else 1) * self.sim.model.capacity  # "xv": x and v of the new particles
+            buf = self._host[use] = wp.empty(size, dtype=dtype, device="cpu", pinned=self.sim.device.is_cuda)
+        return buf
+
+    def _remove(self, n: int) -> int:
+        """The particles of [0, n) inside a sink box removed, the others in order in [0, left); returns left."""
+        sim = self.sim
         x = sim.fields["particle_x"].numpy()
         inside = np.zeros(n, dtype=bool)
         for lo, hi in self.sinks:
             inside |= np.all((x >= lo) & (x <= hi), axis=1)
         k = int(inside.sum())
         if not k:
-            return 0
+            return n
         v = sim.fields["particle_v"].numpy()
         e, _ = self._energy(x[inside], v[inside])
         self.exchanged -= e
-        keep = np.nonzero(~inside)[0].astype(np.int32)
-        left = len(keep)
-        wp.copy(self._keep, wp.array(keep, dtype=wp.int32, device=sim.device), count=left)
+        left = n - k
+        host = self._staging("keep", wp.int32)
+        host.numpy()[:left] = np.flatnonzero(~inside)
+        wp.copy(self._keep, host, count=left)
+        # the stable compaction: one copy through an index view into a scratch array of the field's type
+        # (a native copy, on the host or the device), and one copy back, per field that outlives a substep
+        order = self._keep[:left]
+        views = {}
         for name, full in self.carried():
-            t = self._tmp.get(full.dtype)
+            t = views.get(full.dtype)
             if t is None:
-                t = self._tmp[full.dtype] = wp.empty(m.capacity, dtype=full.dtype, device=sim.device)
-            launch(_dev.gather_by_order, left, [self._keep, full], [t], device=sim.device, min_range=LIGHT_MIN_RANGE)
+                scratch = self._tmp.get(full.dtype)
+                if scratch is None:
+                    scratch = self._tmp[full.dtype] = wp.empty(self.sim.model.capacity, dtype=full.dtype,
+                                                               device=sim.device)
+                t = views[full.dtype] = scratch[:left]
+            wp.copy(t, wp.indexedarray(full, [order]))
             wp.copy(full, t, count=left)
         self.removed += k
-        self.set_count(left)
-        return k
+        return left
 
-    def _emit(self) -> int:
+    def _emit(self, n: int) -> int:
+        """The layers due by the state's time written into the slots [n, n + k); returns n + k."""
         sim, m = self.sim, self.sim.model
         t = sim.state.time
         g = np.asarray(m.gravity, dtype=np.float64)
@@ -150,10 +195,9 @@ class ParticleFlow:
             self.layers[k] = max(int(self.layers[k]), due)
         if not xs:
             self.last_speed = 0.0
-            return 0
+            return n
         x = np.concatenate(xs).astype(np.float32)
         v = np.concatenate(vs).astype(np.float32)
-        n = m.fluid_count
         room = m.capacity - n
         if len(x) > room:
             self.skipped += len(x) - room
@@ -164,22 +208,25 @@ class ParticleFlow:
             x, v = x[:room], v[:room]
         k = len(x)
         if not k:
-            return 0
+            return n
         self.last_speed = float(np.sqrt(np.max(np.sum(v.astype(np.float64) ** 2, axis=1))))
+        own = ("particle_x", "particle_v", ID_FIELD)  # written whole below
         for name, full in self.carried():
-            full[n:n + k].zero_()
-        dev = sim.device
-        wp.copy(self.full["particle_x"], wp.array(x, dtype=wp.vec3, device=dev), dest_offset=n, count=k)
-        wp.copy(self.full["particle_v"], wp.array(v, dtype=wp.vec3, device=dev), dest_offset=n, count=k)
-        ids = np.arange(self.next_id, self.next_id + k, dtype=np.int32)
-        wp.copy(self.full[ID_FIELD], wp.array(ids, dtype=wp.int32, device=dev), dest_offset=n, count=k)
+            if name not in own:
+                full[n:n + k].zero_()
+        xv = self._staging("xv", wp.vec3)
+        xv.numpy()[: 2 * k] = np.concatenate([x, v])
+        wp.copy(self.full["particle_x"], xv, dest_offset=n, count=k)
+        wp.copy(self.full["particle_v"], xv, dest_offset=n, src_offset=k, count=k)
+        ids = self._staging("ids", wp.int32)
+        ids.numpy()[:k] = np.arange(self.next_id, self.next_id + k, dtype=np.int32)
+        wp.copy(self.full[ID_FIELD], ids, dest_offset=n, count=k)
         self.next_id += k
         self.emitted += k
         e, above = self._energy(x, v)
         self.exchanged += e
         self.exchanged_scale += max(above, 0.0)
-        self.set_count(n + k)
-        return k
+        return n + k
 
     # --- records and checkpoints ----------------------------------------------------------------
     def record(self) -> dict:
@@ -208,4 +255,5 @@ class ParticleFlow:
         return {"capacity": int(self.sim.model.capacity),
                 "emitters": [{"particles_per_layer": len(p.points), "speed": p.speed, "flow_rate": p.flow_rate,
                               "layer_period": p.period, "layers": p.layers} for p in self.plans],
-                "sinks": len(self.sinks)}
+                "sinks": len(self.sinks) - len(self.open_faces),
+                "open_faces": [("-+"[side] + "xyz"[axis]) for axis, side in self.open_faces]}

@@ -121,6 +121,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["steps"] = sim.state.step
         run_info["wall_time"] = time.perf_counter() - t_start
         run_info["stage_times"] = sim.graph.timing_table()
+        if sim.graph.frame_timings:  # per-frame work outside the substeps (emitters and sinks)
+            run_info["frame_stage_times"] = sim.graph.frame_timing_table()
         run_info["export_time"] = exporter.seconds
         run_info["export_wait_time"] = export_wait[0] + (worker.blocked_seconds if worker is not None else 0.0)
         run_info["export_tail_time"] = export_wait[1]

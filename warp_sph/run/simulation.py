@@ -94,7 +94,9 @@ class Simulation:
         self._inputs = {"particle_x", "particle_v"}
         #: emitters and sinks (``warp_sph.run.emission.ParticleFlow``); None without: the count never changes
         self.flow = None
-        if scene.emitters or scene.sinks:
+        from ..scene.emitters import has_flow
+
+        if has_flow(scene):  # emitters, sinks or open container faces
             from .emission import ParticleFlow
 
             self.flow = ParticleFlow(self)
@@ -441,6 +443,11 @@ class Simulation:
         tol = m.spacing
         lo = wp.vec3(*(m.container_lo - tol)) if check else wp.vec3(0.0)
         hi = wp.vec3(*(m.container_hi + tol)) if check else wp.vec3(0.0)
+        if check and self.flow is not None and self.flow.open_faces:  # fluid may leave through an open face
+            bounds = [list(lo), list(hi)]
+            for axis, side in self.flow.open_faces:
+                bounds[side][axis] = (1.0 if side else -1.0) * 1e30
+            lo, hi = wp.vec3(*bounds[0]), wp.vec3(*bounds[1])
         wd = self.watchdog
         t = self.state.time if at_time is None else at_time
         launch(_diag.reset_statistics, 1, [], [self._stats, wd.watch], device=self.device)

@@ -104,19 +104,32 @@ def _obstacle_inside(ob, points: np.ndarray) -> np.ndarray:
     return points_inside(load_triangle_mesh_cached(ob.file).transformed(ob.scale, ob.translate), points)
 
 
+def open_faces(scene) -> list[tuple[int, int]]:
+    """The container's open faces (``container.open``, an outflow) as (axis, side): side 0 at container.min,
+    1 at container.max; none without a container."""
+    c = scene.container
+    return [("xyz".index(f[1]), int(f[0] == "+")) for f in (getattr(c, "open", None) or ())] if c is not None else []
+
+
+def has_flow(scene) -> bool:
+    """True when the particle count can change: emitters, sinks or open container faces."""
+    return bool(scene.emitters or scene.sinks or open_faces(scene))
+
+
 def check_emission(scene, fail) -> None:
     """``fail(keypath, message)`` on an emitter with speed and flow_rate (or neither), a zero direction, an
     end before its start, a nozzle outside the container or inside an obstacle, a sink box that is empty
-    or outside the container, or rigid bodies together with emitters or sinks."""
+    or outside the container, or rigid bodies together with emitters, sinks or open container faces."""
     c = scene.container
     d = scene.spacing
-    if scene.bodies and (scene.emitters or scene.sinks):
-        fail("emitters" if scene.emitters else "sinks", "emitters and sinks do not work with [[bodies]] yet; "
-             "remove the bodies or the emitters and sinks")
+    where = "emitters" if scene.emitters else "sinks" if scene.sinks else "container.open"
+    if scene.bodies and has_flow(scene):
+        fail(where, "emitters, sinks and open container faces do not work with [[bodies]] yet; remove the bodies "
+             "or the flow")
     for i, f in enumerate(scene.forces):
-        if getattr(f, "method", "") == "weiler2018" and (scene.emitters or scene.sinks):
+        if getattr(f, "method", "") == "weiler2018" and has_flow(scene):
             fail(f"forces[{i}].method", "weiler2018 keeps arrays of the initial particle count and does not work "
-                 "with emitters or sinks yet; use explicit_viscosity")
+                 "with emitters, sinks or open container faces yet; use explicit_viscosity")
     for i, e in enumerate(scene.emitters):
         kp = f"emitters[{i}]"
         if (e.speed is None) == (e.flow_rate is None):

@@ -194,12 +194,14 @@ def sample_surface(mesh: TriangleMesh, spacing: float) -> tuple[np.ndarray, np.n
     return points[keep_idx], normals[keep_idx]
 
 
-def box_surface(lo, hi, spacing: float, inward: bool) -> tuple[np.ndarray, np.ndarray]:
+def box_surface(lo, hi, spacing: float, inward: bool, open_faces=()) -> tuple[np.ndarray, np.ndarray]:
     """Points on the six faces of the box lo..hi [m] on a square lattice about ``spacing`` apart.
 
     Each edge of length L gets n = max(1, round(L / spacing)) intervals; edge and corner points
     appear once. Returns (points (K, 3), unit normals (K, 3)); normals point into the box when
     ``inward`` (container walls), out of it otherwise (obstacles); the normalised sum at edges.
+    open_faces: faces left out, as (axis, side) with side 0 at lo, 1 at hi (the edges they share with
+    the other faces stay; those faces alone give their normals).
     """
     lo = np.asarray(lo, dtype=np.float64)
     hi = np.asarray(hi, dtype=np.float64)
@@ -208,7 +210,9 @@ def box_surface(lo, hi, spacing: float, inward: bool) -> tuple[np.ndarray, np.nd
     for axis in range(3):
         a, b = [x for x in range(3) if x != axis]
         ia, ib = np.meshgrid(np.arange(n[a] + 1), np.arange(n[b] + 1), indexing="ij")
-        for side in (0, n[axis]):
+        for k, side in enumerate((0, n[axis])):
+            if (axis, k) in open_faces:
+                continue
             idx = np.zeros((ia.size, 3), dtype=np.int64)
             idx[:, axis] = side
             idx[:, a] = ia.ravel()
@@ -216,7 +220,9 @@ def box_surface(lo, hi, spacing: float, inward: bool) -> tuple[np.ndarray, np.nd
             faces.append(idx)
     idx = np.unique(np.concatenate(faces), axis=0)
     points = lo + idx * ((hi - lo) / n)
-    normals = (idx == 0).astype(np.float64) - (idx == n).astype(np.float64)
+    closed_lo = np.array([(axis, 0) not in open_faces for axis in range(3)])
+    closed_hi = np.array([(axis, 1) not in open_faces for axis in range(3)])
+    normals = ((idx == 0) & closed_lo).astype(np.float64) - ((idx == n) & closed_hi).astype(np.float64)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     return points, (normals if inward else -normals)
 

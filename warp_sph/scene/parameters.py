@@ -23,6 +23,8 @@ OBSTACLE_SHAPES = ("box", "sphere", "mesh")
 BODY_SHAPES = ("box", "sphere", "mesh")
 PROBE_KINDS = ("pressure", "height", "front")
 EMITTER_SHAPES = ("circle", "rectangle")
+#: faces of the container that ``container.open`` may name: sign and axis
+OPEN_FACES = ("-x", "+x", "-y", "+y", "-z", "+z")
 TABLE_KINDS = ("table", "tables", "table_or_false")
 
 
@@ -159,6 +161,9 @@ _TAIL = (
        "'container = false': no walls", default_text="box"),
     _P("container.min", "vec3", "m", (0.0, 0.0, 0.0), "lower corner of the container"),
     _P("container.max", "vec3", "m", (4.0, 1.5, 3.0), "upper corner of the container"),
+    _P("container.open", "str_list", "-", (), "open faces, an outflow (docs/emitters.md): no wall particles on "
+       "them, and fluid past one is removed at the next frame's start as by a sink; '+x' is the face at "
+       "container.max[0], '-x' the one at container.min[0]", choices=OPEN_FACES),
     # fluid blocks
     _P("fluid", "tables", "-", REQUIRED, "fluid blocks ([[fluid]]), at least one"),
     _P("fluid[].shape", "str", "-", "box", "block shape", choices=FLUID_SHAPES),

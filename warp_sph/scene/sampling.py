@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.errors import SceneError
+from .emitters import open_faces
 from .mesh_volume import lattice_inside
 from .meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
 from .sphere_obstacle import sphere_inside, sphere_surface
@@ -199,7 +200,7 @@ def sample_scene(scene: Scene) -> SampledScene:
     bx, bn, bo = [], [], []
     c = scene.container
     if c is not None:
-        p, n = box_surface(c.min, c.max, d, inward=True)
+        p, n = box_surface(c.min, c.max, d, inward=True, open_faces=open_faces(scene))  # (open: an outflow)
         bx.append(p), bn.append(n), bo.append(np.full(len(p), -1, dtype=np.int32))
     inside_tests = []
     for i, ob in enumerate(scene.obstacles):

@@ -375,7 +375,7 @@ class Validator:
             if w.bubble_neighbors < w.spray_neighbors:
                 self.fail("whitewater.bubble_neighbors", f"expected >= whitewater.spray_neighbors "
                           f"({w.spray_neighbors}), got {w.bubble_neighbors}")
-        if scene.emitters or scene.sinks or scene.max_particles:
+        if scene.emitters or scene.sinks or scene.max_particles or (scene.container is not None and scene.container.open):
             from .emitters import check_emission
 
             check_emission(scene, self.fail)
