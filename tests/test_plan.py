@@ -234,12 +234,20 @@ def test_budget_too_small_and_target_out_of_reach(calibrated, tiny):
     with pytest.raises(PlanError, match=r"too small: the cheapest stable setting .* is predicted to take") as e:
         plan(str(tiny), budget_s=0.5 * cheapest, **_kw(cache))
     assert "\n" not in str(e.value)
-    best = min(c.density_error for c in p.candidates if c.wall_time <= 0.8 * BUDGET)
-    with pytest.raises(PlanError, match=r"below what the finest affordable setting within --budget 8 s reaches"):
-        plan(str(tiny), budget_s=BUDGET, target_error=0.5 * best, **_kw(cache))
+    with pytest.raises(PlanError, match=r"below what the finest affordable setting within --budget 8 s reaches") as e:
+        plan(str(tiny), budget_s=BUDGET, target_error=1e-7, **_kw(cache))
+    assert "\n" not in str(e.value)
+    # without a budget: every candidate within 4x the calibrated counts is affordable
+    loose = plan(str(tiny), target_error=0.99, **_kw(cache))
+    best = min(c.density_error for c in loose.candidates if c.count_extrapolation <= 4)
+    closest = min((c for c in loose.candidates if c.count_extrapolation <= 4), key=lambda c: (c.density_error, c.wall_time))
+    with pytest.raises(PlanError, match=rf"--target-error {100 * 0.5 * best:.3g}% is below what the finest affordable "
+                       rf"setting that fits in memory reaches: {closest.solver}, particle_radius {closest.particle_radius:.4g} m"):
+        plan(str(tiny), target_error=0.5 * best, **_kw(cache))
     q = plan(str(tiny), target_error=2.0 * best, **_kw(cache))  # reachable: the cheapest that reaches it
     assert q.chosen.density_error <= 2.0 * best
-    assert all(c.wall_time >= q.chosen.wall_time for c in q.candidates if c.density_error <= 2.0 * best)
+    assert all(c.wall_time >= q.chosen.wall_time for c in q.candidates if c.density_error <= 2.0 * best
+               and c.count_extrapolation <= 4)
 
 
 def test_a_scene_that_cannot_be_calibrated(tiny, tmp_path, capsys):

@@ -3,10 +3,13 @@ short calibration runs of the scene itself (docs/plan.md).
 
     calibrate.py  calibration runs at coarse radii for each solver; cached per scene and machine
     fit.py        the fitted models: power laws and non-negative lines
-    advisor.py    models -> candidates (solver x radius) -> the recommendation (Plan)
+    metrics.py    the errors a target may name: density, or a validation scene's error against its experiment
+    advisor.py    models -> candidates (solver x tolerance x radius) -> the recommendation (Plan)
     report.py     the table, the Pareto plot, the scene file or --set flags of --apply
 """
 from __future__ import annotations
+
+import math
 
 from .advisor import Candidate, Plan, SolverModel
 from .calibrate import PlanError
@@ -17,36 +20,44 @@ MAX_ROUNDS = 4
 
 def plan(scene, budget_s: float | None = None, target_error: float | None = None, device: str | None = None,
          solvers=None, cache=None, refresh: bool = False, progress: bool = False, log=None,
-         calibration_radii=None, calibration_frames: int | None = None) -> Plan:
-    """Recommend the solver and particle radius for ``scene`` within ``budget_s`` seconds of wall time on this
-    machine, or the cheapest setting whose mean density error is at most ``target_error`` (a fraction: 0.005
-    for 0.5 %), or both.
+         calibration_radii=None, calibration_frames: int | None = None, metric: str = "density") -> Plan:
+    """Recommend the solver, particle radius and solver tolerance for ``scene`` within ``budget_s`` seconds of
+    wall time on this machine, or the cheapest setting whose error is at most ``target_error`` (a fraction:
+    0.005 for 0.5 %), or both. ``metric``: the error ``target_error`` names, "density" (the mean density error,
+    every scene) or, for a validation scene, an error against its experiment ("front", "sensor1", ...:
+    ``metrics.metric_names``); another is a PlanError listing the scene's metrics.
 
     scene: a Scene, a built-in scene name or a .toml path. The scene is calibrated first: a fraction of a
-    second of simulated time at two or three coarse radii for each solver of ``solvers`` (default: every
-    registered solver), each an ordinary run with the scene's own outputs; the figures are cached per scene
-    content and machine in ``cache`` (default ``~/.cache/warp-sph/plan``, ``$WARP_SPH_CACHE_DIR``),
-    ``refresh=True`` runs them again; ``calibration_radii`` [m] and ``calibration_frames`` (including the
-    initial one) replace the defaults (``calibrate.calibration_radii``, ``calibrate.calibration_frames``).
-    Models fitted to them (steps per simulated second and error against the spacing, wall time against the
-    particle count) predict every candidate over the scene's duration. No setting beyond 4x the largest
-    calibrated particle count is chosen; when the fit would choose one, a finer calibration point of its
-    solver is run first (at a quarter of its count, at most 4x the largest calibrated count), while the
-    calibration stays within 10 % of the budget.
+    second of simulated time (the whole duration for an error against an experiment) at two or three coarse
+    radii for each solver of ``solvers`` (default: every registered solver), each an ordinary run with the
+    scene's own outputs; a solver with a density tolerance (PBF, DFSPH) also at a quarter of the scene's
+    tolerance at the finest of those radii. The figures are cached per scene content and machine in ``cache``
+    (default ``~/.cache/warp-sph/plan``, ``$WARP_SPH_CACHE_DIR``), ``refresh=True`` runs them again;
+    ``calibration_radii`` [m] and ``calibration_frames`` (including the initial one) replace the defaults
+    (``calibrate.calibration_radii``, ``calibrate.calibration_frames``; given radii are all run). With a budget
+    the default calibration keeps within CALIBRATION_SHARE of it: the coarsest radius first, then each further radius and the tolerance
+    points only while their cost, scaled from the points run, fits (``Plan.notes`` says what was left out).
+    Models fitted to them (steps per simulated second and error against the spacing and the tolerance, wall
+    time against the particle count) predict every candidate over the scene's duration. No setting beyond 4x
+    the largest calibrated particle count is chosen; when the fit would choose one, a finer calibration point
+    of its solver is run first (at a quarter of its count, at most 4x the largest calibrated count), while the
+    calibration stays within its share of the budget.
 
     Returns a ``Plan``: ``chosen`` (a ``Candidate``: solver, particle_radius, tolerance, fluid_particles,
-    steps, wall_time [s], memory [bytes], density_error [-] and how far each is extrapolated),
-    ``alternatives`` (the best setting of each other solver), every candidate with its Pareto flag, the
-    models and the calibration's cost. Raises PlanError (one line, with the closest feasible setting) for a
-    budget too small for the coarsest stable setting, a target error below what the finest affordable
-    setting reaches, or a scene that cannot be calibrated.
+    steps, wall_time [s], memory [bytes], density_error [-], metric_error [-] and how far each is
+    extrapolated), ``alternatives`` (the best setting of each other solver), every candidate with its Pareto
+    flag, the models and the calibration's cost. Raises PlanError (one line, with the closest feasible setting)
+    for a budget too small for the coarsest stable setting, a target error below what the finest affordable
+    setting reaches, an unknown metric or a scene that cannot be calibrated.
     """
     from ..methods.registry import solver_names
     from ..run.memory import available_device_memory, available_host_memory
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
     from .advisor import CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose, fit_models, next_point
-    from .calibrate import calibrate, calibration_frames as cal_frames, calibration_radii as default_radii
+    from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, calibrate, calibration_frames as cal_frames,
+                            calibration_radii as default_radii, tolerance_key)
+    from .metrics import DENSITY, calibration_time, check_metric
 
     if budget_s is None and target_error is None:
         raise PlanError("plan: give a wall-time budget (--budget 10m) or a target error (--target-error 0.5%)")
@@ -56,21 +67,60 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         raise PlanError(f"--target-error {target_error!r}: expected an error > 0")
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
+    metric = check_metric(scene, metric or DENSITY)
     dev = resolve_device(device)
     names = tuple(solvers) if solvers else solver_names()
     unknown = [s for s in names if s not in solver_names()]
     if unknown:
         raise PlanError(f"--solvers: unknown {', '.join(unknown)}; expected some of {', '.join(solver_names())}")
     radii = list(calibration_radii) if calibration_radii else default_radii(scene)
-    frames = calibration_frames or cal_frames(scene)
+    frames = calibration_frames or cal_frames(scene, calibration_time(scene, metric, CALIBRATION_TIME))
     limit = available_device_memory(dev) if dev.is_cuda else available_host_memory()
-    spent, cached, todo = 0.0, True, (names, radii)
+    share = CALIBRATION_SHARE * budget_s if budget_s is not None else math.inf
+    # radii the caller gives are all calibrated (with the tolerance points); the defaults keep within the share
+    first = share if not calibration_radii else math.inf
+    notes: list[str] = []
+    quiet = log or (lambda *a, **k: None)
+
+    fresh = [refresh]
+
+    def run(solvers_, radii_, factor=1.0):
+        out = calibrate(scene, solvers_, device=dev, radii=radii_, frames=frames, cache=cache, refresh=fresh[0],
+                        progress=progress, log=quiet, tolerance_factor=factor)
+        fresh[0] = False  # --refresh: the first call starts the cache afresh, the later ones add to it
+        return out
+
+    def spent_of(cal):  # the calibration's whole cost: every point of these solvers, run now or from the cache
+        return sum(p.seconds for p in cal.points if p.solver in names)
+
+    # the coarsest radius first; each further radius and the tolerance points while they fit in the share
+    cal = run(names, radii[:1])
+    cached = cal.cached
+    for i, r in enumerate(radii[1:]):
+        cost = sum(point_cost(cal, s, r) for s in names)
+        if spent_of(cal) + cost > first:
+            notes.append(f"calibrated at {i + 1} of {len(radii)} radii: the next ({r:.4g} m) was predicted to take "
+                         f"{cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
+            break
+        cal = run(names, [r])
+        cached = cached and cal.cached
+    iterative = [s for s in names if tolerance_key(s) and cal.for_solver(s)]
+    if iterative:
+        r_tol = min(p.particle_radius for s in iterative for p in cal.for_solver(s))
+        # about the cost of the same run at the scene's tolerance (0 where the tighter one is cached)
+        cost = sum(p.seconds for s in iterative for p in cal.for_solver(s) if p.particle_radius == r_tol
+                   and not any(q.particle_radius == r_tol and q.tolerance != p.tolerance for q in cal.for_solver(s)))
+        if spent_of(cal) + cost <= first:
+            cal = run(iterative, [r_tol], 1.0 / TOLERANCE_STEP)
+            cached = cached and cal.cached
+        else:
+            notes.append(f"tolerance not varied: its calibration ({', '.join(iterative)} at r = {r_tol:.4g} m) was "
+                         f"predicted to take {cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
     for _ in range(MAX_ROUNDS):
-        cal = calibrate(scene, todo[0], device=dev, radii=todo[1], frames=frames, cache=cache, refresh=refresh,
-                        progress=progress, log=log or (lambda *a, **k: None))
-        # the calibration's whole cost: every point of these solvers, run now or loaded from the cache
-        spent, cached = sum(p.seconds for p in cal.points if p.solver in names), cached and cal.cached
-        models = {s: m for s in names if (m := fit_models(cal, s)) is not None}
+        models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
+        if not models:
+            raise PlanError(f"{scene.source}: the scene cannot be calibrated for --target-error {metric}: no "
+                            f"calibration run measured it")
         candidates = candidates_for(scene, models)
         free = choose(candidates, budget_s, target_error, limit, scene.source, max_extrapolation=None)
         if free.count_extrapolation <= MAX_COUNT_EXTRAPOLATION:
@@ -78,10 +128,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         # the setting the fit would choose lies far beyond the calibration: one more point of its solver, when
         # that fits in the calibration's share of the budget
         r_new, cost, largest = next_point(cal, free)
-        if r_new >= largest or (budget_s is not None and spent + cost > CALIBRATION_SHARE * budget_s):
+        if r_new >= largest or spent_of(cal) + cost > share:
             break
-        todo = ([free.solver], [r_new])
-        refresh = False
+        cal = run([free.solver], [r_new])
+        cached = cached and cal.cached
     chosen = choose(candidates, budget_s, target_error, limit, scene.source)
     failed = {p.solver: p.error for p in cal.failures() if p.solver in names and p.solver not in models}
     alternatives = []
@@ -96,8 +146,20 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     return Plan(scene=scene.name, source=scene.source, chosen=chosen, alternatives=alternatives,
                 candidates=candidates, models=models, budget_s=budget_s, target_error=target_error,
                 duration=scene.duration, frames=int(round(scene.duration * scene.fps)) + 1,
-                calibration_seconds=spent, calibration_cached=cached, cache_path=cal.path,
-                machine=cal.machine, failed_solvers=failed)
+                calibration_seconds=spent_of(cal), calibration_cached=cached, cache_path=cal.path,
+                machine=cal.machine, failed_solvers=failed, metric=metric, notes=notes)
+
+
+def point_cost(cal, solver: str, radius: float) -> float:
+    """Predicted seconds of a calibration run of ``solver`` at ``radius`` [m], scaled from its finest point run:
+    its time outside the steps as it was, its steps' time times (r / radius)^4 (particles ~ r^-3, steps ~ r^-1);
+    0 when the point is cached or the solver has none."""
+    pts = cal.for_solver(solver)
+    if not pts or any(abs(p.particle_radius / radius - 1.0) <= 1e-6 for p in pts):
+        return 0.0
+    p = min(pts, key=lambda q: q.particle_radius)
+    steps = p.steps * p.step_time
+    return max(p.seconds - steps, 0.0) + steps * (p.particle_radius / radius) ** 4
 
 
 __all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "plan"]
