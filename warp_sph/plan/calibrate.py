@@ -210,7 +210,7 @@ def tolerance_key(solver: str) -> str | None:
     from ..methods.registry import solver as solver_class
 
     key = f"{solver}.target_density_error"
-    return key if any(p.key == key for p in solver_class(solver).parameters) else None
+    return key if any(p.path == key for p in solver_class(solver).parameters) else None
 
 
 def scene_tolerance(scene, solver: str) -> float | None:
@@ -225,7 +225,7 @@ def scene_tolerance(scene, solver: str) -> float | None:
 def _default(key: str) -> float:
     from ..methods.registry import solver as solver_class
 
-    return next(p.default for p in solver_class(key.split(".")[0]).parameters if p.key == key)
+    return next(p.default for p in solver_class(key.split(".")[0]).parameters if p.path == key)
 
 
 def variant_dict(scene, solver: str, radius: float, tolerance: float | None = None) -> dict:
@@ -328,7 +328,7 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
     if todo:
         folder.mkdir(parents=True, exist_ok=True)
         work = Path(tempfile.mkdtemp(prefix="calibration-", dir=folder))
-        log(f"calibrating {scene.name}: {len(todo)} runs ({', '.join(sorted({s for s, _ in todo}))} at "
+        log(f"calibrating {scene.name}: {len(todo)} run{'s' if len(todo) != 1 else ''} ({', '.join(sorted({s for s, _ in todo}))} at "
             f"{', '.join(f'{r:.4g}' for r in sorted({r for _, r in todo}, reverse=True))} m), {frames - 1} frames each "
             f"({(frames - 1) / scene.fps:.3g} s simulated)")
         bar = Progress(len(todo), enabled=progress, unit="runs")

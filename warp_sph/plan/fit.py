@@ -62,13 +62,16 @@ def fit_power_law(x, y, exponent_range: tuple[float, float] = (-6.0, 6.0)) -> Po
 
 def fit_line(x, y) -> Line:
     """The line y = c0 + c1 x with c0, c1 >= 0 closest to the points in least squares (the unconstrained fit,
-    else the best through the origin, else the best constant). Non-finite points are left out."""
+    else the best through the origin, else the best constant); points at one x > 0: through the origin.
+    Non-finite points are left out."""
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     ok = np.isfinite(x) & np.isfinite(y)
     x, y = x[ok], y[ok]
     if len(x) == 0:
         raise ValueError("no finite point to fit")
+    if np.ptp(x) == 0 and x[0] > 0:  # one count: proportional to it (an upper bound for larger counts)
+        return Line(0.0, max(float(y.mean() / x[0]), 0.0))
     candidates = []
     if len(x) >= 2 and np.ptp(x) > 0:
         c1, c0 = np.polyfit(x, y, 1)
