@@ -63,8 +63,10 @@ def run_case(scene_name: str, budget_text: str, duration: float, solvers: list[s
     plan_seconds = time.perf_counter() - t0
     path = apply_scene(scene, p, folder / "planned.toml")
     c = p.chosen
-    log(f"{case}: {c.solver} r = {c.particle_radius:.4g} m, {c.fluid_particles} fluid, predicted "
-        f"{c.wall_time:.3g} s, error {100 * c.density_error:.3g} %; calibration {p.calibration_seconds:.3g} s")
+    log(f"{case}: {c.solver} r = {c.particle_radius:.4g} m, tolerance {c.tolerance}, {c.fluid_particles} fluid, "
+        f"predicted {c.wall_time:.3g} s, error {100 * c.density_error:.3g} %; calibration {p.calibration_seconds:.3g} s")
+    for note in p.notes:
+        log(f"  note: {note}")
     load_before = host_info()["load_average"]
     cmd = [sys.executable, "-m", "warp_sph.cli", "run", str(path), "--out", str(folder / "run"), "--no-progress"]
     if device:
@@ -82,6 +84,7 @@ def run_case(scene_name: str, budget_text: str, duration: float, solvers: list[s
     wall_ratio = act["wall_time"] / pred["wall_time"]
     err_ratio = act["density_error"] / pred["density_error"] if pred["density_error"] > 0 else float("inf")
     record.update(status=info.get("status", "?"), solver=c.solver, particle_radius=c.particle_radius,
+                  tolerance=c.tolerance, notes=p.notes, extrapolated=c.extrapolated(),
                   fluid_particles=info["fluid_particles"], predicted=pred, actual=act,
                   wall_ratio=wall_ratio, error_ratio=err_ratio, calibration_seconds=p.calibration_seconds,
                   calibration_share=p.calibration_seconds / budget,
@@ -127,7 +130,7 @@ def section(records: list[dict], fmt, head) -> list[str]:
               "wall time. Goals (issue 37): actual wall within 25 % of the prediction and within the budget, "
               "error within 1.5x the predicted, calibration under 10 % of the budget. The load average (1 min) "
               "before and after the run says how loaded the machine was.", ""]
-    header = ["scene", "sim. s", "budget", "status", "solver", "r [m]", "fluid N", "count extrap.", "wall pred. [s]",
+    header = ["scene", "sim. s", "budget", "status", "solver", "r [m]", "tolerance", "fluid N", "count extrap.", "wall pred. [s]",
               "wall actual [s]", "wall ratio", "error pred. [%]", "error actual [%]", "error ratio", "calib. [s]",
               "calib. / budget", "goals met", "load before / after"]
     rows = []
@@ -136,7 +139,8 @@ def section(records: list[dict], fmt, head) -> list[str]:
         pred, act, goals = r.get("predicted") or {}, r.get("actual") or {}, r.get("goals") or {}
         loads = "/".join(fmt((x or [None])[0]) for x in (r.get("load_before"), r.get("load_after")))
         rows.append([p.get("scene", "?"), fmt(p.get("duration")), fmt(p.get("budget")), r.get("status", "?"),
-                     r.get("solver", "-"), fmt(r.get("particle_radius")), fmt(r.get("fluid_particles")),
+                     r.get("solver", "-"), fmt(r.get("particle_radius")),
+                     "-" if r.get("tolerance") is None else fmt(r.get("tolerance")), fmt(r.get("fluid_particles")),
                      fmt(r.get("count_extrapolation")), fmt(pred.get("wall_time")), fmt(act.get("wall_time")),
                      fmt(r.get("wall_ratio")), fmt(pred.get("density_error"), 100), fmt(act.get("density_error"), 100),
                      fmt(r.get("error_ratio")), fmt(r.get("calibration_seconds")), fmt(r.get("calibration_share")),
@@ -148,4 +152,7 @@ def section(records: list[dict], fmt, head) -> list[str]:
         names = list(done[0]["goals"])
         lines += ["Goals met: " + ", ".join(f"{k.replace('_', ' ')} {sum(r['goals'][k] for r in done)}/{len(done)}"
                                             for k in names) + ".", ""]
+    notes = [f"- {r['params']['scene']} {fmt(r['params']['budget'])} s: {n}" for r in records for n in r.get("notes") or []]
+    if notes:
+        lines += ["What the calibration left out (to keep within 10 % of the budget):", ""] + notes + [""]
     return lines

@@ -330,7 +330,8 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
         work = Path(tempfile.mkdtemp(prefix="calibration-", dir=folder))
         log(f"calibrating {scene.name}: {len(todo)} run{'s' if len(todo) != 1 else ''} ({', '.join(sorted({s for s, _ in todo}))} at "
             f"{', '.join(f'{r:.4g}' for r in sorted({r for _, r in todo}, reverse=True))} m), {frames - 1} frames each "
-            f"({(frames - 1) / scene.fps:.3g} s simulated)")
+            f"({(frames - 1) / scene.fps:.3g} s simulated)"
+            + (f", tolerance {tolerance_factor:g} x the scene's" if tolerance_factor != 1.0 else ""))
         bar = Progress(len(todo), enabled=progress, unit="runs")
         try:
             for i, (solver, r) in enumerate(todo):
