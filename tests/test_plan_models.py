@@ -220,6 +220,15 @@ def test_reference_errors_of_a_column_collapse_against_numpy_oracles(tmp_path):
            for s in np.linspace(-0.2, 0.2, 40001)]
     assert out["front"] == pytest.approx(min(rms), abs=1e-5) and out["front"] < 0.1 + 1e-12
     assert evaluate_reference(load_scene("hydrostatic"), tmp_path, {"probes": {"x": {}}}) == {}
+    # a completed run made from a plan on "residual" records its error beside the prediction (run.json "plan")
+    from warp_sph.plan.compare import compare_with_plan, summary_line
+
+    info = {"scene": scene.to_dict(), "status": "completed", "wall_time": 2.0, "frames": [], "steps": 10}
+    rec = compare_with_plan({"wall_time": 1.0, "density_error": 0.01, "metric": "residual", "metric_error": 0.04}, info,
+                            tmp_path)
+    assert rec["actual"]["metric_error"] == pytest.approx(0.05) and rec["ratio"]["metric_error"] == pytest.approx(1.25)
+    assert "residual error 5 % (predicted 4 %)" in summary_line(rec)
+    assert "metric_error" not in compare_with_plan({"metric": "residual"}, dict(info, status="running"), tmp_path)["actual"]
 
 
 def test_plan_on_an_error_against_the_experiment(tmp_path):
