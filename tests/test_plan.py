@@ -155,7 +155,8 @@ def test_plan_of_a_tiny_scene(calibrated):
     assert ("x the largest calibrated count" in c.extrapolated()) == (c.count_extrapolation > 1.05)
     # at a calibrated radius the prediction is what the calibration measured: the sampled count, and the steps
     # scaled from the calibration's simulated time to the scene's 0.25 s
-    points = json.loads(next(cache.glob("calibration-*.json")).read_text())["points"]
+    files = [json.loads(f.read_text())["points"] for f in cache.glob("calibration-*.json")]
+    points = next(f for f in files if any(q["particle_radius"] == 0.02 for q in f))  # the short runs' file
     for solver in SOLVERS:
         point = next(q for q in points if q["solver"] == solver and q["particle_radius"] == 0.03)
         pred = next(d for d in p.candidates if d.solver == solver and d.particle_radius == pytest.approx(0.03))
@@ -169,7 +170,8 @@ def test_calibration_is_cached(calibrated, tiny):
     assert q.calibration_cached and not p.calibration_cached
     assert q.calibration_seconds == p.calibration_seconds  # nothing ran again
     assert q.chosen == p.chosen
-    assert len(list(cache.glob("calibration-*.json"))) == 1 and not list(cache.glob("calibration-*/"))
+    # one file of the short runs, one of the whole-duration runs of the error profile; no run folder left
+    assert len(list(cache.glob("calibration-*.json"))) == 2 and not list(cache.glob("calibration-*/"))
 
 
 def test_public_api_and_table(calibrated):
@@ -283,11 +285,12 @@ def test_next_calibration_point_steps_at_most_4x():
 
     cal = Calibration(key="k", machine="m", points=[
         Point("wcsph", 0.04, fluid=300, boundary=200, seconds=1.0),
-        Point("wcsph", 0.02, fluid=800, boundary=200, seconds=2.0)])
+        Point("wcsph", 0.02, fluid=800, boundary=200, seconds=2.0, steps=100, step_time=0.015)])
     far = Candidate("wcsph", 0.002, None, 10**6, 0, 1000, 10.0, 0, 0.01, 1000.0, 10.0)
     r, cost, largest = next_point(cal, far)  # the fit's choice is 1000x beyond: step 4x only
     assert largest == 0.02 and r == pytest.approx(0.02 * 0.25 ** (1 / 3), rel=1e-3)
-    assert cost == pytest.approx(2.0 * 4.0 * 0.02 / r, rel=1e-3)
+    # 0.5 s outside the steps as it was, the steps' 1.5 s times 4x the particles and 0.02 / r the steps
+    assert cost == pytest.approx(0.5 + 1.5 * 4.0 * 0.02 / r, rel=1e-3)
     near = Candidate("wcsph", 0.01, None, 6000, 0, 100, 1.0, 0, 0.01, 6.0, 2.0)
     r, cost, _ = next_point(cal, near)  # a quarter of its count: 1500 particles
     assert r == pytest.approx(0.02 * (1000 / 1500) ** (1 / 3), rel=1e-3)

@@ -148,6 +148,21 @@ def test_run_density_error_holds_the_last_frame(tiny):
     assert run_density_error(m, d, 2) == pytest.approx(0.01 * d)          # a shorter run: the calibrated mean
 
 
+def test_the_error_profile_scales_the_later_frames(tiny):
+    # a whole run at the coarsest radius: 1e-3 in the 3 calibrated frames, then 2e-3, 3e-3, 3e-3, ... (12 frames)
+    prof = [1e-3, 1e-3, 1e-3] + [2e-3, 3e-3] + [3e-3] * 7
+    whole = _point("wcsph", 0.03, None, density_errors=prof)
+    m = fit_models(_cal(_point("wcsph", 0.03, None), _point("wcsph", 0.02, None)), "wcsph", tiny, profile=_cal(whole))
+    assert m.profile == prof
+    r = (2e-3 + 3e-3 * 8) / 9 / 1e-3      # its mean after frame 3 over its frame 3
+    assert m.later_ratio(12) == pytest.approx(r)
+    d = 0.05
+    assert run_density_error(m, d, 12) == pytest.approx((3 * 0.01 * d + 9 * 0.02 * d * r) / 12)
+    assert m.later_ratio(20) == 1.0 and m.later_ratio(3) == 1.0  # a profile too short, or nothing after it
+    assert "later frames x 2.89 (the error's course over a whole run)" in __import__(
+        "warp_sph.plan.report", fromlist=["model_line"]).model_line(m)
+
+
 def test_a_clamped_order_says_so(tiny):
     from warp_sph.plan.fit import fit_power_law
     from warp_sph.plan.report import model_line

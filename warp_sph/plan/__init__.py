@@ -37,6 +37,8 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     (``calibrate.calibration_radii``, ``calibrate.calibration_frames``; given radii are all run). With a budget
     the default calibration keeps within CALIBRATION_SHARE of it: the coarsest radius first, then each further radius and the tolerance
     points only while their cost, scaled from the points run, fits (``Plan.notes`` says what was left out).
+    When it fits too, each solver runs the scene's whole duration at the coarsest radius once: the course of its
+    density error over the run (``advisor.SolverModel.later_ratio``).
     Models fitted to them (steps per simulated second and error against the spacing and the tolerance, wall
     time against the particle count) predict every candidate over the scene's duration. No setting beyond 4x
     the largest calibrated particle count is chosen; when the fit would choose one, a finer calibration point
@@ -56,7 +58,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     from ..scene import Scene, load_scene
     from .advisor import CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose, fit_models, next_point
     from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, calibrate, calibration_frames as cal_frames,
-                            calibration_radii as default_radii, tolerance_key)
+                            calibration_radii as default_radii, scene_tolerance, tolerance_key)
     from .metrics import DENSITY, calibration_time, check_metric
 
     if budget_s is None and target_error is None:
@@ -90,8 +92,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         fresh[0] = False  # --refresh: the first call starts the cache afresh, the later ones add to it
         return out
 
+    profile_seconds = 0.0
+
     def spent_of(cal):  # the calibration's whole cost: every point of these solvers, run now or from the cache
-        return sum(p.seconds for p in cal.points if p.solver in names)
+        return sum(p.seconds for p in cal.points if p.solver in names) + profile_seconds
 
     # the coarsest radius first; each further radius and the tolerance points while they fit in the share
     cal = run(names, radii[:1])
@@ -104,6 +108,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
             break
         cal = run(names, [r])
         cached = cached and cal.cached
+    profile_seconds = 0.0
     iterative = [s for s in names if tolerance_key(s) and cal.for_solver(s)]
     if iterative:
         r_tol = min(p.particle_radius for s in iterative for p in cal.for_solver(s))
@@ -116,6 +121,21 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         else:
             notes.append(f"tolerance not varied: its calibration ({', '.join(iterative)} at r = {r_tol:.4g} m) was "
                          f"predicted to take {cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
+    # the error's course over the whole run: one run of the scene's duration per solver at the coarsest radius,
+    # when it fits in the share (reserved before the finer points); without it the later error is held
+    whole, profile_cost, r0 = int(round(scene.duration * scene.fps)) + 1, None, 0.0
+    if whole > frames and any(cal.for_solver(s) for s in names):
+        r0 = max(p.particle_radius for s in names for p in cal.for_solver(s))
+        scale = (whole - 1) / max(frames - 1, 1)
+        cost = sum(max(p.seconds - p.steps * p.step_time - p.export_wait, 0.0)
+                   + (p.steps * p.step_time + p.export_wait) * scale
+                   for s in names for p in cal.for_solver(s, scene_tolerance(scene, s)) if p.particle_radius == r0)
+        if spent_of(cal) + cost <= first:
+            profile_cost = cost
+        else:
+            notes.append(f"no error profile (a whole run at r = {r0:.4g} m, predicted {cost:.3g} s, does not fit in "
+                         f"{100 * CALIBRATION_SHARE:.0f} % of the budget): the error after the calibrated "
+                         f"{(frames - 1) / scene.fps:.3g} s is held at its last calibrated frame's")
     for _ in range(MAX_ROUNDS):
         models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
         if not models:
@@ -128,10 +148,22 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         # the setting the fit would choose lies far beyond the calibration: one more point of its solver, when
         # that fits in the calibration's share of the budget
         r_new, cost, largest = next_point(cal, free)
-        if r_new >= largest or spent_of(cal) + cost > share:
+        if r_new >= largest or spent_of(cal) + cost + (profile_cost or 0.0) > share:
             break
         cal = run([free.solver], [r_new])
         cached = cached and cal.cached
+    # the error's course over the whole run (its cost reserved before the finer points), then the models again
+    if profile_cost is not None:
+        try:
+            profile = calibrate(scene, names, device=dev, radii=[r0], frames=whole, cache=cache, refresh=refresh,
+                                progress=progress, log=quiet)
+            profile_seconds += sum(p.seconds for p in profile.points if p.solver in names and
+                                   abs(p.particle_radius / r0 - 1.0) <= 1e-6)
+            cached = cached and profile.cached
+            models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
+            candidates = candidates_for(scene, models)
+        except PlanError as exc:
+            notes.append(f"no error profile: {exc}")
     chosen = choose(candidates, budget_s, target_error, limit, scene.source)
     failed = {p.solver: p.error for p in cal.failures() if p.solver in names and p.solver not in models}
     alternatives = []

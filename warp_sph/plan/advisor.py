@@ -6,10 +6,12 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
   one step per frame or per time.dt_max (``StepRate``);
 - wall time = load + setup(N) + S * step(N) + frames * frame_overhead(N), three lines fitted against N, and
   the time a fresh process spends loading the step's kernels (the largest first-step excess measured);
-- mean density error over the run: the calibration's frames measured e_cal(d) = A d^p, the rest of the run held
-  at the calibration's last frame, e_last(d) = B d^p' (a settled tank stays at its settled error): (F_c e_cal +
-  (F - F_c) e_last) / F over F frames, F_c of them calibrated; the orders p, p' measured and clamped to
-  ORDER_RANGE (a clamped order is a bound, and the plan says so);
+- mean density error over the run: the calibration's frames measured e_cal(d) = A d^p, the rest of the run at the
+  calibration's last frame's error e_last(d) = B d^p' times the profile's ratio R: (F_c e_cal + (F - F_c) R e_last)
+  / F over F frames, F_c of them calibrated. The profile is a run of the whole duration at the coarsest radius:
+  R = its mean error over frames F_c+1..F / its error at frame F_c (a dam break's impact doubles the error after
+  the release the short runs see); without one (no room in the budget) R = 1, the error held. The orders p, p'
+  are measured and clamped to ORDER_RANGE (a clamped order is a bound, and the plan says so);
 - an error against an experiment (``metrics.py``; calibrated over the whole duration): E(d) = C d^q;
 - the solver's tolerance t (PBF, DFSPH: calibrated at the scene's t0 and at t0 / 4 at one radius): the cost per
   step, the steps per simulated second and each error times (t / t0)^k, each k measured from that pair;
@@ -71,6 +73,16 @@ class SolverModel:
     tolerance: float | None = None           # the scene's tolerance t0 [-] (None: the solver has none)
     tolerances: list = field(default_factory=list)      # the calibrated tolerances [-], t0 first
     tolerance_exponents: dict = field(default_factory=dict)  # figure -> k: figure ~ (t / t0)^k
+    profile: list = field(default_factory=list)  # [-] per-frame mean density error of a whole run at the coarsest radius
+
+    def later_ratio(self, frames: int) -> float:
+        """R: the profile's mean error over the frames after the calibrated ones / its error at the last calibrated
+        frame (1 without a profile covering ``frames``)."""
+        fc = self.calibrated_frames
+        if len(self.profile) < frames or frames <= fc or fc < 1 or self.profile[fc - 1] <= 0:
+            return 1.0
+        later = self.profile[fc:frames]
+        return float(sum(later) / len(later) / self.profile[fc - 1])
 
     def tolerance_factor(self, figure: str, tolerance: float | None) -> float:
         """(t / t0)^k of ``figure`` ("step_time", "steps_per_second", "error", "error_last", "metric")."""
@@ -205,9 +217,11 @@ def tolerance_exponents(cal: Calibration, solver: str, t0: float | None, metric:
     return [t0, b.tolerance], k
 
 
-def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY) -> SolverModel | None:
+def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
+               profile: Calibration | None = None) -> SolverModel | None:
     """The models of ``solver`` from its completed calibration points at the scene's tolerance (None: it has
-    none); ``metric``: the error a target names (its law from the points' ``reference``)."""
+    none); ``metric``: the error a target names (its law from the points' ``reference``); ``profile``: the
+    whole-duration calibration whose per-frame errors give R (module docstring)."""
     t0 = scene_tolerance(scene, solver) if scene is not None else None
     pts = sorted(cal.for_solver(solver, t0) if scene is not None else cal.for_solver(solver),
                  key=lambda p: p.particle_radius)
@@ -236,16 +250,22 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY)
         calibrated_radii=[p.particle_radius for p in pts], calibrated_particles=n,
         error_last=_error_law(d, [p.density_error_last or p.density_error_mean for p in pts]),
         calibrated_frames=min(p.frames for p in pts), metric=metric, metric_error=metric_law,
-        tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents)
+        tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents,
+        profile=_profile(profile, solver, t0) if profile is not None else [])
+
+
+def _profile(profile: Calibration, solver: str, t0) -> list:
+    pts = profile.for_solver(solver, t0)
+    return list(max(pts, key=lambda p: p.particle_radius).density_errors) if pts else []
 
 
 def run_density_error(model: SolverModel, d: float, frames: int, tolerance: float | None = None) -> float:
     """The predicted mean density error [-] over a run of ``frames`` frames at spacing ``d`` [m]: the calibrated
-    frames at the calibration's mean, the rest at its last frame's error (module docstring)."""
+    frames at the calibration's mean, the rest at its last frame's error times the profile's R (module docstring)."""
     first = model.error(d) * model.tolerance_factor("error", tolerance)
     if model.error_last is None or frames <= 0:
         return first
-    last = model.error_last(d) * model.tolerance_factor("error_last", tolerance)
+    last = model.error_last(d) * model.tolerance_factor("error_last", tolerance) * model.later_ratio(frames)
     fc = min(model.calibrated_frames, frames)
     return (fc * first + (frames - fc) * last) / frames
 
@@ -354,9 +374,12 @@ def candidates_for(scene, models: dict) -> list:
 def next_point(cal: Calibration, free: Candidate) -> tuple[float, float, float]:
     """(radius [m], predicted cost [s], largest calibrated radius [m]) of the next calibration point of
     ``free``'s solver: a quarter of its particle count, but at most STEP_UP x the largest calibrated count (the
-    fit is least sure beyond it); the cost scaled from the largest point run (particles x steps, steps ~ 1/d)."""
+    fit is least sure beyond it); the cost scaled from the largest point run: its time outside the steps as it
+    was, its steps' time times particles x steps (steps ~ 1/d)."""
     largest = max(cal.for_solver(free.solver), key=lambda q: q.particles)
     target = min(free.particles / 4.0, STEP_UP * largest.particles)
     r_new = float(f"{largest.particle_radius * (largest.particles / target) ** (1.0 / 3.0):.4g}")
-    cost = largest.seconds * (target / largest.particles) * (largest.particle_radius / r_new)
+    steps = largest.steps * largest.step_time
+    cost = (max(largest.seconds - steps, 0.0)
+            + steps * (target / largest.particles) * (largest.particle_radius / r_new))
     return r_new, cost, largest.particle_radius

@@ -71,6 +71,7 @@ class Point:
     density_error_mean: float = 0.0     # [-] mean over the advanced frames of the frame's mean error
     density_error_max: float = 0.0      # [-] largest of any frame
     density_error_last: float = 0.0     # [-] the last frame's mean error
+    density_errors: list = field(default_factory=list)  # [-] each advanced frame's mean error, in order
     reference: dict = field(default_factory=dict)  # metric -> error against the experiment (None: not measurable)
     seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
 
@@ -286,6 +287,7 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     point.density_error_mean = sum(f["density_error_mean"] for f in advanced) / max(len(advanced), 1)
     point.density_error_max = max((f["density_error_max"] for f in advanced), default=0.0)
     point.density_error_last = advanced[-1]["density_error_mean"] if advanced else 0.0
+    point.density_errors = [float(f["density_error_mean"]) for f in advanced]
     return point
 
 

@@ -112,6 +112,8 @@ def model_line(m) -> str:
     """One solver's fitted models in words: error orders, step rate, cost, the tolerance's effect."""
     text = (f"{m.solver} models: density error ~ {_order(m.error)} in the first {m.calibrated_frames} frames, "
             f"then ~ {_order(m.error_last)}")
+    if m.profile:
+        text += f", later frames x {m.later_ratio(len(m.profile)):.3g} (the error's course over a whole run)"
     if m.metric_error is not None:
         text += f"; {m.metric} error ~ {_order(m.metric_error)}"
     text += (f"; steps/s ~ d^{m.steps_per_second.law.exponent:.2f} above {m.steps_per_second.floor:.4g}; "
