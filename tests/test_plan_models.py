@@ -100,6 +100,14 @@ def test_tolerance_exponents_and_candidates(tiny):
     assert c.steps == steps and c.wall_time == pytest.approx(wall, rel=1e-9) and c.tolerance == T0 / 2
     first, last = 0.01 * 0.04 * 0.5 ** K["error"], 0.02 * 0.04 * 0.5 ** K["error_last"]
     assert c.density_error == pytest.approx((3 * first + (frames - 3) * last) / frames, rel=1e-9)
+    # the tolerance's effect was measured at the pair's count (r = 0.02: 1350 particles): t != t0 extrapolates from it
+    pair = _point("pbf", 0.02, T0).particles
+    assert m.tolerance_particles == pair
+    fine = predict(tiny, m, 0.01, T0 / 4)
+    assert fine.tolerance_extrapolation == pytest.approx(fine.particles / pair)
+    assert fine.count_extrapolation == pytest.approx(fine.particles / pair)  # beyond 4x: not chosen
+    assert predict(tiny, m, 0.01, T0).tolerance_extrapolation == 1.0
+    assert "the tolerance's effect" in fine.extrapolated()
     # every candidate of the solver at each of the three tolerances; WCSPH has one (None)
     cands = candidates_for(tiny, {"pbf": m})
     assert {c.tolerance for c in cands} == {T0, T0 / 2, T0 / 4}
@@ -161,6 +169,21 @@ def test_the_error_profile_scales_the_later_frames(tiny):
     assert m.later_ratio(20) == 1.0 and m.later_ratio(3) == 1.0  # a profile too short, or nothing after it
     assert "later frames x 2.89 (the error's course over a whole run)" in __import__(
         "warp_sph.plan.report", fromlist=["model_line"]).model_line(m)
+
+
+def test_a_fresh_process_pays_the_first_runs_kernel_loads(tiny):
+    from warp_sph.plan.advisor import process_overhead
+
+    def pt(r, n, wall, first=False):  # no steps: the set-up is the run's wall time
+        return Point("wcsph", r, fluid=n, wall_time=wall, first_in_process=first)
+
+    # set-up 0.2 s + 1e-4 s per particle; the process's first run 1.5 s more
+    pts = [pt(0.04, 1000, 1.7 + 0.1, True), pt(0.03, 2000, 0.2 + 0.2), pt(0.02, 6000, 0.2 + 0.6)]
+    cal = _cal(*pts)
+    assert process_overhead(cal, tiny) == pytest.approx(1.5)
+    m = fit_models(cal, "wcsph", tiny)
+    assert m.load_time == pytest.approx(1.5) and m.setup_time(1000) == pytest.approx(0.3)  # the first run left out
+    assert process_overhead(_cal(*pts[1:]), tiny) == 0.0  # no first run among the points: nothing measured
 
 
 def test_a_clamped_order_says_so(tiny):

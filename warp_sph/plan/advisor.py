@@ -15,7 +15,9 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
 - an error against an experiment (``metrics.py``; calibrated over the whole duration): E(d) = C d^q;
 - the solver's tolerance t (PBF, DFSPH: calibrated at the scene's t0 and at t0 / 4 at one radius): the cost per
   step, the steps per simulated second and each error times (t / t0)^k, each k measured from that pair;
-  candidates only between the two calibrated tolerances (no extrapolation in t);
+  candidates only between the two calibrated tolerances (no extrapolation in t), and a candidate at t != t0
+  counts its extrapolation from the pair's particle count (measured, hydrostatic 0.5 s: DFSPH at t0 / 4 with
+  14x the pair's count took 3.8x its prediction: the iterations a tolerance costs grow with the resolution);
 - memory: ``run.memory.estimate_memory`` at the predicted counts.
 The candidates are the solvers x their tolerances x a geometric ladder of radii from the coarsest stable one
 down to 64x finer than the finest calibrated; each says how far it extrapolates beyond the calibrated counts.
@@ -72,6 +74,7 @@ class SolverModel:
     metric_error: PowerLaw | None = None     # that error against d [m] (None: the density error)
     tolerance: float | None = None           # the scene's tolerance t0 [-] (None: the solver has none)
     tolerances: list = field(default_factory=list)      # the calibrated tolerances [-], t0 first
+    tolerance_particles: int = 0                        # particles of the pair the tolerance's effect was measured on
     tolerance_exponents: dict = field(default_factory=dict)  # figure -> k: figure ~ (t / t0)^k
     profile: list = field(default_factory=list)  # [-] per-frame mean density error of a whole run at the coarsest radius
 
@@ -122,6 +125,7 @@ class Candidate:
     pareto: bool = False
     metric: str = DENSITY          # the error the plan targets
     metric_error: float | None = None   # [-] that error against the experiment (None: the density error)
+    tolerance_extrapolation: float = 1.0  # N / the particles the tolerance's effect was measured at (1: t0, or inside)
 
     @property
     def particles(self) -> int:
@@ -140,6 +144,8 @@ class Candidate:
             parts.append(f"{self.count_extrapolation:.3g}x the largest calibrated count (wall time)")
         if self.spacing_extrapolation > 1.05:
             parts.append(f"{self.spacing_extrapolation:.3g}x finer than calibrated (error, steps)")
+        if self.tolerance_extrapolation > 1.05:
+            parts.append(f"the tolerance's effect {self.tolerance_extrapolation:.3g}x beyond the count it was measured at")
         return "; ".join(parts)
 
     def to_dict(self) -> dict:
@@ -197,16 +203,16 @@ def _error_law(d, values) -> PowerLaw | None:
     return fit_power_law([a for a, _ in ok], [v for _, v in ok], ORDER_RANGE) if ok else None
 
 
-def tolerance_exponents(cal: Calibration, solver: str, t0: float | None, metric: str) -> tuple[list, dict]:
-    """(calibrated tolerances, t0 first; {figure: k}) of ``solver`` from a pair of points at one radius, one at
-    t0 and one at another tolerance (the finest such radius); ([t0], {}) without such a pair."""
+def tolerance_exponents(cal: Calibration, solver: str, t0: float | None, metric: str) -> tuple[list, dict, int]:
+    """(calibrated tolerances, t0 first; {figure: k}; the pair's particles) of ``solver`` from a pair of points at
+    one radius, one at t0 and one at another tolerance (the finest such radius); ([t0], {}, 0) without a pair."""
     if t0 is None:
-        return [None], {}
+        return [None], {}, 0
     base = cal.for_solver(solver, t0)
     others = [p for p in cal.for_solver(solver) if p.tolerance is not None and abs(p.tolerance / t0 - 1) > 1e-6]
     pairs = [(a, b) for b in others for a in base if abs(a.particle_radius / b.particle_radius - 1) <= 1e-6]
     if not pairs:
-        return [t0], {}
+        return [t0], {}, 0
     a, b = min(pairs, key=lambda ab: ab[0].particle_radius)
     k = {"step_time": log_slope(a.tolerance, a.step_time, b.tolerance, b.step_time),
          "steps_per_second": log_slope(a.tolerance, a.steps_per_second, b.tolerance, b.steps_per_second),
@@ -214,7 +220,7 @@ def tolerance_exponents(cal: Calibration, solver: str, t0: float | None, metric:
          "error_last": log_slope(a.tolerance, a.density_error_last, b.tolerance, b.density_error_last)}
     if metric != DENSITY:
         k["metric"] = log_slope(a.tolerance, a.reference.get(metric) or 0.0, b.tolerance, b.reference.get(metric) or 0.0)
-    return [t0, b.tolerance], k
+    return [t0, b.tolerance], k, a.particles
 
 
 def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
@@ -229,13 +235,14 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         return None
     d = [p.spacing for p in pts]
     n = [p.particles for p in pts]
-    setup = fit_line(n, [p.setup_time for p in pts])
+    steady = [p for p in pts if not p.first_in_process] or pts
+    setup = fit_line([p.particles for p in steady], [p.setup_time for p in steady])
     metric_law = None
     if metric != DENSITY:
         metric_law = _error_law(d, [p.reference.get(metric) for p in pts])
         if metric_law is None:  # no calibration run's span held a point of the experiment
             return None
-    tolerances, exponents = tolerance_exponents(cal, solver, t0, metric)
+    tolerances, exponents, pair_particles = tolerance_exponents(cal, solver, t0, metric)
     return SolverModel(
         solver=solver,
         steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], cal.step_floor),
@@ -245,18 +252,33 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
         fluid_count=fit_lattice_count(d, [p.fluid for p in pts], 3),
         boundary_count=fit_lattice_count(d, [max(p.boundary, 0) for p in pts], 2),
-        # a fresh process loads the step's kernels as the solver's first calibration run did
-        load_time=max(p.load_time for p in pts),
+        # a fresh process loads the step's kernels as the solver's first calibration run did, and the shared ones
+        # as the process's first calibration run did
+        load_time=max(p.load_time for p in pts) + process_overhead(cal, scene),
         calibrated_radii=[p.particle_radius for p in pts], calibrated_particles=n,
         error_last=_error_law(d, [p.density_error_last or p.density_error_mean for p in pts]),
         calibrated_frames=min(p.frames for p in pts), metric=metric, metric_error=metric_law,
-        tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents,
+        tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents, tolerance_particles=pair_particles,
         profile=_profile(profile, solver, t0) if profile is not None else [])
 
 
 def _profile(profile: Calibration, solver: str, t0) -> list:
     pts = profile.for_solver(solver, t0)
     return list(max(pts, key=lambda p: p.particle_radius).density_errors) if pts else []
+
+
+def process_overhead(cal: Calibration, scene=None) -> float:
+    """[s] a fresh process spends loading the kernels every run shares (sampling, grid, exports): the set-up of the
+    process's first calibration run beyond its solver's set-up line fitted to the other points (0 where no point
+    of the calibration was a process's first, or its solver has no other point)."""
+    out = 0.0
+    for q in (p for p in cal.points if p.first_in_process and p.status == "completed"):
+        t0 = scene_tolerance(scene, q.solver) if scene is not None else "any"
+        others = [p for p in cal.for_solver(q.solver, t0) if p is not q and not p.first_in_process]
+        if others:
+            line = fit_line([p.particles for p in others], [p.setup_time for p in others])
+            out = max(out, q.setup_time - line(q.particles))
+    return out
 
 
 def run_density_error(model: SolverModel, d: float, frames: int, tolerance: float | None = None) -> float:
@@ -286,6 +308,11 @@ def predict(scene, model: SolverModel, radius: float, tolerance: float | None = 
     step = model.step_time(n) * model.tolerance_factor("step_time", tolerance)
     wall = model.load_time + model.setup_time(n) + steps * step + frames * model.frame_overhead(n)
     mem = estimate_memory(s, fluid, boundary)
+    # another tolerance than the scene's: its effect was measured at one particle count (iterations grow with the
+    # resolution), so its extrapolation counts from there
+    tol_ext = 1.0
+    if model.tolerance_particles and abs(tolerance / model.tolerance - 1.0) > 1e-6:
+        tol_ext = max(n / model.tolerance_particles, 1.0)
     metric_error = None
     if model.metric_error is not None:
         metric_error = float(model.metric_error(d) * model.tolerance_factor("metric", tolerance))
@@ -293,7 +320,9 @@ def predict(scene, model: SolverModel, radius: float, tolerance: float | None = 
                      fluid_particles=fluid, boundary_particles=boundary, steps=steps, wall_time=float(wall),
                      memory=int(mem["device"] + mem["host"]),
                      density_error=float(run_density_error(model, d, frames, tolerance)),
-                     count_extrapolation=extrapolation(n, min(model.calibrated_particles), max(model.calibrated_particles)),
+                     count_extrapolation=max(extrapolation(n, min(model.calibrated_particles),
+                                                           max(model.calibrated_particles)), tol_ext),
+                     tolerance_extrapolation=tol_ext,
                      spacing_extrapolation=max(min(model.calibrated_radii) / radius, 1.0),
                      metric=model.metric, metric_error=metric_error)
 

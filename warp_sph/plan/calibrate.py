@@ -41,6 +41,8 @@ PLANNED_KEYS = ("particle_radius", "solver", "plan", "name", "description")
 TOLERANCE_STEP = 4.0
 #: the version of the cached points' fields (older cache files are not read)
 CACHE_SCHEMA = 2
+#: calibration runs made by this process so far (the first one's set-up includes loading the shared kernels)
+_RUNS_IN_PROCESS = [0]
 
 
 class PlanError(WarpSphError):
@@ -72,6 +74,7 @@ class Point:
     density_error_max: float = 0.0      # [-] largest of any frame
     density_error_last: float = 0.0     # [-] the last frame's mean error
     density_errors: list = field(default_factory=list)  # [-] each advanced frame's mean error, in order
+    first_in_process: bool = False      # the process's first calibration run: its set-up loaded the shared kernels
     reference: dict = field(default_factory=dict)  # metric -> error against the experiment (None: not measurable)
     seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
 
@@ -340,6 +343,8 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
                 t0 = time.perf_counter()
                 point = run_point(scene, solver, r, frames, dev, work / f"{solver}-{i}", tol[solver])
                 point.seconds = time.perf_counter() - t0
+                point.first_in_process = _RUNS_IN_PROCESS[0] == 0
+                _RUNS_IN_PROCESS[0] += 1
                 points.append(point)
                 bar.update(i + 1, f"{solver} r = {r:.4g} m: {point.status}")
         finally:
