@@ -97,30 +97,38 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     def spent_of(cal):  # the calibration's whole cost: every point of these solvers, run now or from the cache
         return sum(p.seconds for p in cal.points if p.solver in names) + profile_seconds
 
-    # the coarsest radius first; each further radius and the tolerance points while they fit in the share
+    # the coarsest radius first; each further radius and the tolerance points while they fit in the share, the
+    # solvers in the order their one-radius models rank them (the one the plan would choose first)
     cal = run(names, radii[:1])
     cached = cal.cached
-    for i, r in enumerate(radii[1:]):
-        cost = sum(point_cost(cal, s, r) for s in names)
-        if spent_of(cal) + cost > first:
-            notes.append(f"calibrated at {i + 1} of {len(radii)} radii: the next ({r:.4g} m) was predicted to take "
-                         f"{cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
-            break
-        cal = run(names, [r])
-        cached = cached and cal.cached
-    profile_seconds = 0.0
-    iterative = [s for s in names if tolerance_key(s) and cal.for_solver(s)]
-    if iterative:
-        r_tol = min(p.particle_radius for s in iterative for p in cal.for_solver(s))
-        # about the cost of the same run at the scene's tolerance (0 where the tighter one is cached)
-        cost = sum(p.seconds for s in iterative for p in cal.for_solver(s) if p.particle_radius == r_tol
-                   and not any(q.particle_radius == r_tol and q.tolerance != p.tolerance for q in cal.for_solver(s)))
+    order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit)
+    for r in radii[1:]:
+        left = []
+        for s in order:
+            cost = point_cost(cal, s, r)
+            if spent_of(cal) + cost > first:
+                left.append(s)
+                continue
+            cal = run([s], [r])
+            cached = cached and cal.cached
+        if left:
+            notes.append(f"not calibrated at r = {r:.4g} m: {', '.join(left)} (predicted beyond "
+                         f"{100 * CALIBRATION_SHARE:.0f} % of the budget)")
+    # the second tolerance: each solver with one, at its finest calibrated radius, in the same order
+    for s in order:
+        if not tolerance_key(s) or not cal.for_solver(s):
+            continue
+        r_tol = min(p.particle_radius for p in cal.for_solver(s))
+        if len({p.tolerance for p in cal.for_solver(s) if p.particle_radius == r_tol}) > 1:
+            continue  # cached
+        # about the cost of the same run at the scene's tolerance
+        cost = sum(p.seconds for p in cal.for_solver(s) if p.particle_radius == r_tol)
         if spent_of(cal) + cost <= first:
-            cal = run(iterative, [r_tol], 1.0 / TOLERANCE_STEP)
+            cal = run([s], [r_tol], 1.0 / TOLERANCE_STEP)
             cached = cached and cal.cached
         else:
-            notes.append(f"tolerance not varied: its calibration ({', '.join(iterative)} at r = {r_tol:.4g} m) was "
-                         f"predicted to take {cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
+            notes.append(f"{s}'s tolerance not varied: its calibration at r = {r_tol:.4g} m was predicted to take "
+                         f"{cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
     # the error's course over the whole run: one run of the scene's duration per solver at the coarsest radius,
     # when it fits in the share (reserved before the finer points); without it the later error is held
     whole, profile_cost, r0 = int(round(scene.duration * scene.fps)) + 1, None, 0.0
@@ -180,6 +188,25 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                 duration=scene.duration, frames=int(round(scene.duration * scene.fps)) + 1,
                 calibration_seconds=spent_of(cal), calibration_cached=cached, cache_path=cal.path,
                 machine=cal.machine, failed_solvers=failed, metric=metric, notes=notes)
+
+
+def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> list:
+    """``names`` in the order the plan would prefer them from the calibration so far (each solver's own best
+    setting, ranked as ``advisor.choose`` ranks settings); solvers without a setting last."""
+    from .advisor import candidates_for, choose, fit_models
+
+    best = {}
+    for s in names:
+        m = fit_models(cal, s, scene, metric)
+        if m is None:
+            continue
+        try:
+            best[s] = choose(candidates_for(scene, {s: m}), budget_s, target_error, limit, scene.source)
+        except PlanError:
+            continue
+    key = (lambda c: (c.wall_time, c.error)) if target_error is not None else (
+        lambda c: (c.particle_radius, c.error, c.wall_time))
+    return sorted(best, key=lambda s: key(best[s])) + [s for s in names if s not in best]
 
 
 def point_cost(cal, solver: str, radius: float) -> float:
