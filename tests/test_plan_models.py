@@ -135,6 +135,18 @@ def test_budget_buys_the_tighter_tolerance_at_the_finest_radius(tiny):
     assert c.tolerance == T0 / 4 if c.particle_radius == r1 else True  # at r1 every tolerance fits: the tightest
 
 
+def test_the_calibration_goes_first_to_the_solver_the_plan_would_choose(tiny):
+    from warp_sph.plan import rank_solvers
+
+    # one radius each: pbf 10x cheaper per particle-step, so a budget buys it a finer radius
+    cal = _cal(_point("wcsph", 0.03, None, step_time=4e-3), _point("pbf", 0.03, T0, step_time=4e-4))
+    assert rank_solvers(tiny, cal, ["wcsph", "pbf"], "density", 5.0, None, None) == ["pbf", "wcsph"]
+    # a target error: the cheapest that reaches it first (both reach 1: pbf is cheaper)
+    assert rank_solvers(tiny, cal, ["wcsph", "pbf"], "density", None, 0.99, None) == ["pbf", "wcsph"]
+    # a solver without a point comes last
+    assert rank_solvers(tiny, cal, ["dfsph", "wcsph"], "density", 5.0, None, None) == ["wcsph", "dfsph"]
+
+
 def test_set_flags_and_apply_carry_the_tolerance(tiny, tmp_path):
     from warp_sph.plan.advisor import Plan
     from warp_sph.plan.report import apply_scene
