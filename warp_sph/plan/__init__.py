@@ -4,6 +4,7 @@ short calibration runs of the scene itself (docs/plan.md).
     calibrate.py  calibration runs at coarse radii for each solver; cached per scene and machine
     fit.py        the fitted models: power laws and non-negative lines
     metrics.py    the errors a target may name: density, or a validation scene's error against its experiment
+    models.py     a solver's models fitted to its calibration points (SolverModel)
     advisor.py    models -> candidates (solver x tolerance x radius) -> the recommendation (Plan)
     report.py     the table, the Pareto plot, the scene file or --set flags of --apply
 """
