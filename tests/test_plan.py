@@ -279,6 +279,14 @@ def test_cli_plan_table_plot_line_and_apply(tiny, tmp_path, capsys):
     assert rc == 2 and "exists; pass --force" in err and text == ""  # refused before any calibration
 
 
+def test_cli_target_out_of_reach_names_the_closest_plan(tiny, capsys):
+    rc, out, err = _cli(capsys, "plan", str(tiny), "--target-error", "0.00001%", "--solvers", "wcsph", "--cache",
+                        str(tiny.parent / "cache"), "--no-progress")
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert "--target-error 1e-05% is below what the finest affordable setting that fits in memory reaches: wcsph, " \
+           "particle_radius" in err and " gives " in err
+
+
 def test_next_calibration_point_steps_at_most_4x():
     from warp_sph.plan.advisor import Candidate, next_point
     from warp_sph.plan.calibrate import Calibration, Point
