@@ -155,7 +155,8 @@ def test_plan_of_a_tiny_scene(calibrated):
     assert ("x the largest calibrated count" in c.extrapolated()) == (c.count_extrapolation > 1.05)
     # at a calibrated radius the prediction is what the calibration measured: the sampled count, and the steps
     # scaled from the calibration's simulated time to the scene's 0.25 s
-    points = json.loads(next(cache.glob("calibration-*.json")).read_text())["points"]
+    files = [json.loads(f.read_text())["points"] for f in cache.glob("calibration-*.json")]
+    points = next(f for f in files if any(q["particle_radius"] == 0.02 for q in f))  # the short runs' file
     for solver in SOLVERS:
         point = next(q for q in points if q["solver"] == solver and q["particle_radius"] == 0.03)
         pred = next(d for d in p.candidates if d.solver == solver and d.particle_radius == pytest.approx(0.03))
@@ -169,7 +170,8 @@ def test_calibration_is_cached(calibrated, tiny):
     assert q.calibration_cached and not p.calibration_cached
     assert q.calibration_seconds == p.calibration_seconds  # nothing ran again
     assert q.chosen == p.chosen
-    assert len(list(cache.glob("calibration-*.json"))) == 1 and not list(cache.glob("calibration-*/"))
+    # one file of the short runs, one of the whole-duration runs of the error profile; no run folder left
+    assert len(list(cache.glob("calibration-*.json"))) == 2 and not list(cache.glob("calibration-*/"))
 
 
 def test_public_api_and_table(calibrated):
@@ -234,12 +236,20 @@ def test_budget_too_small_and_target_out_of_reach(calibrated, tiny):
     with pytest.raises(PlanError, match=r"too small: the cheapest stable setting .* is predicted to take") as e:
         plan(str(tiny), budget_s=0.5 * cheapest, **_kw(cache))
     assert "\n" not in str(e.value)
-    best = min(c.density_error for c in p.candidates if c.wall_time <= 0.8 * BUDGET)
-    with pytest.raises(PlanError, match=r"below what the finest affordable setting within --budget 8 s reaches"):
-        plan(str(tiny), budget_s=BUDGET, target_error=0.5 * best, **_kw(cache))
+    with pytest.raises(PlanError, match=r"below what the finest affordable setting within --budget 8 s reaches") as e:
+        plan(str(tiny), budget_s=BUDGET, target_error=1e-7, **_kw(cache))
+    assert "\n" not in str(e.value)
+    # without a budget: every candidate within 4x the calibrated counts is affordable
+    loose = plan(str(tiny), target_error=0.99, **_kw(cache))
+    best = min(c.density_error for c in loose.candidates if c.count_extrapolation <= 4)
+    closest = min((c for c in loose.candidates if c.count_extrapolation <= 4), key=lambda c: (c.density_error, c.wall_time))
+    with pytest.raises(PlanError, match=rf"--target-error {100 * 0.5 * best:.3g}% is below what the finest affordable "
+                       rf"setting that fits in memory reaches: {closest.solver}, particle_radius {closest.particle_radius:.4g} m"):
+        plan(str(tiny), target_error=0.5 * best, **_kw(cache))
     q = plan(str(tiny), target_error=2.0 * best, **_kw(cache))  # reachable: the cheapest that reaches it
     assert q.chosen.density_error <= 2.0 * best
-    assert all(c.wall_time >= q.chosen.wall_time for c in q.candidates if c.density_error <= 2.0 * best)
+    assert all(c.wall_time >= q.chosen.wall_time for c in q.candidates if c.density_error <= 2.0 * best
+               and c.count_extrapolation <= 4)
 
 
 def test_a_scene_that_cannot_be_calibrated(tiny, tmp_path, capsys):
@@ -269,17 +279,26 @@ def test_cli_plan_table_plot_line_and_apply(tiny, tmp_path, capsys):
     assert rc == 2 and "exists; pass --force" in err and text == ""  # refused before any calibration
 
 
+def test_cli_target_out_of_reach_names_the_closest_plan(tiny, capsys):
+    rc, out, err = _cli(capsys, "plan", str(tiny), "--target-error", "0.00001%", "--solvers", "wcsph", "--cache",
+                        str(tiny.parent / "cache"), "--no-progress")
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert "--target-error 1e-05% is below what the finest affordable setting that fits in memory reaches: wcsph, " \
+           "particle_radius" in err and " gives " in err
+
+
 def test_next_calibration_point_steps_at_most_4x():
     from warp_sph.plan.advisor import Candidate, next_point
     from warp_sph.plan.calibrate import Calibration, Point
 
     cal = Calibration(key="k", machine="m", points=[
         Point("wcsph", 0.04, fluid=300, boundary=200, seconds=1.0),
-        Point("wcsph", 0.02, fluid=800, boundary=200, seconds=2.0)])
+        Point("wcsph", 0.02, fluid=800, boundary=200, seconds=2.0, steps=100, step_time=0.015)])
     far = Candidate("wcsph", 0.002, None, 10**6, 0, 1000, 10.0, 0, 0.01, 1000.0, 10.0)
     r, cost, largest = next_point(cal, far)  # the fit's choice is 1000x beyond: step 4x only
     assert largest == 0.02 and r == pytest.approx(0.02 * 0.25 ** (1 / 3), rel=1e-3)
-    assert cost == pytest.approx(2.0 * 4.0 * 0.02 / r, rel=1e-3)
+    # 0.5 s outside the steps as it was, the steps' 1.5 s times 4x the particles and 0.02 / r the steps
+    assert cost == pytest.approx(0.5 + 1.5 * 4.0 * 0.02 / r, rel=1e-3)
     near = Candidate("wcsph", 0.01, None, 6000, 0, 100, 1.0, 0, 0.01, 6.0, 2.0)
     r, cost, _ = next_point(cal, near)  # a quarter of its count: 1500 particles
     assert r == pytest.approx(0.02 * (1000 / 1500) ** (1 / 3), rel=1e-3)

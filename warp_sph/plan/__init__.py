@@ -3,10 +3,14 @@ short calibration runs of the scene itself (docs/plan.md).
 
     calibrate.py  calibration runs at coarse radii for each solver; cached per scene and machine
     fit.py        the fitted models: power laws and non-negative lines
-    advisor.py    models -> candidates (solver x radius) -> the recommendation (Plan)
+    metrics.py    the errors a target may name: density, or a validation scene's error against its experiment
+    models.py     a solver's models fitted to its calibration points (SolverModel)
+    advisor.py    models -> candidates (solver x tolerance x radius) -> the recommendation (Plan)
     report.py     the table, the Pareto plot, the scene file or --set flags of --apply
 """
 from __future__ import annotations
+
+import math
 
 from .advisor import Candidate, Plan, SolverModel
 from .calibrate import PlanError
@@ -17,36 +21,46 @@ MAX_ROUNDS = 4
 
 def plan(scene, budget_s: float | None = None, target_error: float | None = None, device: str | None = None,
          solvers=None, cache=None, refresh: bool = False, progress: bool = False, log=None,
-         calibration_radii=None, calibration_frames: int | None = None) -> Plan:
-    """Recommend the solver and particle radius for ``scene`` within ``budget_s`` seconds of wall time on this
-    machine, or the cheapest setting whose mean density error is at most ``target_error`` (a fraction: 0.005
-    for 0.5 %), or both.
+         calibration_radii=None, calibration_frames: int | None = None, metric: str = "density") -> Plan:
+    """Recommend the solver, particle radius and solver tolerance for ``scene`` within ``budget_s`` seconds of
+    wall time on this machine, or the cheapest setting whose error is at most ``target_error`` (a fraction:
+    0.005 for 0.5 %), or both. ``metric``: the error ``target_error`` names, "density" (the mean density error,
+    every scene) or, for a validation scene, an error against its experiment ("front", "sensor1", ...:
+    ``metrics.metric_names``); another is a PlanError listing the scene's metrics.
 
     scene: a Scene, a built-in scene name or a .toml path. The scene is calibrated first: a fraction of a
-    second of simulated time at two or three coarse radii for each solver of ``solvers`` (default: every
-    registered solver), each an ordinary run with the scene's own outputs; the figures are cached per scene
-    content and machine in ``cache`` (default ``~/.cache/warp-sph/plan``, ``$WARP_SPH_CACHE_DIR``),
-    ``refresh=True`` runs them again; ``calibration_radii`` [m] and ``calibration_frames`` (including the
-    initial one) replace the defaults (``calibrate.calibration_radii``, ``calibrate.calibration_frames``).
-    Models fitted to them (steps per simulated second and error against the spacing, wall time against the
-    particle count) predict every candidate over the scene's duration. No setting beyond 4x the largest
-    calibrated particle count is chosen; when the fit would choose one, a finer calibration point of its
-    solver is run first (at a quarter of its count, at most 4x the largest calibrated count), while the
-    calibration stays within 10 % of the budget.
+    second of simulated time (the whole duration for an error against an experiment) at two or three coarse
+    radii for each solver of ``solvers`` (default: every registered solver), each an ordinary run with the
+    scene's own outputs; a solver with a density tolerance (PBF, DFSPH) also at a quarter of the scene's
+    tolerance at the finest of those radii. The figures are cached per scene content and machine in ``cache``
+    (default ``~/.cache/warp-sph/plan``, ``$WARP_SPH_CACHE_DIR``), ``refresh=True`` runs them again;
+    ``calibration_radii`` [m] and ``calibration_frames`` (including the initial one) replace the defaults
+    (``calibrate.calibration_radii``, ``calibrate.calibration_frames``; given radii are all run). With a budget
+    the default calibration keeps within CALIBRATION_SHARE of it: the coarsest radius first, then each further radius and the tolerance
+    points only while their cost, scaled from the points run, fits (``Plan.notes`` says what was left out).
+    When it fits too, each solver runs the scene's whole duration at the coarsest radius once: the course of its
+    density error over the run (``advisor.SolverModel.later_ratio``).
+    Models fitted to them (steps per simulated second and error against the spacing and the tolerance, wall
+    time against the particle count) predict every candidate over the scene's duration. No setting beyond 4x
+    the largest calibrated particle count is chosen; when the fit would choose one, a finer calibration point
+    of its solver is run first (at a quarter of its count, at most 4x the largest calibrated count), while the
+    calibration stays within its share of the budget.
 
     Returns a ``Plan``: ``chosen`` (a ``Candidate``: solver, particle_radius, tolerance, fluid_particles,
-    steps, wall_time [s], memory [bytes], density_error [-] and how far each is extrapolated),
-    ``alternatives`` (the best setting of each other solver), every candidate with its Pareto flag, the
-    models and the calibration's cost. Raises PlanError (one line, with the closest feasible setting) for a
-    budget too small for the coarsest stable setting, a target error below what the finest affordable
-    setting reaches, or a scene that cannot be calibrated.
+    steps, wall_time [s], memory [bytes], density_error [-], metric_error [-] and how far each is
+    extrapolated), ``alternatives`` (the best setting of each other solver), every candidate with its Pareto
+    flag, the models and the calibration's cost. Raises PlanError (one line, with the closest feasible setting)
+    for a budget too small for the coarsest stable setting, a target error below what the finest affordable
+    setting reaches, an unknown metric or a scene that cannot be calibrated.
     """
     from ..methods.registry import solver_names
     from ..run.memory import available_device_memory, available_host_memory
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
     from .advisor import CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose, fit_models, next_point
-    from .calibrate import calibrate, calibration_frames as cal_frames, calibration_radii as default_radii
+    from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, calibrate, calibration_frames as cal_frames,
+                            calibration_radii as default_radii, scene_tolerance, tolerance_key)
+    from .metrics import DENSITY, calibration_time, check_metric
 
     if budget_s is None and target_error is None:
         raise PlanError("plan: give a wall-time budget (--budget 10m) or a target error (--target-error 0.5%)")
@@ -56,21 +70,86 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         raise PlanError(f"--target-error {target_error!r}: expected an error > 0")
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
+    metric = check_metric(scene, metric or DENSITY)
     dev = resolve_device(device)
     names = tuple(solvers) if solvers else solver_names()
     unknown = [s for s in names if s not in solver_names()]
     if unknown:
         raise PlanError(f"--solvers: unknown {', '.join(unknown)}; expected some of {', '.join(solver_names())}")
     radii = list(calibration_radii) if calibration_radii else default_radii(scene)
-    frames = calibration_frames or cal_frames(scene)
+    frames = calibration_frames or cal_frames(scene, calibration_time(scene, metric, CALIBRATION_TIME))
     limit = available_device_memory(dev) if dev.is_cuda else available_host_memory()
-    spent, cached, todo = 0.0, True, (names, radii)
+    share = CALIBRATION_SHARE * budget_s if budget_s is not None else math.inf
+    # radii the caller gives are all calibrated (with the tolerance points); the defaults keep within the share
+    first = share if not calibration_radii else math.inf
+    notes: list[str] = []
+    quiet = log or (lambda *a, **k: None)
+
+    fresh = [refresh]
+
+    def run(solvers_, radii_, factor=1.0):
+        out = calibrate(scene, solvers_, device=dev, radii=radii_, frames=frames, cache=cache, refresh=fresh[0],
+                        progress=progress, log=quiet, tolerance_factor=factor)
+        fresh[0] = False  # --refresh: the first call starts the cache afresh, the later ones add to it
+        return out
+
+    profile_seconds = 0.0
+
+    def spent_of(cal):  # the calibration's whole cost: every point of these solvers, run now or from the cache
+        return sum(p.seconds for p in cal.points if p.solver in names) + profile_seconds
+
+    # the coarsest radius first; each further radius and the tolerance points while they fit in the share, the
+    # solvers in the order their one-radius models rank them (the one the plan would choose first)
+    cal = run(names, radii[:1])
+    cached = cal.cached
+    order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit)
+    for r in radii[1:]:
+        left = []
+        for s in order:
+            cost = point_cost(cal, s, r)
+            if spent_of(cal) + cost > first:
+                left.append(s)
+                continue
+            cal = run([s], [r])
+            cached = cached and cal.cached
+        if left:
+            notes.append(f"not calibrated at r = {r:.4g} m: {', '.join(left)} (predicted beyond "
+                         f"{100 * CALIBRATION_SHARE:.0f} % of the budget)")
+    # the second tolerance: each solver with one, at its finest calibrated radius, in the same order
+    for s in order:
+        if not tolerance_key(s) or not cal.for_solver(s):
+            continue
+        r_tol = min(p.particle_radius for p in cal.for_solver(s))
+        if len({p.tolerance for p in cal.for_solver(s) if p.particle_radius == r_tol}) > 1:
+            continue  # cached
+        # about the cost of the same run at the scene's tolerance
+        cost = sum(p.seconds for p in cal.for_solver(s) if p.particle_radius == r_tol)
+        if spent_of(cal) + cost <= first:
+            cal = run([s], [r_tol], 1.0 / TOLERANCE_STEP)
+            cached = cached and cal.cached
+        else:
+            notes.append(f"{s}'s tolerance not varied: its calibration at r = {r_tol:.4g} m was predicted to take "
+                         f"{cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
+    # the error's course over the whole run: one run of the scene's duration per solver at the coarsest radius,
+    # when it fits in the share (reserved before the finer points); without it the later error is held
+    whole, profile_cost, r0 = int(round(scene.duration * scene.fps)) + 1, None, 0.0
+    if whole > frames and any(cal.for_solver(s) for s in names):
+        r0 = max(p.particle_radius for s in names for p in cal.for_solver(s))
+        scale = (whole - 1) / max(frames - 1, 1)
+        cost = sum(max(p.seconds - p.steps * p.step_time - p.export_wait, 0.0)
+                   + (p.steps * p.step_time + p.export_wait) * scale
+                   for s in names for p in cal.for_solver(s, scene_tolerance(scene, s)) if p.particle_radius == r0)
+        if spent_of(cal) + cost <= first:
+            profile_cost = cost
+        else:
+            notes.append(f"no error profile (a whole run at r = {r0:.4g} m, predicted {cost:.3g} s, does not fit in "
+                         f"{100 * CALIBRATION_SHARE:.0f} % of the budget): the error after the calibrated "
+                         f"{(frames - 1) / scene.fps:.3g} s is held at its last calibrated frame's")
     for _ in range(MAX_ROUNDS):
-        cal = calibrate(scene, todo[0], device=dev, radii=todo[1], frames=frames, cache=cache, refresh=refresh,
-                        progress=progress, log=log or (lambda *a, **k: None))
-        # the calibration's whole cost: every point of these solvers, run now or loaded from the cache
-        spent, cached = sum(p.seconds for p in cal.points if p.solver in names), cached and cal.cached
-        models = {s: m for s in names if (m := fit_models(cal, s)) is not None}
+        models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
+        if not models:
+            raise PlanError(f"{scene.source}: the scene cannot be calibrated for --target-error {metric}: no "
+                            f"calibration run measured it")
         candidates = candidates_for(scene, models)
         free = choose(candidates, budget_s, target_error, limit, scene.source, max_extrapolation=None)
         if free.count_extrapolation <= MAX_COUNT_EXTRAPOLATION:
@@ -78,10 +157,22 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         # the setting the fit would choose lies far beyond the calibration: one more point of its solver, when
         # that fits in the calibration's share of the budget
         r_new, cost, largest = next_point(cal, free)
-        if r_new >= largest or (budget_s is not None and spent + cost > CALIBRATION_SHARE * budget_s):
+        if r_new >= largest or spent_of(cal) + cost + (profile_cost or 0.0) > share:
             break
-        todo = ([free.solver], [r_new])
-        refresh = False
+        cal = run([free.solver], [r_new])
+        cached = cached and cal.cached
+    # the error's course over the whole run (its cost reserved before the finer points), then the models again
+    if profile_cost is not None:
+        try:
+            profile = calibrate(scene, names, device=dev, radii=[r0], frames=whole, cache=cache, refresh=refresh,
+                                progress=progress, log=quiet)
+            profile_seconds += sum(p.seconds for p in profile.points if p.solver in names and
+                                   abs(p.particle_radius / r0 - 1.0) <= 1e-6)
+            cached = cached and profile.cached
+            models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
+            candidates = candidates_for(scene, models)
+        except PlanError as exc:
+            notes.append(f"no error profile: {exc}")
     chosen = choose(candidates, budget_s, target_error, limit, scene.source)
     failed = {p.solver: p.error for p in cal.failures() if p.solver in names and p.solver not in models}
     alternatives = []
@@ -96,8 +187,39 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     return Plan(scene=scene.name, source=scene.source, chosen=chosen, alternatives=alternatives,
                 candidates=candidates, models=models, budget_s=budget_s, target_error=target_error,
                 duration=scene.duration, frames=int(round(scene.duration * scene.fps)) + 1,
-                calibration_seconds=spent, calibration_cached=cached, cache_path=cal.path,
-                machine=cal.machine, failed_solvers=failed)
+                calibration_seconds=spent_of(cal), calibration_cached=cached, cache_path=cal.path,
+                machine=cal.machine, failed_solvers=failed, metric=metric, notes=notes)
+
+
+def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> list:
+    """``names`` in the order the plan would prefer them from the calibration so far (each solver's own best
+    setting, ranked as ``advisor.choose`` ranks settings); solvers without a setting last."""
+    from .advisor import candidates_for, choose, fit_models
+
+    best = {}
+    for s in names:
+        m = fit_models(cal, s, scene, metric)
+        if m is None:
+            continue
+        try:
+            best[s] = choose(candidates_for(scene, {s: m}), budget_s, target_error, limit, scene.source)
+        except PlanError:
+            continue
+    key = (lambda c: (c.wall_time, c.error)) if target_error is not None else (
+        lambda c: (c.particle_radius, c.error, c.wall_time))
+    return sorted(best, key=lambda s: key(best[s])) + [s for s in names if s not in best]
+
+
+def point_cost(cal, solver: str, radius: float) -> float:
+    """Predicted seconds of a calibration run of ``solver`` at ``radius`` [m], scaled from its finest point run:
+    its time outside the steps as it was, its steps' time times (r / radius)^4 (particles ~ r^-3, steps ~ r^-1);
+    0 when the point is cached or the solver has none."""
+    pts = cal.for_solver(solver)
+    if not pts or any(abs(p.particle_radius / radius - 1.0) <= 1e-6 for p in pts):
+        return 0.0
+    p = min(pts, key=lambda q: q.particle_radius)
+    steps = p.steps * p.step_time
+    return max(p.seconds - steps, 0.0) + steps * (p.particle_radius / radius) ** 4
 
 
 __all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "plan"]

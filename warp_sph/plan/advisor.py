@@ -1,15 +1,12 @@
-"""The advisor of ``warp-sph plan``: models fitted to the calibration, the candidates, the recommendation.
+"""The advisor of ``warp-sph plan``: the candidates and the recommendation, from the models (``models.py``).
 
-For each solver that calibrated, the models (``fit.py``) predict at any particle radius r (spacing d = 2r):
-- particles N: fluid (a + b d)^3 / d^3 and walls (a + b d)^2 / d^2 through the sampled counts (``LatticeCount``);
-- substeps S = (steps per simulated second)(d) * duration: a power law with exponent <= -1 above the floor of
-  one step per frame or per time.dt_max (``StepRate``);
-- wall time = load + setup(N) + S * step(N) + frames * frame_overhead(N), three lines fitted against N, and
-  the time a fresh process spends loading the step's kernels (the largest first-step excess measured);
-- mean density error e(d) = A d^p with the measured order p;
-- memory: ``run.memory.estimate_memory`` at the predicted counts.
-The candidates are the solvers x a geometric ladder of radii from the coarsest stable one down to 64x finer
-than the finest calibrated; each says how far it extrapolates beyond the calibrated counts.
+Each candidate is a solver, one of its tolerances and a radius r: its particles, substeps, wall time and errors
+predicted by the solver's models over the scene's duration, memory by ``run.memory.estimate_memory`` at the
+predicted counts. A candidate at another tolerance than the scene's t0 counts its extrapolation from the
+particle count the tolerance's effect was measured at (measured, hydrostatic 0.5 s: DFSPH at t0 / 4 with 14x
+the pair's count took 3.8x its prediction: the iterations a tolerance costs grow with the resolution).
+The candidates are the solvers x their tolerances x a geometric ladder of radii from the coarsest stable one
+down to 64x finer than the finest calibrated; each says how far it extrapolates beyond the calibrated counts.
 """
 from __future__ import annotations
 
@@ -17,8 +14,10 @@ import math
 from dataclasses import asdict, dataclass, field
 
 from .calibrate import Calibration, PlanError, coarsest_radius, variant
-from .fit import (LatticeCount, Line, PowerLaw, StepRate, extrapolation, fit_lattice_count, fit_line, fit_power_law,
-                  fit_step_rate)
+from .fit import extrapolation
+from .metrics import DENSITY
+from .models import (ORDER_RANGE, TOLERANCE_LADDER, SolverModel, fit_models, process_overhead,  # noqa: F401
+                     run_density_error, tolerance_exponents)
 
 #: a plan chooses settings whose predicted wall time is at most this fraction of the budget
 BUDGET_SAFETY = 0.8
@@ -33,29 +32,6 @@ MAX_COUNT_EXTRAPOLATION = 4.0  # measured: a 5.7x extrapolation took 1.57x its p
 STEP_UP = 4.0
 #: the calibration may take at most this fraction of the budget (the points a plan adds to reach a budget)
 CALIBRATION_SHARE = 0.1
-#: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0)
-ORDER_RANGE = (-1.0, 4.0)
-
-
-@dataclass
-class SolverModel:
-    """The fitted models of one solver (see the module docstring); ``calibrated``: the points' radii [m]."""
-
-    solver: str
-    steps_per_second: StepRate     # against d [m]
-    error: PowerLaw                # against d [m]
-    step_time: Line                # [s] against N
-    setup_time: Line               # [s] against N
-    frame_overhead: Line           # [s] against N
-    fluid_count: LatticeCount      # against d [m]
-    boundary_count: LatticeCount
-    load_time: float               # [s] a fresh process spends loading the step's kernels (the largest first-step excess)
-    calibrated_radii: list
-    calibrated_particles: list
-
-    def to_dict(self) -> dict:
-        """The models as plain JSON types."""
-        return asdict(self)
 
 
 @dataclass
@@ -74,11 +50,19 @@ class Candidate:
     count_extrapolation: float     # N / the largest calibrated N (1: inside the calibrated range)
     spacing_extrapolation: float   # finest calibrated d / d (1: inside)
     pareto: bool = False
+    metric: str = DENSITY          # the error the plan targets
+    metric_error: float | None = None   # [-] that error against the experiment (None: the density error)
+    tolerance_extrapolation: float = 1.0  # N / the particles the tolerance's effect was measured at (1: t0, or inside)
 
     @property
     def particles(self) -> int:
         """Fluid and boundary particles."""
         return self.fluid_particles + self.boundary_particles
+
+    @property
+    def error(self) -> float:
+        """The targeted error [-]: the metric's, else the mean density error."""
+        return self.density_error if self.metric_error is None else self.metric_error
 
     def extrapolated(self) -> str:
         """In words: which figures are extrapolated and how far ("" when inside the calibrated range)."""
@@ -87,6 +71,8 @@ class Candidate:
             parts.append(f"{self.count_extrapolation:.3g}x the largest calibrated count (wall time)")
         if self.spacing_extrapolation > 1.05:
             parts.append(f"{self.spacing_extrapolation:.3g}x finer than calibrated (error, steps)")
+        if self.tolerance_extrapolation > 1.05:
+            parts.append(f"the tolerance's effect {self.tolerance_extrapolation:.3g}x beyond the count it was measured at")
         return "; ".join(parts)
 
     def to_dict(self) -> dict:
@@ -114,18 +100,23 @@ class Plan:
     cache_path: str = ""
     machine: str = ""
     failed_solvers: dict = field(default_factory=dict)  # solver -> one-line reason
+    metric: str = DENSITY                               # the error targeted (``metrics.py``)
+    notes: list = field(default_factory=list)           # what the calibration left out and why
 
     def prediction(self) -> dict:
         """The chosen setting's predicted figures, as the scene's [plan] table stores them."""
         c = self.chosen
-        return {"wall_time": float(c.wall_time), "density_error": float(c.density_error), "steps": int(c.steps),
-                "fluid_particles": int(c.fluid_particles), "memory": float(c.memory),
-                "budget": float(self.budget_s or 0.0), "target_error": float(self.target_error or 0.0)}
+        out = {"wall_time": float(c.wall_time), "density_error": float(c.density_error), "steps": int(c.steps),
+               "fluid_particles": int(c.fluid_particles), "memory": float(c.memory),
+               "budget": float(self.budget_s or 0.0), "target_error": float(self.target_error or 0.0)}
+        if c.metric_error is not None:
+            out.update(metric=c.metric, metric_error=float(c.metric_error))
+        return out
 
     def to_dict(self) -> dict:
         """The plan as plain JSON types (``warp-sph bench plan`` records it)."""
-        return {"scene": self.scene, "source": self.source, "budget_s": self.budget_s,
-                "target_error": self.target_error, "duration": self.duration, "frames": self.frames,
+        return {"scene": self.scene, "source": self.source, "budget_s": self.budget_s, "metric": self.metric,
+                "notes": self.notes, "target_error": self.target_error, "duration": self.duration, "frames": self.frames,
                 "chosen": self.chosen.to_dict(), "alternatives": [c.to_dict() for c in self.alternatives],
                 "candidates": [c.to_dict() for c in self.candidates],
                 "models": {k: m.to_dict() for k, m in self.models.items()},
@@ -133,53 +124,39 @@ class Plan:
                 "cache_path": self.cache_path, "machine": self.machine, "failed_solvers": self.failed_solvers}
 
 
-def fit_models(cal: Calibration, solver: str) -> SolverModel | None:
-    """The models of ``solver`` from its completed calibration points (None: it has none)."""
-    pts = sorted(cal.for_solver(solver), key=lambda p: p.particle_radius)
-    if not pts:
-        return None
-    d = [p.spacing for p in pts]
-    n = [p.particles for p in pts]
-    setup = fit_line(n, [p.setup_time for p in pts])
-    return SolverModel(
-        solver=solver,
-        steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], cal.step_floor),
-        error=fit_power_law(d, [max(p.density_error_mean, 1e-9) for p in pts], ORDER_RANGE),
-        step_time=fit_line(n, [p.step_time for p in pts]),
-        setup_time=setup,
-        frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
-        fluid_count=fit_lattice_count(d, [p.fluid for p in pts], 3),
-        boundary_count=fit_lattice_count(d, [max(p.boundary, 0) for p in pts], 2),
-        # a fresh process loads the step's kernels as the solver's first calibration run did
-        load_time=max(p.load_time for p in pts),
-        calibrated_radii=[p.particle_radius for p in pts], calibrated_particles=n)
-
-
-def tolerance_of(scene, solver: str) -> float | None:
-    """The solver's density tolerance (its ``target_density_error``), None for a solver without one."""
-    try:
-        return float(scene.section(solver).target_density_error)
-    except (KeyError, AttributeError):
-        return None
-
-
-def predict(scene, model: SolverModel, radius: float) -> Candidate:
-    """The predicted figures of ``scene`` with the model's solver at ``radius`` [m] over the scene's duration."""
+def predict(scene, model: SolverModel, radius: float, tolerance: float | None = None) -> Candidate:
+    """The predicted figures of ``scene`` with the model's solver at ``radius`` [m] and ``tolerance`` [-] (None:
+    the scene's) over the scene's duration."""
     from ..run.memory import estimate_memory
 
-    s = variant(scene, model.solver, radius)  # a radius the scene refuses raises here
+    tolerance = model.tolerance if tolerance is None else tolerance
+    s = variant(scene, model.solver, radius, tolerance)  # a radius the scene refuses raises here
     d = 2.0 * radius
     fluid, boundary = model.fluid_count(d), model.boundary_count(d)
     n = fluid + boundary
     frames = int(round(scene.duration * scene.fps))
-    steps = max(int(math.ceil(model.steps_per_second(d) * scene.duration)), frames)
-    wall = (model.load_time + model.setup_time(n) + steps * model.step_time(n) + frames * model.frame_overhead(n))
+    rate = model.steps_per_second(d) * model.tolerance_factor("steps_per_second", tolerance)
+    steps = max(int(math.ceil(rate * scene.duration)), frames)
+    step = model.step_time(n) * model.tolerance_factor("step_time", tolerance)
+    wall = model.load_time + model.setup_time(n) + steps * step + frames * model.frame_overhead(n)
     mem = estimate_memory(s, fluid, boundary)
-    return Candidate(solver=model.solver, particle_radius=radius, tolerance=tolerance_of(scene, model.solver),
+    # another tolerance than the scene's: its effect was measured at one particle count (iterations grow with the
+    # resolution), so its extrapolation counts from there
+    tol_ext = 1.0
+    if model.tolerance_particles and abs(tolerance / model.tolerance - 1.0) > 1e-6:
+        tol_ext = max(n / model.tolerance_particles, 1.0)
+    metric_error = None
+    if model.metric_error is not None:
+        metric_error = float(model.metric_error(d) * model.tolerance_factor("metric", tolerance))
+    return Candidate(solver=model.solver, particle_radius=radius, tolerance=tolerance,
                      fluid_particles=fluid, boundary_particles=boundary, steps=steps, wall_time=float(wall),
-                     memory=int(mem["device"] + mem["host"]), density_error=float(model.error(d)),
-                     count_extrapolation=extrapolation(n, min(model.calibrated_particles), max(model.calibrated_particles)),
-                     spacing_extrapolation=max(min(model.calibrated_radii) / radius, 1.0))
+                     memory=int(mem["device"] + mem["host"]),
+                     density_error=float(run_density_error(model, d, frames, tolerance)),
+                     count_extrapolation=max(extrapolation(n, min(model.calibrated_particles),
+                                                           max(model.calibrated_particles)), tol_ext),
+                     tolerance_extrapolation=tol_ext,
+                     spacing_extrapolation=max(min(model.calibrated_radii) / radius, 1.0),
+                     metric=model.metric, metric_error=metric_error)
 
 
 def ladder(scene, models: dict) -> list[float]:
@@ -200,7 +177,7 @@ def mark_pareto(candidates: list) -> None:
     """Set ``pareto`` on the candidates no other beats in both wall time and error."""
     from ..sweep.runs import pareto_front
 
-    for c, p in zip(candidates, pareto_front([c.wall_time for c in candidates], [c.density_error for c in candidates])):
+    for c, p in zip(candidates, pareto_front([c.wall_time for c in candidates], [c.error for c in candidates])):
         c.pareto = p
 
 
@@ -221,33 +198,36 @@ def choose(candidates: list, budget_s: float | None, target_error: float | None,
                         f"is predicted to take {best.wall_time:.3g} s (plans keep {100 * BUDGET_SAFETY:.0f} % of the "
                         f"budget); give --budget {math.ceil(best.wall_time / BUDGET_SAFETY)}s or more")
     if target_error is not None:
-        ok = [c for c in in_budget if c.density_error <= target_error]
+        ok = [c for c in in_budget if c.error <= target_error]
         if not ok:
-            best = min(in_budget, key=lambda c: (c.density_error, c.wall_time))
+            best = min(in_budget, key=lambda c: (c.error, c.wall_time))
             within = f" within --budget {budget_s:g} s" if budget_s is not None else " that fits in memory"
-            raise PlanError(f"{source}: --target-error {100 * target_error:.3g} % is below what the finest affordable "
-                            f"setting{within} reaches: {describe(best)} gives {100 * best.density_error:.3g} % in "
+            name = "" if best.metric == DENSITY else f"{best.metric}:"
+            raise PlanError(f"{source}: --target-error {name}{100 * target_error:.3g}% is below what the finest "
+                            f"affordable setting{within} reaches: {describe(best)} gives {100 * best.error:.3g} % in "
                             f"{best.wall_time:.3g} s")
-        return min(ok, key=lambda c: (c.wall_time, c.density_error))
-    return min(in_budget, key=lambda c: (c.particle_radius, c.density_error, c.wall_time))
+        return min(ok, key=lambda c: (c.wall_time, c.error))
+    return min(in_budget, key=lambda c: (c.particle_radius, c.error, c.wall_time))
 
 
 def describe(c: Candidate) -> str:
-    """A candidate in words: solver, radius, fluid particles."""
-    return f"{c.solver}, particle_radius {c.particle_radius:.4g} m, {c.fluid_particles:,} fluid particles"
+    """A candidate in words: solver, radius, tolerance, fluid particles."""
+    tol = "" if c.tolerance is None else f", tolerance {c.tolerance:.3g}"
+    return f"{c.solver}, particle_radius {c.particle_radius:.4g} m{tol}, {c.fluid_particles:,} fluid particles"
 
 
 def candidates_for(scene, models: dict) -> list:
-    """Every solver's prediction at every radius of the ladder."""
+    """Every solver's prediction at every tolerance of its ladder and every radius of the ladder."""
     from ..core.errors import WarpSphError
 
     out = []
     for m in models.values():
         for r in ladder(scene, models):
-            try:
-                out.append(predict(scene, m, r))
-            except WarpSphError:  # the scene refuses this radius (e.g. too many substeps): not a candidate
-                continue
+            for t in m.candidate_tolerances():
+                try:
+                    out.append(predict(scene, m, r, t))
+                except WarpSphError:  # the scene refuses this radius (e.g. too many substeps): not a candidate
+                    continue
     mark_pareto(out)
     return out
 
@@ -255,9 +235,12 @@ def candidates_for(scene, models: dict) -> list:
 def next_point(cal: Calibration, free: Candidate) -> tuple[float, float, float]:
     """(radius [m], predicted cost [s], largest calibrated radius [m]) of the next calibration point of
     ``free``'s solver: a quarter of its particle count, but at most STEP_UP x the largest calibrated count (the
-    fit is least sure beyond it); the cost scaled from the largest point run (particles x steps, steps ~ 1/d)."""
+    fit is least sure beyond it); the cost scaled from the largest point run: its time outside the steps as it
+    was, its steps' time times particles x steps (steps ~ 1/d)."""
     largest = max(cal.for_solver(free.solver), key=lambda q: q.particles)
     target = min(free.particles / 4.0, STEP_UP * largest.particles)
     r_new = float(f"{largest.particle_radius * (largest.particles / target) ** (1.0 / 3.0):.4g}")
-    cost = largest.seconds * (target / largest.particles) * (largest.particle_radius / r_new)
+    steps = largest.steps * largest.step_time
+    cost = (max(largest.seconds - steps, 0.0)
+            + steps * (target / largest.particles) * (largest.particle_radius / r_new))
     return r_new, cost, largest.particle_radius

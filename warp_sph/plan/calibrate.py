@@ -4,8 +4,10 @@ Each calibration point is an ordinary run (``warp_sph.run.runner.run``, the scen
 surface, checkpoints) of the scene with one candidate solver and one coarse particle radius, into a
 temporary folder under the cache directory that is removed afterwards. From its run.json come the
 figures the models are fitted to (``fit.py``): particle counts, substeps per simulated second, the
-steady wall time per step, the wall time outside the steps (set-up, statistics, exports) and the mean
-density error.
+steady wall time per step, the wall time outside the steps (set-up, statistics, exports), the mean
+density error (over the run's frames and of its last frame) and, for a validation scene, the errors
+against the experiment (``metrics.py``). A solver with a density tolerance (``tolerance_key``) is run at
+the scene's tolerance and, at one radius, at TOLERANCE_STEP times tighter.
 
 The points are cached per scene content, machine and calibration settings (``cache_key``) as one JSON
 file in the cache directory: ``$WARP_SPH_CACHE_DIR``, else ``$XDG_CACHE_HOME/warp-sph/plan``, else
@@ -35,6 +37,12 @@ CALIBRATION_COUNTS = (300, 1000)
 MIN_LAYERS = 3
 #: the keys a plan changes: left out of the scene's content hash
 PLANNED_KEYS = ("particle_radius", "solver", "plan", "name", "description")
+#: the second calibrated tolerance of a solver with one: the scene's divided by this
+TOLERANCE_STEP = 4.0
+#: the version of the cached points' fields (older cache files are not read)
+CACHE_SCHEMA = 2
+#: calibration runs made by this process so far (the first one's set-up includes loading the shared kernels)
+_RUNS_IN_PROCESS = [0]
 
 
 class PlanError(WarpSphError):
@@ -48,6 +56,7 @@ class Point:
 
     solver: str
     particle_radius: float
+    tolerance: float | None = None      # the solver's density tolerance in this run (None: it has none)
     status: str = "completed"           # "completed" or "failed"
     error: str = ""                     # the one-line reason of a failed run
     fluid: int = 0
@@ -63,6 +72,10 @@ class Point:
     first_step_time: float = 0.0        # [s] the first step's stages, kernel loads included
     density_error_mean: float = 0.0     # [-] mean over the advanced frames of the frame's mean error
     density_error_max: float = 0.0      # [-] largest of any frame
+    density_error_last: float = 0.0     # [-] the last frame's mean error
+    density_errors: list = field(default_factory=list)  # [-] each advanced frame's mean error, in order
+    first_in_process: bool = False      # the process's first calibration run: its set-up loaded the shared kernels
+    reference: dict = field(default_factory=dict)  # metric -> error against the experiment (None: not measurable)
     seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
 
     @property
@@ -108,9 +121,10 @@ class Calibration:
     path: str = ""                      # the cache file
     step_floor: float = 0.0             # [1/s] fewest substeps per simulated second: per frame, or per dt_max
 
-    def for_solver(self, solver: str) -> list[Point]:
-        """The completed points of ``solver``."""
-        return [p for p in self.points if p.solver == solver and p.status == "completed"]
+    def for_solver(self, solver: str, tolerance: float | None | str = "any") -> list[Point]:
+        """The completed points of ``solver`` (at ``tolerance`` only, unless "any")."""
+        return [p for p in self.points if p.solver == solver and p.status == "completed"
+                and (tolerance == "any" or _same_tolerance(p.tolerance, tolerance))]
 
     def failures(self) -> list[Point]:
         """The points whose run failed."""
@@ -153,7 +167,7 @@ def cache_key(scene, device, frames) -> tuple[str, str]:
 
     machine = machine_text(device)
     text = json.dumps({"scene": scene_hash(scene_content(scene)), "machine": machine, "frames": frames,
-                       "versions": [__version__, wp.config.version]}, sort_keys=True)
+                       "versions": [__version__, wp.config.version], "schema": CACHE_SCHEMA}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest(), machine
 
 
@@ -193,28 +207,72 @@ def calibration_frames(scene, seconds: float = CALIBRATION_TIME) -> int:
     return max(2, math.ceil(seconds * scene.fps - 1e-9)) + 1
 
 
-def variant(scene, solver: str, radius: float):
-    """The scene with ``solver`` and ``particle_radius`` (validated again: a refusal is a SceneError)."""
-    from ..scene import scene_from_dict
+def tolerance_key(solver: str) -> str | None:
+    """The scene key of ``solver``'s density tolerance (``<solver>.target_density_error`` where the parameter
+    registry declares it: PBF, DFSPH), None for a solver without one (WCSPH: its compressibility follows from
+    the speed of sound)."""
+    from ..methods.registry import solver as solver_class
+
+    key = f"{solver}.target_density_error"
+    return key if any(p.path == key for p in solver_class(solver).parameters) else None
+
+
+def scene_tolerance(scene, solver: str) -> float | None:
+    """The scene's value of ``solver``'s density tolerance (None: the solver has none)."""
+    key = tolerance_key(solver)
+    if key is None:
+        return None
+    section, name = key.split(".")
+    return float(scene.to_dict().get(section, {}).get(name, _default(key)))
+
+
+def _default(key: str) -> float:
+    from ..methods.registry import solver as solver_class
+
+    return next(p.default for p in solver_class(key.split(".")[0]).parameters if p.path == key)
+
+
+def variant_dict(scene, solver: str, radius: float, tolerance: float | None = None) -> dict:
+    """The scene dict with ``solver``, ``particle_radius`` [m] and the solver's tolerance (None: the scene's),
+    without a [plan] table; a validation scene's probes placed for the radius (``metrics.case_overrides``)."""
+    from ..scene.load import apply_overrides
+    from .metrics import case_overrides
 
     d = scene.to_dict()
     d["solver"] = solver
     d["particle_radius"] = float(radius)
     d.pop("plan", None)
+    key = tolerance_key(solver)
+    if key is not None and tolerance is not None:
+        section, name = key.split(".")
+        d.setdefault(section, {})[name] = float(tolerance)
+    extra = case_overrides(scene, radius)
+    return apply_overrides(d, extra) if extra else d
+
+
+def variant(scene, solver: str, radius: float, tolerance: float | None = None):
+    """The scene with ``solver``, ``particle_radius`` and tolerance (``variant_dict``; validated again: a refusal is
+    a SceneError)."""
+    from ..scene import scene_from_dict
+
     base = Path(scene.source).parent if str(scene.source).endswith(".toml") else None
-    return scene_from_dict(d, source=scene.source, base_dir=base)
+    return scene_from_dict(variant_dict(scene, solver, radius, tolerance), source=scene.source, base_dir=base)
 
 
-def run_point(scene, solver: str, radius: float, frames: int, device, folder: Path) -> Point:
+def run_point(scene, solver: str, radius: float, frames: int, device, folder: Path,
+              tolerance: float | None = None) -> Point:
     """One calibration run into ``folder`` (removed afterwards); a run that fails gives a failed Point."""
     from ..run import runner
     from ..run.memory import estimate_particle_counts
+    from .metrics import evaluate_reference
 
-    point = Point(solver=solver, particle_radius=radius)
+    point = Point(solver=solver, particle_radius=radius,
+                  tolerance=tolerance if tolerance is not None else scene_tolerance(scene, solver))
     try:
-        s = variant(scene, solver, radius)
+        s = variant(scene, solver, radius, tolerance)
         point.estimated_fluid, point.estimated_boundary = estimate_particle_counts(s)
         info = runner.run(s, out=folder, device=device, frames=frames, progress=False, log=lambda *a, **k: None)
+        point.reference = evaluate_reference(s, folder, info)
     except WarpSphError as exc:
         point.status, point.error = "failed", str(exc).splitlines()[0]
         return point
@@ -231,6 +289,8 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     point.first_step_time = float(info.get("first_step_time", 0.0))
     point.density_error_mean = sum(f["density_error_mean"] for f in advanced) / max(len(advanced), 1)
     point.density_error_max = max((f["density_error_max"] for f in advanced), default=0.0)
+    point.density_error_last = advanced[-1]["density_error_mean"] if advanced else 0.0
+    point.density_errors = [float(f["density_error_mean"]) for f in advanced]
     return point
 
 
@@ -238,11 +298,17 @@ def _same_radius(a: float, b: float) -> bool:
     return abs(a - b) <= 1e-6 * max(a, b)
 
 
+def _same_tolerance(a: float | None, b: float | None) -> bool:
+    return (a is None and b is None) or (a is not None and b is not None and _same_radius(a, b))
+
+
 def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None, cache: str | Path | None = None,
-              refresh: bool = False, progress: bool = True, log=print) -> Calibration:
-    """Calibrate ``scene`` for every solver of ``solvers`` at ``radii`` (default ``calibration_radii``): the
-    points the cache lacks are run, the others loaded (``refresh``: all run again). The Calibration holds
-    every cached point of the scene (other solvers and radii included). Raises PlanError when no run of these completes."""
+              refresh: bool = False, progress: bool = True, log=print, tolerance_factor: float = 1.0) -> Calibration:
+    """Calibrate ``scene`` for every solver of ``solvers`` at ``radii`` (default ``calibration_radii``), each
+    solver with a tolerance at the scene's tolerance times ``tolerance_factor`` (a solver without one: once at
+    factor 1, not at all otherwise): the points the cache lacks are run, the others loaded (``refresh``: all run
+    again). The Calibration holds every cached point of the scene (other solvers, radii and tolerances included).
+    Raises PlanError when no run of these completes."""
     from ..core.device import resolve_device
     from ..io.run_folder import atomic_write_json
     from ..run.progress import Progress
@@ -259,27 +325,36 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
             points = [Point(**p) for p in json.loads(path.read_text())["points"]]
         except (OSError, ValueError, KeyError, TypeError):
             points = []  # a damaged cache file: calibrate again
-    todo = [(s, r) for s in solvers for r in radii
-            if not any(p.solver == s and _same_radius(p.particle_radius, r) for p in points)]
+    tol = {s: (None if t is None else t * tolerance_factor) for s in solvers
+           for t in [scene_tolerance(scene, s)] if t is not None or tolerance_factor == 1.0}
+    todo = [(s, r) for s in tol for r in radii
+            if not any(p.solver == s and _same_radius(p.particle_radius, r) and _same_tolerance(p.tolerance, tol[s])
+                       for p in points)]
     if todo:
         folder.mkdir(parents=True, exist_ok=True)
         work = Path(tempfile.mkdtemp(prefix="calibration-", dir=folder))
-        log(f"calibrating {scene.name}: {len(todo)} runs ({', '.join(sorted({s for s, _ in todo}))} at "
+        log(f"calibrating {scene.name}: {len(todo)} run{'s' if len(todo) != 1 else ''} ({', '.join(sorted({s for s, _ in todo}))} at "
             f"{', '.join(f'{r:.4g}' for r in sorted({r for _, r in todo}, reverse=True))} m), {frames - 1} frames each "
-            f"({(frames - 1) / scene.fps:.3g} s simulated)")
+            f"({(frames - 1) / scene.fps:.3g} s simulated)"
+            + (f", tolerance {tolerance_factor:g} x the scene's" if tolerance_factor != 1.0 else ""))
         bar = Progress(len(todo), enabled=progress, unit="runs")
         try:
             for i, (solver, r) in enumerate(todo):
                 t0 = time.perf_counter()
-                point = run_point(scene, solver, r, frames, dev, work / f"{solver}-{i}")
+                point = run_point(scene, solver, r, frames, dev, work / f"{solver}-{i}", tol[solver])
                 point.seconds = time.perf_counter() - t0
+                point.first_in_process = _RUNS_IN_PROCESS[0] == 0
+                _RUNS_IN_PROCESS[0] += 1
                 points.append(point)
                 bar.update(i + 1, f"{solver} r = {r:.4g} m: {point.status}")
         finally:
             bar.close()
             shutil.rmtree(work, ignore_errors=True)
         atomic_write_json(path, {"key": key, "machine": machine, "points": [asdict(p) for p in points]})
-    asked = [p for p in points if p.solver in solvers and any(_same_radius(p.particle_radius, r) for r in radii)]
+    asked = [p for p in points if p.solver in tol and _same_tolerance(p.tolerance, tol[p.solver])
+             and any(_same_radius(p.particle_radius, r) for r in radii)]
+    if not asked:
+        raise PlanError(f"{scene.source}: none of {', '.join(solvers)} has a density tolerance to calibrate")
     if not any(p.status == "completed" for p in asked):
         first = asked[0]
         raise PlanError(f"{scene.source}: the scene cannot be calibrated: every calibration run failed; the first "

@@ -21,9 +21,15 @@ class PowerLaw:
 
     coefficient: float
     exponent: float
+    measured: float | None = None   # the least-squares exponent before clipping (None: not fitted, one point)
 
     def __call__(self, x: float) -> float:
         return self.coefficient * float(x) ** self.exponent
+
+    @property
+    def clipped(self) -> bool:
+        """Whether the measured exponent lay outside the allowed range (the fit is then a bound, not a measurement)."""
+        return self.measured is not None and abs(self.measured - self.exponent) > 1e-12
 
 
 @dataclass(frozen=True)
@@ -49,20 +55,23 @@ def fit_power_law(x, y, exponent_range: tuple[float, float] = (-6.0, 6.0)) -> Po
     lx, ly = np.log(x[ok]), np.log(y[ok])
     if np.ptp(lx) == 0.0:
         return PowerLaw(float(np.exp(ly.mean())), 0.0)
-    p, _ = np.polyfit(lx, ly, 1)
-    p = float(np.clip(p, *exponent_range))
-    return PowerLaw(float(np.exp(np.mean(ly - p * lx))), p)
+    measured, _ = np.polyfit(lx, ly, 1)
+    p = float(np.clip(measured, *exponent_range))
+    return PowerLaw(float(np.exp(np.mean(ly - p * lx))), p, float(measured))
 
 
 def fit_line(x, y) -> Line:
     """The line y = c0 + c1 x with c0, c1 >= 0 closest to the points in least squares (the unconstrained fit,
-    else the best through the origin, else the best constant). Non-finite points are left out."""
+    else the best through the origin, else the best constant); points at one x > 0: through the origin.
+    Non-finite points are left out."""
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     ok = np.isfinite(x) & np.isfinite(y)
     x, y = x[ok], y[ok]
     if len(x) == 0:
         raise ValueError("no finite point to fit")
+    if np.ptp(x) == 0 and x[0] > 0:  # one count: proportional to it (an upper bound for larger counts)
+        return Line(0.0, max(float(y.mean() / x[0]), 0.0))
     candidates = []
     if len(x) >= 2 and np.ptp(x) > 0:
         c1, c0 = np.polyfit(x, y, 1)
@@ -73,6 +82,13 @@ def fit_line(x, y) -> Line:
         candidates.append(Line(0.0, max(float(np.dot(x, y)) / sxx, 0.0)))
     candidates.append(Line(max(float(y.mean()), 0.0), 0.0))
     return min(candidates, key=lambda f: float(np.sum((f.intercept + f.slope * x - y) ** 2)))
+
+
+def log_slope(x0: float, y0: float, x1: float, y1: float) -> float:
+    """The exponent k of y ~ x^k through two positive points (0 when either is not positive or x0 == x1)."""
+    if min(x0, y0, x1, y1) <= 0 or x0 == x1:
+        return 0.0
+    return float(np.log(y1 / y0) / np.log(x1 / x0))
 
 
 def extrapolation(value: float, lo: float, hi: float) -> float:

@@ -8,7 +8,7 @@ import re
 from pathlib import Path
 
 from .advisor import Candidate, Plan
-from .calibrate import PlanError
+from .calibrate import PlanError, tolerance_key, variant_dict
 
 _UNITS = {"": 1.0, "s": 1.0, "sec": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0, "hr": 3600.0}
 
@@ -34,8 +34,22 @@ def parse_error(text: str) -> float:
     except ValueError:
         v = math.nan
     if not (math.isfinite(v) and 0 < v < 1):
-        raise PlanError(f"--target-error {text!r}: expected a mean density error such as 0.5% or 0.005 (between 0 and 1)")
+        raise PlanError(f"--target-error {text!r}: expected an error such as 0.5% or 0.005 (between 0 and 1), "
+                        "optionally after a metric: front:4%")
     return v
+
+
+def parse_target(text: str) -> tuple[str, float]:
+    """(metric, error as a fraction) of --target-error: ``0.5%`` -> ("density", 0.005), ``front:4%`` ->
+    ("front", 0.04). Whether the scene has the metric is checked later (``metrics.check_metric``)."""
+    t = str(text).strip()
+    metric, sep, value = t.rpartition(":")
+    if not sep:
+        return "density", parse_error(t)
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", metric.strip()):
+        raise PlanError(f"--target-error {text!r}: expected METRIC:ERROR such as front:4% (a metric name, then the "
+                        "error)")
+    return metric.strip(), parse_error(value)
 
 
 def duration_text(s: float) -> str:
@@ -54,13 +68,16 @@ def bytes_text(n: float) -> str:
 
 def _row(c: Candidate, mark: str) -> list[str]:
     tol = "-" if c.tolerance is None else f"{100 * c.tolerance:.3g} %"
-    return [mark, c.solver, f"{c.particle_radius:.4g} m", tol, f"{c.fluid_particles:,}", f"{c.steps:,}",
-            duration_text(c.wall_time), bytes_text(c.memory), f"{100 * c.density_error:.3g} %"]
+    row = [mark, c.solver, f"{c.particle_radius:.4g} m", tol, f"{c.fluid_particles:,}", f"{c.steps:,}",
+           duration_text(c.wall_time), bytes_text(c.memory), f"{100 * c.density_error:.3g} %"]
+    return row + ([f"{100 * c.metric_error:.3g} %"] if c.metric_error is not None else [])
 
 
 def table_lines(p: Plan) -> list[str]:
     """The recommendation and each other solver's best, as an aligned text table, then what is extrapolated."""
     head = ["", "solver", "radius", "tolerance", "fluid N", "steps", "wall time", "memory", "mean density error"]
+    if p.chosen.metric_error is not None:
+        head.append(f"{p.metric} error")
     rows = [_row(p.chosen, "*")] + [_row(c, " ") for c in p.alternatives]
     widths = [max(len(r[i]) for r in [head] + rows) for i in range(len(head))]
     out = ["  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip() for r in [head] + rows]
@@ -68,21 +85,48 @@ def table_lines(p: Plan) -> list[str]:
     if p.budget_s is not None:
         asked.append(f"budget {duration_text(p.budget_s)}")
     if p.target_error is not None:
-        asked.append(f"target error {100 * p.target_error:.3g} %")
+        asked.append(f"target {p.metric} error {100 * p.target_error:.3g} %")
     out.insert(0, f"plan for {p.scene} ({', '.join(asked)}; {p.duration:g} s simulated, {p.frames} frames), "
                   f"predicted for this machine:")
     for c in [p.chosen] + p.alternatives:
         ext = c.extrapolated()
         out.append(f"{c.solver}: " + (f"extrapolated: {ext}" if ext else "within the calibrated range"))
-    m = p.models[p.chosen.solver]
-    out.append(f"{p.chosen.solver} models: error ~ d^{m.error.exponent:.2f} (measured order), steps/s ~ "
-               f"d^{m.steps_per_second.law.exponent:.2f} above {m.steps_per_second.floor:.4g}, {1e9 * m.step_time.slope:.3g} ns per particle-step + "
-               f"{1e3 * m.step_time.intercept:.3g} ms per step")
+    out += [model_line(m) for m in p.models.values()]
     for s, why in p.failed_solvers.items():
         out.append(f"{s}: not a candidate, its calibration failed: {why}")
     when = "from the cache, nothing ran now" if p.calibration_cached else "run now"
     out.append(f"calibration: {duration_text(p.calibration_seconds)} of runs ({when}; {p.cache_path})")
+    out += [f"note: {n}" for n in p.notes]
     return out
+
+
+def _order(law) -> str:
+    if law is None:
+        return "-"
+    if law.clipped:
+        return f"d^{law.exponent:.2f} (measured {law.measured:.2f}, clamped)"
+    return f"d^{law.exponent:.2f}" + (" (one radius: constant)" if law.measured is None else "")
+
+
+def model_line(m) -> str:
+    """One solver's fitted models in words: error orders, step rate, cost, the tolerance's effect."""
+    text = (f"{m.solver} models: density error ~ {_order(m.error)} in the first {m.calibrated_frames} frames, "
+            f"then ~ {_order(m.error_last)}")
+    if m.profile:
+        text += f", later frames x {m.later_ratio(len(m.profile)):.3g} (the error's course over a whole run)"
+    if m.metric_error is not None:
+        text += f"; {m.metric} error ~ {_order(m.metric_error)}"
+    text += (f"; steps/s ~ d^{m.steps_per_second.law.exponent:.2f} above {m.steps_per_second.floor:.4g}; "
+             f"{1e9 * m.step_time.slope:.3g} ns per particle-step + {1e3 * m.step_time.intercept:.3g} ms per step")
+    if m.tolerance is None:
+        text += "; no tolerance"
+    elif len(m.tolerances) < 2:
+        text += f"; tolerance {m.tolerance:.3g} (not varied)"
+    else:
+        k = m.tolerance_exponents
+        text += (f"; tolerance {min(m.tolerances):.3g}-{max(m.tolerances):.3g}: cost per step ~ t^{k['step_time']:.2f}, "
+                 f"steps ~ t^{k['steps_per_second']:.2f}, error ~ t^{k['error_last']:.2f}")
+    return text
 
 
 def plot_pareto(p: Plan, path: Path) -> Path | None:
@@ -98,10 +142,10 @@ def plot_pareto(p: Plan, path: Path) -> Path | None:
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for solver in p.models:
         cs = [c for c in p.candidates if c.solver == solver]
-        ax.plot([c.wall_time for c in cs], [100 * c.density_error for c in cs], ".", alpha=0.5, label=solver)
+        ax.plot([c.wall_time for c in cs], [100 * c.error for c in cs], ".", alpha=0.5, label=solver)
     front = sorted((c for c in p.candidates if c.pareto), key=lambda c: c.wall_time)
-    ax.plot([c.wall_time for c in front], [100 * c.density_error for c in front], "k-", lw=1, label="Pareto front")
-    ax.plot([p.chosen.wall_time], [100 * p.chosen.density_error], "r*", ms=14, label="chosen")
+    ax.plot([c.wall_time for c in front], [100 * c.error for c in front], "k-", lw=1, label="Pareto front")
+    ax.plot([p.chosen.wall_time], [100 * p.chosen.error], "r*", ms=14, label="chosen")
     if p.budget_s:
         ax.axvline(p.budget_s, color="grey", ls="--", lw=1, label="budget")
     if p.target_error:
@@ -109,7 +153,7 @@ def plot_pareto(p: Plan, path: Path) -> Path | None:
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("predicted wall time [s]")
-    ax.set_ylabel("predicted mean density error [%]")
+    ax.set_ylabel("predicted mean density error [%]" if p.metric == "density" else f"predicted {p.metric} error [%]")
     ax.set_title(f"plan: {p.scene}")
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -126,7 +170,11 @@ def set_flags(p: Plan) -> list[str]:
     """The ``--set`` flags of the chosen setting (the [plan] prediction included)."""
     c = p.chosen
     flags = [f"solver={c.solver}", f"particle_radius={c.particle_radius:.6g}"]
-    flags += [f"plan.{k}={v:.6g}" if isinstance(v, float) else f"plan.{k}={v}" for k, v in p.prediction().items()]
+    key = tolerance_key(c.solver)
+    if key is not None and c.tolerance is not None:
+        flags.append(f"{key}={c.tolerance:.6g}")
+    flags += [f"plan.{k}={v:.6g}" if isinstance(v, float) else f'plan.{k}="{v}"' if isinstance(v, str)
+              else f"plan.{k}={v}" for k, v in p.prediction().items()]
     return flags
 
 
@@ -202,13 +250,12 @@ def apply_scene(scene, p: Plan, out: Path, force: bool = False) -> Path:
 
     out = Path(out)
     check_apply_path(out, force)
-    d = scene.to_dict()
-    d["solver"] = p.chosen.solver
-    d["particle_radius"] = float(p.chosen.particle_radius)
+    d = variant_dict(scene, p.chosen.solver, p.chosen.particle_radius, p.chosen.tolerance)
     d["plan"] = p.prediction()
     scene_from_dict(d, source=str(out), base_dir=out.parent)  # what is written loads again
+    tol = "" if p.chosen.tolerance is None else f", tolerance {p.chosen.tolerance:.3g}"
     header = (f"# written by warp-sph plan from {scene.source}: {p.chosen.solver}, particle_radius "
-              f"{p.chosen.particle_radius:.4g} m, predicted {duration_text(p.chosen.wall_time)} wall and "
+              f"{p.chosen.particle_radius:.4g} m{tol}, predicted {duration_text(p.chosen.wall_time)} wall and "
               f"{100 * p.chosen.density_error:.3g} % mean density error on {p.machine}")
     atomic_write_bytes(out, toml_text(d, header).encode())
     return out
@@ -222,14 +269,14 @@ def run_command(args, log=print) -> int:
     if args.budget is None and args.target_error is None:
         raise PlanError("plan: give --budget (e.g. 10m) or --target-error (e.g. 0.5%)")
     budget = parse_budget(args.budget) if args.budget is not None else None
-    target = parse_error(args.target_error) if args.target_error is not None else None
+    metric, target = parse_target(args.target_error) if args.target_error is not None else ("density", None)
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()] if args.solvers else None
     if args.apply:
         check_apply_path(Path(args.apply), args.force)
     check_plot_and_cache(args)
     scene = load_scene(args.scene, overrides=args.set)
     p = make_plan(scene, budget_s=budget, target_error=target, device=args.device, solvers=solvers,
-                  cache=args.cache, refresh=args.refresh, progress=not args.no_progress, log=log)
+                  cache=args.cache, refresh=args.refresh, progress=not args.no_progress, log=log, metric=metric)
     for line in table_lines(p):
         log(line)
     png = Path(args.plot) if args.plot else Path(p.cache_path).with_name(f"pareto-{_safe(p.scene)}.png")

@@ -133,7 +133,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         if sim.scene.plan is not None:  # made from a plan (warp-sph plan --apply): its prediction beside the run
             from ..plan.compare import compare_with_plan
 
-            run_info["plan"] = compare_with_plan(sim.scene.plan, run_info)
+            run_info["plan"] = compare_with_plan(sim.scene.plan, run_info, out)
         if probe_files is not None:
             run_info["probes"] = probe_files.summary(sim.probes.skipped())
         rf.atomic_write_json(out / rf.RUN_JSON, run_info)

@@ -387,6 +387,10 @@ _TAIL = (
     _P("plan.memory", "float", "B", 0.0, "predicted memory", ge=0.0),
     _P("plan.budget", "float", "s", 0.0, "the wall-time budget asked for (0: none)", ge=0.0),
     _P("plan.target_error", "float", "-", 0.0, "the mean density error asked for (0: none)", ge=0.0),
+    _P("plan.metric", "str", "-", "density", "the error the plan targeted: 'density' or a validation scene's "
+       "error against its experiment ('front', 'sensor1', ...; docs/plan.md)"),
+    _P("plan.metric_error", "float", "-", 0.0, "predicted error of plan.metric against the experiment (0: the "
+       "density error)", ge=0.0),
 )
 
 

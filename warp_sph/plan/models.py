@@ -1,0 +1,183 @@
+"""The fitted models of one solver (``SolverModel``), from its calibration points (``calibrate.py``).
+
+For each solver that calibrated, the models (``fit.py``) predict at any particle radius r (spacing d = 2r):
+- particles N: fluid (a + b d)^3 / d^3 and walls (a + b d)^2 / d^2 through the sampled counts (``LatticeCount``);
+- substeps S = (steps per simulated second)(d) * duration: a power law with exponent <= -1 above the floor of
+  one step per frame or per time.dt_max (``StepRate``);
+- wall time = load + setup(N) + S * step(N) + frames * frame_overhead(N), three lines fitted against N; load: the
+  time a fresh process spends loading the step's kernels (the largest first-step excess measured) and the kernels
+  every run shares (the process's first calibration run's set-up beyond the others': ``process_overhead``);
+- mean density error over the run: the calibration's frames measured e_cal(d) = A d^p, the rest of the run at the
+  calibration's last frame's error e_last(d) = B d^p' times the profile's ratio R: (F_c e_cal + (F - F_c) R e_last)
+  / F over F frames, F_c of them calibrated. The profile is a run of the whole duration at the coarsest radius:
+  R = its mean error over frames F_c+1..F / its error at frame F_c (a dam break's impact doubles the error after
+  the release the short runs see); without one (no room in the budget) R = 1, the error held. The orders p, p'
+  are measured and clamped to ORDER_RANGE (a clamped order is a bound, and the plan says so);
+- an error against an experiment (``metrics.py``; calibrated over the whole duration): E(d) = C d^q;
+- the solver's tolerance t (PBF, DFSPH: calibrated at the scene's t0 and at t0 / 4 at one radius): the cost per
+  step, the steps per simulated second and each error times (t / t0)^k, each k measured from that pair;
+  candidates only between the two calibrated tolerances (no extrapolation in t).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+from .calibrate import Calibration, scene_tolerance
+from .fit import (LatticeCount, Line, PowerLaw, StepRate, fit_lattice_count, fit_line, fit_power_law, fit_step_rate,
+                  log_slope)
+from .metrics import DENSITY
+
+#: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
+#: (hydrostatic, DFSPH, 0.5 s): the calibration's last frames give p' = -2.4 between d = 0.085 and 0.057 m,
+#: the whole runs -1.4 between 0.057 and 0.030 m: the clamped -1 predicted 1.25x under, the fit 1.9x over
+ORDER_RANGE = (-1.0, 4.0)
+#: tolerance candidates of a solver with two calibrated tolerances: this many, geometric, between them
+TOLERANCE_LADDER = 3
+
+@dataclass
+class SolverModel:
+    """The fitted models of one solver (see the module docstring); ``calibrated``: the points' radii [m]."""
+
+    solver: str
+    steps_per_second: StepRate     # against d [m]
+    error: PowerLaw                # against d [m]
+    step_time: Line                # [s] against N
+    setup_time: Line               # [s] against N
+    frame_overhead: Line           # [s] against N
+    fluid_count: LatticeCount      # against d [m]
+    boundary_count: LatticeCount
+    load_time: float               # [s] a fresh process spends loading the step's kernels (the largest first-step excess)
+    calibrated_radii: list
+    calibrated_particles: list
+    error_last: PowerLaw | None = None       # the calibration's last frame's mean density error, against d [m]
+    calibrated_frames: int = 0               # frames each calibration run advanced
+    metric: str = DENSITY                    # the error a target names (``metrics.py``)
+    metric_error: PowerLaw | None = None     # that error against d [m] (None: the density error)
+    tolerance: float | None = None           # the scene's tolerance t0 [-] (None: the solver has none)
+    tolerances: list = field(default_factory=list)      # the calibrated tolerances [-], t0 first
+    tolerance_particles: int = 0                        # particles of the pair the tolerance's effect was measured on
+    tolerance_exponents: dict = field(default_factory=dict)  # figure -> k: figure ~ (t / t0)^k
+    profile: list = field(default_factory=list)  # [-] per-frame mean density error of a whole run at the coarsest radius
+
+    def later_ratio(self, frames: int) -> float:
+        """R: the profile's mean error over the frames after the calibrated ones / its error at the last calibrated
+        frame (1 without a profile covering ``frames``)."""
+        fc = self.calibrated_frames
+        if len(self.profile) < frames or frames <= fc or fc < 1 or self.profile[fc - 1] <= 0:
+            return 1.0
+        later = self.profile[fc:frames]
+        return float(sum(later) / len(later) / self.profile[fc - 1])
+
+    def tolerance_factor(self, figure: str, tolerance: float | None) -> float:
+        """(t / t0)^k of ``figure`` ("step_time", "steps_per_second", "error", "error_last", "metric")."""
+        k = self.tolerance_exponents.get(figure, 0.0)
+        if tolerance is None or self.tolerance is None or k == 0.0:
+            return 1.0
+        return (tolerance / self.tolerance) ** k
+
+    def candidate_tolerances(self) -> list:
+        """The tolerances a plan may choose: TOLERANCE_LADDER between the calibrated ones ([t0] or [None] else)."""
+        if len(self.tolerances) < 2:
+            return [self.tolerance]
+        lo, hi = min(self.tolerances), max(self.tolerances)
+        n = TOLERANCE_LADDER
+        return sorted({float(f"{hi * (lo / hi) ** (i / (n - 1)):.4g}") for i in range(n)}, reverse=True)
+
+    def to_dict(self) -> dict:
+        """The models as plain JSON types."""
+        return asdict(self)
+
+
+def _error_law(d, values) -> PowerLaw | None:
+    """The error's power law in d with the order clamped to ORDER_RANGE (None: no point measured it)."""
+    ok = [(a, max(v, 1e-9)) for a, v in zip(d, values) if v is not None]
+    return fit_power_law([a for a, _ in ok], [v for _, v in ok], ORDER_RANGE) if ok else None
+
+
+def tolerance_exponents(cal: Calibration, solver: str, t0: float | None, metric: str) -> tuple[list, dict, int]:
+    """(calibrated tolerances, t0 first; {figure: k}; the pair's particles) of ``solver`` from a pair of points at
+    one radius, one at t0 and one at another tolerance (the finest such radius); ([t0], {}, 0) without a pair."""
+    if t0 is None:
+        return [None], {}, 0
+    base = cal.for_solver(solver, t0)
+    others = [p for p in cal.for_solver(solver) if p.tolerance is not None and abs(p.tolerance / t0 - 1) > 1e-6]
+    pairs = [(a, b) for b in others for a in base if abs(a.particle_radius / b.particle_radius - 1) <= 1e-6]
+    if not pairs:
+        return [t0], {}, 0
+    a, b = min(pairs, key=lambda ab: ab[0].particle_radius)
+    k = {"step_time": log_slope(a.tolerance, a.step_time, b.tolerance, b.step_time),
+         "steps_per_second": log_slope(a.tolerance, a.steps_per_second, b.tolerance, b.steps_per_second),
+         "error": log_slope(a.tolerance, a.density_error_mean, b.tolerance, b.density_error_mean),
+         "error_last": log_slope(a.tolerance, a.density_error_last, b.tolerance, b.density_error_last)}
+    if metric != DENSITY:
+        k["metric"] = log_slope(a.tolerance, a.reference.get(metric) or 0.0, b.tolerance, b.reference.get(metric) or 0.0)
+    return [t0, b.tolerance], k, a.particles
+
+
+def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
+               profile: Calibration | None = None) -> SolverModel | None:
+    """The models of ``solver`` from its completed calibration points at the scene's tolerance (None: it has
+    none); ``metric``: the error a target names (its law from the points' ``reference``); ``profile``: the
+    whole-duration calibration whose per-frame errors give R (module docstring)."""
+    t0 = scene_tolerance(scene, solver) if scene is not None else None
+    pts = sorted(cal.for_solver(solver, t0) if scene is not None else cal.for_solver(solver),
+                 key=lambda p: p.particle_radius)
+    if not pts:
+        return None
+    d = [p.spacing for p in pts]
+    n = [p.particles for p in pts]
+    steady = [p for p in pts if not p.first_in_process] or pts
+    setup = fit_line([p.particles for p in steady], [p.setup_time for p in steady])
+    metric_law = None
+    if metric != DENSITY:
+        metric_law = _error_law(d, [p.reference.get(metric) for p in pts])
+        if metric_law is None:  # no calibration run's span held a point of the experiment
+            return None
+    tolerances, exponents, pair_particles = tolerance_exponents(cal, solver, t0, metric)
+    return SolverModel(
+        solver=solver,
+        steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], cal.step_floor),
+        error=fit_power_law(d, [max(p.density_error_mean, 1e-9) for p in pts], ORDER_RANGE),
+        step_time=fit_line(n, [p.step_time for p in pts]),
+        setup_time=setup,
+        frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
+        fluid_count=fit_lattice_count(d, [p.fluid for p in pts], 3),
+        boundary_count=fit_lattice_count(d, [max(p.boundary, 0) for p in pts], 2),
+        # a fresh process loads the step's kernels as the solver's first calibration run did, and the shared ones
+        # as the process's first calibration run did
+        load_time=max(p.load_time for p in pts) + process_overhead(cal, scene),
+        calibrated_radii=[p.particle_radius for p in pts], calibrated_particles=n,
+        error_last=_error_law(d, [p.density_error_last or p.density_error_mean for p in pts]),
+        calibrated_frames=min(p.frames for p in pts), metric=metric, metric_error=metric_law,
+        tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents, tolerance_particles=pair_particles,
+        profile=_profile(profile, solver, t0) if profile is not None else [])
+
+
+def _profile(profile: Calibration, solver: str, t0) -> list:
+    pts = profile.for_solver(solver, t0)
+    return list(max(pts, key=lambda p: p.particle_radius).density_errors) if pts else []
+
+
+def process_overhead(cal: Calibration, scene=None) -> float:
+    """[s] a fresh process spends loading the kernels every run shares (sampling, grid, exports): the set-up of the
+    process's first calibration run beyond its solver's set-up line fitted to the other points (0 where no point
+    of the calibration was a process's first, or its solver has no other point)."""
+    out = 0.0
+    for q in (p for p in cal.points if p.first_in_process and p.status == "completed"):
+        t0 = scene_tolerance(scene, q.solver) if scene is not None else "any"
+        others = [p for p in cal.for_solver(q.solver, t0) if p is not q and not p.first_in_process]
+        if others:
+            line = fit_line([p.particles for p in others], [p.setup_time for p in others])
+            out = max(out, q.setup_time - line(q.particles))
+    return out
+
+
+def run_density_error(model: SolverModel, d: float, frames: int, tolerance: float | None = None) -> float:
+    """The predicted mean density error [-] over a run of ``frames`` frames at spacing ``d`` [m]: the calibrated
+    frames at the calibration's mean, the rest at its last frame's error times the profile's R (module docstring)."""
+    first = model.error(d) * model.tolerance_factor("error", tolerance)
+    if model.error_last is None or frames <= 0:
+        return first
+    last = model.error_last(d) * model.tolerance_factor("error_last", tolerance) * model.later_ratio(frames)
+    fc = min(model.calibrated_frames, frames)
+    return (fc * first + (frames - fc) * last) / frames
