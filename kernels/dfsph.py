@@ -1,8 +1,7 @@
 """Divergence-free SPH (Bender & Koschier 2015, 2017) in SPlisHSPlasH's current form (>= 2.12).
 
 Notation (research note ``dfsph.md`` section 0): V = m / rho0 [m^3] the rest volume of a fluid
-particle, g_ij = grad_i W(x_i - x_j) [1/m^4], G_ij = V g_ij [1/m] (the pair cache keeps c_ij with
-G_ij = c_ij (x_i - x_j), x at the search), the boundary
+particle, g_ij = grad_i W(x_i - x_j) [1/m^4], G_ij = V g_ij [1/m] (the pair cache), the boundary
 method's gradient term gb_ib (Akinci: V_b g_ib) [1/m]; rho_hat = rho / rho0;
 
     s_i       = sum_j G_ij + sum_b gb_ib                                   [1/m]
@@ -50,12 +49,10 @@ CONTROL_COUNT = 3
 def pair_pressure_acceleration(pairs: DfsphPairs, pressure: wp.array(dtype=float), i: int) -> wp.vec3:
     """a_i(P) = -P_i s_i - sum_j P_j G_ij [m/s^2] from the pair cache."""
     a = -pressure[i] * pairs.gradient_sum[i]
-    xi = pairs.position[i]
     k = pairs.offset[i]
     k_end = k + pairs.count[i]
     while k < k_end:
-        j = pairs.index[k]
-        a -= (pressure[j] * pairs.scale[k]) * (xi - pairs.position[j])
+        a -= pressure[pairs.index[k]] * pairs.gradient[k]
         k += 1
     return a
 
@@ -108,12 +105,10 @@ def jacobi_update(
     i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
     ai = acceleration[i]
     div = wp.dot(ai, pairs.gradient_sum[i])
-    xi = pairs.position[i]
     k = pairs.offset[i]
     k_end = k + pairs.count[i]
     while k < k_end:
-        j = pairs.index[k]
-        div -= pairs.scale[k] * wp.dot(acceleration[j], xi - pairs.position[j])
+        div -= wp.dot(acceleration[pairs.index[k]], pairs.gradient[k])
         k += 1
     r = source[i] - scale * div
     p = pressure[i]
@@ -237,12 +232,10 @@ def density_source(
     i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
     vi = particle_v[i]
     div = wp.dot(vi + dt * gravity, pairs.boundary_gradient[i]) - pairs.boundary_velocity[i]
-    xi = pairs.position[i]
     k = pairs.offset[i]
     k_end = k + pairs.count[i]
     while k < k_end:
-        j = pairs.index[k]
-        div += pairs.scale[k] * wp.dot(vi - particle_v[j], xi - pairs.position[j])
+        div += wp.dot(vi - particle_v[pairs.index[k]], pairs.gradient[k])
         k += 1
     deficit = 1.0 - particle_density[i] / rest_density
     if deficit < 0.0:

@@ -5,8 +5,7 @@ s_i, D_i, f_i = 1 / D_i [m^2], delta_i(u)); host half ``warp_sph/methods/solvers
 Neighbours and the factor come from one search per step (``fluid_search_kernel`` then
 ``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``, walked with
 ``cell_rows`` / ``row_points`` of ``kernels/neighbors.py`` as every list build is): each pair
-within the support radius is found once, and its G_ij = c_ij x_ij goes, as the scalar c_ij [1/m^2]
-with the search's x_i kept once per particle (8 bytes per pair instead of 16), into a padded row that
+within the support radius is found once, and its G_ij goes into a padded row that
 ``compact_pairs`` copies into a compressed row layout (``DfsphPairs``), read as one stream by every
 later pass; the solves evaluate no smoothing kernel. The same search writes the fluid and boundary
 neighbour lists (fluid lists without i itself) that the shared viscosity and XSPH stages read.
@@ -26,9 +25,8 @@ class DfsphPairs:
     """The step's fluid pairs in compressed rows, and what the solves need per particle.
 
     Pairs of particle i (neighbours j != i closer than the support radius): entries
-    offset[i] .. offset[i] + count[i] - 1 of index (neighbour j) and scale (c_ij [1/m^2], with
-    G_ij = V grad_i W_ij = c_ij (position[i] - position[j]) [1/m], position = x at the search [m]);
-    the 1-D arrays hold fluid_count x the list capacity entries, of which the rows use the
+    offset[i] .. offset[i] + count[i] - 1 of index (neighbour j) and gradient (G_ij = V grad_i W_ij
+    [1/m]); the 1-D arrays hold fluid_count x the list capacity entries, of which the rows use the
     first sum(count). gradient_sum[i] = s_i [1/m]; boundary_gradient[i] = sum_b gb_ib [1/m];
     boundary_velocity[i] = sum_b v_b . gb_ib [1/s]; active[i] = 1 when i has at least the threshold
     of neighbours (fluid, plus boundary when the boundary enters the density): its divergence error
@@ -38,8 +36,7 @@ class DfsphPairs:
     offset: wp.array(dtype=wp.int32)
     count: wp.array(dtype=wp.int32)
     index: wp.array(dtype=wp.int32)
-    scale: wp.array(dtype=float)
-    position: wp.array(dtype=wp.vec3)
+    gradient: wp.array(dtype=wp.vec3)
     gradient_sum: wp.array(dtype=wp.vec3)
     boundary_gradient: wp.array(dtype=wp.vec3)
     boundary_velocity: wp.array(dtype=float)
@@ -51,8 +48,7 @@ def fluid_search_kernel(smoothing: str):
     """The fluid half of the step's search, over the fluid cell grid (points sorted by cell): for
     particle i (threads in cell order) every j within the support radius. Writes the fluid neighbour
     list (j != i; the count is exact; when i and its neighbours do not fit the capacity, entries are
-    dropped and max_count_out[i] keeps the largest such number), the padded row of c_ij (G_ij = c_ij
-    x_ij), position_out[i] = x_i,
+    dropped and max_count_out[i] keeps the largest such number), the padded row of G_ij,
     room_out[i] = the pairs kept, and the
     fluid parts of: rho_i = m sum_j W_ij (self included) [kg/m^3], s_i, sum_j |G_ij|^2 and
     delta_i(v) [1/s] (finished by ``boundary_factor_kernel``)."""
@@ -80,8 +76,7 @@ def fluid_search_kernel(smoothing: str):
         neighbor_count_out: wp.array(dtype=wp.int32),
         neighbor_index_out: wp.array2d(dtype=wp.int32),
         max_count_out: wp.array(dtype=wp.int32),
-        pair_scale_out: wp.array2d(dtype=float),
-        position_out: wp.array(dtype=wp.vec3),
+        pair_gradient_out: wp.array2d(dtype=wp.vec3),
         room_out: wp.array(dtype=wp.int32),
         particle_density_out: wp.array(dtype=float),
         gradient_sum_out: wp.array(dtype=wp.vec3),
@@ -126,18 +121,15 @@ def fluid_search_kernel(smoothing: str):
             w_sum += wp.static(value)(wp.length(x_ij), h)
             j = cell_point[k]
             if j != i:
-                # G_ij = c_ij x_ij: the pair cache keeps c_ij [1/m^2] (x_ij from the positions kept below)
-                c = volume * wp.dot(wp.static(gradient)(x_ij, h), x_ij) / wp.max(wp.dot(x_ij, x_ij), 1.0e-30)
-                g = c * x_ij
+                g = volume * wp.static(gradient)(x_ij, h)
                 s += g
                 sq += wp.dot(g, g)
                 div += wp.dot(vi - particle_v[j], g)
                 neighbor_index_out[i, n] = j
-                pair_scale_out[i, n] = c
+                pair_gradient_out[i, n] = g
                 n += 1
             e += 1
         room_out[i] = n
-        position_out[i] = xi
         if found > capacity:  # pairs were dropped: the frame is redone with larger lists
             max_count_out[i] = wp.max(max_count_out[i], found)  # per particle, no atomics
             n = found - 1
@@ -352,13 +344,13 @@ def compact_pairs(
     tid_offset: int,
     # In:
     neighbor_index: wp.array2d(dtype=wp.int32),
-    pair_scale: wp.array2d(dtype=float),
+    pair_gradient: wp.array2d(dtype=wp.vec3),
     room: wp.array(dtype=wp.int32),
     offset: wp.array(dtype=wp.int32),
     # Out:
     count_out: wp.array(dtype=wp.int32),
     index_out: wp.array(dtype=wp.int32),
-    scale_out: wp.array(dtype=float),
+    gradient_out: wp.array(dtype=wp.vec3),
 ):
     """Row i of the padded pairs to entries offset[i] .. offset[i] + room[i] - 1 (offset: the exclusive
     prefix sum of room)."""
@@ -369,5 +361,5 @@ def compact_pairs(
     k = int(0)
     while k < n:
         index_out[base + k] = neighbor_index[i, k]
-        scale_out[base + k] = pair_scale[i, k]
+        gradient_out[base + k] = pair_gradient[i, k]
         k += 1

@@ -140,13 +140,13 @@ def test_factor_stage_against_numpy(device):
     np.testing.assert_array_equal(pairs.count.numpy(), o.mask.sum(1))
     # the cached gradients, row by row (compressed rows), against the oracle's pairs
     count, offset = pairs.count.numpy(), pairs.offset.numpy()
-    index, scale, pos = pairs.index.numpy(), pairs.scale.numpy(), pairs.position.numpy()
+    index, grad = pairs.index.numpy(), pairs.gradient.numpy()
     np.testing.assert_array_equal(offset, np.concatenate([[0], np.cumsum(count)[:-1]]))
     for i in range(m.fluid_count):
         js = index[offset[i]:offset[i] + count[i]]
         assert sorted(js) == sorted(np.nonzero(o.mask[i])[0])
-        grad = scale[offset[i]:offset[i] + count[i], None] * (pos[i] - pos[js])  # G_ij = c_ij x_ij
-        np.testing.assert_allclose(grad, o.G[i, js], rtol=1e-3, atol=1e-5 * np.abs(o.G).max())
+        np.testing.assert_allclose(grad[offset[i]:offset[i] + count[i]], o.G[i, js], rtol=1e-3,
+                                   atol=1e-5 * np.abs(o.G).max())
     # the same search wrote the neighbour lists the shared stages read (fluid without i itself)
     nl = sim.fields["neighbor_lists"]
     np.testing.assert_array_equal(nl.fluid.count.numpy(), o.mask.sum(1))

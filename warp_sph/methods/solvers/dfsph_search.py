@@ -41,8 +41,7 @@ class DfsphSearch:
         size = max(n, 1)
         pairs = _search.DfsphPairs()
         for name, dtype in (("offset", wp.int32), ("count", wp.int32), ("gradient_sum", wp.vec3),
-                            ("boundary_gradient", wp.vec3), ("boundary_velocity", float), ("active", wp.int32),
-                            ("position", wp.vec3)):
+                            ("boundary_gradient", wp.vec3), ("boundary_velocity", float), ("active", wp.int32)):
             setattr(pairs, name, wp.zeros(size, dtype=dtype, device=dev))
         sim.fields["dfsph_pairs"] = pairs
         self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle
@@ -64,8 +63,8 @@ class DfsphSearch:
         if capacity != self._pairs_capacity:
             n, dev = max(self.model.capacity, 1), self.model.device
             pairs.index = wp.zeros(n * capacity, dtype=wp.int32, device=dev)
-            pairs.scale = wp.zeros(n * capacity, dtype=float, device=dev)
-            self._pair_rows = wp.zeros((n, capacity), dtype=float, device=dev)
+            pairs.gradient = wp.zeros(n * capacity, dtype=wp.vec3, device=dev)
+            self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
             self._pairs_capacity = capacity
         return pairs
 
@@ -85,7 +84,7 @@ class DfsphSearch:
         launch(self._search, n,
                [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.particle_mass,
                 m.smoothing_length, m.support_radius, m.rest_density, f["particle_x"], f["particle_v"]],
-               [nl.fluid.count, nl.fluid.index, nl.max_count, self._pair_rows, pairs.position, self._room, f["particle_density"],
+               [nl.fluid.count, nl.fluid.index, nl.max_count, self._pair_rows, self._room, f["particle_density"],
                 pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
         empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
                  self._no_mask, 0]
@@ -114,4 +113,4 @@ class DfsphSearch:
                 f["dfsph_error"], f["boundary_force"]], device=dev)
         wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
         launch(_search.compact_pairs, n, [nl.fluid.index, self._pair_rows, self._room, pairs.offset],
-               [pairs.count, pairs.index, pairs.scale], device=dev, min_range=LIGHT_MIN_RANGE)
+               [pairs.count, pairs.index, pairs.gradient], device=dev, min_range=LIGHT_MIN_RANGE)
