@@ -208,18 +208,23 @@ def run_warp_sph(spec: RunSpec) -> dict:
             # speed only: fixed substeps at the initial CFL step
             stats0 = sim.statistics()
             dt = sim.time_step(stats0.max_speed)
-            blocks = []  # (wall [s], iterations per step) of each block of spec.steps substeps
+            # (wall [s], iterations per step, process CPU [s], divergence iterations per step) of each block
+            blocks = []
             with sim.in_cell_order():  # as advance_frame steps them
                 for _ in range(max(1, int(spec.repeats))):
-                    its = []
+                    its, div_its = [], []
                     t1 = time.perf_counter()
+                    c1 = time.process_time()
                     for _ in range(spec.steps):
                         sim.step(dt)
-                        its.append(sim.solver.step_statistics().get("iterations"))  # host values, no sync
+                        st = sim.solver.step_statistics()  # host values, no sync
+                        its.append(st.get("iterations"))
+                        div_its.append(st.get("divergence_iterations"))
                     wp.synchronize_device(sim.device)
-                    blocks.append((time.perf_counter() - t1, its))
-            wall, iterations = min(blocks, key=lambda b: b[0])
+                    blocks.append((time.perf_counter() - t1, its, time.process_time() - c1, div_its))
+            wall, iterations, cpu, div_iterations = min(blocks, key=lambda b: b[0])
             record["block_seconds"] = [b[0] for b in blocks]
+            record["block_cpu_seconds"] = [b[2] for b in blocks]
             steps = spec.steps
             stats = sim.statistics(steps=steps, dt_min=dt, dt_max=dt)
             try:
@@ -263,6 +268,12 @@ def run_warp_sph(spec: RunSpec) -> dict:
             # (Jacobi), so the cost of one particle-iteration is the flat measure of the kernels
             met["solver_iterations_mean"] = float(np.mean(iterations))
             met["ns_per_particle_iteration"] = 1e9 * wall / (m.fluid_count * float(np.sum(iterations)))
+        if spec.steps > 0:
+            # process CPU time of the fastest block (every thread): the load-independent measure of work
+            met["cpu_seconds"] = cpu
+            met["cpu_ns_per_particle_step"] = 1e9 * cpu / (steps * m.fluid_count) if steps and m.fluid_count else None
+            if div_iterations and None not in div_iterations:
+                met["divergence_iterations_mean"] = float(np.mean(div_iterations))
         if spec.steps <= 0:
             met["density_error_mean_avg"] = M.series_summary(series["density_error_mean"][1:])["mean"]
             met["density_error_mean_max"] = M.series_summary(series["density_error_mean"][1:])["max"]

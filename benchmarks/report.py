@@ -150,10 +150,14 @@ def speed_ratios(records: list[dict]) -> list[dict]:
         ours = [r for r in ok if r.get("engine") != "splishsplash" and (r.get("params") or {}).get("solver") == solver]
         ref = [r for r in ok if r.get("engine") == "splishsplash" and (r.get("params") or {}).get("solver") == solver]
         if ours and ref and _m(ours[0], SPEED_KEY) and _m(ref[0], SPEED_KEY):
-            out.append({"solver": solver, "threads": ref[0].get("threads"),
-                        "ratio": _m(ours[0], SPEED_KEY) / _m(ref[0], SPEED_KEY),
-                        "ours_error": _m(ours[0], "density_error_mean_avg"),
-                        "ref_error": _m(ref[0], "density_error_mean_avg")})
+            q = {"solver": solver, "threads": ref[0].get("threads"),
+                 "ratio": _m(ours[0], SPEED_KEY) / _m(ref[0], SPEED_KEY),
+                 "ours_error": _m(ours[0], "density_error_mean_avg"),
+                 "ref_error": _m(ref[0], "density_error_mean_avg")}
+            cpu_ours, cpu_ref = _m(ours[0], "cpu_per_simulated_second"), _m(ref[0], "cpu_per_simulated_second")
+            if cpu_ours and cpu_ref:  # process CPU time of every thread: the steadier measure on a shared machine
+                q["cpu_ratio"] = cpu_ours / cpu_ref
+            out.append(q)
     return out
 
 
@@ -267,25 +271,35 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
     for r in data.get("scaling", []):
         solver = (r.get("params") or {}).get("solver", "wcsph")
         extra = tuple(o for o in (r.get("spec") or {}).get("overrides", [])
-                      if not o.startswith(("particle_radius=", "solver=")))
+                      if not o.startswith(("particle_radius=", "solver=", "time.fixed_dt=")))  # --fixed-dt: per radius
         by_solver.setdefault((solver, extra), []).append(r)
     for solver, extra in sorted(by_solver, key=lambda k: (k[0] != "wcsph", k)):
         scaling = latest(by_solver[(solver, extra)])
         lines += [f"## Scaling: {solver}" + (f" ({', '.join(extra)})" if extra else ""), ""] + section_head(scaling)
         iterative = any(_m(r, "ns_per_particle_iteration") for r in scaling)
+        with_cpu = any(_m(r, "cpu_ns_per_particle_step") for r in scaling)  # records since the CPU column
+        with_div = any(_m(r, "divergence_iterations_mean") for r in scaling)
         rows = []
         for r in sorted(scaling, key=lambda r: r.get("fluid_particles") or 0):
             rows.append([fmt((r.get("params") or {}).get("particle_radius")), r.get("status", "?"),
                          fmt(r.get("fluid_particles")), fmt(r.get("boundary_particles")), fmt(_m(r, "steps")),
-                         fmt(_m(r, "ms_per_step")), fmt(_m(r, "ns_per_particle_step")),
-                         fmt(_m(r, "particle_steps_per_second")), fmt(_m(r, "bytes_per_particle")),
-                         fmt(_m(r, "rss_growth_per_particle")), fmt((_m(r, "peak_rss_bytes") or 0) / 2**20)]
+                         fmt(_m(r, "ms_per_step")), fmt(_m(r, "ns_per_particle_step"))]
+                        + ([fmt(_m(r, "cpu_ns_per_particle_step"))] if with_cpu else [])
+                        + [fmt(_m(r, "particle_steps_per_second")), fmt(_m(r, "bytes_per_particle")),
+                           fmt(_m(r, "rss_growth_per_particle")), fmt((_m(r, "peak_rss_bytes") or 0) / 2**20)]
                         + ([fmt(_m(r, "solver_iterations_mean")), fmt(_m(r, "ns_per_particle_iteration"))]
-                           if iterative else []))
-        lines += _table(["radius [m]", "status", "fluid N", "boundary N", "steps", "ms/step", "ns/particle-step",
-                         "particle-steps/s", "bytes/particle", "RSS growth/particle", "peak RSS [MiB]"]
-                        + (["iterations/step", "ns/particle-iteration"] if iterative else []), rows) + [""]
-        for key, what in (("ns_per_particle_step", "particle-step"), ("ns_per_particle_iteration", "particle-iteration")):
+                           if iterative else [])
+                        + ([fmt(_m(r, "divergence_iterations_mean"))] if with_div else []))
+        lines += _table(["radius [m]", "status", "fluid N", "boundary N", "steps", "ms/step", "ns/particle-step"]
+                        + (["CPU ns/particle-step"] if with_cpu else [])
+                        + ["particle-steps/s", "bytes/particle", "RSS growth/particle", "peak RSS [MiB]"]
+                        + (["iterations/step", "ns/particle-iteration"] if iterative else [])
+                        + (["divergence it./step"] if with_div else []), rows) + [""]
+        if with_cpu:
+            lines += ["ns/particle-step is the wall time of the fastest block of steps; CPU ns/particle-step its "
+                      "process CPU time over every thread (the steadier measure on a shared machine).", ""]
+        for key, what in (("ns_per_particle_step", "particle-step"), ("cpu_ns_per_particle_step", "particle-step (CPU)"),
+                          ("ns_per_particle_iteration", "particle-iteration")):
             cost = [_m(r, key) for r in scaling if r.get("status") == "ok"]
             cost = [c for c in cost if c]
             if len(cost) > 1:
@@ -329,10 +343,10 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                          "front [m]"], rows) + [""]
         ratios = speed_ratios(sph)
         if ratios:
-            lines += _table(["solver", "SPlisHSPlasH threads", "warp-sph time / SPlisHSPlasH time",
+            lines += _table(["solver", "SPlisHSPlasH threads", "warp-sph time / SPlisHSPlasH time", "(CPU)",
                              "warp-sph mean ρ err %", "SPlisHSPlasH mean ρ err %"],
-                            [[q["solver"], fmt(q["threads"]), fmt(q["ratio"]), fmt(q["ours_error"], 100),
-                              fmt(q["ref_error"], 100)] for q in ratios]) + [""]
+                            [[q["solver"], fmt(q["threads"]), fmt(q["ratio"]), fmt(q.get("cpu_ratio")),
+                              fmt(q["ours_error"], 100), fmt(q["ref_error"], 100)] for q in ratios]) + [""]
         lines += ["Threads: SPlisHSPlasH runs with OMP_NUM_THREADS as listed; warp-sph splits each particle-parallel "
                   "kernel over all cores (WARP_SPH_CPU_THREADS). Same box, fluid lattice, particle radius, fixed step and Akinci 2012 "
                   "walls; SPlisHSPlasH's particle mass is 0.8 d³ρ0 (warp-sph calibrates its mass to a rest "

@@ -164,7 +164,13 @@ def cmd_scaling(args, argv: list[str], log=print) -> int:
 
     check_names("--solver", args.solver, solver_names())
     radii = [float(r) for r in split_values(args.radii)] if args.radii else list(SCALING_RADII)
-    specs = [RunSpec(scene=args.scene, overrides=[f"particle_radius={r}", f"solver={args.solver}"] + list(args.set),
+
+    def fixed(r: float) -> list[str]:
+        """--fixed-dt: the step at r = 0.025 m scaled with r, so that every resolution runs at the same CFL
+        number (the scene's step for a fluid at rest is about a frame, no step a run takes)."""
+        return [f"time.fixed_dt={args.fixed_dt * r / 0.025:.6g}"] if args.fixed_dt else []
+
+    specs = [RunSpec(scene=args.scene, overrides=[f"particle_radius={r}", f"solver={args.solver}"] + fixed(r) + list(args.set),
                      steps=args.steps, repeats=args.repeats, device=args.device, kind="scaling", name="scaling",
                      params={"scene": args.scene, "solver": args.solver, "particle_radius": r}) for r in radii]
     invocation = now()
@@ -226,7 +232,8 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
         splishsplash_gap=args.splishsplash_gap, warp_sph_overrides=args.warp_sph_set, log=log)
     out = _save("splishsplash", records, args, argv, invocation, log)
     for q in speed_ratios(records):
-        log(f"{q['solver']}: warp-sph time / SPlisHSPlasH time = {q['ratio']:.2f} "
+        log(f"{q['solver']}: warp-sph time / SPlisHSPlasH time = {q['ratio']:.2f} wall"
+            + (f", {q['cpu_ratio']:.2f} CPU" if q.get("cpu_ratio") else "") + " "
             f"(SPlisHSPlasH on {q['threads']} threads); mean density error {100 * (q['ours_error'] or 0):.3f} % "
             f"vs {100 * (q['ref_error'] or 0):.3f} %")
     return _finish(out, args, records, log)
@@ -493,6 +500,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--repeats", type=positive_int, default=3,
                    help="time that many consecutive blocks of --steps substeps and keep the fastest (default 3)")
     c.add_argument("--solver", default="wcsph")
+    c.add_argument("--fixed-dt", type=positive_float, default=None, metavar="SECONDS",
+                   help="fixed step at r = 0.025 m [s], scaled with the particle radius (the same CFL number at "
+                        "every resolution; default: the scene's step for the fluid at rest)")
     common(c, executors=True)
     c.set_defaults(func=cmd_scaling)
 

@@ -170,6 +170,27 @@ def test_scaling_records_time_and_memory(tmp_path):
     assert "ns/particle-iteration" in md
 
 
+def test_scaling_fixed_step_scales_with_the_radius_and_records_cpu_time(tmp_path):
+    """--fixed-dt is the step at r = 0.025 m, scaled with r (one section for every radius); the records
+    carry the process CPU time of the timed block and, for DFSPH, the divergence sweeps per step."""
+    argv = ["scaling", "--solver", "dfsph", "--fixed-dt", "0.002", "--radii", "0.1,0.05", "--steps", "2",
+            "--repeats", "1", "--out", str(tmp_path), "--in-process"]
+    assert B.main(argv) == 0
+    recs = [json.loads(x) for x in (tmp_path / "scaling.jsonl").read_text().splitlines()]
+    assert [r["status"] for r in recs] == ["ok", "ok"]
+    assert [r["spec"]["overrides"][2] for r in recs] == ["time.fixed_dt=0.008", "time.fixed_dt=0.004"]
+    for r in recs:
+        met = r["metrics"]
+        assert met["simulated_seconds"] == pytest.approx(2 * float(r["spec"]["overrides"][2].split("=")[1]))
+        assert 0 < met["cpu_seconds"] == min(r["block_cpu_seconds"])
+        assert met["cpu_ns_per_particle_step"] == pytest.approx(1e9 * met["cpu_seconds"] / (2 * r["fluid_particles"]))
+        assert met["divergence_iterations_mean"] >= 1 and met["solver_iterations_mean"] >= 2
+    md = (tmp_path / "RESULTS.md").read_text()
+    assert md.count("## Scaling: dfsph") == 1 and "## Scaling: dfsph (" not in md
+    assert "CPU ns/particle-step" in md and "divergence it./step" in md
+    assert "Flatness: the slowest cost per particle-step (CPU) is" in md
+
+
 def test_failed_case_is_a_record_not_a_crash(tmp_path):
     r = C.run_warp_sph(C.RunSpec(scene="dam_break", overrides=["particle_radius=-1"], frames=1))
     assert r["status"] == "failed" and "particle_radius" in r["error"]
@@ -251,14 +272,16 @@ def test_speed_ratio_against_splishsplash():
     """The ratio is warp-sph's wall time per simulated second over SPlisHSPlasH's, per solver."""
     from warp_sph.benchmarks.report import speed_ratios
 
-    def rec(engine, solver, speed, err):
+    def rec(engine, solver, speed, err, cpu=None):
         return {"engine": engine, "status": "ok", "threads": 2, "params": {"solver": solver},
-                "metrics": {"wall_per_simulated_second": speed, "density_error_mean_avg": err}}
+                "metrics": {"wall_per_simulated_second": speed, "density_error_mean_avg": err,
+                            "cpu_per_simulated_second": cpu}}
 
-    records = [rec("warp_sph", "wcsph", 6.0, 0.001), rec("splishsplash", "wcsph", 8.0, 0.005),
+    records = [rec("warp_sph", "wcsph", 6.0, 0.001, 9.0), rec("splishsplash", "wcsph", 8.0, 0.005, 12.0),
                rec("warp_sph", "pbf", 30.0, 0.003), rec("splishsplash", "dfsph", 5.0, 0.0001)]
     (q,) = speed_ratios(records)
     assert q["solver"] == "wcsph" and q["ratio"] == pytest.approx(0.75)
+    assert q["cpu_ratio"] == pytest.approx(0.75)  # process CPU time of every thread, beside the wall ratio
     assert q["ours_error"] == 0.001 and q["ref_error"] == 0.005
 
 

@@ -1,0 +1,84 @@
+"""DFSPH's density solve with Chebyshev weights (``dfsph.chebyshev``, Wang 2015): the weight sequence
+against its closed-form limit, sweeps against a NumPy oracle, and fewer sweeps than plain Jacobi to the
+same target on a deep column."""
+import math
+
+import numpy as np
+import pytest
+
+from small_scenes import small_tank, stage
+from test_dfsph import prepared
+from warp_sph.methods.solvers.dfsph import CHEBYSHEV_DELAY, chebyshev_weight
+from warp_sph.run.simulation import Simulation
+
+
+def test_weights_start_plain_and_tend_to_the_optimal_over_relaxation():
+    """w = 1 for the first CHEBYSHEV_DELAY sweeps (and always for rho = 0), then 2 / (2 - rho^2), and the
+    recurrence w <- 4 / (4 - rho^2 w) tends to its fixed point 2 / (1 + sqrt(1 - rho^2))."""
+    for rho in (0.5, 0.9, 0.99):
+        w, seq = 1.0, []
+        for k in range(400):
+            w = chebyshev_weight(k, rho, w)
+            seq.append(w)
+        assert seq[:CHEBYSHEV_DELAY] == [1.0] * CHEBYSHEV_DELAY
+        assert seq[CHEBYSHEV_DELAY] == pytest.approx(2.0 / (2.0 - rho * rho))
+        assert np.all(np.diff(seq[CHEBYSHEV_DELAY:]) <= 0)  # non-increasing towards the limit
+        assert seq[-1] == pytest.approx(2.0 / (1.0 + math.sqrt(1.0 - rho * rho)), rel=1e-9)
+        assert 1.0 < seq[-1] < 2.0
+    assert all(chebyshev_weight(k, 0.0, 1.0) == 1.0 for k in range(10))
+
+
+def test_chebyshev_sweeps_against_numpy(device):
+    """Four sweeps of the density solve with rho = 0.9: P^J = max(0, P - omega f r / dt^2) from the
+    oracle's operator, then P <- max(0, Q + w (P^J - Q)) with Q the P of the sweep before."""
+    rho = 0.9
+    sim, o = prepared(seed=1, device=device, dfsph={"chebyshev": rho})
+    m, s = sim.model, sim.solver
+    dt = 2e-3
+    stage(sim, "density").run(sim, dt)
+    rng = np.random.default_rng(7)
+    P = rng.uniform(0.0, 5.0, m.fluid_count)
+    b = rng.normal(0.0, 0.01, m.fluid_count)
+    sim.set_field("dfsph_pressure", P)
+    sim.set_field("dfsph_density_source", b)
+    sweeps = CHEBYSHEV_DELAY + 2
+    it, _ = s.solve("dfsph_pressure", "dfsph_density_source", dt * dt, 0.0, sweeps, sweeps, False, chebyshev=True)
+    assert it == sweeps
+    omega = sim.scene.dfsph.relaxation
+    q, p, w = P.copy(), P.copy(), 1.0
+    for k in range(sweeps):
+        r = b - dt * dt * o.delta(o.accel(p), boundary=False)
+        pj = np.maximum(p - omega * o.f * r / (dt * dt), 0.0)
+        w = chebyshev_weight(k, rho, w)
+        new = np.maximum(q + w * (pj - q), 0.0) if w != 1.0 else pj
+        q, p = p, new
+    assert w > 1.0  # the weights were exercised
+    got = sim.get_field("dfsph_pressure")
+    np.testing.assert_allclose(got, p, rtol=2e-3, atol=2e-3 * np.abs(p).max())
+    assert (p == 0).any() and (p > 0).any()  # the clamp is exercised
+
+
+def _column_sweeps(device, rho: float) -> tuple[float, float]:
+    """Density sweeps per step and the last mean predicted over-density of a 24-layer column settling
+    under gravity (0.3 s at a fixed 4 ms step)."""
+    sc = small_tank("dfsph_column", particle_radius=0.025, container={"min": [0.0, 0.0, 0.0], "max": [0.3, 0.3, 1.4]},
+                    fluid=[{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.25, 0.25, 1.2]}],
+                    time={"fixed_dt": 0.004}, dfsph={"chebyshev": rho})
+    sim = Simulation(sc, device=device)
+    its, errs = [], []
+    for _ in range(7):
+        st = sim.advance_frame()
+        assert st.outside == 0 and st.non_finite == 0
+        its.append(st.solver["iterations"]["mean"])
+        errs.append(st.solver["density_error"]["max"])
+    assert max(errs) <= sc.dfsph.target_density_error  # every step met the target
+    return float(np.mean(its)), float(np.mean(errs))
+
+
+def test_deep_column_needs_fewer_sweeps_for_the_same_target(device):
+    """The deeper the fluid, the slower plain Jacobi converges; Chebyshev weights cut the sweeps a
+    24-layer column needs per step while every step still meets the density target."""
+    plain, _ = _column_sweeps(device, 0.0)
+    fast, _ = _column_sweeps(device, 0.95)
+    assert plain > 6  # deep enough that plain Jacobi needs many sweeps
+    assert fast < 0.75 * plain, (plain, fast)
