@@ -177,6 +177,11 @@ class Whitewater:
                            wp.zeros(int(np.prod(dims)), dtype=_sample.vec5, device=dev))
         return self._nodes
 
+    def node_grid(self) -> tuple[np.ndarray, float, tuple[int, int, int]]:
+        """(first node [m] local, spacing [m], nodes per axis) of the sampled fluid's node grid (after a step)."""
+        _, lo, spacing, dims, _, _ = self._node_grid(self.sim.fields["neighbor_lists"].fluid_cells)
+        return np.array([lo[0], lo[1], lo[2]], dtype=np.float64), float(spacing), (dims[0], dims[1], dims[2])
+
     # --- reads (once per frame) -------------------------------------------------------------------
     def host_arrays(self) -> dict[str, np.ndarray]:
         """Copies of the live particles: x [m] local, v [m/s], age [s], life [s], kind (1 spray, 2 foam, 3 bubble)."""
