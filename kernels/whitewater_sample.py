@@ -6,7 +6,8 @@ giving the kernel-averaged velocity v~_f = S_0..2 / S_3 and the neighbour count 
 
 Exact, that is one walk over the fluid cells per secondary particle (``fluid_sum``). Sampled, S is
 evaluated once per step at the nodes x_n = node_lo + s (a, b, c) of a grid of spacing s next to a
-secondary particle (``mark_nodes`` flags them, ``node_sums`` walks the fluid once per flagged node),
+secondary particle (``mark_nodes`` flags them and their rows, ``node_sums`` walks the fluid once per
+flagged node, one thread per flagged row),
 and each particle interpolates trilinearly: S~(x) = sum_n lambda_n(x) S(x_n) over its cell's 8 nodes
 (``sample_nodes``). S~_0..2 / S~_3 is again a weighted average of the fluid's velocities (weights
 sum_n lambda_n W(|x_n - x_j|) >= 0), so a uniform flow is sampled exactly; the count is interpolated
@@ -91,21 +92,25 @@ def node_cell(x: wp.vec3, node_lo: wp.vec3, inv_spacing: float, node_dims: wp.ve
 
 @wp.kernel(enable_backward=False)
 def mark_nodes(tid_offset: int, node_lo: wp.vec3, inv_spacing: float, node_dims: wp.vec3i,
-               ww_x: wp.array(dtype=wp.vec3), flag: wp.array(dtype=wp.uint8)):
-    """flag = 1 on the 8 nodes of each secondary particle's node cell (inside the node grid)."""
+               ww_x: wp.array(dtype=wp.vec3), flag: wp.array(dtype=wp.uint8), row_flag: wp.array(dtype=wp.uint8)):
+    """flag = 1 on the 8 nodes of each secondary particle's node cell (inside the node grid), row_flag = 1 on
+    their 4 rows (nodes along x)."""
     cell = node_cell(ww_x[wp.tid() + tid_offset], node_lo, inv_spacing, node_dims)
     if cell[3] == 0.0:
         return
-    base = int(cell[0]) + node_dims[0] * (int(cell[1]) + node_dims[1] * int(cell[2]))
+    row = int(cell[1]) + node_dims[1] * int(cell[2])
     for dz in range(2):
         for dy in range(2):
-            for dx in range(2):
-                flag[base + dx + node_dims[0] * (dy + node_dims[1] * dz)] = wp.uint8(1)
+            r = row + dy + node_dims[1] * dz
+            row_flag[r] = wp.uint8(1)
+            flag[int(cell[0]) + node_dims[0] * r] = wp.uint8(1)
+            flag[int(cell[0]) + 1 + node_dims[0] * r] = wp.uint8(1)
 
 
 @functools.cache
 def node_sums_kernel(smoothing: str):
-    """S(x_n) at every flagged node (then the flag is cleared); other nodes keep stale values, never read."""
+    """S(x_n) at every flagged node, one thread per row of nodes (flags cleared on the way); other nodes keep
+    stale values, never read."""
     fluid_sum = fluid_sum_func(smoothing)
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -125,18 +130,23 @@ def node_sums_kernel(smoothing: str):
         particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
         flag: wp.array(dtype=wp.uint8),
+        row_flag: wp.array(dtype=wp.uint8),
         node_out: wp.array(dtype=vec5),
     ):
-        n = wp.tid() + tid_offset
-        if flag[n] == wp.uint8(0):
+        row = wp.tid() + tid_offset
+        if row_flag[row] == wp.uint8(0):
             return
-        flag[n] = wp.uint8(0)
-        a = n % node_dims[0]
-        b = (n / node_dims[0]) % node_dims[1]
-        c = n / (node_dims[0] * node_dims[1])
-        x = node_lo + spacing * wp.vec3(float(a), float(b), float(c))
-        node_out[n] = fluid_sum(x, smoothing_length, support_radius, grid_lo, inv_cell_size, grid_dims, cell_start,
-                                cell_point, search_radius, particle_x, particle_v)
+        row_flag[row] = wp.uint8(0)
+        b = row % node_dims[1]
+        c = row / node_dims[1]
+        start = node_dims[0] * row
+        for a in range(node_dims[0]):
+            n = start + a
+            if flag[n] != wp.uint8(0):
+                flag[n] = wp.uint8(0)
+                x = node_lo + spacing * wp.vec3(float(a), float(b), float(c))
+                node_out[n] = fluid_sum(x, smoothing_length, support_radius, grid_lo, inv_cell_size, grid_dims,
+                                        cell_start, cell_point, search_radius, particle_x, particle_v)
 
     return whitewater_node_sums
 

@@ -63,7 +63,7 @@ class Whitewater:
         #: (I_ta, I_wc, I_k) in [0, 1] per fluid slot at the last substep (cell order within a frame)
         self.potential = wp.zeros(n, dtype=wp.vec3, device=dev)
         self._totals = wp.zeros(2, dtype=wp.int32, device=dev)
-        self._nodes = None       # (fluid cell grid, lo, spacing, dims, flags, sums), made at the first advection
+        self._nodes = None       # (fluid cell grid, lo, spacing, dims, flags, row flags, sums): _node_grid
         self.generated = 0       # particles generated, whole run (including dropped ones)
         if m.container_lo is not None:
             pad = m.support_radius
@@ -121,14 +121,14 @@ class Whitewater:
         if count:
             fc = nl.fluid_cells
             use_bounds, lo, hi = self._bounds
-            _, node_lo, spacing, dims, flag, node = self._node_grid(fc)
+            _, node_lo, spacing, dims, flag, row_flag, node = self._node_grid(fc)
             node_grid = [node_lo, 1.0 / spacing, dims]
             if c.fluid_sampling == "grid":
-                launch(_sample.mark_nodes, count, [*node_grid, src["x"]], [flag], device=dev)
-                launch(_sample.node_sums_kernel(m.smoothing.name), flag.shape[0],
+                launch(_sample.mark_nodes, count, [*node_grid, src["x"]], [flag, row_flag], device=dev)
+                launch(_sample.node_sums_kernel(m.smoothing.name), row_flag.shape[0],
                        [node_lo, spacing, dims, m.smoothing_length, m.support_radius, fc.lo, fc.inv_cell_size, fc.dims,
-                        fc.cell_start, fc.cell_point, nl.search_radius, f["particle_x"], f["particle_v"], flag],
-                       [node], device=dev)
+                        fc.cell_start, fc.cell_point, nl.search_radius, f["particle_x"], f["particle_v"], flag,
+                        row_flag], [node], device=dev, min_range=64)
             launch(_ww.advect_kernel(m.smoothing.name), count,
                    [m.smoothing_length, m.support_radius, float(dt), wp.vec3(*m.gravity), float(c.buoyancy),
                     float(c.drag), int(c.spray_neighbors), int(c.bubble_neighbors), use_bounds, lo, hi,
@@ -174,12 +174,13 @@ class Whitewater:
             dev = self.sim.model.device
             self._nodes = (fc, fc.lo, fc.cell_size / per_cell, wp.vec3i(*(int(d) for d in dims)),
                            wp.zeros(int(np.prod(dims)), dtype=wp.uint8, device=dev),
+                           wp.zeros(int(dims[1] * dims[2]), dtype=wp.uint8, device=dev),
                            wp.zeros(int(np.prod(dims)), dtype=_sample.vec5, device=dev))
         return self._nodes
 
     def node_grid(self) -> tuple[np.ndarray, float, tuple[int, int, int]]:
         """(first node [m] local, spacing [m], nodes per axis) of the sampled fluid's node grid (after a step)."""
-        _, lo, spacing, dims, _, _ = self._node_grid(self.sim.fields["neighbor_lists"].fluid_cells)
+        _, lo, spacing, dims, _, _, _ = self._node_grid(self.sim.fields["neighbor_lists"].fluid_cells)
         return np.array([lo[0], lo[1], lo[2]], dtype=np.float64), float(spacing), (dims[0], dims[1], dims[2])
 
     # --- reads (once per frame) -------------------------------------------------------------------
