@@ -100,8 +100,9 @@ def test_walk_matches_the_kernel_average(device):
 
 def test_grid_sample_close_to_the_kernel_average():
     """How far the grid sample is from the exact kernel average (same particles, same fluid): inside the fluid
-    (at least 6 neighbours) the velocity within 15 % of the flow's rms speed for 90 % of the particles, and
-    the kind the same for 90 %. Measured: median 3.9 %, 90th percentile 9.4 %, kinds 93.5 % the same."""
+    (at least 6 neighbours, foam in both) the velocity within 10 % of the flow's rms speed at the median and
+    20 % at the 90th percentile, and the same kind for 90 % of all particles. Measured: 7.0 %, 13.7 % and
+    94.8 % (for the velocity without its per-particle noise of 0.2 m/s: 3.1 % and 7.3 %)."""
     sim, xf, vf, p, v0, a = stepped("grid", "cpu")
     exact = fluid_sums(sim.scene.smoothing_kernel, sim.model.smoothing_length, sim.model.support_radius, xf, vf, p)
     kind, v = expected_step(exact, v0)
