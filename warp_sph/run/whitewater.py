@@ -7,7 +7,10 @@ The stage, every substep of dt [s] (equations in ``kernels/whitewater.py``):
    how many secondary particles each generates this step;
 2. each secondary particle classified by its fluid neighbours (spray / foam / bubble) and moved:
    spray ballistically, foam with the fluid's kernel-averaged velocity (ageing), bubbles with
-   buoyancy and drag; foam past its lifetime and particles leaving the container die;
+   buoyancy and drag; foam past its lifetime and particles leaving the container die. The velocity
+   and the count are sampled trilinearly from nodes H/2 apart, evaluated once per step where a
+   secondary particle is (``fluid_sampling = "grid"``, kernels/whitewater_sample.py), or walked
+   per particle (``"walk"``);
 3. survivors compacted (order kept), then the new ones appended in fluid-slot order; those beyond
    ``max_particles`` are dropped (one warning per run).
 Exclusive scans fix every slot, the sampling draws from one seeded stream per fluid slot and step, so a
