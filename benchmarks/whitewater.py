@@ -18,7 +18,8 @@ def specs(scene_name: str, frames: int, repeats: int, device=None, overrides=())
 
     out = []
     for k in range(max(1, int(repeats))):
-        for variant, extra in (("on", ["whitewater.enabled=true"]), ("off", [])):
+        # "off" says so: a --set whitewater.<key> alone would create the table and turn whitewater on
+        for variant, extra in (("on", ["whitewater.enabled=true"]), ("off", ["whitewater.enabled=false"])):
             out.append(RunSpec(scene=scene_name, overrides=["output.usd=false", *overrides, *extra], frames=frames,
                                device=device, kind="whitewater", name="whitewater",
                                params={"scene": scene_name, "variant": variant, "repeat": k + 1}))

@@ -22,6 +22,7 @@ import warp as wp
 from .density import NEIGHBOR_TYPES
 from .neighbors import neighbor_count, particle_in_cell_order
 from .smoothing import SMOOTHING_FUNCTIONS
+from .whitewater_sample import fluid_sum_func, node_cell, sample_nodes, vec5
 
 #: kinds of a secondary particle (``kind`` arrays)
 KIND_SPRAY = wp.constant(1)
@@ -43,12 +44,13 @@ def clamp_potential(value: float, lo: float, hi: float) -> float:
 
 
 @wp.func
-def classify(neighbors: int, spray_n: int, bubble_n: int) -> int:
-    """Spray below ``spray_n`` fluid neighbours, bubble above ``bubble_n``, foam between."""
+def classify(neighbors: float, spray_n: int, bubble_n: int) -> int:
+    """Spray below ``spray_n`` fluid neighbours, bubble above ``bubble_n``, foam between (a sampled count
+    is a real number)."""
     kind = KIND_FOAM
-    if neighbors < spray_n:
+    if neighbors < float(spray_n):
         kind = KIND_SPRAY
-    elif neighbors > bubble_n:
+    elif neighbors > float(bubble_n):
         kind = KIND_BUBBLE
     return kind
 
@@ -171,8 +173,10 @@ def potentials_kernel():
 @functools.cache
 def advect_kernel(smoothing: str):
     """Classify each secondary particle by its fluid neighbours and move it one step (module docstring);
-    alive_out = 0 for a foam particle past its lifetime or any particle outside the bounds."""
-    value, _ = SMOOTHING_FUNCTIONS[smoothing]
+    alive_out = 0 for a foam particle past its lifetime or any particle outside the bounds. The fluid's
+    velocity and neighbour count are sampled from the node grid (``whitewater_sample``) when
+    ``use_nodes`` is 1 and the particle lies inside it, else walked exactly (``fluid_sum``)."""
+    fluid_sum = fluid_sum_func(smoothing)
 
     @wp.kernel(enable_backward=False, module="unique")
     def whitewater_advect(
@@ -197,6 +201,12 @@ def advect_kernel(smoothing: str):
         search_radius: float,
         particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
+        # node grid of this step's fluid sums (``node_sums_kernel``)
+        use_nodes: int,
+        node_lo: wp.vec3,
+        inv_spacing: float,
+        node_dims: wp.vec3i,
+        node: wp.array(dtype=vec5),
         # secondary particles, updated in place
         ww_x: wp.array(dtype=wp.vec3),
         ww_v: wp.array(dtype=wp.vec3),
@@ -207,38 +217,20 @@ def advect_kernel(smoothing: str):
     ):
         k = wp.tid() + tid_offset
         x = ww_x[k]
-        support2 = support_radius * support_radius
-        q = (x - grid_lo) * inv_cell_size
-        qr = search_radius * inv_cell_size
-        x0 = wp.clamp(int(wp.floor(q[0] - qr)), 0, grid_dims[0] - 1)
-        x1 = wp.clamp(int(wp.floor(q[0] + qr)), 0, grid_dims[0] - 1)
-        y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
-        y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
-        z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
-        z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
-        count = int(0)
-        weight = float(0.0)
-        v_sum = wp.vec3(0.0)
-        for z in range(z0, z1 + 1):
-            for y in range(y0, y1 + 1):
-                row = grid_dims[0] * (y + grid_dims[1] * z)
-                s = cell_start[row + x0]
-                s_end = cell_start[row + x1 + 1]
-                while s < s_end:
-                    j = cell_point[s]
-                    r = x - particle_x[j]
-                    r2 = wp.dot(r, r)
-                    if r2 < support2:
-                        w = wp.static(value)(wp.sqrt(r2), smoothing_length)
-                        count += 1
-                        weight += w
-                        v_sum += w * particle_v[j]
-                    s += 1
-        kind = classify(count, spray_n, bubble_n)
+        cell = wp.vec4(0.0)
+        if use_nodes != 0:
+            cell = node_cell(x, node_lo, inv_spacing, node_dims)
+        fluid = vec5()
+        if cell[3] != 0.0:
+            fluid = sample_nodes(x, cell, node_lo, inv_spacing, node_dims, node)
+        else:
+            fluid = fluid_sum(x, smoothing_length, support_radius, grid_lo, inv_cell_size, grid_dims, cell_start,
+                              cell_point, search_radius, particle_x, particle_v)
+        kind = classify(fluid[4], spray_n, bubble_n)
         v = ww_v[k]
         v_fluid = v
-        if weight > 0.0:
-            v_fluid = v_sum / weight
+        if fluid[3] > 0.0:
+            v_fluid = wp.vec3(fluid[0], fluid[1], fluid[2]) / fluid[3]
         life = ww_life[k]
         if kind == KIND_SPRAY:
             v = v + dt * gravity
@@ -342,7 +334,7 @@ def emit_kernel():
             helper = wp.vec3(0.0, 1.0, 0.0)
         e1 = wp.normalize(wp.cross(axis, helper))
         e2 = wp.cross(axis, e1)
-        kind = classify(neighbor_count(fluid_neighbors, i), spray_n, bubble_n)
+        kind = classify(float(neighbor_count(fluid_neighbors, i)), spray_n, bubble_n)
         base = start + generate_offset[i]
         for m in range(n):
             slot = base + m

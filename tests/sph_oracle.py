@@ -40,3 +40,29 @@ def grad_W(name, x, h):
     with np.errstate(invalid="ignore", divide="ignore"):
         g = alpha(name, h) / h * df * x / r
     return np.where(r > 0, g, 0.0)
+
+
+def fluid_sums(name, h, H, xf, vf, p):
+    """(sum_j W v_j, sum_j W, #{j : |p - x_j| < H}) at each point p: what a whitewater particle reads of the
+    fluid (kernels/whitewater_sample.py), by brute force; shape (len(p), 5)."""
+    p = np.atleast_2d(np.asarray(p, dtype=np.float64))
+    r = np.linalg.norm(p[:, None, :] - np.asarray(xf, np.float64)[None, :, :], axis=2)
+    near = r < H
+    w = np.where(near, W(name, r, h), 0.0)
+    return np.concatenate([w @ np.asarray(vf, np.float64), w.sum(axis=1, keepdims=True),
+                           near.sum(axis=1, keepdims=True)], axis=1)
+
+
+def grid_sample(name, h, H, xf, vf, p, lo, s):
+    """fluid_sums at the nodes lo + s (a, b, c) of each point's cell, interpolated trilinearly (the
+    whitewater's ``fluid_sampling = "grid"``)."""
+    p = np.atleast_2d(np.asarray(p, dtype=np.float64))
+    q = (p - lo) / s
+    a = np.floor(q)
+    f = q - a
+    out = np.zeros((len(p), 5))
+    for corner in np.ndindex(2, 2, 2):
+        c = np.array(corner)
+        lam = np.prod(np.where(c == 1, f, 1.0 - f), axis=1)
+        out += lam[:, None] * fluid_sums(name, h, H, xf, vf, lo + (a + c) * s)
+    return out

@@ -7,7 +7,10 @@ The stage, every substep of dt [s] (equations in ``kernels/whitewater.py``):
    how many secondary particles each generates this step;
 2. each secondary particle classified by its fluid neighbours (spray / foam / bubble) and moved:
    spray ballistically, foam with the fluid's kernel-averaged velocity (ageing), bubbles with
-   buoyancy and drag; foam past its lifetime and particles leaving the container die;
+   buoyancy and drag; foam past its lifetime and particles leaving the container die. The velocity
+   and the count are sampled trilinearly from nodes H/2 apart, evaluated once per step where a
+   secondary particle is (``fluid_sampling = "grid"``, kernels/whitewater_sample.py), or walked
+   per particle (``"walk"``);
 3. survivors compacted (order kept), then the new ones appended in fluid-slot order; those beyond
    ``max_particles`` are dropped (one warning per run).
 Exclusive scans fix every slot, the sampling draws from one seeded stream per fluid slot and step, so a
@@ -25,11 +28,16 @@ from ..core.errors import SceneError
 from ..core.launch import launch
 from ..core.step_graph import Stage
 from ..kernels import whitewater as _ww
+from ..kernels import whitewater_sample as _sample
 
 #: names of the kinds, index = kind code - 1 (``kernels.whitewater.KIND_*``); also the USD prim names
 KINDS = ("spray", "foam", "bubbles")
 #: the per-particle arrays of the state, in checkpoint order
 _ARRAYS = (("x", wp.vec3), ("v", wp.vec3), ("age", float), ("life", float), ("kind", wp.int32))
+#: node spacing of the sampled fluid (``kernels/whitewater_sample.py``) per fluid cell (= support radius)
+NODES_PER_CELL = 2
+#: most nodes of that grid (21 bytes each); beyond it the nodes are one per fluid cell
+MAX_NODES = 1 << 22
 
 
 class Whitewater:
@@ -58,6 +66,7 @@ class Whitewater:
         #: (I_ta, I_wc, I_k) in [0, 1] per fluid slot at the last substep (cell order within a frame)
         self.potential = wp.zeros(n, dtype=wp.vec3, device=dev)
         self._totals = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._nodes = None       # (fluid cell grid, lo, spacing, dims, flags, row flags, sums): _node_grid
         self.generated = 0       # particles generated, whole run (including dropped ones)
         if m.container_lo is not None:
             pad = m.support_radius
@@ -115,11 +124,19 @@ class Whitewater:
         if count:
             fc = nl.fluid_cells
             use_bounds, lo, hi = self._bounds
+            _, node_lo, spacing, dims, flag, row_flag, node = self._node_grid(fc)
+            node_grid = [node_lo, 1.0 / spacing, dims]
+            if c.fluid_sampling == "grid":
+                launch(_sample.mark_nodes, count, [*node_grid, src["x"]], [flag, row_flag], device=dev)
+                launch(_sample.node_sums_kernel(m.smoothing.name), row_flag.shape[0],
+                       [node_lo, spacing, dims, m.smoothing_length, m.support_radius, fc.lo, fc.inv_cell_size, fc.dims,
+                        fc.cell_start, fc.cell_point, nl.search_radius, f["particle_x"], f["particle_v"], flag,
+                        row_flag], [node], device=dev, min_range=64)
             launch(_ww.advect_kernel(m.smoothing.name), count,
                    [m.smoothing_length, m.support_radius, float(dt), wp.vec3(*m.gravity), float(c.buoyancy),
                     float(c.drag), int(c.spray_neighbors), int(c.bubble_neighbors), use_bounds, lo, hi,
                     fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, nl.search_radius,
-                    f["particle_x"], f["particle_v"]],
+                    f["particle_x"], f["particle_v"], int(c.fluid_sampling == "grid"), *node_grid, node],
                    [src["x"], src["v"], src["age"], src["life"], src["kind"], self._alive], device=dev)
             wp.utils.array_scan(self._alive[:count], self._alive_offset[:count], inclusive=False)
         if not (count or fast):
@@ -149,6 +166,25 @@ class Whitewater:
                               f"{sim.state.step}; new particles are dropped (raise max_particles for more)",
                               RuntimeWarning, stacklevel=2)
         self.count = survivors + min(generated, room)
+
+    def _node_grid(self, fc) -> tuple:
+        """The node grid of the sampled fluid over the fluid cell grid ``fc``: nodes NODES_PER_CELL per cell
+        (one per cell when that exceeds MAX_NODES); made once per cell grid."""
+        if self._nodes is None or self._nodes[0] is not fc:
+            cells = np.array([fc.dims[0], fc.dims[1], fc.dims[2]], dtype=np.int64)
+            per_cell = NODES_PER_CELL if int(np.prod(NODES_PER_CELL * cells + 1)) <= MAX_NODES else 1
+            dims = per_cell * cells + 1
+            dev = self.sim.model.device
+            self._nodes = (fc, fc.lo, fc.cell_size / per_cell, wp.vec3i(*(int(d) for d in dims)),
+                           wp.zeros(int(np.prod(dims)), dtype=wp.uint8, device=dev),
+                           wp.zeros(int(dims[1] * dims[2]), dtype=wp.uint8, device=dev),
+                           wp.zeros(int(np.prod(dims)), dtype=_sample.vec5, device=dev))
+        return self._nodes
+
+    def node_grid(self) -> tuple[np.ndarray, float, tuple[int, int, int]]:
+        """(first node [m] local, spacing [m], nodes per axis) of the sampled fluid's node grid (after a step)."""
+        _, lo, spacing, dims, _, _, _ = self._node_grid(self.sim.fields["neighbor_lists"].fluid_cells)
+        return np.array([lo[0], lo[1], lo[2]], dtype=np.float64), float(spacing), (dims[0], dims[1], dims[2])
 
     # --- reads (once per frame) -------------------------------------------------------------------
     def host_arrays(self) -> dict[str, np.ndarray]:

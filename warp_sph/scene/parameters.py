@@ -331,6 +331,11 @@ _TAIL = (
        "kernel support is spray", ge=1),
     _P("whitewater.bubble_neighbors", "int", "-", 20, "a particle with more fluid neighbours than this is an air "
        "bubble; between the two it is foam (>= spray_neighbors)", ge=1),
+    _P("whitewater.fluid_sampling", "str", "-", "walk", "how a secondary particle reads the fluid's kernel-averaged "
+       "velocity and neighbour count: walk (each particle walks its fluid neighbours: exact) or grid (trilinear "
+       "from nodes H/2 apart, evaluated once per step near the particles: cheaper with many particles per node, "
+       "about 10,000 or more on the dam break)",
+       choices=("grid", "walk")),
     _P("whitewater.point_width", "float", "-", 0.5, "width of the written points / r", gt=0.0, le=10.0),
     # output. Surface (warp_sph/surface/reconstruction.py): Phi = sum_j f_j / rho~_j with
     # f = (1 - r^2/R^2)^5 and rho~ from the same f (mass, rest density and walls cancel, Phi ~ 1 in
