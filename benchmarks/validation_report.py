@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import validation_errors as E
+from warp_sph.validation import errors as E
 from .validation import CASES, GOALS, LOBOVSKY_SENSORS
 
 
@@ -191,8 +191,8 @@ def section(records: list[dict], fmt, head) -> list[str]:
     for recs in runs.values():
         lines += head(recs)
     lines += ["Every solver at its defaults against published measurements (`warp-sph bench validation`, "
-              "docs/validation.md). Data: benchmarks/validation_data/ (citations in each file). Figures from "
-              "benchmarks/validation_errors.py. Goals (issue #31): front RMS <= 4 % with a start-time shift "
+              "docs/validation.md). Data: warp_sph/validation/data/ (citations in each file). Figures from "
+              "warp_sph/validation/errors.py. Goals (issue #31): front RMS <= 4 % with a start-time shift "
               "|s| <= 0.2 T, peak pressure within 10 % and its time within 5 %, hydrostatic within 1 %.", ""]
     for case in CASES:
         recs = [r for r in records if r.get("case") == case]

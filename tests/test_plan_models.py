@@ -36,7 +36,7 @@ K = {"step_time": -0.5, "steps_per_second": -0.25, "error": 1.0, "error_last": 0
 
 
 def _validation(name):
-    from warp_sph.benchmarks.validation import _scene_dir
+    from warp_sph.validation.cases import _scene_dir
 
     return load_scene(str(_scene_dir() / f"{name}.toml"))
 
@@ -248,7 +248,7 @@ def _write_probe(folder, name, t, v):
 
 
 def test_reference_errors_of_a_column_collapse_against_numpy_oracles(tmp_path):
-    from warp_sph.benchmarks.validation_errors import load_series
+    from warp_sph.validation.errors import load_series
 
     scene = _validation("martin_moyce")
     g, a, h0 = 9.81, 0.2, 0.4
@@ -319,7 +319,7 @@ def _cli(capsys, *args):
     ("tiny", "fr-ont:4%", "expected METRIC:ERROR"),
 ])
 def test_cli_metric_errors(tiny, tmp_path, capsys, scene, target, match):
-    from warp_sph.benchmarks.validation import _scene_dir
+    from warp_sph.validation.cases import _scene_dir
 
     path = tiny.source if scene == "tiny" else str(_scene_dir() / f"{scene}.toml")
     rc, out, err = _cli(capsys, "plan", path, "--target-error", target, "--cache", str(tmp_path), "--no-progress")

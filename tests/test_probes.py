@@ -285,7 +285,7 @@ def test_floor_probe_reads_the_weight_of_the_water(solver):
     rho0 g D within 1.5 %, D = the water's volume over the floor area it covers (the depth by mass, no height
     probe involved), with DFSPH and with PBF (which has no pressure field); the first layer's particle
     pressures, which the old kernel-average probe read, are 30-70 % over (docs/validation.md)."""
-    from benchmarks.validation import CASES, load_case_scene
+    from warp_sph.validation.cases import CASES, load_case_scene
 
     scene = load_case_scene(CASES["hydrostatic"], solver, 0.025)  # PBF: without the probe inside the fluid
     sim = Simulation(scene)

@@ -1,4 +1,4 @@
-"""The validation bench's error figures, computed by the bench's own code (benchmarks/validation_errors.py and
+"""The validation bench's error figures, computed by the bench's own code (warp_sph/validation/errors.py and
 validation.evaluate) from the shipped experimental data: the experiment itself scores 0, a known shift, scale
 or offset is found again."""
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from warp_sph.benchmarks import validation as V
-from warp_sph.benchmarks import validation_errors as E
+from warp_sph.validation import errors as E
 
 SHIPPED = ("martin_moyce_1952_front", "martin_moyce_1952_residual", "koshizuka_oka_1996_front",
            "lobovsky_2014_sensor1", "lobovsky_2014_sensor3", "lobovsky_2014_sensor4")

@@ -19,3 +19,8 @@ class SimulationError(WarpSphError):
 
 class OutputError(WarpSphError):
     """An output folder or file cannot be written without losing something the user has."""
+
+
+class PlanError(WarpSphError):
+    """A plan cannot be made (budget too small, target error out of reach, a scene that cannot be
+    calibrated, a malformed --budget): one line, CLI exit status 2."""

@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ..core.device import cpu_model
-from ..core.errors import WarpSphError
+from ..core.errors import PlanError, WarpSphError  # noqa: F401 (PlanError: plan's error, re-exported)
 
 #: simulated time of a calibration run [s] (rounded up to whole frames, at least two frames)
 CALIBRATION_TIME = 0.1
@@ -43,11 +43,6 @@ TOLERANCE_STEP = 4.0
 CACHE_SCHEMA = 2
 #: calibration runs made by this process so far (the first one's set-up includes loading the shared kernels)
 _RUNS_IN_PROCESS = [0]
-
-
-class PlanError(WarpSphError):
-    """A plan cannot be made (budget too small, target error out of reach, a scene that cannot be
-    calibrated, a malformed --budget): one line, CLI exit status 2."""
 
 
 @dataclass

@@ -4,7 +4,7 @@ against the published experiment (``--target-error front:4%``).
 A scene is a validation case when its ``name`` is that of a case's scene file in ``scenes/validation/`` and it
 has the probes the case reads (``warp-sph bench validation``: ``benchmarks/validation.py``). The figures are
 that bench's own (``validation.evaluate`` over the run's probe CSVs, with the experiments' data and the error
-functions of ``benchmarks/validation_errors.py``), read from each calibration run before its folder is removed:
+functions of ``warp_sph/validation/errors.py``), read from each calibration run before its folder is removed:
 
 martin_moyce  front     relative RMS of the surge front Z = x/a against Martin & Moyce 1952 (best start shift)
               residual  RMS of the residual height over the initial height
@@ -19,7 +19,7 @@ from __future__ import annotations
 import tomllib
 from functools import lru_cache
 
-from .calibrate import PlanError
+from ..core.errors import PlanError
 
 #: the metric every scene has: run.json's per-frame mean density error, averaged over the frames
 DENSITY = "density"
@@ -38,7 +38,7 @@ CASE_METRICS = {
 @lru_cache(maxsize=None)
 def _case_scene_names() -> dict:
     """{scene name in the case's file: case} of the validation cases."""
-    from ..benchmarks.validation import CASES, _scene_dir
+    from ..validation.cases import CASES, _scene_dir
 
     out = {}
     for name, case in CASES.items():
@@ -86,7 +86,7 @@ def case_overrides(scene, radius: float) -> list[str]:
     case = reference_case(scene)
     if case is None:
         return []
-    from ..benchmarks.validation import CASES
+    from ..validation.cases import CASES
 
     return [f(2.0 * radius) for f in CASES[case].overrides.values()]
 
@@ -103,7 +103,7 @@ def evaluate_reference(scene, folder, info: dict) -> dict:
     case = reference_case(scene)
     if case is None or not info.get("probes"):
         return {}
-    from ..benchmarks.validation import evaluate
+    from ..validation.cases import evaluate
 
     try:
         figures, _, _ = evaluate(case, folder, info)

@@ -14,6 +14,7 @@ import numpy as np
 import warp as wp
 
 from ..io import run_folder as rf
+from .memory import SNAPSHOT_QUEUE_BYTES
 from .simulation import Simulation
 
 
@@ -206,10 +207,6 @@ def world_float32_error(sim: Simulation) -> float:
     return float(np.abs(corners).max()) * 2.0**-24
 
 
-#: device memory the queued frame snapshots may hold [bytes]: the simulation goes on while the export
-#: runs behind (default dam break: ~0.25 MB a frame, so it never waits) and the export catches up after
-#: the last step; at the limit the simulation waits for a slot
-SNAPSHOT_QUEUE_BYTES = 1 << 30
 
 
 def snapshot_bytes(snap: dict) -> int:

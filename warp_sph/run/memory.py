@@ -12,6 +12,11 @@ import warp as wp
 
 from ..core.errors import SceneError
 
+#: device memory the queued frame snapshots may hold [bytes]: the simulation goes on while the export
+#: runs behind (default dam break: ~0.25 MB a frame, so it never waits) and the export catches up after
+#: the last step; at the limit the simulation waits for a slot
+SNAPSHOT_QUEUE_BYTES = 1 << 30
+
 #: Warn when the run needs more than this fraction of the available memory; refuse above 1.
 MEMORY_WARN = 0.5
 
@@ -157,8 +162,6 @@ def _export_queue_bytes(scene, fluid_count: int, frames: int | None = None) -> t
     ``ExportThread`` admits frames while they hold at most ``SNAPSHOT_QUEUE_BYTES`` (always ``depth``
     frames), and the simulation holds one more while it waits for room; never more than the run's
     frames (``frames``, default duration * fps + 1). Device: the particles' copies; host: whitewater's."""
-    from .exporter import SNAPSHOT_QUEUE_BYTES
-
     dev = SNAPSHOT_BYTES_PER_FLUID * fluid_count
     host = WHITEWATER_SNAPSHOT_BYTES_PER_SLOT * _whitewater_capacity(scene)
     size = max(dev + host, 1)

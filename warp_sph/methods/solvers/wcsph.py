@@ -73,7 +73,7 @@ class WcsphSolver(Solver):
               "4 %, but not energy-consistent: it pumps energy into a resting tank, which then never settles)", choices=("eq16", "mirrored")),
         Param("wcsph.density_diffusion", "float", "-", 0.0, "delta of the delta-SPH density diffusion (Molteni & "
               "Colagrossi 2009; the hydrostatic-corrected form of Fourtakas et al. 2019 that DualSPHysics uses, usually "
-              "0.1): D_i = 2 delta h c_s sum_j (rho_j - rho_i - rho^H_ji) x_ji . grad W_ij / |x_ij|^2 V_j in the "
+              "0.1): D_i = 2 delta h c_s sum_j (rho_j - rho_i - rho^H_ji) x_ji . grad W_ij / r_ij^2 V_j in the "
               "continuity equation, every particle starting at rho0; damps acoustic noise (a settling tank) but on the "
               "Lobovsky dam break lets particles through the one-layer walls (docs/validation.md), hence off (0) by "
               "default", ge=0.0, le=1.0),

@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 
 #: the shipped experimental series (CSV with a citation in '#' lines, then a header row)
-DATA_DIR = Path(__file__).resolve().parent / "validation_data"
+DATA_DIR = Path(__file__).resolve().parent / "data"
 #: the start-time shift the front RMS may use, in the experiment's time unit (the issue's 0.2 T)
 MAX_SHIFT = 0.2
 #: the centred moving-average window applied to simulated pressures before their peak is compared [s]: none.
 #: Lobovsky et al. 2014 sampled at 20 kHz and no filter of theirs is stated in the sources at hand
-#: (validation_data/lobovsky_2014_peaks.csv); a window would need the sensor's own, cited, response time.
+#: (data/lobovsky_2014_peaks.csv); a window would need the sensor's own, cited, response time.
 #: The simulated signal is compared as sampled (docs/validation.md, "Sampling as the experiment").
 PRESSURE_WINDOW = 0.0
 #: the window of the figures published before (kept in each record as ``peak_4ms``, for comparison) [s]
@@ -33,7 +33,7 @@ OLD_PRESSURE_WINDOW = 0.004
 
 
 def load_series(name: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """(time, value, citation lines) of ``validation_data/<name>.csv``; the citation is its '#' lines."""
+    """(time, value, citation lines) of ``data/<name>.csv``; the citation is its '#' lines."""
     path = DATA_DIR / f"{name}.csv"
     lines = path.read_text().splitlines()
     cite = [ln[1:].strip() for ln in lines if ln.startswith("#")]
@@ -43,7 +43,7 @@ def load_series(name: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
 
 
 def load_table(name: str) -> tuple[dict[str, np.ndarray], list[str]]:
-    """(columns by header name, citation lines) of ``validation_data/<name>.csv`` (a table, not a series)."""
+    """(columns by header name, citation lines) of ``data/<name>.csv`` (a table, not a series)."""
     lines = (DATA_DIR / f"{name}.csv").read_text().splitlines()
     cite = [ln[1:].strip() for ln in lines if ln.startswith("#")]
     rows = [ln for ln in lines if ln and not ln.startswith("#")]

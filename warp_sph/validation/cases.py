@@ -1,0 +1,174 @@
+"""The validation cases (published experiments) and their error figures: the case table, loading a case's
+scene at a resolution, and ``evaluate``, which reads a finished run's probe files and computes the figures
+against the experiment (``errors.py``'s functions on the data shipped in ``data/`` with their citations).
+Used by ``warp-sph bench validation`` (benchmarks/validation.py) and by ``warp-sph plan``'s errors against
+an experiment (warp_sph/plan/metrics.py), so both compute the same figures."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import errors as E
+
+SCENE_DIR = Path(__file__).resolve().parents[2] / "scenes" / "validation"
+G = 9.81
+#: the issue's goals
+GOALS = {"front_rms": 0.04, "peak_error": 0.10, "time_error": 0.05, "hydrostatic_error": 0.01,
+         "settled_speed": 1e-3}
+
+
+@dataclass
+class Case:
+    name: str
+    scene: str                       # file in scenes/validation
+    radii: tuple[float, float]       # coarse, fine particle radius [m]
+    overrides: dict = field(default_factory=dict)   # per-resolution extra overrides (callable of d)
+    title: str = ""
+
+
+def _scene_dir() -> Path:
+    """scenes/validation in the source tree, or the installed package's copy."""
+    if SCENE_DIR.is_dir():
+        return SCENE_DIR
+    import importlib.resources
+
+    return Path(str(importlib.resources.files("warp_sph.scenes"))) / "validation"
+
+
+CASES = {
+    "martin_moyce": Case("martin_moyce", "martin_moyce.toml", (0.01, 0.005),
+                         {"front_height": lambda d: f"probes[0].position=[0.0, 0.05, {1.25 * d:.6g}]"},
+                         "Column collapse, Martin & Moyce 1952 (n² = 2)"),
+    "lobovsky": Case("lobovsky", "lobovsky.toml", (0.01, 0.005), {},
+                     "Dam break onto a wall, Lobovsky et al. 2014 (H = 0.3 m)"),
+    "hydrostatic": Case("hydrostatic", "hydrostatic_probes.toml", (0.025, 0.0125), {},
+                        "Hydrostatic tank, floor and mid-depth pressure"),
+}
+LOBOVSKY_SENSORS = ("sensor1", "sensor3", "sensor4")
+LOBOVSKY_HEIGHTS_MM = {"sensor1": 3.0, "sensor3": 30.0, "sensor4": 80.0}
+
+
+def load_case_scene(case: Case, solver: str, radius: float, extra: list[str] | None = None):
+    """The case's scene at ``radius`` with ``solver``, no USD or surface, no checkpoints; pressure probes inside
+    the fluid dropped for a solver without a pressure field (those on a wall read the wall load)."""
+    from ..methods import registry
+    from ..scene import load_scene, scene_from_dict
+
+    d = 2.0 * radius
+    overrides = [f"particle_radius={radius}", f"solver={solver}", "output.usd=false", "output.surface=false",
+                 "output.checkpoint_every=0"] + [f(d) for f in case.overrides.values()] + list(extra or [])
+    scene = load_scene(str(_scene_dir() / case.scene), overrides=overrides)
+    if not has_pressure(registry.solver(solver)):
+        from ..run.probes import probe_lines
+
+        c = scene.container
+        lo, hi = (None, None) if c is None else (c.min, c.max)
+        on_wall = [line.wall(lo, hi, scene.wall_gap) is not None for line in probe_lines(scene)]
+        data = scene.to_dict()
+        # a probe on a wall reads the walls' force (every solver has one); one inside the fluid its pressure
+        data["probes"] = [p for p, w in zip(data.get("probes", []), on_wall) if p["kind"] != "pressure" or w]
+        if not data["probes"]:
+            return None
+        scene = scene_from_dict(data, source=scene.source)
+    return scene
+
+
+def has_pressure(solver_cls) -> bool:
+    """Whether a solver computes a pressure field (PBF's position correction is none)."""
+    return solver_cls.name != "pbf"
+
+
+def read_probe(folder: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
+    from ..io.probe_files import probe_csv_path, read_probe_csv
+
+    rows = np.array(read_probe_csv(probe_csv_path(folder, name))[1], dtype=np.float64).reshape(-1, 3)
+    return rows[:, 0], rows[:, 1]
+
+
+def _series(t, v, digits: int = 5) -> list[list[float]]:
+    return [[float(f"{a:.{digits}g}"), float(f"{b:.{digits}g}")] for a, b in zip(t, v)]
+
+
+def evaluate(case: str, folder: Path, info: dict, pressure_window: float = E.PRESSURE_WINDOW) -> tuple[dict, dict, dict]:
+    """(figures, goals met, dimensionless series) of a finished run of ``case`` in ``folder`` (its probe CSVs and
+    run.json's ``probes``); simulated pressures are averaged over ``pressure_window`` seconds before their peak (0: as
+    sampled, the bench's choice, ``errors.PRESSURE_WINDOW``)."""
+    probes = info.get("probes") or {}
+    figures, met, series = {}, {}, {}
+    if case == "martin_moyce":
+        t, x = read_probe(folder, "front")
+        th, h = read_probe(folder, "residual")
+        a, h0 = float(x[0]), float(h[0])
+        T, Z = t * math.sqrt(2.0 * G / a), x / a
+        tau, Hs = th * math.sqrt(G / a), h / h0
+        te, ze, _ = E.load_series("martin_moyce_1952_front")
+        tr, hr, _ = E.load_series("martin_moyce_1952_residual")
+        front = E.front_rms(T, Z, te, ze)
+        resid = E.gauge_rms(tau, Hs, tr, hr)
+        figures = {"a": a, "initial_height": h0, "front_rms": front["rms"], "front_shift": front["shift"],
+                   "front_rms_unshifted": front["rms_unshifted"], "front_points": front["points"],
+                   "residual_rms": resid["rms"], "residual_points": resid["points"]}
+        met = {"front_rms": front["rms"] is not None and front["rms"] <= GOALS["front_rms"]}
+        series = {"front": _series(T, Z), "residual": _series(tau, Hs)}
+    elif case == "lobovsky":
+        H = 0.3
+        table, _ = E.load_table("lobovsky_2014_peaks")
+        for s in LOBOVSKY_SENSORS:
+            if s not in probes:
+                continue
+            t, p = read_probe(folder, s)
+            T, P = t * math.sqrt(G / H), p / (1000.0 * G * H)
+            te, pe, _ = E.load_series(f"lobovsky_2014_{s}")
+            raw = E.peak(T, P, te, pe)
+            old = E.peak(T, E.moving_average(t, P, E.OLD_PRESSURE_WINDOW), te, pe)
+            P = E.moving_average(t, P, pressure_window)
+            pk = E.peak(T, P, te, pe)
+            pk.update(raw_peak=raw["sim_peak"], raw_time=raw["sim_time"], filter_window_s=pressure_window,
+                      peak_4ms=old["sim_peak"], peak_4ms_error=old["peak_error"])
+            k = int(np.argmin(np.abs(table["z_mm"] - LOBOVSKY_HEIGHTS_MM[s])))  # Table 2: the per-run peaks
+            scale = 100.0 / (1000.0 * G * H)  # mbar -> P
+            pk["table2"] = E.peak_statistics(pk["sim_peak"], table["median_mbar"][k] * scale,
+                                             table["p2_5_mbar"][k] * scale, table["p97_5_mbar"][k] * scale)
+            figures[s] = pk
+            met[s] = {"peak": abs(pk["peak_error"]) <= GOALS["peak_error"],
+                      "time": abs(pk["time_error"]) <= GOALS["time_error"]}
+            series[s] = _series(T, P, 4)
+        if not figures:
+            figures["note"] = "no pressure field (solver without pressure): pressure probes not run"
+    elif case == "hydrostatic":
+        t, h = read_probe(folder, "surface")
+        late = t >= 0.5 * t[-1]
+        out = {}
+        # the floor's surface: the fluid rests a wall gap above the floor's particles (on z = 0) and each
+        # particle fills d/2 = r around its centre, so the water starts at z = gap - r (the depth the
+        # floor carries: its load at rest is the weight of the water from there to the surface)
+        from ..scene import scene_from_dict
+
+        sc = scene_from_dict(info["scene"])
+        floor = sc.wall_gap - sc.particle_radius
+        figures["floor_surface"] = floor
+        for name, z in (("floor", floor), ("middle", 0.25)):
+            if name not in probes:
+                continue
+            tp, p = read_probe(folder, name)
+            ratio = p / (1000.0 * G * (np.interp(tp, t, h) - z))
+            out[name] = float(np.mean(ratio[tp >= 0.5 * tp[-1]]) - 1.0)
+            series[name] = _series(tp, ratio, 4)
+        figures.update({f"{k}_error": v for k, v in out.items()})
+        figures["surface_height"] = float(np.mean(h[late]))
+        # the depth the water's volume gives over the floor it covers once spread to the walls (its edges
+        # gap - r from the wall particles, as on the floor), and how far below that level the surface settled
+        # [d]: the sampled columns need not fill the tank (r = 0.0125 m leaves 0.22 d of slack at one side of
+        # each axis), the water spreads into the slack and re-packs, and the height probe reads where it is
+        c, d = sc.container, 2.0 * sc.particle_radius
+        model = info.get("model") or {}
+        if c is not None and model.get("particle_mass") and info.get("fluid_particles"):
+            area = float(np.prod([c.max[a] - c.min[a] - 2.0 * floor for a in (0, 1)]))
+            volume = float(info["fluid_particles"]) * float(model["particle_mass"]) / float(model.get("rest_density", 1000.0))
+            figures["depth_by_volume"] = volume / area
+            figures["surface_drop_d"] = (floor + figures["depth_by_volume"] - figures["surface_height"]) / d
+        met = {k: abs(v) <= GOALS["hydrostatic_error"] for k, v in figures.items() if k.endswith("_error")}
+    return figures, met, series
