@@ -245,8 +245,11 @@ class ParticleFlow:
         near = old[np.all((old >= x.min(axis=0) - gap) & (old <= x.max(axis=0) + gap), axis=1)]
         if not len(near):
             return x, v
-        d2 = np.min(np.sum((x[:, None, :] - near[None, :, :]) ** 2, axis=2), axis=1)
-        free = d2 >= gap * gap
+        free = np.empty(len(x), dtype=bool)
+        step = max(1, (1 << 20) // len(near))  # new particles per block: at most ~1M distances at once
+        for a in range(0, len(x), step):
+            d2 = np.sum((x[a:a + step, None, :] - near[None, :, :]) ** 2, axis=2)
+            free[a:a + step] = d2.min(axis=1) >= gap * gap
         self.blocked += int(len(x) - free.sum())
         return x[free], v[free]
 
