@@ -14,7 +14,8 @@ changes at the start of a frame, outside the cell order, decided on the host fro
 2. emitters: the layers that entered since the last frame (layer k of an emitter at
    t_k = start + k d / v, ``warp_sph.scene.emitters``) are written into the slots [n, n + k) with
    their ballistic age a = t - t_k: x = x_nozzle + v n a + g a^2 / 2, v = v n + g a; the carried fields
-   of those slots (warm starts, carried force fields) start at 0.
+   of those slots (warm starts, carried force fields) start at 0. A new particle closer than
+   ``BLOCKED_GAP`` d to a particle already there is not emitted (a blocked nozzle, ``_unblocked``).
 
 Particle ids (``particle_id``, int32) are persistent: the initial fluid has 0..n0-1, emitted particles
 the next ones. A full capacity skips the layers that do not fit (one warning). The energy the particles
