@@ -34,8 +34,9 @@ from ..kernels import neighbors as _dev
 from ..scene.emitters import emitter_plan, open_faces
 
 ID_FIELD = "particle_id"
-#: a new particle closer than this many spacings to a particle already there is not emitted (a blocked nozzle)
-BLOCKED_GAP = 0.9
+#: a new particle closer than this many spacings to a particle already there is not emitted (a blocked nozzle;
+#: an unobstructed jet's layers are d apart, and the energy a closer one adds is measured in docs/emitters.md)
+BLOCKED_GAP = 0.95
 
 
 class ParticleFlow:
