@@ -14,7 +14,8 @@ changes at the start of a frame, outside the cell order, decided on the host fro
 2. emitters: the layers that entered since the last frame (layer k of an emitter at
    t_k = start + k d / v, ``warp_sph.scene.emitters``) are written into the slots [n, n + k) with
    their ballistic age a = t - t_k: x = x_nozzle + v n a + g a^2 / 2, v = v n + g a; the carried fields
-   of those slots (warm starts, carried force fields) start at 0.
+   of those slots (warm starts, carried force fields) start at 0. A new particle closer than
+   ``BLOCKED_GAP`` d to a particle already there is not emitted (a blocked nozzle, ``_unblocked``).
 
 Particle ids (``particle_id``, int32) are persistent: the initial fluid has 0..n0-1, emitted particles
 the next ones. A full capacity skips the layers that do not fit (one warning). The energy the particles
@@ -33,6 +34,9 @@ from ..kernels import neighbors as _dev
 from ..scene.emitters import emitter_plan, open_faces
 
 ID_FIELD = "particle_id"
+#: a new particle closer than this many spacings to a particle already there is not emitted (a blocked nozzle;
+#: an unobstructed jet's layers are d apart, and the energy a closer one adds is measured in docs/emitters.md)
+BLOCKED_GAP = 0.95
 
 
 class ParticleFlow:
@@ -59,6 +63,7 @@ class ParticleFlow:
         self.emitted = 0
         self.removed = 0
         self.skipped = 0   # particles not emitted: the capacity was full
+        self.blocked = 0   # particles not emitted: a particle already there (``_unblocked``)
         self.exchanged = 0.0  # [J] kinetic + potential brought in by emission minus taken out by sinks
         self.exchanged_scale = 0.0  # [J] emitted energy above the floor (grows the energy rule's scale)
         self.last_speed = 0.0  # [m/s] fastest emitted particle of the last frame
@@ -198,6 +203,7 @@ class ParticleFlow:
             return n
         x = np.concatenate(xs).astype(np.float32)
         v = np.concatenate(vs).astype(np.float32)
+        x, v = self._unblocked(x, v, n)
         room = m.capacity - n
         if len(x) > room:
             self.skipped += len(x) - room
@@ -228,15 +234,37 @@ class ParticleFlow:
         self.exchanged_scale += max(above, 0.0)
         return n + k
 
+    def _unblocked(self, x: np.ndarray, v: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The new particles x, v [local m, m/s] without those closer than ``BLOCKED_GAP`` d to one of the n
+        active particles: fluid that has not cleared the nozzle (slowed by a pool that rose to it) would be
+        overlapped, and an overlap a fraction of d wide is a density spike an equation of state (WCSPH)
+        turns into an explosion. The inflow is reduced by what the blocked slots would have carried
+        (``blocked``, run.json's flow record)."""
+        if not n:
+            return x, v
+        gap = BLOCKED_GAP * self.sim.scene.spacing
+        old = self.sim.fields["particle_x"].numpy()
+        near = old[np.all((old >= x.min(axis=0) - gap) & (old <= x.max(axis=0) + gap), axis=1)]
+        if not len(near):
+            return x, v
+        free = np.empty(len(x), dtype=bool)
+        step = max(1, (1 << 20) // len(near))  # new particles per block: at most ~1M distances at once
+        for a in range(0, len(x), step):
+            d2 = np.sum((x[a:a + step, None, :] - near[None, :, :]) ** 2, axis=2)
+            free[a:a + step] = d2.min(axis=1) >= gap * gap
+        self.blocked += int(len(x) - free.sum())
+        return x[free], v[free]
+
     # --- records and checkpoints ----------------------------------------------------------------
     def record(self) -> dict:
-        """Per-frame counts for run.json: active particles, emitted and removed so far, skipped (capacity)."""
+        """Per-frame counts for run.json: active particles, emitted and removed so far, skipped (capacity), blocked."""
         return {"particles": int(self.sim.model.fluid_count), "emitted": int(self.emitted),
-                "removed": int(self.removed), "skipped": int(self.skipped)}
+                "removed": int(self.removed), "skipped": int(self.skipped), "blocked": int(self.blocked)}
 
     def checkpoint_arrays(self) -> dict:
         return {"flow_layers": self.layers.copy(), "flow_ids": self.sim.fields[ID_FIELD].numpy().copy(),
-                "flow_counters": np.array([self.next_id, self.emitted, self.removed, self.skipped, int(self._warned)],
+                "flow_counters": np.array([self.next_id, self.emitted, self.removed, self.skipped, int(self._warned),
+                                           self.blocked],
                                           dtype=np.int64),
                 "flow_energy": np.array([self.exchanged, self.exchanged_scale, self.last_speed], dtype=np.float64)}
 
@@ -247,7 +275,9 @@ class ParticleFlow:
         self.layers = np.array(cp["flow_layers"], dtype=np.int64)
         self.sim.fields[ID_FIELD].assign(wp.array(np.asarray(cp["flow_ids"], np.int32), dtype=wp.int32,
                                                   device=self.sim.device))
-        self.next_id, self.emitted, self.removed, self.skipped, warned = (int(c) for c in cp["flow_counters"])
+        counters = [int(c) for c in cp["flow_counters"]]
+        self.next_id, self.emitted, self.removed, self.skipped, warned = counters[:5]
+        self.blocked = counters[5] if len(counters) > 5 else 0  # (a checkpoint from before the count)
         self._warned = bool(warned)
         self.exchanged, self.exchanged_scale, self.last_speed = (float(c) for c in cp["flow_energy"])
 

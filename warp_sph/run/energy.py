@@ -209,7 +209,8 @@ class EnergyWatch:
 
     # --- messages ----------------------------------------------------------------------------
     def account(self, e: Energy) -> str:
-        """How much the total rose and where: fluid kinetic, potential and bodies."""
+        """How much the total rose and where: fluid kinetic, potential and bodies; the rise and the scale as the
+        rule counts them (``growth``: the flow's exchanged energy subtracted)."""
         r = self.reference
         parts = [f"kinetic {e.kinetic - r.kinetic:+.3g} J", f"potential {e.potential - r.potential:+.3g} J"]
         if len(e.body_kinetic):
@@ -217,8 +218,15 @@ class EnergyWatch:
         if e.work:
             parts.append(f"work of the animated obstacles {e.work:+.3g} J (subtracted)")
         rise = e.total - e.work - self.reference_total
-        text = (f"the total energy rose by {rise:.3g} J = {100 * rise / self.scale:.3g} % of the scene's energy "
-                f"{self.scale:.4g} J (limit {100 * ENERGY_GROWTH_LIMIT:g} %")
+        scale = self.scale
+        flow = getattr(self.sim, "flow", None)
+        if flow is not None:  # what the emitters brought in minus what the sinks took out is not a rise
+            exchanged = flow.exchanged - self.exchanged_base
+            rise -= exchanged
+            scale += flow.exchanged_scale - self.exchanged_scale_base
+            parts.append(f"exchanged by emitters and sinks {exchanged:+.3g} J (subtracted)")
+        text = (f"the total energy rose by {rise:.3g} J = {100 * rise / scale:.3g} % of the scene's energy "
+                f"{scale:.4g} J (limit {100 * ENERGY_GROWTH_LIMIT:g} %")
         if self.allowance > 1e-6 * self.scale:
             text += f" beyond the {self.allowance:.3g} J its initial compression can release"
         return text + f"; {', '.join(parts)})"
