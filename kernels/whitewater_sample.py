@@ -18,6 +18,7 @@ import functools
 
 import warp as wp
 
+from .neighbors import cell_rows, row_points
 from .smoothing import SMOOTHING_FUNCTIONS
 
 #: (sum_j W v_j [3], sum_j W, neighbour count): what a secondary particle reads of the fluid
@@ -26,7 +27,8 @@ vec5 = wp.types.vector(length=5, dtype=float)
 
 @functools.cache
 def fluid_sum_func(smoothing: str):
-    """wp.func S(x) by one walk over the fluid cell grid (``CellGrid``: cells of at least ``search_radius``)."""
+    """wp.func S(x) by one walk over the fluid cell grid (``CellGrid``: cells of at least ``search_radius``; the
+    shared walk of kernels/neighbors.py, ``cell_rows`` / ``row_points``)."""
     value, _ = SMOOTHING_FUNCTIONS[smoothing]
 
     @wp.func
@@ -46,21 +48,14 @@ def fluid_sum_func(smoothing: str):
         support2 = support_radius * support_radius
         q = (x - grid_lo) * inv_cell_size
         qr = search_radius * inv_cell_size
-        x0 = wp.clamp(int(wp.floor(q[0] - qr)), 0, grid_dims[0] - 1)
-        x1 = wp.clamp(int(wp.floor(q[0] + qr)), 0, grid_dims[0] - 1)
-        y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
-        y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
-        z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
-        z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
+        rows = cell_rows(q, qr, grid_dims)
         count = float(0.0)
         weight = float(0.0)
         v_sum = wp.vec3(0.0)
-        for z in range(z0, z1 + 1):
-            for y in range(y0, y1 + 1):
-                row = grid_dims[0] * (y + grid_dims[1] * z)
-                s = cell_start[row + x0]
-                s_end = cell_start[row + x1 + 1]
-                while s < s_end:
+        for z in range(rows[2], rows[3] + 1):
+            for y in range(rows[0], rows[1] + 1):
+                span = row_points(q, qr, y, z, grid_dims, cell_start)
+                for s in range(span[0], span[1]):
                     j = cell_point[s]
                     r = x - particle_x[j]
                     r2 = wp.dot(r, r)
@@ -69,7 +64,6 @@ def fluid_sum_func(smoothing: str):
                         count += 1.0
                         weight += w
                         v_sum += w * particle_v[j]
-                    s += 1
         return vec5(v_sum[0], v_sum[1], v_sum[2], weight, count)
 
     return fluid_sum
