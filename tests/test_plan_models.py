@@ -17,20 +17,11 @@ from warp_sph.plan.metrics import check_metric, evaluate_reference, metric_names
 from warp_sph.plan.report import parse_target, set_flags
 from warp_sph.scene import load_scene
 
-TINY = """name = "tiny"
-particle_radius = 0.05
-duration = 0.5
-fps = 24.0
-[container]
-min = [0.0, 0.0, 0.0]
-max = [0.5, 0.3, 0.5]
-[[fluid]]
-min = [0.0, 0.0, 0.0]
-max = [0.25, 0.3, 0.25]
-[output]
-usd = false
-surface = false
-"""
+from test_plan import TINY as PLAN_TINY
+
+# the plan tests' tiny tank, run for 0.5 s instead of 0.25 s
+TINY = PLAN_TINY.replace("duration = 0.25", "duration = 0.5")
+assert TINY != PLAN_TINY
 T0 = 0.005   # pbf.target_density_error's default
 K = {"step_time": -0.5, "steps_per_second": -0.25, "error": 1.0, "error_last": 0.8, "metric": 0.5}
 
