@@ -89,6 +89,7 @@ def jacobi_update(
     active_only: int,
     control: wp.array(dtype=wp.float64),
     chebyshev: float,
+    keep_previous: int,
     # In/out:
     pressure: wp.array(dtype=float),
     previous: wp.array(dtype=float),
@@ -98,8 +99,8 @@ def jacobi_update(
     """Second pass of a Jacobi sweep: (A P)_i = scale delta_i(a), r_i = b_i - (A P)_i, error
     max(-r_i, 0) (0 for inactive particles when ``active_only``), P^J_i = max(0, P_i - omega f_i r_i /
     scale); with Chebyshev weight w != 1 (Wang 2015) P_i <- max(0, Q_i + w (P^J_i - Q_i)), Q the P of
-    the sweep before, else P_i <- P^J_i; Q_i <- the old P_i. Reads only its own P_i, so P is updated in
-    place."""
+    the sweep before, else P_i <- P^J_i; Q_i <- the old P_i when ``keep_previous`` (the accelerated solve;
+    plain Jacobi never reads Q). Reads only its own P_i, so P is updated in place."""
     if control[CONTROL_DONE] != wp.float64(0.0):
         return
     i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
@@ -120,7 +121,8 @@ def jacobi_update(
     if chebyshev != 1.0:
         q = previous[i]
         pj = wp.max(q + chebyshev * (pj - q), 0.0)
-    previous[i] = p
+    if keep_previous != 0:
+        previous[i] = p
     pressure[i] = pj
 
 

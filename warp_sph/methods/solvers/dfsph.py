@@ -204,7 +204,7 @@ class DfsphSolver(DfsphSearch, Solver):
                 w = chebyshev_weight(launched + idx, rho, w)
                 launch(_dfsph.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev)
                 launch(_dfsph.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only), control,
-                                                 float(w)], [p, self._previous, err], device=dev)
+                                                 float(w), int(rho > 0.0)], [p, self._previous, err], device=dev)
                 launch(_dfsph.error_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, err, control], [partial], device=dev)
                 launch(_dfsph.solve_control, 1, [partial, n, float(target), int(min_iterations), int(max_iterations)],
                        [control], device=dev)
