@@ -67,6 +67,7 @@ class Whitewater:
         self.potential = wp.zeros(n, dtype=wp.vec3, device=dev)
         self._totals = wp.zeros(2, dtype=wp.int32, device=dev)
         self._nodes = None       # (fluid cell grid, lo, spacing, dims, flags, row flags, sums): _node_grid
+        self._no_nodes = wp.zeros(1, dtype=_sample.vec5, device=dev)  # the advection's node argument when walking
         self.generated = 0       # particles generated, whole run (including dropped ones)
         if m.container_lo is not None:
             pad = m.support_radius
@@ -124,7 +125,10 @@ class Whitewater:
         if count:
             fc = nl.fluid_cells
             use_bounds, lo, hi = self._bounds
-            _, node_lo, spacing, dims, flag, row_flag, node = self._node_grid(fc)
+            if c.fluid_sampling == "grid":
+                _, node_lo, spacing, dims, flag, row_flag, node = self._node_grid(fc)
+            else:  # walked: the advection reads no node (none allocated)
+                node_lo, spacing, dims, node = wp.vec3(0.0), 1.0, wp.vec3i(1, 1, 1), self._no_nodes
             node_grid = [node_lo, 1.0 / spacing, dims]
             if c.fluid_sampling == "grid":
                 launch(_sample.mark_nodes, count, [*node_grid, src["x"]], [flag, row_flag], device=dev)
