@@ -16,7 +16,7 @@ import functools
 
 import warp as wp
 
-from .neighbors import NoBoundaryParams, cell_of, cell_rows, row_points
+from .neighbors import NeighborList, NoBoundaryParams, cell_of, cell_rows, row_points
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -143,14 +143,17 @@ def fluid_search_kernel(smoothing: str):
 
 
 @functools.cache
-def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving: bool = False):
+def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving: bool = False, lists: bool = False):
     """The boundary half of the search and the factor (threads in cell order): with ``search``, every
     boundary particle b within the support radius goes into the boundary neighbour list (cells with
     no boundary particle within one cell are skipped by the mask), and, when the boundary method's
     ``BoundaryTerms`` has density and gradient terms, into rho_i (rho0 density_b), s_i (gb_ib) and
     delta_i(v) (v_i - v_b). With ``moving`` (rigid bodies) a second grid, over the moving boundary
     particles (boundary indices moving_start + k), is walked after the static one, its neighbours
-    listed after the static ones. Then, from the fluid parts: f_i = 1 / D_i (0 when D_i <= factor_floor),
+    listed after the static ones. With ``lists`` (the search skin) nothing is walked: the boundary
+    neighbour list (built within H_s + skin, boundary indices) is read and its particles b closer than
+    the support radius add the same terms (x_b from boundary_x, V_b from boundary_volume), in the
+    list's order. Then, from the fluid parts: f_i = 1 / D_i (0 when D_i <= factor_floor),
     the divergence source -delta_i(v), active_i, the divergence warm start P^v_i = warm_start
     P~^v_i / dt where delta_i(v) > 0 and i is active (P~^v = P^v dt of the last step [m^2/s]), the
     compression max(rho_i / rho0 - 1, 0) [-] (the stabilisation test reads its mean), the solves'
@@ -226,6 +229,47 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
                         k += 1
         return nb, ratio, sb, bvel
 
+    @wp.func(module="unique")
+    def list_boundary(
+        i: int,
+        xi: wp.vec3,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        neighbor_count: wp.array(dtype=wp.int32),
+        neighbor_index: wp.array2d(dtype=wp.int32),
+        smoothing_length: float,
+        support_radius: float,
+        boundary_params: BoundaryParams,
+        boundary_v: wp.array(dtype=wp.vec3),
+        ratio_in: float,
+        sb_in: wp.vec3,
+        bvel_in: float,
+    ):
+        """The listed boundary particles b (within H_s + skin when listed) closer than the support radius:
+        their count and their terms added to (ratio, sb, bvel)."""
+        nb = int(0)
+        ratio = ratio_in
+        sb = sb_in
+        bvel = bvel_in
+        h = smoothing_length
+        radius2 = support_radius * support_radius
+        e = int(0)
+        e_end = wp.min(neighbor_count[i], neighbor_index.shape[1])
+        while e < e_end:
+            b = neighbor_index[i, e]
+            x_ib = xi - boundary_x[b]
+            dd = wp.dot(x_ib, x_ib)
+            if dd < radius2:
+                nb += 1
+                if wp.static(with_terms):
+                    vol = boundary_volume[b]
+                    ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.sqrt(dd), h), vol)
+                    gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
+                    sb += gb
+                    bvel += wp.dot(boundary_v[b], gb)
+            e += 1
+        return nb, ratio, sb, bvel
+
     @wp.kernel(enable_backward=False, module="unique")
     def boundary_factor(
         tid_offset: int,
@@ -268,11 +312,14 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         divergence_warm: wp.array(dtype=float),
         fluid_count: wp.array(dtype=wp.int32),
         square_sum: wp.array(dtype=float),
+        # Boundary particles (with ``lists``):
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
         # In/out (fluid parts in, totals out):
         particle_density: wp.array(dtype=float),
         gradient_sum: wp.array(dtype=wp.vec3),
         divergence: wp.array(dtype=float),
-        # Out:
+        # Out (the boundary neighbour list: in with ``lists``):
         neighbor_count_out: wp.array(dtype=wp.int32),
         neighbor_index_out: wp.array2d(dtype=wp.int32),
         max_count_out: wp.array(dtype=wp.int32),
@@ -294,7 +341,11 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         sb = wp.vec3(0.0)
         bvel = float(0.0)
         nb = int(0)
-        if wp.static(search):
+        if wp.static(search and lists):
+            nb, ratio, sb, bvel = list_boundary(i, xi, boundary_x, boundary_volume, neighbor_count_out,
+                                                neighbor_index_out, smoothing_length, support_radius,
+                                                boundary_params, boundary_v, ratio, sb, bvel)
+        if wp.static(search and not lists):
             nb, ratio, sb, bvel = walk_boundary(i, xi, grid_lo, inv_cell_size, grid_dims, cell_start, cell_point,
                                                 sorted_points, sorted_volume, cell_mask, use_mask, 0,
                                                 smoothing_length, support_radius, boundary_params, boundary_v,
@@ -337,6 +388,98 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         boundary_force_out[i] = wp.vec3(0.0)
 
     return boundary_factor
+
+
+@functools.cache
+def fluid_pairs_kernel(smoothing: str):
+    """The fluid half of the search with the search skin: no cell walk, the pairs come from the fluid
+    neighbour list (built within H_s + skin, self included, by ``NeighborLists.build_lists`` when a
+    particle moved more than half the skin since the last build). For particle i (threads in cell
+    order) every listed j closer than the support radius, in the list's order: writes the padded
+    rows of j != i (pair_index_out, pair_gradient_out G_ij), room_out[i] = their number, and the fluid
+    parts of rho_i = m sum_j W_ij (self included) [kg/m^3], s_i, sum_j |G_ij|^2 and delta_i(v) [1/s]
+    (finished by ``boundary_factor_kernel`` with ``lists``): the values of ``fluid_search_kernel``,
+    summed in another order (equal to float rounding)."""
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def fluid_pairs(
+        tid_offset: int,
+        # Fluid neighbour lists (within H_s + skin, self included):
+        fluid_neighbors: NeighborList,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        # State in:
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
+        # Out:
+        pair_index_out: wp.array2d(dtype=wp.int32),
+        pair_gradient_out: wp.array2d(dtype=wp.vec3),
+        room_out: wp.array(dtype=wp.int32),
+        particle_density_out: wp.array(dtype=float),
+        gradient_sum_out: wp.array(dtype=wp.vec3),
+        square_sum_out: wp.array(dtype=float),
+        divergence_out: wp.array(dtype=float),
+    ):
+        i = fluid_neighbors.order[wp.tid() + tid_offset]
+        xi = particle_x[i]
+        vi = particle_v[i]
+        h = smoothing_length
+        volume = particle_mass / rest_density
+        radius2 = support_radius * support_radius
+        w_sum = float(0.0)
+        s = wp.vec3(0.0)
+        sq = float(0.0)
+        div = float(0.0)
+        n = int(0)
+        e = int(0)
+        e_end = wp.min(fluid_neighbors.count[i], fluid_neighbors.index.shape[1])
+        while e < e_end:
+            j = fluid_neighbors.index[i, e]
+            x_ij = xi - particle_x[j]
+            dd = wp.dot(x_ij, x_ij)
+            if dd < radius2:
+                w_sum += wp.static(value)(wp.sqrt(dd), h)
+                if j != i:
+                    g = volume * wp.static(gradient)(x_ij, h)
+                    s += g
+                    sq += wp.dot(g, g)
+                    div += wp.dot(vi - particle_v[j], g)
+                    pair_index_out[i, n] = j
+                    pair_gradient_out[i, n] = g
+                    n += 1
+            e += 1
+        room_out[i] = n
+        particle_density_out[i] = particle_mass * w_sum
+        gradient_sum_out[i] = s
+        square_sum_out[i] = sq
+        divergence_out[i] = div
+
+    return fluid_pairs
+
+
+@wp.kernel(enable_backward=False)
+def max_drift_chunks(
+    chunk: int,
+    count: int,
+    # In:
+    particle_x: wp.array(dtype=wp.vec3),
+    searched_x: wp.array(dtype=wp.vec3),
+    # Out:
+    partial_out: wp.array(dtype=float),
+):
+    """partial_out[k] = the largest |x_i - x_i at the last list build|^2 [m^2] of particles
+    k chunk .. (k + 1) chunk - 1 (below ``count``): the skin test of the search."""
+    k = wp.tid()
+    lo = k * chunk
+    hi = wp.min(lo + chunk, count)
+    s = float(0.0)
+    for i in range(lo, hi):
+        s = wp.max(s, wp.length_sq(particle_x[i] - searched_x[i]))
+    partial_out[k] = s
 
 
 @wp.kernel(enable_backward=False)
