@@ -430,27 +430,37 @@ def fluid_pairs_kernel(smoothing: str):
         h = smoothing_length
         volume = particle_mass / rest_density
         radius2 = support_radius * support_radius
+        # the listed j closer than the support radius into the padded row, without a branch (as the
+        # walk of ``fluid_search_kernel``: about half of the listed pairs are kept) ...
+        last = pair_index_out.shape[1] - 1
+        found = int(0)
+        e = int(0)
+        e_end = wp.min(fluid_neighbors.count[i], fluid_neighbors.index.shape[1])
+        while e < e_end:
+            j = fluid_neighbors.index[i, e]
+            x_ij = xi - particle_x[j]
+            pair_index_out[i, wp.min(found, last)] = j
+            found += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
+            e += 1
+        # ... then their values (i itself adds W(0) to the density and is dropped from the row)
         w_sum = float(0.0)
         s = wp.vec3(0.0)
         sq = float(0.0)
         div = float(0.0)
         n = int(0)
         e = int(0)
-        e_end = wp.min(fluid_neighbors.count[i], fluid_neighbors.index.shape[1])
-        while e < e_end:
-            j = fluid_neighbors.index[i, e]
+        while e < found:
+            j = pair_index_out[i, e]
             x_ij = xi - particle_x[j]
-            dd = wp.dot(x_ij, x_ij)
-            if dd < radius2:
-                w_sum += wp.static(value)(wp.sqrt(dd), h)
-                if j != i:
-                    g = volume * wp.static(gradient)(x_ij, h)
-                    s += g
-                    sq += wp.dot(g, g)
-                    div += wp.dot(vi - particle_v[j], g)
-                    pair_index_out[i, n] = j
-                    pair_gradient_out[i, n] = g
-                    n += 1
+            w_sum += wp.static(value)(wp.length(x_ij), h)
+            if j != i:
+                g = volume * wp.static(gradient)(x_ij, h)
+                s += g
+                sq += wp.dot(g, g)
+                div += wp.dot(vi - particle_v[j], g)
+                pair_index_out[i, n] = j
+                pair_gradient_out[i, n] = g
+                n += 1
             e += 1
         room_out[i] = n
         particle_density_out[i] = particle_mass * w_sum
