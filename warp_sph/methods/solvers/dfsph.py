@@ -115,7 +115,7 @@ class DfsphSolver(DfsphSearch, Solver):
               "for Chebyshev acceleration (Wang 2015; 0: plain Jacobi): fewer sweeps in deep flows (0.95: half of "
               "them in the dam break), but fluid at rest keeps moving and its pressures come out a few % low",
               ge=0.0, lt=1.0),
-        Param("dfsph.search_skin", "float", "d", 0.0, "skin of the neighbour search in particle spacings d: lists "
+        Param("dfsph.search_skin", "float", "-", 0.0, "skin of the neighbour search in particle spacings d: lists "
               "of the pairs within H_s + skin, rebuilt only when a particle moved more than skin / 2 since the last "
               "build, the pair values recomputed every step (0: one search every step; > 0: equal to float "
               "rounding, the sums run in the lists' order)", ge=0.0, le=2.0),
