@@ -53,6 +53,7 @@ class DfsphSearch:
             setattr(pairs, name, wp.zeros(size, dtype=dtype, device=dev))
         sim.fields["dfsph_pairs"] = pairs
         self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle
+        self._found = wp.zeros(size, dtype=wp.int32, device=dev)   # points within H_s per particle (self included)
         self._square_sum = wp.zeros(size, dtype=float, device=dev)  # sum_j |G_ij|^2 (fluid part of D_i)
         self._pairs_capacity = 0
         self._search = _search.fluid_search_kernel(m.smoothing.name)
@@ -72,16 +73,16 @@ class DfsphSearch:
             self._built = None  # (particle count, list arrays) of the last build
 
     def _pairs(self):
-        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): a padded row per
-        particle for the search and the compressed rows the solves read."""
+        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): the compressed rows
+        the solves read (and, with the skin, a padded row per particle for the pair pass)."""
         pairs = self.sim.fields["dfsph_pairs"]
         capacity = self.nl.capacities[0]
         if capacity != self._pairs_capacity:
             n, dev = max(self.model.capacity, 1), self.model.device
             pairs.index = wp.zeros(n * capacity, dtype=wp.int32, device=dev)
             pairs.gradient = wp.zeros(n * capacity, dtype=wp.vec3, device=dev)
-            self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
-            if self.skin > 0.0:  # the pairs' j in padded rows (the lists themselves hold H_s + skin)
+            if self.skin > 0.0:  # padded rows of the pairs (the lists themselves hold H_s + skin)
+                self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
                 self._pair_index_rows = wp.zeros((n, capacity), dtype=wp.int32, device=dev)
             self._pairs_capacity = capacity
         return pairs
@@ -102,11 +103,15 @@ class DfsphSearch:
         n, dev = m.fluid_count, m.device
         pairs = self._pairs()
         fc = nl.fluid_cells
+        launch(_search.collect_fluid_pairs, n,
+               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.support_radius],
+               [self._found, nl.fluid.index, self._room], device=dev)
+        wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
         launch(self._search, n,
-               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.particle_mass,
-                m.smoothing_length, m.support_radius, m.rest_density, f["particle_x"], f["particle_v"]],
-               [nl.fluid.count, nl.fluid.index, nl.max_count, self._pair_rows, self._room, f["particle_density"],
-                pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
+               [fc.cell_point, fc.sorted_x, m.particle_mass, m.smoothing_length, m.rest_density, f["particle_x"],
+                f["particle_v"], self._found, pairs.offset],
+               [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.count, pairs.index, pairs.gradient,
+                f["particle_density"], pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
         empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
                  self._no_mask, 0]
         bc = nl.boundary_cells
@@ -132,9 +137,6 @@ class DfsphSearch:
                [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient, pairs.boundary_velocity,
                 pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"], f["dfsph_acceleration"],
                 f["dfsph_error"], f["boundary_force"]], device=dev)
-        wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
-        launch(_search.compact_pairs, n, [nl.fluid.index, self._pair_rows, self._room, pairs.offset],
-               [pairs.count, pairs.index, pairs.gradient], device=dev, min_range=LIGHT_MIN_RANGE)
 
     # --- search skin -----------------------------------------------------------------------
     def _lists_stale(self) -> bool:
