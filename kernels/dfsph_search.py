@@ -62,8 +62,9 @@ def collect_fluid_pairs(
 ):
     """The first half of the fluid search, over the fluid cell grid: for particle i (thread k_i = its
     sorted index, cell order) the sorted indices k of every point within the support radius (i itself
-    included), in walk order, into row i of neighbor_index_out (the first ``capacity``); found_out[i] =
-    their number; room_out[i] = the pairs j != i among those kept (the compressed rows' sizes)."""
+    included), in walk order, into row i of neighbor_index_out (the first ``capacity``; when more are
+    found the last slot keeps being overwritten, and the step is redone with larger lists); found_out[i]
+    = their number; room_out[i] = the pairs j != i among those kept (the compressed rows' sizes)."""
     k_self = wp.tid() + tid_offset
     i = int(cell_point[k_self])
     xi = sorted_points[k_self]
@@ -98,7 +99,7 @@ def fluid_search_kernel(smoothing: str):
     of its room (offset): for particle i (threads in cell order) the kept points in walk order. Writes
     the fluid neighbour list (j != i; the count is exact; when i and its neighbours do not fit the
     capacity, entries are dropped and max_count_out[i] keeps the largest such number), the compressed
-    row of the pair cache (count, index j, G_ij at offset[i] ..), and the fluid parts of:
+    row of the pair cache (count <= room[i], index j, G_ij at offset[i] ..), and the fluid parts of:
     rho_i = m sum_j W_ij (self included) [kg/m^3], s_i, sum_j |G_ij|^2 and delta_i(v) [1/s] (finished
     by ``boundary_factor_kernel``)."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
@@ -117,6 +118,7 @@ def fluid_search_kernel(smoothing: str):
         particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
         found: wp.array(dtype=wp.int32),
+        room: wp.array(dtype=wp.int32),
         offset: wp.array(dtype=wp.int32),
         # Out (neighbor_index_out: the sorted indices of ``collect_fluid_pairs`` in):
         neighbor_count_out: wp.array(dtype=wp.int32),
@@ -145,13 +147,14 @@ def fluid_search_kernel(smoothing: str):
         n = int(0)
         e = int(0)
         found_i = found[i]
+        keep = room[i]  # (less than the row's j != i only when the row overflowed: its last slot is overwritten)
         e_end = wp.min(found_i, capacity)
         while e < e_end:
             k = neighbor_index_out[i, e]
             x_ij = xi - sorted_points[k]
             w_sum += wp.static(value)(wp.length(x_ij), h)
             j = cell_point[k]
-            if j != i:
+            if j != i and n < keep:
                 g = volume * wp.static(gradient)(x_ij, h)
                 s += g
                 sq += wp.dot(g, g)

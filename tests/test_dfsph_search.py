@@ -96,3 +96,23 @@ def test_skin_run_is_bitwise_reproducible_over_thread_counts(monkeypatch, device
         assert sim.solver.list_builds < 4  # the initial density, then 3 steps
         res.append((sim.get_field("particle_x"), sim.get_field("particle_v")))
     assert np.array_equal(res[0][0], res[1][0]) and np.array_equal(res[0][1], res[1][1])
+
+
+def test_search_reports_full_lists_and_keeps_its_rows_apart_until_they_grow(device):
+    """Lists of 8 (fewer than a particle's neighbours): the search reports the largest count that did not
+    fit and writes no compressed row past its room (offsets: the prefix sum of the rooms, at most 8
+    each); after the lists grow to that count the search equals the oracle again."""
+    sim, o = prepared(device=device)
+    nl = sim.solver.nl
+    nl._allocate(nl.fluid, 8)
+    stage(sim, "density").run(sim, 3e-3)
+    worst = nl.overflow()
+    assert worst == (o.mask.sum(1) + 1).max()  # i itself and its neighbours within H_s
+    pairs = sim.fields["dfsph_pairs"]
+    count, offset = pairs.count.numpy(), pairs.offset.numpy()
+    room = np.diff(np.concatenate([offset, [offset[-1] + 8]]))
+    assert (count <= room).all() and (room <= 8).all() and (count < o.mask.sum(1)).any()
+    nl.grow(worst)
+    stage(sim, "density").run(sim, 3e-3)
+    assert nl.overflow() == 0
+    check_search_against_oracle(sim, o)

@@ -109,7 +109,7 @@ class DfsphSearch:
         wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
         launch(self._search, n,
                [fc.cell_point, fc.sorted_x, m.particle_mass, m.smoothing_length, m.rest_density, f["particle_x"],
-                f["particle_v"], self._found, pairs.offset],
+                f["particle_v"], self._found, self._room, pairs.offset],
                [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.count, pairs.index, pairs.gradient,
                 f["particle_density"], pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
         empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
