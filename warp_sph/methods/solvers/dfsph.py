@@ -312,7 +312,8 @@ class DfsphSolver(DfsphSearch, Solver):
             self._neighbors,
             Stage("density", self.run_search, reads=search_reads + boundary_reads, writes=search_out,
                   doc=(f"one search within H_s (list capacities {self.nl.capacities}): neighbour lists" if not self.skin
-                       else f"lists within H_s + {p.search_skin:g} d rebuilt when a particle moved > {p.search_skin / 2:g} d "
+                       else f"lists within H_s + {p.search_skin:g} d rebuilt once a particle moved "
+                       f"{p.search_skin / 2:g} d "
                        f"(capacities {self.nl.capacities}), their pairs within H_s") + f", density (eq. 7"
                       f"{wall}), pair cache V grad W_ij in compressed rows, f_i = 1/(|s_i|^2 + sum_j |V grad W_ij|^2), "
                       f"divergence source -delta(v), warm start {p.warm_start:g} P~v/dt"),

@@ -22,6 +22,7 @@ import warp as wp
 from ...core.launch import LIGHT_MIN_RANGE, launch
 from ...core.smoothing import get_smoothing_kernel, lattice_offsets
 from ...kernels import dfsph_search as _search
+from ...kernels import dfsph_skin as _skin
 from ...kernels import reduction as _reduce
 
 #: neighbours (fluid + boundary, self excluded) a particle needs for its divergence error to count,
@@ -65,7 +66,7 @@ class DfsphSearch:
         self._no_cells = wp.zeros(2, dtype=wp.int32, device=dev)  # an empty grid: one cell, no point
         self.list_builds = 0   # list builds with the search skin (tests and run statistics read it)
         if self.skin > 0.0:
-            self._pairs_from_lists = _search.fluid_pairs_kernel(m.smoothing.name)
+            self._pairs_from_lists = _skin.fluid_pairs_kernel(m.smoothing.name)
             self._boundary_from_lists = _search.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0,
                                                                        moving, lists=True)
             self._searched_x = wp.zeros(size, dtype=wp.vec3, device=dev)  # x at the last list build
@@ -149,7 +150,7 @@ class DfsphSearch:
             return True
         if nl.moving_cells is not None:
             return True
-        launch(_search.max_drift_chunks, self._drift_partial.shape[0],
+        launch(_skin.max_drift_chunks, self._drift_partial.shape[0],
                [_reduce.REDUCE_CHUNK, n, self.sim.fields["particle_x"], self._searched_x], [self._drift_partial],
                device=m.device)
         drift2 = float(self._drift_partial.numpy().max())
@@ -185,5 +186,5 @@ class DfsphSearch:
                 pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"], f["dfsph_acceleration"],
                 f["dfsph_error"], f["boundary_force"]], device=dev)
         wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
-        launch(_search.compact_pairs, n, [self._pair_index_rows, self._pair_rows, self._room, pairs.offset],
+        launch(_skin.compact_pairs, n, [self._pair_index_rows, self._pair_rows, self._room, pairs.offset],
                [pairs.count, pairs.index, pairs.gradient], device=dev, min_range=LIGHT_MIN_RANGE)
