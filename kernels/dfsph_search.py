@@ -2,12 +2,13 @@
 (notation there: V = m / rho0 [m^3], G_ij = V grad_i W_ij [1/m], the boundary term gb_ib [1/m],
 s_i, D_i, f_i = 1 / D_i [m^2], delta_i(u)); host half ``warp_sph/methods/solvers/dfsph_search.py``.
 
-Neighbours and the factor come from one search per step (``fluid_search_kernel`` then
-``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``, walked with
-``cell_rows`` / ``row_points`` of ``kernels/neighbors.py`` as every list build is): each pair
-within the support radius is found once, and its G_ij goes into a padded row that
-``compact_pairs`` copies into a compressed row layout (``DfsphPairs``), read as one stream by every
-later pass; the solves evaluate no smoothing kernel. The same search writes the fluid and boundary
+Neighbours and the factor come from one search per step (``collect_fluid_pairs``, a prefix sum of
+its pair counts, ``fluid_search_kernel`` then ``boundary_factor_kernel``, over the cell grids of
+``warp_sph.neighbors.NeighborLists``, walked with ``cell_rows`` / ``row_points`` of
+``kernels/neighbors.py`` as every list build is): each pair within the support radius is found once,
+and its G_ij goes straight into a compressed row layout (``DfsphPairs``), read as one stream by every
+later pass; the solves evaluate no smoothing kernel (with the search skin the pairs come from lists:
+``kernels/dfsph_skin.py``). The same search writes the fluid and boundary
 neighbour lists (fluid lists without i itself) that the shared viscosity and XSPH stages read.
 Kernels taking ``tid_offset`` are split over CPU cores and write only their own particle (no
 atomics), so results are bitwise reproducible for any thread count.
@@ -43,41 +44,89 @@ class DfsphPairs:
     active: wp.array(dtype=wp.int32)
 
 
+@wp.kernel(enable_backward=False)
+def collect_fluid_pairs(
+    tid_offset: int,
+    # Fluid cell grid:
+    grid_lo: wp.vec3,
+    inv_cell_size: float,
+    grid_dims: wp.vec3i,
+    cell_start: wp.array(dtype=wp.int32),
+    cell_point: wp.array(dtype=wp.int32),
+    sorted_points: wp.array(dtype=wp.vec3),
+    support_radius: float,
+    # Out:
+    found_out: wp.array(dtype=wp.int32),
+    neighbor_index_out: wp.array2d(dtype=wp.int32),
+    room_out: wp.array(dtype=wp.int32),
+):
+    """The first half of the fluid search, over the fluid cell grid: for particle i (thread k_i = its
+    sorted index, cell order) the sorted indices k of every point within the support radius (i itself
+    included), in walk order, into row i of neighbor_index_out (the first ``capacity``; when more are
+    found the last slot keeps being overwritten, and the step is redone with larger lists); found_out[i]
+    = their number; room_out[i] = the pairs j != i among those kept (the compressed rows' sizes)."""
+    k_self = wp.tid() + tid_offset
+    i = int(cell_point[k_self])
+    xi = sorted_points[k_self]
+    q = (xi - grid_lo) * inv_cell_size
+    qr = support_radius * inv_cell_size
+    radius2 = support_radius * support_radius
+    capacity = neighbor_index_out.shape[1]
+    rows = cell_rows(q, qr, grid_dims)
+    # the candidates closer than the support radius, without a branch (an unpredictable branch per
+    # candidate was measured 15 % slower)
+    last = capacity - 1
+    found = int(0)
+    self_rank = capacity  # where i itself falls among the found (kept when < capacity)
+    for z in range(rows[2], rows[3] + 1):
+        for y in range(rows[0], rows[1] + 1):
+            span = row_points(q, qr, y, z, grid_dims, cell_start)
+            k = span[0]
+            k_end = span[1]
+            while k < k_end:
+                x_ij = xi - sorted_points[k]
+                neighbor_index_out[i, wp.min(found, last)] = k
+                self_rank = wp.where(k == k_self, found, self_rank)
+                found += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
+                k += 1
+    found_out[i] = found
+    room_out[i] = wp.min(found, capacity) - wp.where(self_rank < capacity, 1, 0)
+
+
 @functools.cache
 def fluid_search_kernel(smoothing: str):
-    """The fluid half of the step's search, over the fluid cell grid (points sorted by cell): for
-    particle i (threads in cell order) every j within the support radius. Writes the fluid neighbour
-    list (j != i; the count is exact; when i and its neighbours do not fit the capacity, entries are
-    dropped and max_count_out[i] keeps the largest such number), the padded row of G_ij,
-    room_out[i] = the pairs kept, and the
-    fluid parts of: rho_i = m sum_j W_ij (self included) [kg/m^3], s_i, sum_j |G_ij|^2 and
-    delta_i(v) [1/s] (finished by ``boundary_factor_kernel``)."""
+    """The second half of the fluid search, after ``collect_fluid_pairs`` and the exclusive prefix sum
+    of its room (offset): for particle i (threads in cell order) the kept points in walk order. Writes
+    the fluid neighbour list (j != i; the count is exact; when i and its neighbours do not fit the
+    capacity, entries are dropped and max_count_out[i] keeps the largest such number), the compressed
+    row of the pair cache (count <= room[i], index j, G_ij at offset[i] ..), and the fluid parts of:
+    rho_i = m sum_j W_ij (self included) [kg/m^3], s_i, sum_j |G_ij|^2 and delta_i(v) [1/s] (finished
+    by ``boundary_factor_kernel``)."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
 
     @wp.kernel(enable_backward=False, module="unique")
     def search_fluid(
         tid_offset: int,
         # Fluid cell grid:
-        grid_lo: wp.vec3,
-        inv_cell_size: float,
-        grid_dims: wp.vec3i,
-        cell_start: wp.array(dtype=wp.int32),
         cell_point: wp.array(dtype=wp.int32),
         sorted_points: wp.array(dtype=wp.vec3),
         # Model:
         particle_mass: float,
         smoothing_length: float,
-        support_radius: float,
         rest_density: float,
         # State in:
         particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
-        # Out:
+        found: wp.array(dtype=wp.int32),
+        room: wp.array(dtype=wp.int32),
+        offset: wp.array(dtype=wp.int32),
+        # Out (neighbor_index_out: the sorted indices of ``collect_fluid_pairs`` in):
         neighbor_count_out: wp.array(dtype=wp.int32),
         neighbor_index_out: wp.array2d(dtype=wp.int32),
         max_count_out: wp.array(dtype=wp.int32),
-        pair_gradient_out: wp.array2d(dtype=wp.vec3),
-        room_out: wp.array(dtype=wp.int32),
+        pair_count_out: wp.array(dtype=wp.int32),
+        pair_index_out: wp.array(dtype=wp.int32),
+        pair_gradient_out: wp.array(dtype=wp.vec3),
         particle_density_out: wp.array(dtype=float),
         gradient_sum_out: wp.array(dtype=wp.vec3),
         square_sum_out: wp.array(dtype=float),
@@ -88,51 +137,37 @@ def fluid_search_kernel(smoothing: str):
         vi = particle_v[i]
         h = smoothing_length
         volume = particle_mass / rest_density
-        q = (xi - grid_lo) * inv_cell_size
-        qr = support_radius * inv_cell_size
-        radius2 = support_radius * support_radius
         capacity = neighbor_index_out.shape[1]
-        rows = cell_rows(q, qr, grid_dims)
-        # collect the candidates closer than the support radius without a branch (sorted indices k, in
-        # the row of the list; an unpredictable branch per candidate was measured 15 % slower) ...
-        last = capacity - 1
-        found = int(0)
-        for z in range(rows[2], rows[3] + 1):
-            for y in range(rows[0], rows[1] + 1):
-                span = row_points(q, qr, y, z, grid_dims, cell_start)
-                k = span[0]
-                k_end = span[1]
-                while k < k_end:
-                    x_ij = xi - sorted_points[k]
-                    neighbor_index_out[i, wp.min(found, last)] = k
-                    found += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
-                    k += 1
-        # ... then the pairs (i itself adds W(0) to the density and is dropped from the list)
+        base = offset[i]
+        # i itself adds W(0) to the density and is dropped from the lists
         w_sum = float(0.0)
         s = wp.vec3(0.0)
         sq = float(0.0)
         div = float(0.0)
         n = int(0)
         e = int(0)
-        e_end = wp.min(found, capacity)
+        found_i = found[i]
+        keep = room[i]  # (less than the row's j != i only when the row overflowed: its last slot is overwritten)
+        e_end = wp.min(found_i, capacity)
         while e < e_end:
             k = neighbor_index_out[i, e]
             x_ij = xi - sorted_points[k]
             w_sum += wp.static(value)(wp.length(x_ij), h)
             j = cell_point[k]
-            if j != i:
+            if j != i and n < keep:
                 g = volume * wp.static(gradient)(x_ij, h)
                 s += g
                 sq += wp.dot(g, g)
                 div += wp.dot(vi - particle_v[j], g)
                 neighbor_index_out[i, n] = j
-                pair_gradient_out[i, n] = g
+                pair_index_out[base + n] = j
+                pair_gradient_out[base + n] = g
                 n += 1
             e += 1
-        room_out[i] = n
-        if found > capacity:  # pairs were dropped: the frame is redone with larger lists
-            max_count_out[i] = wp.max(max_count_out[i], found)  # per particle, no atomics
-            n = found - 1
+        pair_count_out[i] = n
+        if found_i > capacity:  # pairs were dropped: the frame is redone with larger lists
+            max_count_out[i] = wp.max(max_count_out[i], found_i)  # per particle, no atomics
+            n = found_i - 1
         neighbor_count_out[i] = n
         particle_density_out[i] = particle_mass * w_sum
         gradient_sum_out[i] = s
@@ -143,14 +178,17 @@ def fluid_search_kernel(smoothing: str):
 
 
 @functools.cache
-def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving: bool = False):
+def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving: bool = False, lists: bool = False):
     """The boundary half of the search and the factor (threads in cell order): with ``search``, every
     boundary particle b within the support radius goes into the boundary neighbour list (cells with
     no boundary particle within one cell are skipped by the mask), and, when the boundary method's
     ``BoundaryTerms`` has density and gradient terms, into rho_i (rho0 density_b), s_i (gb_ib) and
     delta_i(v) (v_i - v_b). With ``moving`` (rigid bodies) a second grid, over the moving boundary
     particles (boundary indices moving_start + k), is walked after the static one, its neighbours
-    listed after the static ones. Then, from the fluid parts: f_i = 1 / D_i (0 when D_i <= factor_floor),
+    listed after the static ones. With ``lists`` (the search skin) nothing is walked: the boundary
+    neighbour list (built within H_s + skin, boundary indices) is read and its particles b closer than
+    the support radius add the same terms (x_b from boundary_x, V_b from boundary_volume), in the
+    list's order. Then, from the fluid parts: f_i = 1 / D_i (0 when D_i <= factor_floor),
     the divergence source -delta_i(v), active_i, the divergence warm start P^v_i = warm_start
     P~^v_i / dt where delta_i(v) > 0 and i is active (P~^v = P^v dt of the last step [m^2/s]), the
     compression max(rho_i / rho0 - 1, 0) [-] (the stabilisation test reads its mean), the solves'
@@ -226,6 +264,47 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
                         k += 1
         return nb, ratio, sb, bvel
 
+    @wp.func(module="unique")
+    def list_boundary(
+        i: int,
+        xi: wp.vec3,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        neighbor_count: wp.array(dtype=wp.int32),
+        neighbor_index: wp.array2d(dtype=wp.int32),
+        smoothing_length: float,
+        support_radius: float,
+        boundary_params: BoundaryParams,
+        boundary_v: wp.array(dtype=wp.vec3),
+        ratio_in: float,
+        sb_in: wp.vec3,
+        bvel_in: float,
+    ):
+        """The listed boundary particles b (within H_s + skin when listed) closer than the support radius:
+        their count and their terms added to (ratio, sb, bvel)."""
+        nb = int(0)
+        ratio = ratio_in
+        sb = sb_in
+        bvel = bvel_in
+        h = smoothing_length
+        radius2 = support_radius * support_radius
+        e = int(0)
+        e_end = wp.min(neighbor_count[i], neighbor_index.shape[1])
+        while e < e_end:
+            b = neighbor_index[i, e]
+            x_ib = xi - boundary_x[b]
+            dd = wp.dot(x_ib, x_ib)
+            if dd < radius2:
+                nb += 1
+                if wp.static(with_terms):
+                    vol = boundary_volume[b]
+                    ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.sqrt(dd), h), vol)
+                    gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
+                    sb += gb
+                    bvel += wp.dot(boundary_v[b], gb)
+            e += 1
+        return nb, ratio, sb, bvel
+
     @wp.kernel(enable_backward=False, module="unique")
     def boundary_factor(
         tid_offset: int,
@@ -268,11 +347,14 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         divergence_warm: wp.array(dtype=float),
         fluid_count: wp.array(dtype=wp.int32),
         square_sum: wp.array(dtype=float),
+        # Boundary particles (with ``lists``):
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
         # In/out (fluid parts in, totals out):
         particle_density: wp.array(dtype=float),
         gradient_sum: wp.array(dtype=wp.vec3),
         divergence: wp.array(dtype=float),
-        # Out:
+        # Out (the boundary neighbour list: in with ``lists``):
         neighbor_count_out: wp.array(dtype=wp.int32),
         neighbor_index_out: wp.array2d(dtype=wp.int32),
         max_count_out: wp.array(dtype=wp.int32),
@@ -294,7 +376,11 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         sb = wp.vec3(0.0)
         bvel = float(0.0)
         nb = int(0)
-        if wp.static(search):
+        if wp.static(search and lists):
+            nb, ratio, sb, bvel = list_boundary(i, xi, boundary_x, boundary_volume, neighbor_count_out,
+                                                neighbor_index_out, smoothing_length, support_radius,
+                                                boundary_params, boundary_v, ratio, sb, bvel)
+        if wp.static(search and not lists):
             nb, ratio, sb, bvel = walk_boundary(i, xi, grid_lo, inv_cell_size, grid_dims, cell_start, cell_point,
                                                 sorted_points, sorted_volume, cell_mask, use_mask, 0,
                                                 smoothing_length, support_radius, boundary_params, boundary_v,
@@ -337,29 +423,3 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         boundary_force_out[i] = wp.vec3(0.0)
 
     return boundary_factor
-
-
-@wp.kernel(enable_backward=False)
-def compact_pairs(
-    tid_offset: int,
-    # In:
-    neighbor_index: wp.array2d(dtype=wp.int32),
-    pair_gradient: wp.array2d(dtype=wp.vec3),
-    room: wp.array(dtype=wp.int32),
-    offset: wp.array(dtype=wp.int32),
-    # Out:
-    count_out: wp.array(dtype=wp.int32),
-    index_out: wp.array(dtype=wp.int32),
-    gradient_out: wp.array(dtype=wp.vec3),
-):
-    """Row i of the padded pairs to entries offset[i] .. offset[i] + room[i] - 1 (offset: the exclusive
-    prefix sum of room)."""
-    i = wp.tid() + tid_offset
-    base = offset[i]
-    n = room[i]
-    count_out[i] = n
-    k = int(0)
-    while k < n:
-        index_out[base + k] = neighbor_index[i, k]
-        gradient_out[base + k] = pair_gradient[i, k]
-        k += 1

@@ -13,17 +13,17 @@ from ..kernels import density as _density
 from ..neighbors.cell_lists import simulation_neighbor_lists
 
 
-def neighbors_stage(sim, lists: bool = True) -> Stage:
+def neighbors_stage(sim, lists: bool = True, margin: float = 0.0) -> Stage:
     """Sort the fluid into the cells of the neighbour lists (``density_stage`` then builds the lists), or
-    rebuild the fluid hash grid (cell = search radius = support radius H_s)."""
+    rebuild the fluid hash grid (cell = search radius = support radius H_s; lists: H_s + margin [m])."""
     if lists:
-        nl = simulation_neighbor_lists(sim)
+        nl = simulation_neighbor_lists(sim, margin)
 
         def run_sort(sim, dt):
             nl.sort(sim.fields["particle_x"])
 
         return Stage("neighbors", run_sort, reads=("particle_x",), writes=("neighbor_cells",),
-                     doc=f"fluid sorted into cells of H_s = {sim.model.support_radius:.4g} m (dense cell grid)")
+                     doc=f"fluid sorted into cells of {nl.search_radius:.4g} m (dense cell grid)")
 
     def run(sim, dt):
         sim.fluid_grid.build(sim.fields["particle_x"])

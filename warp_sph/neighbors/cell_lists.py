@@ -5,9 +5,12 @@ neighbour loop of the step reads. Measured faster on the CPU than ``wp.HashGrid`
 """
 from __future__ import annotations
 
+import math
+
 import warp as wp
 
 MAX_CELLS = 1 << 22  # the dense cell grid grows its cell size past the search radius beyond this
+MAX_MASK_REACH = 4  # the boundary mask of cells smaller than the search radius spans at most this many cells
 
 
 class CellGrid:
@@ -62,23 +65,25 @@ class CellGrid:
                device=self.device, min_range=LIGHT_MIN_RANGE)
         launch(_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device, min_range=LIGHT_MIN_RANGE)
 
-    def occupied_near_mask(self) -> wp.array:
-        """uint8 per cell: 1 where a point lies in the cell or one of its 26 neighbours (host, after
-        ``build``). With cells >= the search radius, a query from a 0 cell finds nothing."""
+    def occupied_near_mask(self, reach: int = 1) -> wp.array:
+        """uint8 per cell: 1 where a point lies in the cell or one of its neighbours up to ``reach`` cells
+        away along each axis (26 for reach 1; host, after ``build``). With reach cells >= the search
+        radius, a query from a 0 cell finds nothing."""
         import numpy as np
 
         nx, ny, nz = (int(self.dims[k]) for k in range(3))
         start = self.cell_start.numpy()[: self.cell_count + 1]
         occupied = (np.diff(start) > 0).reshape(nz, ny, nx)
         near = occupied.copy()
-        for axis in range(3):
-            grown = near.copy()
-            lo = [slice(None)] * 3
-            hi = [slice(None)] * 3
-            lo[axis], hi[axis] = slice(0, -1), slice(1, None)
-            grown[tuple(lo)] |= near[tuple(hi)]
-            grown[tuple(hi)] |= near[tuple(lo)]
-            near = grown
+        for _ in range(reach):
+            for axis in range(3):
+                grown = near.copy()
+                lo = [slice(None)] * 3
+                hi = [slice(None)] * 3
+                lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+                grown[tuple(lo)] |= near[tuple(hi)]
+                grown[tuple(hi)] |= near[tuple(lo)]
+                near = grown
         return wp.array(near.reshape(-1).astype(np.uint8), dtype=wp.uint8, device=self.device)
 
 
@@ -107,6 +112,7 @@ class NeighborLists:
         from ..kernels import neighbors as _dev
 
         self.search_radius = float(search_radius)
+        self.cells_per_radius = int(cells_per_radius)
         self.device = device
         self.fluid_count = int(fluid_count)
         self.fluid_cells = CellGrid(search_radius, lo, hi, fluid_count, cells_per_radius, device=device)
@@ -134,8 +140,9 @@ class NeighborLists:
             bc = self.boundary_cells = CellGrid(search_radius, lo, hi, boundary_x.shape[0], cells_per_radius,
                                                 device=device)
             bc.build(boundary_x)
-            # a mask needs cells of at least the search radius (one cell of growth covers a query)
-            self._boundary_mask = bc.occupied_near_mask() if bc.cell_size >= self.search_radius else None
+            # the mask grows by as many cells as the search radius spans (one for cells >= the radius)
+            reach = max(1, math.ceil(self.search_radius / bc.cell_size - 1e-6))
+            self._boundary_mask = bc.occupied_near_mask(reach) if reach <= MAX_MASK_REACH else None
             self._boundary_weight = self._no_weight
             if boundary_volume is not None:
                 order = bc.cell_point.numpy()[: boundary_x.shape[0]]
@@ -287,22 +294,23 @@ class NeighborLists:
             self._allocate(self.boundary, new)
 
 
-def simulation_neighbor_lists(sim, margin: float = 0.0) -> NeighborLists:
+def simulation_neighbor_lists(sim, margin: float = 0.0, cells_per_radius: int = 1) -> NeighborLists:
     """The simulation's per-step neighbour lists (created on first use, workspace field ``neighbor_lists``).
 
     Their dense cell grid covers the container, the boundary and the initial fluid, padded by two
     support radii (by a quarter of the extent without a container); particles beyond it stay exact.
     margin [m]: the search radius is H_s + margin (lists that stay complete while particles move
-    by up to margin / 2); the capacities grow with the searched volume. Lists of another search
-    radius are replaced.
+    by up to margin / 2); the capacities grow with the searched volume. cells_per_radius: cells per
+    search radius along each axis (2: cells of half the radius, fewer candidates per query). Lists of
+    another search radius or cell size are replaced.
     """
-    import math
 
     import numpy as np
 
     lists = sim.fields.get("neighbor_lists")
-    if lists is not None and not math.isclose(lists.search_radius, sim.model.support_radius + margin, rel_tol=1e-6):
-        lists = None  # another search radius (a solver swapped in): new lists replace the old ones
+    if lists is not None and (not math.isclose(lists.search_radius, sim.model.support_radius + margin, rel_tol=1e-6)
+                              or lists.cells_per_radius != cells_per_radius):
+        lists = None  # another search radius or cell size (a solver swapped in): new lists replace the old ones
     if lists is None:
         m = sim.model
         x = sim.state.particle_x.numpy()
@@ -322,6 +330,7 @@ def simulation_neighbor_lists(sim, margin: float = 0.0) -> NeighborLists:
                               m.boundary_x if with_boundary else None,
                               fluid_capacity=int(math.ceil(64 * volume)), boundary_capacity=int(math.ceil(48 * volume)),
                               device=m.device, boundary_volume=m.boundary_volume if with_boundary else None,
-                              moving_start=m.static_boundary_count if with_boundary else None)
+                              moving_start=m.static_boundary_count if with_boundary else None,
+                              cells_per_radius=cells_per_radius)
         sim.fields["neighbor_lists"] = lists
     return lists

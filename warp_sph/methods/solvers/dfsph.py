@@ -38,7 +38,6 @@ from ...core.launch import LIGHT_MIN_RANGE, launch
 from ...core.step_graph import Stage
 from ...kernels import dfsph as _dfsph
 from ...kernels import reduction as _reduce
-from ...neighbors.cell_lists import simulation_neighbor_lists
 from ...scene.parameters import Param
 from ..density import neighbors_stage
 from ..registry import register_solver
@@ -116,6 +115,10 @@ class DfsphSolver(DfsphSearch, Solver):
               "for Chebyshev acceleration (Wang 2015; 0: plain Jacobi): fewer sweeps in deep flows (0.95: half of "
               "them in the dam break), but fluid at rest keeps moving and its pressures come out a few % low",
               ge=0.0, lt=1.0),
+        Param("dfsph.search_skin", "float", "-", 0.0, "skin of the neighbour search in particle spacings d: lists "
+              "of the pairs within H_s + skin, rebuilt only when a particle moved more than skin / 2 since the last "
+              "build, the pair values recomputed every step (0: one search every step; > 0: equal to float "
+              "rounding, the sums run in the lists' order)", ge=0.0, le=2.0),
         Param("dfsph.relaxation", "float", "-", 0.5, "Jacobi relaxation omega of both solves (SPlisHSPlasH: 0.5; "
               "1 overshoots on coupled pairs)", gt=0.0, le=1.0),
     )
@@ -137,6 +140,7 @@ class DfsphSolver(DfsphSearch, Solver):
             raise ValueError(f"check_every must be >= 1, got {check_every}")
         self.neighbor_threshold = neighbor_threshold(m.smoothing.name, m.smoothing_length, m.spacing)
         self.factor_floor = FACTOR_FLOOR / (m.spacing * m.spacing)
+        self.skin = float(self.config.search_skin) * m.spacing  # [m]
         target = float(self.config.target_density_error)
         self.stabilize_threshold = max(STABILIZE_FACTOR * target, STABILIZE_FLOOR)
         self.max_shift = 0.5 * m.particle_radius
@@ -291,8 +295,7 @@ class DfsphSolver(DfsphSearch, Solver):
 
     def stages(self) -> list[Stage]:
         sim, m, p = self.sim, self.model, self.config
-        self._neighbors = neighbors_stage(sim, True)
-        simulation_neighbor_lists(sim)
+        self._neighbors = neighbors_stage(sim, True, self.skin)
         self._allocate()
         self._pairs()
         terms = sim.boundary_terms
@@ -308,7 +311,10 @@ class DfsphSolver(DfsphSearch, Solver):
         stages = [
             self._neighbors,
             Stage("density", self.run_search, reads=search_reads + boundary_reads, writes=search_out,
-                  doc=f"one search within H_s (list capacities {self.nl.capacities}): neighbour lists, density (eq. 7"
+                  doc=(f"one search within H_s (list capacities {self.nl.capacities}): neighbour lists" if not self.skin
+                       else f"lists within H_s + {p.search_skin:g} d rebuilt once a particle moved "
+                       f"{p.search_skin / 2:g} d "
+                       f"(capacities {self.nl.capacities}), their pairs within H_s") + f", density (eq. 7"
                       f"{wall}), pair cache V grad W_ij in compressed rows, f_i = 1/(|s_i|^2 + sum_j |V grad W_ij|^2), "
                       f"divergence source -delta(v), warm start {p.warm_start:g} P~v/dt"),
             Stage("stabilize", self.run_stabilize, reads=("particle_v", "dfsph_divergence_warm") + boundary_reads,

@@ -3,8 +3,15 @@ and search kernels it allocates, and the one search per step that launches ``ker
 (neighbour lists, density, factor f_i = 1/D_i [m^2], the pair cache G_ij = V grad W_ij [1/m] in
 compressed rows, divergence source and warm start). ``dfsph.py`` decides when it runs (the "density"
 and "stabilize" stages) and runs the solves on what it leaves; the attributes the search reads
-(``factor_floor``, ``neighbor_threshold``, ``with_bodies``, ``config``) are set by
+(``factor_floor``, ``neighbor_threshold``, ``with_bodies``, ``config``, ``skin``) are set by
 ``DfsphSolver.__init__``.
+
+Search skin (``dfsph.search_skin`` = s > 0): the neighbour lists hold the pairs within H_s + s and are
+built (``NeighborLists.build_lists``, the shared list kernel) only when a particle moved more than s / 2
+since the last build (or the particle count, the list capacity or a moving boundary changed); every
+step then recomputes the pair values from the lists, keeping the pairs closer than H_s. The values
+equal those of the per-step search up to float rounding (the sums run in the lists' order). With
+s = 0 the one search of ``kernels/dfsph_search.py`` runs every step, bitwise as before.
 
 A helper of the solver ``dfsph.py`` (it registers nothing; the registry imports it harmlessly).
 """
@@ -15,6 +22,8 @@ import warp as wp
 from ...core.launch import LIGHT_MIN_RANGE, launch
 from ...core.smoothing import get_smoothing_kernel, lattice_offsets
 from ...kernels import dfsph_search as _search
+from ...kernels import dfsph_skin as _skin
+from ...kernels import reduction as _reduce
 
 #: neighbours (fluid + boundary, self excluded) a particle needs for its divergence error to count,
 #: on the cubic lattice with support 2d (26 interior, 17 on a flat free surface; SPlisHSPlasH: 20)
@@ -45,6 +54,7 @@ class DfsphSearch:
             setattr(pairs, name, wp.zeros(size, dtype=dtype, device=dev))
         sim.fields["dfsph_pairs"] = pairs
         self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle
+        self._found = wp.zeros(size, dtype=wp.int32, device=dev)   # points within H_s per particle (self included)
         self._square_sum = wp.zeros(size, dtype=float, device=dev)  # sum_j |G_ij|^2 (fluid part of D_i)
         self._pairs_capacity = 0
         self._search = _search.fluid_search_kernel(m.smoothing.name)
@@ -54,17 +64,27 @@ class DfsphSearch:
         self._no_volume = wp.zeros(1, dtype=float, device=dev)
         self._no_mask = wp.zeros(1, dtype=wp.uint8, device=dev)
         self._no_cells = wp.zeros(2, dtype=wp.int32, device=dev)  # an empty grid: one cell, no point
+        self.list_builds = 0   # list builds with the search skin (tests and run statistics read it)
+        if self.skin > 0.0:
+            self._pairs_from_lists = _skin.fluid_pairs_kernel(m.smoothing.name)
+            self._boundary_from_lists = _search.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0,
+                                                                       moving, lists=True)
+            self._searched_x = wp.zeros(size, dtype=wp.vec3, device=dev)  # x at the last list build
+            self._drift_partial = wp.zeros(max(1, -(-size // _reduce.REDUCE_CHUNK)), dtype=float, device=dev)
+            self._built = None  # (particle count, list arrays) of the last build
 
     def _pairs(self):
-        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): a padded row per
-        particle for the search and the compressed rows the solves read."""
+        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): the compressed rows
+        the solves read (and, with the skin, a padded row per particle for the pair pass)."""
         pairs = self.sim.fields["dfsph_pairs"]
         capacity = self.nl.capacities[0]
         if capacity != self._pairs_capacity:
             n, dev = max(self.model.capacity, 1), self.model.device
             pairs.index = wp.zeros(n * capacity, dtype=wp.int32, device=dev)
             pairs.gradient = wp.zeros(n * capacity, dtype=wp.vec3, device=dev)
-            self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
+            if self.skin > 0.0:  # padded rows of the pairs (the lists themselves hold H_s + skin)
+                self._pair_rows = wp.zeros((n, capacity), dtype=wp.vec3, device=dev)
+                self._pair_index_rows = wp.zeros((n, capacity), dtype=wp.int32, device=dev)
             self._pairs_capacity = capacity
         return pairs
 
@@ -76,16 +96,23 @@ class DfsphSearch:
     def search(self, dt: float) -> None:
         """The step's one search at the current x (the fluid sorted into cells by the "neighbors" stage):
         neighbour lists, density, pair cache, factor, divergence source and warm start."""
+        if self.skin > 0.0:
+            self._search_with_skin(dt)
+            return
         m, f = self.model, self.sim.fields
         nl = self.nl
         n, dev = m.fluid_count, m.device
         pairs = self._pairs()
         fc = nl.fluid_cells
+        launch(_search.collect_fluid_pairs, n,
+               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.support_radius],
+               [self._found, nl.fluid.index, self._room], device=dev)
+        wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
         launch(self._search, n,
-               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.particle_mass,
-                m.smoothing_length, m.support_radius, m.rest_density, f["particle_x"], f["particle_v"]],
-               [nl.fluid.count, nl.fluid.index, nl.max_count, self._pair_rows, self._room, f["particle_density"],
-                pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
+               [fc.cell_point, fc.sorted_x, m.particle_mass, m.smoothing_length, m.rest_density, f["particle_x"],
+                f["particle_v"], self._found, self._room, pairs.offset],
+               [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.count, pairs.index, pairs.gradient,
+                f["particle_density"], pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
         empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
                  self._no_mask, 0]
         bc = nl.boundary_cells
@@ -106,11 +133,58 @@ class DfsphSearch:
                grid + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor, self.neighbor_threshold,
                        self.sim.boundary_params, m.boundary_v, float(self.config.warm_start),
                        1.0 / dt if dt > 0 else 0.0, fc.cell_point, f["particle_x"], f["particle_v"],
-                       f["dfsph_divergence_warm"], nl.fluid.count, self._square_sum, f["particle_density"],
-                       pairs.gradient_sum, f["dfsph_divergence_source"]],
+                       f["dfsph_divergence_warm"], nl.fluid.count, self._square_sum, m.boundary_x, self._no_volume,
+                       f["particle_density"], pairs.gradient_sum, f["dfsph_divergence_source"]],
+               [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient, pairs.boundary_velocity,
+                pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"], f["dfsph_acceleration"],
+                f["dfsph_error"], f["boundary_force"]], device=dev)
+
+    # --- search skin -----------------------------------------------------------------------
+    def _lists_stale(self) -> bool:
+        """True when the lists (within H_s + skin) may miss a pair closer than H_s: no build yet, another
+        particle count or list arrays (grown), moving boundary particles, or a particle farther than
+        skin / 2 from where the lists were built (two particles then close in by at most the skin)."""
+        m, nl = self.model, self.nl
+        n = m.fluid_count
+        if self._built is None or self._built != (n, nl.fluid.index, nl.boundary.index):
+            return True
+        if nl.moving_cells is not None:
+            return True
+        launch(_skin.max_drift_chunks, self._drift_partial.shape[0],
+               [_reduce.REDUCE_CHUNK, n, self.sim.fields["particle_x"], self._searched_x], [self._drift_partial],
+               device=m.device)
+        drift2 = float(self._drift_partial.numpy().max())
+        return drift2 > (0.5 * self.skin) ** 2
+
+    def _search_with_skin(self, dt: float) -> None:
+        """The search with a skin (see the module docstring): lists rebuilt when stale, pair values every step."""
+        m, f = self.model, self.sim.fields
+        nl = self.nl
+        n, dev = m.fluid_count, m.device
+        x = f["particle_x"]
+        if self._lists_stale():
+            nl.build_lists(x)
+            wp.copy(self._searched_x, x, count=n)
+            self._built = (n, nl.fluid.index, nl.boundary.index)
+            self.list_builds += 1
+        pairs = self._pairs()
+        launch(self._pairs_from_lists, n,
+               [nl.fluid, m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, x, f["particle_v"]],
+               [self._pair_index_rows, self._pair_rows, self._room, f["particle_density"], pairs.gradient_sum,
+                self._square_sum, f["dfsph_divergence_source"]], device=dev)
+        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
+                 self._no_mask, 0]
+        launch(self._boundary_from_lists, n,
+               empty + empty + [0]
+               + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor, self.neighbor_threshold,
+                  self.sim.boundary_params, m.boundary_v, float(self.config.warm_start),
+                  1.0 / dt if dt > 0 else 0.0, nl.fluid_cells.cell_point, x, f["particle_v"],
+                  f["dfsph_divergence_warm"], self._room, self._square_sum,
+                  m.boundary_x, m.boundary_volume if m.boundary_volume is not None else self._no_volume,
+                  f["particle_density"], pairs.gradient_sum, f["dfsph_divergence_source"]],
                [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient, pairs.boundary_velocity,
                 pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"], f["dfsph_acceleration"],
                 f["dfsph_error"], f["boundary_force"]], device=dev)
         wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
-        launch(_search.compact_pairs, n, [nl.fluid.index, self._pair_rows, self._room, pairs.offset],
+        launch(_skin.compact_pairs, n, [self._pair_index_rows, self._pair_rows, self._room, pairs.offset],
                [pairs.count, pairs.index, pairs.gradient], device=dev, min_range=LIGHT_MIN_RANGE)

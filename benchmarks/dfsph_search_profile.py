@@ -1,0 +1,139 @@
+"""Where DFSPH's search time goes, and what the search skin (``dfsph.search_skin``) does to it.
+
+    python -m benchmarks.dfsph_search_profile 13 30            # side by side at one state
+    python -m benchmarks.dfsph_search_profile 13 rate 0.5 1.0  # list builds over a run
+
+Side by side: runs the default dam break (no output) for that many frames, then at that state times
+(process CPU, one thread: ``WARP_SPH_CPU_THREADS=1``, the first round not counted) the given number of
+rounds of the cell sort and the search of each variant, in turn: the per-step search (cells of H_s),
+cells of H_s / 2, and the skin at 0.5 d and 1 d with the lists rebuilt and reused; and each kernel
+launch of the search. "rate": the same run for each skin, counting list builds against searches and the
+particles' displacement per step [d]. One JSON object on stdout. Wrap it in ``flock
+/tmp/warp_sph_bench.lock`` on a shared machine. A diagnostic beside ``warp-sph bench splishsplash``.
+"""
+from __future__ import annotations
+
+import collections
+import json
+import os
+import sys
+import time
+
+
+def _scene(over: list[str]):
+    from warp_sph.scene import load_scene
+
+    return load_scene("dam_break", overrides=["output.usd=false", "output.surface=false"] + over)
+
+
+def side_by_side(frames: int, rounds: int) -> dict:
+    import warp_sph.methods.solvers.dfsph_search as host
+    import warp_sph.neighbors.cell_lists as cell_lists
+    from warp_sph.run.simulation import Simulation
+
+    sim0 = Simulation(_scene([]))
+    for _ in range(frames):
+        sim0.advance_frame()
+    x, v = sim0.get_field("particle_x"), sim0.get_field("particle_v")
+
+    def variant(over, cells_per_radius=1):
+        cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, cells_per_radius)
+        try:
+            sim = Simulation(_scene(over))
+        finally:
+            cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, 1)
+        sim.set_field("particle_x", x)
+        sim.set_field("particle_v", v)
+        return sim
+
+    variants = {"per-step search": sim0, "cells H_s/2": variant([], 2),
+                "skin 0.5 d": variant(["dfsph.search_skin=0.5"]), "skin 1 d": variant(["dfsph.search_skin=1.0"])}
+    call_s, kernel_s = collections.defaultdict(list), collections.defaultdict(list)
+    plain_launch = host.launch
+    current = [""]
+
+    def timed_launch(kernel, dim, *args, **kw):
+        t = time.process_time()
+        plain_launch(kernel, dim, *args, **kw)
+        kernel_s[current[0] + ": " + getattr(kernel, "key", str(kernel)).split("__")[0]].append(time.process_time() - t)
+
+    host.launch = timed_launch
+    try:
+        for r in range(rounds + 1):
+            for name, sim in variants.items():
+                current[0] = name
+                nl, solver = sim.fields["neighbor_lists"], sim.solver
+                with sim.in_cell_order():
+                    t0 = time.process_time()
+                    nl.sort(sim.fields["particle_x"])
+                    t1 = time.process_time()
+                    if solver.skin:
+                        solver._built = None  # the lists rebuilt
+                    solver.search(3e-3)
+                    t2 = time.process_time()
+                    if solver.skin:
+                        solver.search(3e-3)  # lists reused
+                    t3 = time.process_time()
+                if r == 0:
+                    kernel_s.clear()
+                    continue
+                call_s[name + ": sort"].append(t1 - t0)
+                call_s[name + ": search" + (", lists built" if solver.skin else "")].append(t2 - t1)
+                if solver.skin:
+                    call_s[name + ": search, lists reused"].append(t3 - t2)
+    finally:
+        host.launch = plain_launch
+    n = sim0.model.fluid_count
+    return {"frames": frames, "rounds": rounds, "fluid": n, "boundary": sim0.model.boundary_count,
+            "threads": os.environ.get("WARP_SPH_CPU_THREADS", "all"),
+            "ms per call": {k: round(1e3 * sum(v) / len(v), 3) for k, v in call_s.items()},
+            "kernel ms per call": {k: round(1e3 * sum(v) / len(v), 3) for k, v in kernel_s.items()},
+            "fluid pairs per particle (j != i, < H_s)": round(float(sim0.fields["dfsph_pairs"].count.numpy()[:n].mean()), 2),
+            "wall neighbours per particle": round(float(sim0.fields["neighbor_lists"].boundary.count.numpy()[:n].mean()), 2)}
+
+
+def rebuild_rate(frames: int, skins: list[float]) -> dict:
+    import numpy as np
+
+    from warp_sph.run.simulation import Simulation
+
+    out = {}
+    for skin in skins:
+        sim = Simulation(_scene([f"dfsph.search_skin={skin}"]))
+        searches = [0]
+        moved = []
+        stages = {s.name: s for s in sim.graph.stages}
+        plain_search, plain_integrate = stages["density"].run, stages["integrate"].run
+
+        def search(s, dt):
+            searches[0] += 1
+            plain_search(s, dt)
+
+        def integrate(s, dt):
+            n = sim.model.fluid_count
+            x0 = s.fields["particle_x"].numpy()[:n].copy()
+            plain_integrate(s, dt)
+            moved.append(np.linalg.norm(s.fields["particle_x"].numpy()[:n] - x0, axis=1) / sim.model.spacing)
+
+        stages["density"].run, stages["integrate"].run = search, integrate
+        builds0, t = sim.solver.list_builds, time.process_time()
+        for _ in range(frames):
+            sim.advance_frame()
+        out[f"skin {skin:g} d"] = {
+            "searches": searches[0], "list builds": sim.solver.list_builds - builds0, "cpu s": round(time.process_time() - t, 2),
+            "mean displacement per step [d]": round(float(np.mean([m.mean() for m in moved])), 4),
+            "largest displacement per step [d], mean over steps": round(float(np.mean([m.max() for m in moved])), 4)}
+    return {"frames": frames, "runs": out}
+
+
+def main(argv: list[str]) -> None:
+    frames = int(argv[0])
+    if len(argv) > 1 and argv[1] == "rate":
+        result = rebuild_rate(frames, [float(a) for a in argv[2:]] or [0.5, 1.0])
+    else:
+        result = side_by_side(frames, int(argv[1]) if len(argv) > 1 else 30)
+    print(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
