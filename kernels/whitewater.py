@@ -60,14 +60,15 @@ def advect_kernel(smoothing: str):
         use_bounds: int,
         bounds_lo: wp.vec3,
         bounds_hi: wp.vec3,
-        # the fluid sorted by cells (``CellGrid``; velocities in the same order)
+        # fluid cell grid (``CellGrid``) and state
         grid_lo: wp.vec3,
         inv_cell_size: float,
         grid_dims: wp.vec3i,
         cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
         search_radius: float,
-        sorted_x: wp.array(dtype=wp.vec3),
-        sorted_v: wp.array(dtype=wp.vec3),
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
         # node grid of this step's fluid sums (``node_sums_kernel``)
         use_nodes: int,
         node_lo: wp.vec3,
@@ -92,7 +93,7 @@ def advect_kernel(smoothing: str):
             fluid = sample_nodes(x, cell, node_lo, inv_spacing, node_dims, node)
         else:
             fluid = fluid_sum(x, smoothing_length, support_radius, grid_lo, inv_cell_size, grid_dims, cell_start,
-                              search_radius, sorted_x, sorted_v)
+                              cell_point, search_radius, particle_x, particle_v)
         kind = classify(fluid[4], spray_n, bubble_n)
         v = ww_v[k]
         v_fluid = v

@@ -27,9 +27,8 @@ vec5 = wp.types.vector(length=5, dtype=float)
 
 @functools.cache
 def fluid_sum_func(smoothing: str):
-    """wp.func S(x) by one walk over a fluid cell grid (``CellGrid``: the fluid sorted by cell, cells of
-    ``search_radius`` / k; the shared walk of kernels/neighbors.py, ``cell_rows`` / ``row_points``). Reads the
-    positions and velocities in sorted order (``sorted_x``, ``sorted_v``: contiguous per row of cells)."""
+    """wp.func S(x) by one walk over the fluid cell grid (``CellGrid``: cells of at least ``search_radius``; the
+    shared walk of kernels/neighbors.py, ``cell_rows`` / ``row_points``)."""
     value, _ = SMOOTHING_FUNCTIONS[smoothing]
 
     @wp.func
@@ -41,9 +40,10 @@ def fluid_sum_func(smoothing: str):
         inv_cell_size: float,
         grid_dims: wp.vec3i,
         cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
         search_radius: float,
-        sorted_x: wp.array(dtype=wp.vec3),
-        sorted_v: wp.array(dtype=wp.vec3),
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
     ) -> vec5:
         support2 = support_radius * support_radius
         q = (x - grid_lo) * inv_cell_size
@@ -56,13 +56,14 @@ def fluid_sum_func(smoothing: str):
             for y in range(rows[0], rows[1] + 1):
                 span = row_points(q, qr, y, z, grid_dims, cell_start)
                 for s in range(span[0], span[1]):
-                    r = x - sorted_x[s]
+                    j = cell_point[s]
+                    r = x - particle_x[j]
                     r2 = wp.dot(r, r)
                     if r2 < support2:
                         w = wp.static(value)(wp.sqrt(r2), smoothing_length)
                         count += 1.0
                         weight += w
-                        v_sum += w * sorted_v[s]
+                        v_sum += w * particle_v[j]
         return vec5(v_sum[0], v_sum[1], v_sum[2], weight, count)
 
     return fluid_sum
@@ -118,9 +119,10 @@ def node_sums_kernel(smoothing: str):
         inv_cell_size: float,
         grid_dims: wp.vec3i,
         cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
         search_radius: float,
-        sorted_x: wp.array(dtype=wp.vec3),
-        sorted_v: wp.array(dtype=wp.vec3),
+        particle_x: wp.array(dtype=wp.vec3),
+        particle_v: wp.array(dtype=wp.vec3),
         flag: wp.array(dtype=wp.uint8),
         row_flag: wp.array(dtype=wp.uint8),
         node_out: wp.array(dtype=vec5),
@@ -138,7 +140,7 @@ def node_sums_kernel(smoothing: str):
                 flag[n] = wp.uint8(0)
                 x = node_lo + spacing * wp.vec3(float(a), float(b), float(c))
                 node_out[n] = fluid_sum(x, smoothing_length, support_radius, grid_lo, inv_cell_size, grid_dims,
-                                        cell_start, search_radius, sorted_x, sorted_v)
+                                        cell_start, cell_point, search_radius, particle_x, particle_v)
 
     return whitewater_node_sums
 

@@ -27,13 +27,11 @@ import numpy as np
 import warp as wp
 
 from ..core.errors import SceneError
-from ..core.launch import LIGHT_MIN_RANGE, launch
+from ..core.launch import launch
 from ..core.step_graph import Stage
 from ..kernels import whitewater as _ww
 from ..kernels import whitewater_potentials as _pot
 from ..kernels import whitewater_sample as _sample
-from ..kernels.neighbors import gather_sorted_points as _gather_sorted
-from ..neighbors.cell_lists import CellGrid
 
 #: names of the kinds, index = kind code - 1 (``kernels.whitewater.KIND_*``); also the USD prim names
 KINDS = ("spray", "foam", "bubbles")
@@ -41,9 +39,6 @@ KINDS = ("spray", "foam", "bubbles")
 _ARRAYS = (("x", wp.vec3), ("v", wp.vec3), ("age", float), ("life", float), ("kind", wp.int32))
 #: node spacing of the sampled fluid (``kernels/whitewater_sample.py``) per fluid cell (= support radius)
 NODES_PER_CELL = 2
-#: cells per support radius of the fluid grid the advection walks (``_sorted_fluid``): 2 walks about half the
-#: candidates of 1 (cells of H: 4.9 times the kernel sphere's volume, 2.5 times with cells of H / 2)
-WALK_CELLS_PER_RADIUS = 2
 #: most nodes of that grid (21 bytes each); beyond it the nodes are one per fluid cell
 MAX_NODES = 1 << 22
 
@@ -78,8 +73,6 @@ class Whitewater:
         #: (I_ta, I_wc, I_k) in [0, 1] per fluid slot at the last substep (cell order within a frame)
         self.potential = wp.zeros(n, dtype=wp.vec3, device=dev)
         self._totals = wp.zeros(2, dtype=wp.int32, device=dev)
-        self._cells = None       # (fluid cell grid, the fluid sorted for the advection): _sorted_fluid
-        self._sorted_v = None
         self._nodes = None       # (fluid cell grid, lo, spacing, dims, flags, row flags, sums): _node_grid
         self._no_nodes = wp.zeros(1, dtype=_sample.vec5, device=dev)  # the advection's node argument when walking
         self.generated = 0       # particles generated, whole run (including dropped ones)
@@ -144,23 +137,22 @@ class Whitewater:
         if count:
             fc = nl.fluid_cells
             use_bounds, lo, hi = self._bounds
-            cells = self._sorted_fluid(fc, n)
             if c.fluid_sampling == "grid":
                 _, node_lo, spacing, dims, flag, row_flag, node = self._node_grid(fc)
             else:  # walked: the advection reads no node (none allocated)
                 node_lo, spacing, dims, node = wp.vec3(0.0), 1.0, wp.vec3i(1, 1, 1), self._no_nodes
             node_grid = [node_lo, 1.0 / spacing, dims]
-            fluid = [cells.lo, cells.inv_cell_size, cells.dims, cells.cell_start, m.support_radius, cells.sorted_x,
-                     self._sorted_v]
             if c.fluid_sampling == "grid":
                 launch(_sample.mark_nodes, count, [*node_grid, src["x"]], [flag, row_flag], device=dev)
                 launch(_sample.node_sums_kernel(m.smoothing.name), row_flag.shape[0],
-                       [node_lo, spacing, dims, m.smoothing_length, m.support_radius, *fluid, flag, row_flag], [node],
-                       device=dev, min_range=64)
+                       [node_lo, spacing, dims, m.smoothing_length, m.support_radius, fc.lo, fc.inv_cell_size, fc.dims,
+                        fc.cell_start, fc.cell_point, nl.search_radius, f["particle_x"], f["particle_v"], flag,
+                        row_flag], [node], device=dev, min_range=64)
             launch(_ww.advect_kernel(m.smoothing.name), count,
                    [m.smoothing_length, m.support_radius, float(dt), wp.vec3(*m.gravity), float(c.buoyancy),
-                    float(c.drag), int(c.spray_neighbors), int(c.bubble_neighbors), use_bounds, lo, hi, *fluid,
-                    int(c.fluid_sampling == "grid"), *node_grid, node],
+                    float(c.drag), int(c.spray_neighbors), int(c.bubble_neighbors), use_bounds, lo, hi,
+                    fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, nl.search_radius,
+                    f["particle_x"], f["particle_v"], int(c.fluid_sampling == "grid"), *node_grid, node],
                    [src["x"], src["v"], src["age"], src["life"], src["kind"], self._alive], device=dev)
             wp.utils.array_scan(self._alive[:count], self._alive_offset[:count], inclusive=False)
         if not (count or fast):
@@ -190,23 +182,6 @@ class Whitewater:
                               f"{sim.state.step}; new particles are dropped (raise max_particles for more)",
                               RuntimeWarning, stacklevel=2)
         self.count = survivors + min(generated, room)
-
-    def _sorted_fluid(self, fc, n: int) -> CellGrid:
-        """The fluid (its first ``n`` particles) sorted by cells of H / WALK_CELLS_PER_RADIUS over the box of
-        the fluid cell grid ``fc``, positions and velocities now (after the solver's step): what the
-        advection's walks and node sums read (``fluid_sum``)."""
-        m, f = self.sim.model, self.sim.fields
-        if self._cells is None or self._cells[0] is not fc:
-            lo = np.array([fc.lo[0], fc.lo[1], fc.lo[2]], dtype=np.float64)
-            hi = lo + fc.cell_size * np.array([fc.dims[0], fc.dims[1], fc.dims[2]], dtype=np.float64)
-            cells = CellGrid(m.support_radius, lo, hi, fc.capacity, WALK_CELLS_PER_RADIUS, device=m.device)
-            self._cells = (fc, cells)
-            self._sorted_v = wp.zeros(max(fc.capacity, 1), dtype=wp.vec3, device=m.device)
-        cells = self._cells[1]
-        cells.build(f["particle_x"][:n])
-        launch(_gather_sorted, n, [f["particle_v"], cells.cell_point], [self._sorted_v], device=m.device,
-               min_range=LIGHT_MIN_RANGE)
-        return cells
 
     def _node_grid(self, fc) -> tuple:
         """The node grid of the sampled fluid over the fluid cell grid ``fc``: nodes NODES_PER_CELL per cell
