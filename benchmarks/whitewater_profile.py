@@ -3,9 +3,8 @@
     python -m benchmarks.whitewater_profile grid 30 trapped_air_rate=4000.0 wave_crest_rate=50000.0
 
 runs the default dam break (no output) for that many frames with ``[whitewater]`` (``fluid_sampling`` =
-the first argument, grid or walk; further ``key=value`` set whitewater keys, ``walk_cells_per_radius=K`` the
-advection's fluid grid; default rates 4000 / 50000, SPlisHSPlasH's), the first frame not counted (kernel
-loading). Wrap it in ``flock
+the first argument, grid or walk; further ``key=value`` set whitewater keys; default rates 4000 / 50000,
+SPlisHSPlasH's), the first frame not counted (kernel loading). Wrap it in ``flock
 /tmp/warp_sph_bench.lock`` on a shared machine. A diagnostic beside ``warp-sph bench whitewater``.
 """
 from __future__ import annotations
@@ -29,42 +28,28 @@ def main(argv: list[str]) -> None:
     d = tomllib.loads((scenes / "dam_break.toml").read_text())
     d["output"] = {"usd": False, "surface": False}
     d["whitewater"] = {"trapped_air_rate": 4000.0, "wave_crest_rate": 50000.0, "fluid_sampling": mode}
-    walk_cells = None
     for item in argv[2:]:
         k, v = item.split("=")
-        if k == "walk_cells_per_radius":  # the advection's fluid grid (run/whitewater.py WALK_CELLS_PER_RADIUS)
-            walk_cells = int(v)
-        else:
-            d["whitewater"][k] = float(v) if "." in v else int(v)
+        d["whitewater"][k] = float(v) if "." in v else int(v)
     sim = Simulation(scene_from_dict(d))
     ww = sim.whitewater
     module = sys.modules[type(ww).__module__]
-    if walk_cells:
-        module.WALK_CELLS_PER_RADIUS = walk_cells
     kernel_s = collections.defaultdict(float)
     stage_s = [0.0]
-    plain_launch, plain_step, plain_sort = module.launch, ww.step, ww._sorted_fluid
+    plain_launch, plain_step = module.launch, ww.step
 
     def timed_launch(kernel, *a, **k):
         t = time.process_time()
         plain_launch(kernel, *a, **k)
         wp.synchronize()
-        if kernel is not module._gather_sorted:  # counted with the sort
-            kernel_s[kernel.key.split("__")[-1]] += time.process_time() - t
+        kernel_s[kernel.key.split("__")[-1]] += time.process_time() - t
 
     def timed_step(dt):
         t = time.process_time()
         plain_step(dt)
         stage_s[0] += time.process_time() - t
 
-    def timed_sort(*a):
-        t = time.process_time()
-        out = plain_sort(*a)
-        wp.synchronize()
-        kernel_s["fluid sort (with its gather)"] += time.process_time() - t
-        return out
-
-    module.launch, ww.step, ww._sorted_fluid = timed_launch, timed_step, timed_sort
+    module.launch, ww.step = timed_launch, timed_step
     sim.advance_frame()  # kernel loading
     kernel_s.clear()
     stage_s[0] = 0.0
