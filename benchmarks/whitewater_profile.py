@@ -3,9 +3,8 @@
     python -m benchmarks.whitewater_profile grid 30 trapped_air_rate=4000.0 wave_crest_rate=50000.0
 
 runs the default dam break (no output) for that many frames with ``[whitewater]`` (``fluid_sampling`` =
-the first argument, grid or walk; further ``key=value`` set whitewater keys, ``light_min_range=K`` the
-smallest range per CPU thread of the stage's light launches; default rates 4000 / 50000, SPlisHSPlasH's),
-the first frame not counted (kernel loading). Wrap it in ``flock
+the first argument, grid or walk; further ``key=value`` set whitewater keys; default rates 4000 / 50000,
+SPlisHSPlasH's), the first frame not counted (kernel loading). Wrap it in ``flock
 /tmp/warp_sph_bench.lock`` on a shared machine. A diagnostic beside ``warp-sph bench whitewater``.
 """
 from __future__ import annotations
@@ -29,18 +28,12 @@ def main(argv: list[str]) -> None:
     d = tomllib.loads((scenes / "dam_break.toml").read_text())
     d["output"] = {"usd": False, "surface": False}
     d["whitewater"] = {"trapped_air_rate": 4000.0, "wave_crest_rate": 50000.0, "fluid_sampling": mode}
-    light = None
     for item in argv[2:]:
         k, v = item.split("=")
-        if k == "light_min_range":  # min_range of the stage's light launches (run/whitewater.py LIGHT)
-            light = int(v)
-        else:
-            d["whitewater"][k] = float(v) if "." in v else int(v)
+        d["whitewater"][k] = float(v) if "." in v else int(v)
     sim = Simulation(scene_from_dict(d))
     ww = sim.whitewater
     module = sys.modules[type(ww).__module__]
-    if light:
-        module.LIGHT = light
     kernel_s = collections.defaultdict(float)
     stage_s = [0.0]
     plain_launch, plain_step = module.launch, ww.step

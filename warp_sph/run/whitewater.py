@@ -27,7 +27,7 @@ import numpy as np
 import warp as wp
 
 from ..core.errors import SceneError
-from ..core.launch import LIGHT_MIN_RANGE, launch
+from ..core.launch import launch
 from ..core.step_graph import Stage
 from ..kernels import whitewater as _ww
 from ..kernels import whitewater_potentials as _pot
@@ -37,9 +37,6 @@ from ..kernels import whitewater_sample as _sample
 KINDS = ("spray", "foam", "bubbles")
 #: the per-particle arrays of the state, in checkpoint order
 _ARRAYS = (("x", wp.vec3), ("v", wp.vec3), ("age", float), ("life", float), ("kind", wp.int32))
-#: min_range of the light launches (a few loads per index, or work for a few indices only: the crest normals,
-#: the potentials, the marking, the compaction, the emission): one CPU thread, as each split costs a launch
-LIGHT = LIGHT_MIN_RANGE
 #: node spacing of the sampled fluid (``kernels/whitewater_sample.py``) per fluid cell (= support radius)
 NODES_PER_CELL = 2
 #: most nodes of that grid (21 bytes each); beyond it the nodes are one per fluid cell
@@ -126,12 +123,12 @@ class Whitewater:
                    device=dev)
             launch(_pot.crest_normals_kernel(smoothing), n,
                    [m.particle_mass, m.smoothing_length, m.support_radius, nl.fluid, f["particle_x"],
-                    f["particle_density"], self._state, self._need], [self.normal], device=dev, min_range=LIGHT)
+                    f["particle_density"], self._state, self._need], [self.normal], device=dev)
             launch(_pot.potentials_kernel(), n,
                    [m.support_radius, float(dt), seed, wp.vec2(c.trapped_air_min, c.trapped_air_max),
                     wp.vec2(c.wave_crest_min, c.wave_crest_max), kinetic, float(c.trapped_air_rate),
                     float(c.wave_crest_rate), nl.fluid, f["particle_x"], f["particle_v"], self.normal, self._trapped,
-                    self._state], [self.potential, self._generate], device=dev, min_range=LIGHT)
+                    self._state], [self.potential, self._generate], device=dev)
             wp.utils.array_scan(self._generate, self._generate_offset, inclusive=False)
         else:
             self.potential.zero_()
@@ -146,8 +143,7 @@ class Whitewater:
                 node_lo, spacing, dims, node = wp.vec3(0.0), 1.0, wp.vec3i(1, 1, 1), self._no_nodes
             node_grid = [node_lo, 1.0 / spacing, dims]
             if c.fluid_sampling == "grid":
-                launch(_sample.mark_nodes, count, [*node_grid, src["x"]], [flag, row_flag], device=dev,
-                       min_range=LIGHT)
+                launch(_sample.mark_nodes, count, [*node_grid, src["x"]], [flag, row_flag], device=dev)
                 launch(_sample.node_sums_kernel(m.smoothing.name), row_flag.shape[0],
                        [node_lo, spacing, dims, m.smoothing_length, m.support_radius, fc.lo, fc.inv_cell_size, fc.dims,
                         fc.cell_start, fc.cell_point, nl.search_radius, f["particle_x"], f["particle_v"], flag,
@@ -168,13 +164,13 @@ class Whitewater:
         dst = self._buffers[1 - self.front]
         launch(_ww.compact, count,
                [self._alive, self._alive_offset, src["x"], src["v"], src["age"], src["life"], src["kind"]],
-               [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev, min_range=LIGHT)
+               [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev)
         if generated:
             launch(_ww.emit_kernel(), n,
                    [float(dt), seed, survivors, self.capacity, m.particle_radius, float(c.lifetime_min),
                     float(c.lifetime_max), int(c.spray_neighbors), int(c.bubble_neighbors), nl.fluid,
                     f["particle_x"], f["particle_v"], self._generate, self._generate_offset],
-                   [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev, min_range=LIGHT)
+                   [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev)
         self.front = 1 - self.front
         self.generated += generated
         room = self.capacity - survivors
