@@ -93,6 +93,16 @@ positive_floats = number(float, 0, many=True)
 nonnegative_floats = number(float, 0, strict=False, many=True)
 
 
+def whitewater_rates(text: str) -> list[str]:
+    """argparse type of ``bench whitewater --rates``: comma-separated names of ``whitewater.RATES``."""
+    from .whitewater import RATES
+
+    names = [r.strip() for r in text.split(",") if r.strip()]
+    if not names or any(r not in RATES for r in names):
+        raise argparse.ArgumentTypeError(f"expected comma-separated rate sets of {', '.join(RATES)}, got {text!r}")
+    return names
+
+
 def check_names(option: str, text: str | None, known) -> None:
     """Refuse unknown scene or solver names before any case runs (one line, exit status 2)."""
     from warp_sph.core.errors import WarpSphError
@@ -362,14 +372,15 @@ def cmd_forces(args, argv: list[str], log=print) -> int:
 def cmd_whitewater(args, argv: list[str], log=print) -> int:
     from . import whitewater as W
 
-    specs = W.specs(args.scene, args.frames, args.repeats, device=args.device, overrides=args.set)
+    specs = W.specs(args.scene, args.frames, args.repeats, device=args.device, overrides=args.set,
+                    rates=args.rates)
     invocation = now()
     records = _run(specs, args, log)
-    s = W.summary(records)
-    if s:
+    for s in W.summaries(records):
         share = f"; the stage {100 * s['stage_share']:.1f} % of the stage time" if s["stage_share"] is not None else ""
-        log(f"whitewater: {s['on_ms']:.4g} CPU ms per step on, {s['off_ms']:.4g} off (fastest of {args.repeats} each): "
-            f"{100 * s['extra']:+.1f} %{share} (goal <= +{100 * W.GOAL:.0f} %: {'met' if s['met'] else 'not met'})")
+        log(f"whitewater, {W._rates_text(s)}: {s['on_ms']:.4g} CPU ms per step on, {s['off_ms']:.4g} off (fastest of "
+            f"{args.repeats} each): {100 * s['extra']:+.1f} %{share} (goal <= +{100 * W.GOAL:.0f} %: "
+            f"{'met' if s['met'] else 'not met'})")
     return _finish(_save("whitewater", records, args, argv, invocation, log), args, records, log)
 
 
@@ -602,11 +613,14 @@ def build_parser() -> argparse.ArgumentParser:
     common(f)
     f.set_defaults(func=cmd_forces)
 
-    w = sub.add_parser("whitewater", help="a splash scene with [whitewater] at its defaults against without: CPU "
-                       "time per step")
+    w = sub.add_parser("whitewater", help="a splash scene with [whitewater] (at the default and at SPlisHSPlasH's "
+                       "generation rates) against without: CPU time per step")
     w.add_argument("--scene", default="dam_break", help="scene (default: dam_break)")
     w.add_argument("--frames", type=positive_int, default=30, help="frames per run (default 30: 1.25 s of the dam break)")
     w.add_argument("--repeats", type=positive_int, default=2, help="runs of each variant, alternating; the fastest counts")
+    w.add_argument("--rates", type=whitewater_rates, default="default,splishsplash",
+                   help="comma-separated generation rate sets with whitewater on: default (the scene keys' defaults, "
+                   "k_ta 500, k_wc 6250 1/s), splishsplash (SPlisHSPlasH's 4000, 50000 1/s); default: both")
     common(w)
     w.set_defaults(func=cmd_whitewater)
 

@@ -60,7 +60,8 @@ def main(argv: list[str]) -> None:
     steps = sim.state.step - s0
     print(f"{mode} {' '.join(argv[2:])}: {steps} steps, {1e3 * (time.process_time() - t0) / steps:.2f} CPU ms/step, "
           f"whitewater stage {1e3 * stage_s[0] / steps:.2f}; particles mean {np.mean(counts):.0f}, max {max(counts)}")
-    print("  CPU ms/step per kernel:", {k: round(1e3 * v / steps, 2) for k, v in kernel_s.items()})
+    print("  CPU ms/step per kernel:", {k: round(1e3 * v / steps, 2) for k, v in kernel_s.items()},
+          f"scans, reads and the rest: {1e3 * (stage_s[0] - sum(kernel_s.values())) / steps:.2f}")
 
 
 if __name__ == "__main__":

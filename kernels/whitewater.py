@@ -1,46 +1,29 @@
 """Whitewater: spray, foam and air bubbles as secondary particles (Ihmsen, Akinci, Akinci, Teschner 2012,
 "Unified spray, foam and air bubbles for particle-based fluids", The Visual Computer 28(6)).
 
-Per fluid particle i (neighbours j within the support H, W~_ij = 1 - |x_ij| / H):
-    trapped air   v_diff_i = sum_j |v_ij| (1 - v^_ij . x^_ij) W~_ij                    [m/s]
-    wave crest    kappa_i  = sum_j (1 - n^_i . n^_j) W~_ij  over j with x^_ji . n^_i < 0 (convex),
-                  times 1 when v^_i . n^_i >= CREST_ALIGNMENT, else 0; n_i = -sum_j V_j grad W_ij  [-]
-    kinetic       E_i      = |v_i|^2 / 2                                                 [J/kg]
-each mapped to [0, 1] by clamp(I, lo, hi) = (min(I, hi) - min(I, lo)) / (hi - lo), and
-    n_d = I_k (k_ta I_ta + k_wc I_wc) dt
-particles generated (stochastic rounding), sampled in the cylinder of radius r and height |v_i| dt
-around v_i (velocity v_i plus a radial spread). A secondary particle with fewer than ``spray_n``
-fluid neighbours is spray (ballistic), with more than ``bubble_n`` an air bubble (buoyancy -k_b g,
-drag k_d toward the fluid), else foam (moves with the fluid's kernel-averaged velocity and ages).
-Deterministic: one seeded RNG stream per fluid slot and step, and every write goes to an index fixed
-by exclusive scans (no atomics).
+The potentials and the count n_d each fluid particle generates are in ``whitewater_potentials``. Here:
+the n_d new particles of fluid particle i, sampled in the cylinder of radius r and height |v_i| dt
+around v_i (velocity v_i plus a radial spread); the motion: a secondary particle with fewer than
+``spray_n`` fluid neighbours is spray (ballistic), with more than ``bubble_n`` an air bubble (buoyancy
+-k_b g, drag k_d toward the fluid), else foam (moves with the fluid's kernel-averaged velocity and
+ages); the compaction of the survivors. Deterministic: one seeded RNG stream per fluid slot and step,
+and every write goes to an index fixed by exclusive scans (no atomics).
 """
 import functools
 
 import warp as wp
 
 from .density import NEIGHBOR_TYPES
-from .neighbors import neighbor_count, particle_in_cell_order
-from .smoothing import SMOOTHING_FUNCTIONS
+from .neighbors import neighbor_count
 from .whitewater_sample import fluid_sum_func, node_cell, sample_nodes, vec5
 
 #: kinds of a secondary particle (``kind`` arrays)
 KIND_SPRAY = wp.constant(1)
 KIND_FOAM = wp.constant(2)
 KIND_BUBBLE = wp.constant(3)
-#: v^ . n^ from which a convex surface counts as a wave crest (Ihmsen et al. 2012, eq. 5)
-CREST_ALIGNMENT = wp.constant(0.6)
 #: radial velocity of a new particle at the cylinder's rim / |v_i| (Ihmsen's eq. 9 adds the radial offset
 #: itself, a length; a fraction of the speed is the same spread at every scale)
 SPREAD = wp.constant(0.1)
-#: |n| H below which a fluid particle has no surface normal (interior; a flat free surface gives ~1)
-NORMAL_MIN = wp.constant(0.25)
-
-
-@wp.func
-def clamp_potential(value: float, lo: float, hi: float) -> float:
-    """Ihmsen's Phi(I, tau_min, tau_max) = (min(I, hi) - min(I, lo)) / (hi - lo) in [0, 1]."""
-    return (wp.min(value, hi) - wp.min(value, lo)) / (hi - lo)
 
 
 @wp.func
@@ -53,121 +36,6 @@ def classify(neighbors: float, spray_n: int, bubble_n: int) -> int:
     elif neighbors > float(bubble_n):
         kind = KIND_BUBBLE
     return kind
-
-
-@functools.cache
-def normals_kernel(smoothing: str):
-    """Unnormalised outward normal n_i = -sum_j (m / rho_j) grad_i W_ij [1/m] (minus the colour field's
-    gradient), computed where it is read: for particles faster than sqrt(min_speed2) and their
-    neighbours (0 elsewhere)."""
-    _, gradient = SMOOTHING_FUNCTIONS[smoothing]
-    NeighborList = NEIGHBOR_TYPES["list"]
-
-    @wp.kernel(enable_backward=False, module="unique")
-    def whitewater_normals(
-        tid_offset: int,
-        particle_mass: float,
-        smoothing_length: float,
-        support_radius: float,
-        min_speed2: float,
-        fluid_neighbors: NeighborList,
-        particle_x: wp.array(dtype=wp.vec3),
-        particle_v: wp.array(dtype=wp.vec3),
-        particle_density: wp.array(dtype=float),
-        normal_out: wp.array(dtype=wp.vec3),
-    ):
-        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
-        xi = particle_x[i]
-        n = wp.vec3(0.0)
-        k = int(0)
-        k_end = int(neighbor_count(fluid_neighbors, i))
-        # only particles that generate (|v|^2 > min_speed2) read normals, their own and their neighbours'
-        needed = wp.dot(particle_v[i], particle_v[i]) > min_speed2
-        while k < k_end and not needed:
-            vj = particle_v[fluid_neighbors.index[i, k]]
-            needed = wp.dot(vj, vj) > min_speed2
-            k += 1
-        if not needed:
-            k_end = 0
-        k = int(0)
-        while k < k_end:
-            j = fluid_neighbors.index[i, k]
-            r = xi - particle_x[j]
-            if wp.length(r) < support_radius:
-                n -= (particle_mass / particle_density[j]) * wp.static(gradient)(r, smoothing_length)
-            k += 1
-        normal_out[i] = n
-
-    return whitewater_normals
-
-
-@functools.cache
-def potentials_kernel():
-    """Potentials (I_ta, I_wc, I_k) in [0, 1] and the number of particles to generate this step."""
-    NeighborList = NEIGHBOR_TYPES["list"]
-
-    @wp.kernel(enable_backward=False, module="unique")
-    def whitewater_potentials(
-        tid_offset: int,
-        support_radius: float,
-        dt: float,
-        seed: int,
-        trapped_air_range: wp.vec2,
-        wave_crest_range: wp.vec2,
-        kinetic_range: wp.vec2,
-        rate_ta: float,
-        rate_wc: float,
-        fluid_neighbors: NeighborList,
-        particle_x: wp.array(dtype=wp.vec3),
-        particle_v: wp.array(dtype=wp.vec3),
-        normal: wp.array(dtype=wp.vec3),
-        potential_out: wp.array(dtype=wp.vec3),
-        generate_out: wp.array(dtype=wp.int32),
-    ):
-        i = wp.tid() + tid_offset
-        xi = particle_x[i]
-        vi = particle_v[i]
-        speed_i = wp.length(vi)
-        i_k = clamp_potential(0.5 * speed_i * speed_i, kinetic_range[0], kinetic_range[1])
-        if i_k <= 0.0:  # generates nothing: no neighbour loop (most particles of a calm flow)
-            potential_out[i] = wp.vec3(0.0)
-            generate_out[i] = 0
-            return
-        ni = normal[i]
-        surface_i = wp.length(ni) * support_radius >= NORMAL_MIN
-        nhat_i = wp.normalize(ni)
-        trapped = float(0.0)
-        curvature = float(0.0)
-        k = int(0)
-        k_end = int(neighbor_count(fluid_neighbors, i))
-        while k < k_end:
-            j = fluid_neighbors.index[i, k]
-            x_ij = xi - particle_x[j]
-            d = wp.length(x_ij)
-            if d < support_radius and d > 0.0:
-                w = 1.0 - d / support_radius
-                v_ij = vi - particle_v[j]
-                speed = wp.length(v_ij)
-                if speed > 0.0:
-                    trapped += speed * (1.0 - wp.dot(v_ij / speed, x_ij / d)) * w
-                nj = normal[j]
-                if surface_i and wp.length(nj) * support_radius >= NORMAL_MIN:
-                    if wp.dot(-x_ij, nhat_i) < 0.0:  # x^_ji . n^_i < 0: a convex neighbourhood
-                        curvature += (1.0 - wp.dot(nhat_i, wp.normalize(nj))) * w
-            k += 1
-        if not surface_i or speed_i <= 0.0 or wp.dot(vi / speed_i, nhat_i) < CREST_ALIGNMENT:
-            curvature = 0.0
-        i_ta = clamp_potential(trapped, trapped_air_range[0], trapped_air_range[1])
-        i_wc = clamp_potential(curvature, wave_crest_range[0], wave_crest_range[1])
-        potential_out[i] = wp.vec3(i_ta, i_wc, i_k)
-        expected = i_k * (rate_ta * i_ta + rate_wc * i_wc) * dt
-        count = int(0)
-        if expected > 0.0:
-            state = wp.rand_init(seed, i)
-            count = int(wp.floor(expected + wp.randf(state)))  # stochastic rounding
-        generate_out[i] = count
-
-    return whitewater_potentials
 
 
 @functools.cache

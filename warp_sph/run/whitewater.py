@@ -2,9 +2,11 @@
 spray, foam and air bubbles as secondary particles after Ihmsen et al. 2012 (the model behind
 SPlisHSPlasH's FoamGenerator), stepped with the fluid by one stage after the solver's last.
 
-The stage, every substep of dt [s] (equations in ``kernels/whitewater.py``):
-1. normals and the three potentials (trapped air, wave crest, kinetic energy) per fluid particle, and
-   how many secondary particles each generates this step;
+The stage, every substep of dt [s] (equations in ``kernels/whitewater_potentials.py`` and
+``kernels/whitewater.py``):
+1. the three potentials (trapped air, wave crest, kinetic energy) per fluid particle, and how many
+   secondary particles each generates this step: work only for the particles fast enough to generate,
+   normals only where a wave crest can form (three passes);
 2. each secondary particle classified by its fluid neighbours (spray / foam / bubble) and moved:
    spray ballistically, foam with the fluid's kernel-averaged velocity (ageing), bubbles with
    buoyancy and drag; foam past its lifetime and particles leaving the container die. The velocity
@@ -28,6 +30,7 @@ from ..core.errors import SceneError
 from ..core.launch import launch
 from ..core.step_graph import Stage
 from ..kernels import whitewater as _ww
+from ..kernels import whitewater_potentials as _pot
 from ..kernels import whitewater_sample as _sample
 
 #: names of the kinds, index = kind code - 1 (``kernels.whitewater.KIND_*``); also the USD prim names
@@ -62,7 +65,11 @@ class Whitewater:
         self._alive_offset = wp.zeros(self.capacity, dtype=wp.int32, device=dev)
         self._generate = wp.zeros(n, dtype=wp.int32, device=dev)
         self._generate_offset = wp.zeros(n, dtype=wp.int32, device=dev)
+        #: outward normal n_i [1/m] where the wave-crest potential reads it this substep (else 0 or stale)
         self.normal = wp.zeros(n, dtype=wp.vec3, device=dev)
+        self._trapped = wp.zeros(n, dtype=float, device=dev)       # v_diff_i [m/s] of the fast particles
+        self._state = wp.zeros(n, dtype=wp.uint8, device=dev)      # SLOW / FAST / CREST (kernels/whitewater_potentials)
+        self._need = wp.zeros(n, dtype=wp.uint8, device=dev)       # normal read by a crest candidate (cleared)
         #: (I_ta, I_wc, I_k) in [0, 1] per fluid slot at the last substep (cell order within a frame)
         self.potential = wp.zeros(n, dtype=wp.vec3, device=dev)
         self._totals = wp.zeros(2, dtype=wp.int32, device=dev)
@@ -109,14 +116,19 @@ class Whitewater:
         # a fluid slower than sqrt(2 kinetic_energy_min) generates nothing: one reduction skips the passes
         fast = sim.current_speed() ** 2 > 2.0 * float(c.kinetic_energy_min)
         if fast:
-            launch(_ww.normals_kernel(m.smoothing.name), n,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, 2.0 * float(c.kinetic_energy_min), nl.fluid,
-                    f["particle_x"], f["particle_v"], f["particle_density"]], [self.normal], device=dev)
-            launch(_ww.potentials_kernel(), n,
+            smoothing, kinetic = m.smoothing.name, wp.vec2(c.kinetic_energy_min, c.kinetic_energy_max)
+            launch(_pot.fast_pass_kernel(smoothing), n,
+                   [m.particle_mass, m.smoothing_length, m.support_radius, kinetic, nl.fluid, f["particle_x"],
+                    f["particle_v"], f["particle_density"]], [self.normal, self._trapped, self._state, self._need],
+                   device=dev)
+            launch(_pot.crest_normals_kernel(smoothing), n,
+                   [m.particle_mass, m.smoothing_length, m.support_radius, nl.fluid, f["particle_x"],
+                    f["particle_density"], self._state, self._need], [self.normal], device=dev)
+            launch(_pot.potentials_kernel(), n,
                    [m.support_radius, float(dt), seed, wp.vec2(c.trapped_air_min, c.trapped_air_max),
-                    wp.vec2(c.wave_crest_min, c.wave_crest_max), wp.vec2(c.kinetic_energy_min, c.kinetic_energy_max),
-                    float(c.trapped_air_rate), float(c.wave_crest_rate), nl.fluid, f["particle_x"], f["particle_v"],
-                    self.normal], [self.potential, self._generate], device=dev)
+                    wp.vec2(c.wave_crest_min, c.wave_crest_max), kinetic, float(c.trapped_air_rate),
+                    float(c.wave_crest_rate), nl.fluid, f["particle_x"], f["particle_v"], self.normal, self._trapped,
+                    self._state], [self.potential, self._generate], device=dev)
             wp.utils.array_scan(self._generate, self._generate_offset, inclusive=False)
         else:
             self.potential.zero_()
