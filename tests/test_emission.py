@@ -133,6 +133,8 @@ BAD = [
     ({"emitters": [{**BASE["emitters"][0], "speed": -1.0}]}, "emitters[0].speed"),
     ({"emitters": [{**BASE["emitters"][0], "flow_rate": 0.001}]}, "both"),
     ({"emitters": [{**BASE["emitters"][0], "start": 0.6}]}, "emitters[0].end"),
+    ({"emitters": [{**{k: v for k, v in BASE["emitters"][0].items() if k != "end"}, "start": 1.0}]},
+     "emitters[0].start: expected a time before the scene's duration = 1.0 s"),
     ({"sinks": [{"min": [1.0, 0.0, 0.0], "max": [1.2, 0.5, 0.8]}]}, "sinks[0]"),
     ({"max_particles": 10}, "max_particles"),
 ]
