@@ -561,3 +561,20 @@ def test_python_api_bad_input_says_what_was_expected():
     assert sim.state.step == 0 and sim.state.time == 0.0
     with pytest.raises(KeyError, match=r"field 'nope' is not an array of this simulation; its arrays: .*particle_x"):
         sim.get_field("nope")
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["plan", "tank", "--budget", "-5s"], "plan: argument --budget: expected one argument (a value that starts "
+                                          "with '-' is written --budget=VALUE)"),
+    (["run", "--frames", "x"], "run: argument --frames: invalid int value: 'x'"),
+    (["export"], "export: the following arguments are required: run"),
+    (["preview", "r", "--frame", "1", "--frames", "1:2"], "preview: argument --frames: not allowed with"),
+    (["runn"], "invalid choice: 'runn'"),
+])
+def test_argparse_errors_are_one_line(argv, words, workdir, capsys):
+    """argparse's refusals print one line (not its usage block), exit status 2, nothing written."""
+    before = snapshot(workdir)
+    code, err = run_cli(argv, capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "usage:" not in err, err
+    assert words in error_line(err)
+    assert snapshot(workdir) == before
