@@ -41,6 +41,15 @@ class _Parser(argparse.ArgumentParser):
         cmd = self.prog.split(" ", 1)[1] + ": " if " " in self.prog else ""
         raise _UsageError(f"{cmd}{message}; see {self.prog} --help")
 
+    def parse_args(self, args=None, namespace=None):
+        """As argparse's, an unknown argument named with its command (``run: unrecognized arguments: ...``)."""
+        parsed, extra = self.parse_known_args(args, namespace)
+        if extra:
+            cmd = getattr(parsed, "command", None)
+            prog = f"{self.prog} {cmd}" if cmd else self.prog
+            raise _UsageError(f"{cmd + ': ' if cmd else ''}unrecognized arguments: {' '.join(extra)}; see {prog} --help")
+        return parsed
+
 
 def _quiet_warp():
     """Start Warp quietly (``warp_sph.core.device``) and return the module."""
