@@ -160,6 +160,16 @@ def test_mesh_file_that_is_not_a_mesh(workdir, capsys):
             load_scene(str(path))
 
 
+def test_mesh_file_that_is_a_folder(workdir, capsys):
+    """A folder given as a mesh file was reported "not found"."""
+    path = write(workdir, "scene.toml", GOOD + '[[obstacles]]\nshape = "mesh"\nfile = "data"\n')
+    before = snapshot(workdir)
+    code, err = run_cli(["run", str(path), "--out", str(workdir / "out"), "--no-progress"], capsys)
+    assert code == 2 and "obstacles[0].file: mesh file" in error_line(err)
+    assert error_line(err).endswith("data' is a folder; expected a mesh file")
+    assert snapshot(workdir) == before
+
+
 def test_non_empty_output_folder_is_refused(workdir, capsys):
     scene = write(workdir, "scene.toml", GOOD)
     out = workdir / "data"  # holds the user's measurements, not a run
