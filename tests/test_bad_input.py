@@ -589,3 +589,14 @@ def test_argparse_errors_are_one_line(argv, words, workdir, capsys):
     assert code == 2 and len(err.strip().splitlines()) == 1 and "usage:" not in err, err
     assert words in error_line(err)
     assert snapshot(workdir) == before
+
+
+def test_a_sweep_file_given_to_run_points_to_sweep(workdir, capsys):
+    """``warp-sph run SWEEP.toml`` listed every scene key as expected instead of naming the command."""
+    path = write(workdir, "sw.toml", '[sweep]\nscene = "dam_break"\nparam = { solver = ["wcsph", "pbf"] }\n')
+    before = snapshot(workdir)
+    for command in ("run", "check"):
+        code, err = run_cli([command, str(path)], capsys)
+        assert code == 2 and error_line(err).endswith(f"sw.toml: sweep: a sweep file ([sweep] / [[case]]), not a "
+                                                      f"scene; run it with: warp-sph sweep {path}"), err
+    assert snapshot(workdir) == before
