@@ -581,6 +581,8 @@ def test_python_api_bad_input_says_what_was_expected():
     (["preview", "r", "--frame", "1", "--frames", "1:2"], "preview: argument --frames: not allowed with"),
     (["runn"], "invalid choice: 'runn'"),
     (["scenes", "extra"], "scenes: unrecognized arguments: extra; see warp-sph scenes --help"),
+    (["bench", "splishsplash", "--repeats", "x"], "bench splishsplash: argument --repeats: expected an integer > 0"),
+    (["bench", "--bogus"], "bench: unrecognized arguments: --bogus; see warp-sph bench --help"),
 ])
 def test_argparse_errors_are_one_line(argv, words, workdir, capsys):
     """argparse's refusals print one line (not its usage block), exit status 2, nothing written."""

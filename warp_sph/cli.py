@@ -14,6 +14,8 @@ import sys
 import warnings
 from pathlib import Path
 
+from .core.errors import WarpSphError
+
 
 class _AllCores:
     """``--workers`` given without N: one worker per core (a non-string const, which argparse does not
@@ -26,13 +28,13 @@ class _AllCores:
 ALL_CORES = _AllCores()
 
 
-class _UsageError(Exception):
+class _UsageError(WarpSphError):
     """A command line argparse refused: ``main`` prints it as one line, exit status 2."""
 
 
-class _Parser(argparse.ArgumentParser):
+class OneLineParser(argparse.ArgumentParser):
     """argparse, its errors one line (``warp-sph: error: plan: argument --budget: ...``) instead of the usage
-    block; subcommands' parsers are of the same class."""
+    block; subcommands' parsers are of the same class (``warp-sph bench``'s too)."""
 
     def error(self, message):
         m = re.match(r"argument (?:\S+/)?(-\S+): expected one argument$", message)
@@ -47,7 +49,8 @@ class _Parser(argparse.ArgumentParser):
         if extra:
             cmd = getattr(parsed, "command", None)
             prog = f"{self.prog} {cmd}" if cmd else self.prog
-            raise _UsageError(f"{cmd + ': ' if cmd else ''}unrecognized arguments: {' '.join(extra)}; see {prog} --help")
+            where = prog.split(" ", 1)[1] + ": " if " " in prog else ""
+            raise _UsageError(f"{where}unrecognized arguments: {' '.join(extra)}; see {prog} --help")
         return parsed
 
 
@@ -275,7 +278,7 @@ def _cmd_bench(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="warp-sph", description="SPH fluid simulation in NVIDIA Warp, exported to USD for Blender.",
+    p = OneLineParser(prog="warp-sph", description="SPH fluid simulation in NVIDIA Warp, exported to USD for Blender.",
                                 epilog="Each command has its own --help (warp-sph run --help). --verbose (before or "
                                        "after the command) shows Warp's own start-up and kernel-loading messages.")
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up and module-load messages")
