@@ -26,6 +26,7 @@ def test_non_editable_install_in_fresh_venv(tmp_path):
     r = subprocess.run([str(py), "-m", "pip", "install", "--quiet", f"{src}[test]"], env=env,
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
+    assert "is absent from the `packages` configuration" not in r.stderr, r.stderr[-3000:]  # data folders listed
     code = (
         "import warp_sph, warp_sph.kernels.smoothing as k, warp_sph.kernels.density, warp_sph.rigid;"
         "from warp_sph.scene import load_scene, list_scenes;"
