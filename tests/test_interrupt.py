@@ -50,7 +50,8 @@ def test_ctrl_c_during_a_run_then_resume(tmp_path):
     info = json.loads((out / "run.json").read_text())
     kept = len(info["frames"])
     assert info["status"] == "interrupted" and 3 <= kept < 12
-    assert sorted(f.name for f in (out / "frames").iterdir())[:kept] == [f"frame_{k:06d}.npz" for k in range(1, kept + 1)]
+    names = sorted(f.name for f in (out / "frames").iterdir())
+    assert names[:kept] == [f"frame_{k:06d}.npz" for k in range(1, kept + 1)]
     r = subprocess.run([WARP_SPH, "run", "--resume", str(out), "--no-progress"], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 0, r.stderr

@@ -118,8 +118,9 @@ def has_flow(scene) -> bool:
 
 def check_emission(scene, fail) -> None:
     """``fail(keypath, message)`` on an emitter with speed and flow_rate (or neither), a zero direction, a
-    start at or after the scene's duration, an end before its start, a nozzle outside the container or inside an obstacle, a sink box that is empty
-    or outside the container, or rigid bodies together with emitters, sinks or open container faces."""
+    start at or after the scene's duration, an end before its start, a nozzle outside the container or
+    inside an obstacle, a sink box that is empty or outside the container, or rigid bodies together with
+    emitters, sinks or open container faces."""
     c = scene.container
     d = scene.spacing
     where = "emitters" if scene.emitters else "sinks" if scene.sinks else "container.open"

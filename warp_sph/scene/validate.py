@@ -133,7 +133,8 @@ class Validator:
         top = self.params[""]
         for k in data:
             if k in ("sweep", "case") and k not in top:  # a sweep file given where a scene is expected
-                self.fail(k, f"a sweep file ([sweep] / [[case]]), not a scene; run it with: warp-sph sweep {self.source}")
+                self.fail(k, "a sweep file ([sweep] / [[case]]), not a scene; run it with: "
+                          f"warp-sph sweep {self.source}")
             if k not in top:
                 self.fail(k, f"unknown key; expected one of {', '.join(top)}")
         values: dict[str, Any] = {}
