@@ -279,8 +279,8 @@ def _cmd_bench(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="warp-sph", description="SPH fluid simulation in NVIDIA Warp, exported to USD for Blender.",
-                                epilog="Each command has its own --help (warp-sph run --help). --verbose (before or "
-                                       "after the command) shows Warp's own start-up and kernel-loading messages.")
+                      epilog="Each command has its own --help (warp-sph run --help). --verbose (before or "
+                             "after the command) shows Warp's own start-up and kernel-loading messages.")
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up and module-load messages")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
