@@ -467,7 +467,9 @@ def cmd_report(args, argv: list[str], log=print) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="warp-sph bench", description="Benchmarks: speed, accuracy and their trade. "
+    from warp_sph.cli import OneLineParser  # argparse's errors as one line (exit status 2)
+
+    p = OneLineParser(prog="warp-sph bench", description="Benchmarks: speed, accuracy and their trade. "
                                 "Results go to JSON lines and RESULTS.md in runs/bench (or --out); --publish "
                                 "writes the committed benchmarks/results and benchmarks/RESULTS.md.")
     sub = p.add_subparsers(dest="command")
@@ -682,5 +684,7 @@ def main(argv: list[str] | None = None) -> int:
     return args.func(args, argv)
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # as `warp-sph bench ...` (its one-line errors, exit status 2)
+    from warp_sph.cli import main as _cli_main
+
+    sys.exit(_cli_main(["bench"] + sys.argv[1:]))

@@ -16,6 +16,7 @@ import functools
 
 import warp as wp
 
+from .neighbors import cell_rows, row_points
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -150,7 +151,8 @@ def body_particle_force_kernel(smoothing: str, boundary_terms):
     skipped when the boundary method has none, and so is the force term). term_i is the solver's
     ``boundary_pressure_term`` (``warp_sph.methods.solver``). The fluid is found in the cell grid the
     neighbour lists sorted it into (``CellGrid``), searched within ``search_radius`` (the lists'
-    radius, which covers the drift since the sort) and filtered at the current positions."""
+    radius, which covers the drift since the sort; the project's one cell walk, ``cell_rows`` /
+    ``row_points``) and filtered at the current positions."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
     with_pressure = boundary_terms.pressure is not None
     with_force = boundary_terms.force is not None
@@ -194,18 +196,13 @@ def body_particle_force_kernel(smoothing: str, boundary_terms):
         support2 = support_radius * support_radius
         q = (xb - grid_lo) * inv_cell_size
         qr = search_radius * inv_cell_size
-        y0 = wp.clamp(int(wp.floor(q[1] - qr)), 0, grid_dims[1] - 1)
-        y1 = wp.clamp(int(wp.floor(q[1] + qr)), 0, grid_dims[1] - 1)
-        z0 = wp.clamp(int(wp.floor(q[2] - qr)), 0, grid_dims[2] - 1)
-        z1 = wp.clamp(int(wp.floor(q[2] + qr)), 0, grid_dims[2] - 1)
-        x0 = wp.clamp(int(wp.floor(q[0] - qr)), 0, grid_dims[0] - 1)
-        x1 = wp.clamp(int(wp.floor(q[0] + qr)), 0, grid_dims[0] - 1)
+        rows = cell_rows(q, qr, grid_dims)
         f = wp.vec3(0.0)
-        for z in range(z0, z1 + 1):
-            for y in range(y0, y1 + 1):
-                row = grid_dims[0] * (y + grid_dims[1] * z)
-                s = cell_start[row + x0]
-                s_end = cell_start[row + x1 + 1]
+        for z in range(rows[2], rows[3] + 1):
+            for y in range(rows[0], rows[1] + 1):
+                span = row_points(q, qr, y, z, grid_dims, cell_start)
+                s = span[0]
+                s_end = span[1]
                 while s < s_end:
                     i = cell_point[s]
                     x_ib = particle_x[i] - xb

@@ -160,6 +160,16 @@ def test_mesh_file_that_is_not_a_mesh(workdir, capsys):
             load_scene(str(path))
 
 
+def test_mesh_file_that_is_a_folder(workdir, capsys):
+    """A folder given as a mesh file was reported "not found"."""
+    path = write(workdir, "scene.toml", GOOD + '[[obstacles]]\nshape = "mesh"\nfile = "data"\n')
+    before = snapshot(workdir)
+    code, err = run_cli(["run", str(path), "--out", str(workdir / "out"), "--no-progress"], capsys)
+    assert code == 2 and "obstacles[0].file: mesh file" in error_line(err)
+    assert error_line(err).endswith("data' is a folder; expected a mesh file")
+    assert snapshot(workdir) == before
+
+
 def test_non_empty_output_folder_is_refused(workdir, capsys):
     scene = write(workdir, "scene.toml", GOOD)
     out = workdir / "data"  # holds the user's measurements, not a run
@@ -561,3 +571,34 @@ def test_python_api_bad_input_says_what_was_expected():
     assert sim.state.step == 0 and sim.state.time == 0.0
     with pytest.raises(KeyError, match=r"field 'nope' is not an array of this simulation; its arrays: .*particle_x"):
         sim.get_field("nope")
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["plan", "tank", "--budget", "-5s"], "plan: argument --budget: expected one argument (a value that starts "
+                                          "with '-' is written --budget=VALUE)"),
+    (["run", "--frames", "x"], "run: argument --frames: invalid int value: 'x'"),
+    (["export"], "export: the following arguments are required: run"),
+    (["preview", "r", "--frame", "1", "--frames", "1:2"], "preview: argument --frames: not allowed with"),
+    (["runn"], "invalid choice: 'runn'"),
+    (["scenes", "extra"], "scenes: unrecognized arguments: extra; see warp-sph scenes --help"),
+    (["bench", "splishsplash", "--repeats", "x"], "bench splishsplash: argument --repeats: expected an integer > 0"),
+    (["bench", "--bogus"], "bench: unrecognized arguments: --bogus; see warp-sph bench --help"),
+])
+def test_argparse_errors_are_one_line(argv, words, workdir, capsys):
+    """argparse's refusals print one line (not its usage block), exit status 2, nothing written."""
+    before = snapshot(workdir)
+    code, err = run_cli(argv, capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "usage:" not in err, err
+    assert words in error_line(err)
+    assert snapshot(workdir) == before
+
+
+def test_a_sweep_file_given_to_run_points_to_sweep(workdir, capsys):
+    """``warp-sph run SWEEP.toml`` listed every scene key as expected instead of naming the command."""
+    path = write(workdir, "sw.toml", '[sweep]\nscene = "dam_break"\nparam = { solver = ["wcsph", "pbf"] }\n')
+    before = snapshot(workdir)
+    for command in ("run", "check"):
+        code, err = run_cli([command, str(path)], capsys)
+        assert code == 2 and error_line(err).endswith(f"sw.toml: sweep: a sweep file ([sweep] / [[case]]), not a "
+                                                      f"scene; run it with: warp-sph sweep {path}"), err
+    assert snapshot(workdir) == before

@@ -175,3 +175,21 @@ def test_energy_rule_off_with_a_force_that_stores_energy(device):
         off = Simulation(scene_from_dict({**base, "forces": [force]}), device=device)
         assert not off.watchdog.energy.enabled, force
 
+
+
+def test_cause_counts_the_energy_sinks_took_out(device):
+    """EnergyWatch.cause compared the start's compression energy with a rise that still held what the sinks
+    took out: a rise of 3 % of the scene's energy (the rule's, the exchange subtracted) read as negative, and a
+    DFSPH run (no equation of state: 0 J stored) was told its start compression turned into motion."""
+    sim = Simulation(dam("dfsph", sinks=[{"min": [0.0, 0.0, 0.55], "max": [1.6, 0.6, 1.2]}]), device=device)
+    w = sim.watchdog.energy
+    sim.advance_frame()  # the sink removes the block's top layers at the frame's start
+    e = w.measure()
+    exchanged = sim.flow.exchanged - w.exchanged_base
+    assert exchanged < -0.03 * w.scale  # they took out more than the rise below
+    # a rise of 3 % the rule sees (its reference lowered by hand), beyond the 1 % limit
+    scale = w.scale + sim.flow.exchanged_scale - w.exchanged_scale_base
+    w.reference_total = e.total - e.work - exchanged - 0.03 * scale
+    assert w.growth(e) == pytest.approx(0.03) and w.unintended == 0.0
+    cause = w.cause(e, 1e-3, sim.time_step_bounds(1.0)[0])
+    assert "over its rest density" not in cause and "dfsph pressure solve added energy" in cause, cause

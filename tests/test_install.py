@@ -32,6 +32,10 @@ def test_non_editable_install_in_fresh_venv(tmp_path):
         "s = load_scene('dam_break'); o = load_scene('obstacle');"
         "import os; assert 'site-packages' in warp_sph.__file__, warp_sph.__file__;"
         "assert os.path.isfile(o.obstacles[0].file), o.obstacles[0].file;"
+        # the data folders (packages of their own in pyproject.toml): the validation scenes and experiments' data
+        "from warp_sph.validation.errors import DATA_DIR; import warp_sph.scenes as sc;"
+        "assert len(list(DATA_DIR.glob('*.csv'))) >= 7, DATA_DIR;"
+        "assert os.path.isfile(os.path.join(os.path.dirname(sc.__file__), 'validation', 'lobovsky.toml'));"
         "print(sorted(n for n, _ in list_scenes()), k.SMOOTHING_FUNCTIONS.keys())"
     )
     r = subprocess.run([str(py), "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)

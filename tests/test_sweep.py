@@ -389,6 +389,19 @@ def test_cases_refused_by_validation_print_their_reason(tmp_path, capsys):
     assert lines[-1].startswith("2 cases: 2 failed")
 
 
+def test_an_unknown_key_is_refused_once_before_any_case(tmp_path, capsys):
+    """``--param bogus=1,2`` failed in every case, one by one (exit 1, a sweep folder of failed rows); an
+    error every case shares is the command line's: one line, exit 2, no folder."""
+    out = tmp_path / "o"
+    code, res = _sweep_cli(["dam_break", "--param", "bogus_key=1,2", "--param", "particle_radius=-1,0.1", "--out",
+                            str(out), "--no-progress"] + sum((["--set", t] for t in TINY[1:]), []), capsys)
+    assert code == 2 and res.out == ""
+    (line,) = res.err.strip().splitlines()
+    assert re.fullmatch(r"warp-sph: error: every case: .*dam_break\.toml: bogus_key: unknown key; expected one of .*",
+                        line), line
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("content, pattern", [
     (b'[sweep]\nscene = "dam_break"\nparam = { solver = ["wcsph", "pbf" }\n', r"bad\.toml: malformed TOML: "),
     (bytes(range(256)) * 4, r"bad\.toml: not a UTF-8 text file \(byte 0x80 at offset 128\)"),

@@ -10,6 +10,19 @@ Warp runs quietly (warnings only, no banner or module-load lines); ``WARP_SPH_VE
 ``warp_sph.set_verbose(True)`` shows everything.
 """
 import os as _os
+import signal as _signal
+import sys as _sys
+
+# The warp-sph command: a Ctrl-C while it starts (importing Warp, about a second) ends it quietly with status
+# 130, as one during a run does (warp_sph.cli.main), instead of a traceback; nothing is written yet.
+# (Only in the main thread of the command's own process: a sweep's Dask workers inherit its argv and keep their
+# handlers.)
+_command = bool(_sys.argv) and _os.path.basename(_sys.argv[0]) == "warp-sph" \
+    and __import__("multiprocessing").parent_process() is None \
+    and __import__("threading").current_thread() is __import__("threading").main_thread()
+if _command:
+    _previous_sigint = _signal.signal(_signal.SIGINT, lambda *_: (_sys.stderr.write("\nwarp-sph: interrupted\n"),
+                                                                 _os._exit(130)))
 
 # A source checkout keeps the device code, scenes and benchmarks beside this folder (kernels/,
 # scenes/, benchmarks/; pyproject.toml maps them to warp_sph.kernels, ...). When Python imports
@@ -32,6 +45,8 @@ from .core.step_graph import Stage, StepGraph
 from .core.version import __version__  # noqa: E402
 
 _apply_log_level()
+if _command:
+    _signal.signal(_signal.SIGINT, _previous_sigint)  # KeyboardInterrupt again: main() handles it
 
 
 def run(scene, out=None, **kwargs):

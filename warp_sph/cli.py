@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import warnings
 from pathlib import Path
+
+from .core.errors import WarpSphError
 
 
 class _AllCores:
@@ -23,6 +26,32 @@ class _AllCores:
 
 
 ALL_CORES = _AllCores()
+
+
+class _UsageError(WarpSphError):
+    """A command line argparse refused: ``main`` prints it as one line, exit status 2."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, its errors one line (``warp-sph: error: plan: argument --budget: ...``) instead of the usage
+    block; subcommands' parsers are of the same class (``warp-sph bench``'s too)."""
+
+    def error(self, message):
+        m = re.match(r"argument (?:\S+/)?(-\S+): expected one argument$", message)
+        if m:  # argparse takes a value such as -5s for an option
+            message += f" (a value that starts with '-' is written {m.group(1)}=VALUE)"
+        cmd = self.prog.split(" ", 1)[1] + ": " if " " in self.prog else ""
+        raise _UsageError(f"{cmd}{message}; see {self.prog} --help")
+
+    def parse_args(self, args=None, namespace=None):
+        """As argparse's, an unknown argument named with its command (``run: unrecognized arguments: ...``)."""
+        parsed, extra = self.parse_known_args(args, namespace)
+        if extra:
+            cmd = getattr(parsed, "command", None)
+            prog = f"{self.prog} {cmd}" if cmd else self.prog
+            where = prog.split(" ", 1)[1] + ": " if " " in prog else ""
+            raise _UsageError(f"{where}unrecognized arguments: {' '.join(extra)}; see {prog} --help")
+        return parsed
 
 
 def _quiet_warp():
@@ -249,9 +278,9 @@ def _cmd_bench(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="warp-sph", description="SPH fluid simulation in NVIDIA Warp, exported to USD for Blender.",
-                                epilog="Each command has its own --help (warp-sph run --help). --verbose (before or "
-                                       "after the command) shows Warp's own start-up and kernel-loading messages.")
+    p = OneLineParser(prog="warp-sph", description="SPH fluid simulation in NVIDIA Warp, exported to USD for Blender.",
+                      epilog="Each command has its own --help (warp-sph run --help). --verbose (before or "
+                             "after the command) shows Warp's own start-up and kernel-loading messages.")
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up and module-load messages")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
@@ -372,16 +401,20 @@ def main(argv=None) -> int:
     warnings.showwarning = _show_warning
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    if "bench" in argv:  # everything after "bench" is the benchmark runner's (its own --help included)
-        i = argv.index("bench")
-        head = argv[:i]
-        if all(a == "--verbose" for a in head):
-            args = parser.parse_args(head + ["bench"])
-            args.bench_args = argv[i + 1:]
+    try:
+        if "bench" in argv:  # everything after "bench" is the benchmark runner's (its own --help included)
+            i = argv.index("bench")
+            head = argv[:i]
+            if all(a == "--verbose" for a in head):
+                args = parser.parse_args(head + ["bench"])
+                args.bench_args = argv[i + 1:]
+            else:
+                args = parser.parse_args(argv)
         else:
             args = parser.parse_args(argv)
-    else:
-        args = parser.parse_args(argv)
+    except _UsageError as e:
+        print(f"warp-sph: error: {e}", file=sys.stderr)
+        return 2
     args.argv = argv
     if not getattr(args, "command", None):
         parser.print_help()

@@ -238,6 +238,9 @@ class EnergyWatch:
         scene, solver = sim.scene, sim.solver
         r = self.reference
         rise = e.total - e.work - self.reference_total
+        flow = getattr(sim, "flow", None)
+        if flow is not None:  # what the emitters brought in minus what the sinks took out is not a rise (``growth``)
+            rise -= flow.exchanged - self.exchanged_base
         # a stage inserted by hand that changes a field (one that only reads cannot add energy)
         added = [s.name for s in sim.graph.stages if s.name not in sim.solver_stage_names and (s.writes or s.updates)]
         if added:

@@ -4,9 +4,11 @@
 height or front probe is a line of points ``line_step`` = d/4 apart) and a stage, ``probes``, that runs
 after the solver's last stage. Each probe is sampled at t_k = k / rate (k = 1, 2, ...): at the end of
 the first substep whose end time reaches t_k, stamped with that time (the state's time after the
-substep). The decision is host arithmetic on the step's time; the samples stay on the device, in a
-buffer of one frame's rows, and the runner reads them once per frame (``collect``). A substep longer
-than 1 / rate takes one sample and skips the sample times it stepped over (counted in ``skipped``).
+substep). A probe on a wall reads the walls' force, which only a substep computes: from a state no substep
+has reached (a run's start) its first row is taken at the end of the first substep, not at t = 0. The
+decision is host arithmetic on the step's time; the samples stay on the device, in a buffer of one
+frame's rows, and the runner reads them once per frame (``collect``). A substep longer than 1 / rate
+takes one sample and skips the sample times it stepped over (counted in ``skipped``).
 Probes read the state and change nothing (``tests/test_probes.py`` checks it bit for bit).
 
 A frame redone from its start (the watchdog's retry, grown neighbour lists, a cost measurement) puts
@@ -181,6 +183,7 @@ class _RateGroup:
         self.host: list[tuple[float, np.ndarray, np.ndarray]] = []  # rows read before the frame ended
         self.next_k = 1
         self.skipped = 0
+        self.start_at = None  # a run's start time when its first row waits for the first substep [s]
 
     def next_index(self, t: float) -> int:
         """The first sample index k with t_k = k / rate after time t [s]."""
@@ -194,7 +197,7 @@ class _RateGroup:
         keep = sum(1 for s in self.times if s <= t)
         del self.times[keep:]
         self.host = [row for row in self.host if row[0] <= t]
-        self.next_k = self.next_index(t)
+        self.next_k = 0 if self.start_at is not None and t <= self.start_at else self.next_index(t)
 
     def flush(self) -> None:
         """Move the device rows to the host (once per frame, or when a caller steps past a frame's rows)."""
@@ -214,8 +217,12 @@ class Probes:
         self.lines = probe_lines(sim.scene)
         self.line_step = LINE_STEP * m.spacing
         self.grid = NeighborGrid(m.support_radius, device=sim.device, dim=fluid_grid_dim(m, sim.sampled.fluid_x))
-        rates = sorted({line.rate for line in self.lines})
-        self.groups = [_RateGroup(sim, r, [line for line in self.lines if line.rate == r], self.line_step) for r in rates]
+        # one group per (rate, on a wall): a wall load exists only after a substep (``sample_now``)
+        c = sim.scene.container
+        key = [(line.rate, c is not None and line.wall(c.min, c.max, sim.scene.wall_gap) is not None)
+               for line in self.lines]
+        self.groups = [_RateGroup(sim, r, [line for line, k in zip(self.lines, key) if k == (r, w)], self.line_step)
+                       for r, w in sorted(set(key))]
         self._no_pressure = wp.zeros(1, dtype=float, device=sim.device)
         self._t_last = -math.inf
         self.samples = 0
@@ -276,12 +283,17 @@ class Probes:
         for g in due:
             self._sample(g, t1)
 
-    def sample_now(self, t: float | None = None) -> None:
-        """Sample every probe at the current state (the runner's initial frame; scripts), stamped t."""
+    def sample_now(self, t: float | None = None, start: bool = False) -> None:
+        """Sample every probe at the current state (the runner's initial frame; scripts), stamped t. ``start``
+        (a run's initial state, no substep taken): a probe on a wall, whose walls' force no substep has
+        computed yet, is sampled at the end of the first substep instead."""
         t = float(self.sim.state.time) if t is None else float(t)
         self.grid.build(self.sim.fields["particle_x"])
         for g in self.groups:
             g.rewind(t)  # steps taken and undone before (a cost measurement) leave no samples
+            if g.wall_count and start:  # no walls' force yet: the first row after substep 1 (a redone
+                g.start_at, g.next_k = t, 0  # first frame takes it again)
+                continue
             self._sample(g, t, scheduled=False)
         self._t_last = t
 
@@ -305,7 +317,7 @@ class Probes:
         self.samples += 1
         if scheduled:
             k = g.next_index(t)
-            g.skipped += max(0, k - g.next_k - 1)
+            g.skipped += max(0, k - max(g.next_k, 1) - 1)
             g.next_k = k
         else:
             g.next_k = g.next_index(t)

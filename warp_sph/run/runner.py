@@ -152,7 +152,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             d["frame"] = 1
             frame_log.append(d)
             if probe_files is not None:
-                sim.probes.sample_now(0.0)
+                sim.probes.sample_now(0.0, start=True)
                 probe_files.append(sim.probes.collect())
             export(1, 0.0)
             save_info("running")

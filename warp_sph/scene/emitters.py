@@ -117,9 +117,10 @@ def has_flow(scene) -> bool:
 
 
 def check_emission(scene, fail) -> None:
-    """``fail(keypath, message)`` on an emitter with speed and flow_rate (or neither), a zero direction, an
-    end before its start, a nozzle outside the container or inside an obstacle, a sink box that is empty
-    or outside the container, or rigid bodies together with emitters, sinks or open container faces."""
+    """``fail(keypath, message)`` on an emitter with speed and flow_rate (or neither), a zero direction, a
+    start at or after the scene's duration, an end before its start, a nozzle outside the container or
+    inside an obstacle, a sink box that is empty or outside the container, or rigid bodies together with
+    emitters, sinks or open container faces."""
     c = scene.container
     d = scene.spacing
     where = "emitters" if scene.emitters else "sinks" if scene.sinks else "container.open"
@@ -137,6 +138,9 @@ def check_emission(scene, fail) -> None:
                  + ("both" if e.speed is not None else "neither"))
         if not np.linalg.norm(np.asarray(e.direction, dtype=float)) > 0.0:
             fail(f"{kp}.direction", f"expected a non-zero vector, got {list(e.direction)}")
+        if not e.start < scene.duration:  # layers enter up to the duration only (``emitter_plan``)
+            fail(f"{kp}.start", f"expected a time before the scene's duration = {scene.duration} s (it would emit "
+                 f"nothing), got {e.start}")
         if e.end is not None and not e.end > e.start:
             fail(f"{kp}.end", f"expected a time after start = {e.start} s, got {e.end}")
         points = nozzle_points(e, d)

@@ -124,7 +124,8 @@ def load_triangle_mesh(path: str | os.PathLike) -> TriangleMesh:
     """
     path = Path(path)
     if not path.is_file():
-        raise SceneError(f"mesh file {str(path)!r} not found")
+        what = "is a folder; expected a mesh file" if path.is_dir() else "not found"
+        raise SceneError(f"mesh file {str(path)!r} {what}")
     suffix = path.suffix.lower()
     if suffix not in MESH_SUFFIXES:
         raise SceneError(f"mesh file {str(path)!r}: unknown suffix {suffix!r}; expected one of {', '.join(MESH_SUFFIXES)}")

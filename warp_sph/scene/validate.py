@@ -132,6 +132,9 @@ class Validator:
             raise SceneError(f"{self.source}: expected a table of scene parameters, got {_short(data)}")
         top = self.params[""]
         for k in data:
+            if k in ("sweep", "case") and k not in top:  # a sweep file given where a scene is expected
+                self.fail(k, "a sweep file ([sweep] / [[case]]), not a scene; run it with: "
+                          f"warp-sph sweep {self.source}")
             if k not in top:
                 self.fail(k, f"unknown key; expected one of {', '.join(top)}")
         values: dict[str, Any] = {}

@@ -51,7 +51,8 @@ def _failed_row(case: Case, folder: Path, error: str) -> dict:
 def plan(cases: list[Case], out: Path, previous: dict[str, dict]) -> tuple[list[Case], dict[str, dict]]:
     """(cases to run, rows of the cases that need no run): a case whose folder holds a completed run
     of the same scene and frame count keeps its previous row (or one made from its run.json); a case
-    whose scene does not load (a bad value) fails here, without a run."""
+    whose scene does not load (a bad value) fails here, without a run. When every case fails to load with
+    the same error (an unknown key, a bad fixed --set), the sweep is refused once: SweepError, nothing run."""
     from ..core.errors import SceneError
     from ..scene import load_scene
 
@@ -75,6 +76,9 @@ def plan(cases: list[Case], out: Path, previous: dict[str, dict]) -> tuple[list[
                 done[c.name] = row
             continue
         todo.append(c)
+    errors = {r["error"] for r in done.values() if r.get("status") == "failed"}
+    if cases and not todo and len(errors) == 1 and all(done[c.name].get("status") == "failed" for c in cases):
+        raise SweepError(f"{'every case' if len(cases) > 1 else 'case ' + cases[0].name}: {errors.pop()}")
     return todo, done
 
 
@@ -102,9 +106,9 @@ def run_sweep(cases: list[Case], out: Path, executor, device: str | None = None,
 
     out = Path(out)
     check_sweep_folder(out)
-    out.mkdir(parents=True, exist_ok=True)
     previous = read_rows(out)
     todo, done = plan(cases, out, previous)
+    out.mkdir(parents=True, exist_ok=True)
     names = [c.name for c in cases]
     summary = SweepSummary(out, names + [n for n in previous if n not in set(names)], command=command)
     for n, r in previous.items():

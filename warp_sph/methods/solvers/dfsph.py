@@ -408,9 +408,11 @@ class DfsphSolver(DfsphSearch, Solver):
         n = force.shape[0]  # the active particles (emitters: a prefix of the capacity)
         if self._kept_force is None or self._kept_force.shape[0] < n:
             self._kept_force = wp.empty(max(n, self.model.capacity), dtype=wp.vec3, device=force.device)
-        wp.copy(self._kept_force, force, count=n)
+        if n:  # (count = 0 would copy the whole kept array: a sink emptied the fluid)
+            wp.copy(self._kept_force, force, count=n)
         self.refresh_density()
-        wp.copy(force, self._kept_force, count=n)
+        if n:
+            wp.copy(force, self._kept_force, count=n)
 
     def checkpoint_arrays(self) -> dict:
         f = self.sim.fields

@@ -124,6 +124,7 @@ class PbfSolver(PbfPasses, Solver):
         self.last_density_error = 0.0
         self.last_max_correction = 0.0
         self.last_error_sum = 0.0             # sum of C_i of the last density pass [-]
+        self.last_error_count = 0             # the particles that pass summed (emitters, sinks: it changes)
         self.last_iteration_correction = 0.0  # largest |dx_i| of the last correction [m]
         self.last_drift = 0.0                 # largest distance of x* from where neighbours were searched [m]
         self.last_stabilization = 0
@@ -157,7 +158,7 @@ class PbfSolver(PbfPasses, Solver):
         shorter than half the adaptive step (share s = ``error_share(dt)`` < 1), the constraint offset
         o_i = (1 - s) C_i(x): the solve corrects only the share s of the error left at x, so that it
         becomes a velocity of about C d / tau, not C d / dt (issue #36)."""
-        f, n = sim.fields, self.model.fluid_count
+        f = sim.fields
         share = self.error_share(dt)
         if self._offset_set:  # the stabilisation and the test at x read the full error
             f["pbf_constraint_offset"].zero_()
@@ -165,7 +166,8 @@ class PbfSolver(PbfPasses, Solver):
         self.last_stabilization = 0
         self.last_max_correction = 0.0
         at_x = False
-        if self.last_error_sum / n > self.stabilize_factor * float(self.config.target_density_error):
+        # the last pass's own mean: a frame's emitters and sinks changed the count since (not sum / new count)
+        if self.mean_error() > self.stabilize_factor * float(self.config.target_density_error):
             self._stabilize()
             at_x = True
         if share < 1.0:
@@ -177,23 +179,27 @@ class PbfSolver(PbfPasses, Solver):
                    [f["pbf_constraint_offset"]], device=self.model.device, min_range=LIGHT_MIN_RANGE)
             self._offset_set = True
 
+    def mean_error(self) -> float:
+        """The mean C of the last density pass [-]: its sum over the particles it summed (0 without any)."""
+        return self.last_error_sum / self.last_error_count if self.last_error_count else 0.0
+
     def _stabilize(self) -> None:
         """The projection of ``run_stabilize``: corrections at dt = 0 until the mean error at x is below the
         target (at most max_iterations); leaves the last density pass at x."""
-        f, n = self.sim.fields, self.model.fluid_count
+        f = self.sim.fields
         target, max_it = float(self.config.target_density_error), int(self.config.max_iterations)
         # re-evaluate at x (the last pass may belong to another state, e.g. a watchdog retry)
         wp.copy(f["predicted_x"], f["particle_x"])
         self.build_neighbors()
         self.density_pass()
-        err = self.last_error_sum / n
+        err = self.mean_error()
         it = 0
         while err > target and it < max_it:
             self.correction(0.0)
             it += 1
             self.refresh_neighbors()
             self.density_pass()
-            err = self.last_error_sum / n
+            err = self.mean_error()
             self.last_max_correction = max(self.last_max_correction, self.last_iteration_correction)
         wp.copy(f["particle_x"], f["predicted_x"])
         self.last_stabilization = it
@@ -215,18 +221,17 @@ class PbfSolver(PbfPasses, Solver):
         """Iterations as in SPlisHSPlasH: each one is a density pass (the "density" stage for the first)
         and a correction; the stop test reads the error of the iteration's density pass, so it costs no
         extra pass after the last correction (``finish_frame`` measures x)."""
-        n = self.model.fluid_count
         target = float(self.config.target_density_error)
         min_it, max_it = int(self.config.min_iterations), int(self.config.max_iterations)
         it = 0
-        err = self.last_error_sum / n  # from the "density" stage
+        err = self.mean_error()  # from the "density" stage
         largest = 0.0
         trace = [] if self.trace else None
         while it < max_it and (it < min_it or err > target):
             if it > 0:
                 self.refresh_neighbors()
                 self.density_pass()
-                err = self.last_error_sum / n
+                err = self.mean_error()
             self.correction(dt)
             it += 1
             largest = max(largest, self.last_iteration_correction)

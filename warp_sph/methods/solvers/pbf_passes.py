@@ -118,6 +118,7 @@ class PbfPasses:
         launch(_reduce.sum_chunks, self._error_partial.shape[0], [_reduce.REDUCE_CHUNK, f["pbf_constraint"]],
                [self._error_partial], device=m.device)
         self.last_error_sum = float(self._error_partial.numpy().sum(dtype=np.float64))
+        self.last_error_count = m.fluid_count
 
     def correction(self, dt: float) -> None:
         """One Jacobi correction of x* (eq. 18), capped at ``max_step``; wall reaction m dx_b / dt^2."""
