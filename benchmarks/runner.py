@@ -684,7 +684,5 @@ def main(argv: list[str] | None = None) -> int:
     return args.func(args, argv)
 
 
-if __name__ == "__main__":  # as `warp-sph bench ...` (its one-line errors, exit status 2)
-    from warp_sph.cli import main as _cli_main
-
-    sys.exit(_cli_main(["bench"] + sys.argv[1:]))
+if __name__ == "__main__":
+    sys.exit(main())
