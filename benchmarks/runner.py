@@ -467,7 +467,7 @@ def cmd_report(args, argv: list[str], log=print) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from warp_sph.cli import OneLineParser  # argparse's errors as one line (exit status 2)
+    from warp_sph.cli_parser import OneLineParser  # argparse's errors as one line (exit status 2)
 
     p = OneLineParser(prog="warp-sph bench", description="Benchmarks: speed, accuracy and their trade. "
                                 "Results go to JSON lines and RESULTS.md in runs/bench (or --out); --publish "
