@@ -85,3 +85,27 @@ def test_deep_column_needs_fewer_sweeps_for_the_same_target(device):
     fast, _ = _column_sweeps(device, 0.8)
     assert plain > 6  # deep enough that plain Jacobi needs many sweeps
     assert fast < 0.75 * plain, (plain, fast)  # measured 7.7 -> 5.4
+
+
+def test_accelerated_solve_is_bitwise_reproducible_over_thread_counts(monkeypatch, device):
+    """The weights are computed by one thread from the fixed-order error sum (solve_control) and every
+    sweep writes only its own particle: with dfsph.chebyshev = 0.8, 1, 2 or 3 CPU threads give bitwise the
+    same state and sweep counts, and the solves ran past the plain sweeps (the weights were used)."""
+    from test_dfsph import block_on_floor
+
+    res = []
+    for threads in ("1", "2", "3"):
+        monkeypatch.setenv("WARP_SPH_CPU_THREADS", threads)
+        sim = Simulation(block_on_floor(nx=16, ny=16, nz=12, material={"xsph": 0.05, "viscosity": 1e-3},
+                                        dfsph={"chebyshev": 0.8}), device=device)
+        assert sim.model.fluid_count >= 3 * 1024  # three ranges of the split launch
+        figures = []
+        for _ in range(3):
+            sim.step(4e-3)
+            s = sim.solver
+            figures.append((s.last_iterations, s.last_density_error))
+        res.append((sim.get_field("particle_x"), sim.get_field("particle_v"), figures))
+    assert max(it for it, _ in res[0][2]) > CHEBYSHEV_DELAY
+    for x, v, figures in res[1:]:
+        assert np.array_equal(x, res[0][0]) and np.array_equal(v, res[0][1])
+        assert figures == res[0][2]
