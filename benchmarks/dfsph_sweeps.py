@@ -1,6 +1,6 @@
 """DFSPH sweeps per step against depth, plain Jacobi beside Chebyshev weights (issue #32).
 
-    python -m benchmarks.dfsph_sweeps [--radii 0.025:1.0,0.0125:0.125] [--chebyshev 0,0.8] [--set K=V] [--out FILE]
+    python -m warp_sph.benchmarks.dfsph_sweeps [--radii 0.025:1.0,0.0125:0.125] [--chebyshev 0,0.8] [--set K=V] [--out FILE]
 
 The default dam break (its own adaptive step) at each particle radius [m] for the given simulated
 seconds, once per ``dfsph.chebyshev`` value (0: plain Jacobi), the cases of one radius run one after the
