@@ -42,7 +42,24 @@ from .neighbors import NeighborList, particle_in_cell_order
 CONTROL_DONE = 0        # 1 once the stop test passed or max_iterations ran
 CONTROL_ITERATIONS = 1  # iterations run
 CONTROL_ERROR = 2       # mean error of the last iteration (before its update) [-] or [1/s]
-CONTROL_COUNT = 3
+CONTROL_WEIGHT = 3      # Chebyshev weight of the next sweep (1: plain Jacobi)
+CONTROL_SWEEP = 4       # sweeps run (the index of the next one)
+CONTROL_LAST_WEIGHT = 5 # weight the last sweep applied
+CONTROL_COUNT = 6
+#: plain Jacobi sweeps before the Chebyshev acceleration starts (Wang 2015: a few)
+CHEBYSHEV_DELAY = 2
+
+
+@wp.func
+def chebyshev_weight(sweep: float, rho: float, last: float) -> float:
+    """Weight of sweep ``sweep`` (0-based) of the Chebyshev
+    semi-iterative method (Wang 2015, eq. 12) for a sweep of spectral radius rho: 1 for the first
+    CHEBYSHEV_DELAY sweeps or rho = 0, then 2 / (2 - rho^2), then 4 / (4 - rho^2 w_last)."""
+    if rho <= 0.0 or sweep < float(CHEBYSHEV_DELAY):
+        return 1.0
+    if sweep == float(CHEBYSHEV_DELAY):
+        return 2.0 / (2.0 - rho * rho)
+    return 4.0 / (4.0 - rho * rho * last)
 
 
 @wp.func
@@ -88,7 +105,6 @@ def jacobi_update(
     relaxation: float,
     active_only: int,
     control: wp.array(dtype=wp.float64),
-    chebyshev: float,
     keep_previous: int,
     # In/out:
     pressure: wp.array(dtype=float),
@@ -98,9 +114,10 @@ def jacobi_update(
 ):
     """Second pass of a Jacobi sweep: (A P)_i = scale delta_i(a), r_i = b_i - (A P)_i, error
     max(-r_i, 0) (0 for inactive particles when ``active_only``), P^J_i = max(0, P_i - omega f_i r_i /
-    scale); with Chebyshev weight w != 1 (Wang 2015) P_i <- max(0, Q_i + w (P^J_i - Q_i)), Q the P of
-    the sweep before, else P_i <- P^J_i; Q_i <- the old P_i when ``keep_previous`` (the accelerated solve;
-    plain Jacobi never reads Q). Reads only its own P_i, so P is updated in place."""
+    scale); with the Chebyshev weight w = control[CONTROL_WEIGHT] != 1 (Wang 2015) P_i <- max(0, Q_i +
+    w (P^J_i - Q_i)), Q the P of the sweep before, else P_i <- P^J_i; Q_i <- the old P_i when
+    ``keep_previous`` (the accelerated solve; plain Jacobi never reads Q). Reads only its own P_i, so
+    P is updated in place."""
     if control[CONTROL_DONE] != wp.float64(0.0):
         return
     i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
@@ -118,6 +135,7 @@ def jacobi_update(
         e = 0.0
     error_out[i] = e
     pj = wp.max(p - relaxation * factor[i] * r / scale, 0.0)
+    chebyshev = float(control[CONTROL_WEIGHT])
     if chebyshev != 1.0:
         q = previous[i]
         pj = wp.max(q + chebyshev * (pj - q), 0.0)
@@ -155,11 +173,14 @@ def solve_control(
     target: float,
     min_iterations: int,
     max_iterations: int,
+    rho: float,
     # In/out:
     control: wp.array(dtype=wp.float64),
 ):
     """One thread: mean error = sum(partial) / count (float64, fixed order); iterations += 1; done
-    when (error <= target and iterations >= min_iterations) or iterations >= max_iterations."""
+    when (error <= target and iterations >= min_iterations) or iterations >= max_iterations.
+    Chebyshev (rho > 0): the weight of the next sweep; the weight this sweep applied is kept
+    (``chebyshev_finish``)."""
     if control[CONTROL_DONE] != wp.float64(0.0):
         return
     s = wp.float64(0.0)
@@ -169,15 +190,41 @@ def solve_control(
     it = control[CONTROL_ITERATIONS] + wp.float64(1.0)
     control[CONTROL_ITERATIONS] = it
     control[CONTROL_ERROR] = err
+    w = control[CONTROL_WEIGHT]
+    control[CONTROL_LAST_WEIGHT] = w
+    if rho > 0.0:
+        sweep = control[CONTROL_SWEEP] + wp.float64(1.0)
+        control[CONTROL_SWEEP] = sweep
+        control[CONTROL_WEIGHT] = wp.float64(chebyshev_weight(float(sweep), rho, float(w)))
     if (err <= wp.float64(target) and it >= wp.float64(min_iterations)) or it >= wp.float64(max_iterations):
         control[CONTROL_DONE] = wp.float64(1.0)
 
 
 @wp.kernel(enable_backward=False)
 def reset_control(control_out: wp.array(dtype=wp.float64)):
-    """A solve starts: not done, no iterations, no error."""
+    """A solve starts: not done, no iterations, no error, plain weights."""
     for k in range(CONTROL_COUNT):
         control_out[k] = wp.float64(0.0)
+    control_out[CONTROL_WEIGHT] = wp.float64(1.0)
+    control_out[CONTROL_LAST_WEIGHT] = wp.float64(1.0)
+
+
+@wp.kernel(enable_backward=False)
+def chebyshev_finish(
+    tid_offset: int,
+    # In:
+    fluid_neighbors: NeighborList,
+    control: wp.array(dtype=wp.float64),
+    previous: wp.array(dtype=float),
+    # In/out:
+    pressure: wp.array(dtype=float),
+):
+    """After an accelerated solve: when its last sweep applied a weight w != 1, P_i <- Q_i, the P whose
+    error passed the stop test (the extrapolated update after it is not checked and overshoots)."""
+    if control[CONTROL_LAST_WEIGHT] == wp.float64(1.0):
+        return
+    i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+    pressure[i] = previous[i]
 
 
 @wp.kernel(enable_backward=False)

@@ -12,7 +12,8 @@ Step (one dt per substep):
   v += dt a(P^v) -> [the scene's forces (slot "before_pressure") and the boundary method's force] -> density source for
   v* = v + dt g (the over-density already at x enters with the share s = ``error_share(dt)``: 1 at the
   adaptive step, 2 dt / bound for a smaller fixed step, so that it becomes a velocity e d / tau, not
-  e d / dt) -> density solve: Jacobi sweeps on P until the mean predicted over-density is below
+  e d / dt) -> density solve: Jacobi sweeps on P with Chebyshev weights (``dfsph.chebyshev``; weights
+  on the device, ``kernels/dfsph.py`` solve_control) until the mean predicted over-density is below
   target_density_error -> integrate: v = v* + dt a(P), x += dt v.
 
 Both solves start from the last step's values (warm start, carried fields and checkpointed, so a
@@ -58,14 +59,13 @@ STABILIZE_ROUNDS = 50
 STABILIZE_ITERATIONS = 5
 
 
-#: plain Jacobi sweeps before the Chebyshev acceleration of the density solve starts (Wang 2015: a few)
-CHEBYSHEV_DELAY = 2
+CHEBYSHEV_DELAY = _dfsph.CHEBYSHEV_DELAY
 
 
 def chebyshev_weight(sweep: int, rho: float, last: float) -> float:
-    """Weight w of sweep ``sweep`` (0-based) of the Chebyshev semi-iterative method (Wang 2015, eq. 12)
-    for a sweep whose spectral radius is estimated as rho: P <- max(0, P_prev + w (P_jacobi - P_prev));
-    1 (plain Jacobi) for the first CHEBYSHEV_DELAY sweeps or rho = 0; then 2 / (2 - rho^2), then
+    """Host copy of ``kernels/dfsph.py``'s chebyshev_weight (tests): the weight w of sweep ``sweep``
+    (0-based), P <- max(0, P_prev + w (P_jacobi - P_prev)); 1 (plain
+    Jacobi) for the first CHEBYSHEV_DELAY sweeps or rho = 0; then 2 / (2 - rho^2), then
     4 / (4 - rho^2 w_last)."""
     if rho <= 0.0 or sweep < CHEBYSHEV_DELAY:
         return 1.0
@@ -112,8 +112,9 @@ class DfsphSolver(DfsphSearch, Solver):
         Param("dfsph.warm_start", "float", "-", 0.5, "fraction of the last step's pressures the solves start from "
               "(where a particle is being compressed; 0: start from zero)", ge=0.0, le=1.0),
         Param("dfsph.chebyshev", "float", "-", 0.0, "spectral-radius estimate of the density solve's Jacobi sweep "
-              "for Chebyshev acceleration (Wang 2015; 0: plain Jacobi): fewer sweeps in deep flows (0.95: half of "
-              "them in the dam break), but fluid at rest keeps moving and its pressures come out a few % low",
+              "for its Chebyshev acceleration (Wang 2015; 0: plain Jacobi); a solve ending on an accelerated sweep "
+              "keeps the P its stop test checked. 0.8: a third fewer sweeps at 59k particles, but the hydrostatic "
+              "tank's floor probe reads 2.7 % low; higher values leave fluid at rest jittering",
               ge=0.0, lt=1.0),
         Param("dfsph.search_skin", "float", "-", 0.0, "skin of the neighbour search in particle spacings d: lists "
               "of the pairs within H_s + skin, rebuilt only when a particle moved more than skin / 2 since the last "
@@ -201,20 +202,20 @@ class DfsphSolver(DfsphSearch, Solver):
         block = max(1, min_iterations)
         self.solves += 1
         rho = float(self.config.chebyshev) if chebyshev else 0.0
-        w = 1.0
         while True:
             block = min(block, max_iterations - launched)
-            for idx in range(block):
-                w = chebyshev_weight(launched + idx, rho, w)
+            for _ in range(block):
                 launch(_dfsph.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev)
                 launch(_dfsph.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only), control,
-                                                 float(w), int(rho > 0.0)], [p, self._previous, err], device=dev)
+                                                 int(rho > 0.0)], [p, self._previous, err], device=dev)
                 launch(_dfsph.error_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, err, control], [partial], device=dev)
-                launch(_dfsph.solve_control, 1, [partial, n, float(target), int(min_iterations), int(max_iterations)],
-                       [control], device=dev)
+                launch(_dfsph.solve_control, 1, [partial, n, float(target), int(min_iterations), int(max_iterations),
+                                                 rho], [control], device=dev)
             launched += block
             c = control.numpy()  # the one read per check
             if c[_dfsph.CONTROL_DONE] != 0.0 or launched >= max_iterations:
+                if rho > 0.0:
+                    launch(_dfsph.chebyshev_finish, n, [fn, control, self._previous], [p], device=dev)
                 return int(c[_dfsph.CONTROL_ITERATIONS]), float(c[_dfsph.CONTROL_ERROR])
             block = self.check_every
 
@@ -357,7 +358,8 @@ class DfsphSolver(DfsphSearch, Solver):
                   + (("dfsph_divergence_pressure",) if bodies and p.divergence_solve else ()),
                   updates=("dfsph_pressure", "dfsph_acceleration", "dfsph_error"),
                   writes=("boundary_pressure_term",) if bodies else (),
-                  doc=f"Jacobi sweeps (omega {p.relaxation:g}) until the mean predicted over-density < "
+                  doc=f"Jacobi sweeps (omega {p.relaxation:g}, Chebyshev rho {p.chebyshev:g}) until the mean predicted "
+                      f"over-density < "
                       f"{p.target_density_error:g} ({p.min_iterations}-{p.max_iterations})"
                       + ("; bodies: term_i = (P^v_i + P_i) / rho0, the walls' pressure of the step" if bodies else "")),
             Stage("integrate", self.run_integrate,
