@@ -80,12 +80,23 @@ class MeshSmoother:
         self.connectivity = MeshConnectivity(self.device)
         self._buf = ArrayPool(self.device)
 
+    def _face_terms(self, x: wp.array, triangles: wp.array) -> tuple[wp.array, wp.array]:
+        """Per face of ``triangles`` its cross product [m^2] and volume term [m^3] (``face_terms``)."""
+        nt = len(triangles)
+        cross = self._buf.get("fcross", nt, wp.vec3)
+        volume = self._buf.get("fvolume", nt, float)
+        launch(_dev.face_terms, nt, [x, triangles], [cross, volume], device=self.device,
+               min_range=LIGHT_MIN_RANGE // 4)
+        return cross, volume
+
     def _volume_area(self, x: wp.array, weight: wp.array, triangles: wp.array, conn: MeshConnectivity,
                      normal: wp.array) -> tuple[float, float]:
         """(enclosed volume [m^3], sum_v w_v A_v [m^2]) of the mesh; unit vertex normals into ``normal``."""
         n = len(x)
         terms = self._buf.get("vterms", n, wp.vec2)[:n]
-        launch(_dev.volume_area_terms, n, [x, weight, triangles, conn.face_start, conn.face_count, conn.faces],
+        cross, volume = self._face_terms(x, triangles)
+        launch(_dev.volume_area_terms, n, [weight, triangles, cross, volume, conn.face_start, conn.face_count,
+                                           conn.faces],
                [terms, normal], device=self.device, min_range=LIGHT_MIN_RANGE // 4)
         total = wp.utils.array_sum(terms)
         return float(total[1]) / 6.0, float(total[0])
@@ -126,7 +137,8 @@ class MeshSmoother:
         n = len(vertex_x)
         a = self._buf.get("na", n, wp.vec3)[:n]
         b = self._buf.get("nb", n, wp.vec3)[:n]
-        launch(_dev.vertex_normals, n, [vertex_x, triangles, conn.face_start, conn.face_count, conn.faces], [a],
+        cross, _ = self._face_terms(vertex_x, triangles)
+        launch(_dev.vertex_normals, n, [cross, conn.face_start, conn.face_count, conn.faces], [a],
                device=self.device, min_range=LIGHT_MIN_RANGE // 4)
         for _ in range(int(iterations)):
             launch(_dev.smooth_normals_step, n, [a, conn.face_start, conn.neighbors, conn.neighbor_count], [b],
