@@ -64,6 +64,15 @@ def launch(kernel, dim: int | tuple[int, ...], inputs, outputs=(), device=None, 
     _launch_module.launch(kernel, dim, inputs, outputs, device=device, min_range=min_range)
 
 
+def record(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = _launch_module.MIN_RANGE
+           ) -> _launch_module.Recorded:
+    """``warp_sph.core.launch.record`` for the surface kernels, without splitting where
+    :func:`split_launches` turned it off for this thread."""
+    if not getattr(_policy, "split", True):
+        min_range = 1 << 30
+    return _launch_module.record(kernel, dim, inputs, outputs, device=device, min_range=min_range)
+
+
 def lattice_weighted_count(support_radius: float, spacing: float) -> float:
     """n = sum_j (1 - r_j^2/R^2) over a full cubic lattice of spacing d around a particle (self
     excluded): 12.5 for R = 2 d (the cubic spline with h = d)."""
