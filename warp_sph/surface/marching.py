@@ -14,7 +14,7 @@ from ..core.buffers import ArrayPool
 from ..core.errors import SimulationError
 from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_marching as _dev
-from .grid import BLOCK_MIN_RANGE, SparseGrid, launch
+from .grid import BLOCK_MIN_RANGE, LIGHT_BLOCK_MIN_RANGE, SparseGrid, launch
 
 
 class MarchingCubes:
@@ -42,7 +42,7 @@ class MarchingCubes:
         block_min = self._buf.get("bmin", grid.meshed_count, float)
         block_max = self._buf.get("bmax", grid.meshed_count, float)
         launch(_dev.block_value_range, grid.meshed_count, [b, grid.field], [block_min, block_max], device=self.device,
-               min_range=BLOCK_MIN_RANGE)
+               min_range=LIGHT_BLOCK_MIN_RANGE)
         launch(_dev.count_cells, units, [b, grid.slabs, float(iso_level), grid.field, grid.meshed_upper,
                                          grid.meshed_band, block_min, block_max, self.tri_range],
                [self.node_code, self.unit_vertices, self.unit_triangles, unit_inexact], device=self.device,
