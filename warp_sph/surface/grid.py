@@ -27,6 +27,7 @@ block within the support radius of a particle as band (exact everywhere; ``band_
 """
 from __future__ import annotations
 
+import ctypes
 import math
 import threading
 
@@ -65,6 +66,15 @@ def launch(kernel, dim: int | tuple[int, ...], inputs, outputs=(), device=None, 
     if not getattr(_policy, "split", True):
         min_range = 1 << 30
     _launch_module.launch(kernel, dim, inputs, outputs, device=device, min_range=min_range)
+
+
+def read_int32(arr: wp.array, index: int) -> int:
+    """``arr[index]`` of a 1-D int32 array, on the host (a scan's total). On the CPU it is read in
+    place (launches there are synchronous): a numpy view or a one-element slice cost 10-30 us of
+    Python each, several times per frame; elsewhere a one-element copy."""
+    if arr.device.is_cpu:
+        return ctypes.c_int32.from_address(arr.ptr + index * arr.strides[0]).value
+    return int(arr[index: index + 1].numpy()[0])
 
 
 def record(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = _launch_module.MIN_RANGE
@@ -143,7 +153,7 @@ class SparseGrid:
         div = wp.int64(divisor)
         launch(_dev.mark_runs, n, [keys, div], [head], device=self.device, min_range=LIGHT_MIN_RANGE)
         wp.utils.array_scan(head[:n], scan[:n], inclusive=True)
-        runs = int(scan[n - 1: n].numpy()[0])
+        runs = read_int32(scan, n - 1)
         run_key = self._buf.get(prefix + "_key", runs, wp.int64)
         run_start = self._buf.get(prefix + "_start", runs, wp.int32)
         run_len = self._buf.get(prefix + "_len", runs, wp.int32)

@@ -93,11 +93,13 @@ class MeshSmoother:
                      normal: wp.array) -> tuple[float, float]:
         """(enclosed volume [m^3], sum_v w_v A_v [m^2]) of the mesh; unit vertex normals into ``normal``."""
         n = len(x)
-        terms = self._buf.get("vterms", n, wp.vec2)[:n]
+        terms = self._buf.get("vterms", n, wp.vec2)
+        total = self._buf.get("vtotal", 1, wp.vec2)
         launch(_dev.volume_area_terms, n, [x, weight, triangles, conn.face_start, conn.face_count, conn.faces],
                [terms, normal], device=self.device, min_range=VERTEX_MIN_RANGE)
-        total = wp.utils.array_sum(terms)
-        return float(total[1]) / 6.0, float(total[0])
+        wp.utils.array_sum(terms, out=total, value_count=n)  # a pooled (1,) out: no allocation
+        t = total.numpy()[0]
+        return float(t[1]) / 6.0, float(t[0])
 
     def smooth(self, vertex_x: wp.array, weight: wp.array, conn: MeshConnectivity, iterations: int,
                scheme: str = "laplacian", triangles: wp.array | None = None) -> wp.array:
