@@ -99,10 +99,24 @@ class Recorded:
         ins, outs = list(inputs), list(outputs)
         self.offset = offset
         self.dim = dim
+        self.threads = threads
         # recording loads the module from this thread (as launch's first call does)
         self.cmds = [wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *ins][1 - offset:],
                                outputs=outs, device=device, record_cmd=True)
                      for k in range(threads) if bounds[k + 1] > bounds[k]]
+
+    def resize(self, dim: int) -> None:
+        """Launch over ``dim`` threads from now on, in as many ranges as recorded (each non-empty:
+        dim >= the number of ranges)."""
+        if dim == self.dim:
+            return
+        n = len(self.cmds)
+        for k, cmd in enumerate(self.cmds):
+            lo, hi = dim * k // n, dim * (k + 1) // n
+            cmd.set_dim(hi - lo)
+            if self.offset:
+                cmd.set_param_at_index(0, lo)
+        self.dim = dim
 
     def set(self, index: int, value) -> None:
         for cmd in self.cmds:
