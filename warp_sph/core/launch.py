@@ -82,3 +82,66 @@ def launch(kernel, dim: int | tuple[int, ...], inputs, outputs=(), device=None, 
     wp.launch(kernel, dim=bounds[1], inputs=[0, *ins], outputs=outs, device=device)
     for f in futures:
         f.result()
+
+
+class Recorded:
+    """A launch recorded once and replayed (``record``): Warp packs the arguments at recording only,
+    so a replay costs a few microseconds of Python instead of a full ``wp.launch``. The same split
+    into thread ranges as ``launch``; ``set(index, value)`` replaces input/output ``index`` (counted
+    without ``tid_offset``) in every range."""
+
+    def __init__(self, kernel, dim: int, inputs, outputs=(), device=None, min_range: int = MIN_RANGE):
+        device = wp.get_device(device)
+        offset = 1 if _takes_offset(kernel) else 0
+        threads = min(cpu_threads(), dim // max(min_range, 1)) if device.is_cpu and offset else 1
+        threads = max(threads, 1)
+        bounds = [dim * k // threads for k in range(threads + 1)]
+        ins, outs = list(inputs), list(outputs)
+        self.offset = offset
+        self.dim = dim
+        self.threads = threads
+        # recording loads the module from this thread (as launch's first call does)
+        self.cmds = [wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *ins][1 - offset:],
+                               outputs=outs, device=device, record_cmd=True)
+                     for k in range(threads) if bounds[k + 1] > bounds[k]]
+
+    def resize(self, dim: int) -> None:
+        """Launch over ``dim`` threads from now on, in as many ranges as recorded (each non-empty:
+        dim >= the number of ranges)."""
+        if dim == self.dim:
+            return
+        n = len(self.cmds)
+        for k, cmd in enumerate(self.cmds):
+            lo, hi = dim * k // n, dim * (k + 1) // n
+            cmd.set_dim(hi - lo)
+            if self.offset:
+                cmd.set_param_at_index(0, lo)
+        self.dim = dim
+
+    def set(self, index: int, value) -> None:
+        for cmd in self.cmds:
+            cmd.set_param_at_index(index + self.offset, value)
+
+    def launch(self) -> None:
+        """Run the recorded launch (every range; waits for all of them)."""
+        global _pool
+        cmds = self.cmds
+        if len(cmds) <= 1:
+            if cmds:
+                cmds[0].launch()
+            return
+        if _pool is None or _pool._max_workers < len(cmds) - 1:
+            _pool = ThreadPoolExecutor(max_workers=max(len(cmds) - 1, 1), thread_name_prefix="warp_sph_launch")
+        futures = [_pool.submit(cmd.launch) for cmd in cmds[1:]]
+        cmds[0].launch()
+        for f in futures:
+            f.result()
+
+
+def record(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = MIN_RANGE) -> Recorded:
+    """A :class:`Recorded` launch of ``kernel`` over ``dim`` threads (1-D; split into ranges like
+    ``launch``), for a kernel launched many times with the same or few changed arguments (an
+    iteration loop). ``dim`` must be > 0."""
+    if dim <= 0:
+        raise ValueError(f"record: kernel {kernel.key} needs dim > 0, got {dim}")
+    return Recorded(kernel, dim, inputs, outputs, device=device, min_range=min_range)

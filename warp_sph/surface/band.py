@@ -7,7 +7,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..kernels import surface_band as _band
-from .grid import BLOCK_MIN_RANGE, SparseGrid, launch
+from .grid import BLOCK_MIN_RANGE, LIGHT_BLOCK_MIN_RANGE, SparseGrid, launch, read_int32
 
 
 def classify(grid: SparseGrid, exact: bool = False) -> bool:
@@ -30,17 +30,17 @@ def classify(grid: SparseGrid, exact: bool = False) -> bool:
     meshed.zero_()
     contact.zero_()
     launch(_band.mark_meshed_blocks, n_cand, [grid.block_class, grid.block_neighbor], [meshed, contact],
-           device=dev, min_range=BLOCK_MIN_RANGE)
+           device=dev, min_range=LIGHT_BLOCK_MIN_RANGE)
     wp.utils.array_scan(meshed[:n_cand], scan[:n_cand], inclusive=True)
-    n_meshed = int(scan[n_cand - 1: n_cand].numpy()[0])
+    n_meshed = read_int32(scan, n_cand - 1)
     grid.meshed_count = n_meshed
     grid.block_state = grid._buf.get("bstate", n_cand, wp.int32)
     grid.meshed_block = grid._buf.get("meshed", n_meshed, wp.int32)
     grid.meshed_band = grid._buf.get("mband", n_meshed, wp.int32)
     launch(_band.compact_meshed, n_cand, [grid.block_class, meshed, scan],
-           [grid.block_state, grid.meshed_block, grid.meshed_band], device=dev, min_range=BLOCK_MIN_RANGE)
+           [grid.block_state, grid.meshed_block, grid.meshed_band], device=dev, min_range=LIGHT_BLOCK_MIN_RANGE)
     grid.meshed_upper = grid._buf.get("mupper", n_meshed, wp.int32, width=8)
     launch(_band.meshed_upper_neighbors, n_meshed, [grid.meshed_block, grid.block_neighbor, grid.block_state],
-           [grid.meshed_upper], device=dev, min_range=BLOCK_MIN_RANGE)
+           [grid.meshed_upper], device=dev, min_range=LIGHT_BLOCK_MIN_RANGE)
     return exact or not bool(contact.numpy()[:n_cand].any())
 

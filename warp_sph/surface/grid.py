@@ -27,6 +27,7 @@ block within the support radius of a particle as band (exact everywhere; ``band_
 """
 from __future__ import annotations
 
+import ctypes
 import math
 import threading
 
@@ -39,12 +40,16 @@ from ..core import launch as _launch_module
 from ..core.launch import LIGHT_MIN_RANGE
 from ..core.smoothing import get_smoothing_kernel
 from ..kernels import surface_grid as _dev
+from .replay import replay
 
 #: band radius D = BAND_RADIUS_R r + BAND_RADIUS_CELLS c around surface particles
 BAND_RADIUS_R = 2.5
 BAND_RADIUS_CELLS = 2.0
 #: fewest blocks per CPU thread in block-parallel kernels
 BLOCK_MIN_RANGE = 8
+#: the same for light block kernels (a few loads per block: flags, scans' compaction, value ranges),
+#: 50-140 us per frame on one thread at 6.9k particles, less than a split's hand-off saves
+LIGHT_BLOCK_MIN_RANGE = 4096
 
 _policy = threading.local()
 
@@ -56,12 +61,35 @@ def split_launches(enabled: bool) -> None:
     _policy.split = bool(enabled)
 
 
-def launch(kernel, dim: int | tuple[int, ...], inputs, outputs=(), device=None, min_range: int = _launch_module.MIN_RANGE) -> None:
+def launch(kernel, dim: int | tuple[int, ...], inputs, outputs=(), device=None,
+           min_range: int = _launch_module.MIN_RANGE, tag=None) -> None:
     """``warp_sph.core.launch.launch`` for the surface kernels, without splitting where
+    :func:`split_launches` turned it off for this thread; 1-D launches are replayed from a
+    recording (``replay.py``; ``tag`` names the call site of a kernel launched from several)."""
+    if not getattr(_policy, "split", True):
+        min_range = 1 << 30
+    if isinstance(dim, tuple) or dim <= 0:
+        _launch_module.launch(kernel, dim, inputs, outputs, device=device, min_range=min_range)
+        return
+    replay(kernel, dim, inputs, outputs, device, min_range, tag)
+
+
+def read_int32(arr: wp.array, index: int) -> int:
+    """``arr[index]`` of a 1-D int32 array, on the host (a scan's total). On the CPU it is read in
+    place (launches there are synchronous): a numpy view or a one-element slice cost 10-30 us of
+    Python each, several times per frame; elsewhere a one-element copy."""
+    if arr.device.is_cpu:
+        return ctypes.c_int32.from_address(arr.ptr + index * arr.strides[0]).value
+    return int(arr[index: index + 1].numpy()[0])
+
+
+def record(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = _launch_module.MIN_RANGE
+           ) -> _launch_module.Recorded:
+    """``warp_sph.core.launch.record`` for the surface kernels, without splitting where
     :func:`split_launches` turned it off for this thread."""
     if not getattr(_policy, "split", True):
         min_range = 1 << 30
-    _launch_module.launch(kernel, dim, inputs, outputs, device=device, min_range=min_range)
+    return _launch_module.record(kernel, dim, inputs, outputs, device=device, min_range=min_range)
 
 
 def lattice_weighted_count(support_radius: float, spacing: float) -> float:
@@ -129,15 +157,16 @@ class SparseGrid:
         head = self._buf.get(prefix + "_head", n, wp.int32)
         scan = self._buf.get(prefix + "_scan", n, wp.int32)
         div = wp.int64(divisor)
-        launch(_dev.mark_runs, n, [keys, div], [head], device=self.device, min_range=LIGHT_MIN_RANGE)
+        launch(_dev.mark_runs, n, [keys, div], [head], device=self.device, min_range=LIGHT_MIN_RANGE, tag=prefix)
         wp.utils.array_scan(head[:n], scan[:n], inclusive=True)
-        runs = int(scan[n - 1: n].numpy()[0])
+        runs = read_int32(scan, n - 1)
         run_key = self._buf.get(prefix + "_key", runs, wp.int64)
         run_start = self._buf.get(prefix + "_start", runs, wp.int32)
         run_len = self._buf.get(prefix + "_len", runs, wp.int32)
         launch(_dev.compact_runs, n, [keys, div, head, scan], [run_key, run_start], device=self.device,
-               min_range=LIGHT_MIN_RANGE)
-        launch(_dev.run_lengths, runs, [run_start, runs, n], [run_len], device=self.device, min_range=LIGHT_MIN_RANGE)
+               min_range=LIGHT_MIN_RANGE, tag=prefix)
+        launch(_dev.run_lengths, runs, [run_start, runs, n], [run_len], device=self.device, min_range=LIGHT_MIN_RANGE,
+               tag=prefix)
         return runs, run_key, run_start, run_len
 
     def build(self, particle_x: wp.array) -> None:

@@ -14,7 +14,7 @@ from ..core.buffers import ArrayPool
 from ..core.errors import SimulationError
 from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_marching as _dev
-from .grid import BLOCK_MIN_RANGE, SparseGrid, launch
+from .grid import BLOCK_MIN_RANGE, LIGHT_BLOCK_MIN_RANGE, SparseGrid, launch, read_int32
 
 
 class MarchingCubes:
@@ -42,7 +42,7 @@ class MarchingCubes:
         block_min = self._buf.get("bmin", grid.meshed_count, float)
         block_max = self._buf.get("bmax", grid.meshed_count, float)
         launch(_dev.block_value_range, grid.meshed_count, [b, grid.field], [block_min, block_max], device=self.device,
-               min_range=BLOCK_MIN_RANGE)
+               min_range=LIGHT_BLOCK_MIN_RANGE)
         launch(_dev.count_cells, units, [b, grid.slabs, float(iso_level), grid.field, grid.meshed_upper,
                                          grid.meshed_band, block_min, block_max, self.tri_range],
                [self.node_code, self.unit_vertices, self.unit_triangles, unit_inexact], device=self.device,
@@ -67,10 +67,8 @@ class MarchingCubes:
         t_start = self._buf.get("uts", units, wp.int32)
         wp.utils.array_scan(self.unit_vertices[:units], v_start[:units], inclusive=False)
         wp.utils.array_scan(self.unit_triangles[:units], t_start[:units], inclusive=False)
-        tail = np.stack([v_start[units - 1: units].numpy(), self.unit_vertices[units - 1: units].numpy(),
-                         t_start[units - 1: units].numpy(), self.unit_triangles[units - 1: units].numpy()])
-        n_v = int(tail[0, 0] + tail[1, 0])
-        n_t = int(tail[2, 0] + tail[3, 0])
+        n_v = read_int32(v_start, units - 1) + read_int32(self.unit_vertices, units - 1)
+        n_t = read_int32(t_start, units - 1) + read_int32(self.unit_triangles, units - 1)
         self.vertex_count, self.triangle_count = n_v, n_t
         node_vertex = self._buf.get("nv", grid.meshed_count * b**3, wp.int32)
         vertex_x = self._buf.get("vx", n_v, wp.vec3)

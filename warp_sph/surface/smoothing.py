@@ -16,12 +16,14 @@ import warp as wp
 from ..core.buffers import ArrayPool
 from ..core.launch import LIGHT_MIN_RANGE
 from ..kernels import surface_smoothing as _dev
-from .grid import launch
+from .grid import launch, record
 
 #: Taubin's pass band pair (lambda, mu): k_PB = 1/lambda + 1/mu ~ 0.11
 TAUBIN_LAMBDA = 0.5
 TAUBIN_MU = -0.53
 SMOOTHING_SCHEMES = ("laplacian", "taubin")
+#: fewest vertices per CPU thread in the vertex-parallel passes (smoothing steps, normals)
+VERTEX_MIN_RANGE = LIGHT_MIN_RANGE // 4
 
 
 class MeshConnectivity:
@@ -80,15 +82,24 @@ class MeshSmoother:
         self.connectivity = MeshConnectivity(self.device)
         self._buf = ArrayPool(self.device)
 
+    def _face_cross(self, x: wp.array, triangles: wp.array) -> wp.array:
+        """Per face of ``triangles`` its cross product (x_b - x_a) x (x_c - x_a) [m^2] (``face_cross``)."""
+        nt = len(triangles)
+        cross = self._buf.get("fcross", nt, wp.vec3)
+        launch(_dev.face_cross, nt, [x, triangles], [cross], device=self.device, min_range=VERTEX_MIN_RANGE)
+        return cross
+
     def _volume_area(self, x: wp.array, weight: wp.array, triangles: wp.array, conn: MeshConnectivity,
                      normal: wp.array) -> tuple[float, float]:
         """(enclosed volume [m^3], sum_v w_v A_v [m^2]) of the mesh; unit vertex normals into ``normal``."""
         n = len(x)
-        terms = self._buf.get("vterms", n, wp.vec2)[:n]
+        terms = self._buf.get("vterms", n, wp.vec2)
+        total = self._buf.get("vtotal", 1, wp.vec2)
         launch(_dev.volume_area_terms, n, [x, weight, triangles, conn.face_start, conn.face_count, conn.faces],
-               [terms, normal], device=self.device, min_range=LIGHT_MIN_RANGE // 4)
-        total = wp.utils.array_sum(terms)
-        return float(total[1]) / 6.0, float(total[0])
+               [terms, normal], device=self.device, min_range=VERTEX_MIN_RANGE)
+        wp.utils.array_sum(terms, out=total, value_count=n)  # a pooled (1,) out: no allocation
+        t = total.numpy()[0]
+        return float(t[1]) / 6.0, float(t[0])
 
     def smooth(self, vertex_x: wp.array, weight: wp.array, conn: MeshConnectivity, iterations: int,
                scheme: str = "laplacian", triangles: wp.array | None = None) -> wp.array:
@@ -106,11 +117,18 @@ class MeshSmoother:
         if restore:
             volume0, _ = self._volume_area(a, weight, triangles, conn, normal)
         betas = [TAUBIN_LAMBDA, TAUBIN_MU] if scheme == "taubin" else [1.0]
-        for _ in range(int(iterations)):
-            for beta in betas:
-                launch(_dev.laplacian_step, n, [beta, a, weight, conn.face_start, conn.neighbors, conn.neighbor_count],
-                       [b], device=self.device, min_range=LIGHT_MIN_RANGE // 4)
-                a, b = b, a
+        steps = int(iterations) * len(betas)
+        recorded = {}  # (beta index, direction) -> the recorded Jacobi step (replays skip argument packing)
+        for step in range(steps):
+            key = (step % len(betas), step % 2)
+            if key not in recorded:
+                src, dst = (a, b) if key[1] == 0 else (b, a)
+                recorded[key] = record(_dev.laplacian_step, n, [betas[key[0]], src, weight, conn.face_start,
+                                                                conn.neighbors, conn.neighbor_count], [dst],
+                                       device=self.device, min_range=VERTEX_MIN_RANGE)
+            recorded[key].launch()
+        if steps % 2:
+            a, b = b, a
         if restore:
             # V(delta) ~ V1 + delta sum_v w_v A_v: solve for V(delta) = V0 (two Newton steps)
             for _ in range(2):
@@ -118,7 +136,7 @@ class MeshSmoother:
                 if not wa > 0.0:
                     break
                 launch(_dev.offset_along_normals, n, [(volume0 - volume1) / wa, weight, normal], [a],
-                       device=self.device, min_range=LIGHT_MIN_RANGE // 4)
+                       device=self.device, min_range=VERTEX_MIN_RANGE)
         return a
 
     def normals(self, vertex_x: wp.array, triangles: wp.array, conn: MeshConnectivity, iterations: int) -> wp.array:
@@ -126,11 +144,18 @@ class MeshSmoother:
         n = len(vertex_x)
         a = self._buf.get("na", n, wp.vec3)[:n]
         b = self._buf.get("nb", n, wp.vec3)[:n]
-        launch(_dev.vertex_normals, n, [vertex_x, triangles, conn.face_start, conn.face_count, conn.faces], [a],
-               device=self.device, min_range=LIGHT_MIN_RANGE // 4)
-        for _ in range(int(iterations)):
-            launch(_dev.smooth_normals_step, n, [a, conn.face_start, conn.neighbors, conn.neighbor_count], [b],
-                   device=self.device, min_range=LIGHT_MIN_RANGE // 4)
+        cross = self._face_cross(vertex_x, triangles)
+        launch(_dev.vertex_normals, n, [cross, conn.face_start, conn.face_count, conn.faces], [a],
+               device=self.device, min_range=VERTEX_MIN_RANGE)
+        recorded = []  # a -> b and b -> a steps, recorded once (replays skip argument packing)
+        for step in range(int(iterations)):
+            if len(recorded) <= step % 2:
+                src, dst = (a, b) if step % 2 == 0 else (b, a)
+                recorded.append(record(_dev.smooth_normals_step, n, [src, conn.face_start, conn.neighbors,
+                                                                     conn.neighbor_count], [dst],
+                                       device=self.device, min_range=VERTEX_MIN_RANGE))
+            recorded[step % 2].launch()
+        if int(iterations) % 2:
             a, b = b, a
         return a
 
