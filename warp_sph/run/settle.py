@@ -33,8 +33,8 @@ from ..kernels import settle as _dev
 
 #: velocity kept after each packing step, v <- KEEP v (measured on the hydrostatic tank, DFSPH: at r = 0.0125 m,
 #: 0.78 ms steps, the mean |v| after 1000 steps is 2.2e-3 m/s with 0.9 and 2.6e-3 with 0.975; at r = 0.025 m, 1000
-#: steps of 5 ms: 1.3e-3 with 0.7, 1.6e-3 with 0.9, 2.7e-3 with 0.97; steps that each start from rest (0) need
-#: about 3000 for what 0.9 reaches in 1000)
+#: steps of 5 ms: 1.3e-3 with 0.7, 1.6e-3 with 0.9, 2.7e-3 with 0.97; 3000 steps of 5 ms: 7.5e-4 with 0.9,
+#: 1.2e-3 for steps that each start from rest, 0)
 KEEP = 0.9
 
 
