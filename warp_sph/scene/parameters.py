@@ -157,7 +157,7 @@ _TAIL = (
     _P("time.max_steps", "int", "-", 10_000_000, "refuse a run that would take more substeps than this "
        "(estimated before the first step from the time-step bounds at the scene's reference speed)", ge=1),
     _P("time.settle", "float", "m/s", 0.0, "packing pass before t = 0 (docs/validation.md): the solver steps the "
-       "fluid with its velocity damped by 10 % a step until the fluid's mean |v|, averaged over a frame "
+       "fluid with its velocity damped by 10 % a step until the fluid's mean speed, averaged over a frame "
        "(1/fps) of packing, is below this; then the run starts there at rest (0: off, the fluid starts on its "
        "lattice)", ge=0.0),
     _P("time.settle_steps", "int", "-", 3000, "most steps of the packing pass (time.settle); when reached the run "
