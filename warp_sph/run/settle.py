@@ -6,14 +6,14 @@ resting tank started from the lattice falls for one step (DFSPH: its interior is
 pressure at first; WCSPH: uncompressed), kicks a layer-alternating velocity the solvers cannot see (the
 cubic spline's grad W(2 d) = 0) and keeps creeping toward the packing it wants (docs/validation.md,
 "Hydrostatic"). The pass steps the scene's own step graph and damps the velocity after every step,
-v <- KEEP v (0.9: damped dynamics: the packing keeps some momentum, which converges much
-faster than steps that each start from rest), until the time-mean of the fluid's mean |v| over one frame of
-packing time (1/fps) is below ``time.settle`` [m/s] (a mean over a frame: DFSPH at rest ends in a cycle of
-a few steps whose speeds differ by 2x, its solve stopping at 4 or 5 sweeps) or ``time.settle_steps``
-steps were taken (then the run goes on and
-run.json's ``settle.converged`` is false). The step is the run's own step at rest (``time_step(0)``: every
-bound, clamped to [dt_min, dt_max], or ``time.fixed_dt``); measured: with the pressure's bound alone (5 ms)
-the explicit viscosity of the hydrostatic scene at r = 0.0125 m (bound 0.78 ms) blew the pass up to 2 m/s.
+v <- KEEP v (damped dynamics: the packing keeps some momentum, which converges faster than steps that each
+start from rest), until the time-mean of the fluid's mean |v| over one frame of packing time (1/fps) is
+below ``time.settle`` [m/s] (a mean over a frame: DFSPH at rest ends in a cycle of a few steps whose speeds
+differ by 2x, its solve stopping at 4 or 5 sweeps) or ``time.settle_steps`` steps were taken (then the run
+goes on and run.json's ``settle.converged`` is false). The step is the run's own step at rest
+(``time_step(0)``: every bound, clamped to [dt_min, dt_max], or ``time.fixed_dt``); measured: with the
+pressure's bound alone (5 ms) the explicit viscosity of the hydrostatic scene at r = 0.0125 m (bound
+0.78 ms) blew the pass up to a mean |v| of 2 m/s.
 
 Afterwards v = 0, the clock and the step count are 0 again, the density is refreshed and the probes
 sample from t = 0: the run is the scene started from the packed state. Only fluid moves (the scene
