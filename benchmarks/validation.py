@@ -51,6 +51,8 @@ def run_one(case: Case, solver: str, resolution: str, out_root: Path, device=Non
         rec.update(cpu_time=time.process_time() - c0, wall_time=time.perf_counter() - w0,
                    fluid_particles=info["fluid_particles"], steps=info["steps"],
                    simulated_time=info["simulated_time"], status=info["status"], out=str(folder))
+        if info.get("settle"):  # the packing pass before t = 0 (time.settle): its steps, CPU s, last speed
+            rec["settle"] = info["settle"]
         figures, met, series = evaluate(case.name, folder, info)
         rec.update(figures=figures, goals_met=met, series=series)
         frames = [f for f in info.get("frames") or [] if f.get("density_error_mean") is not None]

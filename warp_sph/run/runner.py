@@ -28,6 +28,7 @@ from .preflight import preflight_checks
 from .simulation import Simulation
 from .exporter import WORLD_FLOAT32_TOLERANCE, Exporter, ExportThread, usd_file, world_float32_error
 from .progress import Progress
+from .settle import settle
 
 __all__ = ["Exporter", "Progress", "WORLD_FLOAT32_TOLERANCE", "run", "usd_file", "versions", "world_float32_error"]
 
@@ -77,6 +78,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     preflight_checks(scene, sim, frames=frames)
 
     created: list[Path] = []
+    settled = None  # the packing pass's record (time.settle; a fresh run only)
     if resume_info is not None:
         start_frame, frame_log, exporter = _resume_start(sim, out, total, *resume_info, log=log)
         probe_files = None  # the probes' CSV files (``warp_sph.io.probe_files``)
@@ -87,6 +89,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         if restart:
             log(f"{out}: no checkpoint to resume from ({restart}): running it again from frame 1 with the scene "
                 f"of its {rf.RUN_JSON}, replacing its run files")
+        settled = settle(sim, log)  # time.settle: the packing pass before t = 0 (None: off)
         start_frame, frame_log = 1, []
         exporter, created, probe_files = _fresh_outputs(sim, out, scene, total)
 
@@ -111,6 +114,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             export_wait[0] += time.perf_counter() - t1
 
     run_info = _run_info(scene, sim, total, frame_log, out)
+    if resume_info is None and settled is not None:
+        run_info["settle"] = settled
     if resume_info is not None:
         run_info["scene"] = resume_info[0]["scene"]  # as stored: checkpoints hash it
     digest = scene_hash(run_info["scene"])

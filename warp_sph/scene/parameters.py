@@ -156,6 +156,12 @@ _TAIL = (
        "half the time step", choices=("stop", "retry")),
     _P("time.max_steps", "int", "-", 10_000_000, "refuse a run that would take more substeps than this "
        "(estimated before the first step from the time-step bounds at the scene's reference speed)", ge=1),
+    _P("time.settle", "float", "m/s", 0.0, "packing pass before t = 0 (docs/validation.md): the solver steps the "
+       "fluid with its velocity damped by 10 % a step until the fluid's mean speed, averaged over a frame "
+       "(1/fps) of packing, is below this; then the run starts there at rest (0: off, the fluid starts on its "
+       "lattice)", ge=0.0),
+    _P("time.settle_steps", "int", "-", 3000, "most steps of the packing pass (time.settle); when reached the run "
+       "starts anyway and run.json's settle.converged is false", ge=1),
     # container
     _P("container", "table_or_false", "-", {}, "box of boundary-particle walls (six faces); "
        "'container = false': no walls", default_text="box"),

@@ -298,6 +298,16 @@ class Validator:
         time = scene.time
         if time.dt_min > time.dt_max:
             self.fail("time.dt_min", f"expected <= time.dt_max ({time.dt_max:g}), got {time.dt_min:g}")
+        if time.settle > 0.0:  # the packing pass (warp_sph.run.settle) moves fluid only, under gravity
+            moving = [what for what, there in (("[[bodies]]", scene.bodies), ("[[emitters]]", scene.emitters),
+                                               ("animated [[obstacles]]", any(o.animated for o in scene.obstacles)))
+                      if there]
+            if moving:
+                self.fail("time.settle", f"the packing pass moves only fluid; this scene has {moving[0]}: set "
+                          f"time.settle = 0, got {time.settle:g}")
+            if not math.hypot(*scene.gravity) > 0.0:
+                self.fail("time.settle", f"the packing pass settles the fluid under gravity and gravity is 0: set "
+                          f"time.settle = 0, got {time.settle:g}")
         o = scene.output
         if o.surface_spray_neighbors:
             full, flat = lattice_neighbor_counts(scene)
