@@ -216,6 +216,8 @@ def section(records: list[dict], fmt, head) -> list[str]:
                                  f"T {fmt(v['sim_time'])} vs {fmt(v['exp_time'])} ({100 * v['time_error']:+.1f} %)"
                                  + (f"; Table 2 median {fmt(t2['median'])} ({100 * t2['median_error']:+.0f} %, "
                                     f"{'in' if t2['in_band'] else 'outside'} the 2.5-97.5 % band)" if t2 else "")
+                                 + (f"; 2D-kernel load {fmt(v['kernel_peak'])} ({100 * v['kernel_peak_error']:+.0f} %)"
+                                    if "kernel_peak" in v else "")
                                  if v else "-")
             else:
                 extra = [fmt(f.get("floor_error"), 100), fmt(f.get("middle_error"), 100), fmt(f.get("surface_height")),
