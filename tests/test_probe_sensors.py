@@ -88,3 +88,13 @@ def test_transducers_in_a_column_at_rest_read_rho0_g_depth():
     depth = m.fluid_count * m.particle_mass / m.rest_density / (0.61 - 2.0 * floor) ** 2
     assert np.mean(got["floor"]) == pytest.approx(1000.0 * G * depth, rel=2.5e-2)
     assert np.mean(got["wall"]) == pytest.approx(1000.0 * G * (np.mean(got["surface"]) - 0.1), rel=3e-2)
+
+
+def test_sensor_diameter_only_on_a_wall_pressure_probe():
+    """One-line SceneErrors before any step: on a height probe (not its kind's key), inside the fluid."""
+    from warp_sph.core.errors import SceneError
+
+    with pytest.raises(SceneError, match=r"probes\[0\]\.sensor_diameter: not used by kind 'height'"):
+        small_tank("x", probes=[{"kind": "height", "position": [0.3, 0.3, 0.0], "sensor_diameter": 0.004}])
+    with pytest.raises(SceneError, match=r"probes\[0\]\.sensor_diameter: a transducer lies on a container wall"):
+        Simulation(small_tank("x", probes=[{"kind": "pressure", "position": [0.3, 0.3, 0.3], "sensor_diameter": 0.004}]))
