@@ -65,7 +65,8 @@ def run_one(case: Case, solver: str, resolution: str, out_root: Path, device=Non
                 if case.name == "hydrostatic":  # at rest after the run (rms >= mean |v|: a sufficient test)
                     met["settled"] = rec["rms_speed_final"] < GOALS["settled_speed"]
         if case.name in ("lobovsky", "hydrostatic"):
-            rec["pressure_probe"] = "wall load"  # wall probes read the walls' force (before: the particle pressure)
+            # wall probes read the walls' force (before: the particle pressure); Lobovsky's are 4.2 mm transducers
+            rec["pressure_probe"] = "transducer" if case.name == "lobovsky" else "wall load"
         if rec["simulated_time"]:
             rec["cpu_per_simulated_second"] = rec["cpu_time"] / float(rec["simulated_time"])
     except Exception as exc:  # a failed case is a record, the others still run
@@ -83,6 +84,7 @@ def summary_text(rec: dict) -> str:
                 f"{100 * f['front_rms_unshifted']:.1f} %), residual RMS {f['residual_rms']:.3f} H0")
     if rec["case"] == "lobovsky":
         return "; ".join(f"{s}: peak {100 * v['peak_error']:+.0f} %, time {100 * v['time_error']:+.1f} %"
+                         + (f" (2D-kernel load {100 * v['kernel_peak_error']:+.0f} %)" if "kernel_peak_error" in v else "")
                          for s, v in f.items() if isinstance(v, dict)) or f.get("note", "")
     if rec["case"] == "hydrostatic":
         return ", ".join(f"{k} {100 * v:+.2f} %" for k, v in f.items() if k.endswith("_error")) or \

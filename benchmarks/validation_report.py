@@ -127,14 +127,17 @@ def plot_trade(records: list[dict], path: Path) -> Path | None:
 WHY = {
     "martin_moyce": "a coarse tip a few particles thick runs behind the front line, an instant release ahead of "
                     "the experiment's gate",
-    "lobovsky": "the figures are the simulated signal as sampled (no filter: none is cited) against one digitised "
-                "experimental curve; the impact is a few particles stopping at the wall, a pulse of a few ms whose "
-                "height is set by how few carry the front's momentum (refine); the probe's footprint (a disc of "
-                "radius 2 d = 20-40 mm) is 5-10 times the sensor's 4.2 mm; sensor 1 (3 mm) lies below the first "
-                "fluid layer (a wall gap, 1.1 d, up); WCSPH adds the water hammer rho0 c_s v of its artificial "
-                "speed of sound (wcsph.density_diffusion, delta-SPH, is off by default: here it lets particles "
-                "through the walls); sensor 4's maximum is a slow plateau whose time moves with noise; the "
-                "experiment's own per-run peaks spread widely (Table 2: sensor 1 from 2.55 to 4.45 rho g H)",
+    "lobovsky": "the figures are the transducers' readings (the fluid's normal force on the wall particle under "
+                "each 4.2 mm sensor per unit area, averaged over each 1 ms sample interval: no filter, none is "
+                "cited) against one digitised experimental curve; the impact is a few particles stopping at the "
+                "wall, a pulse of a few ms whose height is set by how few carry the front's momentum (refine); the "
+                "sensor is smaller than one wall cell (d = 10-20 mm), so it reads that cell's load; sensor 1 (3 mm) "
+                "is the half cell at the floor, under the first fluid layer (a wall gap, 1.1 d, up), and reads low "
+                "with DFSPH and PBF; WCSPH adds the water hammer rho0 c_s v of its artificial speed of sound "
+                "(wcsph.density_diffusion, delta-SPH, is off by default: a splash drop can still carry a negative "
+                "correction through a one-layer wall); sensor 4's maximum is a slow plateau whose time moves with "
+                "noise; the experiment's own per-run peaks spread widely (Table 2: sensor 1 from 2.55 to 4.45 "
+                "rho g H)",
     "hydrostatic": "the tank does not come to rest: the start is off the discrete equilibrium (DFSPH's first step "
                    "lets the interior fall freely, g dt; WCSPH starts uncompressed) and every step from rest leaves "
                    "velocity the pressure solve cannot see (an alternating-layer mode the divergence of the cubic "
@@ -216,6 +219,8 @@ def section(records: list[dict], fmt, head) -> list[str]:
                                  f"T {fmt(v['sim_time'])} vs {fmt(v['exp_time'])} ({100 * v['time_error']:+.1f} %)"
                                  + (f"; Table 2 median {fmt(t2['median'])} ({100 * t2['median_error']:+.0f} %, "
                                     f"{'in' if t2['in_band'] else 'outside'} the 2.5-97.5 % band)" if t2 else "")
+                                 + (f"; 2D-kernel load {fmt(v['kernel_peak'])} ({100 * v['kernel_peak_error']:+.0f} %)"
+                                    if "kernel_peak" in v else "")
                                  if v else "-")
             else:
                 extra = [fmt(f.get("floor_error"), 100), fmt(f.get("middle_error"), 100), fmt(f.get("surface_height")),

@@ -11,7 +11,7 @@ import functools
 import warp as wp
 
 from .density import NEIGHBOR_TYPES
-from .neighbors import NoBoundaryParams, neighbor_count, particle_in_cell_order
+from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -39,6 +39,29 @@ def density_diffusion_pair(coefficient: float, hydrostatic_density: wp.vec3, rho
     x_ji = -x_ij
     rho_h = wp.dot(hydrostatic_density, x_ji)
     return coefficient * (rho_j - rho_i - rho_h) * wp.dot(x_ji, grad) / (wp.dot(x_ij, x_ij) + eps_h2) * volume_j
+
+
+@wp.func
+def touches_wall(boundary_neighbors: NeighborList, boundary_x: wp.array(dtype=wp.vec3), x: wp.vec3, i: int,
+                 support_radius: float) -> bool:
+    """Whether fluid particle i (at x) has a boundary particle within the support (the neighbour list's)."""
+    k_end = int(neighbor_count(boundary_neighbors, i))
+    for k in range(k_end):
+        if wp.length(x - boundary_x[boundary_neighbors.index[i, k]]) < support_radius:
+            return True
+    return False
+
+
+@wp.func
+def touches_wall(boundary_neighbors: wp.uint64, boundary_x: wp.array(dtype=wp.vec3), x: wp.vec3, i: int,
+                 support_radius: float) -> bool:
+    """Whether fluid particle i (at x) has a boundary particle within the support (a hash-grid query)."""
+    query = wp.hash_grid_query(boundary_neighbors, x, support_radius)
+    b = int(0)
+    while wp.hash_grid_query_next(query, b):
+        if wp.length(x - boundary_x[b]) < support_radius:
+            return True
+    return False
 
 
 @wp.kernel(enable_backward=False)
@@ -114,7 +137,11 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
     write_pressure_term: also write the wall's p/rho^2 of each particle to ``boundary_pressure_term_out``
     [m^5/(kg s^2)] (moving bodies gather their force from it; otherwise the array is not touched).
     with_density_diffusion: also delta rho_i += dt D_i with D_i = sum_j ``density_diffusion_pair`` over the
-    fluid neighbours (delta-SPH; ``density_correction`` [kg/m^3], in place: no thread reads another's).
+    fluid neighbours (delta-SPH; ``density_correction`` [kg/m^3], in place: no thread reads another's), except
+    the pairs in which i or j has a boundary particle within H_s: the wall's share of those particles' density
+    (rho0 sum_b V_b W_ib, Akinci's stand-in for the fluid beyond the wall, whose excess is the wall's push) has
+    no fluid neighbour on the far side, so the one-sided sum diffused it into the fluid behind until the first
+    layer carried no pressure and crossed the wall (tests/test_wcsph_diffusion.py).
     The density it acts on is particle_density: the summation (eq. 7) plus delta rho, whose rate is then
     sum_j m v_ij . grad W_ij + D_i, the continuity equation with the delta-SPH term.
     """
@@ -124,6 +151,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
     with_pressure = boundary_terms is not None and boundary_terms.pressure is not None
     with_force = boundary_terms is not None and boundary_terms.force is not None
     with_boundary = with_pressure or with_force
+    wall_guard = with_density_diffusion and boundary_terms is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
     pressure_term = boundary_terms.pressure if with_pressure else None
     force_term = boundary_terms.force if with_force else None
@@ -197,6 +225,9 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
         eps_h2 = 0.01 * h * h
         a = wp.vec3(0.0)
         drho = float(0.0)
+        diffuse_i = True  # the pairs of a particle next to a wall do not diffuse (docstring)
+        if wp.static(wall_guard):
+            diffuse_i = not touches_wall(boundary_neighbors, boundary_x, xi, i, support_radius)
         if wp.static(lists):
             k = int(0)
             k_end = int(neighbor_count(fluid_neighbors, i))
@@ -209,8 +240,13 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                     a += fluid_pair(x_ij, vi - particle_v[j], grad, p_rho2_i, particle_pressure[j] / (rho_j * rho_j),
                                     rho_i, rho_j, particle_mass, eps_h2, alpha_h_c)
                     if wp.static(with_density_diffusion):
-                        drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i, rho_j, x_ij,
-                                                       grad, eps_h2, particle_mass / rho_j)
+                        diffuse = diffuse_i
+                        if wp.static(wall_guard):
+                            if diffuse:
+                                diffuse = not touches_wall(boundary_neighbors, boundary_x, particle_x[j], j, support_radius)
+                        if diffuse:
+                            drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i, rho_j,
+                                                           x_ij, grad, eps_h2, particle_mass / rho_j)
                 k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
@@ -224,8 +260,14 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                         a += fluid_pair(x_ij, vi - particle_v[j], grad, p_rho2_i, particle_pressure[j] / (rho_j * rho_j),
                                         rho_i, rho_j, particle_mass, eps_h2, alpha_h_c)
                         if wp.static(with_density_diffusion):
-                            drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i, rho_j,
-                                                           x_ij, grad, eps_h2, particle_mass / rho_j)
+                            diffuse = diffuse_i
+                            if wp.static(wall_guard):
+                                if diffuse:
+                                    diffuse = not touches_wall(boundary_neighbors, boundary_x, particle_x[j], j,
+                                                               support_radius)
+                            if diffuse:
+                                drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i,
+                                                               rho_j, x_ij, grad, eps_h2, particle_mass / rho_j)
         if wp.static(with_density_diffusion):
             density_correction[i] = density_correction[i] + dt * drho
         a_boundary = wp.vec3(0.0)

@@ -121,7 +121,8 @@ def test_validation_scenes_run_and_probe(case, solver):
     assert set(got) == {p.name for p in scene.probes} and all(len(rows) >= 2 for rows in got.values())
     if solver == "pbf":
         names = {p.name for p in scene.probes if p.kind == "pressure"}
-        assert names == {"lobovsky": set(V.LOBOVSKY_SENSORS), "hydrostatic": {"floor"}}.get(case, set())
+        lobovsky = set(V.LOBOVSKY_SENSORS) | {f"{s}_kernel" for s in V.LOBOVSKY_SENSORS}  # transducers, kernel loads
+        assert names == {"lobovsky": lobovsky, "hydrostatic": {"floor"}}.get(case, set())
 
 
 def test_hydrostatic_evaluation_figures(tmp_path):

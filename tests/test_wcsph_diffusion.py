@@ -12,7 +12,8 @@ from warp_sph.scene import scene_from_dict
 
 def oracle_diffusion(sim, x, rho):
     """D_i = 2 delta h c sum_j (rho_j - rho_i - rho0 g.x_ji / c^2) (x_ji . grad_i W_ij) / (r^2 + 0.01 h^2) m / rho_j
-    (float64, every pair) [kg/(m^3 s)], c^2 = dp/drho at rho0."""
+    (float64, every pair but those in which i or j has a boundary particle within H_s) [kg/(m^3 s)], c^2 = dp/drho
+    at rho0."""
     m = sim.model
     k, h, mass = m.smoothing.name, m.smoothing_length, m.particle_mass
     eos = sim.scene.wcsph.equation_of_state
@@ -25,6 +26,11 @@ def oracle_diffusion(sim, x, rho):
     diff = rho[None, :] - rho[:, None] - rho_h
     pair = 2.0 * delta * h * np.sqrt(c2) * diff * (xji * grad).sum(2) / ((xij**2).sum(2) + 0.01 * h * h) * (mass / rho)[None]
     np.fill_diagonal(pair, 0.0)
+    xb = m.boundary_x.numpy().astype(np.float64)
+    wall = (np.linalg.norm(x[:, None] - xb[None], axis=2) < m.support_radius).any(axis=1)
+    pair[wall] = 0.0
+    pair[:, wall] = 0.0
+    assert 0 < wall.sum() < len(x)  # both kinds of pairs are in the block
     return pair.sum(1), pair
 
 
@@ -144,3 +150,21 @@ def test_resume_is_bitwise_equal_and_needs_the_correction(tmp_path):
                 assert_same_run(reference, out)
         else:
             assert_same_run(reference, out)
+
+
+def sloshing_block(delta: float) -> Simulation:
+    """48 particles (r = 0.05 m) thrown at 1 m/s along x in the small tank, WCSPH at its defaults with delta."""
+    return Simulation(small_tank("slosh", solver="wcsph", wcsph={"density_diffusion": delta},
+                                 fluid=[{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.4, 0.5, 0.5],
+                                         "velocity": [1.0, 0.0, 0.0]}], time={"on_instability": "stop"}))
+
+
+def test_density_diffusion_keeps_the_walls_push():
+    """2.2 s of sloshing with delta = 0.1: no particle leaves the tank (the watchdog stops the run if one does).
+    Before the wall-layer pairs were left out of the diffusion, a particle went through the floor at t = 1.94 s
+    with density 218 kg/m^3 (its correction had bled the wall's share away); without diffusion none leaves in
+    3 s. The rule is not the whole cure: with it a splash drop still leaves at 2.62 s, carrying a negative
+    correction made at the free surface (docs/validation.md), which is why the diffusion stays off by default."""
+    sim = sloshing_block(0.1)
+    while sim.state.time < 2.2 - 1e-9:
+        assert sim.advance_frame().outside == 0

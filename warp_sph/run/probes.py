@@ -35,6 +35,7 @@ from ..core.launch import launch
 from ..core.step_graph import Stage
 from ..kernels import probes as _dev
 from ..neighbors import NeighborGrid, fluid_grid_dim
+from .probe_sensors import SensorFaces
 
 #: probe kinds, their unit and the device code of each
 KINDS = {"pressure": ("Pa", 0), "height": ("m", 1), "front": ("m", 2)}
@@ -55,6 +56,7 @@ class ProbeLine:
     start: np.ndarray
     direction: np.ndarray
     length: float
+    sensor_diameter: float = 0.0
 
     @property
     def unit(self) -> str:
@@ -123,7 +125,7 @@ def probe_lines(scene) -> list[ProbeLine]:
             a = np.asarray(p.axis, dtype=np.float64)
             direction = a / np.linalg.norm(a)
         out.append(ProbeLine(p.name or f"probe{i}", p.kind, float(p.rate), start, direction,
-                             float(p.length or 0.0)))
+                             float(p.length or 0.0), float(getattr(p, "sensor_diameter", 0.0) or 0.0)))
     return out
 
 
@@ -157,7 +159,10 @@ class _RateGroup:
         # pressure probes on a container face read the wall load (``probe_wall_loads``), the others the
         # fluid's pressure field (``point_values_kernel``)
         walls = [(start[q], line, line.wall(lo, hi, sim.scene.wall_gap)) for q, line in enumerate(lines)]
-        walls = [(i, line, w) for i, line, w in walls if w is not None]
+        # a transducer (sensor_diameter > 0) reads its face's load instead (``probe_sensors``)
+        sensors = [(q, line, w) for q, (_, line, w) in enumerate(walls) if w is not None and line.sensor_diameter > 0.0]
+        walls = [(i, line, w) for i, line, w in walls if w is not None and line.sensor_diameter <= 0.0]
+        self.sensors = SensorFaces(sim, sensors) if sensors else None
         self.with_pressure = any(line.kind == "pressure" and line.wall(lo, hi, sim.scene.wall_gap) is None
                                  for line in lines)
         self.wall_count = len(walls)
@@ -194,6 +199,8 @@ class _RateGroup:
 
     def rewind(self, t: float) -> None:
         """Drop the samples stamped after time t [s] (a frame redone from t)."""
+        if self.sensors is not None:
+            self.sensors.rewind()
         keep = sum(1 for s in self.times if s <= t)
         del self.times[keep:]
         self.host = [row for row in self.host if row[0] <= t]
@@ -236,6 +243,9 @@ class Probes:
         c = scene.container
         lo, hi = (None, None) if c is None else (c.min, c.max)
         for i, line in enumerate(self.lines):
+            if line.sensor_diameter > 0.0 and line.wall(lo, hi, scene.wall_gap) is None:
+                raise SceneError(f"{scene.source}: probes[{i}].sensor_diameter: a transducer lies on a container wall; "
+                                 f"expected a pressure probe within the wall gap of a container face, or sensor_diameter = 0")
             if line.kind == "pressure" and line.wall(lo, hi, scene.wall_gap) is not None:
                 if "boundary_force" not in produced:
                     raise SceneError(f"{scene.source}: probes[{i}]: a pressure probe on a wall reads the walls' "
@@ -262,7 +272,7 @@ class Probes:
         (and pressures)."""
         self.check(stages)
         reads = ("particle_x",) + (("particle_pressure",) if any(g.with_pressure for g in self.groups) else ()) \
-            + (("boundary_force",) if any(g.wall_count for g in self.groups) else ())
+            + (("boundary_force",) if any(g.wall_count or g.sensors is not None for g in self.groups) else ())
         names = ", ".join(f"{line.name} ({line.kind}, {line.rate:g} Hz)" for line in self.lines)
         return Stage("probes", self.run, reads=reads,
                      doc=f"probes {names}: fill sum V W and Shepard pressure (+ rho0 g . (x_p - x_j)) at their "
@@ -277,9 +287,12 @@ class Probes:
                 g.rewind(t0)
         self._t_last = t1
         due = [g for g in self.groups if g.due(t1)]
-        if not due:
+        sensing = [g for g in self.groups if g.sensors is not None]
+        if not due and not sensing:
             return
         self.grid.build(sim.fields["particle_x"])
+        for g in sensing:  # transducers integrate every substep (the static walls' grid: ``Model``)
+            g.sensors.accumulate(sim, self.grid.id, sim.model.boundary_grid_id, dt)
         for g in due:
             self._sample(g, t1)
 
@@ -313,6 +326,8 @@ class Probes:
         launch(_dev.probe_readings, len(g.lines),
                [g.kind, g.start, g.end, g.offset, MIN_FILL, self.line_step, len(g.times), g.point_fill,
                 g.point_pressure], [g.values, g.fills], device=dev)
+        if g.sensors is not None:
+            g.sensors.read(g.values, len(g.times))
         g.times.append(t)
         self.samples += 1
         if scheduled:

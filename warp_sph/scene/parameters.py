@@ -266,6 +266,10 @@ _TAIL = (
     _P("probes[].axis", "vec3", "-", (1.0, 0.0, 0.0), "direction of a front line (normalised)", shapes=("front",)),
     _P("probes[].length", "float", "m", None, "length of a height or front line (absent: up to the container wall)",
        gt=0.0, shapes=("height", "front"), default_text="to the wall"),
+    _P("probes[].sensor_diameter", "float", "m", 0.0, "a pressure probe on a container wall as a transducer of "
+       "this face diameter: the fluid's normal force on the wall particles under the face per unit area, averaged "
+       "over each sample interval (0: the wall load spread with the 2D kernel of the support radius)", ge=0.0,
+       shapes=("pressure",)),
     _P("probes[].rate", "float", "Hz", 100.0, "samples per second of simulated time; at most one per substep",
        gt=0.0),
     # emitters and sinks (warp_sph.run.emission): a changing particle count (docs/emitters.md)

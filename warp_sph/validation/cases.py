@@ -132,6 +132,11 @@ def evaluate(case: str, folder: Path, info: dict, pressure_window: float = E.PRE
             scale = 100.0 / (1000.0 * G * H)  # mbar -> P
             pk["table2"] = E.peak_statistics(pk["sim_peak"], table["median_mbar"][k] * scale,
                                              table["p2_5_mbar"][k] * scale, table["p97_5_mbar"][k] * scale)
+            if f"{s}_kernel" in probes:  # the 2D-kernel wall load at the same point, for comparison
+                tk, pk_ = read_probe(folder, f"{s}_kernel")
+                kern = E.peak(tk * math.sqrt(G / H), pk_ / (1000.0 * G * H), te, pe)
+                pk.update(kernel_peak=kern["sim_peak"], kernel_peak_error=kern["peak_error"],
+                          kernel_time=kern["sim_time"], kernel_time_error=kern["time_error"])
             figures[s] = pk
             met[s] = {"peak": abs(pk["peak_error"]) <= GOALS["peak_error"],
                       "time": abs(pk["time_error"]) <= GOALS["time_error"]}

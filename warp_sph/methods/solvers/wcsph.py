@@ -74,9 +74,10 @@ class WcsphSolver(Solver):
         Param("wcsph.density_diffusion", "float", "-", 0.0, "delta of the delta-SPH density diffusion (Molteni & "
               "Colagrossi 2009; the hydrostatic-corrected form of Fourtakas et al. 2019 that DualSPHysics uses, usually "
               "0.1): D_i = 2 delta h c_s sum_j (rho_j - rho_i - rho^H_ji) x_ji . grad W_ij / r_ij^2 V_j in the "
-              "continuity equation, every particle starting at rho0; damps acoustic noise (a settling tank) but on the "
-              "Lobovsky dam break lets particles through the one-layer walls (docs/validation.md), hence off (0) by "
-              "default", ge=0.0, le=1.0),
+              "continuity equation, every particle starting at rho0, pairs next to a wall left out (their wall share of the "
+              "density is the wall's push); damps acoustic noise (a settling tank) but a negative correction a "
+              "particle takes at a free surface goes with it into a splash, which the one-layer wall then holds less "
+              "well (docs/validation.md), hence off (0) by default", ge=0.0, le=1.0),
         Param("wcsph.artificial_viscosity", "float", "-", 0.0, "artificial viscosity alpha (Monaghan 1992, "
               "Becker & Teschner 2007): nu = 2 alpha h c_s / (rho_i + rho_j) on approaching pairs only; dissipates "
               "impacts (a 14 m/s drop keeps 30 % of its energy with 0.5 instead of 100 %), the acoustic step shrinks "
