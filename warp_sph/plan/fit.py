@@ -102,7 +102,8 @@ def fit_step_cost(fluid, boundary, t) -> StepCost:
     """The StepCost closest to the measured step times ``t`` [s] in least squares with every coefficient >= 0:
     the best of the column sets {1, Nf, Nb}, {1, Nf}, {Nf, Nb}, {Nf}, {1} whose unconstrained fit is non-negative;
     a set with the wall column only with more points than coefficients (two points cannot tell a wall's cost from
-    a fluid particle's), and between equal fits the one listed first. Measured (dam break, PBF, 3.4k / 13.8k /
+    a fluid particle's), none the points cannot determine (one count: proportional to it, an upper bound for
+    larger counts), and between equal fits the one listed first. Measured (dam break, PBF, 3.4k / 13.8k /
     68.9k fluid with 11.4k / 28.8k / 80.8k wall particles): 5.0 / 4.95 / 5.4 us per fluid particle-step, 1.15 /
     1.6 / 2.5 us per particle (fluid and walls): the walls cost next to nothing, the fluid's share grows as d
     shrinks (d^-3 against d^-2), so a line in the total count under-predicts a finer run (-36 % at 3.5x)."""
@@ -121,7 +122,7 @@ def fit_step_cost(fluid, boundary, t) -> StepCost:
         if "boundary" in names and len(t) <= len(names):
             continue
         a = np.stack([columns[k] for k in names], axis=1)
-        if not np.any(a):
+        if np.linalg.matrix_rank(a) < len(names):  # e.g. one count: the intercept and the slope not separable
             continue
         coef, *_ = np.linalg.lstsq(a, t, rcond=None)
         if np.any(coef < 0):
