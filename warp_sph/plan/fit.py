@@ -209,8 +209,8 @@ def step_floor(fps: float, dt_max: float, fixed_dt: float = 0.0) -> float:
 
 def fit_step_rate(d, rate, floor: float, quantum: float = 0.0) -> StepRate:
     """The StepRate of measured rates: a power law (exponent in [-3, -1]) through the points above the floor;
-    with one such point, exponent -1 through it; with none, exponent -1 through the largest rate x d (an upper
-    bound: the points sit at the floor). ``quantum``: the frame rate where frames are split into whole steps: a
+    with one such point, exponent -1 through it; with none, exponent -1 through the finest point (the points sit
+    at the floor: the bound lies beyond them). ``quantum``: the frame rate where frames are split into whole steps: a
     measured n steps per frame says only that the bound's rate lies in ((n - 1) fps, n fps], so the fit takes its
     middle, (n - 1/2) fps (measured, hydrostatic DFSPH: 9 steps per frame at the 5 ms dt_max read 216/s, above a
     200/s floor, and that floor point flattened the fitted order to -1.24; the free points give -1.9, the viscous
@@ -221,6 +221,11 @@ def fit_step_rate(d, rate, floor: float, quantum: float = 0.0) -> StepRate:
     bound = np.maximum(rate - 0.5 * quantum, 1e-300) if quantum > 0 else rate
     if free.sum() >= 2 and np.ptp(d[free]) > 0:
         return StepRate(floor, fit_power_law(d[free], bound[free], (-3.0, -1.0)), quantum)
-    i = int(np.argmax(np.where(free, rate * d, -np.inf))) if free.any() else int(np.argmax(rate * d))
-    src = bound if free.any() else rate
-    return StepRate(floor, PowerLaw(float(src[i] * d[i]), -1.0), quantum)
+    if free.any():
+        i = int(np.argmax(np.where(free, rate * d, -np.inf)))
+        return StepRate(floor, PowerLaw(float(bound[i] * d[i]), -1.0), quantum)
+    # every point at the floor: the bound's rate is at most the floor at the finest of them, d^-1 from there (the
+    # coarsest point instead: the dam break's DFSPH, every point at dt_max, predicted 276 steps where the run took
+    # 135; from the finest: 192)
+    i = int(np.argmin(d))
+    return StepRate(floor, PowerLaw(float(rate[i] * d[i]), -1.0), quantum)
