@@ -103,8 +103,8 @@ def test_step_rate_floor_and_cfl_order():
     assert wcsph.law.exponent == pytest.approx(-1.0) and wcsph(0.01) == pytest.approx(4000.0)
     viscous = fit_step_rate(d, 4.0 / d**2, floor=200.0)  # a viscous bound: dt ~ d^2
     assert viscous.law.exponent == pytest.approx(-2.0)
-    clamped = fit_step_rate(d, np.full(3, 200.0), floor=200.0)  # every point at dt_max: d^-1 through the coarsest
-    assert clamped(0.08) == 200.0 and clamped(0.02) == pytest.approx(800.0)
+    clamped = fit_step_rate(d, np.full(3, 200.0), floor=200.0)  # every point at dt_max: d^-1 through the finest
+    assert clamped(0.08) == 200.0 and clamped(0.04) == 200.0 and clamped(0.02) == pytest.approx(400.0)
     assert fit_step_rate(d, 40.0 / d**0.5, floor=1.0).law.exponent == -1.0  # never slower than d^-1
 
 

@@ -38,8 +38,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     (``calibrate.calibration_radii``, ``calibrate.calibration_frames``; given radii are all run). With a budget
     the default calibration keeps within CALIBRATION_SHARE of it: the coarsest radius first, then each further radius and the tolerance
     points only while their cost, scaled from the points run, fits (``Plan.notes`` says what was left out).
-    When it fits too, each solver runs the scene's whole duration at the coarsest radius once: the course of its
-    density error over the run (``advisor.SolverModel.later_ratio``).
+    When it fits too, a solver runs the scene's whole duration at the coarsest radius once: the course of its
+    density error over the run (``advisor.SolverModel.later_ratio``); the solver ranked first after the coarse
+    radii has it reserved before its second tolerance, the others get it in rank order while it fits.
     Models fitted to them (steps per simulated second and error against the spacing and the tolerance, wall
     time against the particle count) predict every candidate over the scene's duration. No setting beyond 4x
     the largest calibrated particle count is chosen; when the fit would choose one, a finer calibration point
@@ -115,6 +116,23 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         if left:
             notes.append(f"not calibrated at r = {r:.4g} m: {', '.join(left)} (predicted beyond "
                          f"{100 * CALIBRATION_SHARE:.0f} % of the budget)")
+    # the error's course over the whole run: one run of the scene's duration at the coarsest radius per solver, in
+    # the order the models fitted so far rank them; the first solver's is reserved before its second tolerance and
+    # the finer points (measured, hydrostatic 60 s: without it the later error was held and the run's came out
+    # 1.69x the prediction), the others' when they still fit; a solver without one has its later error held
+    whole, r0 = int(round(scene.duration * scene.fps)) + 1, 0.0
+    if len(radii) > 1:
+        order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit)
+    profile_costs = {}
+    if whole > frames and any(cal.for_solver(s) for s in names):
+        r0 = max(p.particle_radius for s in names for p in cal.for_solver(s))
+        scale = (whole - 1) / max(frames - 1, 1)
+        profile_costs = {s: sum(max(p.seconds - p.steps * p.step_time - p.export_wait, 0.0)
+                                + (p.steps * p.step_time + p.export_wait) * scale
+                                for p in cal.for_solver(s, scene_tolerance(scene, s)) if p.particle_radius == r0)
+                         for s in order if cal.for_solver(s, scene_tolerance(scene, s))}
+    profiled = profile_solvers(order[:1], profile_costs, spent_of(cal), first)
+    reserved = sum(profile_costs[s] for s in profiled)
     # the second tolerance: each solver with one, at its finest calibrated radius, in the same order
     for s in order:
         if not tolerance_key(s) or not cal.for_solver(s):
@@ -124,27 +142,21 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
             continue  # cached
         # about the cost of the same run at the scene's tolerance
         cost = sum(p.seconds for p in cal.for_solver(s) if p.particle_radius == r_tol)
-        if spent_of(cal) + cost <= first:
+        if spent_of(cal) + reserved + cost <= first:
             cal = run([s], [r_tol], 1.0 / TOLERANCE_STEP)
             cached = cached and cal.cached
         else:
             notes.append(f"{s}'s tolerance not varied: its calibration at r = {r_tol:.4g} m was predicted to take "
                          f"{cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
-    # the error's course over the whole run: one run of the scene's duration per solver at the coarsest radius,
-    # when it fits in the share (reserved before the finer points); without it the later error is held
-    whole, profile_cost, r0 = int(round(scene.duration * scene.fps)) + 1, None, 0.0
-    if whole > frames and any(cal.for_solver(s) for s in names):
-        r0 = max(p.particle_radius for s in names for p in cal.for_solver(s))
-        scale = (whole - 1) / max(frames - 1, 1)
-        cost = sum(max(p.seconds - p.steps * p.step_time - p.export_wait, 0.0)
-                   + (p.steps * p.step_time + p.export_wait) * scale
-                   for s in names for p in cal.for_solver(s, scene_tolerance(scene, s)) if p.particle_radius == r0)
-        if spent_of(cal) + cost <= first:
-            profile_cost = cost
-        else:
-            notes.append(f"no error profile (a whole run at r = {r0:.4g} m, predicted {cost:.3g} s, does not fit in "
-                         f"{100 * CALIBRATION_SHARE:.0f} % of the budget): the error after the calibrated "
-                         f"{(frames - 1) / scene.fps:.3g} s is held at its last calibrated frame's")
+    profiled += profile_solvers([s for s in order if s not in profiled], profile_costs, spent_of(cal) + reserved,
+                                first)
+    profile_cost = sum(profile_costs[s] for s in profiled) if profiled else None
+    unprofiled = [s for s in order if s in profile_costs and s not in profiled]
+    if unprofiled:
+        notes.append(f"no error profile of {', '.join(unprofiled)} (a whole run at r = {r0:.4g} m, predicted "
+                     f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
+                     f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
+                     f"last calibrated frame's")
     for _ in range(MAX_ROUNDS):
         models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
         if not models:
@@ -164,9 +176,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     # the error's course over the whole run (its cost reserved before the finer points), then the models again
     if profile_cost is not None:
         try:
-            profile = calibrate(scene, names, device=dev, radii=[r0], frames=whole, cache=cache, refresh=refresh,
+            profile = calibrate(scene, profiled, device=dev, radii=[r0], frames=whole, cache=cache, refresh=refresh,
                                 progress=progress, log=quiet)
-            profile_seconds += sum(p.seconds for p in profile.points if p.solver in names and
+            profile_seconds += sum(p.seconds for p in profile.points if p.solver in profiled and
                                    abs(p.particle_radius / r0 - 1.0) <= 1e-6)
             cached = cached and profile.cached
             models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
@@ -208,6 +220,18 @@ def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> li
     key = (lambda c: (c.wall_time, c.error)) if target_error is not None else (
         lambda c: (c.particle_radius, c.error, c.wall_time))
     return sorted(best, key=lambda s: key(best[s])) + [s for s in names if s not in best]
+
+
+def profile_solvers(order, costs: dict, spent: float, share: float) -> list:
+    """The solvers of ``order`` (those with a cost in ``costs`` [s]) whose whole-run error profile fits, taken in
+    order while ``spent`` [s] plus their costs stays within ``share`` [s]; one that does not fit is skipped and the
+    next, cheaper one may still fit."""
+    out = []
+    for s in order:
+        if s in costs and spent + costs[s] <= share:
+            out.append(s)
+            spent += costs[s]
+    return out
 
 
 def point_cost(cal, solver: str, radius: float) -> float:

@@ -135,9 +135,9 @@ def predict(scene, model: SolverModel, radius: float, tolerance: float | None = 
     fluid, boundary = model.fluid_count(d), model.boundary_count(d)
     n = fluid + boundary
     frames = int(round(scene.duration * scene.fps))
-    rate = model.steps_per_second(d) * model.tolerance_factor("steps_per_second", tolerance)
-    steps = max(int(math.ceil(rate * scene.duration)), frames)
-    step = model.step_time(n) * model.tolerance_factor("step_time", tolerance)
+    steps = max(model.steps_per_second.steps(d, scene.duration, model.tolerance_factor("steps_per_second", tolerance)),
+                frames)
+    step = model.step_time(fluid, boundary) * model.tolerance_factor("step_time", tolerance)
     wall = model.load_time + model.setup_time(n) + steps * step + frames * model.frame_overhead(n)
     mem = estimate_memory(s, fluid, boundary)
     # another tolerance than the scene's: its effect was measured at one particle count (iterations grow with the

@@ -28,6 +28,7 @@ from pathlib import Path
 
 from ..core.device import cpu_model
 from ..core.errors import PlanError, WarpSphError  # noqa: F401 (PlanError: plan's error, re-exported)
+from .fit import step_floor
 
 #: simulated time of a calibration run [s] (rounded up to whole frames, at least two frames)
 CALIBRATION_TIME = 0.1
@@ -114,7 +115,8 @@ class Calibration:
     seconds: float = 0.0                # wall time the calibration took when it ran [s]
     cached: bool = False                # loaded from the cache (nothing ran)
     path: str = ""                      # the cache file
-    step_floor: float = 0.0             # [1/s] fewest substeps per simulated second: per frame, or per dt_max
+    step_floor: float = 0.0             # [1/s] fewest substeps per simulated second (``fit.step_floor``)
+    step_quantum: float = 0.0           # [1/s] the frame rate: frames are split into whole steps (0: unknown)
 
     def for_solver(self, solver: str, tolerance: float | None | str = "any") -> list[Point]:
         """The completed points of ``solver`` (at ``tolerance`` only, unless "any")."""
@@ -356,5 +358,6 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
                         f"({first.solver}, particle_radius {first.particle_radius:g} m): {first.error}")
     ran = points[len(points) - len(todo):] if todo else []
     t = scene.time
-    floor = 1.0 / t.fixed_dt if t.fixed_dt > 0 else max(float(scene.fps), 1.0 / t.dt_max)
-    return Calibration(key=key, machine=machine, points=points, step_floor=floor, seconds=sum(p.seconds for p in ran), cached=not todo, path=str(path))
+    floor = step_floor(scene.fps, t.dt_max, t.fixed_dt)
+    return Calibration(key=key, machine=machine, points=points, step_floor=floor,
+                       step_quantum=float(scene.fps), seconds=sum(p.seconds for p in ran), cached=not todo, path=str(path))

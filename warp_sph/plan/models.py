@@ -2,9 +2,10 @@
 
 For each solver that calibrated, the models (``fit.py``) predict at any particle radius r (spacing d = 2r):
 - particles N: fluid (a + b d)^3 / d^3 and walls (a + b d)^2 / d^2 through the sampled counts (``LatticeCount``);
-- substeps S = (steps per simulated second)(d) * duration: a power law with exponent <= -1 above the floor of
-  one step per frame or per time.dt_max (``StepRate``);
-- wall time = load + setup(N) + S * step(N) + frames * frame_overhead(N), three lines fitted against N; load: the
+- substeps S: each frame split into ceil(rate(d) / fps) whole steps, the bound's rate per simulated second a power
+  law with exponent <= -1 above the floor of the steps a frame takes at time.dt_max (``StepRate``);
+- wall time = load + setup(N) + S * step(Nf, Nb) + frames * frame_overhead(N): the step's cost fitted against the
+  fluid and the wall counts (``StepCost``: the fluid's share of N grows as d shrinks), the others lines in N; load: the
   time a fresh process spends loading the step's kernels (the largest first-step excess measured) and the kernels
   every run shares (the process's first calibration run's set-up beyond the others': ``process_overhead``);
 - mean density error over the run: the calibration's frames measured e_cal(d) = A d^p, the rest of the run at the
@@ -23,8 +24,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 from .calibrate import Calibration, scene_tolerance
-from .fit import (LatticeCount, Line, PowerLaw, StepRate, fit_lattice_count, fit_line, fit_power_law, fit_step_rate,
-                  log_slope)
+from .fit import (LatticeCount, Line, PowerLaw, StepCost, StepRate, fit_lattice_count, fit_line, fit_power_law,
+                  fit_step_cost, fit_step_rate, log_slope)
 from .metrics import DENSITY
 
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
@@ -41,7 +42,7 @@ class SolverModel:
     solver: str
     steps_per_second: StepRate     # against d [m]
     error: PowerLaw                # against d [m]
-    step_time: Line                # [s] against N
+    step_time: StepCost            # [s] against the fluid and wall counts
     setup_time: Line               # [s] against N
     frame_overhead: Line           # [s] against N
     fluid_count: LatticeCount      # against d [m]
@@ -136,9 +137,9 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     tolerances, exponents, pair_particles = tolerance_exponents(cal, solver, t0, metric)
     return SolverModel(
         solver=solver,
-        steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], cal.step_floor),
+        steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], cal.step_floor, cal.step_quantum),
         error=fit_power_law(d, [max(p.density_error_mean, 1e-9) for p in pts], ORDER_RANGE),
-        step_time=fit_line(n, [p.step_time for p in pts]),
+        step_time=fit_step_cost([p.fluid for p in pts], [max(p.boundary, 0) for p in pts], [p.step_time for p in pts]),
         setup_time=setup,
         frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
         fluid_count=fit_lattice_count(d, [p.fluid for p in pts], 3),

@@ -117,7 +117,8 @@ def model_line(m) -> str:
     if m.metric_error is not None:
         text += f"; {m.metric} error ~ {_order(m.metric_error)}"
     text += (f"; steps/s ~ d^{m.steps_per_second.law.exponent:.2f} above {m.steps_per_second.floor:.4g}; "
-             f"{1e9 * m.step_time.slope:.3g} ns per particle-step + {1e3 * m.step_time.intercept:.3g} ms per step")
+             f"{1e9 * m.step_time.fluid:.3g} ns per fluid particle-step + {1e9 * m.step_time.boundary:.3g} ns per wall "
+             f"particle-step + {1e3 * m.step_time.intercept:.3g} ms per step")
     if m.tolerance is None:
         text += "; no tolerance"
     elif len(m.tolerances) < 2:
