@@ -1,13 +1,14 @@
 """The wall-time models of ``warp-sph plan`` (issue 37): the step's cost against the fluid and wall counts and the
 step count against the spacing, on synthetic data with known laws and on the figures measured on the built-in
 scenes (NumPy oracles; no simulation runs here)."""
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from warp_sph.plan import profile_solvers
-from warp_sph.plan.fit import fit_line, fit_step_cost, fit_step_rate, step_floor
+from warp_sph.plan.fit import PowerLaw, fit_line, fit_step_cost, fit_step_rate, scene_bound_rate, step_floor
 from warp_sph.run.watchdog import frame_substeps
 
 
@@ -91,6 +92,55 @@ def test_step_rate_cfl_bound_recovered_from_rounded_steps():
     assert rate.law.exponent == pytest.approx(-1.0, abs=0.08)
     assert abs(rate.steps(0.007, 1.0) - 30 * frame_substeps(1.0 / fps, 0.05 * 0.007)) <= 30
     assert rate.steps(0.007, 1.0) % 30 == 0  # whole steps per frame
+
+
+def test_one_free_point_takes_the_scenes_viscous_order_not_d_minus_one():
+    """The hydrostatic tank's default calibration (r = 0.0426, 0.0285 m: 9 and 11 steps per frame) has one point
+    above the floor: the fit fell back to d^-1 (192 steps predicted, 288 taken). The scene's own viscous bound
+    0.0625 (H_s/2)^2 / nu (H_s = 2 d, nu = 0.05 m^2/s: 1.25 d^2 s/m^2) explains that point and gives d^-2."""
+    from warp_sph.scene import load_scene
+
+    fps, frames = 24.0, 12
+    known = scene_bound_rate(load_scene("hydrostatic"))
+    assert known.exponent == -2.0 and known.coefficient == pytest.approx(1.0 / 1.25, rel=1e-9)  # [1/s] at d = 1 m
+    assert scene_bound_rate(load_scene("dam_break")) is None  # no viscosity: no speed-independent bound
+    d = np.array([0.085, 0.057])
+    per_frame = np.array([_frame_steps(x) for x in d])
+    assert list(per_frame) == [9, 11]
+    floor = step_floor(fps, 0.005)
+    old = fit_step_rate(d, per_frame * fps, floor, quantum=fps)
+    new = fit_step_rate(d, per_frame * fps, floor, quantum=fps, known=known)
+    for fine in (0.036, 0.024):
+        truth = frames * _frame_steps(fine)
+        assert new.steps(fine, frames / fps) == pytest.approx(truth, abs=frames)  # within one step per frame
+        assert old.steps(fine, frames / fps) < 0.75 * truth
+    # a point the known bound does not explain (a faster bound, ~ d^-1 here) is still fitted
+    cfl = np.array([frame_substeps(1.0 / fps, 0.05 * x) for x in (0.04, 0.028, 0.02)])
+    weak = PowerLaw(1.0, -2.0)  # far below those rates
+    fitted = fit_step_rate([0.04, 0.028, 0.02], cfl * fps, step_floor(fps, 0.1), quantum=fps, known=weak)
+    assert fitted.law.exponent == pytest.approx(-1.0, abs=0.1)
+
+
+def test_steps_follow_the_whole_runs_speeds_after_the_calibration_window():
+    """A dam break: every calibration frame at dt_max (the first 0.125 s), later frames CFL-bound as the front
+    reaches 3-4 m/s. With the profile's per-frame speeds the steps are the runner's whole steps per frame of
+    dt = min(dt_max, cfl d / (v + |g| frame_dt)) (the oracle), not the floor's."""
+    fps, cfl, g, dt_max = 24.0, 0.4, 9.81, 0.005
+    floor = step_floor(fps, dt_max)
+    d_cal = np.array([0.063, 0.04])
+    window = fit_step_rate(d_cal, [floor, floor], floor, quantum=fps)  # all at the floor
+    speeds = [0.0, 0.4, 0.9, 1.5, 2.2, 2.9, 3.4, 3.7, 3.9, 3.6, 3.2, 3.0, 2.8]  # initial frame first, 12 frames
+    rate = dataclasses.replace(window, speeds=tuple(speeds), cfl=cfl, gravity=g)
+    for d in (0.03, 0.02):
+        oracle = sum(frame_substeps(1.0 / fps, min(dt_max, cfl * d / (v + g / fps))) for v in speeds[:12])
+        floor_only = sum(max(frame_substeps(1.0 / fps, dt_max), math.ceil(window.law(d) / fps - 1e-9))
+                         for _ in range(12))
+        assert rate.steps(d, 12 / fps) >= oracle and rate.steps(d, 12 / fps) <= oracle + 12
+        # the calibration window alone (the placeholder d^-1 from the finest floor point) is further off
+        assert abs(floor_only - oracle) > abs(rate.steps(d, 12 / fps) - oracle)
+    # speeds that do not cover the run: the calibration's rate in every frame
+    short = dataclasses.replace(window, speeds=(0.0, 3.0), cfl=cfl, gravity=g)
+    assert short.steps(0.02, 12 / fps) == window.steps(0.02, 12 / fps)
 
 
 # --- the error profile ---------------------------------------------------------------------------
