@@ -124,7 +124,8 @@ def test_one_free_point_takes_the_scenes_viscous_order_not_d_minus_one():
 def test_steps_follow_the_whole_runs_speeds_after_the_calibration_window():
     """A dam break: every calibration frame at dt_max (the first 0.125 s), later frames CFL-bound as the front
     reaches 3-4 m/s. With the profile's per-frame speeds the steps are the runner's whole steps per frame of
-    dt = min(dt_max, cfl d / (v + |g| frame_dt)) (the oracle), not the floor's."""
+    dt = min(dt_max, cfl d / (v + |g| frame_dt)), v the faster of the frame's start and end speeds (the oracle),
+    not the floor's; a solver sizing each substep at its start: dt (v + |g| dt) = cfl d."""
     fps, cfl, g, dt_max = 24.0, 0.4, 9.81, 0.005
     floor = step_floor(fps, dt_max)
     d_cal = np.array([0.063, 0.04])
@@ -132,12 +133,16 @@ def test_steps_follow_the_whole_runs_speeds_after_the_calibration_window():
     speeds = [0.0, 0.4, 0.9, 1.5, 2.2, 2.9, 3.4, 3.7, 3.9, 3.6, 3.2, 3.0, 2.8]  # initial frame first, 12 frames
     rate = dataclasses.replace(window, speeds=tuple(speeds), cfl=cfl, gravity=g)
     for d in (0.03, 0.02):
-        oracle = sum(frame_substeps(1.0 / fps, min(dt_max, cfl * d / (v + g / fps))) for v in speeds[:12])
+        fast = [max(a, b) for a, b in zip(speeds[:12], speeds[1:])]
+        oracle = sum(frame_substeps(1.0 / fps, min(dt_max, cfl * d / (v + g / fps))) for v in fast)
         floor_only = sum(max(frame_substeps(1.0 / fps, dt_max), math.ceil(window.law(d) / fps - 1e-9))
                          for _ in range(12))
         assert rate.steps(d, 12 / fps) >= oracle and rate.steps(d, 12 / fps) <= oracle + 12
         # the calibration window alone (the placeholder d^-1 from the finest floor point) is further off
         assert abs(floor_only - oracle) > abs(rate.steps(d, 12 / fps) - oracle)
+        per_substep = dataclasses.replace(rate, per_substep=True)
+        dt = [2 * cfl * d / (v + math.sqrt(v * v + 4 * g * cfl * d)) for v in fast]
+        assert per_substep.steps(d, 12 / fps) == sum(frame_substeps(1.0 / fps, min(dt_max, x)) for x in dt)
     # speeds that do not cover the run: the calibration's rate in every frame
     short = dataclasses.replace(window, speeds=(0.0, 3.0), cfl=cfl, gravity=g)
     assert short.steps(0.02, 12 / fps) == window.steps(0.02, 12 / fps)

@@ -140,7 +140,10 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     speeds = _profile(profile, solver, t0, "frame_speeds") if profile is not None else []
     if speeds and scene is not None and scene.time.fixed_dt <= 0:  # the steps' course over the run (``StepRate``)
         g = sum(x * x for x in scene.gravity) ** 0.5
-        rate = replace(rate, speeds=tuple(speeds), cfl=float(scene.time.cfl), gravity=float(g))
+        from ..methods.registry import solver as solver_class
+
+        per_substep = bool(solver_class(solver).time_step_per_substep and not scene.bodies and not scene.obstacles)
+        rate = replace(rate, speeds=tuple(speeds), cfl=float(scene.time.cfl), gravity=float(g), per_substep=per_substep)
     return SolverModel(
         solver=solver,
         steps_per_second=rate,
