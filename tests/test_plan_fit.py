@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from warp_sph.plan import profile_solvers
-from warp_sph.plan.fit import PowerLaw, fit_line, fit_step_cost, fit_step_rate, scene_bound_rate, step_floor
+from warp_sph.plan.fit import PowerLaw, fit_line, fit_speed_exponent, fit_step_cost, fit_step_rate, scene_bound_rate, step_floor
 from warp_sph.run.watchdog import frame_substeps
 
 
@@ -146,6 +146,24 @@ def test_steps_follow_the_whole_runs_speeds_after_the_calibration_window():
     # speeds that do not cover the run: the calibration's rate in every frame
     short = dataclasses.replace(window, speeds=(0.0, 3.0), cfl=cfl, gravity=g)
     assert short.steps(0.02, 12 / fps) == window.steps(0.02, 12 / fps)
+
+
+def test_speed_exponent_measured_and_applied_to_the_course():
+    d = [0.063, 0.04, 0.025]
+    window = [[1.0, 1.9, 2.4], [1.1, 2.0, 2.7], [1.2, 2.2, 2.9]]
+    k = -0.2
+    assert fit_speed_exponent(d, [[v * (x / d[0]) ** k for v in window[0]] for x in d]) == pytest.approx(k, abs=1e-9)
+    assert fit_speed_exponent(d, [[v * (x / d[0]) ** -3 for v in window[0]] for x in d]) == -0.5  # clipped
+    assert fit_speed_exponent(d[:1], window[:1]) == 0.0 and fit_speed_exponent(d[:2], [[], []]) == 0.0
+    fps, cfl, g = 24.0, 0.4, 9.81
+    speeds = (0.0, 2.0, 6.0, 8.0, 7.0)
+    base = dataclasses.replace(fit_step_rate([0.063], [216.0], 216.0, quantum=fps), speeds=speeds, cfl=cfl, gravity=g,
+                               speed_spacing=0.063)
+    faster = dataclasses.replace(base, speed_exponent=k)
+    d_fine = 0.02
+    scaled = [max(a, b) * (d_fine / 0.063) ** k for a, b in zip(speeds[:4], speeds[1:])]
+    oracle = sum(frame_substeps(1.0 / fps, min(0.005, cfl * d_fine / (v + g / fps))) for v in scaled)
+    assert faster.steps(d_fine, 4 / fps) == oracle > base.steps(d_fine, 4 / fps)
 
 
 # --- the error profile ---------------------------------------------------------------------------

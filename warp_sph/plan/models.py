@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 from .calibrate import Calibration, scene_tolerance
 from .fit import (LatticeCount, Line, PowerLaw, StepCost, StepRate, fit_lattice_count, fit_line, fit_power_law,
-                  fit_step_cost, fit_step_rate, log_slope, scene_bound_rate)
+                  fit_speed_exponent, fit_step_cost, fit_step_rate, log_slope, scene_bound_rate)
 from .metrics import DENSITY
 
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
@@ -143,7 +143,9 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         from ..methods.registry import solver as solver_class
 
         per_substep = bool(solver_class(solver).time_step_per_substep and not scene.bodies and not scene.obstacles)
-        rate = replace(rate, speeds=tuple(speeds), cfl=float(scene.time.cfl), gravity=float(g), per_substep=per_substep)
+        rate = replace(rate, speeds=tuple(speeds), cfl=float(scene.time.cfl), gravity=float(g), per_substep=per_substep,
+                       speed_spacing=2.0 * _profile_radius(profile, solver, t0),
+                       speed_exponent=fit_speed_exponent(d, [p.frame_speeds[1:] for p in pts]))
     return SolverModel(
         solver=solver,
         steps_per_second=rate,
@@ -161,6 +163,10 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         calibrated_frames=min(p.frames for p in pts), metric=metric, metric_error=metric_law,
         tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents, tolerance_particles=pair_particles,
         profile=_profile(profile, solver, t0) if profile is not None else [])
+
+
+def _profile_radius(profile: Calibration, solver: str, t0) -> float:
+    return max(p.particle_radius for p in profile.for_solver(solver, t0))
 
 
 def _profile(profile: Calibration, solver: str, t0, figure: str = "density_errors") -> list:
