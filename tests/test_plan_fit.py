@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from warp_sph.plan import profile_solvers
+from warp_sph.plan import profile_solvers, whole_run_cost
+from warp_sph.plan.calibrate import Point
 from warp_sph.plan.fit import PowerLaw, fit_line, fit_speed_exponent, fit_step_cost, fit_step_rate, scene_bound_rate, step_floor
 from warp_sph.run.watchdog import frame_substeps
 
@@ -167,6 +168,20 @@ def test_speed_exponent_measured_and_applied_to_the_course():
 
 
 # --- the error profile ---------------------------------------------------------------------------
+
+def test_whole_run_cost_leaves_out_the_kernel_loads_a_profile_does_not_pay():
+    """A whole run 4x the calibration's frames: the steps and export waits x 4, the fixed time once, without the
+    first step's excess; a process's first run's set-up (the shared kernels) replaced by the least of the others'."""
+    def pt(seconds, first=False, first_step=0.02):
+        return Point(solver="dfsph", particle_radius=0.07, steps=27, step_time=0.01, export_wait=0.03,
+                     first_step_time=first_step, seconds=seconds, first_in_process=first)
+    steady = pt(0.5)  # fixed 0.5 - 0.27 - 0.03 - 0.01 = 0.19 s
+    assert whole_run_cost([steady], 4.0) == pytest.approx(0.19 + 4 * 0.30)
+    first = pt(1.1, first=True, first_step=0.2)  # fixed 1.1 - 0.3 - 0.19 = 0.61 s, the shared kernels' load in it
+    others = [first, pt(0.4), pt(0.45)]  # fixed 0.09 and 0.14 s
+    assert whole_run_cost([first], 4.0, others) == pytest.approx(0.09 + 4 * 0.30)
+    assert whole_run_cost([first], 4.0) == pytest.approx(0.61 + 4 * 0.30)  # nothing to compare: as measured
+
 
 def test_profile_solvers_in_rank_order_within_the_share():
     costs = {"dfsph": 1.2, "pbf": 1.0, "wcsph": 0.8}
