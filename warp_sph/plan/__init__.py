@@ -40,7 +40,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     points only while their cost, scaled from the points run, fits (``Plan.notes`` says what was left out).
     When it fits too, a solver runs the scene's whole duration at the coarsest radius once: the course of its
     density error over the run (``advisor.SolverModel.later_ratio``); the solver ranked first after the coarse
-    radii has it reserved before its second tolerance, the others get it in rank order while it fits.
+    radii has it reserved before its second tolerance and the finer points, the others get it after the finer
+    points, in rank order, one at a time while its predicted cost (``whole_run_cost``) times the profiles' measured
+    over-run fits.
     Models fitted to them (steps per simulated second and error against the spacing and the tolerance, wall
     time against the particle count) predict every candidate over the scene's duration. No setting beyond 4x
     the largest calibrated particle count is chosen; when the fit would choose one, a finer calibration point
