@@ -1,13 +1,15 @@
 """The wall-time models of ``warp-sph plan`` (issue 37): the step's cost against the fluid and wall counts and the
 step count against the spacing, on synthetic data with known laws and on the figures measured on the built-in
 scenes (NumPy oracles; no simulation runs here)."""
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from warp_sph.plan import profile_solvers
-from warp_sph.plan.fit import fit_line, fit_step_cost, fit_step_rate, step_floor
+from warp_sph.plan import profile_solvers, whole_run_cost
+from warp_sph.plan.calibrate import Point
+from warp_sph.plan.fit import PowerLaw, fit_line, fit_speed_exponent, fit_step_cost, fit_step_rate, scene_bound_rate, step_floor
 from warp_sph.run.watchdog import frame_substeps
 
 
@@ -93,7 +95,93 @@ def test_step_rate_cfl_bound_recovered_from_rounded_steps():
     assert rate.steps(0.007, 1.0) % 30 == 0  # whole steps per frame
 
 
+def test_one_free_point_takes_the_scenes_viscous_order_not_d_minus_one():
+    """The hydrostatic tank's default calibration (r = 0.0426, 0.0285 m: 9 and 11 steps per frame) has one point
+    above the floor: the fit fell back to d^-1 (192 steps predicted, 288 taken). The scene's own viscous bound
+    0.0625 (H_s/2)^2 / nu (H_s = 2 d, nu = 0.05 m^2/s: 1.25 d^2 s/m^2) explains that point and gives d^-2."""
+    from warp_sph.scene import load_scene
+
+    fps, frames = 24.0, 12
+    known = scene_bound_rate(load_scene("hydrostatic"))
+    assert known.exponent == -2.0 and known.coefficient == pytest.approx(1.0 / 1.25, rel=1e-9)  # [1/s] at d = 1 m
+    assert scene_bound_rate(load_scene("dam_break")) is None  # no viscosity: no speed-independent bound
+    d = np.array([0.085, 0.057])
+    per_frame = np.array([_frame_steps(x) for x in d])
+    assert list(per_frame) == [9, 11]
+    floor = step_floor(fps, 0.005)
+    old = fit_step_rate(d, per_frame * fps, floor, quantum=fps)
+    new = fit_step_rate(d, per_frame * fps, floor, quantum=fps, known=known)
+    for fine in (0.036, 0.024):
+        truth = frames * _frame_steps(fine)
+        assert new.steps(fine, frames / fps) == pytest.approx(truth, abs=frames)  # within one step per frame
+        assert old.steps(fine, frames / fps) < 0.75 * truth
+    # a point the known bound does not explain (a faster bound, ~ d^-1 here) is still fitted
+    cfl = np.array([frame_substeps(1.0 / fps, 0.05 * x) for x in (0.04, 0.028, 0.02)])
+    weak = PowerLaw(1.0, -2.0)  # far below those rates
+    fitted = fit_step_rate([0.04, 0.028, 0.02], cfl * fps, step_floor(fps, 0.1), quantum=fps, known=weak)
+    assert fitted.law.exponent == pytest.approx(-1.0, abs=0.1)
+
+
+def test_steps_follow_the_whole_runs_speeds_after_the_calibration_window():
+    """A dam break: every calibration frame at dt_max (the first 0.125 s), later frames CFL-bound as the front
+    reaches 3-4 m/s. With the profile's per-frame speeds the steps are the runner's whole steps per frame of
+    dt = min(dt_max, cfl d / (v + |g| frame_dt)), v the faster of the frame's start and end speeds (the oracle),
+    not the floor's; a solver sizing each substep at its start: dt (v + |g| dt) = cfl d."""
+    fps, cfl, g, dt_max = 24.0, 0.4, 9.81, 0.005
+    floor = step_floor(fps, dt_max)
+    d_cal = np.array([0.063, 0.04])
+    window = fit_step_rate(d_cal, [floor, floor], floor, quantum=fps)  # all at the floor
+    speeds = [0.0, 0.4, 0.9, 1.5, 2.2, 2.9, 3.4, 3.7, 3.9, 3.6, 3.2, 3.0, 2.8]  # initial frame first, 12 frames
+    rate = dataclasses.replace(window, speeds=tuple(speeds), cfl=cfl, gravity=g)
+    for d in (0.03, 0.02):
+        fast = [max(a, b) for a, b in zip(speeds[:12], speeds[1:])]
+        oracle = sum(frame_substeps(1.0 / fps, min(dt_max, cfl * d / (v + g / fps))) for v in fast)
+        floor_only = sum(max(frame_substeps(1.0 / fps, dt_max), math.ceil(window.law(d) / fps - 1e-9))
+                         for _ in range(12))
+        assert rate.steps(d, 12 / fps) >= oracle and rate.steps(d, 12 / fps) <= oracle + 12
+        # the calibration window alone (the placeholder d^-1 from the finest floor point) is further off
+        assert abs(floor_only - oracle) > abs(rate.steps(d, 12 / fps) - oracle)
+        per_substep = dataclasses.replace(rate, per_substep=True)
+        dt = [2 * cfl * d / (v + math.sqrt(v * v + 4 * g * cfl * d)) for v in fast]
+        assert per_substep.steps(d, 12 / fps) == sum(frame_substeps(1.0 / fps, min(dt_max, x)) for x in dt)
+    # speeds that do not cover the run: the calibration's rate in every frame
+    short = dataclasses.replace(window, speeds=(0.0, 3.0), cfl=cfl, gravity=g)
+    assert short.steps(0.02, 12 / fps) == window.steps(0.02, 12 / fps)
+
+
+def test_speed_exponent_measured_and_applied_to_the_course():
+    d = [0.063, 0.04, 0.025]
+    window = [[1.0, 1.9, 2.4], [1.1, 2.0, 2.7], [1.2, 2.2, 2.9]]
+    k = -0.2
+    assert fit_speed_exponent(d, [[v * (x / d[0]) ** k for v in window[0]] for x in d]) == pytest.approx(k, abs=1e-9)
+    assert fit_speed_exponent(d, [[v * (x / d[0]) ** -3 for v in window[0]] for x in d]) == -0.5  # clipped
+    assert fit_speed_exponent(d[:1], window[:1]) == 0.0 and fit_speed_exponent(d[:2], [[], []]) == 0.0
+    fps, cfl, g = 24.0, 0.4, 9.81
+    speeds = (0.0, 2.0, 6.0, 8.0, 7.0)
+    base = dataclasses.replace(fit_step_rate([0.063], [216.0], 216.0, quantum=fps), speeds=speeds, cfl=cfl, gravity=g,
+                               speed_spacing=0.063)
+    faster = dataclasses.replace(base, speed_exponent=k)
+    d_fine = 0.02
+    scaled = [max(a, b) * (d_fine / 0.063) ** k for a, b in zip(speeds[:4], speeds[1:])]
+    oracle = sum(frame_substeps(1.0 / fps, min(0.005, cfl * d_fine / (v + g / fps))) for v in scaled)
+    assert faster.steps(d_fine, 4 / fps) == oracle > base.steps(d_fine, 4 / fps)
+
+
 # --- the error profile ---------------------------------------------------------------------------
+
+def test_whole_run_cost_leaves_out_the_kernel_loads_a_profile_does_not_pay():
+    """A whole run 4x the calibration's frames: the steps and export waits x 4, the fixed time once, without the
+    first step's excess; a process's first run's set-up (the shared kernels) replaced by the least of the others'."""
+    def pt(seconds, first=False, first_step=0.02):
+        return Point(solver="dfsph", particle_radius=0.07, steps=27, step_time=0.01, export_wait=0.03,
+                     first_step_time=first_step, seconds=seconds, first_in_process=first)
+    steady = pt(0.5)  # fixed 0.5 - 0.27 - 0.03 - 0.01 = 0.19 s
+    assert whole_run_cost([steady], 4.0) == pytest.approx(0.19 + 4 * 0.30)
+    first = pt(1.1, first=True, first_step=0.2)  # fixed 1.1 - 0.3 - 0.19 = 0.61 s, the shared kernels' load in it
+    others = [first, pt(0.4), pt(0.45)]  # fixed 0.09 and 0.14 s
+    assert whole_run_cost([first], 4.0, others) == pytest.approx(0.09 + 4 * 0.30)
+    assert whole_run_cost([first], 4.0) == pytest.approx(0.61 + 4 * 0.30)  # nothing to compare: as measured
+
 
 def test_profile_solvers_in_rank_order_within_the_share():
     costs = {"dfsph": 1.2, "pbf": 1.0, "wcsph": 0.8}

@@ -41,7 +41,7 @@ PLANNED_KEYS = ("particle_radius", "solver", "plan", "name", "description")
 #: the second calibrated tolerance of a solver with one: the scene's divided by this
 TOLERANCE_STEP = 4.0
 #: the version of the cached points' fields (older cache files are not read)
-CACHE_SCHEMA = 2
+CACHE_SCHEMA = 3
 #: calibration runs made by this process so far (the first one's set-up includes loading the shared kernels)
 _RUNS_IN_PROCESS = [0]
 
@@ -70,6 +70,8 @@ class Point:
     density_error_max: float = 0.0      # [-] largest of any frame
     density_error_last: float = 0.0     # [-] the last frame's mean error
     density_errors: list = field(default_factory=list)  # [-] each advanced frame's mean error, in order
+    frame_steps: list = field(default_factory=list)     # substeps of each advanced frame, in order
+    frame_speeds: list = field(default_factory=list)    # [m/s] fastest particle (fluid or body) at each frame's end, initial first
     first_in_process: bool = False      # the process's first calibration run: its set-up loaded the shared kernels
     reference: dict = field(default_factory=dict)  # metric -> error against the experiment (None: not measurable)
     seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
@@ -288,6 +290,8 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     point.density_error_max = max((f["density_error_max"] for f in advanced), default=0.0)
     point.density_error_last = advanced[-1]["density_error_mean"] if advanced else 0.0
     point.density_errors = [float(f["density_error_mean"]) for f in advanced]
+    point.frame_steps = [int(f["steps"]) for f in advanced]
+    point.frame_speeds = [max(float(f.get("max_speed", 0.0)), float(f.get("body_speed", 0.0))) for f in info["frames"]]
     return point
 
 

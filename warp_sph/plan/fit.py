@@ -177,25 +177,61 @@ def fit_lattice_count(d, n, k: int) -> LatticeCount:
 
 @dataclass(frozen=True)
 class StepRate:
-    """Substeps per simulated second against the spacing d: max(floor, coefficient d^exponent). The floor is
-    the fewest steps a frame takes (``step_floor``); above it the CFL-type bounds make dt shrink at least as fast
-    as d (exponent <= -1: a viscous bound gives -2). ``quantum`` [1/s]: the frame rate where a frame is split into
-    whole steps (0: none); the law is then the bound's own rate, and ``steps`` rounds each frame up."""
+    """Substeps per simulated second against the spacing d: max(floor, coefficient d^exponent, known(d)). The
+    floor is the fewest steps a frame takes (``step_floor``); above it the CFL-type bounds make dt shrink at least
+    as fast as d (exponent <= -1: a viscous bound gives -2). ``known``: the rate of the scene's own speed-independent
+    bounds (the explicit viscous bound 0.0625 (H_s/2)^2 / nu ~ d^-2, ``scene_bound_rate``), None without one.
+    ``quantum`` [1/s]: the frame rate where a frame is split into whole steps (0: none); the law is then the bound's
+    own rate, and ``steps`` rounds each frame up. ``speeds`` [m/s]: the fastest particle at the end of each frame of
+    a whole run (the profile, the initial frame first), ``cfl`` the scene's time.cfl and ``gravity`` |g| [m/s^2]:
+    each frame then takes at least the velocity CFL's steps at its measured speed (``frame_rates``: the steps'
+    course over the run; measured, dam break DFSPH: every calibration frame at dt_max, the fastest particle at
+    7-8.5 m/s after the impact at 0.25 s, 19-23 steps per frame at r = 0.0198 m)."""
 
     floor: float
     law: PowerLaw
     quantum: float = 0.0
+    known: PowerLaw | None = None
+    speeds: tuple = ()
+    cfl: float = 0.0
+    gravity: float = 0.0
+    speed_spacing: float = 0.0   # [m] the spacing ``speeds`` were measured at
+    speed_exponent: float = 0.0  # the fastest speed ~ d^k (measured on the calibration's frames, ``fit_speed_exponent``)
+    per_substep: bool = False  # the solver sizes each substep for the speed at its start (``Solver.time_step_per_substep``)
+    at_floor: bool = False  # every point sat at the floor: ``law`` is a placeholder (d^-1 from the finest point)
 
     def __call__(self, d: float) -> float:
-        return max(self.floor, self.law(d))
+        return max(self.floor, self.law(d), self.known(d) if self.known is not None else 0.0)
+
+    def frame_rates(self, d: float, frames: int, factor: float = 1.0) -> list:
+        """[1/s] the bound's rate in each of ``frames`` frames at spacing ``d`` [m]: with ``speeds`` covering them,
+        at least the velocity CFL's at the faster of the frame's start and end speeds v (per frame: (v + |g|
+        frame_dt) / (cfl d); ``per_substep``, each substep sized at its start: dt (v + |g| dt) = cfl d); else the
+        calibration's rate in every frame."""
+        base = max(self.law(d) * factor, self.known(d) if self.known is not None else 0.0)
+        if not (self.cfl > 0 and self.quantum > 0 and len(self.speeds) > frames):
+            return [base] * frames
+        if self.at_floor:  # the speeds' CFL replaces the placeholder
+            base = self.known(d) if self.known is not None else 0.0
+        reach, g = self.cfl * float(d), self.gravity
+        scale = (float(d) / self.speed_spacing) ** self.speed_exponent if self.speed_spacing > 0 else 1.0
+        out = []
+        for start, end in zip(self.speeds[:frames], self.speeds[1:frames + 1]):
+            v = max(start, end) * scale
+            cfl = ((v + math.sqrt(v * v + 4.0 * g * reach)) / (2.0 * reach) if self.per_substep
+                   else (v + g / self.quantum) / reach)
+            out.append(max(base, cfl * factor))
+        return out
 
     def steps(self, d: float, duration: float, factor: float = 1.0) -> int:
         """Substeps of ``duration`` [s] at spacing ``d`` [m], the rate times ``factor``: whole steps per frame
-        (each frame n = ceil(rate / fps) equal steps) where ``quantum`` is set, else ceil(rate x duration)."""
-        rate = max(self.floor, self.law(d) * factor)
+        (each frame n = ceil(rate / fps) equal steps, at least the floor's) where ``quantum`` is set, else
+        ceil(rate x duration)."""
         if self.quantum > 0:
             frames = max(int(round(duration * self.quantum)), 1)
-            return frames * max(math.ceil(rate / self.quantum - 1e-9), 1)
+            least = max(math.ceil(self.floor / self.quantum - 1e-9), 1)
+            return sum(max(math.ceil(r / self.quantum - 1e-9), least) for r in self.frame_rates(d, frames, factor))
+        rate = max(self.floor, self.law(d) * factor, self.known(d) if self.known is not None else 0.0)
         return max(math.ceil(rate * duration - 1e-9), 1)
 
 
@@ -207,25 +243,59 @@ def step_floor(fps: float, dt_max: float, fixed_dt: float = 0.0) -> float:
     return float(fps) * max(math.ceil(1.0 / (float(fps) * bound) - 1e-9), 1)
 
 
-def fit_step_rate(d, rate, floor: float, quantum: float = 0.0) -> StepRate:
-    """The StepRate of measured rates: a power law (exponent in [-3, -1]) through the points above the floor;
-    with one such point, exponent -1 through it; with none, exponent -1 through the finest point (the points sit
-    at the floor: the bound lies beyond them). ``quantum``: the frame rate where frames are split into whole steps: a
-    measured n steps per frame says only that the bound's rate lies in ((n - 1) fps, n fps], so the fit takes its
-    middle, (n - 1/2) fps (measured, hydrostatic DFSPH: 9 steps per frame at the 5 ms dt_max read 216/s, above a
-    200/s floor, and that floor point flattened the fitted order to -1.24; the free points give -1.9, the viscous
-    bound's d^-2)."""
+def fit_step_rate(d, rate, floor: float, quantum: float = 0.0, known: PowerLaw | None = None) -> StepRate:
+    """The StepRate of measured rates: a power law (exponent in [-3, -1]) through the points above the floor that
+    ``known`` (the scene's speed-independent bound rate, ``scene_bound_rate``) does not explain; with one such point,
+    exponent -1 through it; with none, exponent -1 through the finest point (the points sit at the floor: the bound
+    lies beyond them). A point is the known bound's where that bound alone takes at least its steps less one and a
+    half per frame (measured, hydrostatic DFSPH: 9 / 11 / 26 / 59 steps per frame at r = 0.0426 / 0.0285 / 0.018 /
+    0.012 m, the viscous bound's 0.0625 (H_s/2)^2 / nu gives 8.7 / 10.3 / 25.7 / 57.9: with only the 11 above the
+    floor the fit fell back to d^-1 and predicted 192 steps where the run took 288). ``quantum``: the frame rate where
+    frames are split into whole steps: a measured n steps per frame says only that the bound's rate lies in
+    ((n - 1) fps, n fps], so the fit takes its middle, (n - 1/2) fps (a floor point read 216/s, above a 200/s floor,
+    flattened the fitted order to -1.24; the free points give -1.9, the viscous bound's d^-2)."""
     d = np.asarray(d, dtype=np.float64)
     rate = np.asarray(rate, dtype=np.float64)
     free = rate > floor + (0.5 * quantum if quantum > 0 else 0.05 * floor)  # a whole step per frame above it
+    if known is not None:
+        slack = 1.5 * quantum if quantum > 0 else 0.1 * rate
+        free &= ~(np.array([known(x) for x in d]) >= rate - slack)
     bound = np.maximum(rate - 0.5 * quantum, 1e-300) if quantum > 0 else rate
     if free.sum() >= 2 and np.ptp(d[free]) > 0:
-        return StepRate(floor, fit_power_law(d[free], bound[free], (-3.0, -1.0)), quantum)
+        return StepRate(floor, fit_power_law(d[free], bound[free], (-3.0, -1.0)), quantum, known)
     if free.any():
         i = int(np.argmax(np.where(free, rate * d, -np.inf)))
-        return StepRate(floor, PowerLaw(float(bound[i] * d[i]), -1.0), quantum)
-    # every point at the floor: the bound's rate is at most the floor at the finest of them, d^-1 from there (the
-    # coarsest point instead: the dam break's DFSPH, every point at dt_max, predicted 276 steps where the run took
-    # 135; from the finest: 192)
+        return StepRate(floor, PowerLaw(float(bound[i] * d[i]), -1.0), quantum, known)
+    # every point at the floor (or the known bound's): the bound's rate is at most the floor at the finest of
+    # them, d^-1 from there (the coarsest point instead: the dam break's DFSPH, every point at dt_max, predicted
+    # 276 steps where the run took 135; from the finest: 192)
     i = int(np.argmin(d))
-    return StepRate(floor, PowerLaw(float(rate[i] * d[i]), -1.0), quantum)
+    return StepRate(floor, PowerLaw(float(min(rate[i], floor) * d[i]), -1.0), quantum, known, at_floor=True)
+
+
+#: the fastest particle's speed against the spacing: the measured exponent is clipped to this range
+SPEED_EXPONENT_RANGE = (-0.5, 0.5)
+
+
+def fit_speed_exponent(d, speeds) -> float:
+    """k of the fastest particle's speed ~ d^k: a power law through each point's mean speed over its frames
+    (``speeds``: per point, the speeds of its advanced frames), clipped to SPEED_EXPONENT_RANGE; 0 with fewer than
+    two spacings. Measured (dam break DFSPH, the first 0.125 s): 1.78 m/s mean at d = 0.063 m, 1.92 at 0.040: k =
+    -0.17 (the finer splash is faster; the whole runs' later frames: 7-8.2 and 7.3-8.5 m/s)."""
+    pairs = [(float(x), float(np.mean(v))) for x, v in zip(d, speeds) if len(v) and np.mean(v) > 0]
+    if len({x for x, _ in pairs}) < 2:
+        return 0.0
+    return fit_power_law([x for x, _ in pairs], [v for _, v in pairs], SPEED_EXPONENT_RANGE).exponent
+
+
+def scene_bound_rate(scene) -> PowerLaw | None:
+    """[1/s] against d [m]: the rate of the scene's speed-independent step bounds, from the scene itself: each
+    active explicit viscosity's 1 / (0.0625 (H_s/2)^2 / nu) with H_s proportional to d (``viscous_step``), so
+    coefficient x d^-2; None where the scene has none."""
+    from ..methods.force import scene_forces
+    from ..methods.forces.explicit_viscosity import ExplicitViscosity, viscous_step
+
+    ratio = float(scene.support_radius) / float(scene.spacing)  # H_s / d
+    coefficients = [1.0 / viscous_step(ratio, float(e.config.viscosity)) for e in scene_forces(scene)
+                    if issubclass(e.cls, ExplicitViscosity) and e.cls.is_active(e.config)]
+    return PowerLaw(max(coefficients), -2.0) if coefficients else None

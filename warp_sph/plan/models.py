@@ -21,11 +21,11 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 from .calibrate import Calibration, scene_tolerance
 from .fit import (LatticeCount, Line, PowerLaw, StepCost, StepRate, fit_lattice_count, fit_line, fit_power_law,
-                  fit_step_cost, fit_step_rate, log_slope)
+                  fit_speed_exponent, fit_step_cost, fit_step_rate, log_slope, scene_bound_rate)
 from .metrics import DENSITY
 
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
@@ -135,9 +135,20 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         if metric_law is None:  # no calibration run's span held a point of the experiment
             return None
     tolerances, exponents, pair_particles = tolerance_exponents(cal, solver, t0, metric)
+    rate = fit_step_rate(d, [p.steps_per_second for p in pts], cal.step_floor, cal.step_quantum,
+                         scene_bound_rate(scene) if scene is not None else None)
+    speeds = _profile(profile, solver, t0, "frame_speeds") if profile is not None else []
+    if speeds and scene is not None and scene.time.fixed_dt <= 0:  # the steps' course over the run (``StepRate``)
+        g = sum(x * x for x in scene.gravity) ** 0.5
+        from ..methods.registry import solver as solver_class
+
+        per_substep = bool(solver_class(solver).time_step_per_substep and not scene.bodies and not scene.obstacles)
+        rate = replace(rate, speeds=tuple(speeds), cfl=float(scene.time.cfl), gravity=float(g), per_substep=per_substep,
+                       speed_spacing=2.0 * _profile_radius(profile, solver, t0),
+                       speed_exponent=fit_speed_exponent(d, [p.frame_speeds[1:] for p in pts]))
     return SolverModel(
         solver=solver,
-        steps_per_second=fit_step_rate(d, [p.steps_per_second for p in pts], cal.step_floor, cal.step_quantum),
+        steps_per_second=rate,
         error=fit_power_law(d, [max(p.density_error_mean, 1e-9) for p in pts], ORDER_RANGE),
         step_time=fit_step_cost([p.fluid for p in pts], [max(p.boundary, 0) for p in pts], [p.step_time for p in pts]),
         setup_time=setup,
@@ -154,9 +165,13 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         profile=_profile(profile, solver, t0) if profile is not None else [])
 
 
-def _profile(profile: Calibration, solver: str, t0) -> list:
+def _profile_radius(profile: Calibration, solver: str, t0) -> float:
+    return max(p.particle_radius for p in profile.for_solver(solver, t0))
+
+
+def _profile(profile: Calibration, solver: str, t0, figure: str = "density_errors") -> list:
     pts = profile.for_solver(solver, t0)
-    return list(max(pts, key=lambda p: p.particle_radius).density_errors) if pts else []
+    return list(getattr(max(pts, key=lambda p: p.particle_radius), figure)) if pts else []
 
 
 def process_overhead(cal: Calibration, scene=None) -> float:

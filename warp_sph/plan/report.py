@@ -108,6 +108,18 @@ def _order(law) -> str:
     return f"d^{law.exponent:.2f}" + (" (one radius: constant)" if law.measured is None else "")
 
 
+def _steps_text(rate) -> str:
+    """The step-rate model in words: the calibration's law, the scene's viscous bound, the whole run's speeds."""
+    text = ("steps/s at the floor " if rate.at_floor and rate.speeds else
+            f"steps/s ~ d^{rate.law.exponent:.2f} above ") + f"{rate.floor:.4g}"
+    if rate.known is not None:
+        text += f", the viscous bound's {rate.known.coefficient:.3g} d^-2"
+    if rate.speeds and rate.cfl > 0:
+        text += (f", each frame's velocity CFL at the whole run's speeds (up to {max(rate.speeds):.3g} m/s at "
+                 f"d = {rate.speed_spacing:.3g} m, ~ d^{rate.speed_exponent:.2f})")
+    return text
+
+
 def model_line(m) -> str:
     """One solver's fitted models in words: error orders, step rate, cost, the tolerance's effect."""
     text = (f"{m.solver} models: density error ~ {_order(m.error)} in the first {m.calibrated_frames} frames, "
@@ -116,7 +128,7 @@ def model_line(m) -> str:
         text += f", later frames x {m.later_ratio(len(m.profile)):.3g} (the error's course over a whole run)"
     if m.metric_error is not None:
         text += f"; {m.metric} error ~ {_order(m.metric_error)}"
-    text += (f"; steps/s ~ d^{m.steps_per_second.law.exponent:.2f} above {m.steps_per_second.floor:.4g}; "
+    text += (f"; {_steps_text(m.steps_per_second)}; "
              f"{1e9 * m.step_time.fluid:.3g} ns per fluid particle-step + {1e9 * m.step_time.boundary:.3g} ns per wall "
              f"particle-step + {1e3 * m.step_time.intercept:.3g} ms per step")
     if m.tolerance is None:
