@@ -11,6 +11,7 @@ short calibration runs of the scene itself (docs/plan.md).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from .advisor import Candidate, Plan, SolverModel
 from .calibrate import PlanError
@@ -61,8 +62,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
     from .advisor import CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose, fit_models, next_point
-    from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, calibrate, calibration_frames as cal_frames,
-                            calibration_radii as default_radii, scene_tolerance, tolerance_key)
+    from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, _same_radius, _same_tolerance, calibrate,
+                            calibration_frames as cal_frames, calibration_radii as default_radii, scene_tolerance,
+                            tolerance_key)
     from .metrics import DENSITY, calibration_time, check_metric
 
     if budget_s is None and target_error is None:
@@ -89,12 +91,21 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     quiet = log or (lambda *a, **k: None)
 
     fresh = [refresh]
+    asked: list[tuple[str, float, float | None]] = []  # (solver, radius, tolerance) this plan has asked for
 
     def run(solvers_, radii_, factor=1.0):
         out = calibrate(scene, solvers_, device=dev, radii=radii_, frames=frames, cache=cache, refresh=fresh[0],
                         progress=progress, log=quiet, tolerance_factor=factor)
         fresh[0] = False  # --refresh: the first call starts the cache afresh, the later ones add to it
-        return out
+        for s in solvers_:
+            t = scene_tolerance(scene, s)
+            asked.extend((s, r, None if t is None else t * factor) for r in radii_)
+        # the decisions below see only the points this plan has asked for so far, never the cache's others: a
+        # plan made again from the cache then takes the same decisions at the same moments and runs nothing (with
+        # every cached point visible at once, a later decision could differ and ask for a point never run)
+        return replace(out, points=[p for p in out.points if any(
+            p.solver == s and _same_radius(p.particle_radius, r) and _same_tolerance(p.tolerance, t)
+            for s, r, t in asked)])
 
     profile_seconds = 0.0
 
