@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 
 import warp as wp
 
@@ -49,7 +50,6 @@ def launch(kernel, dim: int | tuple[int, ...], inputs, outputs=(), device=None, 
     a dimension is 0. Kernels taking ``tid_offset`` first (1-D only) run in disjoint ranges on all CPU
     cores (see the module docstring), each of at least ``min_range`` indices (``LIGHT_MIN_RANGE`` for
     light kernels)."""
-    global _pool
     if isinstance(dim, tuple):
         if _takes_offset(kernel):
             raise ValueError(f"kernel {kernel.key} takes tid_offset: launch it over an int dim, got {dim}")
@@ -63,7 +63,7 @@ def launch(kernel, dim: int | tuple[int, ...], inputs, outputs=(), device=None, 
         wp.launch(kernel, dim=dim, inputs=list(inputs), outputs=list(outputs), device=device)
         return
     device = wp.get_device(device)
-    threads = min(cpu_threads(), dim // max(min_range, 1)) if device.is_cpu else 1
+    threads = _thread_count(dim, device, min_range)
     key = (kernel, device.alias)
     if getattr(kernel, "is_generic", False):  # one overload per argument type: each is loaded once
         key += tuple(getattr(a, "dtype", type(a)) for a in (*inputs, *outputs))
@@ -72,17 +72,28 @@ def launch(kernel, dim: int | tuple[int, ...], inputs, outputs=(), device=None, 
         wp.launch(kernel, dim=dim, inputs=[0, *inputs], outputs=list(outputs), device=device)
         _loaded.add(key)
         return
-    if _pool is None or _pool._max_workers < threads - 1:
-        _pool = ThreadPoolExecutor(max_workers=max(threads - 1, 1), thread_name_prefix="warp_sph_launch")
     bounds = [dim * k // threads for k in range(threads + 1)]
     ins = list(inputs)
     outs = list(outputs)
-    futures = [_pool.submit(wp.launch, kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *ins],
-                            outputs=outs, device=device) for k in range(1, threads)]
-    wp.launch(kernel, dim=bounds[1], inputs=[0, *ins], outputs=outs, device=device)
+    _run_split([partial(wp.launch, kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *ins], outputs=outs,
+                        device=device) for k in range(threads)])
+
+
+def _thread_count(dim: int, device, min_range: int) -> int:
+    """Ranges a 1-D CPU launch of ``dim`` threads splits into: at most the CPU threads, each >= ``min_range``."""
+    return max(min(cpu_threads(), dim // max(min_range, 1)), 1) if device.is_cpu else 1
+
+
+def _run_split(calls) -> None:
+    """Run ``calls[1:]`` on the thread pool and ``calls[0]`` on this thread; return when all have finished."""
+    global _pool
+    rest = calls[1:]
+    if rest and (_pool is None or _pool._max_workers < len(rest)):
+        _pool = ThreadPoolExecutor(max_workers=len(rest), thread_name_prefix="warp_sph_launch")
+    futures = [_pool.submit(c) for c in rest]
+    calls[0]()
     for f in futures:
         f.result()
-
 
 class Recorded:
     """A launch recorded once and replayed (``record``): Warp packs the arguments at recording only,
@@ -93,8 +104,7 @@ class Recorded:
     def __init__(self, kernel, dim: int, inputs, outputs=(), device=None, min_range: int = MIN_RANGE):
         device = wp.get_device(device)
         offset = 1 if _takes_offset(kernel) else 0
-        threads = min(cpu_threads(), dim // max(min_range, 1)) if device.is_cpu and offset else 1
-        threads = max(threads, 1)
+        threads = _thread_count(dim, device, min_range) if offset else 1
         bounds = [dim * k // threads for k in range(threads + 1)]
         ins, outs = list(inputs), list(outputs)
         self.offset = offset
@@ -124,19 +134,8 @@ class Recorded:
 
     def launch(self) -> None:
         """Run the recorded launch (every range; waits for all of them)."""
-        global _pool
-        cmds = self.cmds
-        if len(cmds) <= 1:
-            if cmds:
-                cmds[0].launch()
-            return
-        if _pool is None or _pool._max_workers < len(cmds) - 1:
-            _pool = ThreadPoolExecutor(max_workers=max(len(cmds) - 1, 1), thread_name_prefix="warp_sph_launch")
-        futures = [_pool.submit(cmd.launch) for cmd in cmds[1:]]
-        cmds[0].launch()
-        for f in futures:
-            f.result()
-
+        if self.cmds:
+            _run_split([cmd.launch for cmd in self.cmds])
 
 def record(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = MIN_RANGE) -> Recorded:
     """A :class:`Recorded` launch of ``kernel`` over ``dim`` threads (1-D; split into ranges like
