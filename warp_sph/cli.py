@@ -369,6 +369,18 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         stream.write(warnings.formatwarning(message, category, filename, lineno, line))
 
 
+def short_usage(parser: argparse.ArgumentParser) -> str:
+    """What ``warp-sph`` without a command prints (stderr, exit 2): the usage line, each command with its
+    one-line help, and where the full help is."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    helps = [(c.dest, c.help or "") for c in sub._choices_actions]
+    width = max(len(name) for name, _ in helps)
+    lines = ["usage: warp-sph [--verbose] COMMAND [ARGS]", "commands:"]
+    lines += [f"  {name:<{width}}  {text}" for name, text in helps]
+    lines.append("warp-sph: error: no command given; see warp-sph --help, or warp-sph COMMAND --help")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     from .core.errors import WarpSphError
 
@@ -390,8 +402,8 @@ def main(argv=None) -> int:
         print(f"warp-sph: error: {e}", file=sys.stderr)
         return 2
     args.argv = argv
-    if not getattr(args, "command", None):
-        parser.print_help()
+    if not getattr(args, "command", None):  # a usage error: the short usage and the commands, not the whole help
+        print(short_usage(parser), file=sys.stderr)
         return 2
     if getattr(args, "verbose", False):
         from .core.device import set_verbose

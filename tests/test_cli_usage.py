@@ -1,0 +1,23 @@
+"""The command line as a new user meets it: ``warp-sph`` alone, and wrong input found on a tour of a fresh
+clone (each: one line naming the key or value and what was expected, exit status 2, nothing written)."""
+from warp_sph.cli import build_parser, main as cli_main
+
+
+def test_no_command_prints_short_usage_and_the_commands_exit_2(capsys):
+    """``warp-sph`` with no command: a usage line, every command with its one-line help, and one error line
+    pointing at --help, on stderr (a usage error), exit status 2; not the full help."""
+    assert cli_main([]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    lines = err.strip().splitlines()
+    assert lines[0].startswith("usage: warp-sph")
+    assert lines[-1] == "warp-sph: error: no command given; see warp-sph --help, or warp-sph COMMAND --help"
+    sub = next(a for a in build_parser()._actions if a.__class__.__name__ == "_SubParsersAction")
+    names = list(sub.choices)
+    assert {"run", "check", "bench", "plan", "plot"} <= set(names)
+    listed = [line.split()[0] for line in lines[2:-1]]
+    assert listed == names  # each command once, in the parser's order, with its help text
+    assert all(len(line.split(None, 1)) == 2 for line in lines[2:-1])
+    full = build_parser().format_help()
+    assert len(err) < len(full) and "--verbose" not in err.replace("[--verbose]", "")
+    assert cli_main(["--verbose"]) == 2  # only the global flag: the same usage error
