@@ -13,8 +13,8 @@ The stage, every substep of dt [s] (equations in ``kernels/whitewater_potentials
    and the count are sampled trilinearly from nodes H/2 apart, evaluated once per step where a
    secondary particle is (``fluid_sampling = "grid"``, kernels/whitewater_sample.py), or walked
    per particle (``"walk"``);
-3. survivors compacted (order kept), then the new ones appended in fluid-slot order; those beyond
-   ``max_particles`` are dropped (one warning per run).
+3. survivors compacted (order kept), then the new ones appended in fluid-slot order (one thread per new
+   particle that fits); those beyond ``max_particles`` are dropped (one warning per run).
 Exclusive scans fix every slot, the sampling draws from one seeded stream per fluid slot and step, so a
 run, a retried frame and a resume give the same particles bit for bit. One host read per substep (the
 two totals). A scene without ``[whitewater]`` has no stage, no array and no cost.
@@ -165,15 +165,15 @@ class Whitewater:
         launch(_ww.compact, count,
                [self._alive, self._alive_offset, src["x"], src["v"], src["age"], src["life"], src["kind"]],
                [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev)
-        if generated:
-            launch(_ww.emit_kernel(), n,
-                   [float(dt), seed, survivors, self.capacity, m.particle_radius, float(c.lifetime_min),
-                    float(c.lifetime_max), int(c.spray_neighbors), int(c.bubble_neighbors), nl.fluid,
-                    f["particle_x"], f["particle_v"], self._generate, self._generate_offset],
-                   [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev)
+        room = self.capacity - survivors
+        # one thread per new particle that fits (none launched when none is generated)
+        launch(_ww.emit_kernel(), min(generated, room),
+               [float(dt), seed, survivors, n, m.particle_radius, float(c.lifetime_min),
+                float(c.lifetime_max), int(c.spray_neighbors), int(c.bubble_neighbors), nl.fluid,
+                f["particle_x"], f["particle_v"], self._generate_offset],
+               [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev)
         self.front = 1 - self.front
         self.generated += generated
-        room = self.capacity - survivors
         if generated > room:
             self.dropped += generated - room
             if not self._warned:
