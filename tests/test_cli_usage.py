@@ -21,3 +21,14 @@ def test_no_command_prints_short_usage_and_the_commands_exit_2(capsys):
     full = build_parser().format_help()
     assert len(err) < len(full) and "--verbose" not in err.replace("[--verbose]", "")
     assert cli_main(["--verbose"]) == 2  # only the global flag: the same usage error
+
+
+def test_bench_without_a_benchmark_prints_short_usage_exit_2(capsys):
+    """``warp-sph bench`` alone: the same short usage (its benchmarks listed), stderr, exit status 2."""
+    assert cli_main(["bench"]) == 2
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert out == "" and lines[0] == "usage: warp-sph bench COMMAND [ARGS]"
+    assert lines[-1] == ("warp-sph: error: bench: no command given; see warp-sph bench --help, or "
+                         "warp-sph bench COMMAND --help")
+    assert {"whitewater", "validation", "report"} <= {line.split()[0] for line in lines[2:-1]}

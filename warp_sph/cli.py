@@ -13,7 +13,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from .cli_parser import OneLineParser, UsageError as _UsageError
+from .cli_parser import OneLineParser, UsageError as _UsageError, short_usage
 from .core.errors import WarpSphError
 
 
@@ -367,18 +367,6 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
         stream.write(f"warp-sph: warning: {message}\n")
     else:
         stream.write(warnings.formatwarning(message, category, filename, lineno, line))
-
-
-def short_usage(parser: argparse.ArgumentParser) -> str:
-    """What ``warp-sph`` without a command prints (stderr, exit 2): the usage line, each command with its
-    one-line help, and where the full help is."""
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    helps = [(c.dest, c.help or "") for c in sub._choices_actions]
-    width = max(len(name) for name, _ in helps)
-    lines = ["usage: warp-sph [--verbose] COMMAND [ARGS]", "commands:"]
-    lines += [f"  {name:<{width}}  {text}" for name, text in helps]
-    lines.append("warp-sph: error: no command given; see warp-sph --help, or warp-sph COMMAND --help")
-    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
