@@ -32,3 +32,17 @@ def test_bench_without_a_benchmark_prints_short_usage_exit_2(capsys):
     assert lines[-1] == ("warp-sph: error: bench: no command given; see warp-sph bench --help, or "
                          "warp-sph bench COMMAND --help")
     assert {"whitewater", "validation", "report"} <= {line.split()[0] for line in lines[2:-1]}
+
+
+def test_interrupt_line_says_where_resume_restarts(tmp_path):
+    """After a Ctrl-C the run's frames stay, but --resume restarts from the latest checkpoint and removes the
+    files of the frames after it (computed again): the interrupt line says so, so that nothing surprises."""
+    from warp_sph.run.runner import _resume_hint
+
+    assert _resume_hint(tmp_path, 5) is None  # no checkpoint yet: nothing to resume from
+    (tmp_path / "checkpoints").mkdir()
+    for k in (1, 11):
+        (tmp_path / "checkpoints" / f"checkpoint_{k:06d}.npz").write_bytes(b"")
+    assert _resume_hint(tmp_path, 14) == (f"warp-sph run --resume {tmp_path} continues from its checkpoint of "
+                                          "frame 11 (frames 12..14 are computed again)")
+    assert _resume_hint(tmp_path, 11).endswith("checkpoint of frame 11")

@@ -402,8 +402,10 @@ def main(argv=None) -> int:
     except WarpSphError as e:
         print(f"warp-sph: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("\nwarp-sph: interrupted; every frame written so far is kept", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        hint = getattr(e, "resume_hint", None)  # a run: where --resume restarts (warp_sph.run.runner)
+        print("\nwarp-sph: interrupted; every frame written so far is kept" + (f"; {hint}" if hint else ""),
+              file=sys.stderr)
         return 130
 
 
