@@ -46,3 +46,17 @@ def test_interrupt_line_says_where_resume_restarts(tmp_path):
     assert _resume_hint(tmp_path, 14) == (f"warp-sph run --resume {tmp_path} continues from its checkpoint of "
                                           "frame 11 (frames 12..14 are computed again)")
     assert _resume_hint(tmp_path, 11).endswith("checkpoint of frame 11")
+
+
+def test_a_folder_given_as_the_scene_says_so(tmp_path, capsys):
+    """``warp-sph run runs/dam_break`` (a run folder where a scene goes, meaning --resume) said 'scene file not
+    found' of a folder that exists: now it says it is a folder, and for a run folder how to continue it."""
+    run = tmp_path / "runs" / "dam_break"
+    run.mkdir(parents=True)
+    (run / "run.json").write_text("{}")
+    for folder, tail in ((tmp_path, ""), (run, f" (it holds a run: warp-sph run --resume {run} continues it)")):
+        assert cli_main(["check", str(folder)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err == (f"warp-sph: error: {folder}: is a folder; expected a scene file (.toml) or a built-in scene "
+                       f"name{tail}")
+    assert sorted(p.name for p in run.iterdir()) == ["run.json"]
