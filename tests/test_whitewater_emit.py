@@ -30,3 +30,29 @@ def test_emitting_slot_matches_searchsorted():
         assert np.array_equal(got, want)
         assert np.all(counts[got] > 0)  # every new particle belongs to a slot that generates
         assert np.array_equal(np.bincount(got, minlength=n), counts)  # each slot gets exactly its count
+
+
+def test_whitewater_with_an_emitter_sizes_its_arrays_for_the_capacity():
+    """Whitewater with [[emitters]]: its per-fluid-slot arrays had the initial count, and the passes over the
+    grown count wrote past them (heap corruption: 'free(): invalid next size', exit 134, at the faucet's exit).
+    Now every per-slot array holds the capacity, and the jet's new particles generate spray."""
+    from warp_sph.run.simulation import Simulation
+    from warp_sph.scene import scene_from_dict
+
+    scene = scene_from_dict({
+        "name": "jet", "particle_radius": 0.03, "duration": 1.0, "fps": 25.0,
+        "container": {"min": [0.0, 0.0, 0.0], "max": [0.6, 0.6, 0.6]},
+        "fluid": [{"min": [0.0, 0.0, 0.0], "max": [0.6, 0.6, 0.12]}],
+        "emitters": [{"shape": "circle", "position": [0.3, 0.3, 0.5], "direction": [0.0, 0.0, -1.0],
+                      "radius": 0.06, "speed": 1.5}],
+        "whitewater": {"kinetic_energy_min": 0.5, "trapped_air_rate": 4000.0, "wave_crest_rate": 50000.0},
+        "output": {"surface": False, "usd": False}}, source="jet.toml")
+    sim = Simulation(scene, device="cpu")
+    ww, n0 = sim.whitewater, sim.model.fluid_count
+    for _ in range(8):
+        sim.advance_frame()
+    assert sim.model.fluid_count > n0  # the jet grew the count past the arrays' old size
+    cap = sim.model.capacity
+    for a in (ww._generate, ww._generate_offset, ww.normal, ww._trapped, ww._state, ww._need, ww.potential):
+        assert a.shape[0] == cap
+    assert ww.generated > 0

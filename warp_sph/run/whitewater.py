@@ -60,7 +60,7 @@ class Whitewater:
         self.count = 0           # live particles (host copy, exact after every substep)
         self.dropped = 0         # generated but dropped for lack of capacity, whole run
         self._warned = False
-        n = m.fluid_count
+        n = m.capacity  # per fluid slot: emitters grow the count up to the capacity (``warp_sph.run.emission``)
         self._alive = wp.zeros(self.capacity, dtype=wp.int32, device=dev)
         self._alive_offset = wp.zeros(self.capacity, dtype=wp.int32, device=dev)
         self._generate = wp.zeros(n, dtype=wp.int32, device=dev)
@@ -70,7 +70,7 @@ class Whitewater:
         self._trapped = wp.zeros(n, dtype=float, device=dev)       # v_diff_i [m/s] of the fast particles
         self._state = wp.zeros(n, dtype=wp.uint8, device=dev)      # SLOW / FAST / CREST (kernels/whitewater_potentials)
         self._need = wp.zeros(n, dtype=wp.uint8, device=dev)       # normal read by a crest candidate (cleared)
-        #: (I_ta, I_wc, I_k) in [0, 1] per fluid slot at the last substep (cell order within a frame)
+        #: (I_ta, I_wc, I_k) in [0, 1] per fluid slot [0, fluid_count) at the last substep (cell order within a frame)
         self.potential = wp.zeros(n, dtype=wp.vec3, device=dev)
         self._totals = wp.zeros(2, dtype=wp.int32, device=dev)
         self._nodes = None       # (fluid cell grid, lo, spacing, dims, flags, row flags, sums): _node_grid
@@ -129,7 +129,7 @@ class Whitewater:
                     wp.vec2(c.wave_crest_min, c.wave_crest_max), kinetic, float(c.trapped_air_rate),
                     float(c.wave_crest_rate), nl.fluid, f["particle_x"], f["particle_v"], self.normal, self._trapped,
                     self._state], [self.potential, self._generate], device=dev)
-            wp.utils.array_scan(self._generate, self._generate_offset, inclusive=False)
+            wp.utils.array_scan(self._generate[:n], self._generate_offset[:n], inclusive=False)
         else:
             self.potential.zero_()
         src = self.arrays
