@@ -60,3 +60,14 @@ def test_a_folder_given_as_the_scene_says_so(tmp_path, capsys):
         assert err == (f"warp-sph: error: {folder}: is a folder; expected a scene file (.toml) or a built-in scene "
                        f"name{tail}")
     assert sorted(p.name for p in run.iterdir()) == ["run.json"]
+
+
+def test_version(capsys):
+    """``warp-sph --version`` was 'unrecognized arguments': now the package's version, exit status 0."""
+    import pytest
+
+    import warp_sph
+
+    with pytest.raises(SystemExit) as e:
+        cli_main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.strip() == f"warp-sph {warp_sph.__version__}"

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from .cli_parser import OneLineParser, UsageError as _UsageError, short_usage
 from .core.errors import WarpSphError
+from .core.version import __version__
 
 
 class _AllCores:
@@ -256,6 +257,8 @@ def build_parser() -> argparse.ArgumentParser:
                       epilog="Each command has its own --help (warp-sph run --help). --verbose (before or "
                              "after the command) shows Warp's own start-up and kernel-loading messages.")
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up and module-load messages")
+    p.add_argument("--version", action="version", version=f"warp-sph {__version__}",
+                   help="print warp-sph's version and exit")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
                         help="show Warp's start-up and module-load messages")
