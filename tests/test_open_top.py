@@ -92,3 +92,24 @@ def test_splash_over_the_rim_of_an_open_top_runs_on():
     assert 0 < s.flow["removed"] < n0
     back = set(ids[sim.fields["particle_x"].numpy()[:, 2] < hi[2]].tolist())
     assert stayed_above & back  # in flight above the opening, then back in the tank
+
+
+def test_whitewater_spray_above_an_open_top_falls_back():
+    """Spray above the opening of an open top lives on (it falls back as the fluid does); spray past a side
+    wall's plane grown by the support radius dies, as before."""
+    scene = scene_from_dict({**SPLASH, "whitewater": {"kinetic_energy_min": 100.0, "kinetic_energy_max": 200.0}},
+                            source="open_top.toml")
+    sim = Simulation(scene, device="cpu")
+    ww, m = sim.whitewater, sim.model
+    sim.advance_frame()  # the neighbour lists the step reads
+    hi = m.container_hi
+    x = np.array([[0.0, 0.0, hi[2] + 0.3], [hi[0] + 2.0 * m.support_radius, 0.0, 0.0]], dtype=np.float32)
+    for name, values in (("x", x), ("v", np.zeros((2, 3), np.float32)), ("age", np.zeros(2, np.float32)),
+                         ("life", np.ones(2, np.float32)), ("kind", np.ones(2, np.int32))):
+        ww.arrays[name].numpy()[:2] = values
+    ww.count = 2
+    dt = 1e-3
+    ww.step(dt)
+    assert ww.count == 1
+    got = ww.arrays["x"].numpy()[0]
+    np.testing.assert_allclose(got, x[0] + np.array([0.0, 0.0, -9.81 * dt * dt]), atol=1e-6)

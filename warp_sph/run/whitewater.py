@@ -9,7 +9,8 @@ The stage, every substep of dt [s] (equations in ``kernels/whitewater_potentials
    normals only where a wave crest can form (three passes);
 2. each secondary particle classified by its fluid neighbours (spray / foam / bubble) and moved:
    spray ballistically, foam with the fluid's kernel-averaged velocity (ageing), bubbles with
-   buoyancy and drag; foam past its lifetime and particles leaving the container die. The velocity
+   buoyancy and drag; foam past its lifetime and particles leaving the container die (not above an open
+   top: spray there falls back, as the fluid does). The velocity
    and the count are sampled trilinearly from nodes H/2 apart, evaluated once per step where a
    secondary particle is (``fluid_sampling = "grid"``, kernels/whitewater_sample.py), or walked
    per particle (``"walk"``);
@@ -32,6 +33,8 @@ from ..core.step_graph import Stage
 from ..kernels import whitewater as _ww
 from ..kernels import whitewater_potentials as _pot
 from ..kernels import whitewater_sample as _sample
+from ..scene.emitters import open_faces
+from .emission import open_top
 
 #: names of the kinds, index = kind code - 1 (``kernels.whitewater.KIND_*``); also the USD prim names
 KINDS = ("spray", "foam", "bubbles")
@@ -78,7 +81,11 @@ class Whitewater:
         self.generated = 0       # particles generated, whole run (including dropped ones)
         if m.container_lo is not None:
             pad = m.support_radius
-            self._bounds = (1, wp.vec3(*(m.container_lo - pad)), wp.vec3(*(m.container_hi + pad)))
+            lo, hi = m.container_lo - pad, m.container_hi + pad
+            top = open_top(open_faces(sim.scene), m.gravity)
+            if top is not None:  # above an open top's opening spray is in flight and falls back, as the fluid
+                (hi if top[1] else lo)[top[0]] = (1.0 if top[1] else -1.0) * 1e30
+            self._bounds = (1, wp.vec3(*lo), wp.vec3(*hi))
         else:
             self._bounds = (0, wp.vec3(0.0), wp.vec3(0.0))
 
