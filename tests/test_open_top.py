@@ -62,6 +62,13 @@ def test_watchdog_outside_rule_with_an_open_top():
         x[0] = where
         sim.set_field("particle_x", x)
         assert sim.statistics().outside == outside, where
+    # at 5 fps the spill band (0.70 m) reaches below the floor: through the floor is outside all the same
+    sim = Simulation(scene_from_dict({**SPLASH, "fps": 5.0}, source="open_top.toml"), device="cpu")
+    assert sim.flow.spill_band > 0.2
+    x = sim.get_field("particle_x")
+    x[0] = [0.2, 0.08, -0.05]
+    sim.set_field("particle_x", x)
+    assert sim.statistics().outside == 1
 
 
 def test_splash_over_the_rim_of_an_open_top_runs_on():
