@@ -668,8 +668,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not getattr(args, "command", None):
-        parser.print_help()
+    if not getattr(args, "command", None):  # a usage error: the short usage and the benchmarks (warp_sph.cli_parser)
+        from warp_sph.cli_parser import short_usage
+
+        print(short_usage(parser), file=sys.stderr)
         return 2
     if getattr(args, "out", None):  # a results folder: a file there ended the benchmark's run in a traceback
         from warp_sph.core.errors import OutputError

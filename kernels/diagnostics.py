@@ -48,6 +48,11 @@ def accumulate_statistics(
     container_lo: wp.vec3,
     container_hi: wp.vec3,
     check_container: int,
+    open_lo: wp.vec3,
+    open_hi: wp.vec3,
+    top_axis: int,
+    top_sign: float,
+    top_level: float,
     speed_limit: float,
     density_limit: float,
     # State in:
@@ -60,7 +65,11 @@ def accumulate_statistics(
     watch_out: wp.array(dtype=int),
 ):
     """Frame statistics plus the watchdog rules: non-finite values, a particle outside the container
-    box [m], |v| > speed_limit [m/s], rho/rho0 - 1 > density_limit [-]."""
+    box [m] (unless it is past an open face's plane: x[a] < open_lo[a] or x[a] > open_hi[a] for some axis a,
+    leaving or in flight through that face, +-1e30 on the closed sides; or, with an open top (top_axis >= 0,
+    top_sign +1 for the face at max), beyond top_level on that axis: over the rim, or spilled down a side
+    wall's outside less than a frame's fall below it; never past the floor's plane), |v| > speed_limit [m/s],
+    rho/rho0 - 1 > density_limit [-]."""
     i = wp.tid()
     x = particle_x[i]
     v = particle_v[i]
@@ -81,7 +90,15 @@ def accumulate_statistics(
     wp.atomic_add(stats_out, STAT_KINETIC_ENERGY, 0.5 * particle_mass * wp.dot(v, v))
     wp.atomic_add(stats_out, STAT_POTENTIAL_ENERGY, -particle_mass * wp.dot(gravity, x))
     if check_container != 0:
-        if x[0] < container_lo[0] or x[1] < container_lo[1] or x[2] < container_lo[2] or x[0] > container_hi[0] or x[1] > container_hi[1] or x[2] > container_hi[2]:
+        outside = x[0] < container_lo[0] or x[1] < container_lo[1] or x[2] < container_lo[2] or x[0] > container_hi[0] or x[1] > container_hi[1] or x[2] > container_hi[2]
+        through_open = x[0] < open_lo[0] or x[1] < open_lo[1] or x[2] < open_lo[2] or x[0] > open_hi[0] or x[1] > open_hi[1] or x[2] > open_hi[2]
+        over_rim = False
+        if top_axis >= 0:  # (never through the floor under the top, however far below the rim the level lies)
+            through_floor = x[top_axis] < container_lo[top_axis]
+            if top_sign < 0.0:
+                through_floor = x[top_axis] > container_hi[top_axis]
+            over_rim = top_sign * (x[top_axis] - top_level) > 0.0 and not through_floor
+        if outside and not through_open and not over_rim:
             wp.atomic_add(watch_out, WATCH_OUTSIDE, 1)
             wp.atomic_min(watch_out, WATCH_FIRST_OUTSIDE, i)
     if speed > speed_limit:

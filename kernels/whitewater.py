@@ -158,10 +158,29 @@ def compact(tid_offset: int, alive: wp.array(dtype=wp.int32), alive_offset: wp.a
         kind_out[d] = kind[k]
 
 
+@wp.func
+def emitting_slot(k: int, fluid_count: int, generate_offset: wp.array(dtype=wp.int32)) -> int:
+    """The fluid slot i whose new particles hold new particle k: the largest i with generate_offset[i] <= k
+    (exclusive scan of the counts; k < the total, so generate[i] > 0 there). Binary search, log2 n steps."""
+    lo = int(0)
+    hi = fluid_count - 1
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if generate_offset[mid] <= k:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
 @functools.cache
 def emit_kernel():
-    """New particles of fluid slot i at slots start + generate_offset[i] + m (< capacity), sampled in the
-    cylinder of radius ``cylinder_radius`` around x_i along v_i dt (Ihmsen et al. 2012, eq. 8-9)."""
+    """New particle k (one thread each, k < the particles that fit) of fluid slot i (``emitting_slot``), the
+    m = k - generate_offset[i]-th of its n_d, at slot start + k: sampled in the cylinder of radius
+    ``cylinder_radius`` around x_i along v_i dt (Ihmsen et al. 2012, eq. 8-9). Slot i's stream draws the
+    rounding, then 4 values per particle in order: particle m skips the 4 m draws of those before it, so the
+    particles are bit for bit those of one thread per fluid slot, and a step that generates few launches few
+    threads (not one per fluid particle)."""
     NeighborList = NEIGHBOR_TYPES["list"]
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -170,7 +189,7 @@ def emit_kernel():
         dt: float,
         seed: int,
         start: int,
-        capacity: int,
+        fluid_count: int,
         cylinder_radius: float,
         lifetime_min: float,
         lifetime_max: float,
@@ -179,7 +198,6 @@ def emit_kernel():
         fluid_neighbors: NeighborList,
         particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
-        generate: wp.array(dtype=wp.int32),
         generate_offset: wp.array(dtype=wp.int32),
         x_out: wp.array(dtype=wp.vec3),
         v_out: wp.array(dtype=wp.vec3),
@@ -187,12 +205,12 @@ def emit_kernel():
         life_out: wp.array(dtype=float),
         kind_out: wp.array(dtype=wp.int32),
     ):
-        i = wp.tid() + tid_offset
-        n = generate[i]
-        if n == 0:
-            return
+        k = wp.tid() + tid_offset
+        i = emitting_slot(k, fluid_count, generate_offset)
         state = wp.rand_init(seed, i)
         wp.randf(state)  # the draw that rounded the count (potentials kernel)
+        for _m in range(4 * (k - generate_offset[i])):  # the draws of slot i's earlier particles
+            wp.randf(state)
         xi = particle_x[i]
         vi = particle_v[i]
         speed = wp.length(vi)
@@ -203,19 +221,16 @@ def emit_kernel():
         e1 = wp.normalize(wp.cross(axis, helper))
         e2 = wp.cross(axis, e1)
         kind = classify(float(neighbor_count(fluid_neighbors, i)), spray_n, bubble_n)
-        base = start + generate_offset[i]
-        for m in range(n):
-            slot = base + m
-            radius = cylinder_radius * wp.sqrt(wp.randf(state))
-            theta = 2.0 * wp.pi * wp.randf(state)
-            height = wp.randf(state) * speed * dt
-            life = lifetime_min + (lifetime_max - lifetime_min) * wp.randf(state)
-            if slot < capacity:
-                radial = radius * wp.cos(theta) * e1 + radius * wp.sin(theta) * e2
-                x_out[slot] = xi + radial + height * axis
-                v_out[slot] = vi + (SPREAD * speed / cylinder_radius) * radial
-                age_out[slot] = 0.0
-                life_out[slot] = life
-                kind_out[slot] = kind
+        slot = start + k
+        radius = cylinder_radius * wp.sqrt(wp.randf(state))
+        theta = 2.0 * wp.pi * wp.randf(state)
+        height = wp.randf(state) * speed * dt
+        life = lifetime_min + (lifetime_max - lifetime_min) * wp.randf(state)
+        radial = radius * wp.cos(theta) * e1 + radius * wp.sin(theta) * e2
+        x_out[slot] = xi + radial + height * axis
+        v_out[slot] = vi + (SPREAD * speed / cylinder_radius) * radial
+        age_out[slot] = 0.0
+        life_out[slot] = life
+        kind_out[slot] = kind
 
     return whitewater_emit

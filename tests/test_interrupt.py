@@ -46,9 +46,13 @@ def test_ctrl_c_during_a_run_then_resume(tmp_path):
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 130 and "Traceback" not in err, err
-    assert err.strip().splitlines()[-1] == "warp-sph: interrupted; every frame written so far is kept", err
     info = json.loads((out / "run.json").read_text())
     kept = len(info["frames"])
+    # the line says where --resume restarts: the latest checkpoint (frames after it are computed again)
+    k = int(sorted((out / "checkpoints").glob("checkpoint_*.npz"))[-1].stem.split("_")[1])
+    again = f" (frames {k + 1}..{kept} are computed again)" if kept > k else ""
+    assert err.strip().splitlines()[-1] == ("warp-sph: interrupted; every frame written so far is kept; warp-sph "
+                                            f"run --resume {out} continues from its checkpoint of frame {k}{again}"), err
     assert info["status"] == "interrupted" and 3 <= kept < 12
     names = sorted(f.name for f in (out / "frames").iterdir())
     assert names[:kept] == [f"frame_{k:06d}.npz" for k in range(1, kept + 1)]

@@ -13,8 +13,9 @@ import sys
 import warnings
 from pathlib import Path
 
-from .cli_parser import OneLineParser, UsageError as _UsageError
+from .cli_parser import OneLineParser, UsageError as _UsageError, short_usage
 from .core.errors import WarpSphError
+from .core.version import __version__
 
 
 class _AllCores:
@@ -256,6 +257,8 @@ def build_parser() -> argparse.ArgumentParser:
                       epilog="Each command has its own --help (warp-sph run --help). --verbose (before or "
                              "after the command) shows Warp's own start-up and kernel-loading messages.")
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up and module-load messages")
+    p.add_argument("--version", action="version", version=f"warp-sph {__version__}",
+                   help="print warp-sph's version and exit")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
                         help="show Warp's start-up and module-load messages")
@@ -390,8 +393,8 @@ def main(argv=None) -> int:
         print(f"warp-sph: error: {e}", file=sys.stderr)
         return 2
     args.argv = argv
-    if not getattr(args, "command", None):
-        parser.print_help()
+    if not getattr(args, "command", None):  # a usage error: the short usage and the commands, not the whole help
+        print(short_usage(parser), file=sys.stderr)
         return 2
     if getattr(args, "verbose", False):
         from .core.device import set_verbose
@@ -402,8 +405,10 @@ def main(argv=None) -> int:
     except WarpSphError as e:
         print(f"warp-sph: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("\nwarp-sph: interrupted; every frame written so far is kept", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        hint = getattr(e, "resume_hint", None)  # a run: where --resume restarts (warp_sph.run.runner)
+        print("\nwarp-sph: interrupted; every frame written so far is kept" + (f"; {hint}" if hint else ""),
+              file=sys.stderr)
         return 130
 
 

@@ -33,3 +33,19 @@ class OneLineParser(argparse.ArgumentParser):
             where = prog.split(" ", 1)[1] + ": " if " " in prog else ""
             raise UsageError(f"{where}unrecognized arguments: {' '.join(extra)}; see {prog} --help")
         return parsed
+
+
+def short_usage(parser: argparse.ArgumentParser) -> str:
+    """What a command run without its subcommand prints (``warp-sph``, ``warp-sph bench``; on stderr, exit
+    status 2, a usage error): the usage line, each subcommand with its one-line help, and where the full help is."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    helps = [(c.dest, c.help or "") for c in sub._choices_actions]
+    width = max(len(name) for name, _ in helps)
+    flags = "".join(f" [{a.option_strings[0]}]" for a in parser._actions
+                    if a.option_strings and a.nargs == 0 and a.dest != "help")
+    lines = [f"usage: {parser.prog}{flags} COMMAND [ARGS]", "commands:"]
+    lines += [f"  {name:<{width}}  {text}" for name, text in helps]
+    head, _, cmd = parser.prog.partition(" ")  # "warp-sph: error: bench: ...", as OneLineParser's errors
+    lines.append(f"{head}: error: {cmd + ': ' if cmd else ''}no command given; see {parser.prog} --help, or "
+                 f"{parser.prog} COMMAND --help")
+    return "\n".join(lines)

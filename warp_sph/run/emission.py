@@ -39,6 +39,49 @@ ID_FIELD = "particle_id"
 BLOCKED_GAP = 0.95
 
 
+def open_top(faces, gravity) -> tuple[int, int] | None:
+    """The open face (axis, side) gravity points away from, along gravity's largest component; None when
+    no open face is (or without gravity)."""
+    g = np.asarray(gravity, dtype=np.float64)
+    up = int(np.argmax(np.abs(g)))
+    side = int(g[up] < 0.0)
+    return (up, side) if g[up] != 0.0 and (up, side) in list(faces) else None
+
+
+def spill_band(reference_speed: float, frame_dt: float, gravity) -> float:
+    """[m] How far below an open top's rim a particle thrown over it may be at a frame's end, outside a side
+    wall: it falls at most v_ref T + |g| T^2 / 2 in one frame T [s] (v_ref [m/s]: the model's reference
+    speed), and the next frame's start removes it."""
+    return float(reference_speed) * frame_dt + 0.5 * float(np.linalg.norm(gravity)) * frame_dt ** 2
+
+
+def open_face_sinks(faces, lo_c, hi_c, gravity, band: float = 0.0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Sink boxes (lo, hi) [m] (infinite sides) of the open faces (axis, side) of the container lo_c..hi_c.
+    A face is the half-space past its plane, except the top (``open_top``): a particle above the top's
+    opening is in flight and falls back, so the top removes what is past a side face's plane (thrown over
+    the rim) and no lower than ``band`` [m] below the rim (``spill_band``: spilled down the wall's outside)."""
+    top = open_top(faces, gravity)
+    out = []
+    for axis, side in faces:
+        lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
+        if (axis, side) != top:
+            (lo if side else hi)[axis] = (hi_c if side else lo_c)[axis]
+            out.append((lo, hi))
+            continue
+        if side:
+            lo[axis] = hi_c[axis] - band
+        else:
+            hi[axis] = lo_c[axis] + band
+        for b in range(3):  # past each side face's plane, over the rim
+            if b == axis:
+                continue
+            for t in (0, 1):
+                blo, bhi = lo.copy(), hi.copy()
+                (blo if t else bhi)[b] = (hi_c if t else lo_c)[b]
+                out.append((blo, bhi))
+    return out
+
+
 class ParticleFlow:
     """The emitters and sinks of a simulation (see the module docstring); ``sim.flow``."""
 
@@ -51,12 +94,13 @@ class ParticleFlow:
         self.plans = [emitter_plan(e, scene.spacing, scene.duration) for e in scene.emitters]
         self.local_points = [m.to_local(p.points) for p in self.plans]
         self.sinks = [(m.to_local(np.asarray(s.min)), m.to_local(np.asarray(s.max))) for s in scene.sinks]
-        #: the container's open faces (axis, side), each removing what lies past it as a half-space sink
+        #: the container's open faces (axis, side), each removing what lies past it (``open_face_sinks``)
         self.open_faces = open_faces(scene)
-        for axis, side in self.open_faces:
-            lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
-            (lo if side else hi)[axis] = (m.container_hi if side else m.container_lo)[axis]
-            self.sinks.append((lo, hi))
+        #: the open top (axis, side) or None, and how far below its rim spilled fluid is removed [m]
+        self.top = open_top(self.open_faces, m.gravity)
+        self.spill_band = spill_band(m.reference_speed, 1.0 / float(scene.fps), m.gravity) if self.top else 0.0
+        self.open_sinks = open_face_sinks(self.open_faces, m.container_lo, m.container_hi, m.gravity, self.spill_band)
+        self.sinks += self.open_sinks
         self.layers = np.zeros(len(self.plans), dtype=np.int64)  # layers emitted so far, per emitter
         self.initial = m.fluid_count
         self.next_id = m.fluid_count
@@ -285,5 +329,5 @@ class ParticleFlow:
         return {"capacity": int(self.sim.model.capacity),
                 "emitters": [{"particles_per_layer": len(p.points), "speed": p.speed, "flow_rate": p.flow_rate,
                               "layer_period": p.period, "layers": p.layers} for p in self.plans],
-                "sinks": len(self.sinks) - len(self.open_faces),
+                "sinks": len(self.sinks) - len(self.open_sinks),
                 "open_faces": [("-+"[side] + "xyz"[axis]) for axis, side in self.open_faces]}

@@ -148,6 +148,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     bar = Progress(total, enabled=progress)
     status = "failed"
     started = resume_info is not None
+    interrupted = None
     try:
         if resume_info is None:
             stats = sim.statistics()
@@ -178,8 +179,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             worst = max(f["density_error_max"] for f in frame_log)
             bar.update(frame, f"{stats.steps} steps/frame  max density error {100 * worst:.2f} %")
         status = "completed"
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         status = "interrupted"
+        interrupted = exc
         raise
     except SimulationError:
         status = "failed"
@@ -197,12 +199,25 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
                 errors.append(exc)
         if not started and (failing or errors):
             _discard_start(out, created, usd_file(out, scene.name))
+        if interrupted is not None and started:  # where a resume restarts (the CLI's interrupt line says it)
+            interrupted.resume_hint = _resume_hint(out, frame_log[-1]["frame"] if frame_log else 0)
         if errors:
             if not failing:
                 raise errors[0]
             for exc in errors:  # the first error is the one reported
                 print(f"warp-sph: also: {exc}", file=sys.stderr)
     return run_info
+
+
+def _resume_hint(out: Path, last: int) -> str | None:
+    """What ``--resume`` of the interrupted run in ``out`` does, whose last frame written is ``last``: it
+    restarts from the latest checkpoint, and computes the frames after it again (it removes their files)."""
+    cp = rf.latest_checkpoint(out)
+    if cp is None:
+        return None
+    k = rf._frame_number(cp)
+    again = f" (frames {k + 1}..{last} are computed again)" if last > k else ""
+    return f"warp-sph run --resume {out} continues from its checkpoint of frame {k}{again}"
 
 
 def _default_frames(scene) -> int:

@@ -443,17 +443,22 @@ class Simulation:
         tol = m.spacing
         lo = wp.vec3(*(m.container_lo - tol)) if check else wp.vec3(0.0)
         hi = wp.vec3(*(m.container_hi + tol)) if check else wp.vec3(0.0)
-        if check and self.flow is not None and self.flow.open_faces:  # fluid may leave through an open face
-            bounds = [list(lo), list(hi)]
+        # a particle past an open face's plane left through it (or flies above an open top), one past a side
+        # wall's plane over an open top's rim went over it: neither is "outside" (``ParticleFlow.top``)
+        open_bounds, top = [[-1e30] * 3, [1e30] * 3], (-1, 1.0, 0.0)
+        if check and self.flow is not None:
             for axis, side in self.flow.open_faces:
-                bounds[side][axis] = (1.0 if side else -1.0) * 1e30
-            lo, hi = wp.vec3(*bounds[0]), wp.vec3(*bounds[1])
+                open_bounds[side][axis] = float((m.container_hi if side else m.container_lo)[axis])
+            if self.flow.top is not None:  # over an open top's rim, or spilled down a side wall's outside
+                axis, side = self.flow.top
+                rim = float((m.container_hi if side else m.container_lo)[axis])
+                top = (axis, 1.0 if side else -1.0, rim - (1.0 if side else -1.0) * self.flow.spill_band)
         wd = self.watchdog
         t = self.state.time if at_time is None else at_time
         launch(_diag.reset_statistics, 1, [], [self._stats, wd.watch], device=self.device)
         launch(_diag.accumulate_statistics, m.fluid_count,
                [m.particle_mass, m.rest_density, wp.vec3(*m.gravity), lo, hi, int(check),
-                float(wd.speed_limit(t)), float(wd.density_limit),
+                wp.vec3(*open_bounds[0]), wp.vec3(*open_bounds[1]), top[0], top[1], top[2], float(wd.speed_limit(t)), float(wd.density_limit),
                 f["particle_x"], f["particle_v"], f["particle_density"], acc], [self._stats, wd.watch],
                device=self.device)
         s = self._stats.numpy()

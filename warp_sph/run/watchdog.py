@@ -2,7 +2,9 @@
 
 Rules (counted by ``kernels/diagnostics.accumulate_statistics`` in the frame's one statistics pass):
 - **non-finite**: a position, velocity, density or acceleration is NaN or infinite.
-- **outside**: a particle is outside the container grown by one spacing d (it went through a wall).
+- **outside**: a particle is outside the container grown by one spacing d (it went through a wall), unless it
+  is past the plane of an open face (``container.open``): it left through that face, or flies above an open
+  top (over the rim it may also be past a side wall's plane, above the wall).
 - **too fast**: |v| > SPEED_LIMIT_FACTOR * (v_ref + |g| t_free), v_ref = ``model.reference_speed``
   = max(sqrt(2 |g| H), max |v0|), H the height of the fluid top above the container floor. In a
   container energy bounds every particle's speed by about sqrt(2 |g| H + |v0|^2) <= sqrt(2) v_ref, so

@@ -9,12 +9,13 @@ The stage, every substep of dt [s] (equations in ``kernels/whitewater_potentials
    normals only where a wave crest can form (three passes);
 2. each secondary particle classified by its fluid neighbours (spray / foam / bubble) and moved:
    spray ballistically, foam with the fluid's kernel-averaged velocity (ageing), bubbles with
-   buoyancy and drag; foam past its lifetime and particles leaving the container die. The velocity
+   buoyancy and drag; foam past its lifetime and particles leaving the container die (not above an open
+   top: spray there falls back, as the fluid does). The velocity
    and the count are sampled trilinearly from nodes H/2 apart, evaluated once per step where a
    secondary particle is (``fluid_sampling = "grid"``, kernels/whitewater_sample.py), or walked
    per particle (``"walk"``);
-3. survivors compacted (order kept), then the new ones appended in fluid-slot order; those beyond
-   ``max_particles`` are dropped (one warning per run).
+3. survivors compacted (order kept), then the new ones appended in fluid-slot order (one thread per new
+   particle that fits); those beyond ``max_particles`` are dropped (one warning per run).
 Exclusive scans fix every slot, the sampling draws from one seeded stream per fluid slot and step, so a
 run, a retried frame and a resume give the same particles bit for bit. One host read per substep (the
 two totals). A scene without ``[whitewater]`` has no stage, no array and no cost.
@@ -32,6 +33,8 @@ from ..core.step_graph import Stage
 from ..kernels import whitewater as _ww
 from ..kernels import whitewater_potentials as _pot
 from ..kernels import whitewater_sample as _sample
+from ..scene.emitters import open_faces
+from .emission import open_top
 
 #: names of the kinds, index = kind code - 1 (``kernels.whitewater.KIND_*``); also the USD prim names
 KINDS = ("spray", "foam", "bubbles")
@@ -60,7 +63,7 @@ class Whitewater:
         self.count = 0           # live particles (host copy, exact after every substep)
         self.dropped = 0         # generated but dropped for lack of capacity, whole run
         self._warned = False
-        n = m.fluid_count
+        n = m.capacity  # per fluid slot: emitters grow the count up to the capacity (``warp_sph.run.emission``)
         self._alive = wp.zeros(self.capacity, dtype=wp.int32, device=dev)
         self._alive_offset = wp.zeros(self.capacity, dtype=wp.int32, device=dev)
         self._generate = wp.zeros(n, dtype=wp.int32, device=dev)
@@ -70,7 +73,7 @@ class Whitewater:
         self._trapped = wp.zeros(n, dtype=float, device=dev)       # v_diff_i [m/s] of the fast particles
         self._state = wp.zeros(n, dtype=wp.uint8, device=dev)      # SLOW / FAST / CREST (kernels/whitewater_potentials)
         self._need = wp.zeros(n, dtype=wp.uint8, device=dev)       # normal read by a crest candidate (cleared)
-        #: (I_ta, I_wc, I_k) in [0, 1] per fluid slot at the last substep (cell order within a frame)
+        #: (I_ta, I_wc, I_k) in [0, 1] per fluid slot [0, fluid_count) at the last substep (cell order within a frame)
         self.potential = wp.zeros(n, dtype=wp.vec3, device=dev)
         self._totals = wp.zeros(2, dtype=wp.int32, device=dev)
         self._nodes = None       # (fluid cell grid, lo, spacing, dims, flags, row flags, sums): _node_grid
@@ -78,7 +81,11 @@ class Whitewater:
         self.generated = 0       # particles generated, whole run (including dropped ones)
         if m.container_lo is not None:
             pad = m.support_radius
-            self._bounds = (1, wp.vec3(*(m.container_lo - pad)), wp.vec3(*(m.container_hi + pad)))
+            lo, hi = m.container_lo - pad, m.container_hi + pad
+            top = open_top(open_faces(sim.scene), m.gravity)
+            if top is not None:  # above an open top's opening spray is in flight and falls back, as the fluid
+                (hi if top[1] else lo)[top[0]] = (1.0 if top[1] else -1.0) * 1e30
+            self._bounds = (1, wp.vec3(*lo), wp.vec3(*hi))
         else:
             self._bounds = (0, wp.vec3(0.0), wp.vec3(0.0))
 
@@ -129,7 +136,7 @@ class Whitewater:
                     wp.vec2(c.wave_crest_min, c.wave_crest_max), kinetic, float(c.trapped_air_rate),
                     float(c.wave_crest_rate), nl.fluid, f["particle_x"], f["particle_v"], self.normal, self._trapped,
                     self._state], [self.potential, self._generate], device=dev)
-            wp.utils.array_scan(self._generate, self._generate_offset, inclusive=False)
+            wp.utils.array_scan(self._generate[:n], self._generate_offset[:n], inclusive=False)
         else:
             self.potential.zero_()
         src = self.arrays
@@ -165,15 +172,15 @@ class Whitewater:
         launch(_ww.compact, count,
                [self._alive, self._alive_offset, src["x"], src["v"], src["age"], src["life"], src["kind"]],
                [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev)
-        if generated:
-            launch(_ww.emit_kernel(), n,
-                   [float(dt), seed, survivors, self.capacity, m.particle_radius, float(c.lifetime_min),
-                    float(c.lifetime_max), int(c.spray_neighbors), int(c.bubble_neighbors), nl.fluid,
-                    f["particle_x"], f["particle_v"], self._generate, self._generate_offset],
-                   [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev)
+        room = self.capacity - survivors
+        # one thread per new particle that fits (none launched when none is generated)
+        launch(_ww.emit_kernel(), min(generated, room),
+               [float(dt), seed, survivors, n, m.particle_radius, float(c.lifetime_min),
+                float(c.lifetime_max), int(c.spray_neighbors), int(c.bubble_neighbors), nl.fluid,
+                f["particle_x"], f["particle_v"], self._generate_offset],
+               [dst["x"], dst["v"], dst["age"], dst["life"], dst["kind"]], device=dev)
         self.front = 1 - self.front
         self.generated += generated
-        room = self.capacity - survivors
         if generated > room:
             self.dropped += generated - room
             if not self._warned:

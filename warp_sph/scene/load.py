@@ -123,6 +123,10 @@ def _resolve(name_or_path: str) -> Path:
     text = str(name_or_path)
     path = Path(text).expanduser()
     if path.suffix.lower() == ".toml" or "/" in text or "\\" in text or path.is_file():
+        if path.is_dir():  # e.g. a run folder given where a scene goes
+            run = (path / "run.json").is_file()
+            raise SceneError(f"{text}: is a folder; expected a scene file (.toml) or a built-in scene name"
+                             + (f" (it holds a run: warp-sph run --resume {text} continues it)" if run else ""))
         if not path.is_file():
             raise SceneError(f"{text}: scene file not found")
         return path

@@ -168,7 +168,8 @@ _TAIL = (
     _P("container.min", "vec3", "m", (0.0, 0.0, 0.0), "lower corner of the container"),
     _P("container.max", "vec3", "m", (4.0, 1.5, 3.0), "upper corner of the container"),
     _P("container.open", "str_list", "-", (), "open faces, an outflow (docs/emitters.md): no wall particles on "
-       "them, and fluid past one is removed at the next frame's start as by a sink; '+x' is the face at "
+       "them, and fluid past one is removed at the next frame's start as by a sink (an open top, the face "
+       "gravity points away from: only fluid over its rim, past a side wall's plane); '+x' is the face at "
        "container.max[0], '-x' the one at container.min[0]", choices=OPEN_FACES),
     # fluid blocks
     _P("fluid", "tables", "-", REQUIRED, "fluid blocks ([[fluid]]), at least one"),
