@@ -207,13 +207,14 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     # (measured, dam break 60 s: two profiles predicted 0.68 s took 1.02 s, and the calibration 6.2 s of 6)
     profile = None
 
-    def take_profile(s) -> bool:  # the whole run of ``s`` at r0, when its cost times the overrun still fits
+    def take_profile(s, say=True) -> bool:  # the whole run of ``s`` at r0, when its cost times the overrun still fits
         nonlocal profile, profile_seconds, cached
         if profile is not None and spent_of(cal) + profile_costs[s] * overrun() > first:
-            notes.append(f"no error profile of {s} (its whole run at r = {r0:.4g} m, predicted "
-                         f"{profile_costs[s] * overrun():.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % of "
-                         f"the budget after the others'): its error after the calibrated {(frames - 1) / scene.fps:.3g} "
-                         f"s is held at its last calibrated frame's")
+            if say:
+                notes.append(f"no error profile of {s} (its whole run at r = {r0:.4g} m, predicted "
+                             f"{profile_costs[s] * overrun():.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
+                             f"of the budget after the others'): its error after the calibrated "
+                             f"{(frames - 1) / scene.fps:.3g} s is held at its last calibrated frame's")
             return False
         try:
             out = calibrate(scene, [s], device=dev, radii=[r0], frames=whole, cache=cache, refresh=refresh and profile is None,
@@ -243,7 +244,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         if profile is None or models[chosen.solver].has_profile(later) or later <= frames - 1:
             break
         s = chosen.solver
-        if s in profile_costs and s not in profiled and take_profile(s):
+        if s in profile_costs and s not in profiled and take_profile(s, say=False):
             profiled.append(s)
             models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
             candidates = candidates_for(scene, models)
