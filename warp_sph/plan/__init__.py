@@ -195,17 +195,11 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     # particles, 3.9 s predicted of a 60 s budget)
     profiled += profile_solvers([s for s in order if s not in profiled],
                                 {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal) + reserved, first)
-    profile_cost = sum(profile_costs[s] for s in profiled) if profiled else None
     unprofiled = [s for s in order if s in profile_costs and s not in profiled]
-    if unprofiled:
-        notes.append(f"no error profile of {', '.join(unprofiled)} (a whole run at r = {r0:.4g} m, predicted "
-                     f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
-                     f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
-                     f"last calibrated frame's")
     # the error's course over the whole run (its cost reserved before the finer points), one solver at a time: a
     # later one only while its predicted cost, times what the runs so far took over their prediction, still fits
     # (measured, dam break 60 s: two profiles predicted 0.68 s took 1.02 s, and the calibration 6.2 s of 6)
-    profile = None
+    profile, whole_runs = None, set()
 
     def take_profile(s, say=True) -> bool:  # the whole run of ``s`` at r0, when its cost times the overrun still fits
         nonlocal profile, profile_seconds, cached
@@ -222,7 +216,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         except PlanError as exc:
             notes.append(f"no error profile of {s}: {exc}")
             return False
-        profile = out
+        whole_runs.add(s)
+        # the whole runs this plan asked for only (the cache may hold others': a plan made again decides the same)
+        profile = replace(out, points=[p for p in out.points if p.solver in whole_runs
+                                       and abs(p.particle_radius / r0 - 1.0) <= 1e-6])
         secs = sum(p.seconds for p in out.points if p.solver == s and abs(p.particle_radius / r0 - 1.0) <= 1e-6)
         profile_seconds += secs
         forecast[0] += profile_costs[s]
@@ -259,6 +256,12 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                      f"budget, and its error after the calibrated {(frames - 1) / scene.fps:.3g} s would be held")
         chosen = again
         break
+    unprofiled = [s for s in unprofiled if s not in whole_runs and s in models]
+    if unprofiled:
+        notes.append(f"no error profile of {', '.join(unprofiled)} (a whole run at r = {r0:.4g} m, predicted "
+                     f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
+                     f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
+                     f"last calibrated frame's")
     failed = {p.solver: p.error for p in cal.failures() if p.solver in names and p.solver not in models}
     alternatives = []
     for s in models:
