@@ -102,3 +102,25 @@ def test_the_chosen_solver_has_its_whole_run_error_measured(tiny, monkeypatch):
     monkeypatch.setattr(calibrate_module, "calibrate", clock)
     q = plan(tiny, budget_s=90.0, solvers=["wcsph", "pbf"])
     assert q.models["wcsph"].profile and q.models["pbf"].profile and not any("not chosen" in n for n in q.notes)
+
+
+def test_the_plan_record_keeps_its_calibration_runs(tiny, monkeypatch):
+    """The record (``Plan.to_dict``, what ``bench plan`` writes) holds every calibration run the plan used, the whole
+    runs marked, with the figures a later look at a miss needs (step time, sweeps, seconds)."""
+    clock = FakeClock(1.0, 1e-6)
+    monkeypatch.setattr(calibrate_module, "calibrate", clock)
+    p = plan(tiny, budget_s=90.0, solvers=["wcsph", "pbf"])
+    points = p.to_dict()["points"]
+    assert len(points) == clock.runs and sum(q["whole_run"] for q in points) == len(clock.store[13])
+    assert sum(q["seconds"] for q in points) == pytest.approx(p.calibration_seconds)
+    assert {"step_time", "sweeps", "fluid", "steps"} <= set(points[0])
+
+
+def test_solver_sweeps_per_step_weighted_by_steps():
+    from warp_sph.plan.calibrate import solver_sweeps
+
+    frames = [{"steps": 9, "solver": {"iterations": {"mean": 2.0}, "divergence_iterations": {"mean": 1.0}}},
+              {"steps": 27, "solver": {"iterations": {"mean": 5.0}, "divergence_iterations": {"mean": 2.0}}},
+              {"steps": 4}]  # a frame without solver figures: its steps count, no sweeps
+    assert solver_sweeps(frames) == pytest.approx((9 * 3.0 + 27 * 7.0) / 40)
+    assert solver_sweeps([{"steps": 5, "solver": {}}]) == 0.0 and solver_sweeps([]) == 0.0

@@ -62,7 +62,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
     from .advisor import (CALIBRATION_MARGIN, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose,
-                          fit_models, next_point)
+                          fit_models, next_point, point_summary)
     from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, _same_radius, _same_tolerance, calibrate,
                             calibration_frames as cal_frames, calibration_radii as default_radii, scene_tolerance,
                             tolerance_key)
@@ -276,7 +276,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                 candidates=candidates, models=models, budget_s=budget_s, target_error=target_error,
                 duration=scene.duration, frames=int(round(scene.duration * scene.fps)) + 1,
                 calibration_seconds=spent_of(cal), calibration_cached=cached, cache_path=cal.path,
-                machine=cal.machine, failed_solvers=failed, metric=metric, notes=notes)
+                machine=cal.machine, failed_solvers=failed, metric=metric, notes=notes,
+                points=[point_summary(p) for p in cal.points if p.solver in names]
+                + [point_summary(p, whole=True) for p in (profile.points if profile is not None else [])])
 
 
 def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> list:
