@@ -64,7 +64,7 @@ class SolverModel:
         """R: the profile's mean error over the frames after the calibrated ones / its mean over the calibrated
         frames (1 without a profile covering ``frames``). Over the calibrated frames' mean, not their last frame's:
         one frame of an oscillating error is a sample of the oscillation (measured, hydrostatic WCSPH: 0.26, 0.19
-        and 0.35 % at frames 2-4 of the whole run; the last frames' order came out +2.4 and the 180 s plan's error
+        and 0.35 % in frames 3-5 of the whole run, the calibration's last frame being frame 4; the last frames' order came out +2.4 and the 180 s plan's error
         3.1x its prediction)."""
         fc = self.calibrated_frames
         if len(self.profile) < frames or frames <= fc or fc < 1:
