@@ -165,13 +165,33 @@ def test_the_error_profile_scales_the_later_frames(tiny):
     whole = _point("wcsph", 0.03, None, density_errors=prof)
     m = fit_models(_cal(_point("wcsph", 0.03, None), _point("wcsph", 0.02, None)), "wcsph", tiny, profile=_cal(whole))
     assert m.profile == prof
-    r = (2e-3 + 3e-3 * 8) / 9 / 1e-3      # its mean after frame 3 over its frame 3
+    r = (2e-3 + 3e-3 * 8) / 9 / 1e-3      # its mean after frame 3 over its mean in frames 1-3
     assert m.later_ratio(12) == pytest.approx(r)
     d = 0.05
-    assert run_density_error(m, d, 12) == pytest.approx((3 * 0.01 * d + 9 * 0.02 * d * r) / 12)
+    # the later frames at the calibrated mean (0.01 d) times R; the last calibrated frame's law (0.02 d) is not used
+    assert run_density_error(m, d, 12) == pytest.approx((3 * 0.01 * d + 9 * 0.01 * d * r) / 12)
     assert m.later_ratio(20) == 1.0 and m.later_ratio(3) == 1.0  # a profile too short, or nothing after it
-    assert "later frames x 2.89 (the error's course over a whole run)" in __import__(
+    assert "later frames x 2.89 that (the error's course over a whole run)" in __import__(
         "warp_sph.plan.report", fromlist=["model_line"]).model_line(m)
+
+
+def test_an_oscillating_error_is_predicted_from_the_calibrated_mean_not_its_last_frame(tiny):
+    """A WCSPH-like error that oscillates about a level that does not fall with the spacing: each calibration's last
+    frame is a sample of the oscillation (here low at the finer radius), so its law fell steeply (hydrostatic 180 s:
+    order +2.4, the run's error 3.1x the prediction); the calibrated frames' mean and the profile hold the level."""
+    level = 3e-3
+    osc = [0.4, 1.4, 0.9, 1.5, 0.7, 1.3, 0.8, 1.2, 0.9, 1.1, 1.0, 1.0]   # a damped oscillation about 1
+    prof = [level * x for x in osc]
+    pts = [_point("wcsph", r, None, density_error_mean=level * float(np.mean(osc[:3])), density_error_last=last,
+                  density_errors=[])
+           for r, last in ((0.03, level * 0.9), (0.02, level * 0.2))]          # the finer run's frame 3 in a trough
+    whole = _point("wcsph", 0.03, None, density_errors=prof)
+    m = fit_models(_cal(*pts), "wcsph", tiny, profile=_cal(whole))
+    assert m.error_last.exponent > 1.0  # the last frames' law: a steep fall that is not there
+    d = 2 * 0.01
+    oracle = (3 * float(np.mean(prof[:3])) + 9 * float(np.mean(prof[:3])) * (np.mean(prof[3:]) / np.mean(prof[:3]))) / 12
+    assert run_density_error(m, d, 12) == pytest.approx(oracle)           # = the profile's own mean over 12 frames
+    assert run_density_error(m, d, 12) == pytest.approx(float(np.mean(prof)))
 
 
 def test_a_fresh_process_pays_the_first_runs_kernel_loads(tiny):

@@ -61,7 +61,8 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     from ..run.memory import available_device_memory, available_host_memory
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
-    from .advisor import CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose, fit_models, next_point
+    from .advisor import (CALIBRATION_MARGIN, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose,
+                          fit_models, next_point, point_summary)
     from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, _same_radius, _same_tolerance, calibrate,
                             calibration_frames as cal_frames, calibration_radii as default_radii, scene_tolerance,
                             tolerance_key)
@@ -84,7 +85,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     radii = list(calibration_radii) if calibration_radii else default_radii(scene)
     frames = calibration_frames or cal_frames(scene, calibration_time(scene, metric, CALIBRATION_TIME))
     limit = available_device_memory(dev) if dev.is_cuda else available_host_memory()
-    share = CALIBRATION_SHARE * budget_s if budget_s is not None else math.inf
+    # the decisions keep within CALIBRATION_MARGIN of the share, every predicted cost times what the runs so far
+    # took over their prediction (``overrun``): the last run's own error then has room below the share
+    share = CALIBRATION_MARGIN * CALIBRATION_SHARE * budget_s if budget_s is not None else math.inf
     # radii the caller gives are all calibrated (with the tolerance points); the defaults keep within the share
     first = share if not calibration_radii else math.inf
     notes: list[str] = []
@@ -108,9 +111,20 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
             for s, r, t in asked)])
 
     profile_seconds = 0.0
+    forecast = [0.0, 0.0]  # [s] predicted and measured of the runs whose cost was predicted before they ran
 
     def spent_of(cal):  # the calibration's whole cost: every point of these solvers, run now or from the cache
         return sum(p.seconds for p in cal.points if p.solver in names) + profile_seconds
+
+    def overrun():  # what the predicted runs took over their prediction so far (at least 1)
+        return max(1.0, forecast[1] / forecast[0]) if forecast[0] > 0 else 1.0
+
+    def run_forecast(cal, cost, solvers_, radii_, factor=1.0):  # a run whose cost was predicted: checked after it
+        before = spent_of(cal)
+        cal = run(solvers_, radii_, factor)
+        forecast[0] += cost
+        forecast[1] += spent_of(cal) - before
+        return cal
 
     # the coarsest radius first; each further radius and the tolerance points while they fit in the share, the
     # solvers in the order their one-radius models rank them (the one the plan would choose first)
@@ -121,10 +135,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         left = []
         for s in order:
             cost = point_cost(cal, s, r)
-            if spent_of(cal) + cost > first:
+            if spent_of(cal) + cost * overrun() > first:
                 left.append(s)
                 continue
-            cal = run([s], [r])
+            cal = run_forecast(cal, cost, [s], [r])
             cached = cached and cal.cached
         if left:
             notes.append(f"not calibrated at r = {r:.4g} m: {', '.join(left)} (predicted beyond "
@@ -143,8 +157,8 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         profile_costs = {s: whole_run_cost([p for p in cal.for_solver(s, scene_tolerance(scene, s))
                                           if p.particle_radius == r0], scale, cal.points)
                          for s in order if cal.for_solver(s, scene_tolerance(scene, s))}
-    profiled = profile_solvers(order[:1], profile_costs, spent_of(cal), first)
-    reserved = sum(profile_costs[s] for s in profiled)
+    profiled = profile_solvers(order[:1], {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal), first)
+    reserved = sum(profile_costs[s] * overrun() for s in profiled)
     # the second tolerance: each solver with one, at its finest calibrated radius, in the same order
     for s in order:
         if not tolerance_key(s) or not cal.for_solver(s):
@@ -154,8 +168,8 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
             continue  # cached
         # about the cost of the same run at the scene's tolerance
         cost = sum(p.seconds for p in cal.for_solver(s) if p.particle_radius == r_tol)
-        if spent_of(cal) + reserved + cost <= first:
-            cal = run([s], [r_tol], 1.0 / TOLERANCE_STEP)
+        if spent_of(cal) + reserved + cost * overrun() <= first:
+            cal = run_forecast(cal, cost, [s], [r_tol], 1.0 / TOLERANCE_STEP)
             cached = cached and cal.cached
         else:
             notes.append(f"{s}'s tolerance not varied: its calibration at r = {r_tol:.4g} m was predicted to take "
@@ -172,49 +186,82 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         # the setting the fit would choose lies far beyond the calibration: one more point of its solver, when
         # that fits in the calibration's share of the budget
         r_new, cost, largest = next_point(cal, free)
-        if r_new >= largest or spent_of(cal) + cost + reserved > share:
+        if r_new >= largest or spent_of(cal) + cost * overrun() + reserved > share:
             break
-        cal = run([free.solver], [r_new])
+        cal = run_forecast(cal, cost, [free.solver], [r_new])
         cached = cached and cal.cached
     # the other solvers' whole runs after the finer points of the one a plan would choose (measured, dam break
     # 60 s: the three profiles reserved first left no room for a finer point, and the plan stayed at 3.5k fluid
     # particles, 3.9 s predicted of a 60 s budget)
-    profiled += profile_solvers([s for s in order if s not in profiled], profile_costs, spent_of(cal) + reserved,
-                                first)
-    profile_cost = sum(profile_costs[s] for s in profiled) if profiled else None
+    profiled += profile_solvers([s for s in order if s not in profiled],
+                                {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal) + reserved, first)
     unprofiled = [s for s in order if s in profile_costs and s not in profiled]
-    if unprofiled:
-        notes.append(f"no error profile of {', '.join(unprofiled)} (a whole run at r = {r0:.4g} m, predicted "
-                     f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
-                     f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
-                     f"last calibrated frame's")
     # the error's course over the whole run (its cost reserved before the finer points), one solver at a time: a
     # later one only while its predicted cost, times what the runs so far took over their prediction, still fits
     # (measured, dam break 60 s: two profiles predicted 0.68 s took 1.02 s, and the calibration 6.2 s of 6)
-    profile, taken, late = None, 0.0, 1.0
-    for s in profiled:
-        if profile is not None and spent_of(cal) + profile_costs[s] * late > first:
-            notes.append(f"no error profile of {s} (its whole run at r = {r0:.4g} m, predicted "
-                         f"{profile_costs[s] * late:.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % of the "
-                         f"budget after the others'): its error after the calibrated {(frames - 1) / scene.fps:.3g} s "
-                         f"is held at its last calibrated frame's")
-            continue
+    profile, whole_runs = None, set()
+
+    def take_profile(s, say=True) -> bool:  # the whole run of ``s`` at r0, when its cost times the overrun still fits
+        nonlocal profile, profile_seconds, cached
+        if profile is not None and spent_of(cal) + profile_costs[s] * overrun() > first:
+            if say:
+                notes.append(f"no error profile of {s} (its whole run at r = {r0:.4g} m, predicted "
+                             f"{profile_costs[s] * overrun():.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
+                             f"of the budget after the others'): its error after the calibrated "
+                             f"{(frames - 1) / scene.fps:.3g} s is held at its last calibrated frame's")
+            return False
         try:
             out = calibrate(scene, [s], device=dev, radii=[r0], frames=whole, cache=cache, refresh=refresh and profile is None,
                             progress=progress, log=quiet)
         except PlanError as exc:
             notes.append(f"no error profile of {s}: {exc}")
-            continue
-        profile = out
+            return False
+        whole_runs.add(s)
+        # the whole runs this plan asked for only (the cache may hold others': a plan made again decides the same)
+        profile = replace(out, points=[p for p in out.points if p.solver in whole_runs
+                                       and abs(p.particle_radius / r0 - 1.0) <= 1e-6])
         secs = sum(p.seconds for p in out.points if p.solver == s and abs(p.particle_radius / r0 - 1.0) <= 1e-6)
         profile_seconds += secs
-        taken += profile_costs[s]
-        late = max(late, (profile_seconds / taken) if taken > 0 else 1.0)
+        forecast[0] += profile_costs[s]
+        forecast[1] += secs
         cached = cached and out.cached
+        return True
+
+    for s in profiled:
+        take_profile(s)
     if profile is not None:
         models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
         candidates = candidates_for(scene, models)
     chosen = choose(candidates, budget_s, target_error, limit, scene.source)
+    # the chosen solver's error over the whole run is measured, or the choice is made again among the solvers whose
+    # is (measured, hydrostatic 180 s: a solver ranked on an error held from the first 0.125 s is not comparable
+    # with one whose later frames were measured)
+    later = int(round(scene.duration * scene.fps))
+    for _ in range(len(names)):
+        if profile is None or models[chosen.solver].has_profile(later) or later <= frames - 1:
+            break
+        s = chosen.solver
+        if s in profile_costs and s not in profiled and take_profile(s, say=False):
+            profiled.append(s)
+            models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
+            candidates = candidates_for(scene, models)
+            chosen = choose(candidates, budget_s, target_error, limit, scene.source)
+            continue
+        measured = [c for c in candidates if models[c.solver].has_profile(later)]
+        try:
+            again = choose(measured, budget_s, target_error, limit, scene.source)
+        except PlanError:
+            break  # no solver with a profile has a setting that qualifies: the choice stands, its error held
+        notes.append(f"{s} not chosen: no whole-run error profile of it fits in {100 * CALIBRATION_SHARE:.0f} % of the "
+                     f"budget, and its error after the calibrated {(frames - 1) / scene.fps:.3g} s would be held")
+        chosen = again
+        break
+    unprofiled = [s for s in unprofiled if s not in whole_runs and s in models]
+    if unprofiled:
+        notes.append(f"no error profile of {', '.join(unprofiled)} (a whole run at r = {r0:.4g} m, predicted "
+                     f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
+                     f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
+                     f"last calibrated frame's")
     failed = {p.solver: p.error for p in cal.failures() if p.solver in names and p.solver not in models}
     alternatives = []
     for s in models:
@@ -229,7 +276,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                 candidates=candidates, models=models, budget_s=budget_s, target_error=target_error,
                 duration=scene.duration, frames=int(round(scene.duration * scene.fps)) + 1,
                 calibration_seconds=spent_of(cal), calibration_cached=cached, cache_path=cal.path,
-                machine=cal.machine, failed_solvers=failed, metric=metric, notes=notes)
+                machine=cal.machine, failed_solvers=failed, metric=metric, notes=notes,
+                points=[point_summary(p) for p in cal.points if p.solver in names]
+                + [point_summary(p, whole=True) for p in (profile.points if profile is not None else [])])
 
 
 def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> list:

@@ -72,6 +72,7 @@ class Point:
     density_errors: list = field(default_factory=list)  # [-] each advanced frame's mean error, in order
     frame_steps: list = field(default_factory=list)     # substeps of each advanced frame, in order
     frame_speeds: list = field(default_factory=list)    # [m/s] fastest particle (fluid or body) at each frame's end, initial first
+    sweeps: float = 0.0                 # solver sweeps per step: pressure + divergence iterations, mean over the steps (0: none)
     first_in_process: bool = False      # the process's first calibration run: its set-up loaded the shared kernels
     reference: dict = field(default_factory=dict)  # metric -> error against the experiment (None: not measurable)
     seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
@@ -291,8 +292,21 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     point.density_error_last = advanced[-1]["density_error_mean"] if advanced else 0.0
     point.density_errors = [float(f["density_error_mean"]) for f in advanced]
     point.frame_steps = [int(f["steps"]) for f in advanced]
+    point.sweeps = solver_sweeps(advanced)
     point.frame_speeds = [max(float(f.get("max_speed", 0.0)), float(f.get("body_speed", 0.0))) for f in info["frames"]]
     return point
+
+
+def solver_sweeps(frames) -> float:
+    """Solver sweeps per step over run.json ``frames``: each frame's mean pressure (``iterations``) and divergence
+    iterations, weighted by its steps (0 for a solver that reports none, WCSPH)."""
+    steps = sweeps = 0.0
+    for f in frames:
+        solver = f.get("solver") or {}
+        n = float(f.get("steps", 0))
+        steps += n
+        sweeps += n * sum(float((solver.get(k) or {}).get("mean", 0.0)) for k in ("iterations", "divergence_iterations"))
+    return sweeps / steps if steps > 0 else 0.0
 
 
 def _same_radius(a: float, b: float) -> bool:

@@ -122,10 +122,11 @@ def _steps_text(rate) -> str:
 
 def model_line(m) -> str:
     """One solver's fitted models in words: error orders, step rate, cost, the tolerance's effect."""
-    text = (f"{m.solver} models: density error ~ {_order(m.error)} in the first {m.calibrated_frames} frames, "
-            f"then ~ {_order(m.error_last)}")
-    if m.profile:
-        text += f", later frames x {m.later_ratio(len(m.profile)):.3g} (the error's course over a whole run)"
+    text = f"{m.solver} models: density error ~ {_order(m.error)} in the first {m.calibrated_frames} frames, "
+    if m.has_profile(len(m.profile)):
+        text += f"later frames x {m.later_ratio(len(m.profile)):.3g} that (the error's course over a whole run)"
+    else:
+        text += f"then ~ {_order(m.error_last)} (the last calibrated frame's, held)"
     if m.metric_error is not None:
         text += f"; {m.metric} error ~ {_order(m.metric_error)}"
     text += (f"; {_steps_text(m.steps_per_second)}; "
