@@ -72,3 +72,19 @@ def test_transducer_3mm_above_the_floor_reads_the_hydrostatic_pressure():
     assert got == pytest.approx(expect, rel=0.05)
     old, expect_old = _tank_reading(walls=False)
     assert old < 0.5 * expect_old
+
+
+def test_bench_radius_option(tmp_path, monkeypatch):
+    """``bench validation --radius R``: one run per case and solver at R, labelled r=R; R <= 0 is a one-line error
+    before any run."""
+    from warp_sph.benchmarks import runner, validation as V
+    from warp_sph.core.errors import WarpSphError
+
+    calls = []
+    monkeypatch.setattr(V, "run_one", lambda case, solver, res, out, **kw: calls.append((case.name, solver, res,
+                                                                                           kw["radius"])) or {})
+    V.run_validation(["lobovsky"], ["dfsph"], ["coarse", "fine"], tmp_path, radius=0.0025)
+    assert calls == [("lobovsky", "dfsph", "r=0.0025", 0.0025)]
+    with pytest.raises(WarpSphError, match="--radius"):
+        runner.main(["validation", "--cases", "lobovsky", "--radius", "0", "--out", str(tmp_path / "out")])
+    assert not (tmp_path / "out" / "validation.jsonl").exists()
