@@ -395,7 +395,12 @@ def cmd_validation(args, argv: list[str], log=print) -> int:
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()] if args.solvers else list(solver_names())
     resolutions = ["coarse", "fine"] if args.resolution == "both" else [args.resolution]
     invocation = now()
-    records = V.run_validation(cases, solvers, resolutions, Path(args.runs), device=args.device, extra=args.set, log=log)
+    if args.radius is not None and not args.radius > 0.0:
+        from warp_sph.core.errors import WarpSphError
+
+        raise WarpSphError(f"bench validation: --radius {args.radius!r}: expected a particle radius > 0 [m]")
+    records = V.run_validation(cases, solvers, resolutions, Path(args.runs), device=args.device, extra=args.set, log=log,
+                               radius=args.radius)
     for r in records:
         r.update(host=host_info(), versions=versions(), date=now())
     out = _save("validation", records, args, argv, invocation, log)

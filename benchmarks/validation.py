@@ -29,12 +29,13 @@ from warp_sph.validation.cases import (CASES, GOALS, LOBOVSKY_HEIGHTS_MM, LOBOVS
                                       _scene_dir, evaluate, has_pressure, load_case_scene, read_probe)
 
 
-def run_one(case: Case, solver: str, resolution: str, out_root: Path, device=None, extra=None, log=print) -> dict:
-    """Run ``case`` with ``solver`` at ``resolution`` ("coarse" or "fine") into out_root/<case>-<solver>-<res>
-    and return its record."""
+def run_one(case: Case, solver: str, resolution: str, out_root: Path, device=None, extra=None, log=print,
+            radius: float | None = None) -> dict:
+    """Run ``case`` with ``solver`` at ``resolution`` ("coarse" or "fine", or the label of ``radius`` [m] when
+    given: ``--radius``) into out_root/<case>-<solver>-<res> and return its record."""
     from warp_sph.run import runner
 
-    radius = case.radii[0 if resolution == "coarse" else 1]
+    radius = radius or case.radii[0 if resolution == "coarse" else 1]
     from .records import SCHEMA
 
     rec = {"schema": SCHEMA, "kind": "validation", "label": f"{case.name} {solver} {resolution}", "case": case.name,
@@ -93,12 +94,17 @@ def summary_text(rec: dict) -> str:
 
 
 def run_validation(cases: list[str], solvers: list[str], resolutions: list[str], out_root: Path, device=None,
-                   extra=None, log=print) -> list[dict]:
+                   extra=None, log=print, radius: float | None = None) -> list[dict]:
+    """Every case, resolution and solver; with ``radius`` [m] one run per case and solver at that particle radius
+    instead (its resolution label ``r=<radius>``)."""
+    if radius is not None:
+        resolutions = [f"r={radius:g}"]
     records = []
     for name in cases:
         for res in resolutions:
             for solver in solvers:
-                records.append(run_one(CASES[name], solver, res, out_root, device=device, extra=extra, log=log))
+                records.append(run_one(CASES[name], solver, res, out_root, device=device, extra=extra, log=log,
+                                       radius=radius))
     return records
 
 
@@ -111,6 +117,9 @@ def add_arguments(v) -> None:
     v.add_argument("--solvers", default=None, help="comma-separated solvers (default: every solver)")
     v.add_argument("--resolution", choices=("coarse", "fine", "both"), default="both",
                    help="the cases' coarse or fine particle radius, or both (default)")
+    v.add_argument("--radius", type=float, default=None,
+                   help="one run per case and solver at this particle radius [m] instead of --resolution (a third, "
+                        "finer point of a convergence study; its records' resolution is r=<radius>)")
     v.add_argument("--runs", default=str(Path("runs") / "bench" / "validation"),
                    help="folder of the run folders (default runs/bench/validation; replaced on every run)")
 
