@@ -112,15 +112,16 @@ class DfsphSolver(DfsphSearch, Solver):
         Param("dfsph.warm_start", "float", "-", 0.5, "fraction of the last step's pressures the solves start from "
               "(where a particle is being compressed; 0: start from zero)", ge=0.0, le=1.0),
         Param("dfsph.chebyshev", "float", "-", 0.0, "spectral-radius estimate of the density solve's Jacobi sweep "
-              "for its Chebyshev acceleration (Wang 2015; 0: plain Jacobi); a solve ending on an accelerated sweep "
-              "keeps the P its stop test checked. 0.8: a third fewer sweeps at 59k particles, but the hydrostatic "
-              "tank's floor probe reads 2.7 % low; higher values leave fluid at rest jittering",
+              "for its Chebyshev acceleration (Wang 2015; 0: plain Jacobi); with dfsph.continuous_stop off a solve "
+              "ending on an accelerated sweep keeps the P its stop test checked. 0.8: a third fewer sweeps at 59k "
+              "particles and the same hydrostatic load as plain Jacobi, but the packing pass (time.settle) does "
+              "not bring a resting tank below 1.2e-3 m/s in 3000 steps; higher values leave fluid at rest jittering",
               ge=0.0, lt=1.0),
         Param("dfsph.continuous_stop", "bool", "-", True, "the density solve ends where its mean error crosses the "
-              "target between its last two sweeps (P_(k-1) + theta (P_k - P_(k-1))), not on a whole sweep: the pressure "
-              "is then a continuous function of the fluid's state. Off, a resting tank's sweep count flips between k "
-              "and k + 1 (its error sits at the target) and each flip moves the walls' load by several %: it bounces",
-              ),
+              "target between its last two sweeps (P_(k-1) + theta (P_k - P_(k-1))), not on a whole sweep: the "
+              "pressure is then a continuous function of the fluid's state. Off, a resting tank's sweep count flips "
+              "between k and k + 1 (its error sits at the target) and each flip moves the walls' load by several %: "
+              "it bounces"),
         Param("dfsph.search_skin", "float", "-", 0.0, "skin of the neighbour search in particle spacings d: lists "
               "of the pairs within H_s + skin, rebuilt only when a particle moved more than skin / 2 since the last "
               "build, the pair values recomputed every step (0: one search every step; > 0: equal to float "
