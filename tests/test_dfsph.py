@@ -685,3 +685,36 @@ def test_tank_at_rest_does_not_bounce(device):
     assert np.mean(loads) == pytest.approx(1.0, abs=5e-3)
     assert np.abs(np.diff(loads)).mean() < 5e-3, np.abs(np.diff(loads)).mean()
     assert np.abs(np.diff(lift)).mean() < 1e-4, np.abs(np.diff(lift)).mean()
+
+
+def test_continuous_stop_against_numpy(device):
+    """The density solve's continuous stop (dfsph.continuous_stop): with the target halfway between the mean
+    errors E_3 > E_4 of the oracle's sweeps (E_k measured with P_(k-1), before sweep k's update), the solve
+    runs 4 sweeps and returns P_3 + theta (P_4 - P_3), theta = (E_3 - target) / (E_3 - E_4) = 0.5; without
+    it, P_4 (the whole last sweep)."""
+    dt = 2e-3
+    for continuous in (True, False):
+        sim, o = prepared(seed=1, device=device)
+        m, s = sim.model, sim.solver
+        stage(sim, "density").run(sim, dt)
+        rng = np.random.default_rng(5)
+        P0 = rng.uniform(0.0, 5.0, m.fluid_count)
+        b = rng.normal(0.0, 0.01, m.fluid_count)
+        omega = sim.scene.dfsph.relaxation
+        ps, errors, p = [P0], [], P0
+        for _ in range(5):
+            r = b - dt * dt * o.delta(o.accel(p), boundary=False)
+            errors.append(np.maximum(-r, 0.0).mean())
+            p = np.maximum(p - omega * o.f * r / (dt * dt), 0.0)
+            ps.append(p)
+        assert errors[2] > errors[3] > errors[4]  # E_3 > E_4: sweeps 3 and 4 bracket the target
+        target = 0.5 * (errors[2] + errors[3])
+        sim.set_field("dfsph_pressure", P0)
+        sim.set_field("dfsph_density_source", b)
+        it, err = s.solve("dfsph_pressure", "dfsph_density_source", dt * dt, target, 1, 20, False,
+                          continuous=continuous)
+        assert it == 4 and err == pytest.approx(errors[3], rel=1e-3)
+        want = 0.5 * (ps[3] + ps[4]) if continuous else ps[4]
+        got = sim.get_field("dfsph_pressure")
+        np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-4 * np.abs(want).max())
+        assert np.abs(ps[4] - ps[3]).max() > 1e-2 * np.abs(want).max()  # the two sweeps differ: theta is seen
