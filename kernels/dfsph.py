@@ -23,6 +23,10 @@ Jacobi sweeps, relaxation omega (0.5):
 
 The error counts compression only and is measured with P before the sweep's update; particles with
 fewer neighbours than a threshold (20 of 26 on a cubic lattice) leave the divergence error.
+The density solve ends on its target's crossing (``solve_control``, ``finish_sweeps``): passing at
+sweep k with errors E_(k-1) > target >= E_k it returns P_(k-1) + theta (P_k - P_(k-1)),
+theta = (E_(k-1) - target) / (E_(k-1) - E_k), a pressure continuous in the fluid's state where the
+sweep count changes (whole sweeps made a resting tank bounce).
 
 Neighbours, the factor f_i and the pair cache (``DfsphPairs``: G_ij in compressed rows) come from one
 search per step (``kernels/dfsph_search.py``); the passes here read the pair cache as one stream and

@@ -14,7 +14,8 @@ Step (one dt per substep):
   adaptive step, 2 dt / bound for a smaller fixed step, so that it becomes a velocity e d / tau, not
   e d / dt) -> density solve: Jacobi sweeps on P with Chebyshev weights (``dfsph.chebyshev``; weights
   on the device, ``kernels/dfsph.py`` solve_control) until the mean predicted over-density is below
-  target_density_error -> integrate: v = v* + dt a(P), x += dt v.
+  target_density_error, ending on the target's crossing between the last two sweeps
+  (``dfsph.continuous_stop``) -> integrate: v = v* + dt a(P), x += dt v.
 
 Both solves start from the last step's values (warm start, carried fields and checkpointed, so a
 resume is bitwise equal): P (a pressure over density, the same at any dt for a resting load) and
