@@ -23,6 +23,10 @@ Jacobi sweeps, relaxation omega (0.5):
 
 The error counts compression only and is measured with P before the sweep's update; particles with
 fewer neighbours than a threshold (20 of 26 on a cubic lattice) leave the divergence error.
+The density solve ends on its target's crossing (``solve_control``, ``finish_sweeps``): passing at
+sweep k with errors E_(k-1) > target >= E_k it returns P_(k-1) + theta (P_k - P_(k-1)),
+theta = (E_(k-1) - target) / (E_(k-1) - E_k), a pressure continuous in the fluid's state where the
+sweep count changes (whole sweeps made a resting tank bounce).
 
 Neighbours, the factor f_i and the pair cache (``DfsphPairs``: G_ij in compressed rows) come from one
 search per step (``kernels/dfsph_search.py``); the passes here read the pair cache as one stream and
@@ -45,7 +49,9 @@ CONTROL_ERROR = 2       # mean error of the last iteration (before its update) [
 CONTROL_WEIGHT = 3      # Chebyshev weight of the next sweep (1: plain Jacobi)
 CONTROL_SWEEP = 4       # sweeps run (the index of the next one)
 CONTROL_LAST_WEIGHT = 5 # weight the last sweep applied
-CONTROL_COUNT = 6
+CONTROL_LAST_ERROR = 6  # mean error of the iteration before the last [-] or [1/s]
+CONTROL_FRACTION = 7    # share theta of the last sweep's update the solve keeps (``finish_sweeps``)
+CONTROL_COUNT = 8
 #: plain Jacobi sweeps before the Chebyshev acceleration starts (Wang 2015: a few)
 CHEBYSHEV_DELAY = 2
 
@@ -174,13 +180,20 @@ def solve_control(
     min_iterations: int,
     max_iterations: int,
     rho: float,
+    continuous: int,
     # In/out:
     control: wp.array(dtype=wp.float64),
 ):
     """One thread: mean error = sum(partial) / count (float64, fixed order); iterations += 1; done
     when (error <= target and iterations >= min_iterations) or iterations >= max_iterations.
-    Chebyshev (rho > 0): the weight of the next sweep; the weight this sweep applied is kept
-    (``chebyshev_finish``)."""
+    Chebyshev (rho > 0): the weight of the next sweep; the weight this sweep applied is kept.
+    Once done, the share theta of the last sweep's update P_k - P_(k-1) the solve keeps (``finish_sweeps``):
+    ``continuous`` and the stop test first passed at this iteration k > min_iterations (errors E_(k-1) >
+    target >= E_k, each measured with P before the iteration's update): theta = (E_(k-1) - target) /
+    (E_(k-1) - E_k), the linear crossing of the target, so the pressure the solve returns is a continuous
+    function of the fluid's state where the sweep count changes (P_(k-1) + theta (P_k - P_(k-1)) tends
+    to P_k from both sides). Else theta = 1, or 0 after a Chebyshev-weighted last sweep without
+    ``continuous`` (its extrapolated update is not checked)."""
     if control[CONTROL_DONE] != wp.float64(0.0):
         return
     s = wp.float64(0.0)
@@ -189,6 +202,8 @@ def solve_control(
     err = s / wp.float64(wp.max(count, 1))
     it = control[CONTROL_ITERATIONS] + wp.float64(1.0)
     control[CONTROL_ITERATIONS] = it
+    last_err = control[CONTROL_ERROR]
+    control[CONTROL_LAST_ERROR] = last_err
     control[CONTROL_ERROR] = err
     w = control[CONTROL_WEIGHT]
     control[CONTROL_LAST_WEIGHT] = w
@@ -196,8 +211,16 @@ def solve_control(
         sweep = control[CONTROL_SWEEP] + wp.float64(1.0)
         control[CONTROL_SWEEP] = sweep
         control[CONTROL_WEIGHT] = wp.float64(chebyshev_weight(float(sweep), rho, float(w)))
-    if (err <= wp.float64(target) and it >= wp.float64(min_iterations)) or it >= wp.float64(max_iterations):
+    t = wp.float64(target)
+    if (err <= t and it >= wp.float64(min_iterations)) or it >= wp.float64(max_iterations):
         control[CONTROL_DONE] = wp.float64(1.0)
+        theta = wp.float64(1.0)
+        if continuous != 0:
+            if err <= t and it > wp.float64(min_iterations) and last_err > t:
+                theta = (last_err - t) / (last_err - err)
+        elif w != wp.float64(1.0):
+            theta = wp.float64(0.0)
+        control[CONTROL_FRACTION] = theta
 
 
 @wp.kernel(enable_backward=False)
@@ -207,10 +230,11 @@ def reset_control(control_out: wp.array(dtype=wp.float64)):
         control_out[k] = wp.float64(0.0)
     control_out[CONTROL_WEIGHT] = wp.float64(1.0)
     control_out[CONTROL_LAST_WEIGHT] = wp.float64(1.0)
+    control_out[CONTROL_FRACTION] = wp.float64(1.0)
 
 
 @wp.kernel(enable_backward=False)
-def chebyshev_finish(
+def finish_sweeps(
     tid_offset: int,
     # In:
     fluid_neighbors: NeighborList,
@@ -219,12 +243,14 @@ def chebyshev_finish(
     # In/out:
     pressure: wp.array(dtype=float),
 ):
-    """After an accelerated solve: when its last sweep applied a weight w != 1, P_i <- Q_i, the P whose
-    error passed the stop test (the extrapolated update after it is not checked and overshoots)."""
-    if control[CONTROL_LAST_WEIGHT] == wp.float64(1.0):
+    """After a solve that kept Q = P_(k-1): P_i <- Q_i + theta (P_i - Q_i), theta = control[CONTROL_FRACTION]
+    (``solve_control``; nothing when theta = 1). A mix of two non-negative P stays non-negative."""
+    theta = float(control[CONTROL_FRACTION])
+    if theta == 1.0:
         return
     i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
-    pressure[i] = previous[i]
+    q = previous[i]
+    pressure[i] = q + theta * (pressure[i] - q)
 
 
 @wp.kernel(enable_backward=False)

@@ -457,11 +457,12 @@ def hydrostatic_inner_profile(sim, profiles, moments):
 def test_hydrostatic_tank_pressure_and_floor_load(device):
     """T6: after settling, averaged over 1 s: the floor carries the weight within 1 %, the density
     solve meets its target in every step with few iterations (warm start), and the Shepard-filtered
-    pressure of every interior layer deeper than 2h (and 2h above the floor) is within 1 % of the
-    discrete hydrostatic pressure rho0 g depth / S_zz, S_zz the kernel-gradient moment of the tank's
-    own packing (measured in the run: 1.02, the cubic lattice's at h = d), and within 3 % of
-    rho0 g depth itself (measured 1.6-2.7 % low: that 1/S_zz, a property of the cubic spline at
-    h = d on this packing, not of the solve; a 50x tighter target changes it < 0.5 %). Near the
+    pressure of every interior layer deeper than 2h (and 2h above the floor) is within 1 % of
+    rho0 g depth (measured: -0.9 .. +0.3 %). The kernel-gradient moment S_zz of the tank's own packing
+    is checked near the cubic lattice's 1.02 (h = d). A density solve that stopped on whole sweeps
+    read these layers 1.6-2.7 % low, i.e. near rho0 g depth / S_zz, while its sweep count flipped and
+    the tank bounced (test_tank_at_rest_does_not_bounce); ending on the target's crossing removed
+    that (dfsph.continuous_stop). Near the
     single-layer Akinci walls P reads up to 1.6 rho0 g depth: the wall mirrors P_i with weight 1
     and its gradient sum is weaker than a fluid half-space's, so P rises until the wall carries the
     load. XSPH 0.2 (the damping this was measured with; the scene uses 0.4 so that DFSPH comes to
@@ -497,8 +498,7 @@ def test_hydrostatic_tank_pressure_and_floor_load(device):
     for k in deep:
         depth, p = np.array(profiles[k]).mean(0)
         hydrostatic = m.rest_density * g * depth
-        assert p == pytest.approx(hydrostatic / s_zz, rel=0.01), (k, depth, p * s_zz / hydrostatic)
-        assert p == pytest.approx(hydrostatic, rel=0.03), (k, depth, p / hydrostatic)
+        assert p == pytest.approx(hydrostatic, rel=0.01), (k, depth, p / hydrostatic)
 
 
 def block_on_floor(nx=6, ny=6, nz=4, **kw):
@@ -653,3 +653,68 @@ def test_deep_over_dense_block_is_stabilised_without_clumping(device):
     assert sim.solver.last_stabilization > 1
     assert rho.max() < 1.02 and np.maximum(rho - 1, 0).mean() <= sim.scene.dfsph.target_density_error
     assert np.isfinite(sim.get_field("particle_x")).all()
+
+
+def test_tank_at_rest_does_not_bounce(device):
+    """Issue #31: the hydrostatic tank (r = 0.025 m, DFSPH defaults) from 0.25 s on: the walls' vertical load
+    changes by < 0.5 % of the water's weight from one step to the next and averages the weight within 0.5 %,
+    and the fluid's mean vertical velocity (its momentum / mass) changes by < 1e-4 m/s per step. A density
+    solve that stops on whole sweeps flips its count between k and k + 1 at rest (the mean error sits at the
+    target) and each flip moved the load by several %: measured 10.5 % mean step-to-step change, mean
+    vertical velocity changing by 1.6e-3 m/s a step; ending on the target's crossing between the last two sweeps
+    (dfsph.continuous_stop): 0.05 % and 1e-5 m/s."""
+    sc = load_scene("hydrostatic", ["solver=dfsph", "duration=0.5"] + NO_OUTPUT)
+    sim = Simulation(sc, device=device)
+    m = sim.model
+    weight = m.particle_mass * m.fluid_count * float(np.linalg.norm(m.gravity))
+    loads, lift = [], []
+
+    def record(sim, dt):
+        if sim.state.time >= 0.25:
+            loads.append(float(sim.get_field("boundary_force")[:, 2].astype(np.float64).sum()) / weight)
+            lift.append(float(sim.get_field("particle_v")[:, 2].astype(np.float64).mean()))
+
+    from warp_sph.core.step_graph import Stage
+
+    sim.graph.insert(Stage("wall_load", record, reads=("boundary_force", "particle_v")))
+    while sim.state.time < 0.5 - 1e-9:
+        st = sim.advance_frame()
+        assert st.outside == 0 and st.non_finite == 0
+    loads, lift = np.array(loads), np.array(lift)
+    assert len(loads) > 50
+    assert np.mean(loads) == pytest.approx(1.0, abs=5e-3)
+    assert np.abs(np.diff(loads)).mean() < 5e-3, np.abs(np.diff(loads)).mean()
+    assert np.abs(np.diff(lift)).mean() < 1e-4, np.abs(np.diff(lift)).mean()
+
+
+def test_continuous_stop_against_numpy(device):
+    """The density solve's continuous stop (dfsph.continuous_stop): with the target halfway between the mean
+    errors E_3 > E_4 of the oracle's sweeps (E_k measured with P_(k-1), before sweep k's update), the solve
+    runs 4 sweeps and returns P_3 + theta (P_4 - P_3), theta = (E_3 - target) / (E_3 - E_4) = 0.5; without
+    it, P_4 (the whole last sweep)."""
+    dt = 2e-3
+    for continuous in (True, False):
+        sim, o = prepared(seed=1, device=device)
+        m, s = sim.model, sim.solver
+        stage(sim, "density").run(sim, dt)
+        rng = np.random.default_rng(5)
+        P0 = rng.uniform(0.0, 5.0, m.fluid_count)
+        b = rng.normal(0.0, 0.01, m.fluid_count)
+        omega = sim.scene.dfsph.relaxation
+        ps, errors, p = [P0], [], P0
+        for _ in range(5):
+            r = b - dt * dt * o.delta(o.accel(p), boundary=False)
+            errors.append(np.maximum(-r, 0.0).mean())
+            p = np.maximum(p - omega * o.f * r / (dt * dt), 0.0)
+            ps.append(p)
+        assert errors[2] > errors[3] > errors[4]  # E_3 > E_4: sweeps 3 and 4 bracket the target
+        target = 0.5 * (errors[2] + errors[3])
+        sim.set_field("dfsph_pressure", P0)
+        sim.set_field("dfsph_density_source", b)
+        it, err = s.solve("dfsph_pressure", "dfsph_density_source", dt * dt, target, 1, 20, False,
+                          continuous=continuous)
+        assert it == 4 and err == pytest.approx(errors[3], rel=1e-3)
+        want = 0.5 * (ps[3] + ps[4]) if continuous else ps[4]
+        got = sim.get_field("dfsph_pressure")
+        np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-4 * np.abs(want).max())
+        assert np.abs(ps[4] - ps[3]).max() > 1e-2 * np.abs(want).max()  # the two sweeps differ: theta is seen

@@ -14,7 +14,8 @@ Step (one dt per substep):
   adaptive step, 2 dt / bound for a smaller fixed step, so that it becomes a velocity e d / tau, not
   e d / dt) -> density solve: Jacobi sweeps on P with Chebyshev weights (``dfsph.chebyshev``; weights
   on the device, ``kernels/dfsph.py`` solve_control) until the mean predicted over-density is below
-  target_density_error -> integrate: v = v* + dt a(P), x += dt v.
+  target_density_error, ending on the target's crossing between the last two sweeps
+  (``dfsph.continuous_stop``) -> integrate: v = v* + dt a(P), x += dt v.
 
 Both solves start from the last step's values (warm start, carried fields and checkpointed, so a
 resume is bitwise equal): P (a pressure over density, the same at any dt for a resting load) and
@@ -112,10 +113,16 @@ class DfsphSolver(DfsphSearch, Solver):
         Param("dfsph.warm_start", "float", "-", 0.5, "fraction of the last step's pressures the solves start from "
               "(where a particle is being compressed; 0: start from zero)", ge=0.0, le=1.0),
         Param("dfsph.chebyshev", "float", "-", 0.0, "spectral-radius estimate of the density solve's Jacobi sweep "
-              "for its Chebyshev acceleration (Wang 2015; 0: plain Jacobi); a solve ending on an accelerated sweep "
-              "keeps the P its stop test checked. 0.8: a third fewer sweeps at 59k particles, but the hydrostatic "
-              "tank's floor probe reads 2.7 % low; higher values leave fluid at rest jittering",
+              "for its Chebyshev acceleration (Wang 2015; 0: plain Jacobi); with dfsph.continuous_stop off a solve "
+              "ending on an accelerated sweep keeps the P its stop test checked. 0.8: a third fewer sweeps at 59k "
+              "particles and the same hydrostatic load as plain Jacobi, but the packing pass (time.settle) does "
+              "not bring a resting tank below 1.2e-3 m/s in 3000 steps; higher values leave fluid at rest jittering",
               ge=0.0, lt=1.0),
+        Param("dfsph.continuous_stop", "bool", "-", True, "the density solve ends where its mean error crosses the "
+              "target between its last two sweeps (P_(k-1) + theta (P_k - P_(k-1))), not on a whole sweep: the "
+              "pressure is then a continuous function of the fluid's state. Off, a resting tank's sweep count flips "
+              "between k and k + 1 (its error sits at the target) and each flip moves the walls' load by several %: "
+              "it bounces"),
         Param("dfsph.search_skin", "float", "-", 0.0, "skin of the neighbour search in particle spacings d: lists "
               "of the pairs within H_s + skin, rebuilt only when a particle moved more than skin / 2 since the last "
               "build, the pair values recomputed every step (0: one search every step; > 0: equal to float "
@@ -186,11 +193,13 @@ class DfsphSolver(DfsphSearch, Solver):
         return float(self._partial.numpy().sum(dtype=np.float64)) / max(n, 1)
 
     def solve(self, pressure: str, source: str, scale: float, target: float, min_iterations: int,
-              max_iterations: int, active_only: bool, chebyshev: bool = False) -> tuple[int, float]:
+              max_iterations: int, active_only: bool, chebyshev: bool = False,
+              continuous: bool = False) -> tuple[int, float]:
         """Jacobi sweeps on the workspace field ``pressure`` for the field ``source`` (see
         ``kernels/dfsph.py``) until the mean error is at most ``target`` after at least
-        ``min_iterations`` sweeps, or ``max_iterations`` ran. Returns (iterations, mean error of the
-        last sweep)."""
+        ``min_iterations`` sweeps, or ``max_iterations`` ran. ``continuous``: the solve ends on the linear
+        crossing of the target between its last two sweeps (``kernels/dfsph.py`` solve_control), not on the
+        whole last sweep. Returns (iterations, mean error of the last sweep)."""
         m, f = self.model, self.sim.fields
         n, dev = m.fluid_count, m.device
         fn, pairs = self.nl.fluid, f["dfsph_pairs"]
@@ -202,20 +211,21 @@ class DfsphSolver(DfsphSearch, Solver):
         block = max(1, min_iterations)
         self.solves += 1
         rho = float(self.config.chebyshev) if chebyshev else 0.0
+        keep = rho > 0.0 or continuous
         while True:
             block = min(block, max_iterations - launched)
             for _ in range(block):
                 launch(_dfsph.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev)
                 launch(_dfsph.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only), control,
-                                                 int(rho > 0.0)], [p, self._previous, err], device=dev)
+                                                 int(keep)], [p, self._previous, err], device=dev)
                 launch(_dfsph.error_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, err, control], [partial], device=dev)
                 launch(_dfsph.solve_control, 1, [partial, n, float(target), int(min_iterations), int(max_iterations),
-                                                 rho], [control], device=dev)
+                                                 rho, int(continuous)], [control], device=dev)
             launched += block
             c = control.numpy()  # the one read per check
             if c[_dfsph.CONTROL_DONE] != 0.0 or launched >= max_iterations:
-                if rho > 0.0:
-                    launch(_dfsph.chebyshev_finish, n, [fn, control, self._previous], [p], device=dev)
+                if keep:
+                    launch(_dfsph.finish_sweeps, n, [fn, control, self._previous], [p], device=dev)
                 return int(c[_dfsph.CONTROL_ITERATIONS]), float(c[_dfsph.CONTROL_ERROR])
             block = self.check_every
 
@@ -274,7 +284,8 @@ class DfsphSolver(DfsphSearch, Solver):
     def run_pressure(self, sim, dt) -> None:
         p = self.config
         it, err = self.solve("dfsph_pressure", "dfsph_density_source", dt * dt, float(p.target_density_error),
-                             int(p.min_iterations), int(p.max_iterations), False, chebyshev=True)
+                             int(p.min_iterations), int(p.max_iterations), False, chebyshev=True,
+                             continuous=bool(p.continuous_stop))
         self.last_iterations = it
         self.last_density_error = err
         if self.with_bodies:
