@@ -143,14 +143,15 @@ WHY = {
                 "sensor 4's maximum within the 0.8 s is a slow plateau whose time moves with noise, and there the "
                 "curve (0.58 rho g H) lies 43 % under Table 2's median of the per-run peaks; the experiment's own "
                 "per-run peaks spread widely (Table 2: sensor 1 from 2.55 to 4.45 rho g H)",
-    "hydrostatic": "the tank does not come to rest: the start is off the discrete equilibrium (DFSPH's first step "
-                   "lets the interior fall freely, g dt; WCSPH starts uncompressed) and every step from rest leaves "
-                   "velocity the pressure solve cannot see (an alternating-layer mode the divergence of the cubic "
-                   "lattice misses, 7 % of g dt per DFSPH step at any tolerance), so the floor load swings around "
-                   "the weight while the scene's damping works it off; at r = 0.0125 m the surface settles 0.13 d "
-                   "below its volume's level (0.7 % of the depth) and the floor's centre carries ~0.6 % more than "
-                   "the mean (the water spreads and re-packs); the mid-depth probe reads the particle pressure "
-                   "field, which alternates layer by layer from the walls",
+    "hydrostatic": "the tank does not come to rest: the lattice re-packs toward its discrete equilibrium (rms "
+                   "speed 1.3e-2 m/s in the top layer, 7e-4 m/s in the bottom one at 2 s, 1.6e-3 m/s by 5 s at "
+                   "r = 0.025 m, the same with any sweep count, target or warm start: not the solver); DFSPH's load "
+                   "no longer swings (the density solve ends on its target's crossing, dfsph.continuous_stop: the "
+                   "floor load changes 0.05 % of the weight step to step, 10.5 % with a whole-sweep stop); WCSPH "
+                   "starts uncompressed; at r = 0.0125 m the surface settles 0.13 d below its volume's level (0.7 % "
+                   "of the depth) and the floor's centre carries more than the mean, still drifting at 2 s (the "
+                   "water spreads and re-packs); the mid-depth probe reads the particle pressure field, which "
+                   "alternates layer by layer from the walls",
 }
 
 
