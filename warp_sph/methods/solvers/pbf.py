@@ -149,6 +149,7 @@ class PbfSolver(PbfPasses, Solver):
             self.allowed_drift = self.margin  # the query point is current, only the grid's points are old
         self._density_is_current = True
         self._offset_set = False  # pbf_constraint_offset holds zeros
+        self._neighbors_reusable = False  # the neighbours may serve x after the step (``reuse_neighbors``)
 
     # --- stages ----------------------------------------------------------------------------
     def run_stabilize(self, sim, dt) -> None:
@@ -173,7 +174,7 @@ class PbfSolver(PbfPasses, Solver):
         if share < 1.0:
             if not at_x:
                 wp.copy(f["predicted_x"], f["particle_x"])
-                self.build_neighbors()
+                self.reuse_neighbors()
                 self.density_pass()
             launch(_pbf.constraint_offset, self.model.fluid_count, [1.0 - share, f["pbf_constraint"]],
                    [f["pbf_constraint_offset"]], device=self.model.device, min_range=LIGHT_MIN_RANGE)
@@ -381,10 +382,12 @@ class PbfSolver(PbfPasses, Solver):
             self.refresh_neighbors()
             self.density_pass()
             self._density_is_current = True
+        self._neighbors_reusable = False  # between frames the particles are put back in stable order
 
     def restore_arrays(self, arrays) -> None:
         """x* = x after the state was restored (the density refresh reads x*)."""
         wp.copy(self.sim.fields["predicted_x"], self.sim.fields["particle_x"])
+        self._neighbors_reusable = False
 
     def refresh_density(self) -> None:
         """Density, lambda and C at the current positions (x* = x), e.g. after a resume."""

@@ -90,6 +90,27 @@ class PbfPasses:
         self.grid_builds += 1
         wp.copy(f["pbf_neighbor_x"], x)
         self.last_drift = 0.0
+        self._neighbors_reusable = True
+
+    def reuse_neighbors(self) -> None:
+        """Neighbours of x* = x at a step's start: the last step's, when they were built within this frame
+        (between frames the particles change places: ``finish_frame`` marks them stale), no boundary particle
+        moved since (no bodies) and x* drifted at most ``allowed_drift`` from where they were searched
+        (measured here: one chunked maximum, one read); else a new build. The same pairs closer than H_s
+        either way (the lists' order, and so the order of the sums, can differ)."""
+        if not self._neighbors_reusable or self.with_bodies:
+            self.build_neighbors()
+            return
+        self.last_drift = self.measure_drift()
+        self.refresh_neighbors()
+
+    def measure_drift(self) -> float:
+        """The largest distance of x* from where the neighbours were searched [m] (device maximum per chunk)."""
+        m, f = self.model, self.sim.fields
+        launch(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
+               [_reduce.REDUCE_CHUNK, f["pbf_correction_size"], f["predicted_x"], f["pbf_neighbor_x"]],
+               [self._correction_partial], device=m.device)
+        return float(self._correction_partial.numpy()[:, 1].max())
 
     def refresh_neighbors(self) -> None:
         """After a correction: rebuild where the neighbours may be incomplete."""
