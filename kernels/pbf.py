@@ -201,7 +201,8 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool, with_pressure_te
     """Jacobi correction (eq. 18) from a ``PairCache`` of the density pass at the same positions:
     dx_i = sum_j (lambda_i + lambda_j + s_corr_ij) V grad W_ij + lambda_i sum_b V_b grad W_ib, no
     kernel evaluation (the smoothing kernel entered through the cache). Same outputs as
-    ``correction_kernel``. with_pressure_term: also add pressure_term_scale lambda_i to
+    ``correction_kernel``, and x*_i += dx_i in place (``apply_correction``'s sum: no thread reads
+    another's position, the pairs came from the cache). with_pressure_term: also add pressure_term_scale lambda_i to
     ``boundary_pressure_term`` (moving bodies: with scale -1 / (rho0 dt^2) the walls' acceleration
     lambda_i V_b grad W_ib / dt^2 of i is the Akinci pressure term -rho0 V_b term_i grad W_ib)."""
 
@@ -226,6 +227,7 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool, with_pressure_te
         boundary_force_out: wp.array(dtype=wp.vec3),
         correction_size_out: wp.array(dtype=float),
         boundary_pressure_term_out: wp.array(dtype=float),
+        predicted_x: wp.array(dtype=wp.vec3),
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         lam_i = particle_lambda[i]
@@ -249,6 +251,7 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool, with_pressure_te
             dx = dx * (max_step / size)
         position_correction_out[i] = dx
         correction_size_out[i] = size
+        predicted_x[i] = predicted_x[i] + dx
 
     return compute_correction_pairs
 

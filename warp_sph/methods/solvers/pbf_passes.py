@@ -188,16 +188,16 @@ class PbfPasses:
             launch(self._correction_kernel, m.fluid_count,
                    [m.particle_mass, *tensile, inv_dt2, self.max_step, -inv_dt2 / m.rest_density, fn, f["pbf_pairs"],
                     f["particle_lambda"]],
-                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"], self._term],
-                   device=m.device)
+                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"], self._term,
+                    f["predicted_x"]], device=m.device)  # x* += dx in the same kernel
         else:
             launch(self._correction_kernel, m.fluid_count,
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
                     *tensile, inv_dt2, self.max_step, self.sim.boundary_params, bn, m.boundary_x, m.boundary_volume,
                     fn, f["predicted_x"], f["particle_lambda"]],
                    [f["position_correction"], f["boundary_force"], f["pbf_correction_size"]], device=m.device)
-        launch(_pbf.apply_correction, m.fluid_count, [f["position_correction"]], [f["predicted_x"]], device=m.device,
-               min_range=LIGHT_MIN_RANGE)
+            launch(_pbf.apply_correction, m.fluid_count, [f["position_correction"]], [f["predicted_x"]],
+                   device=m.device, min_range=LIGHT_MIN_RANGE)
         launch(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
                [_reduce.REDUCE_CHUNK, f["pbf_correction_size"], f["predicted_x"], f["pbf_neighbor_x"]],
                [self._correction_partial], device=m.device)
