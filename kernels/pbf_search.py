@@ -11,7 +11,7 @@ import functools
 import warp as wp
 
 from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, row_points
-from .pbf import PairCache, constraint_lambda
+from .pbf import PairCache, constraint_lambda, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -22,6 +22,7 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
     closer than the support radius, what ``pbf.density_lambda_pairs_kernel`` writes: density [kg/m^3],
     lambda [m^2], C [-] and the ``PairCache``."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    value_gradient = value_gradient_function(smoothing)
     with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
     density_term = boundary_terms.density if with_boundary else None
@@ -88,9 +89,10 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
                             j = cell_point[k]
                             fluid_neighbors.index[i, n] = j
                             if dd < support2:  # the pairs the density pass keeps, in its order
-                                w = wp.static(value)(wp.length(x_ij), h)
+                                wg = wp.static(value_gradient)(x_ij, h)
+                                w = wg[0]
                                 w_sum += w
-                                g = volume * wp.static(gradient)(x_ij, h)
+                                g = volume * wp.vec3(wg[1], wg[2], wg[3])
                                 grad_i += g
                                 grad_sq += wp.dot(g, g)
                                 pairs_out.index[i, p] = j
