@@ -338,42 +338,6 @@ def max_correction_drift_chunks(
 
 
 @wp.kernel(enable_backward=False)
-def neighbor_drift_chunks(
-    chunk: int,
-    count: int,
-    # In:
-    predicted_x: wp.array(dtype=wp.vec3),
-    neighbor_x: wp.array(dtype=wp.vec3),
-    neighbor_slot: wp.array(dtype=wp.int32),
-    # Out:
-    partial_out: wp.array(dtype=float),
-):
-    """Per chunk of the first ``count`` particles: the largest distance of x*_i from where its neighbours were searched [m], or
-    1e30 when a particle is no longer at the index it had then (neighbor_slot[i] != i: the particles were
-    reordered since, and the lists' indices are stale)."""
-    k = wp.tid()
-    lo = k * chunk
-    hi = wp.min(lo + chunk, count)
-    drift = float(0.0)
-    for i in range(lo, hi):
-        if neighbor_slot[i] != i:
-            drift = 1.0e30
-        drift = wp.max(drift, wp.length(predicted_x[i] - neighbor_x[i]))
-    partial_out[k] = drift
-
-
-@wp.kernel(enable_backward=False)
-def identity_slots(
-    tid_offset: int,
-    # Out:
-    slot_out: wp.array(dtype=wp.int32),
-):
-    """slot_i = i: where each particle is when its neighbours are searched (``neighbor_drift_chunks``)."""
-    i = wp.tid() + tid_offset
-    slot_out[i] = i
-
-
-@wp.kernel(enable_backward=False)
 def update_velocity(
     tid_offset: int,
     # Model:

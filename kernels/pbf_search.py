@@ -5,6 +5,7 @@ and, over the listed pairs closer than H_s, sums the density, C and lambda of ``
 over the lists. The pairs are visited in the lists' order (cell order, then index), as the list pass
 ``density_lambda_pairs_kernel`` visits them: the sums, and so the results, are bitwise the same.
 The boundary lists are built before it (``NeighborLists.build_boundary_lists``): it reads them.
+Also the check that lists kept from an earlier step still serve (``neighbor_drift_chunks``).
 """
 import functools
 
@@ -128,3 +129,39 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
         particle_constraint_out[i] = c_lam[0]
 
     return search_density_lambda
+
+
+@wp.kernel(enable_backward=False)
+def neighbor_drift_chunks(
+    chunk: int,
+    count: int,
+    # In:
+    predicted_x: wp.array(dtype=wp.vec3),
+    neighbor_x: wp.array(dtype=wp.vec3),
+    neighbor_slot: wp.array(dtype=wp.int32),
+    # Out:
+    partial_out: wp.array(dtype=float),
+):
+    """Per chunk of the first ``count`` particles: the largest distance of x*_i from where its neighbours
+    were searched [m], or 1e30 when a particle is no longer at the index it had then (neighbor_slot[i] != i:
+    the particles were reordered since, and the lists' indices are stale)."""
+    k = wp.tid()
+    lo = k * chunk
+    hi = wp.min(lo + chunk, count)
+    drift = float(0.0)
+    for i in range(lo, hi):
+        if neighbor_slot[i] != i:
+            drift = 1.0e30
+        drift = wp.max(drift, wp.length(predicted_x[i] - neighbor_x[i]))
+    partial_out[k] = drift
+
+
+@wp.kernel(enable_backward=False)
+def identity_slots(
+    tid_offset: int,
+    # Out:
+    slot_out: wp.array(dtype=wp.int32),
+):
+    """slot_i = i: where each particle is when its neighbours are searched (``neighbor_drift_chunks``)."""
+    i = wp.tid() + tid_offset
+    slot_out[i] = i

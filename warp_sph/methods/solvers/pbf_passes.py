@@ -5,6 +5,12 @@ correction (eq. 18), launching ``kernels/pbf.py`` (neighbour lists) or ``kernels
 solver reports; the attributes the passes read (``lists``, ``margin``, ``epsilon``, ``max_step``,
 ``tensile_*``, ``query_radius``, ``allowed_drift``) are set by ``PbfSolver.__init__``.
 
+Cost per step (issue #32): the fluid lists are written by the step's first density pass itself
+(``search_density_pass``, ``kernels/pbf_search.py``: one walk over the cells, bitwise the build + pass);
+the stabilize stage's density pass at x reads the last step's lists, which still hold every pair
+closer than H_s there unless a particle drifted past margin / 2 or the frame reordered the particles
+(``reuse_neighbors``); a correction adds dx to x* in its own kernel.
+
 A helper of the solver ``pbf.py`` (it registers nothing; the registry imports it harmlessly).
 """
 from __future__ import annotations
@@ -93,8 +99,8 @@ class PbfPasses:
             self.sim.fluid_grid.build(x)
         self.grid_builds += 1
         wp.copy(f["pbf_neighbor_x"], x)
-        launch(_pbf.identity_slots, self.model.fluid_count, [], [f["pbf_neighbor_slot"]], device=self.model.device,
-               min_range=LIGHT_MIN_RANGE)
+        launch(_pbf_search.identity_slots, self.model.fluid_count, [], [f["pbf_neighbor_slot"]],
+               device=self.model.device, min_range=LIGHT_MIN_RANGE)
         self.last_drift = 0.0
 
     def sort_neighbors(self) -> None:
@@ -139,7 +145,7 @@ class PbfPasses:
         """The largest distance of x* from where the neighbours were searched [m] (device maximum per
         chunk); 1e30 when the particles were reordered since."""
         m, f = self.model, self.sim.fields
-        launch(_pbf.neighbor_drift_chunks, self._drift_partial.shape[0],
+        launch(_pbf_search.neighbor_drift_chunks, self._drift_partial.shape[0],
                [_reduce.REDUCE_CHUNK, m.fluid_count, f["predicted_x"], f["pbf_neighbor_x"], f["pbf_neighbor_slot"]],
                [self._drift_partial], device=m.device)
         return float(self._drift_partial.numpy().max())
