@@ -5,7 +5,8 @@ and, over the listed pairs closer than H_s, sums the density, C and lambda of ``
 over the lists. The pairs are visited in the lists' order (cell order, then index), as the list pass
 ``density_lambda_pairs_kernel`` visits them: the sums, and so the results, are bitwise the same.
 The boundary lists are built before it (``NeighborLists.build_boundary_lists``): it reads them.
-Also the check that lists kept from an earlier step still serve (``neighbor_drift_chunks``).
+Also the check that lists kept from an earlier step still serve (``neighbor_drift_chunks``) and the
+density pass at x that only needs C (``constraint_pairs_kernel``: the stabilize stage's offset).
 """
 import functools
 
@@ -165,3 +166,63 @@ def identity_slots(
     """slot_i = i: where each particle is when its neighbours are searched (``neighbor_drift_chunks``)."""
     i = wp.tid() + tid_offset
     slot_out[i] = i
+
+
+@functools.cache
+def constraint_kernel(smoothing: str, boundary_terms):
+    """Density [kg/m^3] and C [-] alone (eq. 7/13, 17) over the neighbour lists: what the stabilize stage's
+    constraint offset reads at x (no lambda, no pair cache: the step's density stage writes those at x*).
+    The same pairs, order and expressions as ``pbf.density_lambda_pairs_kernel``: bitwise its density and C."""
+    value = SMOOTHING_FUNCTIONS[smoothing][0]
+    with_boundary = boundary_terms is not None and boundary_terms.density is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    density_term = boundary_terms.density if with_boundary else None
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_constraint(
+        tid_offset: int,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        boundary_params: BoundaryParams,
+        boundary_neighbors: NeighborList,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        fluid_neighbors: NeighborList,
+        predicted_x: wp.array(dtype=wp.vec3),
+        constraint_offset: wp.array(dtype=float),
+        # Out:
+        particle_density_out: wp.array(dtype=float),
+        particle_constraint_out: wp.array(dtype=float),
+    ):
+        i = int(fluid_neighbors.order[wp.tid() + tid_offset])
+        xi = predicted_x[i]
+        h = smoothing_length
+        support2 = support_radius * support_radius
+        volume = particle_mass / rest_density
+        w_sum = float(0.0)
+        k = int(0)
+        k_end = int(neighbor_count(fluid_neighbors, i))
+        while k < k_end:
+            x_ij = xi - predicted_x[fluid_neighbors.index[i, k]]
+            if wp.dot(x_ij, x_ij) < support2:
+                w_sum += wp.static(value)(wp.length(x_ij), h)
+            k += 1
+        ratio = volume * w_sum
+        if wp.static(with_boundary):
+            k = int(0)
+            k_end = int(neighbor_count(boundary_neighbors, i))
+            while k < k_end:
+                b = boundary_neighbors.index[i, k]
+                x_ib = xi - boundary_x[b]
+                if wp.dot(x_ib, x_ib) < support2:
+                    ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.length(x_ib), h),
+                                                     boundary_volume[b])
+                k += 1
+        particle_density_out[i] = rest_density * ratio
+        particle_constraint_out[i] = wp.max((ratio - constraint_offset[i]) - 1.0, 0.0)  # as constraint_lambda
+
+    return compute_constraint

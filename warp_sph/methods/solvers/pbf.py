@@ -174,7 +174,7 @@ class PbfSolver(PbfPasses, Solver):
             if not at_x:
                 wp.copy(f["predicted_x"], f["particle_x"])
                 self.reuse_neighbors()
-                self.density_pass()
+                self.constraint_pass()  # C at x, all the offset needs
             launch(_pbf.constraint_offset, self.model.fluid_count, [1.0 - share, f["pbf_constraint"]],
                    [f["pbf_constraint_offset"]], device=self.model.device, min_range=LIGHT_MIN_RANGE)
             self._offset_set = True

@@ -53,6 +53,7 @@ class PbfPasses:
             self.nl = simulation_neighbor_lists(sim, self.margin)
             self._density_kernel = _pbf.density_lambda_pairs_kernel(m.smoothing.name, terms, tensile)
             self._search_kernel = _pbf_search.search_density_lambda_kernel(m.smoothing.name, terms, tensile)
+            self._constraint_kernel = _pbf_search.constraint_kernel(m.smoothing.name, terms)
             self._correction_kernel = _pbf.correction_pairs_kernel(self._with_boundary_gradient, tensile,
                                                                    self.with_bodies and self._with_boundary_gradient)
             pairs = _pbf.PairCache()
@@ -127,6 +128,20 @@ class PbfPasses:
                 f["pbf_constraint_offset"]],
                [nl.fluid, nl.max_count, f["particle_density"], f["particle_lambda"], f["pbf_constraint"],
                 self._pair_cache(), f["pbf_neighbor_slot"]], device=m.device)
+        self._sum_error()
+
+    def constraint_pass(self) -> None:
+        """Density and C at x* alone (the stabilize stage's offset reads no more): bitwise those of
+        ``density_pass``, which it replaces there with lists; its lambda and pair cache stay as they were."""
+        if not self.lists:
+            self.density_pass()
+            return
+        m, f = self.model, self.sim.fields
+        launch(self._constraint_kernel, m.fluid_count,
+               [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.sim.boundary_params,
+                self.nl.boundary, m.boundary_x, m.boundary_volume, self.nl.fluid, f["predicted_x"],
+                f["pbf_constraint_offset"]],
+               [f["particle_density"], f["pbf_constraint"]], device=m.device)
         self._sum_error()
 
     def reuse_neighbors(self) -> None:
