@@ -33,7 +33,7 @@ import warp as wp
 
 from .density import NEIGHBOR_TYPES
 from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
-from .smoothing import SMOOTHING_FUNCTIONS
+from .smoothing import PI, SMOOTHING_FUNCTIONS
 
 @wp.kernel(enable_backward=False)
 def predict_positions(
@@ -93,6 +93,48 @@ def constraint_offset(
     constraint_offset_out[i] = keep * particle_constraint[i]
 
 
+@wp.func
+def cubic_value_gradient(x_ij: wp.vec3, h: float) -> wp.vec4:
+    """(W(|x_ij|, h), grad_i W) of the cubic spline [1/m^3, 1/m^4] from one r = |x_ij| and one q = r / h:
+    the expressions of ``smoothing.cubic_value(r, h)`` and ``smoothing.cubic_gradient(x_ij, h)`` (so bitwise
+    their values) without evaluating the length and the ratio twice per pair."""
+    r = wp.length(x_ij)
+    q = r / h
+    w = float(0.0)
+    a = 3.0 / (2.0 * PI * h * h * h)
+    if q < 1.0:
+        w = a * (2.0 / 3.0 - q * q + 0.5 * q * q * q)
+    elif q < 2.0:
+        t = 2.0 - q
+        w = a * t * t * t / 6.0
+    if r <= 0.0 or q >= 2.0:
+        return wp.vec4(w, 0.0, 0.0, 0.0)
+    ag = 3.0 / (2.0 * PI * h * h * h * h)
+    df = float(0.0)
+    if q < 1.0:
+        df = -2.0 * q + 1.5 * q * q
+    else:
+        t = 2.0 - q
+        df = -0.5 * t * t
+    g = x_ij * (ag * df / r)
+    return wp.vec4(w, g[0], g[1], g[2])
+
+
+def value_gradient_function(smoothing: str):
+    """A ``@wp.func (x_ij, h) -> vec4(W, grad_i W)`` for the smoothing kernel: the cubic spline's shares r and q;
+    the others call the kernel's value and gradient."""
+    if smoothing == "cubic":
+        return cubic_value_gradient
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.func(module="unique")
+    def value_gradient(x_ij: wp.vec3, h: float) -> wp.vec4:
+        g = wp.static(gradient)(x_ij, h)
+        return wp.vec4(wp.static(value)(wp.length(x_ij), h), g[0], g[1], g[2])
+
+    return value_gradient
+
+
 @wp.struct
 class PairCache:
     """Pairs of the last density pass, for the correction at the same positions (lists only).
@@ -118,6 +160,7 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
     V grad W_ij [and W_ij], and the boundary gradient sum. boundary_terms: the boundary method's
     ``BoundaryTerms`` (its density and gradient terms; None or without them: fluid only)."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    value_gradient = value_gradient_function(smoothing)
     with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
     density_term = boundary_terms.density if with_boundary else None
@@ -161,9 +204,10 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
             j = fluid_neighbors.index[i, k]
             x_ij = xi - predicted_x[j]
             if wp.dot(x_ij, x_ij) < support2:
-                w = wp.static(value)(wp.length(x_ij), h)
+                wg = wp.static(value_gradient)(x_ij, h)
+                w = wg[0]
                 w_sum += w
-                g = volume * wp.static(gradient)(x_ij, h)
+                g = volume * wp.vec3(wg[1], wg[2], wg[3])
                 grad_i += g
                 grad_sq += wp.dot(g, g)
                 pairs_out.index[i, n] = j
@@ -201,7 +245,8 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool, with_pressure_te
     """Jacobi correction (eq. 18) from a ``PairCache`` of the density pass at the same positions:
     dx_i = sum_j (lambda_i + lambda_j + s_corr_ij) V grad W_ij + lambda_i sum_b V_b grad W_ib, no
     kernel evaluation (the smoothing kernel entered through the cache). Same outputs as
-    ``correction_kernel``. with_pressure_term: also add pressure_term_scale lambda_i to
+    ``correction_kernel``, and x*_i += dx_i in place (``apply_correction``'s sum: no thread reads
+    another's position, the pairs came from the cache). with_pressure_term: also add pressure_term_scale lambda_i to
     ``boundary_pressure_term`` (moving bodies: with scale -1 / (rho0 dt^2) the walls' acceleration
     lambda_i V_b grad W_ib / dt^2 of i is the Akinci pressure term -rho0 V_b term_i grad W_ib)."""
 
@@ -226,6 +271,7 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool, with_pressure_te
         boundary_force_out: wp.array(dtype=wp.vec3),
         correction_size_out: wp.array(dtype=float),
         boundary_pressure_term_out: wp.array(dtype=float),
+        predicted_x: wp.array(dtype=wp.vec3),
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         lam_i = particle_lambda[i]
@@ -249,6 +295,7 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool, with_pressure_te
             dx = dx * (max_step / size)
         position_correction_out[i] = dx
         correction_size_out[i] = size
+        predicted_x[i] = predicted_x[i] + dx
 
     return compute_correction_pairs
 

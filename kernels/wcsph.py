@@ -95,7 +95,8 @@ def start_density_correction(
 @functools.cache
 def pressure_kernel(equation_of_state: str):
     """Linear p = max(K (rho/rho0 - 1), 0) (report eq. 9, K = B rho0) or Tait
-    p = max(K ((rho/rho0)^7 - 1), 0); K = stiffness [Pa]."""
+    p = max(K ((rho/rho0)^7 - 1), 0); K = stiffness [Pa]; and p / rho^2 [m^5/(kg s^2)], the term of
+    eq. 10 the force kernel reads per pair (formed once per particle, not once per pair)."""
     tait = equation_of_state == "tait"
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -108,16 +109,20 @@ def pressure_kernel(equation_of_state: str):
         particle_density: wp.array(dtype=float),
         # Out:
         particle_pressure_out: wp.array(dtype=float),
+        pressure_term_out: wp.array(dtype=float),
     ):
         i = wp.tid() + tid_offset
-        ratio = particle_density[i] / rest_density
+        rho = particle_density[i]
+        ratio = rho / rest_density
         p = float(0.0)
         if wp.static(tait):
             r2 = ratio * ratio
             p = stiffness * (r2 * r2 * r2 * ratio - 1.0)
         else:
             p = stiffness * (ratio - 1.0)
-        particle_pressure_out[i] = wp.max(p, 0.0)
+        p = wp.max(p, 0.0)
+        particle_pressure_out[i] = p
+        pressure_term_out[i] = p / (rho * rho)
 
     return compute_pressure
 
@@ -202,6 +207,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
         particle_v: wp.array(dtype=wp.vec3),
         particle_density: wp.array(dtype=float),
         particle_pressure: wp.array(dtype=float),
+        pressure_term: wp.array(dtype=float),
         force_acceleration: wp.array(dtype=wp.vec3),
         # Out:
         particle_acceleration_out: wp.array(dtype=wp.vec3),
@@ -213,7 +219,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
         xi = particle_x[i]
         vi = particle_v[i]
         rho_i = particle_density[i]
-        p_rho2_i = particle_pressure[i] / (rho_i * rho_i)
+        p_rho2_i = pressure_term[i]  # p_i / rho_i^2 (``pressure_kernel``)
         # the wall's p/rho^2: eq. 16 uses p_i/rho_i^2; mirrored (SPlisHSPlasH) gives the wall particle the
         # fluid particle's pressure at rest density: p_i/rho_i^2 + p_i/rho0^2
         p_rho2_b = p_rho2_i
@@ -237,7 +243,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                     rho_j = particle_density[j]
                     x_ij = xi - particle_x[j]
                     grad = wp.static(gradient)(x_ij, h)
-                    a += fluid_pair(x_ij, vi - particle_v[j], grad, p_rho2_i, particle_pressure[j] / (rho_j * rho_j),
+                    a += fluid_pair(x_ij, vi - particle_v[j], grad, p_rho2_i, pressure_term[j],
                                     rho_i, rho_j, particle_mass, eps_h2, alpha_h_c)
                     if wp.static(with_density_diffusion):
                         diffuse = diffuse_i
@@ -257,7 +263,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                     if wp.length(x_ij) < support_radius:
                         rho_j = particle_density[j]
                         grad = wp.static(gradient)(x_ij, h)
-                        a += fluid_pair(x_ij, vi - particle_v[j], grad, p_rho2_i, particle_pressure[j] / (rho_j * rho_j),
+                        a += fluid_pair(x_ij, vi - particle_v[j], grad, p_rho2_i, pressure_term[j],
                                         rho_i, rho_j, particle_mass, eps_h2, alpha_h_c)
                         if wp.static(with_density_diffusion):
                             diffuse = diffuse_i

@@ -217,6 +217,21 @@ class NeighborLists:
                 self._no_mask, 0, 0, 0, self.search_radius, float(smoothing_length), float(particle_mass),
                 self._no_params, fc.cell_point, particle_x],
                [self.fluid.count, self.fluid.index, self._max_count, density], device=self.device)
+        self._build_boundary(particle_x, density, smoothing, smoothing_length, rest_density, boundary_terms,
+                             boundary_params, boundary_density)
+
+    def build_boundary_lists(self, particle_x: wp.array) -> None:
+        """The fluid-boundary lists alone for the positions ``particle_x`` [m] that ``sort`` was given (a solver
+        that builds the fluid lists in a search of its own, e.g. PBF's fused search and density pass)."""
+        self._build_boundary(particle_x, self._no_density, "", 0.0, 0.0, None, None, False)
+
+    def _build_boundary(self, particle_x, density, smoothing, smoothing_length, rest_density, boundary_terms,
+                        boundary_params, boundary_density: bool) -> None:
+        from ..core.launch import launch
+        from ..kernels import neighbors as _dev
+
+        n = particle_x.shape[0]
+        fc = self.fluid_cells
         if not self.has_boundary:
             return
         if boundary_density:

@@ -173,8 +173,8 @@ class PbfSolver(PbfPasses, Solver):
         if share < 1.0:
             if not at_x:
                 wp.copy(f["predicted_x"], f["particle_x"])
-                self.build_neighbors()
-                self.density_pass()
+                self.reuse_neighbors()
+                self.constraint_pass()  # C at x, all the offset needs
             launch(_pbf.constraint_offset, self.model.fluid_count, [1.0 - share, f["pbf_constraint"]],
                    [f["pbf_constraint_offset"]], device=self.model.device, min_range=LIGHT_MIN_RANGE)
             self._offset_set = True
@@ -212,10 +212,16 @@ class PbfSolver(PbfPasses, Solver):
             launch(_pbf.clear_float, m.fluid_count, [], [self._term], device=m.device, min_range=LIGHT_MIN_RANGE)
 
     def run_neighbors(self, sim, dt) -> None:
-        self.build_neighbors()
+        if self.lists:
+            self.sort_neighbors()  # the fluid lists come with the density pass ("density")
+        else:
+            self.build_neighbors()
 
     def run_density(self, sim, dt) -> None:
-        self.density_pass()
+        if self.lists:
+            self.search_density_pass()
+        else:
+            self.density_pass()
 
     def run_solve(self, sim, dt) -> None:
         """Iterations as in SPlisHSPlasH: each one is a density pass (the "density" stage for the first)
@@ -274,7 +280,7 @@ class PbfSolver(PbfPasses, Solver):
         moving = ("moving_boundary_grid",) if self.with_bodies else ()
         stages = [
             Stage("stabilize", self.run_stabilize, reads=("particle_x",) + boundary_reads + moving,
-                  updates=("particle_x", nb, "pbf_neighbor_x", "pbf_constraint_offset") + passes + correction,
+                  updates=("particle_x", nb, "pbf_neighbor_x", "pbf_neighbor_slot", "pbf_constraint_offset") + passes + correction,
                   doc=f"when the last density pass read a mean error > {self.stabilize_factor:g}x the target: "
                       "project it out of x with density passes and corrections at dt = 0 (no velocity); for a "
                       "step under half the adaptive step, leave the share 1 - 2 dt / bound of the error at x "
@@ -282,14 +288,15 @@ class PbfSolver(PbfPasses, Solver):
             Stage("predict", self.run_predict, reads=("particle_x",), updates=("particle_v", "predicted_x",
                                                                               "boundary_force") + term,
                   doc="v += dt g; x* = x + dt v; the step's boundary force starts at 0"),
-            Stage("neighbors", self.run_neighbors, reads=("predicted_x",) + moving, updates=(nb, "pbf_neighbor_x"),
+            Stage("neighbors", self.run_neighbors, reads=("predicted_x",) + moving,
+                  updates=(nb, "pbf_neighbor_x", "pbf_neighbor_slot"),
                   doc=neighbor_doc),
             Stage("density", self.run_density, reads=(nb, "predicted_x", "pbf_constraint_offset") + boundary_reads,
-                  updates=passes,
+                  updates=passes + ((nb, "pbf_neighbor_slot") if self.lists else ()),
                   doc="density at x* (eq. 7" + (f" + {sim.boundary_terms.name} boundary" if with_boundary else "")
                       + "), C (eq. 17), lambda (eq. 19)"),
             Stage("solve", self.run_solve, reads=("particle_lambda", "pbf_constraint_offset") + boundary_reads + moving,
-                  updates=(nb, "pbf_neighbor_x") + passes + correction,
+                  updates=(nb, "pbf_neighbor_x", "pbf_neighbor_slot") + passes + correction,
                   doc=f"iterations of [density pass +] Jacobi correction (eq. 18) until the pass reads mean C < "
                       f"{target:g} ({p.min_iterations}-{p.max_iterations} iterations), eps = {p.relaxation:g} D0"
                       + (", s_corr" if p.tensile_correction else "")),
@@ -308,7 +315,7 @@ class PbfSolver(PbfPasses, Solver):
     def carried_fields(self) -> tuple[str, ...]:
         """Workspace fields that outlive a step (read by the next step's stabilisation check and stages)."""
         nb = "neighbor_lists" if self.lists else "fluid_grid"
-        return ("predicted_x", nb, "pbf_neighbor_x", "particle_density", "particle_lambda", "pbf_constraint",
+        return ("predicted_x", nb, "pbf_neighbor_x", "pbf_neighbor_slot", "particle_density", "particle_lambda", "pbf_constraint",
                 "pbf_constraint_offset",
                 "position_correction", "pbf_correction_size", "boundary_force", "particle_acceleration") + (
             ("pbf_pairs",) if self.lists else ()) + (("boundary_pressure_term",) if self.with_bodies else ())

@@ -5,6 +5,12 @@ correction (eq. 18), launching ``kernels/pbf.py`` (neighbour lists) or ``kernels
 solver reports; the attributes the passes read (``lists``, ``margin``, ``epsilon``, ``max_step``,
 ``tensile_*``, ``query_radius``, ``allowed_drift``) are set by ``PbfSolver.__init__``.
 
+Cost per step (issue #32): the fluid lists are written by the step's first density pass itself
+(``search_density_pass``, ``kernels/pbf_search.py``: one walk over the cells, bitwise the build + pass);
+the stabilize stage's density pass at x reads the last step's lists, which still hold every pair
+closer than H_s there unless a particle drifted past margin / 2 or the frame reordered the particles
+(``reuse_neighbors``); a correction adds dx to x* in its own kernel.
+
 A helper of the solver ``pbf.py`` (it registers nothing; the registry imports it harmlessly).
 """
 from __future__ import annotations
@@ -15,6 +21,7 @@ import warp as wp
 from ...core.launch import LIGHT_MIN_RANGE, launch
 from ...kernels import pbf as _pbf
 from ...kernels import pbf_hash_grid as _pbf_grid
+from ...kernels import pbf_search as _pbf_search
 from ...kernels import reduction as _reduce
 from ...neighbors.cell_lists import simulation_neighbor_lists
 
@@ -30,7 +37,8 @@ class PbfPasses:
         for name, dtype in (("particle_density", float), ("particle_lambda", float), ("pbf_constraint", float),
                             ("pbf_correction_size", float), ("position_correction", wp.vec3),
                             ("boundary_force", wp.vec3), ("particle_acceleration", wp.vec3),
-                            ("pbf_neighbor_x", wp.vec3), ("pbf_constraint_offset", float)):
+                            ("pbf_neighbor_x", wp.vec3), ("pbf_constraint_offset", float),
+                            ("pbf_neighbor_slot", wp.int32)):
             sim.allocate(name, dtype)
         # moving bodies: sum over the step's corrections of -lambda_i / (rho0 dt^2) (``correction``)
         self._term = sim.allocate("boundary_pressure_term", float) if self.with_bodies else wp.zeros(
@@ -38,11 +46,14 @@ class PbfPasses:
         chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
         self._error_partial = wp.zeros(chunks, dtype=float, device=dev)
         self._correction_partial = wp.zeros((chunks, 2), dtype=float, device=dev)
+        self._drift_partial = wp.zeros(chunks, dtype=float, device=dev)
         terms = sim.boundary_terms
         tensile = bool(self.config.tensile_correction)
         if self.lists:
             self.nl = simulation_neighbor_lists(sim, self.margin)
             self._density_kernel = _pbf.density_lambda_pairs_kernel(m.smoothing.name, terms, tensile)
+            self._search_kernel = _pbf_search.search_density_lambda_kernel(m.smoothing.name, terms, tensile)
+            self._constraint_kernel = _pbf_search.constraint_kernel(m.smoothing.name, terms)
             self._correction_kernel = _pbf.correction_pairs_kernel(self._with_boundary_gradient, tensile,
                                                                    self.with_bodies and self._with_boundary_gradient)
             pairs = _pbf.PairCache()
@@ -89,7 +100,70 @@ class PbfPasses:
             self.sim.fluid_grid.build(x)
         self.grid_builds += 1
         wp.copy(f["pbf_neighbor_x"], x)
+        launch(_pbf_search.identity_slots, self.model.fluid_count, [], [f["pbf_neighbor_slot"]],
+               device=self.model.device, min_range=LIGHT_MIN_RANGE)
         self.last_drift = 0.0
+
+    def sort_neighbors(self) -> None:
+        """The first half of ``build_neighbors`` with lists: the fluid sorted into cells on x* and the boundary
+        lists; ``search_density_pass`` then builds the fluid lists and runs the density pass in one walk."""
+        f = self.sim.fields
+        x = f["predicted_x"]
+        self.nl.sort(x)
+        self.nl.build_boundary_lists(x)
+        self.grid_builds += 1
+        wp.copy(f["pbf_neighbor_x"], x)
+        self.last_drift = 0.0
+
+    def search_density_pass(self) -> None:
+        """The fluid lists on x* (after ``sort_neighbors``) and, in the same walk over the cells, the density
+        pass (``density_pass``; ``kernels/pbf_search.py``): bitwise the lists and values of ``build_neighbors``
+        + ``density_pass``."""
+        m, f, nl = self.model, self.sim.fields, self.nl
+        fc = nl.fluid_cells
+        launch(self._search_kernel, m.fluid_count,
+               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, nl.search_radius,
+                m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
+                self.sim.boundary_params, nl.boundary, m.boundary_x, m.boundary_volume, f["predicted_x"],
+                f["pbf_constraint_offset"]],
+               [nl.fluid, nl.max_count, f["particle_density"], f["particle_lambda"], f["pbf_constraint"],
+                self._pair_cache(), f["pbf_neighbor_slot"]], device=m.device)
+        self._sum_error()
+
+    def constraint_pass(self) -> None:
+        """Density and C at x* alone (the stabilize stage's offset reads no more): bitwise those of
+        ``density_pass``, which it replaces there with lists; its lambda and pair cache stay as they were."""
+        if not self.lists:
+            self.density_pass()
+            return
+        m, f = self.model, self.sim.fields
+        launch(self._constraint_kernel, m.fluid_count,
+               [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.sim.boundary_params,
+                self.nl.boundary, m.boundary_x, m.boundary_volume, self.nl.fluid, f["predicted_x"],
+                f["pbf_constraint_offset"]],
+               [f["particle_density"], f["pbf_constraint"]], device=m.device)
+        self._sum_error()
+
+    def reuse_neighbors(self) -> None:
+        """Neighbours of x* = x at a step's start: the last step's, when no boundary particle moved since (no
+        bodies), every particle is still at the index it had when they were searched (between frames the
+        particles are put in and out of cell order) and x* drifted at most ``allowed_drift`` from where
+        they were searched (both measured here: one chunked maximum, one read); else a new build. The same
+        pairs closer than H_s either way (the lists' order, and so the order of the sums, can differ)."""
+        if self.with_bodies or self.neighbor_mode == "rebuild":
+            self.build_neighbors()
+            return
+        self.last_drift = self.measure_drift()
+        self.refresh_neighbors()
+
+    def measure_drift(self) -> float:
+        """The largest distance of x* from where the neighbours were searched [m] (device maximum per
+        chunk); 1e30 when the particles were reordered since."""
+        m, f = self.model, self.sim.fields
+        launch(_pbf_search.neighbor_drift_chunks, self._drift_partial.shape[0],
+               [_reduce.REDUCE_CHUNK, m.fluid_count, f["predicted_x"], f["pbf_neighbor_x"], f["pbf_neighbor_slot"]],
+               [self._drift_partial], device=m.device)
+        return float(self._drift_partial.numpy().max())
 
     def refresh_neighbors(self) -> None:
         """After a correction: rebuild where the neighbours may be incomplete."""
@@ -114,6 +188,11 @@ class PbfPasses:
                     self.query_radius, params, bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"],
                     f["pbf_constraint_offset"]],
                    [f["particle_density"], f["particle_lambda"], f["pbf_constraint"]], device=m.device)
+        self._sum_error()
+
+    def _sum_error(self) -> None:
+        """``last_error_sum``: the sum of C_i of the pass just run, ``last_error_count`` its particles."""
+        m, f = self.model, self.sim.fields
         # sum of C_i in a fixed order: chunk sums on the device, their sum on the host (one read)
         launch(_reduce.sum_chunks, self._error_partial.shape[0], [_reduce.REDUCE_CHUNK, f["pbf_constraint"]],
                [self._error_partial], device=m.device)
@@ -130,16 +209,16 @@ class PbfPasses:
             launch(self._correction_kernel, m.fluid_count,
                    [m.particle_mass, *tensile, inv_dt2, self.max_step, -inv_dt2 / m.rest_density, fn, f["pbf_pairs"],
                     f["particle_lambda"]],
-                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"], self._term],
-                   device=m.device)
+                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"], self._term,
+                    f["predicted_x"]], device=m.device)  # x* += dx in the same kernel
         else:
             launch(self._correction_kernel, m.fluid_count,
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
                     *tensile, inv_dt2, self.max_step, self.sim.boundary_params, bn, m.boundary_x, m.boundary_volume,
                     fn, f["predicted_x"], f["particle_lambda"]],
                    [f["position_correction"], f["boundary_force"], f["pbf_correction_size"]], device=m.device)
-        launch(_pbf.apply_correction, m.fluid_count, [f["position_correction"]], [f["predicted_x"]], device=m.device,
-               min_range=LIGHT_MIN_RANGE)
+            launch(_pbf.apply_correction, m.fluid_count, [f["position_correction"]], [f["predicted_x"]],
+                   device=m.device, min_range=LIGHT_MIN_RANGE)
         launch(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
                [_reduce.REDUCE_CHUNK, f["pbf_correction_size"], f["predicted_x"], f["pbf_neighbor_x"]],
                [self._correction_partial], device=m.device)

@@ -109,6 +109,7 @@ class WcsphSolver(Solver):
     def stages(self) -> list[Stage]:
         sim, m = self.sim, self.model
         sim.allocate("particle_pressure", float)
+        sim.allocate("wcsph_pressure_term", float)  # p / rho^2, read per pair by the forces
         sim.allocate("particle_acceleration", wp.vec3)
         sim.allocate("boundary_force", wp.vec3)
         terms, params = sim.boundary_terms, sim.boundary_params
@@ -136,7 +137,8 @@ class WcsphSolver(Solver):
 
         def run_pressure(sim, dt):
             launch(pressure_kernel, m.fluid_count, [m.rest_density, stiffness, sim.fields["particle_density"]],
-                   [sim.fields["particle_pressure"]], device=m.device, min_range=LIGHT_MIN_RANGE)
+                   [sim.fields["particle_pressure"], sim.fields["wcsph_pressure_term"]], device=m.device,
+                   min_range=LIGHT_MIN_RANGE)
 
         def run_forces(sim, dt):
             f = sim.fields
@@ -150,7 +152,7 @@ class WcsphSolver(Solver):
                     float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound),
                     coefficient, hydrostatic, float(dt), params, bn,
                     m.boundary_x, m.boundary_v, m.boundary_volume, fn, f["particle_x"], f["particle_v"],
-                    f["particle_density"], f["particle_pressure"], accel],
+                    f["particle_density"], f["particle_pressure"], f["wcsph_pressure_term"], accel],
                    [f["particle_acceleration"], f["boundary_force"], term, correction], device=m.device)
 
         def run_integrate(sim, dt):
@@ -195,10 +197,12 @@ class WcsphSolver(Solver):
         stages = [neighbors_stage(sim, self.lists), density]
         stages += forces.filter_stages(slot) + explicit
         stages += [
-            Stage("pressure", run_pressure, reads=("particle_density",), writes=("particle_pressure",),
+            Stage("pressure", run_pressure, reads=("particle_density",),
+                  writes=("particle_pressure", "wcsph_pressure_term"),
                   doc=f"{self.config.equation_of_state} equation of state, K = {stiffness:.4g} Pa"),
             Stage("forces", run_forces,
-                  reads=(neighbors, "particle_x", "particle_v", "particle_density", "particle_pressure") + boundary_reads
+                  reads=(neighbors, "particle_x", "particle_v", "particle_density", "particle_pressure",
+                         "wcsph_pressure_term") + boundary_reads
                   + ((FORCE_ACCELERATION,) if with_forces else ()),
                   writes=("particle_acceleration", "boundary_force") + (("boundary_pressure_term",) if bodies else ()),
                   updates=("wcsph_density_correction",) if diffusion else (),

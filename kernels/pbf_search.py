@@ -1,0 +1,228 @@
+"""PBF's step search fused with its first density pass: one kernel walks the cell grid of the fluid
+(``warp_sph.neighbors.NeighborLists``), writes the fluid neighbour lists (search radius H_s + margin)
+and, over the listed pairs closer than H_s, sums the density, C and lambda of ``kernels/pbf.py``
+(eq. 7/13, 17, 19) and fills its ``PairCache``, so the step's first density pass costs no second walk
+over the lists. The pairs are visited in the lists' order (cell order, then index), as the list pass
+``density_lambda_pairs_kernel`` visits them: the sums, and so the results, are bitwise the same.
+The boundary lists are built before it (``NeighborLists.build_boundary_lists``): it reads them.
+Also the check that lists kept from an earlier step still serve (``neighbor_drift_chunks``) and the
+density pass at x that only needs C (``constraint_pairs_kernel``: the stabilize stage's offset).
+"""
+import functools
+
+import warp as wp
+
+from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, row_points
+from .pbf import PairCache, constraint_lambda, value_gradient_function
+from .smoothing import SMOOTHING_FUNCTIONS
+
+
+@functools.cache
+def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
+    """Fluid neighbour lists within ``search_radius`` [m] (as ``neighbors.neighbor_list_kernel``: count exact,
+    entries past the capacity dropped, max_count_out[i] their largest count) plus, over the stored pairs
+    closer than the support radius, what ``pbf.density_lambda_pairs_kernel`` writes: density [kg/m^3],
+    lambda [m^2], C [-] and the ``PairCache``."""
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    value_gradient = value_gradient_function(smoothing)
+    with_boundary = boundary_terms is not None and boundary_terms.density is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    density_term = boundary_terms.density if with_boundary else None
+    gradient_term = boundary_terms.gradient if with_boundary else None
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def search_density_lambda(
+        tid_offset: int,
+        # Grid of the fluid (sorted on predicted_x):
+        grid_lo: wp.vec3,
+        inv_cell_size: float,
+        grid_dims: wp.vec3i,
+        cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
+        sorted_points: wp.array(dtype=wp.vec3),
+        search_radius: float,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        relaxation_epsilon: float,
+        boundary_params: BoundaryParams,
+        boundary_neighbors: NeighborList,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        predicted_x: wp.array(dtype=wp.vec3),
+        constraint_offset: wp.array(dtype=float),
+        # Out:
+        fluid_neighbors: NeighborList,
+        max_count_out: wp.array(dtype=wp.int32),
+        particle_density_out: wp.array(dtype=float),
+        particle_lambda_out: wp.array(dtype=float),
+        particle_constraint_out: wp.array(dtype=float),
+        pairs_out: PairCache,
+        neighbor_slot_out: wp.array(dtype=wp.int32),
+    ):
+        i = int(fluid_neighbors.order[wp.tid() + tid_offset])
+        xi = predicted_x[i]
+        q = (xi - grid_lo) * inv_cell_size
+        qr = search_radius * inv_cell_size
+        radius2 = search_radius * search_radius
+        capacity = fluid_neighbors.index.shape[1]
+        rows = cell_rows(q, qr, grid_dims)
+        h = smoothing_length
+        support2 = support_radius * support_radius
+        volume = particle_mass / rest_density
+        w_sum = float(0.0)
+        grad_i = wp.vec3(0.0)
+        grad_sq = float(0.0)
+        n = int(0)
+        p = int(0)
+        for z in range(rows[2], rows[3] + 1):
+            for y in range(rows[0], rows[1] + 1):
+                span = row_points(q, qr, y, z, grid_dims, cell_start)
+                k = span[0]
+                k_end = span[1]
+                while k < k_end:
+                    x_ij = xi - sorted_points[k]
+                    dd = wp.dot(x_ij, x_ij)
+                    if dd < radius2:
+                        if n < capacity:
+                            j = cell_point[k]
+                            fluid_neighbors.index[i, n] = j
+                            if dd < support2:  # the pairs the density pass keeps, in its order
+                                wg = wp.static(value_gradient)(x_ij, h)
+                                w = wg[0]
+                                w_sum += w
+                                g = volume * wp.vec3(wg[1], wg[2], wg[3])
+                                grad_i += g
+                                grad_sq += wp.dot(g, g)
+                                pairs_out.index[i, p] = j
+                                pairs_out.gradient[i, p] = g
+                                if wp.static(tensile):
+                                    pairs_out.value[i, p] = w
+                                p += 1
+                        n += 1
+                    k += 1
+        fluid_neighbors.count[i] = n
+        neighbor_slot_out[i] = i  # (``pbf.neighbor_drift_chunks``: the lists' indices hold while this does)
+        if n > capacity:  # per particle, no atomics (the boundary lists' launch wrote before this one)
+            max_count_out[i] = wp.max(max_count_out[i], n)
+        pairs_out.count[i] = p
+        ratio = volume * w_sum
+        grad_b = wp.vec3(0.0)
+        if wp.static(with_boundary):
+            k = int(0)
+            k_end = int(neighbor_count(boundary_neighbors, i))
+            while k < k_end:
+                b = boundary_neighbors.index[i, k]
+                x_ib = xi - boundary_x[b]
+                if wp.dot(x_ib, x_ib) < support2:
+                    vb = boundary_volume[b]
+                    ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.length(x_ib), h), vb)
+                    grad_b += wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vb)
+                k += 1
+        pairs_out.boundary_gradient[i] = grad_b
+        grad_i += grad_b
+        c_lam = constraint_lambda(ratio - constraint_offset[i], grad_i, grad_sq, relaxation_epsilon)
+        particle_density_out[i] = rest_density * ratio
+        particle_lambda_out[i] = c_lam[1]
+        particle_constraint_out[i] = c_lam[0]
+
+    return search_density_lambda
+
+
+@wp.kernel(enable_backward=False)
+def neighbor_drift_chunks(
+    chunk: int,
+    count: int,
+    # In:
+    predicted_x: wp.array(dtype=wp.vec3),
+    neighbor_x: wp.array(dtype=wp.vec3),
+    neighbor_slot: wp.array(dtype=wp.int32),
+    # Out:
+    partial_out: wp.array(dtype=float),
+):
+    """Per chunk of the first ``count`` particles: the largest distance of x*_i from where its neighbours
+    were searched [m], or 1e30 when a particle is no longer at the index it had then (neighbor_slot[i] != i:
+    the particles were reordered since, and the lists' indices are stale)."""
+    k = wp.tid()
+    lo = k * chunk
+    hi = wp.min(lo + chunk, count)
+    drift = float(0.0)
+    for i in range(lo, hi):
+        if neighbor_slot[i] != i:
+            drift = 1.0e30
+        drift = wp.max(drift, wp.length(predicted_x[i] - neighbor_x[i]))
+    partial_out[k] = drift
+
+
+@wp.kernel(enable_backward=False)
+def identity_slots(
+    tid_offset: int,
+    # Out:
+    slot_out: wp.array(dtype=wp.int32),
+):
+    """slot_i = i: where each particle is when its neighbours are searched (``neighbor_drift_chunks``)."""
+    i = wp.tid() + tid_offset
+    slot_out[i] = i
+
+
+@functools.cache
+def constraint_kernel(smoothing: str, boundary_terms):
+    """Density [kg/m^3] and C [-] alone (eq. 7/13, 17) over the neighbour lists: what the stabilize stage's
+    constraint offset reads at x (no lambda, no pair cache: the step's density stage writes those at x*).
+    The same pairs, order and expressions as ``pbf.density_lambda_pairs_kernel``: bitwise its density and C."""
+    value = SMOOTHING_FUNCTIONS[smoothing][0]
+    with_boundary = boundary_terms is not None and boundary_terms.density is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    density_term = boundary_terms.density if with_boundary else None
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_constraint(
+        tid_offset: int,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        boundary_params: BoundaryParams,
+        boundary_neighbors: NeighborList,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        fluid_neighbors: NeighborList,
+        predicted_x: wp.array(dtype=wp.vec3),
+        constraint_offset: wp.array(dtype=float),
+        # Out:
+        particle_density_out: wp.array(dtype=float),
+        particle_constraint_out: wp.array(dtype=float),
+    ):
+        i = int(fluid_neighbors.order[wp.tid() + tid_offset])
+        xi = predicted_x[i]
+        h = smoothing_length
+        support2 = support_radius * support_radius
+        volume = particle_mass / rest_density
+        w_sum = float(0.0)
+        k = int(0)
+        k_end = int(neighbor_count(fluid_neighbors, i))
+        while k < k_end:
+            x_ij = xi - predicted_x[fluid_neighbors.index[i, k]]
+            if wp.dot(x_ij, x_ij) < support2:
+                w_sum += wp.static(value)(wp.length(x_ij), h)
+            k += 1
+        ratio = volume * w_sum
+        if wp.static(with_boundary):
+            k = int(0)
+            k_end = int(neighbor_count(boundary_neighbors, i))
+            while k < k_end:
+                b = boundary_neighbors.index[i, k]
+                x_ib = xi - boundary_x[b]
+                if wp.dot(x_ib, x_ib) < support2:
+                    ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.length(x_ib), h),
+                                                     boundary_volume[b])
+                k += 1
+        particle_density_out[i] = rest_density * ratio
+        particle_constraint_out[i] = wp.max((ratio - constraint_offset[i]) - 1.0, 0.0)  # as constraint_lambda
+
+    return compute_constraint

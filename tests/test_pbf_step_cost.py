@@ -1,0 +1,65 @@
+"""PBF's per-step cost cuts against the passes they replace: the fused search + first density pass
+(``kernels/pbf_search.py``) is bitwise the list build + density pass; the stabilize stage's density
+pass at x reuses the last step's lists (no second build per step) and reads the same error."""
+import numpy as np
+
+from small_scenes import small_tank
+from warp_sph.methods.solvers.pbf import PbfSolver
+from warp_sph.run.simulation import Simulation
+
+
+def fixed_step_tank(**kw):
+    """A block falling onto the floor of a tank, with a fixed step well below the adaptive one (the
+    stabilize stage then measures the error at x every step: ``Solver.error_share`` < 1)."""
+    r = 0.025
+    d = 2 * r
+    size = [12 * d, 8 * d, 0.8]
+    return small_tank("pbf_cost", solver="pbf", particle_radius=r, container={"min": [0, 0, 0], "max": size},
+                      fluid=[{"min": [0, 0, 0.1], "max": [6 * d, size[1], 0.45]}],
+                      time={"fixed_dt": 1.0 / 24 / 48}, **kw)
+
+
+def run_frames(sim, frames=3):
+    errors = []
+    for _ in range(frames):
+        stats = sim.advance_frame()
+        errors.append(stats.solver["density_error"]["mean"])
+    return sim.get_field("particle_x"), sim.get_field("particle_v"), errors
+
+
+def unfused(monkeypatch):
+    """The passes before the fusion: a full list build in "neighbors", the list density pass in "density"."""
+    monkeypatch.setattr(PbfSolver, "run_neighbors", lambda self, sim, dt: self.build_neighbors())
+    monkeypatch.setattr(PbfSolver, "run_density", lambda self, sim, dt: self.density_pass())
+
+
+def test_fused_search_and_density_is_bitwise_the_build_and_pass(monkeypatch, device):
+    fused = Simulation(fixed_step_tank(), device=device)
+    with monkeypatch.context() as m:
+        unfused(m)
+        ref = Simulation(fixed_step_tank(), device=device)
+    a, b = run_frames(fused), run_frames(ref)
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and a[2] == b[2]
+    assert fused.solver.grid_builds == ref.solver.grid_builds
+
+
+def test_stabilize_reuses_the_lists_and_reads_the_same_error(device):
+    """Before: every step built the lists twice (at x for the stabilize stage's error, at x* for the solve).
+    Now once per step plus once per frame (the frame's first step: the particles changed places between
+    frames) plus the solve's drift rebuilds; the positions agree with the two-build step to rounding.
+    The frames put the particles in and out of cell order: lists kept across that are stale (a first
+    version of this change read them: 4 mm off after one frame); ``pbf_neighbor_slot`` catches it."""
+    reuse = Simulation(fixed_step_tank(), device=device)
+    ref = Simulation(fixed_step_tank(), device=device)
+    ref.solver.reuse_neighbors = ref.solver.build_neighbors  # the old stabilize stage: a build at x
+    frames = 3
+    b0, r0 = reuse.solver.grid_builds, ref.solver.grid_builds
+    (xa, va, ea), (xb, vb, eb) = run_frames(reuse, frames), run_frames(ref, frames)
+    steps = reuse.state.step
+    assert reuse.state.step == ref.state.step == frames * 48
+    assert ref.solver.grid_builds - r0 >= 2 * steps  # the two builds per step of the old stabilize stage
+    assert reuse.solver.grid_builds - b0 < 1.3 * steps
+    # the same pairs in the same order while no particle changes cells (here: bitwise); else rounding only
+    np.testing.assert_allclose(xa, xb, atol=1e-6)
+    np.testing.assert_allclose(va, vb, atol=1e-4)
+    np.testing.assert_allclose(ea, eb, rtol=1e-3, atol=1e-7)
