@@ -3,9 +3,11 @@
     python -m benchmarks.dfsph_step_profile                     # dam break r = 0.025 m, from 0.3 s, 3 frames
     python -m benchmarks.dfsph_step_profile --radius 0.025 --start 0.3 --frames 3 --threads 2
 
-Runs the dam break (solver dfsph, its adaptive step, no output) to ``--start`` seconds (splashing),
-then measures ``--frames`` frames twice:
-- plain: wall and process CPU time per step, nothing instrumented;
+Runs the dam break (solver dfsph, its adaptive step, no output) to ``--start`` seconds (splashing)
+twice, once per path of the solves' sweeps (``PATHS``: a split launch per pass, or one
+``core.launch.run_loop`` per solve; bitwise the same states), then measures each:
+- plain: wall and process CPU time per step, nothing instrumented, in alternating rounds of
+  ``--frames`` frames (A B A B: the machine's load drifts);
 - instrumented: every kernel run on the CPU (``warp.context.Launch.launch``, through which every
   ``wp.launch`` is routed here by recording it first) is timed on the thread that runs it. Per step:
   kernel runs, wall, the main thread's kernel time and its Python time (wall minus that), each worker
@@ -40,23 +42,12 @@ def _frames(sim, frames: int) -> int:
     return steps
 
 
-def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3) -> dict:
+PATHS = {"launch per pass": False, "run_loop": True}  # DfsphSolver.sweep_loop of each path
+
+
+def _instrumented(sim, frames: int) -> dict:
     import warp as wp
     from warp._src import context as ctx
-
-    from warp_sph.core.launch import cpu_threads
-
-    sim = _simulation(radius)
-    while sim.state.time < start - 1e-9:
-        sim.advance_frame()
-    out = {"radius": radius, "start_time": sim.state.time, "frames": frames, "fluid": sim.model.fluid_count,
-           "cpu_threads": cpu_threads(), "load": os.getloadavg()}
-
-    t0, c0 = time.perf_counter(), time.process_time()
-    steps = _frames(sim, frames)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    out["plain"] = {"steps": steps, "wall_ms_per_step": 1e3 * wall / steps, "cpu_ms_per_step": 1e3 * cpu / steps,
-                    "cores_busy": cpu / wall}
 
     kernel_s = collections.defaultdict(float)   # per thread id
     runs = collections.defaultdict(int)         # per thread id
@@ -100,7 +91,7 @@ def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3) -> dict:
     main_k = kernel_s.get(main, 0.0)
     workers = [{"kernel_ms_per_step": 1e3 * s / steps, "idle_ms_per_step": 1e3 * (wall - s) / steps,
                 "runs_per_step": runs[t] / steps} for t, s in kernel_s.items() if t != main]
-    out["instrumented"] = {
+    return {
         "steps": steps, "wall_ms_per_step": 1e3 * wall / steps, "cpu_ms_per_step": 1e3 * cpu / steps,
         "kernel_runs_per_step": sum(runs.values()) / steps,
         "main_kernel_ms_per_step": 1e3 * main_k / steps,
@@ -112,8 +103,36 @@ def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3) -> dict:
         "kernels": {k: {"runs_per_step": n / steps, "ms_per_step": 1e3 * s / steps, "us_per_run": 1e6 * s / max(n, 1)}
                     for k, (n, s) in sorted(by_kernel.items(), key=lambda kv: -kv[1][1])},
     }
-    stages = sim.graph.timing_table()
-    out["stages_ms_per_call"] = {r["stage"]: r["ms_per_call"] for r in stages}
+
+
+def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3, rounds: int = 2) -> dict:
+    """Both paths of the DFSPH solves (``PATHS``) side by side on two equal simulations: ``rounds``
+    alternating rounds of ``frames`` plain frames each, then one instrumented round each."""
+    from warp_sph.core.launch import cpu_threads
+
+    sims = {}
+    for name, loop in PATHS.items():
+        sim = _simulation(radius)
+        sim.solver.sweep_loop = loop
+        while sim.state.time < start - 1e-9:
+            sim.advance_frame()
+        sims[name] = sim
+    first = next(iter(sims.values()))
+    out = {"radius": radius, "start_time": first.state.time, "frames": frames, "rounds": rounds,
+           "fluid": first.model.fluid_count, "cpu_threads": cpu_threads(), "load_before": os.getloadavg()}
+    plain = {name: [0, 0.0, 0.0] for name in sims}
+    for _ in range(rounds):
+        for name, sim in sims.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            steps = _frames(sim, frames)
+            p = plain[name]
+            p[0] += steps
+            p[1] += time.perf_counter() - t0
+            p[2] += time.process_time() - c0
+    out["plain"] = {name: {"steps": n, "wall_ms_per_step": 1e3 * w / n, "cpu_ms_per_step": 1e3 * c / n,
+                           "cores_busy": c / w} for name, (n, w, c) in plain.items()}
+    out["instrumented"] = {name: _instrumented(sim, frames) for name, sim in sims.items()}
+    out["load_after"] = os.getloadavg()
     return out
 
 
@@ -121,12 +140,13 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--radius", type=float, default=0.025, help="particle radius [m] (default 0.025: 6,859 particles)")
     ap.add_argument("--start", type=float, default=0.3, help="simulated seconds run before measuring (default 0.3)")
-    ap.add_argument("--frames", type=int, default=3, help="frames measured, each way (default 3)")
+    ap.add_argument("--frames", type=int, default=3, help="frames per round (default 3)")
+    ap.add_argument("--rounds", type=int, default=2, help="plain rounds per path, alternating (default 2)")
     ap.add_argument("--threads", type=int, default=None, help="WARP_SPH_CPU_THREADS (default: every core)")
     a = ap.parse_args(argv)
     if a.threads:
         os.environ["WARP_SPH_CPU_THREADS"] = str(a.threads)
-    print(json.dumps(profile(a.radius, a.start, a.frames), indent=1))
+    print(json.dumps(profile(a.radius, a.start, a.frames, a.rounds), indent=1))
     return 0
 
 
