@@ -78,9 +78,9 @@ def _block(steps_dt, threads, loop, monkeypatch):
 
 @pytest.mark.parametrize("threads", ["1", "2"])
 def test_dfsph_sweep_loop_is_bitwise_the_launch_per_pass(monkeypatch, threads):
-    """DFSPH's solves through run_loop (recorded sweeps, re-bound when dt, and with it the scale and the
-    divergence target, changes from step to step) give bitwise the state and iteration counts of
-    the launch-per-pass path, with plain and Chebyshev sweeps."""
+    """DFSPH's search and solves through run_loop (recorded launches, re-bound when dt, and with it the
+    scale, 1/dt and the divergence target, changes from step to step) give bitwise the state and
+    iteration counts of the launch-per-pass path, with plain and Chebyshev sweeps."""
     dts = (4e-3, 3e-3, 3.5e-3)
     old = _block(dts, threads, False, monkeypatch)
     new = _block(dts, threads, True, monkeypatch)

@@ -248,8 +248,14 @@ _loop_workers: _LoopWorkers | None = None
 _loop_lock = threading.Lock()
 
 
+def _ranges(item) -> list:
+    """The callables of a ``run_loop`` item: one per recorded range, or the item itself (thread 0)."""
+    return [cmd.launch for cmd in item.cmds] if isinstance(item, Recorded) else [item]
+
+
 def run_loop(groups, sweeps: int, stop=None) -> int:
-    """Run up to ``sweeps`` sweeps of ``groups`` (a list of lists of :class:`Recorded` launches) with one
+    """Run up to ``sweeps`` sweeps of ``groups`` (a list of lists of :class:`Recorded` launches, or of
+    callables that run on thread 0, e.g. ``wp.utils.array_scan`` between two passes) with one
     hand-off for the whole loop: on the CPU each range k of a recorded launch runs on thread k
     (thread 0: the caller; the others: persistent threads) and all threads meet at a barrier after
     each group, so a group sees everything the groups before it wrote. A launch recorded in fewer
@@ -259,13 +265,14 @@ def run_loop(groups, sweeps: int, stop=None) -> int:
     returns True. The same launches in the same order as launching each range of each group in turn,
     sweep after sweep: results are bitwise those of ``launch``. Returns the sweeps run."""
     global _loop_workers
-    threads = max((len(r.cmds) for g in groups for r in g), default=1)
+    ranges = [[_ranges(r) for r in g] for g in groups]
+    threads = max((len(r) for g in ranges for r in g), default=1)
     if threads <= 1 or sweeps <= 0:
         for s in range(1, sweeps + 1):
-            for g in groups:
+            for g in ranges:
                 for r in g:
-                    for cmd in r.cmds:
-                        cmd.launch()
+                    for run in r:
+                        run()
             if s < sweeps and stop is not None and stop(s):
                 return s
         return max(sweeps, 0)
@@ -275,7 +282,7 @@ def run_loop(groups, sweeps: int, stop=None) -> int:
         workers = _loop_workers
         barrier = workers.barrier
         state = {"done": 0, "error": None}
-        plan = [[[r.cmds[k] for r in g if k < len(r.cmds)] for g in groups] for k in range(threads)]
+        plan = [[[r[k] for r in g if k < len(r)] for g in ranges] for k in range(threads)]
 
         def job(k: int) -> None:
             mine = plan[k]
@@ -285,8 +292,8 @@ def run_loop(groups, sweeps: int, stop=None) -> int:
                 for cmds in mine:
                     if state["error"] is None:
                         try:
-                            for cmd in cmds:
-                                cmd.launch()
+                            for run in cmds:
+                                run()
                         except BaseException as e:  # keep meeting the barriers; thread 0 raises it
                             state["error"] = e
                     barrier.wait()
