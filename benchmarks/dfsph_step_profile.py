@@ -13,7 +13,8 @@ twice, once per path of the solves' sweeps (``PATHS``: a split launch per pass, 
   kernel runs, wall, the main thread's kernel time and its Python time (wall minus that), each worker
   thread's kernel time and its idle time (wall minus its kernel time: the serial stretches, the
   hand-offs), host reads (``wp.array.numpy`` calls), and the kernels by total time.
-The instrumentation adds a few microseconds per run; compare its wall with the plain one.
+The instrumentation adds a few microseconds per run; compare its wall with the plain one. Last, the
+cost of one split-launch hand-off against one pass of ``run_loop``'s barrier (``handoff``).
 One JSON object on stdout. Wrap it in ``flock /tmp/warp_sph_bench.lock`` on a shared machine.
 """
 from __future__ import annotations
@@ -105,6 +106,31 @@ def _instrumented(sim, frames: int) -> dict:
     }
 
 
+def handoff_costs(rounds: int = 5000) -> dict:
+    """Microseconds (wall and process CPU) per synchronisation of 2 threads doing nothing else: the split
+    launch's hand-off (``_run_split``: submit to the pool, run, wait), and a pass of ``run_loop``'s
+    barrier (``_Barrier.wait`` on both threads)."""
+    from warp_sph.core import launch as L
+
+    def noop():
+        pass
+
+    out = {}
+    t0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(rounds):
+        L._run_split([noop, noop])
+    out["split_handoff_us"] = (1e6 * (time.perf_counter() - t0) / rounds, 1e6 * (time.process_time() - c0) / rounds)
+    barrier = L._Barrier(2)
+    other = threading.Thread(target=lambda: [barrier.wait() for _ in range(rounds)])
+    t0, c0 = time.perf_counter(), time.process_time()
+    other.start()
+    for _ in range(rounds):
+        barrier.wait()
+    other.join()
+    out["barrier_us"] = (1e6 * (time.perf_counter() - t0) / rounds, 1e6 * (time.process_time() - c0) / rounds)
+    return {k: {"wall": round(w, 1), "cpu": round(c, 1)} for k, (w, c) in out.items()}
+
+
 def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3, rounds: int = 2) -> dict:
     """Both paths of the DFSPH solves (``PATHS``) side by side on two equal simulations: ``rounds``
     alternating rounds of ``frames`` plain frames each, then one instrumented round each."""
@@ -132,6 +158,7 @@ def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3, rounds: 
     out["plain"] = {name: {"steps": n, "wall_ms_per_step": 1e3 * w / n, "cpu_ms_per_step": 1e3 * c / n,
                            "cores_busy": c / w} for name, (n, w, c) in plain.items()}
     out["instrumented"] = {name: _instrumented(sim, frames) for name, sim in sims.items()}
+    out["handoff"] = handoff_costs()
     out["load_after"] = os.getloadavg()
     return out
 
