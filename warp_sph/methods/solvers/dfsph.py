@@ -206,7 +206,7 @@ class DfsphSolver(DfsphSearch, Solver):
         block = max(1, min_iterations)
         self.solves += 1
         rho = float(self.config.chebyshev) if chebyshev else 0.0
-        if self._replays is not None and self.sweep_loop:
+        if self._replays is not None and self.sweep_loop and n > 0:
             # CPU: every sweep of the solve in one run_loop (one hand-off per solve, a barrier between the
             # passes; the same launches in the same order, so bitwise the launch-per-pass path below)
             r, tag = self._replays, (pressure, bool(active_only))
