@@ -15,6 +15,7 @@ Worker count: ``WARP_SPH_CPU_THREADS`` if set, else the number of cores this pro
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
@@ -144,3 +145,172 @@ def record(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = M
     if dim <= 0:
         raise ValueError(f"record: kernel {kernel.key} needs dim > 0, got {dim}")
     return Recorded(kernel, dim, inputs, outputs, device=device, min_range=min_range)
+
+
+# --- loops of recorded launches on persistent threads (CPU) ----------------------------------------
+
+#: argument types compared by value when re-binding a replayed launch
+_SCALARS = (int, float, bool)
+
+
+def _binding(value):
+    """What decides how ``value`` is packed into a launch: arrays by pointer, shape and strides, Warp
+    structs by their packed bytes (a struct whose array member was replaced differs), scalars by type
+    and value; None (always re-bind) for anything else."""
+    if isinstance(value, wp.array):
+        return ("array", value.ptr, value.shape, value.strides, value.dtype)
+    if type(value) in _SCALARS:
+        return (type(value), value)
+    ctype = getattr(value, "_ctype", None)
+    if ctype is not None:
+        return ("struct", type(value), bytes(ctype))
+    return None
+
+
+class Replays:
+    """Recorded launches kept per call site (kernel, tag) and re-bound only where an argument's binding
+    (``_binding``) changed since the last call: a loop that launches the same kernels with the same
+    arrays many times (a solver's sweeps) pays Warp's argument packing once. ``get`` returns the
+    :class:`Recorded` for ``run_loop``."""
+
+    def __init__(self):
+        self._cache: dict = {}
+
+    def get(self, kernel, dim: int, inputs, outputs=(), device=None, min_range: int = MIN_RANGE, tag=None) -> Recorded:
+        device = wp.get_device(device)
+        args = [*inputs, *outputs]
+        threads = _thread_count(dim, device, min_range) if _takes_offset(kernel) else 1
+        key = (kernel, tag, device.alias)
+        entry = self._cache.get(key)
+        if entry is None or entry[0].threads != threads or len(entry[1]) != len(args):
+            rec = record(kernel, dim, inputs, outputs, device=device, min_range=min_range)
+            self._cache[key] = (rec, [_binding(a) for a in args])
+            return rec
+        rec, bound = entry
+        for i, value in enumerate(args):
+            b = _binding(value)
+            if b is None or b != bound[i]:
+                rec.set(i, value)
+                bound[i] = b
+        rec.resize(dim)
+        return rec
+
+
+class _Barrier:
+    """A reusable barrier for ``parties`` threads: a counter under a lock and two semaphores used in
+    alternate rounds (a thread already waiting in the next round cannot take a release meant for
+    this one); about half the cost of ``threading.Barrier``'s condition variable."""
+
+    def __init__(self, parties: int):
+        self.parties = parties
+        self._lock = threading.Lock()
+        self._count = 0
+        self._round = 0
+        self._gates = (threading.Semaphore(0), threading.Semaphore(0))
+
+    def wait(self) -> None:
+        with self._lock:
+            gate = self._gates[self._round]
+            self._count += 1
+            last = self._count == self.parties
+            if last:
+                self._count = 0
+                self._round ^= 1
+        if last:
+            gate.release(self.parties - 1)
+        else:
+            gate.acquire()
+
+
+class _LoopWorkers:
+    """Persistent daemon threads 1..count of ``run_loop`` (thread 0 is the caller)."""
+
+    def __init__(self, count: int):
+        self.count = count
+        self.barrier = _Barrier(count + 1)
+        self.job = None
+        self._start = [threading.Semaphore(0) for _ in range(count)]
+        for k in range(count):
+            threading.Thread(target=self._work, args=(k,), daemon=True, name=f"warp_sph_loop_{k + 1}").start()
+
+    def _work(self, k: int) -> None:
+        while True:
+            self._start[k].acquire()
+            self.job(k + 1)
+
+    def start(self, job) -> None:
+        self.job = job
+        for s in self._start:
+            s.release()
+
+
+_loop_workers: _LoopWorkers | None = None
+_loop_lock = threading.Lock()
+
+
+def _ranges(item) -> list:
+    """The callables of a ``run_loop`` item: one per recorded range, or the item itself (thread 0)."""
+    return [cmd.launch for cmd in item.cmds] if isinstance(item, Recorded) else [item]
+
+
+def run_loop(groups, sweeps: int, stop=None) -> int:
+    """Run up to ``sweeps`` sweeps of ``groups`` (a list of lists of :class:`Recorded` launches, or of
+    callables that run on thread 0, e.g. ``wp.utils.array_scan`` between two passes) with one
+    hand-off for the whole loop: on the CPU each range k of a recorded launch runs on thread k
+    (thread 0: the caller; the others: persistent threads) and all threads meet at a barrier after
+    each group, so a group sees everything the groups before it wrote. A launch recorded in fewer
+    ranges (a serial kernel: a reduction, a one-thread control kernel) runs its ranges on the first
+    threads while the rest wait at the barrier. After each sweep thread 0 calls ``stop(sweep)``
+    (sweep: 1-based; a host read such as a solve's stop test) and all threads end the loop when it
+    returns True. The same launches in the same order as launching each range of each group in turn,
+    sweep after sweep: results are bitwise those of ``launch``. Returns the sweeps run."""
+    global _loop_workers
+    ranges = [[_ranges(r) for r in g] for g in groups]
+    threads = max((len(r) for g in ranges for r in g), default=1)
+    if threads <= 1 or sweeps <= 0:
+        for s in range(1, sweeps + 1):
+            for g in ranges:
+                for r in g:
+                    for run in r:
+                        run()
+            if s < sweeps and stop is not None and stop(s):
+                return s
+        return max(sweeps, 0)
+    with _loop_lock:  # one loop at a time on the shared workers
+        if _loop_workers is None or _loop_workers.count != threads - 1:
+            _loop_workers = _LoopWorkers(threads - 1)
+        workers = _loop_workers
+        barrier = workers.barrier
+        state = {"done": 0, "error": None}
+        plan = [[[r[k] for r in g if k < len(r)] for g in ranges] for k in range(threads)]
+
+        def job(k: int) -> None:
+            mine = plan[k]
+            s = 0
+            while True:
+                s += 1
+                for cmds in mine:
+                    if state["error"] is None:
+                        try:
+                            for run in cmds:
+                                run()
+                        except BaseException as e:  # keep meeting the barriers; thread 0 raises it
+                            state["error"] = e
+                    barrier.wait()
+                if k == 0:
+                    end = s >= sweeps or state["error"] is not None
+                    if not end and stop is not None:
+                        try:
+                            end = bool(stop(s))
+                        except BaseException as e:
+                            state["error"], end = e, True
+                    state["done"] = s if end else 0
+                barrier.wait()
+                if state["done"]:
+                    return
+
+        workers.start(job)
+        job(0)  # returns after the last barrier: every worker has run its last launch
+        if state["error"] is not None:
+            raise state["error"]
+        return state["done"]

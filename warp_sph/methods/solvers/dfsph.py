@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...core.launch import LIGHT_MIN_RANGE, Replays, launch, run_loop
 from ...core.step_graph import Stage
 from ...kernels import dfsph as _dfsph
 from ...kernels import reduction as _reduce
@@ -161,6 +161,7 @@ class DfsphSolver(DfsphSearch, Solver):
         self.last_start_error = 0.0          # mean over-density at x at the start of the step [-]
         self.last_stabilization = 0          # stabilisation rounds of the last step
         self.solves = 0                      # solves run (tests count them)
+        self.sweep_loop = True               # CPU: run each solve's sweeps in one core.launch.run_loop
 
     # --- workspace -------------------------------------------------------------------------
     def _allocate(self) -> None:
@@ -177,6 +178,9 @@ class DfsphSolver(DfsphSearch, Solver):
         self._control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=dev)
         self._previous = wp.zeros(max(n, 1), dtype=float, device=dev)
         self._zero_control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=dev)
+        # CPU: the sweeps' launches recorded once per solve site, the control read through a view
+        self._replays = Replays() if dev.is_cpu else None
+        self._control_view = self._control.numpy() if dev.is_cpu else None
         self._allocate_search()
         if self.with_bodies:
             # term_i of the walls' pressure (``body_pressure_term``) and the velocities the boundary
@@ -212,6 +216,29 @@ class DfsphSolver(DfsphSearch, Solver):
         self.solves += 1
         rho = float(self.config.chebyshev) if chebyshev else 0.0
         keep = rho > 0.0 or continuous
+        if self._replays is not None and self.sweep_loop and n > 0:
+            # CPU: every sweep of the solve in one run_loop (one hand-off per solve, a barrier between the
+            # passes; the same launches in the same order, so bitwise the launch-per-pass path below)
+            r, tag = self._replays, (pressure, bool(active_only))
+            passes = [[r.get(_dfsph.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev, tag=tag)],
+                      [r.get(_dfsph.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only),
+                                                      control, int(keep)], [p, self._previous, err], device=dev,
+                             tag=tag)],
+                      [r.get(_dfsph.error_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, err, control], [partial],
+                             device=dev, tag=tag),
+                       r.get(_dfsph.solve_control, 1, [partial, n, float(target), int(min_iterations),
+                                                       int(max_iterations), rho, int(continuous)], [control],
+                             device=dev, tag=tag)]]
+            c = self._control_view
+            first, every = block, self.check_every
+
+            def stop(sweep: int) -> bool:  # the same checks as the loop below: after `first`, every `every`
+                return sweep >= first and (sweep - first) % every == 0 and c[_dfsph.CONTROL_DONE] != 0.0
+
+            run_loop(passes, max_iterations, stop)
+            if keep:
+                launch(_dfsph.finish_sweeps, n, [fn, control, self._previous], [p], device=dev)
+            return int(c[_dfsph.CONTROL_ITERATIONS]), float(c[_dfsph.CONTROL_ERROR])
         while True:
             block = min(block, max_iterations - launched)
             for _ in range(block):

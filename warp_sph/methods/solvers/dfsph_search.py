@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import warp as wp
 
-from ...core.launch import LIGHT_MIN_RANGE, launch
+from functools import partial
+
+from ...core.launch import LIGHT_MIN_RANGE, launch, run_loop
 from ...core.smoothing import get_smoothing_kernel, lattice_offsets
 from ...kernels import dfsph_search as _search
 from ...kernels import dfsph_skin as _skin
@@ -104,15 +106,15 @@ class DfsphSearch:
         n, dev = m.fluid_count, m.device
         pairs = self._pairs()
         fc = nl.fluid_cells
-        launch(_search.collect_fluid_pairs, n,
-               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.support_radius],
-               [self._found, nl.fluid.index, self._room], device=dev)
-        wp.utils.array_scan(self._room, pairs.offset, inclusive=False)
-        launch(self._search, n,
-               [fc.cell_point, fc.sorted_x, m.particle_mass, m.smoothing_length, m.rest_density, f["particle_x"],
-                f["particle_v"], self._found, self._room, pairs.offset],
-               [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.count, pairs.index, pairs.gradient,
-                f["particle_density"], pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]], device=dev)
+        collect = (_search.collect_fluid_pairs, n,
+                   [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.support_radius],
+                   [self._found, nl.fluid.index, self._room])
+        scan = partial(wp.utils.array_scan, self._room, pairs.offset, inclusive=False)
+        values = (self._search, n,
+                  [fc.cell_point, fc.sorted_x, m.particle_mass, m.smoothing_length, m.rest_density, f["particle_x"],
+                   f["particle_v"], self._found, self._room, pairs.offset],
+                  [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.count, pairs.index, pairs.gradient,
+                   f["particle_density"], pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]])
         empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
                  self._no_mask, 0]
         bc = nl.boundary_cells
@@ -129,15 +131,27 @@ class DfsphSearch:
                      self._no_mask if mask is None else mask, int(mask is not None), nl.moving_start]
         else:
             grid += empty + [0]
-        launch(self._boundary_factor, n,
-               grid + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor, self.neighbor_threshold,
-                       self.sim.boundary_params, m.boundary_v, float(self.config.warm_start),
-                       1.0 / dt if dt > 0 else 0.0, fc.cell_point, f["particle_x"], f["particle_v"],
-                       f["dfsph_divergence_warm"], nl.fluid.count, self._square_sum, m.boundary_x, self._no_volume,
-                       f["particle_density"], pairs.gradient_sum, f["dfsph_divergence_source"]],
-               [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient, pairs.boundary_velocity,
-                pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"], f["dfsph_acceleration"],
-                f["dfsph_error"], f["boundary_force"]], device=dev)
+        factor = (self._boundary_factor, n,
+                  grid + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor,
+                          self.neighbor_threshold, self.sim.boundary_params, m.boundary_v, float(self.config.warm_start),
+                          1.0 / dt if dt > 0 else 0.0, fc.cell_point, f["particle_x"], f["particle_v"],
+                          f["dfsph_divergence_warm"], nl.fluid.count, self._square_sum, m.boundary_x, self._no_volume,
+                          f["particle_density"], pairs.gradient_sum, f["dfsph_divergence_source"]],
+                  [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient,
+                   pairs.boundary_velocity, pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"],
+                   f["dfsph_acceleration"], f["dfsph_error"], f["boundary_force"]])
+        replays = getattr(self, "_replays", None)
+        if replays is not None and self.sweep_loop and n > 0:
+            # CPU: the three passes and the scan in one run_loop (one hand-off, recorded launches; bitwise
+            # the launches below)
+            run_loop([[replays.get(*collect, device=dev, tag="search")], [scan],
+                      [replays.get(*values, device=dev, tag="search")],
+                      [replays.get(*factor, device=dev, tag="search")]], 1)
+            return
+        launch(*collect, device=dev)
+        scan()
+        launch(*values, device=dev)
+        launch(*factor, device=dev)
 
     # --- search skin -----------------------------------------------------------------------
     def _lists_stale(self) -> bool:

@@ -1,0 +1,181 @@
+"""Where the wall time of a DFSPH step goes on the CPU: launches, Python time, the idle worker thread.
+
+    python -m benchmarks.dfsph_step_profile                     # dam break r = 0.025 m, from 0.3 s, 3 frames
+    python -m benchmarks.dfsph_step_profile --radius 0.025 --start 0.3 --frames 3 --threads 2
+
+Runs the dam break (solver dfsph, its adaptive step, no output) to ``--start`` seconds (splashing)
+twice, once per path of the solves' sweeps (``PATHS``: a split launch per pass, or one
+``core.launch.run_loop`` per solve; bitwise the same states), then measures each:
+- plain: wall and process CPU time per step, nothing instrumented, in alternating rounds of
+  ``--frames`` frames (A B A B: the machine's load drifts);
+- instrumented: every kernel run on the CPU (``warp.context.Launch.launch``, through which every
+  ``wp.launch`` is routed here by recording it first) is timed on the thread that runs it. Per step:
+  kernel runs, wall, the main thread's kernel time and its Python time (wall minus that), each worker
+  thread's kernel time and its idle time (wall minus its kernel time: the serial stretches, the
+  hand-offs), host reads (``wp.array.numpy`` calls), and the kernels by total time.
+The instrumentation adds a few microseconds per run; compare its wall with the plain one. Last, the
+cost of one split-launch hand-off against one pass of ``run_loop``'s barrier (``handoff``).
+One JSON object on stdout. Wrap it in ``flock /tmp/warp_sph_bench.lock`` on a shared machine.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import threading
+import time
+
+
+def _simulation(radius: float):
+    from warp_sph.run.simulation import Simulation
+    from warp_sph.scene import load_scene
+
+    sc = load_scene("dam_break", overrides=[f"particle_radius={radius}", "solver=dfsph", "output.usd=false",
+                                            "output.surface=false"])
+    return Simulation(sc)
+
+
+def _frames(sim, frames: int) -> int:
+    steps = 0
+    for _ in range(frames):
+        steps += sim.advance_frame().steps
+    return steps
+
+
+PATHS = {"launch per pass": False, "run_loop": True}  # DfsphSolver.sweep_loop of each path
+
+
+def _instrumented(sim, frames: int) -> dict:
+    import warp as wp
+    from warp._src import context as ctx
+
+    kernel_s = collections.defaultdict(float)   # per thread id
+    runs = collections.defaultdict(int)         # per thread id
+    by_kernel = collections.defaultdict(lambda: [0, 0.0])
+    reads = [0]
+    lock = threading.Lock()
+    plain_launch, plain_run, plain_numpy = wp.launch, ctx.Launch.launch, wp.array.numpy
+
+    def timed_run(self, *a, **kw):
+        t = time.perf_counter()
+        plain_run(self, *a, **kw)
+        dt = time.perf_counter() - t
+        tid = threading.get_ident()
+        key = self.kernel.key.split("__")[0] if self.kernel is not None else "?"
+        with lock:
+            kernel_s[tid] += dt
+            runs[tid] += 1
+            by_kernel[key][0] += 1
+            by_kernel[key][1] += dt
+
+    def recorded_launch(*a, record_cmd=False, **kw):
+        cmd = plain_launch(*a, record_cmd=True, **kw)
+        if record_cmd:
+            return cmd
+        if cmd is not None:
+            cmd.launch()
+        return None
+
+    def counted_numpy(self):
+        reads[0] += 1
+        return plain_numpy(self)
+
+    ctx.Launch.launch, wp.launch, wp.array.numpy = timed_run, recorded_launch, counted_numpy
+    try:
+        main = threading.get_ident()
+        t0, c0 = time.perf_counter(), time.process_time()
+        steps = _frames(sim, frames)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    finally:
+        ctx.Launch.launch, wp.launch, wp.array.numpy = plain_run, plain_launch, plain_numpy
+    main_k = kernel_s.get(main, 0.0)
+    workers = [{"kernel_ms_per_step": 1e3 * s / steps, "idle_ms_per_step": 1e3 * (wall - s) / steps,
+                "runs_per_step": runs[t] / steps} for t, s in kernel_s.items() if t != main]
+    return {
+        "steps": steps, "wall_ms_per_step": 1e3 * wall / steps, "cpu_ms_per_step": 1e3 * cpu / steps,
+        "kernel_runs_per_step": sum(runs.values()) / steps,
+        "main_kernel_ms_per_step": 1e3 * main_k / steps,
+        "main_python_ms_per_step": 1e3 * (wall - main_k) / steps,
+        "main_runs_per_step": runs.get(main, 0) / steps,
+        "workers": workers,
+        "host_reads_per_step": reads[0] / steps,
+        "solver_last": sim.solver.step_statistics(),
+        "kernels": {k: {"runs_per_step": n / steps, "ms_per_step": 1e3 * s / steps, "us_per_run": 1e6 * s / max(n, 1)}
+                    for k, (n, s) in sorted(by_kernel.items(), key=lambda kv: -kv[1][1])},
+    }
+
+
+def handoff_costs(rounds: int = 5000) -> dict:
+    """Microseconds (wall and process CPU) per synchronisation of 2 threads doing nothing else: the split
+    launch's hand-off (``_run_split``: submit to the pool, run, wait), and a pass of ``run_loop``'s
+    barrier (``_Barrier.wait`` on both threads)."""
+    from warp_sph.core import launch as L
+
+    def noop():
+        pass
+
+    out = {}
+    t0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(rounds):
+        L._run_split([noop, noop])
+    out["split_handoff_us"] = (1e6 * (time.perf_counter() - t0) / rounds, 1e6 * (time.process_time() - c0) / rounds)
+    barrier = L._Barrier(2)
+    other = threading.Thread(target=lambda: [barrier.wait() for _ in range(rounds)])
+    t0, c0 = time.perf_counter(), time.process_time()
+    other.start()
+    for _ in range(rounds):
+        barrier.wait()
+    other.join()
+    out["barrier_us"] = (1e6 * (time.perf_counter() - t0) / rounds, 1e6 * (time.process_time() - c0) / rounds)
+    return {k: {"wall": round(w, 1), "cpu": round(c, 1)} for k, (w, c) in out.items()}
+
+
+def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3, rounds: int = 2) -> dict:
+    """Both paths of the DFSPH solves (``PATHS``) side by side on two equal simulations: ``rounds``
+    alternating rounds of ``frames`` plain frames each, then one instrumented round each."""
+    from warp_sph.core.launch import cpu_threads
+
+    sims = {}
+    for name, loop in PATHS.items():
+        sim = _simulation(radius)
+        sim.solver.sweep_loop = loop
+        while sim.state.time < start - 1e-9:
+            sim.advance_frame()
+        sims[name] = sim
+    first = next(iter(sims.values()))
+    out = {"radius": radius, "start_time": first.state.time, "frames": frames, "rounds": rounds,
+           "fluid": first.model.fluid_count, "cpu_threads": cpu_threads(), "load_before": os.getloadavg()}
+    plain = {name: [0, 0.0, 0.0] for name in sims}
+    for _ in range(rounds):
+        for name, sim in sims.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            steps = _frames(sim, frames)
+            p = plain[name]
+            p[0] += steps
+            p[1] += time.perf_counter() - t0
+            p[2] += time.process_time() - c0
+    out["plain"] = {name: {"steps": n, "wall_ms_per_step": 1e3 * w / n, "cpu_ms_per_step": 1e3 * c / n,
+                           "cores_busy": c / w} for name, (n, w, c) in plain.items()}
+    out["instrumented"] = {name: _instrumented(sim, frames) for name, sim in sims.items()}
+    out["handoff"] = handoff_costs()
+    out["load_after"] = os.getloadavg()
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--radius", type=float, default=0.025, help="particle radius [m] (default 0.025: 6,859 particles)")
+    ap.add_argument("--start", type=float, default=0.3, help="simulated seconds run before measuring (default 0.3)")
+    ap.add_argument("--frames", type=int, default=3, help="frames per round (default 3)")
+    ap.add_argument("--rounds", type=int, default=2, help="plain rounds per path, alternating (default 2)")
+    ap.add_argument("--threads", type=int, default=None, help="WARP_SPH_CPU_THREADS (default: every core)")
+    a = ap.parse_args(argv)
+    if a.threads:
+        os.environ["WARP_SPH_CPU_THREADS"] = str(a.threads)
+    print(json.dumps(profile(a.radius, a.start, a.frames, a.rounds), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
