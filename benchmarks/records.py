@@ -94,7 +94,10 @@ def stamp(records: list[dict], command: str, invocation: str) -> None:
 
 
 def command_text(argv: list[str]) -> str:
-    return "warp-sph bench " + " ".join(shlex.quote(a) for a in argv)
+    """The command as typed, with the environment settings that change what is measured (the CPU
+    threads warp-sph splits its kernels over) in front, so that a published command reproduces."""
+    env = "".join(f"{k}={shlex.quote(os.environ[k])} " for k in ("WARP_SPH_CPU_THREADS",) if os.environ.get(k))
+    return env + "warp-sph bench " + " ".join(shlex.quote(a) for a in argv)
 
 
 def print_row(r: dict, log) -> None:
