@@ -135,6 +135,36 @@ def value_gradient_function(smoothing: str):
     return value_gradient
 
 
+@functools.cache
+def boundary_share_function(smoothing: str, boundary_terms):
+    """A ``@wp.func (ratio, i, x_i, h, H^2, params, lists, x_b, V_b) -> vec4(ratio', g)``: the boundary's share
+    of PBF's density ratio rho_i / rho0 (eq. 13: ratio' = ratio + sum_b term(W_ib, V_b), added in the lists'
+    order so a kernel that sums its fluid part first gets bitwise the old inline sum) and of grad_i C
+    (g = sum_b term(grad_i W_ib, V_b) [1/m], eq. 19) over particle i's boundary neighbours closer than H."""
+    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
+    BoundaryParams = boundary_terms.Params
+    density_term, gradient_term = boundary_terms.density, boundary_terms.gradient
+
+    @wp.func(module="unique")
+    def boundary_share(ratio: float, i: int, xi: wp.vec3, h: float, support2: float, boundary_params: BoundaryParams,
+                       boundary_neighbors: NeighborList, boundary_x: wp.array(dtype=wp.vec3),
+                       boundary_volume: wp.array(dtype=float)) -> wp.vec4:
+        grad_b = wp.vec3(0.0)
+        k = int(0)
+        k_end = int(neighbor_count(boundary_neighbors, i))
+        while k < k_end:
+            b = boundary_neighbors.index[i, k]
+            x_ib = xi - boundary_x[b]
+            if wp.dot(x_ib, x_ib) < support2:
+                vb = boundary_volume[b]
+                ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.length(x_ib), h), vb)
+                grad_b += wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vb)
+            k += 1
+        return wp.vec4(ratio, grad_b[0], grad_b[1], grad_b[2])
+
+    return boundary_share
+
+
 @wp.struct
 class PairCache:
     """Pairs of the last density pass, for the correction at the same positions (lists only).
@@ -159,12 +189,10 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
     ``PairCache``: the pairs within the support radius (the lists hold a margin more) with
     V grad W_ij [and W_ij], and the boundary gradient sum. boundary_terms: the boundary method's
     ``BoundaryTerms`` (its density and gradient terms; None or without them: fluid only)."""
-    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
     value_gradient = value_gradient_function(smoothing)
     with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
-    density_term = boundary_terms.density if with_boundary else None
-    gradient_term = boundary_terms.gradient if with_boundary else None
+    boundary_share = boundary_share_function(smoothing, boundary_terms) if with_boundary else None
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_density_lambda_pairs(
@@ -220,16 +248,10 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
         ratio = volume * w_sum
         grad_b = wp.vec3(0.0)
         if wp.static(with_boundary):
-            k = int(0)
-            k_end = int(neighbor_count(boundary_neighbors, i))
-            while k < k_end:
-                b = boundary_neighbors.index[i, k]
-                x_ib = xi - boundary_x[b]
-                if wp.dot(x_ib, x_ib) < support2:
-                    vb = boundary_volume[b]
-                    ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.length(x_ib), h), vb)
-                    grad_b += wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vb)
-                k += 1
+            rb = wp.static(boundary_share)(ratio, i, xi, h, support2, boundary_params, boundary_neighbors, boundary_x,
+                                           boundary_volume)
+            ratio = rb[0]
+            grad_b = wp.vec3(rb[1], rb[2], rb[3])
         pairs_out.boundary_gradient[i] = grad_b
         grad_i += grad_b
         c_lam = constraint_lambda(ratio - constraint_offset[i], grad_i, grad_sq, relaxation_epsilon)

@@ -13,7 +13,7 @@ import functools
 import warp as wp
 
 from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, row_points
-from .pbf import PairCache, constraint_lambda, value_gradient_function
+from .pbf import PairCache, boundary_share_function, constraint_lambda, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -23,12 +23,10 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
     entries past the capacity dropped, max_count_out[i] their largest count) plus, over the stored pairs
     closer than the support radius, what ``pbf.density_lambda_pairs_kernel`` writes: density [kg/m^3],
     lambda [m^2], C [-] and the ``PairCache``."""
-    value, gradient = SMOOTHING_FUNCTIONS[smoothing]
     value_gradient = value_gradient_function(smoothing)
     with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
-    density_term = boundary_terms.density if with_boundary else None
-    gradient_term = boundary_terms.gradient if with_boundary else None
+    boundary_share = boundary_share_function(smoothing, boundary_terms) if with_boundary else None
 
     @wp.kernel(enable_backward=False, module="unique")
     def search_density_lambda(
@@ -112,16 +110,10 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
         ratio = volume * w_sum
         grad_b = wp.vec3(0.0)
         if wp.static(with_boundary):
-            k = int(0)
-            k_end = int(neighbor_count(boundary_neighbors, i))
-            while k < k_end:
-                b = boundary_neighbors.index[i, k]
-                x_ib = xi - boundary_x[b]
-                if wp.dot(x_ib, x_ib) < support2:
-                    vb = boundary_volume[b]
-                    ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.length(x_ib), h), vb)
-                    grad_b += wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vb)
-                k += 1
+            rb = wp.static(boundary_share)(ratio, i, xi, h, support2, boundary_params, boundary_neighbors, boundary_x,
+                                           boundary_volume)
+            ratio = rb[0]
+            grad_b = wp.vec3(rb[1], rb[2], rb[3])
         pairs_out.boundary_gradient[i] = grad_b
         grad_i += grad_b
         c_lam = constraint_lambda(ratio - constraint_offset[i], grad_i, grad_sq, relaxation_epsilon)
