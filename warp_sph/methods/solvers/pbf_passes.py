@@ -92,27 +92,28 @@ class PbfPasses:
     # --- passes ----------------------------------------------------------------------------
     def build_neighbors(self) -> None:
         """Neighbours of the current x*; remember where they were searched."""
-        f = self.sim.fields
-        x = f["predicted_x"]
+        x = self.sim.fields["predicted_x"]
         if self.lists:
             self.nl.build(x)
         else:
             self.sim.fluid_grid.build(x)
-        self.grid_builds += 1
-        wp.copy(f["pbf_neighbor_x"], x)
-        launch(_pbf_search.identity_slots, self.model.fluid_count, [], [f["pbf_neighbor_slot"]],
+        launch(_pbf_search.identity_slots, self.model.fluid_count, [], [self.sim.fields["pbf_neighbor_slot"]],
                device=self.model.device, min_range=LIGHT_MIN_RANGE)
-        self.last_drift = 0.0
+        self._searched_at(x)
 
     def sort_neighbors(self) -> None:
         """The first half of ``build_neighbors`` with lists: the fluid sorted into cells on x* and the boundary
-        lists; ``search_density_pass`` then builds the fluid lists and runs the density pass in one walk."""
-        f = self.sim.fields
-        x = f["predicted_x"]
+        lists; ``search_density_pass`` then builds the fluid lists (and their slots) and runs the density pass
+        in one walk."""
+        x = self.sim.fields["predicted_x"]
         self.nl.sort(x)
         self.nl.build_boundary_lists(x)
+        self._searched_at(x)
+
+    def _searched_at(self, x) -> None:
+        """Remember that the neighbours were searched at ``x`` (the drift checks measure from there)."""
         self.grid_builds += 1
-        wp.copy(f["pbf_neighbor_x"], x)
+        wp.copy(self.sim.fields["pbf_neighbor_x"], x)
         self.last_drift = 0.0
 
     def search_density_pass(self) -> None:
