@@ -258,6 +258,7 @@ class DaskExecutor:
             except Exception:  # noqa: BLE001
                 pass
             if isinstance(e, KeyboardInterrupt):
+                _quiet_dask_logs()
                 self._stop_local_workers()
             raise
 
@@ -276,6 +277,20 @@ class DaskExecutor:
                     os.kill(proc.pid, signal.SIGKILL)
             except (OSError, AttributeError):
                 pass
+
+
+def _quiet_dask_logs() -> None:
+    """After a Ctrl-C: the scheduler and nannies of this process log the comms the killed workers
+    leave behind (``distributed.batched - INFO - Batched Comm Closed`` with a traceback) while the
+    cluster closes; the user asked to stop, so those go unsaid (loggers of ``distributed`` and
+    ``tornado`` raised to CRITICAL, children with a level of their own included)."""
+    import logging
+
+    for name in list(logging.root.manager.loggerDict):
+        if name.split(".")[0] in ("distributed", "tornado"):
+            logging.getLogger(name).setLevel(logging.CRITICAL)
+    for name in ("distributed", "tornado"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 def make_executor(workers: int | None = None, scheduler: str | None = None, log: Callable = print):
