@@ -1,5 +1,5 @@
-"""The Lobovsky case's geometry against the experiment's (warp_sph/validation/cases.py, ``experiment_walls``): the
-water fills the paper's column and tank at every resolution, the sensors sit at Table 2's heights above the
+"""The Lobovsky case's geometry against the experiment's (scenes/validation/lobovsky.toml's ``container.inner``,
+warp_sph/scene/container.py): the water fills the paper's column and tank at every resolution, the sensors sit at Table 2's heights above the
 water's floor, and a transducer 3 mm above the floor of a tank at rest reads the hydrostatic pressure there."""
 import numpy as np
 import pytest
@@ -7,8 +7,7 @@ import pytest
 from warp_sph.scene import scene_from_dict
 from warp_sph.scene.sampling import sample_scene
 from warp_sph.validation import errors as E
-from warp_sph.validation.cases import (CASES, LOBOVSKY_HEIGHTS_MM, LOBOVSKY_SENSORS, experiment_walls,
-                                       load_case_scene, water_offset)
+from warp_sph.validation.cases import CASES, LOBOVSKY_HEIGHTS_MM, LOBOVSKY_SENSORS, load_case_scene, water_offset
 
 G = 9.81
 
@@ -42,7 +41,7 @@ def test_lobovsky_water_and_sensors_are_the_experiments(radius):
 def _tank_reading(walls: bool, duration: float = 0.8) -> tuple[float, float]:
     """The hydrostatic tank (r = 0.025 m, DFSPH) with a 4.2 mm transducer on a side wall 3 mm above the floor:
     (its mean reading over the second half, rho0 g (h - z_sensor) with h the height probe's surface, in the
-    frame of the water's floor: z = 0 with ``experiment_walls``, g d - r above the floor's particles without)."""
+    frame of the water's floor: z = 0 with ``container.inner``, g d - r above the floor's particles without)."""
     from warp_sph.run.simulation import Simulation
 
     scene = load_case_scene(CASES["hydrostatic"], "dfsph", 0.025)
@@ -51,9 +50,8 @@ def _tank_reading(walls: bool, duration: float = 0.8) -> tuple[float, float]:
     data["probes"] = [{"name": "low", "kind": "pressure", "position": [0.0, 0.305, 0.003], "rate": 48.0,
                        "sensor_diameter": 0.0042},
                       {"name": "surface", "kind": "height", "position": [0.305, 0.305, 0.0], "rate": 48.0}]
+    data["container"]["inner"] = walls
     scene = scene_from_dict(data, source="tank")
-    if walls:
-        scene = experiment_walls(scene)
     sim = Simulation(scene)
     got = {"low": [], "surface": []}
     while sim.state.time < duration - 1e-9:
@@ -88,3 +86,27 @@ def test_bench_radius_option(tmp_path, monkeypatch):
     with pytest.raises(WarpSphError, match="--radius"):
         runner.main(["validation", "--cases", "lobovsky", "--radius", "0", "--out", str(tmp_path / "out")])
     assert not (tmp_path / "out" / "validation.jsonl").exists()
+
+
+def test_scene_file_is_the_bench_case(tmp_path):
+    """``warp-sph run scenes/validation/lobovsky.toml`` builds what the bench runs (one source of truth: the scene
+    file's ``container.inner``): at r = 10 mm with DFSPH the same fluid and wall particles, container and probes as
+    ``load_case_scene``; and a run.json scene, loaded again, keeps those walls (``inner`` is resolved once)."""
+    from warp_sph.scene import load_scene
+    from warp_sph.scene.sampling import sample_scene
+
+    from warp_sph.validation.cases import _scene_dir
+
+    user = load_scene(str(_scene_dir() / CASES["lobovsky"].scene))
+    bench = load_case_scene(CASES["lobovsky"], "dfsph", user.particle_radius)
+    assert user.solver == bench.solver == "dfsph"
+    a, b = sample_scene(user), sample_scene(bench)
+    np.testing.assert_array_equal(a.fluid_x, b.fluid_x)
+    np.testing.assert_array_equal(a.boundary_x, b.boundary_x)
+    assert (user.container.min, user.container.max) == (bench.container.min, bench.container.max)
+    assert user.container.min[2] == pytest.approx(-water_offset(user)) and not user.container.inner
+    assert [(p.name, p.position, p.sensor_diameter) for p in user.probes] == \
+        [(p.name, p.position, p.sensor_diameter) for p in bench.probes]
+    again = scene_from_dict(user.to_dict(), source="run.json")
+    assert (again.container.min, again.container.max) == (user.container.min, user.container.max)
+    assert [p.position for p in again.probes] == [p.position for p in user.probes]
