@@ -155,6 +155,23 @@ WHY = {
 }
 
 
+def _time_context(v: dict) -> str:
+    """What a Lobovsky peak-time miss means, from the record's ``errors.peak_shape`` figures: the load's arrival
+    (first reaching half the experiment's peak) against the experiment's, how long the curve stays within the peak
+    goal of its maximum (a plateau: its maximum's time is not defined to the time goal) and the simulated mean
+    there against the curve's."""
+    if v.get("rise_time_error") is None or not v.get("peak_span"):
+        return ""
+    a, b = v["peak_span"]
+    out = f" (arrival {100 * v['rise_time_error']:+.1f} %"
+    if b > a:
+        out += (f"; the curve within {100 * GOALS['peak_error']:.0f} % of its maximum from T = {a:.2f} to {b:.2f}, "
+                f"{100 * (a / v['exp_time'] - 1):+.0f} to {100 * (b / v['exp_time'] - 1):+.0f} % of its time")
+        if v.get("span_mean_error") is not None:
+            out += f", the mean load there {100 * v['span_mean_error']:+.0f} %"
+    return out + ")"
+
+
 def misses(case: str, records: list[dict]) -> list[str]:
     """One line per figure that misses its goal (by how much) and the reason (``WHY``); nothing when all pass."""
     out = []
@@ -169,7 +186,7 @@ def misses(case: str, records: list[dict]) -> list[str]:
             for s_, ok in met.items():
                 v = f.get(s_) or {}
                 bad = [f"peak {100 * v['peak_error']:+.0f} %" for k in ("peak",) if not ok.get(k)]
-                bad += [f"time {100 * v['time_error']:+.1f} %" for k in ("time",) if not ok.get(k)]
+                bad += [f"time {100 * v['time_error']:+.1f} %" + _time_context(v) for k in ("time",) if not ok.get(k)]
                 if bad:
                     out.append(f"{who} {s_}: " + ", ".join(bad))
         elif case == "hydrostatic":
@@ -225,6 +242,9 @@ def section(records: list[dict], fmt, head) -> list[str]:
                                  f"T {fmt(v['sim_time'])} vs {fmt(v['exp_time'])} ({100 * v['time_error']:+.1f} %)"
                                  + (f"; Table 2 median {fmt(t2['median'])} ({100 * t2['median_error']:+.0f} %, "
                                     f"{'in' if t2['in_band'] else 'outside'} the 2.5-97.5 % band)" if t2 else "")
+                                 + (f"; arrival T {fmt(v['rise_time'])} vs {fmt(v['exp_rise_time'])} "
+                                    f"({100 * v['rise_time_error']:+.1f} %)" if v.get("rise_time_error") is not None
+                                    else "")
                                  + (f"; 2D-kernel load {fmt(v['kernel_peak'])} ({100 * v['kernel_peak_error']:+.0f} %)"
                                     if "kernel_peak" in v else "")
                                  if v else "-")

@@ -129,6 +129,7 @@ def evaluate(case: str, folder: Path, info: dict, pressure_window: float = E.PRE
             pk = E.peak(T, P, te, pe)
             pk.update(raw_peak=raw["sim_peak"], raw_time=raw["sim_time"], filter_window_s=pressure_window,
                       peak_4ms=old["sim_peak"], peak_4ms_error=old["peak_error"])
+            pk.update(E.peak_shape(T, P, te, pe, GOALS["peak_error"]))  # the peak's span, the arrival, the level
             k = int(np.argmin(np.abs(table["z_mm"] - LOBOVSKY_HEIGHTS_MM[s])))  # Table 2: the per-run peaks
             scale = 100.0 / (1000.0 * G * H)  # mbar -> P
             pk["table2"] = E.peak_statistics(pk["sim_peak"], table["median_mbar"][k] * scale,
