@@ -110,3 +110,46 @@ def test_scene_file_is_the_bench_case(tmp_path):
     again = scene_from_dict(user.to_dict(), source="run.json")
     assert (again.container.min, again.container.max) == (user.container.min, user.container.max)
     assert [p.position for p in again.probes] == [p.position for p in user.probes]
+
+
+def test_plot_draws_the_experiment_beside_each_sensor(tmp_path, monkeypatch):
+    """``warp-sph plot RUN`` of a run of scenes/validation/lobovsky.toml (2 frames at 20 fps here) draws, beside
+    each sensor naming ``experiment``, the shipped curve in SI units (t = T sqrt(H/g) [s], p = P rho g H [Pa]) over
+    the run's time span, and nothing beside the kernel loads (matplotlib replaced by a recorder: no extra needed)."""``warp-sph plot RUN`` of a run of scenes/validation/lobovsky.toml (2 frames at 20 fps here) draws, beside each sensor
+    naming ``experiment``, the shipped curve in SI units (t = T sqrt(H/g) [s], p = P rho g H [Pa]) over the run's
+    time span, and nothing beside the kernel loads (matplotlib replaced by a recorder: the test needs no extra)."""
+    from unittest import mock
+
+    from warp_sph.preview import plot_probes
+    from warp_sph.run import runner
+    from warp_sph.scene import load_scene
+    from warp_sph.validation.cases import _scene_dir
+
+    scene = load_scene(str(_scene_dir() / CASES["lobovsky"].scene), overrides=["output.usd=false", "fps=20"])
+    assert {p.name: p.experiment for p in scene.probes if p.experiment} == \
+        {s: f"lobovsky_2014_{s}" for s in LOBOVSKY_SENSORS}
+    runner.run(scene, out=tmp_path / "run", frames=2, progress=False, log=lambda *a: None)
+    made, saved = [], []
+
+    def subplots(*args, **kwargs):
+        made.append(mock.MagicMock())
+        return mock.MagicMock(), made[-1]
+
+    monkeypatch.setattr(plot_probes, "pyplot", lambda: mock.MagicMock(subplots=subplots))
+    monkeypatch.setattr(plot_probes, "save_figure", lambda fig, path: saved.append(path.stem) or path)
+    plot_probes.plot_run(tmp_path / "run")
+    assert len(saved) == len(made) == 6
+    t_end = 0.05  # 2 frames at 20 fps: t = 0 .. 0.05 s
+    for name, ax in zip(saved, made):
+        lines = ax.plot.call_args_list
+        s = name.removeprefix("probe_")
+        if s not in LOBOVSKY_SENSORS:
+            assert len(lines) == 1, name
+            continue
+        assert len(lines) == 2 and "Lobovsky et al. 2014" in lines[1].kwargs["label"], name
+        te, pe = lines[1].args[0], lines[1].args[1]
+        T, P, _ = E.load_series(f"lobovsky_2014_{s}")
+        keep = T * np.sqrt(0.3 / G) <= t_end + 1e-9
+        assert keep.sum() >= 2
+        np.testing.assert_allclose(te, T[keep] * np.sqrt(0.3 / G))
+        np.testing.assert_allclose(pe, P[keep] * 1000.0 * G * 0.3)

@@ -277,6 +277,9 @@ _TAIL = (
        shapes=("pressure",)),
     _P("probes[].rate", "float", "Hz", 100.0, "samples per second of simulated time; at most one per substep",
        gt=0.0),
+    _P("probes[].experiment", "str", "-", "", "a shipped measured series (warp_sph/validation/data, with its "
+       "citation) that 'warp-sph plot' draws beside this probe, in SI units (docs/validation.md); '': none",
+       choices=("", "lobovsky_2014_sensor1", "lobovsky_2014_sensor3", "lobovsky_2014_sensor4")),
     # emitters and sinks (warp_sph.run.emission): a changing particle count (docs/emitters.md)
     _P("max_particles", "int", "-", 0, "fluid particle capacity, allocated once (0: the initial fluid plus "
        "every emitter's volume over its active time, plus 5 %); emission stops with one warning when it is "

@@ -50,6 +50,18 @@ CASES = {
 }
 LOBOVSKY_SENSORS = ("sensor1", "sensor3", "sensor4")
 LOBOVSKY_HEIGHTS_MM = {"sensor1": 3.0, "sensor3": 30.0, "sensor4": 80.0}
+#: the shipped series a probe may name (``probes[].experiment``): (time unit [s], value unit [SI], label) of their
+#: dimensionless columns; Lobovsky: T = t sqrt(g/H), P = p / (rho g H), H = 0.3 m, rho = 1000 kg/m^3
+EXPERIMENTS = {f"lobovsky_2014_{s}": (math.sqrt(0.3 / G), 1000.0 * G * 0.3,
+                                      f"experiment: Lobovsky et al. 2014, {s} ({LOBOVSKY_HEIGHTS_MM[s]:g} mm)")
+               for s in LOBOVSKY_SENSORS}
+
+
+def experiment_series(name: str) -> tuple[np.ndarray, np.ndarray, str]:
+    """(time [s], value [SI], label) of the shipped series ``name`` (``EXPERIMENTS``; its citation in data/)."""
+    t, v, _ = E.load_series(name)
+    time_unit, value_unit, label = EXPERIMENTS[name]
+    return t * time_unit, v * value_unit, label
 
 
 def load_case_scene(case: Case, solver: str, radius: float, extra: list[str] | None = None):
