@@ -1,6 +1,6 @@
 """The Lobovsky case's geometry against the experiment's (scenes/validation/lobovsky.toml's ``container.inner``,
-warp_sph/scene/container.py): the water fills the paper's column and tank at every resolution, the sensors sit at Table 2's heights above the
-water's floor, and a transducer 3 mm above the floor of a tank at rest reads the hydrostatic pressure there."""
+warp_sph/scene/container.py): the water fills the paper's column and tank at every resolution, the sensors sit at
+Table 2's heights above the water's floor, and a transducer 3 mm above the floor of a tank at rest reads the hydrostatic pressure there."""
 import numpy as np
 import pytest
 
@@ -115,9 +115,7 @@ def test_scene_file_is_the_bench_case(tmp_path):
 def test_plot_draws_the_experiment_beside_each_sensor(tmp_path, monkeypatch):
     """``warp-sph plot RUN`` of a run of scenes/validation/lobovsky.toml (2 frames at 20 fps here) draws, beside
     each sensor naming ``experiment``, the shipped curve in SI units (t = T sqrt(H/g) [s], p = P rho g H [Pa]) over
-    the run's time span, and nothing beside the kernel loads (matplotlib replaced by a recorder: no extra needed)."""``warp-sph plot RUN`` of a run of scenes/validation/lobovsky.toml (2 frames at 20 fps here) draws, beside each sensor
-    naming ``experiment``, the shipped curve in SI units (t = T sqrt(H/g) [s], p = P rho g H [Pa]) over the run's
-    time span, and nothing beside the kernel loads (matplotlib replaced by a recorder: the test needs no extra)."""
+    the run's time span, and nothing beside the kernel loads (matplotlib replaced by a recorder: no extra needed)."""
     from unittest import mock
 
     from warp_sph.preview import plot_probes
