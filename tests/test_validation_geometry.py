@@ -151,3 +151,23 @@ def test_plot_draws_the_experiment_beside_each_sensor(tmp_path, monkeypatch):
         assert keep.sum() >= 2
         np.testing.assert_allclose(te, T[keep] * np.sqrt(0.3 / G))
         np.testing.assert_allclose(pe, P[keep] * 1000.0 * G * 0.3)
+
+
+def test_inner_box_is_written_back_and_placed_for_each_radius():
+    """``to_dict`` of a scene with ``container.inner`` gives the box and probes as written (inner = true), so the
+    scene changed to another radius and loaded again (``warp-sph plan``'s variants, run.json) puts its walls the
+    water offset of that radius outside the box: at r = 5 mm the same file's walls and sensors are those the
+    loader gives at 5 mm, not those of 10 mm."""
+    from warp_sph.scene import load_scene
+    from warp_sph.validation.cases import _scene_dir
+
+    path = str(_scene_dir() / CASES["lobovsky"].scene)
+    coarse = load_scene(path)
+    d = coarse.to_dict()
+    assert d["container"]["inner"] is True and d["container"]["max"] == [1.61, 0.15, 0.6]
+    assert [p["position"] for p in d["probes"]][:3] == [[1.61, 0.075, 0.003], [1.61, 0.075, 0.03], [1.61, 0.075, 0.08]]
+    assert scene_from_dict(d) == coarse
+    d["particle_radius"] = 0.005
+    fine, direct = scene_from_dict(d), load_scene(path, overrides=["particle_radius=0.005"])
+    assert fine == direct and fine.container.max[0] == pytest.approx(1.61 + water_offset(fine))
+    assert water_offset(fine) < 0.7 * water_offset(coarse)

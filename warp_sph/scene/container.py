@@ -6,7 +6,9 @@ each wall's particle plane. By default the container's min/max are the particle 
 with a wall loses o there (a 0.3 m column is 0.28 m high at r = 10 mm). With ``inner = true`` the loader moves
 the six particle planes o outward, so the water fills the given box exactly at every resolution (an
 experiment's tank and column keep their measured sizes), and a probe on a face of the box moves with its wall
-plane; its other coordinates (a sensor's height above the tank's floor) stay as given.
+plane; its other coordinates (a sensor's height above the tank's floor) stay as given. ``to_dict`` gives the
+box and probes back as written (``inner = true``), so a scene changed and loaded again (``warp-sph plan`` at
+another radius, run.json) places its walls for its own radius.
 """
 from __future__ import annotations
 
@@ -19,9 +21,10 @@ def water_offset(scene) -> float:
 
 
 def resolve_inner(scene):
-    """``scene`` with ``container.inner`` applied: the container's min/max moved ``water_offset`` outward and
-    ``inner`` false (so that run.json's scene, loaded again, is the same walls), every probe whose position lies on
-    a face of the given box moved onto that face's new plane. A scene without ``inner`` is returned as it is."""
+    """``scene`` with ``container.inner`` applied: the container's min/max moved ``water_offset`` outward (``inner``
+    false on the result: its min/max are the wall planes), every probe whose position lies on a face of the given
+    box moved onto that face's new plane; what was written is kept in ``scene.inner_given`` for ``to_dict``. A
+    scene without ``inner`` is returned as it is."""
     c = scene.container
     if c is None or not c.inner:
         return scene
@@ -37,4 +40,19 @@ def resolve_inner(scene):
                 pos[a] = hi[a] + off
         probes.append(dataclasses.replace(p, position=tuple(pos)))
     box = dataclasses.replace(c, min=tuple(v - off for v in lo), max=tuple(v + off for v in hi), inner=False)
-    return dataclasses.replace(scene, container=box, probes=probes)
+    given = {"container": c, "positions": [p.position for p in scene.probes], "walls": box,
+             "moved": [p.position for p in probes]}
+    return dataclasses.replace(scene, container=box, probes=probes, inner_given=given)
+
+
+def given_box(scene, out: dict) -> None:
+    """In ``out`` (``scene.to_dict()``'s plain dict) the container and probe positions as written, where the scene
+    still has the walls and probes ``resolve_inner`` made (a container or probe changed since keeps its own)."""
+    g = scene.inner_given
+    if scene.container == g["walls"]:
+        out["container"] = {**out["container"], "min": list(g["container"].min), "max": list(g["container"].max),
+                            "inner": True}
+    plain = out.get("probes", [])
+    for i, p in enumerate(scene.probes):
+        if i < len(g["moved"]) and tuple(p.position) == tuple(g["moved"][i]):
+            plain[i]["position"] = list(g["positions"][i])
