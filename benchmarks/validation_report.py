@@ -140,9 +140,9 @@ WHY = {
                 "of its artificial speed of sound. Sensor 4: its time misses are not a late load: the load reaches "
                 "half the curve's peak on time (the arrival figures); the curve's maximum in the simulated 0.8 s is "
                 "a plateau, within 10 % of it for -5 to +26 % of its time, so the maximum has no time to 5 %, and "
-                "the simulated load on that plateau stays under the curve's, rising slowly, so its largest sample "
-                "comes late: the simulated water turns up the wall in a jet a few particles thick that loads the "
-                "lowest 50 mm more than the experiment and 80 mm less; the plateau rises with resolution (H/d = 15 "
+                "the simulated load on that plateau stays under the curve's, so its largest sample is a spike of "
+                "that lower, noisy load, late on it or at the arrival: the simulated water turns up the wall lower "
+                "than the experiment's, loading the lowest 50 mm more and 80 mm less; the plateau rises with resolution (H/d = 15 "
                 "-> 30) and wall friction lowers it (docs/validation.md). The curve at "
                 "sensor 4 (0.58 rho g H) lies 43 % under Table 2's median of the per-run peaks; the experiment's own "
                 "per-run peaks spread widely (Table 2: sensor 1 from 2.55 to 4.45 rho g H)",
