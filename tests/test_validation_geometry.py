@@ -1,14 +1,13 @@
-"""The Lobovsky case's geometry against the experiment's (warp_sph/validation/cases.py, ``experiment_walls``): the
-water fills the paper's column and tank at every resolution, the sensors sit at Table 2's heights above the
-water's floor, and a transducer 3 mm above the floor of a tank at rest reads the hydrostatic pressure there."""
+"""The Lobovsky case's geometry against the experiment's (scenes/validation/lobovsky.toml's ``container.inner``,
+warp_sph/scene/container.py): the water fills the paper's column and tank at every resolution, the sensors sit at
+Table 2's heights above the water's floor, and a transducer 3 mm above the floor of a tank at rest reads the hydrostatic pressure there."""
 import numpy as np
 import pytest
 
 from warp_sph.scene import scene_from_dict
 from warp_sph.scene.sampling import sample_scene
 from warp_sph.validation import errors as E
-from warp_sph.validation.cases import (CASES, LOBOVSKY_HEIGHTS_MM, LOBOVSKY_SENSORS, experiment_walls,
-                                       load_case_scene, water_offset)
+from warp_sph.validation.cases import CASES, LOBOVSKY_HEIGHTS_MM, LOBOVSKY_SENSORS, load_case_scene, water_offset
 
 G = 9.81
 
@@ -42,7 +41,7 @@ def test_lobovsky_water_and_sensors_are_the_experiments(radius):
 def _tank_reading(walls: bool, duration: float = 0.8) -> tuple[float, float]:
     """The hydrostatic tank (r = 0.025 m, DFSPH) with a 4.2 mm transducer on a side wall 3 mm above the floor:
     (its mean reading over the second half, rho0 g (h - z_sensor) with h the height probe's surface, in the
-    frame of the water's floor: z = 0 with ``experiment_walls``, g d - r above the floor's particles without)."""
+    frame of the water's floor: z = 0 with ``container.inner``, g d - r above the floor's particles without)."""
     from warp_sph.run.simulation import Simulation
 
     scene = load_case_scene(CASES["hydrostatic"], "dfsph", 0.025)
@@ -51,9 +50,8 @@ def _tank_reading(walls: bool, duration: float = 0.8) -> tuple[float, float]:
     data["probes"] = [{"name": "low", "kind": "pressure", "position": [0.0, 0.305, 0.003], "rate": 48.0,
                        "sensor_diameter": 0.0042},
                       {"name": "surface", "kind": "height", "position": [0.305, 0.305, 0.0], "rate": 48.0}]
+    data["container"]["inner"] = walls
     scene = scene_from_dict(data, source="tank")
-    if walls:
-        scene = experiment_walls(scene)
     sim = Simulation(scene)
     got = {"low": [], "surface": []}
     while sim.state.time < duration - 1e-9:
@@ -88,3 +86,88 @@ def test_bench_radius_option(tmp_path, monkeypatch):
     with pytest.raises(WarpSphError, match="--radius"):
         runner.main(["validation", "--cases", "lobovsky", "--radius", "0", "--out", str(tmp_path / "out")])
     assert not (tmp_path / "out" / "validation.jsonl").exists()
+
+
+def test_scene_file_is_the_bench_case(tmp_path):
+    """``warp-sph run scenes/validation/lobovsky.toml`` builds what the bench runs (one source of truth: the scene
+    file's ``container.inner``): at r = 10 mm with DFSPH the same fluid and wall particles, container and probes as
+    ``load_case_scene``; and a run.json scene, loaded again, keeps those walls (``inner`` is resolved once)."""
+    from warp_sph.scene import load_scene
+    from warp_sph.scene.sampling import sample_scene
+
+    from warp_sph.validation.cases import _scene_dir
+
+    user = load_scene(str(_scene_dir() / CASES["lobovsky"].scene))
+    bench = load_case_scene(CASES["lobovsky"], "dfsph", user.particle_radius)
+    assert user.solver == bench.solver == "dfsph"
+    a, b = sample_scene(user), sample_scene(bench)
+    np.testing.assert_array_equal(a.fluid_x, b.fluid_x)
+    np.testing.assert_array_equal(a.boundary_x, b.boundary_x)
+    assert (user.container.min, user.container.max) == (bench.container.min, bench.container.max)
+    assert user.container.min[2] == pytest.approx(-water_offset(user)) and not user.container.inner
+    assert [(p.name, p.position, p.sensor_diameter) for p in user.probes] == \
+        [(p.name, p.position, p.sensor_diameter) for p in bench.probes]
+    again = scene_from_dict(user.to_dict(), source="run.json")
+    assert (again.container.min, again.container.max) == (user.container.min, user.container.max)
+    assert [p.position for p in again.probes] == [p.position for p in user.probes]
+
+
+def test_plot_draws_the_experiment_beside_each_sensor(tmp_path, monkeypatch):
+    """``warp-sph plot RUN`` of a run of scenes/validation/lobovsky.toml (2 frames at 20 fps here) draws, beside
+    each sensor naming ``experiment``, the shipped curve in SI units (t = T sqrt(H/g) [s], p = P rho g H [Pa]) over
+    the run's time span, and nothing beside the kernel loads (matplotlib replaced by a recorder: no extra needed)."""
+    from unittest import mock
+
+    from warp_sph.preview import plot_probes
+    from warp_sph.run import runner
+    from warp_sph.scene import load_scene
+    from warp_sph.validation.cases import _scene_dir
+
+    scene = load_scene(str(_scene_dir() / CASES["lobovsky"].scene), overrides=["output.usd=false", "fps=20"])
+    assert {p.name: p.experiment for p in scene.probes if p.experiment} == \
+        {s: f"lobovsky_2014_{s}" for s in LOBOVSKY_SENSORS}
+    runner.run(scene, out=tmp_path / "run", frames=2, progress=False, log=lambda *a: None)
+    made, saved = [], []
+
+    def subplots(*args, **kwargs):
+        made.append(mock.MagicMock())
+        return mock.MagicMock(), made[-1]
+
+    monkeypatch.setattr(plot_probes, "pyplot", lambda: mock.MagicMock(subplots=subplots))
+    monkeypatch.setattr(plot_probes, "save_figure", lambda fig, path: saved.append(path.stem) or path)
+    plot_probes.plot_run(tmp_path / "run")
+    assert len(saved) == len(made) == 6
+    t_end = 0.05  # 2 frames at 20 fps: t = 0 .. 0.05 s
+    for name, ax in zip(saved, made):
+        lines = ax.plot.call_args_list
+        s = name.removeprefix("probe_")
+        if s not in LOBOVSKY_SENSORS:
+            assert len(lines) == 1, name
+            continue
+        assert len(lines) == 2 and "Lobovsky et al. 2014" in lines[1].kwargs["label"], name
+        te, pe = lines[1].args[0], lines[1].args[1]
+        T, P, _ = E.load_series(f"lobovsky_2014_{s}")
+        keep = T * np.sqrt(0.3 / G) <= t_end + 1e-9
+        assert keep.sum() >= 2
+        np.testing.assert_allclose(te, T[keep] * np.sqrt(0.3 / G))
+        np.testing.assert_allclose(pe, P[keep] * 1000.0 * G * 0.3)
+
+
+def test_inner_box_is_written_back_and_placed_for_each_radius():
+    """``to_dict`` of a scene with ``container.inner`` gives the box and probes as written (inner = true), so the
+    scene changed to another radius and loaded again (``warp-sph plan``'s variants, run.json) puts its walls the
+    water offset of that radius outside the box: at r = 5 mm the same file's walls and sensors are those the
+    loader gives at 5 mm, not those of 10 mm."""
+    from warp_sph.scene import load_scene
+    from warp_sph.validation.cases import _scene_dir
+
+    path = str(_scene_dir() / CASES["lobovsky"].scene)
+    coarse = load_scene(path)
+    d = coarse.to_dict()
+    assert d["container"]["inner"] is True and d["container"]["max"] == [1.61, 0.15, 0.6]
+    assert [p["position"] for p in d["probes"]][:3] == [[1.61, 0.075, 0.003], [1.61, 0.075, 0.03], [1.61, 0.075, 0.08]]
+    assert scene_from_dict(d) == coarse
+    d["particle_radius"] = 0.005
+    fine, direct = scene_from_dict(d), load_scene(path, overrides=["particle_radius=0.005"])
+    assert fine == direct and fine.container.max[0] == pytest.approx(1.61 + water_offset(fine))
+    assert water_offset(fine) < 0.7 * water_offset(coarse)

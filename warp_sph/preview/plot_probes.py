@@ -1,7 +1,8 @@
 """``warp-sph plot RUN``: one PNG per probe of a run, its value against simulated time.
 
 Reads the probe CSVs named in run.json's ``probes`` (``warp_sph.io.probe_files``) and writes
-``RUN/plots/probe_<name>.png`` (or into ``out``) through a temporary file and a rename. Needs
+``RUN/plots/probe_<name>.png`` (or into ``out``) through a temporary file and a rename; a probe naming a measured
+series (``probes[].experiment``) has it drawn beside, in SI units (``validation.cases.experiment_series``). Needs
 matplotlib, the ``plots`` extra; without it the command says so in one line.
 """
 from __future__ import annotations
@@ -74,6 +75,7 @@ def plot_run(run: Path, out: Path | None = None, overwrite: bool = False) -> lis
     folder = Path(out) if out else run / "plots"
     _check_out(folder, run, [f"probe_{name}.png" for name in probes], overwrite)
     plt = pyplot()
+    experiments = {p.get("name"): p.get("experiment") for p in (info.get("scene") or {}).get("probes") or []}
     written = []
     for name, meta in probes.items():
         path = probe_csv_path(run, name)
@@ -82,6 +84,12 @@ def plot_run(run: Path, out: Path | None = None, overwrite: bool = False) -> lis
         rows = read_probe_csv(path)[1]
         fig, ax = plt.subplots(figsize=(7.0, 3.6))
         ax.plot([r[0] for r in rows], [r[1] for r in rows], lw=1.2, label=f"{name} ({meta.get('kind')})")
+        if experiments.get(name) and rows:  # probes[].experiment: the measured series over the run's time span
+            from ..validation.cases import experiment_series
+
+            te, ve, label = experiment_series(experiments[name])
+            keep = te <= rows[-1][0] + 1e-9
+            ax.plot(te[keep], ve[keep], "k.-", lw=0.8, ms=3, label=label)
         ax.set_xlabel("simulated time [s]")
         ax.set_ylabel(LABELS.get(meta.get("kind"), f"value [{meta.get('unit', '')}]"))
         ax.set_title(f"{info['scene'].get('name', run.name)}: probe {name}, {meta.get('rate', 0):g} Hz, "

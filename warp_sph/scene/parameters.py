@@ -171,6 +171,10 @@ _TAIL = (
        "them, and fluid past one is removed at the next frame's start as by a sink (an open top, the face "
        "gravity points away from: only fluid over its rim, past a side wall's plane); '+x' is the face at "
        "container.max[0], '-x' the one at container.min[0]", choices=OPEN_FACES),
+    _P("container.inner", "bool", "-", False, "true: min/max are the tank's inner faces, the water's boundary "
+       "(an experiment's tank): the wall particles stand the water offset g d - r (about 0.6 d) outside them, so "
+       "water given flush with a wall fills the box at every resolution, and a probe on a face of the box moves "
+       "with its wall (docs/validation.md); false: min/max are the wall particles' planes"),
     # fluid blocks
     _P("fluid", "tables", "-", REQUIRED, "fluid blocks ([[fluid]]), at least one"),
     _P("fluid[].shape", "str", "-", "box", "block shape", choices=FLUID_SHAPES),
@@ -273,6 +277,9 @@ _TAIL = (
        shapes=("pressure",)),
     _P("probes[].rate", "float", "Hz", 100.0, "samples per second of simulated time; at most one per substep",
        gt=0.0),
+    _P("probes[].experiment", "str", "-", "", "a shipped measured series (warp_sph/validation/data, with its "
+       "citation) that 'warp-sph plot' draws beside this probe, in SI units (docs/validation.md); '': none",
+       choices=("", "lobovsky_2014_sensor1", "lobovsky_2014_sensor3", "lobovsky_2014_sensor4")),
     # emitters and sinks (warp_sph.run.emission): a changing particle count (docs/emitters.md)
     _P("max_particles", "int", "-", 0, "fluid particle capacity, allocated once (0: the initial fluid plus "
        "every emitter's volume over its active time, plus 5 %); emission stops with one warning when it is "

@@ -149,6 +149,9 @@ class Scene:
     plan: Any = None  # PlanParams when the scene has a [plan] table (``warp-sph plan --apply``)
     sections: dict = field(default_factory=dict)
     source: str = field(default="<dict>", compare=False, repr=False)
+    #: container.inner as written (``scene.container.given_box``): what ``to_dict`` gives back, so that a scene
+    #: changed and loaded again (another radius) places its walls anew; not part of the scene's value
+    inner_given: Any = field(default=None, compare=False, repr=False)
 
     def __getattr__(self, name: str):
         sections = self.__dict__.get("sections")
@@ -195,6 +198,10 @@ class Scene:
         ``scene_from_dict(scene.to_dict()) == scene``.
         """
         out = _plain(self)
+        if self.inner_given is not None:  # container.inner: the box and probes as written, not the wall planes
+            from .container import given_box
+
+            given_box(self, out)
         out["forces"] = [{"method": f.method, **_plain(f)} for f in self.forces]
         if not out["forces"]:
             del out["forces"]  # as written: a scene without forces has no [[forces]]
@@ -208,7 +215,7 @@ def _plain(obj):
     if dataclasses.is_dataclass(obj):
         out = {}
         for f in dataclasses.fields(obj):
-            if f.name == "source":
+            if f.name in ("source", "inner_given"):
                 continue
             value = getattr(obj, f.name)
             if f.name == "container" and value is None:

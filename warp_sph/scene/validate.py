@@ -181,6 +181,9 @@ class Validator:
         values["emitters"] = self.blocks(data, "emitters", required=False)
         values["sinks"] = self.blocks(data, "sinks", required=False, shape_key="")
         scene = Scene(**values, source=self.source)
+        from .container import resolve_inner  # container.inner: the box is the water's, the walls go outside it
+
+        scene = resolve_inner(scene)
         self.cross_checks(scene)
         return scene
 

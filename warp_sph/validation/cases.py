@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..scene.container import water_offset  # noqa: F401  (the water's boundary inside a wall plane [m])
 from . import errors as E
 
 SCENE_DIR = Path(__file__).resolve().parents[2] / "scenes" / "validation"
@@ -27,9 +28,6 @@ class Case:
     radii: tuple[float, float]       # coarse, fine particle radius [m]
     overrides: dict = field(default_factory=dict)   # per-resolution extra overrides (callable of d)
     title: str = ""
-    #: the experiment's tank is the water's boundary (``experiment_walls``): the container's particle planes go
-    #: gap - r outside the given box, so the water fills the experiment's tank and column at every resolution
-    experiment_walls: bool = False
 
 
 def _scene_dir() -> Path:
@@ -46,12 +44,24 @@ CASES = {
                          {"front_height": lambda d: f"probes[0].position=[0.0, 0.05, {1.25 * d:.6g}]"},
                          "Column collapse, Martin & Moyce 1952 (n² = 2)"),
     "lobovsky": Case("lobovsky", "lobovsky.toml", (0.01, 0.005), {},
-                     "Dam break onto a wall, Lobovsky et al. 2014 (H = 0.3 m)", experiment_walls=True),
+                     "Dam break onto a wall, Lobovsky et al. 2014 (H = 0.3 m)"),
     "hydrostatic": Case("hydrostatic", "hydrostatic_probes.toml", (0.025, 0.0125), {},
                         "Hydrostatic tank, floor and mid-depth pressure"),
 }
 LOBOVSKY_SENSORS = ("sensor1", "sensor3", "sensor4")
 LOBOVSKY_HEIGHTS_MM = {"sensor1": 3.0, "sensor3": 30.0, "sensor4": 80.0}
+#: the shipped series a probe may name (``probes[].experiment``): (time unit [s], value unit [SI], label) of their
+#: dimensionless columns; Lobovsky: T = t sqrt(g/H), P = p / (rho g H), H = 0.3 m, rho = 1000 kg/m^3
+EXPERIMENTS = {f"lobovsky_2014_{s}": (math.sqrt(0.3 / G), 1000.0 * G * 0.3,
+                                      f"experiment: Lobovsky et al. 2014, {s} ({LOBOVSKY_HEIGHTS_MM[s]:g} mm)")
+               for s in LOBOVSKY_SENSORS}
+
+
+def experiment_series(name: str) -> tuple[np.ndarray, np.ndarray, str]:
+    """(time [s], value [SI], label) of the shipped series ``name`` (``EXPERIMENTS``; its citation in data/)."""
+    t, v, _ = E.load_series(name)
+    time_unit, value_unit, label = EXPERIMENTS[name]
+    return t * time_unit, v * value_unit, label
 
 
 def load_case_scene(case: Case, solver: str, radius: float, extra: list[str] | None = None):
@@ -64,8 +74,6 @@ def load_case_scene(case: Case, solver: str, radius: float, extra: list[str] | N
     overrides = [f"particle_radius={radius}", f"solver={solver}", "output.usd=false", "output.surface=false",
                  "output.checkpoint_every=0"] + [f(d) for f in case.overrides.values()] + list(extra or [])
     scene = load_scene(str(_scene_dir() / case.scene), overrides=overrides)
-    if case.experiment_walls:
-        scene = experiment_walls(scene)
     if not has_pressure(registry.solver(solver)):
         from ..run.probes import probe_lines
 
@@ -79,40 +87,6 @@ def load_case_scene(case: Case, solver: str, radius: float, extra: list[str] | N
             return None
         scene = scene_from_dict(data, source=scene.source)
     return scene
-
-
-def water_offset(scene) -> float:
-    """How far the water's boundary lies inside a container wall's particle plane [m]: the first fluid layer rests
-    a wall gap g d from it and each particle fills r = d/2 around its centre, so the water starts at g d - r
-    (``scene.sampling``'s fluid region; the hydrostatic case's floor surface; about 0.6 d)."""
-    return float(scene.wall_gap - scene.particle_radius)
-
-
-def experiment_walls(scene):
-    """``scene`` with its container's six particle planes moved ``water_offset`` outward, so the water's boundary
-    is the box the scene gives (the experiment's tank: the column keeps its given L x W x H, which a wall-touching
-    block otherwise loses g d - r at each wall face: H = 0.28 / 0.29 m instead of 0.3 at r = 10 / 5 mm), and
-    the probes on a wall plane moved with it; the other coordinates of every probe (a sensor's height above the
-    floor, its place across the wall) stay the experiment's."""
-    from ..scene import scene_from_dict
-
-    c = scene.container
-    if c is None:
-        return scene
-    off = water_offset(scene)
-    lo, hi = [float(v) for v in c.min], [float(v) for v in c.max]
-    data = scene.to_dict()
-    data["container"]["min"] = [v - off for v in lo]
-    data["container"]["max"] = [v + off for v in hi]
-    for p in data.get("probes", []):
-        pos = [float(v) for v in p["position"]]
-        for a in range(3):
-            if abs(pos[a] - lo[a]) <= 1e-9:
-                pos[a] = lo[a] - off
-            elif abs(pos[a] - hi[a]) <= 1e-9:
-                pos[a] = hi[a] + off
-        p["position"] = pos
-    return scene_from_dict(data, source=scene.source)
 
 
 def has_pressure(solver_cls) -> bool:
@@ -167,6 +141,7 @@ def evaluate(case: str, folder: Path, info: dict, pressure_window: float = E.PRE
             pk = E.peak(T, P, te, pe)
             pk.update(raw_peak=raw["sim_peak"], raw_time=raw["sim_time"], filter_window_s=pressure_window,
                       peak_4ms=old["sim_peak"], peak_4ms_error=old["peak_error"])
+            pk.update(E.peak_shape(T, P, te, pe, GOALS["peak_error"]))  # the peak's span, the arrival, the level
             k = int(np.argmin(np.abs(table["z_mm"] - LOBOVSKY_HEIGHTS_MM[s])))  # Table 2: the per-run peaks
             scale = 100.0 / (1000.0 * G * H)  # mbar -> P
             pk["table2"] = E.peak_statistics(pk["sim_peak"], table["median_mbar"][k] * scale,

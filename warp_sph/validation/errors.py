@@ -8,6 +8,9 @@ front_rms      relative RMS of the front, sqrt(mean_i ((Z_sim(T_i - s) - Z_i) / 
                experiment's clock may run late by s); the points with T_i - s inside the simulated span count.
 peak           the largest value of each series and its time; the relative errors of both (the simulated pressure as
                sampled: ``PRESSURE_WINDOW`` is 0; ``moving_average`` is there for a cited sensor response).
+peak_shape     on the experiment's curve, the span within the peak goal of its maximum (a sharp impact or a
+               plateau, whose maximum has no defined time), the load's arrival (first reaching half the experiment's
+               peak) and the mean over that span, each against the simulation's.
 peak_statistics  one simulated peak against the experiment's per-run peak statistics (Lobovsky Table 2: median,
                2.5-97.5 % band of 100 runs).
 gauge_rms      RMS of (h_sim(T_i) - h_i) over the experimental points in the simulated span, in the series' units
@@ -133,6 +136,46 @@ def peak(t_sim, p_sim, t_exp, p_exp) -> dict:
     return {"sim_peak": float(p_sim[i]), "sim_time": float(t_sim[i]), "exp_peak": float(p_exp[j]),
             "exp_time": float(t_exp[j]), "peak_error": float(p_sim[i] / p_exp[j] - 1.0),
             "time_error": float(t_sim[i] / t_exp[j] - 1.0)}
+
+
+def first_crossing(t, v, level: float) -> float | None:
+    """The first time the series reaches ``level`` (linear between the samples before and at the crossing), None
+    if it never does."""
+    t, v = np.asarray(t, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    above = np.nonzero(v >= level)[0]
+    if above.size == 0:
+        return None
+    k = int(above[0])
+    if k == 0 or v[k] == v[k - 1]:
+        return float(t[k])
+    return float(t[k - 1] + (level - v[k - 1]) / (v[k] - v[k - 1]) * (t[k] - t[k - 1]))
+
+
+def peak_shape(t_sim, p_sim, t_exp, p_exp, tolerance: float) -> dict:
+    """What a peak's time means, on the experiment's curve within the simulated span:
+    peak_span [T_first, T_last]  the first and last points of the curve within ``tolerance`` (the peak goal) of
+                                 its maximum: a sharp impact gives a short span; a plateau a long one, over which
+                                 the maximum's time is not defined by the curve;
+    rise_time, exp_rise_time     when each series first reaches half the experiment's peak (the load's arrival),
+    rise_time_error              and its relative error (t_sim / t_exp - 1);
+    span_mean, exp_span_mean     the mean of each series over the span (the level of a plateau; the simulated
+    span_mean_error              samples inside it, the curve linear between its points), and its relative error."""
+    t_sim, p_sim = np.asarray(t_sim, dtype=np.float64), np.asarray(p_sim, dtype=np.float64)
+    t_exp, p_exp = np.asarray(t_exp, dtype=np.float64), np.asarray(p_exp, dtype=np.float64)
+    inside = (t_exp >= t_sim[0] - 1e-12) & (t_exp <= t_sim[-1] + 1e-12)
+    t_exp, p_exp = t_exp[inside], p_exp[inside]
+    top = float(p_exp.max())
+    near = np.nonzero(p_exp >= (1.0 - tolerance) * top)[0]
+    a, b = float(t_exp[near[0]]), float(t_exp[near[-1]])
+    rise, exp_rise = first_crossing(t_sim, p_sim, 0.5 * top), first_crossing(t_exp, p_exp, 0.5 * top)
+    in_span = (t_sim >= a) & (t_sim <= b)
+    grid = np.linspace(a, b, 512)
+    sim_mean = float(np.mean(p_sim[in_span])) if in_span.any() else None
+    exp_mean = float(np.mean(np.interp(grid, t_exp, p_exp)))
+    return {"peak_span": [a, b], "rise_time": rise, "exp_rise_time": exp_rise,
+            "rise_time_error": None if rise is None or not exp_rise else float(rise / exp_rise - 1.0),
+            "span_mean": sim_mean, "exp_span_mean": exp_mean,
+            "span_mean_error": None if sim_mean is None else float(sim_mean / exp_mean - 1.0)}
 
 
 def gauge_rms(t_sim, h_sim, t_exp, h_exp) -> dict:
