@@ -72,11 +72,12 @@ def test_transducers_in_a_column_at_rest_read_rho0_g_depth():
 
     scene = load_case_scene(CASES["hydrostatic"], "dfsph", 0.025)
     data = scene.to_dict()
-    data["probes"] = [{"name": "floor", "kind": "pressure", "position": [0.305, 0.305, 0.0], "rate": 48.0,
+    lo = scene.container.min  # the wall particles' planes, gap - r outside the water's 0.6 m tank
+    data["probes"] = [{"name": "floor", "kind": "pressure", "position": [0.3, 0.3, lo[2]], "rate": 48.0,
                        "sensor_diameter": 0.0042},
-                      {"name": "wall", "kind": "pressure", "position": [0.0, 0.305, 0.1], "rate": 48.0,
+                      {"name": "wall", "kind": "pressure", "position": [lo[0], 0.3, 0.1], "rate": 48.0,
                        "sensor_diameter": 0.0042},
-                      {"name": "surface", "kind": "height", "position": [0.305, 0.305, 0.0], "rate": 48.0}]
+                      {"name": "surface", "kind": "height", "position": [0.3, 0.3, lo[2]], "rate": 48.0}]
     sim = Simulation(scene_from_dict(data, source="column"))
     got = {"floor": [], "wall": [], "surface": []}
     while sim.state.time < 1.0 - 1e-9:
@@ -84,8 +85,7 @@ def test_transducers_in_a_column_at_rest_read_rho0_g_depth():
         for k, v in sim.probes.collect().items():
             got[k] += [p for t, p, _ in v if t >= 0.5]
     m = sim.model
-    floor = scene.wall_gap - m.particle_radius
-    depth = m.fluid_count * m.particle_mass / m.rest_density / (0.61 - 2.0 * floor) ** 2
+    depth = m.fluid_count * m.particle_mass / m.rest_density / 0.6 ** 2  # the water fills the 0.6 m tank
     assert np.mean(got["floor"]) == pytest.approx(1000.0 * G * depth, rel=2.5e-2)
     assert np.mean(got["wall"]) == pytest.approx(1000.0 * G * (np.mean(got["surface"]) - 0.1), rel=3e-2)
 
