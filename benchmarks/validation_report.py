@@ -143,15 +143,14 @@ WHY = {
                 "sensor 4's maximum within the 0.8 s is a slow plateau whose time moves with noise, and there the "
                 "curve (0.58 rho g H) lies 43 % under Table 2's median of the per-run peaks; the experiment's own "
                 "per-run peaks spread widely (Table 2: sensor 1 from 2.55 to 4.45 rho g H)",
-    "hydrostatic": "the tank does not come to rest: the lattice re-packs toward its discrete equilibrium (rms "
-                   "speed 1.3e-2 m/s in the top layer, 7e-4 m/s in the bottom one at 2 s, 1.6e-3 m/s by 5 s at "
-                   "r = 0.025 m, the same with any sweep count, target or warm start: not the solver); DFSPH's load "
-                   "no longer swings (the density solve ends on its target's crossing, dfsph.continuous_stop: the "
-                   "floor load changes 0.05 % of the weight step to step, 10.5 % with a whole-sweep stop); WCSPH "
-                   "starts uncompressed; at r = 0.0125 m the surface settles 0.13 d below its volume's level (0.7 % "
-                   "of the depth) and the floor's centre carries more than the mean, still drifting at 2 s (the "
-                   "water spreads and re-packs); the mid-depth probe reads the particle pressure field, which "
-                   "alternates layer by layer from the walls",
+    "hydrostatic": "the tank does not come to rest within 2 s: the lattice re-packs toward its discrete equilibrium "
+                   "(mean |v| grows toward the surface; 1.6e-3 m/s by 5 s at r = 0.025 m with DFSPH, the same with "
+                   "any sweep count, target or warm start: not the solver; 4x the scene's viscosity gives 2.0e-3 "
+                   "at 2.7x the CPU); the water fills its 0.6 m tank at both radii since issue #31's hydrostatic "
+                   "pass (the 0.61 m walls left the fine tank 0.22 d of slack, into which it spread in its first "
+                   "frame and re-packed: floor +1.9 % with DFSPH); WCSPH's tank still swings (the walls' load "
+                   "0.91-1.10 of the weight over 1-2 s); the mid-depth probe reads the particle pressure field, "
+                   "which alternates layer by layer from the walls",
 }
 
 
