@@ -13,6 +13,8 @@ Steps the case's scene (``warp_sph.validation.cases``, as ``bench validation`` l
   water floor), and the surface's drop below that level [d];
 - ``layers``: per horizontal layer of the last state (z rounded to the lattice): mean z, count, rho/rho0 and
   the particles' pressure against rho0 g (h - z): is the water compressed at the floor, and by how much;
+- ``lattice_gradient_factor``: C, the SPH gradient of a linear field on the calibrated cubic lattice over the true
+  one (1.0201 for the cubic spline at h = d): the bulk's particle pressures balance gravity at rho0 g / C;
 - ``columns``: the floor's load per fluid column (the bottom layers' F_z by nearest lattice column, over the
   column's share of the floor) against the mean, along the centre row: how the weight is spread.
 The case's tank is 0.6 m wide (its water fills it at every resolution). Wrap it in
@@ -27,6 +29,18 @@ import time
 import numpy as np
 
 G = 9.81
+
+
+def lattice_gradient_factor(name: str, h: float, spacing: float) -> float:
+    """C = sum_j V (z_j - z_i) dW_ij/dz_i (the SPH gradient of f = z) over an interior particle of the cubic lattice, V = 1 / sum_j W_ij (the
+    calibrated mass over rho0): the SPH gradient of a linear field over the true one [-]. A particle at rest balances
+    gravity with a particle-pressure gradient rho0 g / C, so the pressure field reads 1/C of rho0 g depth inside."""
+    from warp_sph.core.smoothing import evaluate, get_smoothing_kernel, lattice_offsets
+
+    x = lattice_offsets(spacing, get_smoothing_kernel(name).support_radius(h)).astype(np.float64)
+    w, g = evaluate(name, -x, h)               # x_i - x_j = -x_j with x_i at the origin
+    volume = 1.0 / float(np.sum(w.astype(np.float64)))
+    return float(np.sum(volume * x[:, 2] * g[:, 2].astype(np.float64)))
 
 
 def profile(solver: str, radius: float, duration: float, extra: list[str]) -> dict:
@@ -59,6 +73,7 @@ def profile(solver: str, radius: float, duration: float, extra: list[str]) -> di
     out = {"solver": solver, "radius": radius, "duration": duration, "overrides": extra, "fluid_particles": m.fluid_count,
            "cpu_s": cpu, "water_floor": floor, "volume_level": level, "surface_probe": h_probe,
            "surface_drop_d": (level - h_probe) / d,
+           "lattice_gradient_factor": lattice_gradient_factor(m.smoothing.name, float(m.smoothing_length), d),
            "load": {"mean": float(L[late(L), 1].mean()), "min": float(L[late(L), 1].min()),
                     "max": float(L[late(L), 1].max()), "first_frame": float(L[0, 1])}}
     v = np.linalg.norm(sim.get_field("particle_v"), axis=1)
