@@ -39,11 +39,11 @@ def plot_case(case: str, records: list[dict], path: Path) -> Path | None:
             ax.plot(te, ve, "ko", ms=3.5, zorder=10, label=cite[0].split("(")[0].strip().rstrip(",") + " (experiment)")
         else:
             ax.axhline(1.0, color="k", lw=1, label="ρ0 g (h − z)")
-        for r in recs:
+        for i, r in enumerate(recs):  # one colour per run in every panel (PBF has no mid-depth series)
             s = np.array(r["series"].get(key) or [], dtype=float).reshape(-1, 2)
             if len(s):
                 ax.plot(s[:, 0], s[:, 1], lw=0.9, alpha=0.8, ls="-" if r["resolution"] == "fine" else "--",
-                        label=f"{r['solver']} {r['resolution']} (r = {r['particle_radius']:g} m)")
+                        color=f"C{i % 10}", label=f"{r['solver']} {r['resolution']} (r = {r['particle_radius']:g} m)")
         ax.set_xlabel(xl)
         ax.set_ylabel(yl)
         if xlim:
