@@ -43,3 +43,25 @@ def test_fine_tank_stays_at_rest_in_its_first_frame():
     load = float(sim.get_field("boundary_force")[:, 2].sum()) / (m.fluid_count * m.particle_mass * G)
     assert v.mean() < 1e-2, v.mean()
     assert load == pytest.approx(1.0, abs=3e-2)
+
+
+def test_bench_reads_the_mean_speed_of_the_last_frame(tmp_path):
+    """The case's run keeps its last frame's state (a checkpoint at the first and last frame) and ``evaluate``
+    reports its mean |v| (the issue's at-rest figure), equal to that of the same scene stepped frame by frame with
+    ``Simulation.advance_frame`` to the same time (coarse tank, 3 frames)."""
+    from warp_sph.io import run_folder as rf
+    from warp_sph.run import runner
+    from warp_sph.validation.cases import evaluate
+
+    scene = load_case_scene(CASES["hydrostatic"], "dfsph", 0.025, ["duration=0.125"])
+    info = runner.run(scene, out=tmp_path / "run", progress=False, log=lambda *a: None)
+    fig, met, _ = evaluate("hydrostatic", tmp_path / "run", info)
+    frames = sorted(p.name for p in (tmp_path / "run" / "checkpoints").glob("checkpoint_*.npz"))
+    assert frames == ["checkpoint_000001.npz", "checkpoint_000004.npz"]  # frame 1 is t = 0
+    sim = Simulation(scene)
+    for _ in range(3):
+        sim.advance_frame()
+    expect = float(np.linalg.norm(sim.get_field("particle_v"), axis=1).mean())
+    assert expect > 1e-4 and fig["mean_speed_final"] == pytest.approx(expect, rel=1e-3)
+    assert met["settled"] is (expect < 1e-3)
+    assert rf.latest_checkpoint(tmp_path / "run").name == frames[-1]
