@@ -66,17 +66,24 @@ def test_transducer_matches_numpy_oracle():
 def test_transducers_in_a_column_at_rest_read_rho0_g_depth():
     """The hydrostatic tank (scenes/validation, r = 0.025 m, DFSPH) after 0.5-1 s: a 4.2 mm transducer in the
     middle of the floor reads rho0 g D within 2.5 % (D: the water's volume over the floor it covers, from
-    the water's floor gap - r), one on a side wall 0.1 m up rho0 g (h - 0.1) within 3 %, h the height probe's surface (measured: -2.1 %)."""
+    the water's floor gap - r), one on a side wall about 0.1 m up (on the wall particle nearest to that point) rho0 g (h - z) within 3 %, h
+    the height probe's surface (measured: -2.1 % with the 0.61 m walls, where 0.1 m was a wall particle's height)."""
     from warp_sph.scene import scene_from_dict
     from warp_sph.validation.cases import CASES, load_case_scene
 
     scene = load_case_scene(CASES["hydrostatic"], "dfsph", 0.025)
     data = scene.to_dict()
-    data["probes"] = [{"name": "floor", "kind": "pressure", "position": [0.305, 0.305, 0.0], "rate": 48.0,
+    lo = scene.container.min  # the wall particles' planes, gap - r outside the water's 0.6 m tank
+    from warp_sph.scene.sampling import sample_scene
+
+    b = sample_scene(scene).boundary_x.astype(np.float64)  # the side transducer on a wall particle, as at 0.61 m
+    b = b[np.abs(b[:, 0] - lo[0]) < 1e-6]
+    side = b[np.argmin(np.hypot(b[:, 1] - 0.3, b[:, 2] - 0.1))]
+    data["probes"] = [{"name": "floor", "kind": "pressure", "position": [0.3, 0.3, lo[2]], "rate": 48.0,
                        "sensor_diameter": 0.0042},
-                      {"name": "wall", "kind": "pressure", "position": [0.0, 0.305, 0.1], "rate": 48.0,
+                      {"name": "wall", "kind": "pressure", "position": [lo[0], float(side[1]), float(side[2])], "rate": 48.0,
                        "sensor_diameter": 0.0042},
-                      {"name": "surface", "kind": "height", "position": [0.305, 0.305, 0.0], "rate": 48.0}]
+                      {"name": "surface", "kind": "height", "position": [0.3, 0.3, lo[2]], "rate": 48.0}]
     sim = Simulation(scene_from_dict(data, source="column"))
     got = {"floor": [], "wall": [], "surface": []}
     while sim.state.time < 1.0 - 1e-9:
@@ -84,10 +91,9 @@ def test_transducers_in_a_column_at_rest_read_rho0_g_depth():
         for k, v in sim.probes.collect().items():
             got[k] += [p for t, p, _ in v if t >= 0.5]
     m = sim.model
-    floor = scene.wall_gap - m.particle_radius
-    depth = m.fluid_count * m.particle_mass / m.rest_density / (0.61 - 2.0 * floor) ** 2
+    depth = m.fluid_count * m.particle_mass / m.rest_density / 0.6 ** 2  # the water fills the 0.6 m tank
     assert np.mean(got["floor"]) == pytest.approx(1000.0 * G * depth, rel=2.5e-2)
-    assert np.mean(got["wall"]) == pytest.approx(1000.0 * G * (np.mean(got["surface"]) - 0.1), rel=3e-2)
+    assert np.mean(got["wall"]) == pytest.approx(1000.0 * G * (np.mean(got["surface"]) - side[2]), rel=3e-2)
 
 
 def test_sensor_diameter_only_on_a_wall_pressure_probe():

@@ -155,27 +155,44 @@ def test_validation_scenes_run_and_probe(case, solver):
 
 def test_hydrostatic_evaluation_figures(tmp_path):
     """validation.evaluate on the hydrostatic case's probe files: p / (rho0 g (h - z)) - 1 over the second half
-    with h the height probe and z the water's floor (gap - r above the floor's particles), and the depth the
-    water's volume gives over the floor it covers spread to gap - r from every wall (11 x 11 columns of 9 layers
-    at r = 0.025 m: 9 d (0.55 / 0.5502)^2) with how far below that level the surface lies [d]."""
+    with h the height probe and z the water's floor (gap - r above the floor's particles: the scene's z = 0, the case
+    moving its walls out), and the depth the water's volume gives over the floor it covers to gap - r from every
+    wall (12 x 12 columns of 10 layers at r = 0.025 m fill the 0.6 x 0.6 x 0.5 m tank: 10 d) with how far below
+    that level the surface lies [d]."""
     scene = V.load_case_scene(V.CASES["hydrostatic"], "dfsph", 0.025)
     d, rho0, g = 0.05, 1000.0, 9.81
-    floor = scene.wall_gap - 0.025
+    floor = 0.0
+    assert scene.container.min[2] == pytest.approx(-(scene.wall_gap - 0.025))
     t = np.linspace(0.0, 2.0, 97)
-    depth = 11 * 11 * 9 * d ** 3 / (0.61 - 2 * floor) ** 2
+    depth = 12 * 12 * 10 * d ** 3 / 0.6 ** 2
     h = floor + depth - 0.1 * d + 0.001 * np.sin(7 * t)     # a surface 0.1 d below the volume's level
     _write_probe(tmp_path, "surface", t, h)
     _write_probe(tmp_path, "floor", t, 1.004 * rho0 * g * (h - floor))
     _write_probe(tmp_path, "middle", t, rho0 * g * (h - 0.25))
-    info = {"probes": {"floor": {}, "middle": {}, "surface": {}}, "scene": scene.to_dict(), "fluid_particles": 11 * 11 * 9,
+    info = {"probes": {"floor": {}, "middle": {}, "surface": {}}, "scene": scene.to_dict(), "fluid_particles": 12 * 12 * 10,
             "model": {"particle_mass": rho0 * d ** 3, "rest_density": rho0}}
     fig, met, _ = V.evaluate("hydrostatic", tmp_path, info)
     assert fig["floor_error"] == pytest.approx(0.004, abs=1e-6) and abs(fig["middle_error"]) < 1e-6
     assert fig["floor_surface"] == pytest.approx(floor)
-    assert fig["depth_by_volume"] == pytest.approx(depth, rel=1e-9) and depth == pytest.approx(0.99918 * 9 * d, rel=1e-5)
+    assert fig["depth_by_volume"] == pytest.approx(depth, rel=1e-9) and depth == pytest.approx(10 * d, rel=1e-9)
     assert fig["surface_drop_d"] == pytest.approx((floor + depth - h[t >= 1.0].mean()) / d, rel=1e-9)
     assert fig["surface_drop_d"] == pytest.approx(0.1, abs=3e-3)
     assert met == {"floor_error": True, "middle_error": True}
+    # with the run's last state (the case's last_state checkpoint) the mean |v| at the end, the issue's figure
+    from warp_sph.io import run_folder as rf
+
+    v = np.zeros((12 * 12 * 10, 3))
+    v[:, 0], v[::2, 2] = 3e-4, 4e-4                  # |v| = 3e-4 and 5e-4 m/s, about half each: mean 4e-4
+    n = len(v)
+    (tmp_path / "checkpoints").mkdir()
+    rf.atomic_save_npz(rf.checkpoint_path(tmp_path, 1), particle_x_local=np.zeros((n, 3)), particle_v=10 * v, step=0,
+                       frame=1, state_frame=1, time=0.0, last_max_speed=0.0)
+    fig, met, _ = V.evaluate("hydrostatic", tmp_path, info)
+    assert fig["mean_speed_final"] == pytest.approx(4e-3, rel=1e-3) and met["settled"] is False
+    rf.atomic_save_npz(rf.checkpoint_path(tmp_path, 49), particle_x_local=np.zeros((n, 3)), particle_v=v, step=9,
+                       frame=49, state_frame=49, time=2.0, last_max_speed=0.0)
+    fig, met, _ = V.evaluate("hydrostatic", tmp_path, info)
+    assert fig["mean_speed_final"] == pytest.approx(4e-4, rel=1e-3) and met["settled"] is True
 
 
 def test_hydrostatic_misses_name_the_unsettled_tank():
@@ -190,6 +207,10 @@ def test_hydrostatic_misses_name_the_unsettled_tank():
              "figures": {"floor_error": 0.004}, "goals_met": {"floor_error": True, "settled": True}}
     line = " ".join(misses("hydrostatic", [moving, still]))
     assert "dfsph coarse floor: +1.20 %" in line and "dfsph coarse: rms speed 7.1e-03 m/s" in line
+    # with the last state's mean |v| (the issue's figure) the line names it beside the rms speed
+    moving["figures"]["mean_speed_final"] = 5.3e-3
+    line = " ".join(misses("hydrostatic", [moving, still]))
+    assert "dfsph coarse: mean |v| 5.3e-03 m/s (rms 7.1e-03) at the end" in line
     assert "pbf" not in line.split(". Why:")[0]
     assert misses("hydrostatic", [still]) == []
 
