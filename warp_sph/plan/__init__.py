@@ -126,30 +126,16 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         forecast[1] += spent_of(cal) - before
         return cal
 
-    # the coarsest radius first; each further radius and the tolerance points while they fit in the share, the
-    # solvers in the order their one-radius models rank them (the one the plan would choose first)
+    # the coarsest radius first, every solver; then the solvers that can be chosen are decided BEFORE the rest of the
+    # share is spent: where the run outlasts the calibration, a solver is chosen only with its whole-run error profile
+    # (below), so the first solver in the one-radius ranking whose profile fits (its cost reserved) leads: it gets the
+    # further radii, its second tolerance and the finer points first, the others what is left after them (measured,
+    # dam break 60 s: the finer points went to DFSPH, whose profile then did not fit; the chosen PBF, calibrated to
+    # 729 fluid particles, was held to 4x that count: 2.8 s predicted of 60 s, its error 2.34x the prediction)
     cal = run(names, radii[:1])
     cached = cal.cached
     order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit)
-    for r in radii[1:]:
-        left = []
-        for s in order:
-            cost = point_cost(cal, s, r)
-            if spent_of(cal) + cost * overrun() > first:
-                left.append(s)
-                continue
-            cal = run_forecast(cal, cost, [s], [r])
-            cached = cached and cal.cached
-        if left:
-            notes.append(f"not calibrated at r = {r:.4g} m: {', '.join(left)} (predicted beyond "
-                         f"{100 * CALIBRATION_SHARE:.0f} % of the budget)")
-    # the error's course over the whole run: one run of the scene's duration at the coarsest radius per solver, in
-    # the order the models fitted so far rank them; the first solver's is reserved before its second tolerance and
-    # the finer points (measured, hydrostatic 60 s: without it the later error was held and the run's came out
-    # 1.69x the prediction), the others' when they still fit; a solver without one has its later error held
     whole, r0 = int(round(scene.duration * scene.fps)) + 1, 0.0
-    if len(radii) > 1:
-        order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit)
     profile_costs = {}
     if whole > frames and any(cal.for_solver(s) for s in names):
         r0 = max(p.particle_radius for s in names for p in cal.for_solver(s))
@@ -157,29 +143,49 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         profile_costs = {s: whole_run_cost([p for p in cal.for_solver(s, scene_tolerance(scene, s))
                                           if p.particle_radius == r0], scale, cal.points)
                          for s in order if cal.for_solver(s, scene_tolerance(scene, s))}
-    profiled = profile_solvers(order[:1], {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal), first)
+    profiled = profile_solvers(order, {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal), first)[:1]
+    lead = profiled or list(order)  # without a profile to reserve (none needed, or none fits) every solver may be chosen
     reserved = sum(profile_costs[s] * overrun() for s in profiled)
-    # the second tolerance: each solver with one, at its finest calibrated radius, in the same order
-    for s in order:
-        if not tolerance_key(s) or not cal.for_solver(s):
-            continue
-        r_tol = min(p.particle_radius for p in cal.for_solver(s))
-        if len({p.tolerance for p in cal.for_solver(s) if p.particle_radius == r_tol}) > 1:
-            continue  # cached
-        # about the cost of the same run at the scene's tolerance
-        cost = sum(p.seconds for p in cal.for_solver(s) if p.particle_radius == r_tol)
-        if spent_of(cal) + reserved + cost * overrun() <= first:
-            cal = run_forecast(cal, cost, [s], [r_tol], 1.0 / TOLERANCE_STEP)
-            cached = cached and cal.cached
-        else:
-            notes.append(f"{s}'s tolerance not varied: its calibration at r = {r_tol:.4g} m was predicted to take "
-                         f"{cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
+
+    def further(cal, solvers_):  # the further default radii, then the second tolerance, of ``solvers_``
+        nonlocal cached
+        for r in radii[1:]:
+            left = []
+            for s in solvers_:
+                cost = point_cost(cal, s, r)
+                if spent_of(cal) + reserved + cost * overrun() > first:
+                    left.append(s)
+                    continue
+                cal = run_forecast(cal, cost, [s], [r])
+                cached = cached and cal.cached
+            if left:
+                notes.append(f"not calibrated at r = {r:.4g} m: {', '.join(left)} (predicted beyond "
+                             f"{100 * CALIBRATION_SHARE:.0f} % of the budget)")
+        for s in solvers_:
+            if not tolerance_key(s) or not cal.for_solver(s):
+                continue
+            r_tol = min(p.particle_radius for p in cal.for_solver(s))
+            if len({p.tolerance for p in cal.for_solver(s) if p.particle_radius == r_tol}) > 1:
+                continue  # cached
+            # about the cost of the same run at the scene's tolerance
+            cost = sum(p.seconds for p in cal.for_solver(s) if p.particle_radius == r_tol)
+            if spent_of(cal) + reserved + cost * overrun() <= first:
+                cal = run_forecast(cal, cost, [s], [r_tol], 1.0 / TOLERANCE_STEP)
+                cached = cached and cal.cached
+            else:
+                notes.append(f"{s}'s tolerance not varied: its calibration at r = {r_tol:.4g} m was predicted to "
+                             f"take {cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
+        return cal
+
+    cal = further(cal, lead)
     for _ in range(MAX_ROUNDS):
         models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
         if not models:
             raise PlanError(f"{scene.source}: the scene cannot be calibrated for --target-error {metric}: no "
                             f"calibration run measured it")
-        candidates = candidates_for(scene, models)
+        candidates = [c for c in candidates_for(scene, models) if c.solver in lead]
+        if not candidates:
+            break
         free = choose(candidates, budget_s, target_error, limit, scene.source, max_extrapolation=None)
         if free.count_extrapolation <= MAX_COUNT_EXTRAPOLATION:
             break
@@ -190,9 +196,16 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
             break
         cal = run_forecast(cal, cost, [free.solver], [r_new])
         cached = cached and cal.cached
-    # the other solvers' whole runs after the finer points of the one a plan would choose (measured, dam break
-    # 60 s: the three profiles reserved first left no room for a finer point, and the plan stayed at 3.5k fluid
-    # particles, 3.9 s predicted of a 60 s budget)
+    # the others after the lead's finer points, in rank order while they fit: their further radii and tolerance, then
+    # their whole runs (measured, dam break 60 s: the three profiles reserved first left no room for a finer point,
+    # and the plan stayed at 3.5k fluid particles, 3.9 s predicted of a 60 s budget)
+    others = [s for s in order if s not in lead]
+    cal = further(cal, others)
+    models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
+    if not models:
+        raise PlanError(f"{scene.source}: the scene cannot be calibrated for --target-error {metric}: no "
+                        f"calibration run measured it")
+    candidates = candidates_for(scene, models)
     profiled += profile_solvers([s for s in order if s not in profiled],
                                 {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal) + reserved, first)
     unprofiled = [s for s in order if s in profile_costs and s not in profiled]
@@ -262,6 +275,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                      f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
                      f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
                      f"last calibrated frame's")
+    if budget_s is not None and target_error is None:
+        cap = budget_cap(candidates, chosen, budget_s, limit, scene.source)
+        if cap is not None:
+            notes.append(cap)
     failed = {p.solver: p.error for p in cal.failures() if p.solver in names and p.solver not in models}
     alternatives = []
     for s in models:
@@ -279,6 +296,26 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                 machine=cal.machine, failed_solvers=failed, metric=metric, notes=notes,
                 points=[point_summary(p) for p in cal.points if p.solver in names]
                 + [point_summary(p, whole=True) for p in (profile.points if profile is not None else [])])
+
+
+def budget_cap(candidates, chosen, budget_s: float, limit, source: str) -> str | None:
+    """The line that says the count extrapolation, not the budget, stopped the plan: the finest setting of the
+    chosen solver predicted within the budget's BUDGET_SAFETY with no limit on the extrapolation, when it is finer
+    than ``chosen`` (None otherwise)."""
+    from .advisor import BUDGET_SAFETY, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, choose
+
+    try:
+        free = choose([c for c in candidates if c.solver == chosen.solver], budget_s, None, limit, source,
+                      max_extrapolation=None)
+    except PlanError:
+        return None
+    if free.particle_radius >= chosen.particle_radius * (1.0 - 1e-6):
+        return None
+    return (f"the budget would allow r = {free.particle_radius:.4g} m ({free.fluid_particles:,} fluid particles, "
+            f"predicted {free.wall_time:.3g} s, {100 * free.wall_time / budget_s:.0f} % of the budget), but that is "
+            f"{free.count_extrapolation:.3g}x the largest calibrated count and a plan extrapolates at most "
+            f"{MAX_COUNT_EXTRAPOLATION:g}x: no finer calibration point fitted in its {100 * CALIBRATION_SHARE:.0f} % "
+            f"share; the plan uses {100 * chosen.wall_time / budget_s:.0f} % (up to {100 * BUDGET_SAFETY:.0f} % aimed)")
 
 
 def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> list:
@@ -338,4 +375,4 @@ def point_cost(cal, solver: str, radius: float) -> float:
     return max(p.seconds - steps, 0.0) + steps * (p.particle_radius / radius) ** 4
 
 
-__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "plan", "profile_solvers", "whole_run_cost"]
+__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "plan", "profile_solvers", "whole_run_cost"]

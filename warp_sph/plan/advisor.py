@@ -108,6 +108,11 @@ class Plan:
     notes: list = field(default_factory=list)           # what the calibration left out and why
     points: list = field(default_factory=list)          # the calibration runs the plan used (``point_summary``)
 
+    @property
+    def budget_used(self) -> float | None:
+        """[-] the chosen setting's predicted wall time over the budget (None without a budget)."""
+        return self.chosen.wall_time / self.budget_s if self.budget_s else None
+
     def prediction(self) -> dict:
         """The chosen setting's predicted figures, as the scene's [plan] table stores them."""
         c = self.chosen
@@ -120,7 +125,8 @@ class Plan:
 
     def to_dict(self) -> dict:
         """The plan as plain JSON types (``warp-sph bench plan`` records it)."""
-        return {"scene": self.scene, "source": self.source, "budget_s": self.budget_s, "metric": self.metric,
+        return {"scene": self.scene, "source": self.source, "budget_s": self.budget_s, "budget_used": self.budget_used,
+                "metric": self.metric,
                 "notes": self.notes, "target_error": self.target_error, "duration": self.duration, "frames": self.frames,
                 "chosen": self.chosen.to_dict(), "alternatives": [c.to_dict() for c in self.alternatives],
                 "candidates": [c.to_dict() for c in self.candidates],
@@ -153,7 +159,7 @@ def predict(scene, model: SolverModel, radius: float, tolerance: float | None = 
     frames = int(round(scene.duration * scene.fps))
     steps = max(model.steps_per_second.steps(d, scene.duration, model.tolerance_factor("steps_per_second", tolerance)),
                 frames)
-    step = model.step_time(fluid, boundary) * model.tolerance_factor("step_time", tolerance)
+    step = model.step_cost(fluid, boundary) * model.tolerance_factor("step_time", tolerance)
     wall = model.load_time + model.setup_time(n) + steps * step + frames * model.frame_overhead(n)
     mem = estimate_memory(s, fluid, boundary)
     # another tolerance than the scene's: its effect was measured at one particle count (iterations grow with the
