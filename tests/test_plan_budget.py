@@ -80,7 +80,7 @@ def test_the_plan_says_when_the_count_extrapolation_stops_it():
     cands = [_candidate(0.02, 2.0, 10.0), _candidate(0.015, 5.0, 30.0), _candidate(0.01, 15.0, 100.0)]
     chosen = cands[0]
     line = budget_cap(cands, chosen, 60.0, None, "s.toml")
-    assert line.startswith("the budget would allow r = 0.015 m") and "5x the largest calibrated count" in line
+    assert line.startswith("the budget would allow r = 0.015 m") and "5.00x the largest calibrated count" in line
     assert "predicted 30 s, 50 % of the budget" in line and "the plan uses 17 %" in line
     assert budget_cap(cands, chosen, 20.0, None, "s.toml") is None
     p = Plan(scene="s", source="s.toml", chosen=chosen, budget_s=60.0)
@@ -88,3 +88,30 @@ def test_the_plan_says_when_the_count_extrapolation_stops_it():
     assert "budget used: 17 % predicted (10 s of 60 s)" in table_lines(p)
     assert Plan(scene="s", source="s.toml", chosen=chosen).budget_used is None
 
+
+
+def test_the_next_point_fits_what_is_left_of_the_share():
+    """The largest point: 1,000 particles, 100 steps of 15 ms, 0.5 s outside them. The fit's choice 1000x beyond: the
+    4x point (predicted 0.5 + 1.5 x 4^(4/3) = 10 s) when it fits; with 4 s left, the count whose cost fits
+    (1000 x (3.5 / 1.5)^(3/4) = 1,888 particles); with 1 s left not even 1.5x fits (the caller runs nothing).
+    A choice only just beyond 4x (a quarter of it ~ the largest count) still steps up 1.5x (before: the same radius,
+    and the finer points stopped with the share a third used)."""
+    from warp_sph.plan.advisor import LEAST_STEP_UP, STEP_UP, next_point
+
+    cal = Calibration(key="k", machine="m", points=[
+        Point("wcsph", 0.04, fluid=300, boundary=200, seconds=1.0),
+        Point("wcsph", 0.02, fluid=800, boundary=200, seconds=2.0, steps=100, step_time=0.015)])
+    far = Candidate("wcsph", 0.002, None, 10**6, 0, 1000, 10.0, 0, 0.01, 1000.0, 10.0)
+
+    def count(r):
+        return 1000 * (0.02 / r) ** 3
+
+    r, cost, _ = next_point(cal, far, room=20.0)
+    assert count(r) == pytest.approx(STEP_UP * 1000, rel=1e-3)
+    r, cost, _ = next_point(cal, far, room=4.0)
+    assert count(r) == pytest.approx(1000 * (3.5 / 1.5) ** 0.75, rel=1e-3) and cost == pytest.approx(4.0, rel=1e-2)
+    r, cost, _ = next_point(cal, far, room=1.0)  # not even 1.5x fits: the 4x point, whose cost the caller refuses
+    assert count(r) == pytest.approx(STEP_UP * 1000, rel=1e-3) and cost > 1.0
+    just = Candidate("wcsph", 0.0126, None, 4002, 0, 100, 1.0, 0, 0.01, 4.002, 1.6)
+    r, _, largest = next_point(cal, just)
+    assert r < largest and count(r) == pytest.approx(LEAST_STEP_UP * 1000, rel=1e-3)

@@ -100,10 +100,11 @@ def test_the_chosen_solver_has_its_whole_run_error_measured(tiny, monkeypatch):
     assert p.chosen.solver == "pbf"
     # its predicted error is the profile's: 3 frames at 0.9e-3, 9 at 2.7e-3
     assert p.chosen.density_error == pytest.approx((3 * 0.9e-3 + 9 * 2.7e-3) / 12)
-    # with room for both whole runs, both are measured and the plan keeps the one it would choose anyway
+    # with room for both whole runs after PBF's finer points, both are measured and the plan keeps the one it would
+    # choose anyway
     clock = FakeClock(1.0, 1e-6, level={"pbf": 0.9e-3}, rise={"pbf": 3.0})
     monkeypatch.setattr(calibrate_module, "calibrate", clock)
-    q = plan(tiny, budget_s=90.0, solvers=["wcsph", "pbf"])
+    q = plan(tiny, budget_s=150.0, solvers=["wcsph", "pbf"])
     assert q.models["wcsph"].profile and q.models["pbf"].profile and not any("not chosen" in n for n in q.notes)
 
 

@@ -147,7 +147,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     lead = profiled or list(order)  # without a profile to reserve (none needed, or none fits) every solver may be chosen
     reserved = sum(profile_costs[s] * overrun() for s in profiled)
 
-    def further(cal, solvers_):  # the further default radii, then the second tolerance, of ``solvers_``
+    def further(cal, solvers_):  # the further default radii of ``solvers_``
         nonlocal cached
         for r in radii[1:]:
             left = []
@@ -161,10 +161,16 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
             if left:
                 notes.append(f"not calibrated at r = {r:.4g} m: {', '.join(left)} (predicted beyond "
                              f"{100 * CALIBRATION_SHARE:.0f} % of the budget)")
+        return cal
+
+    def second_tolerance(cal, solvers_):  # each solver's second tolerance at its finest default radius calibrated
+        nonlocal cached
         for s in solvers_:
             if not tolerance_key(s) or not cal.for_solver(s):
                 continue
-            r_tol = min(p.particle_radius for p in cal.for_solver(s))
+            default = [p.particle_radius for p in cal.for_solver(s) if any(_same_radius(p.particle_radius, r)
+                                                                           for r in radii)]
+            r_tol = min(default or [p.particle_radius for p in cal.for_solver(s)])
             if len({p.tolerance for p in cal.for_solver(s) if p.particle_radius == r_tol}) > 1:
                 continue  # cached
             # about the cost of the same run at the scene's tolerance
@@ -191,16 +197,19 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
             break
         # the setting the fit would choose lies far beyond the calibration: one more point of its solver, when
         # that fits in the calibration's share of the budget
-        r_new, cost, largest = next_point(cal, free)
+        r_new, cost, largest = next_point(cal, free, (share - spent_of(cal) - reserved) / overrun())
         if r_new >= largest or spent_of(cal) + cost * overrun() + reserved > share:
             break
         cal = run_forecast(cal, cost, [free.solver], [r_new])
         cached = cached and cal.cached
+    # then the lead's second tolerance, at its finest default radius: a budget plan chooses the finest radius first
+    # and the tolerance only between settings at one radius, so the finer points have the first claim on the share
+    cal = second_tolerance(cal, lead)
     # the others after the lead's finer points, in rank order while they fit: their further radii and tolerance, then
     # their whole runs (measured, dam break 60 s: the three profiles reserved first left no room for a finer point,
     # and the plan stayed at 3.5k fluid particles, 3.9 s predicted of a 60 s budget)
     others = [s for s in order if s not in lead]
-    cal = further(cal, others)
+    cal = second_tolerance(further(cal, others), others)
     models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
     if not models:
         raise PlanError(f"{scene.source}: the scene cannot be calibrated for --target-error {metric}: no "
@@ -313,7 +322,7 @@ def budget_cap(candidates, chosen, budget_s: float, limit, source: str) -> str |
         return None
     return (f"the budget would allow r = {free.particle_radius:.4g} m ({free.fluid_particles:,} fluid particles, "
             f"predicted {free.wall_time:.3g} s, {100 * free.wall_time / budget_s:.0f} % of the budget), but that is "
-            f"{free.count_extrapolation:.3g}x the largest calibrated count and a plan extrapolates at most "
+            f"{free.count_extrapolation:.2f}x the largest calibrated count and a plan extrapolates at most "
             f"{MAX_COUNT_EXTRAPOLATION:g}x: no finer calibration point fitted in its {100 * CALIBRATION_SHARE:.0f} % "
             f"share; the plan uses {100 * chosen.wall_time / budget_s:.0f} % (up to {100 * BUDGET_SAFETY:.0f} % aimed)")
 

@@ -254,15 +254,26 @@ def candidates_for(scene, models: dict) -> list:
     return out
 
 
-def next_point(cal: Calibration, free: Candidate) -> tuple[float, float, float]:
+#: a finer calibration point smaller than the STEP_UP one (to fit in what is left of the share) has at least this
+#: factor more particles than the largest calibrated one, or is not run
+LEAST_STEP_UP = 1.5
+
+
+def next_point(cal: Calibration, free: Candidate, room: float | None = None) -> tuple[float, float, float]:
     """(radius [m], predicted cost [s], largest calibrated radius [m]) of the next calibration point of
-    ``free``'s solver: a quarter of its particle count, but at most STEP_UP x the largest calibrated count (the
-    fit is least sure beyond it); the cost scaled from the largest point run: its time outside the steps as it
-    was, its steps' time times particles x steps (steps ~ 1/d)."""
+    ``free``'s solver: a quarter of its particle count, at least LEAST_STEP_UP x and at most STEP_UP x the largest
+    calibrated count (the fit is least sure beyond it), and where its cost exceeds ``room`` [s] (what is left of the share) the count
+    whose cost fits, when that is at least LEAST_STEP_UP x the largest (a finer point than none: the plan may then
+    extrapolate further). The cost scaled from the largest point run: its time outside the steps as it was, its
+    steps' time times particles x steps (steps ~ 1/d, so ~ N^(4/3))."""
     largest = max(cal.for_solver(free.solver), key=lambda q: q.particles)
-    target = min(free.particles / 4.0, STEP_UP * largest.particles)
-    r_new = float(f"{largest.particle_radius * (largest.particles / target) ** (1.0 / 3.0):.4g}")
     steps = largest.steps * largest.step_time
-    cost = (max(largest.seconds - steps, 0.0)
-            + steps * (target / largest.particles) * (largest.particle_radius / r_new))
+    fixed = max(largest.seconds - steps, 0.0)
+    target = min(max(free.particles / 4.0, LEAST_STEP_UP * largest.particles), STEP_UP * largest.particles)
+    if room is not None and steps > 0 and fixed + steps * (target / largest.particles) ** (4.0 / 3.0) > room:
+        fits = largest.particles * (max(room - fixed, 0.0) / steps) ** 0.75
+        if fits >= LEAST_STEP_UP * largest.particles:
+            target = fits
+    r_new = float(f"{largest.particle_radius * (largest.particles / target) ** (1.0 / 3.0):.4g}")
+    cost = fixed + steps * (target / largest.particles) * (largest.particle_radius / r_new)
     return r_new, cost, largest.particle_radius
