@@ -115,3 +115,23 @@ def test_the_next_point_fits_what_is_left_of_the_share():
     just = Candidate("wcsph", 0.0126, None, 4002, 0, 100, 1.0, 0, 0.01, 4.002, 1.6)
     r, _, largest = next_point(cal, just)
     assert r < largest and count(r) == pytest.approx(LEAST_STEP_UP * 1000, rel=1e-3)
+
+
+def test_a_finer_point_is_priced_without_the_kernel_loads():
+    """The process's first calibration run (DFSPH, hydrostatic 60 s at load 5: 1.67 s, its second radius 0.44 s) paid
+    the kernel loads: a later run of the process does not, so its cost is scaled from the least fixed time of the
+    others' runs, and a run's first-step excess (its own kernels) is left out too."""
+    from warp_sph.plan import point_cost
+    from warp_sph.plan.advisor import fixed_time
+
+    first = Point("dfsph", 0.04, fluid=100, boundary=400, seconds=1.67, steps=27, step_time=0.003,
+                  first_step_time=0.5, first_in_process=True)
+    other = Point("pbf", 0.04, fluid=100, boundary=400, seconds=0.35, steps=27, step_time=0.003,
+                  first_step_time=0.05)
+    own_other = 0.35 - 27 * 0.003 - (0.05 - 0.003)
+    assert fixed_time(other) == pytest.approx(own_other)
+    assert fixed_time(first, [first, other]) == pytest.approx(own_other)
+    assert fixed_time(first) == pytest.approx(1.67 - 27 * 0.003 - (0.5 - 0.003))  # no other run to compare with
+    cal = _cal(first, other)
+    # (r / r_new)^4 = 16 at r_new = r / 2
+    assert point_cost(cal, "dfsph", 0.02) == pytest.approx(own_other + 27 * 0.003 * 16)

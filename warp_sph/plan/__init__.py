@@ -62,7 +62,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
     from .advisor import (CALIBRATION_MARGIN, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose,
-                          fit_models, next_point, point_summary)
+                          fit_models, fixed_time, next_point, point_summary)
     from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, _same_radius, _same_tolerance, calibrate,
                             calibration_frames as cal_frames, calibration_radii as default_radii, scene_tolerance,
                             tolerance_key)
@@ -173,8 +173,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
             r_tol = min(default or [p.particle_radius for p in cal.for_solver(s)])
             if len({p.tolerance for p in cal.for_solver(s) if p.particle_radius == r_tol}) > 1:
                 continue  # cached
-            # about the cost of the same run at the scene's tolerance
-            cost = sum(p.seconds for p in cal.for_solver(s) if p.particle_radius == r_tol)
+            # about the cost of the same run at the scene's tolerance, its kernels loaded
+            cost = sum(fixed_time(p, cal.points) + p.steps * p.step_time
+                       for p in cal.for_solver(s) if p.particle_radius == r_tol)
             if spent_of(cal) + reserved + cost * overrun() <= first:
                 cal = run_forecast(cal, cost, [s], [r_tol], 1.0 / TOLERANCE_STEP)
                 cached = cached and cal.cached
@@ -374,14 +375,17 @@ def whole_run_cost(points, scale: float, others=()) -> float:
 
 def point_cost(cal, solver: str, radius: float) -> float:
     """Predicted seconds of a calibration run of ``solver`` at ``radius`` [m], scaled from its finest point run:
-    its time outside the steps as it was, its steps' time times (r / radius)^4 (particles ~ r^-3, steps ~ r^-1);
+    its time outside the steps (``advisor.fixed_time``: without the kernel loads), its steps' time times
+    (r / radius)^4 (particles ~ r^-3, steps ~ r^-1);
     0 when the point is cached or the solver has none."""
     pts = cal.for_solver(solver)
     if not pts or any(abs(p.particle_radius / radius - 1.0) <= 1e-6 for p in pts):
         return 0.0
+    from .advisor import fixed_time
+
     p = min(pts, key=lambda q: q.particle_radius)
     steps = p.steps * p.step_time
-    return max(p.seconds - steps, 0.0) + steps * (p.particle_radius / radius) ** 4
+    return fixed_time(p, cal.points) + steps * (p.particle_radius / radius) ** 4
 
 
-__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "plan", "profile_solvers", "whole_run_cost"]
+__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "plan", "point_cost", "profile_solvers", "whole_run_cost"]
