@@ -128,8 +128,8 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
 
     # the coarsest radius first, every solver; then the solvers that can be chosen are decided BEFORE the rest of the
     # share is spent: where the run outlasts the calibration, a solver is chosen only with its whole-run error profile
-    # (below), so the first solver in the one-radius ranking whose profile fits (its cost reserved) leads: it gets the
-    # further radii, its second tolerance and the finer points first, the others what is left after them (measured,
+    # (below), so the first solver in the one-radius ranking whose profile fits leads: its whole run goes first, then
+    # its further radii, its finer points and its second tolerance, the others what is left after them (measured,
     # dam break 60 s: the finer points went to DFSPH, whose profile then did not fit; the chosen PBF, calibrated to
     # 729 fluid particles, was held to 4x that count: 2.8 s predicted of 60 s, its error 2.34x the prediction)
     cal = run(names, radii[:1])
@@ -145,7 +145,42 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                          for s in order if cal.for_solver(s, scene_tolerance(scene, s))}
     profiled = profile_solvers(order, {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal), first)[:1]
     lead = profiled or list(order)  # without a profile to reserve (none needed, or none fits) every solver may be chosen
-    reserved = sum(profile_costs[s] * overrun() for s in profiled)
+    reserved = 0.0  # [s] of whole runs decided but not yet run
+    # the error's course over the whole run (the lead's before the finer points), one solver at a time: a
+    # later one only while its predicted cost, times what the runs so far took over their prediction, still fits
+    # (measured, dam break 60 s: two profiles predicted 0.68 s took 1.02 s, and the calibration 6.2 s of 6)
+    profile, whole_runs = None, set()
+
+    def take_profile(s, say=True) -> bool:  # the whole run of ``s`` at r0, when its cost times the overrun still fits
+        nonlocal profile, profile_seconds, cached
+        if profile is not None and spent_of(cal) + profile_costs[s] * overrun() > first:
+            if say:
+                notes.append(f"no error profile of {s} (its whole run at r = {r0:.4g} m, predicted "
+                             f"{profile_costs[s] * overrun():.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
+                             f"of the budget after the others'): its error after the calibrated "
+                             f"{(frames - 1) / scene.fps:.3g} s is held at its last calibrated frame's")
+            return False
+        try:
+            out = calibrate(scene, [s], device=dev, radii=[r0], frames=whole, cache=cache, refresh=refresh and profile is None,
+                            progress=progress, log=quiet)
+        except PlanError as exc:
+            notes.append(f"no error profile of {s}: {exc}")
+            return False
+        whole_runs.add(s)
+        # the whole runs this plan asked for only (the cache may hold others': a plan made again decides the same)
+        profile = replace(out, points=[p for p in out.points if p.solver in whole_runs
+                                       and abs(p.particle_radius / r0 - 1.0) <= 1e-6])
+        secs = sum(p.seconds for p in out.points if p.solver == s and abs(p.particle_radius / r0 - 1.0) <= 1e-6)
+        profile_seconds += secs
+        forecast[0] += profile_costs[s]
+        forecast[1] += secs
+        cached = cached and out.cached
+        return True
+
+    # the lead's whole run at once: what it really took counts before the finer points are decided (measured, dam
+    # break 60 s at load 7: reserved at its predicted 0.77 s, it took 1.57 s at the end and the calibration 6.25 s of 6)
+    for s in profiled:
+        take_profile(s)
 
     def further(cal, solvers_):  # the further default radii of ``solvers_``
         nonlocal cached
@@ -186,7 +221,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
 
     cal = further(cal, lead)
     for _ in range(MAX_ROUNDS):
-        models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
+        models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
         if not models:
             raise PlanError(f"{scene.source}: the scene cannot be calibrated for --target-error {metric}: no "
                             f"calibration run measured it")
@@ -219,39 +254,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     profiled += profile_solvers([s for s in order if s not in profiled],
                                 {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal) + reserved, first)
     unprofiled = [s for s in order if s in profile_costs and s not in profiled]
-    # the error's course over the whole run (its cost reserved before the finer points), one solver at a time: a
-    # later one only while its predicted cost, times what the runs so far took over their prediction, still fits
-    # (measured, dam break 60 s: two profiles predicted 0.68 s took 1.02 s, and the calibration 6.2 s of 6)
-    profile, whole_runs = None, set()
-
-    def take_profile(s, say=True) -> bool:  # the whole run of ``s`` at r0, when its cost times the overrun still fits
-        nonlocal profile, profile_seconds, cached
-        if profile is not None and spent_of(cal) + profile_costs[s] * overrun() > first:
-            if say:
-                notes.append(f"no error profile of {s} (its whole run at r = {r0:.4g} m, predicted "
-                             f"{profile_costs[s] * overrun():.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
-                             f"of the budget after the others'): its error after the calibrated "
-                             f"{(frames - 1) / scene.fps:.3g} s is held at its last calibrated frame's")
-            return False
-        try:
-            out = calibrate(scene, [s], device=dev, radii=[r0], frames=whole, cache=cache, refresh=refresh and profile is None,
-                            progress=progress, log=quiet)
-        except PlanError as exc:
-            notes.append(f"no error profile of {s}: {exc}")
-            return False
-        whole_runs.add(s)
-        # the whole runs this plan asked for only (the cache may hold others': a plan made again decides the same)
-        profile = replace(out, points=[p for p in out.points if p.solver in whole_runs
-                                       and abs(p.particle_radius / r0 - 1.0) <= 1e-6])
-        secs = sum(p.seconds for p in out.points if p.solver == s and abs(p.particle_radius / r0 - 1.0) <= 1e-6)
-        profile_seconds += secs
-        forecast[0] += profile_costs[s]
-        forecast[1] += secs
-        cached = cached and out.cached
-        return True
-
     for s in profiled:
-        take_profile(s)
+        if s not in whole_runs:
+            take_profile(s)
     if profile is not None:
         models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
         candidates = candidates_for(scene, models)
