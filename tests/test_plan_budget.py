@@ -83,6 +83,9 @@ def test_the_plan_says_when_the_count_extrapolation_stops_it():
     assert line.startswith("the budget would allow r = 0.015 m") and "5.00x the largest calibrated count" in line
     assert "predicted 30 s, 50 % of the budget" in line and "the plan uses 17 %" in line
     assert budget_cap(cands, chosen, 20.0, None, "s.toml") is None
+    # a tighter tolerance at a finer radius is not what the line compares with: the chosen tolerance's setting
+    tight = Candidate("pbf", 0.012, 0.00125, 15000, 0, 100, 40.0, 10**6, 1e-4, 11.0, 1.0)
+    assert budget_cap(cands + [tight], chosen, 60.0, None, "s.toml") == line
     p = Plan(scene="s", source="s.toml", chosen=chosen, budget_s=60.0)
     assert p.budget_used == pytest.approx(10.0 / 60.0) and p.to_dict()["budget_used"] == pytest.approx(1 / 6)
     assert "budget used: 17 % predicted (10 s of 60 s)" in table_lines(p)

@@ -315,13 +315,14 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
 
 def budget_cap(candidates, chosen, budget_s: float, limit, source: str) -> str | None:
     """The line that says the count extrapolation, not the budget, stopped the plan: the finest setting of the
-    chosen solver predicted within the budget's BUDGET_SAFETY with no limit on the extrapolation, when it is finer
-    than ``chosen`` (None otherwise)."""
+    chosen solver at its tolerance predicted within the budget's BUDGET_SAFETY with no limit on the extrapolation,
+    when it is finer than ``chosen`` (None otherwise; at another tolerance the line named a tighter one, extrapolated
+    11x from the count its effect was measured at, where the chosen tolerance's was 4x)."""
     from .advisor import BUDGET_SAFETY, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, choose
 
     try:
-        free = choose([c for c in candidates if c.solver == chosen.solver], budget_s, None, limit, source,
-                      max_extrapolation=None)
+        free = choose([c for c in candidates if c.solver == chosen.solver and c.tolerance == chosen.tolerance],
+                      budget_s, None, limit, source, max_extrapolation=None)
     except PlanError:
         return None
     if free.particle_radius >= chosen.particle_radius * (1.0 - 1e-6):
