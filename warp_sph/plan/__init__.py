@@ -37,18 +37,19 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     (default ``~/.cache/warp-sph/plan``, ``$WARP_SPH_CACHE_DIR``), ``refresh=True`` runs them again;
     ``calibration_radii`` [m] and ``calibration_frames`` (including the initial one) replace the defaults
     (``calibrate.calibration_radii``, ``calibrate.calibration_frames``; given radii are all run). With a budget
-    the default calibration keeps within CALIBRATION_SHARE of it: the coarsest radius first, then each further radius and the tolerance
-    points only while their cost, scaled from the points run, fits (``Plan.notes`` says what was left out).
-    When it fits too, a solver runs the scene's whole duration at the coarsest radius once: the course of its
-    density error over the run (``advisor.SolverModel.later_ratio``); the solver ranked first after the coarse
-    radii has it reserved before its second tolerance and the finer points, the others get it after the finer
-    points, in rank order, one at a time while its predicted cost (``whole_run_cost``) times the profiles' measured
-    over-run fits.
+    the default calibration keeps within CALIBRATION_SHARE of it: the coarsest radius first, every solver; then the
+    lead, the first solver in the ranking of their one-radius models whose whole run (the scene's duration at the
+    coarsest radius: the course of its density error, ``advisor.SolverModel.later_ratio``) fits: that whole run at
+    once, its further radii, its finer points and its second tolerance; then the others' further radii, second
+    tolerances and whole runs, in rank order, each only while its cost, scaled from the points run
+    (``point_cost``, ``whole_run_cost``) times the runs' measured over-run, fits (``Plan.notes`` says what was left
+    out). Without a whole run to decide on (none needed or none fits) every solver leads.
     Models fitted to them (steps per simulated second and error against the spacing and the tolerance, wall
     time against the particle count) predict every candidate over the scene's duration. No setting beyond 4x
     the largest calibrated particle count is chosen; when the fit would choose one, a finer calibration point
-    of its solver is run first (at a quarter of its count, at most 4x the largest calibrated count), while the
-    calibration stays within its share of the budget.
+    of its solver is run first (at a quarter of its count, at least 1.5x and at most 4x the largest calibrated
+    count, smaller where only that fits), while the calibration stays within its share of the budget; where the 4x
+    limit rather than the budget stops the plan, a note says so (``budget_cap``).
 
     Returns a ``Plan``: ``chosen`` (a ``Candidate``: solver, particle_radius, tolerance, fluid_particles,
     steps, wall_time [s], memory [bytes], density_error [-], metric_error [-] and how far each is
