@@ -213,9 +213,9 @@ def test_a_clamped_order_says_so(tiny):
     from warp_sph.plan.fit import fit_power_law
     from warp_sph.plan.report import model_line
 
-    law = fit_power_law([0.04, 0.06], [4e-3, 1e-3], (-1.0, 4.0))   # e ~ d^-3.4: clamped to -1
-    assert law.clipped and law.exponent == -1.0 and law.measured == pytest.approx(math.log(4) / math.log(2 / 3))
-    assert not fit_power_law([0.04, 0.06], [1e-3, 2e-3], (-1.0, 4.0)).clipped
+    law = fit_power_law([0.04, 0.06], [4e-3, 1e-3], (-2.0, 4.0))   # e ~ d^-3.4: clamped to -2 (ORDER_RANGE)
+    assert law.clipped and law.exponent == -2.0 and law.measured == pytest.approx(math.log(4) / math.log(2 / 3))
+    assert not fit_power_law([0.04, 0.06], [1e-3, 2e-3], (-2.0, 4.0)).clipped
     pts = [_point("wcsph", 0.03, None, density_error_mean=1e-3), _point("wcsph", 0.02, None, density_error_mean=4e-3)]
     line = model_line(fit_models(_cal(*pts), "wcsph", tiny))
     assert "(measured -3.42, clamped)" in line and "no tolerance" in line

@@ -23,8 +23,9 @@ class FakeClock:
     """``calibrate`` on synthetic runs: N = 400 (0.03 / r)^3 fluid particles, ceil(0.3 / r) steps per frame, a step
     ``c N^power`` seconds, 0.3 s outside the steps; a density error 1e-3 in every frame. ``runs``: the runs made."""
 
-    def __init__(self, power=1.3, c=2e-7, level=None, rise=None):
+    def __init__(self, power=1.3, c=2e-7, level=None, rise=None, cost=None):
         self.power, self.c = power, c
+        self.cost = cost or {}     # solver -> its step's cost times the default (default 1)
         self.level = level or {}   # solver -> its density error (default 1e-3)
         self.rise = rise or {}     # solver -> its error after the first three frames, times its level (default 1)
         self.store: dict = {}
@@ -34,7 +35,7 @@ class FakeClock:
         n = int(round(400 * (0.03 / r) ** 3))
         per_frame = math.ceil(0.3 / r)
         adv = frames - 1
-        step = self.c * n ** self.power
+        step = self.cost.get(solver, 1.0) * self.c * n ** self.power
         steps = per_frame * adv
         e = self.level.get(solver, 1e-3)
         errors = [e if i < 3 else e * self.rise.get(solver, 1.0) for i in range(adv)]
@@ -94,14 +95,39 @@ def test_the_chosen_solver_has_its_whole_run_error_measured(tiny, monkeypatch):
     monkeypatch.setattr(calibrate_module, "calibrate", clock)
     p = plan(tiny, budget_s=30.0, solvers=["wcsph", "pbf"])
     assert not p.models["wcsph"].profile and p.models["pbf"].profile
-    assert p.chosen.solver == "pbf" and any(n.startswith("wcsph not chosen") for n in p.notes)
+    # the finer points went to PBF, the solver that can be chosen: calibrated finer than WCSPH, it is chosen
+    assert min(p.models["pbf"].calibrated_radii) < min(p.models["wcsph"].calibrated_radii)
+    assert p.chosen.solver == "pbf"
     # its predicted error is the profile's: 3 frames at 0.9e-3, 9 at 2.7e-3
     assert p.chosen.density_error == pytest.approx((3 * 0.9e-3 + 9 * 2.7e-3) / 12)
-    # with room for both whole runs, both are measured and the plan keeps the one it would choose anyway
+    # with room for both whole runs after PBF's finer points, both are measured and the plan keeps the one it would
+    # choose anyway
     clock = FakeClock(1.0, 1e-6, level={"pbf": 0.9e-3}, rise={"pbf": 3.0})
     monkeypatch.setattr(calibrate_module, "calibrate", clock)
-    q = plan(tiny, budget_s=90.0, solvers=["wcsph", "pbf"])
+    q = plan(tiny, budget_s=150.0, solvers=["wcsph", "pbf"])
     assert q.models["wcsph"].profile and q.models["pbf"].profile and not any("not chosen" in n for n in q.notes)
+
+
+@pytest.mark.parametrize("budget", [30.0, 45.0])
+def test_the_finer_points_go_to_the_solver_whose_whole_run_fits(tiny, monkeypatch, budget):
+    """WCSPH (error 0.5e-3, a step 1.2x PBF's) ranks first after the coarsest radius; only one whole run fits in the
+    share. The solvers that can be chosen (a whole run measured) are decided before the finer points: WCSPH's whole
+    run is reserved and the further radii and finer points are its. Before: the second radius went to both, no whole
+    run fitted after them and the plan chose WCSPH with its error held from the first 0.125 s (30 s: at 2.1 s of
+    calibration; 45 s: both at two radii, neither with a whole run)."""
+    clock = FakeClock(1.3, 2e-7, level={"wcsph": 0.5e-3}, cost={"wcsph": 1.2})
+    monkeypatch.setattr(calibrate_module, "calibrate", clock)
+    p = plan(tiny, budget_s=budget, solvers=["wcsph", "pbf"])
+    m = p.models[p.chosen.solver]
+    assert p.chosen.solver == "wcsph" and m.has_profile(p.frames - 1)
+    assert min(m.calibrated_radii) <= min(p.models["pbf"].calibrated_radii)
+    if budget >= 45.0:  # room for a further radius: WCSPH's, not PBF's
+        assert len(m.calibrated_radii) > len(p.models["pbf"].calibrated_radii)
+    assert p.calibration_seconds <= CALIBRATION_SHARE * budget
+    # the same decisions from the cache, nothing run
+    runs = clock.runs
+    q = plan(tiny, budget_s=budget, solvers=["wcsph", "pbf"])
+    assert clock.runs == runs and q.chosen == p.chosen and q.notes == p.notes
 
 
 def test_the_plan_record_keeps_its_calibration_runs(tiny, monkeypatch):

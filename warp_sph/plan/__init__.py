@@ -37,18 +37,19 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     (default ``~/.cache/warp-sph/plan``, ``$WARP_SPH_CACHE_DIR``), ``refresh=True`` runs them again;
     ``calibration_radii`` [m] and ``calibration_frames`` (including the initial one) replace the defaults
     (``calibrate.calibration_radii``, ``calibrate.calibration_frames``; given radii are all run). With a budget
-    the default calibration keeps within CALIBRATION_SHARE of it: the coarsest radius first, then each further radius and the tolerance
-    points only while their cost, scaled from the points run, fits (``Plan.notes`` says what was left out).
-    When it fits too, a solver runs the scene's whole duration at the coarsest radius once: the course of its
-    density error over the run (``advisor.SolverModel.later_ratio``); the solver ranked first after the coarse
-    radii has it reserved before its second tolerance and the finer points, the others get it after the finer
-    points, in rank order, one at a time while its predicted cost (``whole_run_cost``) times the profiles' measured
-    over-run fits.
+    the default calibration keeps within CALIBRATION_SHARE of it: the coarsest radius first, every solver; then the
+    lead, the first solver in the ranking of their one-radius models whose whole run (the scene's duration at the
+    coarsest radius: the course of its density error, ``advisor.SolverModel.later_ratio``) fits: that whole run at
+    once, its further radii, its finer points and its second tolerance; then the others' further radii, second
+    tolerances and whole runs, in rank order, each only while its cost, scaled from the points run
+    (``point_cost``, ``whole_run_cost``) times the runs' measured over-run, fits (``Plan.notes`` says what was left
+    out). Without a whole run to decide on (none needed or none fits) every solver leads.
     Models fitted to them (steps per simulated second and error against the spacing and the tolerance, wall
     time against the particle count) predict every candidate over the scene's duration. No setting beyond 4x
     the largest calibrated particle count is chosen; when the fit would choose one, a finer calibration point
-    of its solver is run first (at a quarter of its count, at most 4x the largest calibrated count), while the
-    calibration stays within its share of the budget.
+    of its solver is run first (at a quarter of its count, at least 1.5x and at most 4x the largest calibrated
+    count, smaller where only that fits), while the calibration stays within its share of the budget; where the 4x
+    limit rather than the budget stops the plan, a note says so (``budget_cap``).
 
     Returns a ``Plan``: ``chosen`` (a ``Candidate``: solver, particle_radius, tolerance, fluid_particles,
     steps, wall_time [s], memory [bytes], density_error [-], metric_error [-] and how far each is
@@ -62,7 +63,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
     from .advisor import (CALIBRATION_MARGIN, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose,
-                          fit_models, next_point, point_summary)
+                          fit_models, fixed_time, next_point, point_summary)
     from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, _same_radius, _same_tolerance, calibrate,
                             calibration_frames as cal_frames, calibration_radii as default_radii, scene_tolerance,
                             tolerance_key)
@@ -126,30 +127,16 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         forecast[1] += spent_of(cal) - before
         return cal
 
-    # the coarsest radius first; each further radius and the tolerance points while they fit in the share, the
-    # solvers in the order their one-radius models rank them (the one the plan would choose first)
+    # the coarsest radius first, every solver; then the solvers that can be chosen are decided BEFORE the rest of the
+    # share is spent: where the run outlasts the calibration, a solver is chosen only with its whole-run error profile
+    # (below), so the first solver in the one-radius ranking whose profile fits leads: its whole run goes first, then
+    # its further radii, its finer points and its second tolerance, the others what is left after them (measured,
+    # dam break 60 s: the finer points went to DFSPH, whose profile then did not fit; the chosen PBF, calibrated to
+    # 729 fluid particles, was held to 4x that count: 2.8 s predicted of 60 s, its error 2.34x the prediction)
     cal = run(names, radii[:1])
     cached = cal.cached
     order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit)
-    for r in radii[1:]:
-        left = []
-        for s in order:
-            cost = point_cost(cal, s, r)
-            if spent_of(cal) + cost * overrun() > first:
-                left.append(s)
-                continue
-            cal = run_forecast(cal, cost, [s], [r])
-            cached = cached and cal.cached
-        if left:
-            notes.append(f"not calibrated at r = {r:.4g} m: {', '.join(left)} (predicted beyond "
-                         f"{100 * CALIBRATION_SHARE:.0f} % of the budget)")
-    # the error's course over the whole run: one run of the scene's duration at the coarsest radius per solver, in
-    # the order the models fitted so far rank them; the first solver's is reserved before its second tolerance and
-    # the finer points (measured, hydrostatic 60 s: without it the later error was held and the run's came out
-    # 1.69x the prediction), the others' when they still fit; a solver without one has its later error held
     whole, r0 = int(round(scene.duration * scene.fps)) + 1, 0.0
-    if len(radii) > 1:
-        order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit)
     profile_costs = {}
     if whole > frames and any(cal.for_solver(s) for s in names):
         r0 = max(p.particle_radius for s in names for p in cal.for_solver(s))
@@ -157,46 +144,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         profile_costs = {s: whole_run_cost([p for p in cal.for_solver(s, scene_tolerance(scene, s))
                                           if p.particle_radius == r0], scale, cal.points)
                          for s in order if cal.for_solver(s, scene_tolerance(scene, s))}
-    profiled = profile_solvers(order[:1], {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal), first)
-    reserved = sum(profile_costs[s] * overrun() for s in profiled)
-    # the second tolerance: each solver with one, at its finest calibrated radius, in the same order
-    for s in order:
-        if not tolerance_key(s) or not cal.for_solver(s):
-            continue
-        r_tol = min(p.particle_radius for p in cal.for_solver(s))
-        if len({p.tolerance for p in cal.for_solver(s) if p.particle_radius == r_tol}) > 1:
-            continue  # cached
-        # about the cost of the same run at the scene's tolerance
-        cost = sum(p.seconds for p in cal.for_solver(s) if p.particle_radius == r_tol)
-        if spent_of(cal) + reserved + cost * overrun() <= first:
-            cal = run_forecast(cal, cost, [s], [r_tol], 1.0 / TOLERANCE_STEP)
-            cached = cached and cal.cached
-        else:
-            notes.append(f"{s}'s tolerance not varied: its calibration at r = {r_tol:.4g} m was predicted to take "
-                         f"{cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
-    for _ in range(MAX_ROUNDS):
-        models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
-        if not models:
-            raise PlanError(f"{scene.source}: the scene cannot be calibrated for --target-error {metric}: no "
-                            f"calibration run measured it")
-        candidates = candidates_for(scene, models)
-        free = choose(candidates, budget_s, target_error, limit, scene.source, max_extrapolation=None)
-        if free.count_extrapolation <= MAX_COUNT_EXTRAPOLATION:
-            break
-        # the setting the fit would choose lies far beyond the calibration: one more point of its solver, when
-        # that fits in the calibration's share of the budget
-        r_new, cost, largest = next_point(cal, free)
-        if r_new >= largest or spent_of(cal) + cost * overrun() + reserved > share:
-            break
-        cal = run_forecast(cal, cost, [free.solver], [r_new])
-        cached = cached and cal.cached
-    # the other solvers' whole runs after the finer points of the one a plan would choose (measured, dam break
-    # 60 s: the three profiles reserved first left no room for a finer point, and the plan stayed at 3.5k fluid
-    # particles, 3.9 s predicted of a 60 s budget)
-    profiled += profile_solvers([s for s in order if s not in profiled],
-                                {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal) + reserved, first)
-    unprofiled = [s for s in order if s in profile_costs and s not in profiled]
-    # the error's course over the whole run (its cost reserved before the finer points), one solver at a time: a
+    profiled = profile_solvers(order, {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal), first)[:1]
+    lead = profiled or list(order)  # without a profile to reserve (none needed, or none fits) every solver may be chosen
+    reserved = 0.0  # [s] of whole runs decided but not yet run
+    # the error's course over the whole run (the lead's before the finer points), one solver at a time: a
     # later one only while its predicted cost, times what the runs so far took over their prediction, still fits
     # (measured, dam break 60 s: two profiles predicted 0.68 s took 1.02 s, and the calibration 6.2 s of 6)
     profile, whole_runs = None, set()
@@ -227,8 +178,86 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         cached = cached and out.cached
         return True
 
+    # the lead's whole run at once: what it really took counts before the finer points are decided (measured, dam
+    # break 60 s at load 7: reserved at its predicted 0.77 s, it took 1.57 s at the end and the calibration 6.25 s of 6)
     for s in profiled:
         take_profile(s)
+
+    def further(cal, solvers_):  # the further default radii of ``solvers_``
+        nonlocal cached
+        for r in radii[1:]:
+            left = []
+            for s in solvers_:
+                cost = point_cost(cal, s, r)
+                if spent_of(cal) + reserved + cost * overrun() > first:
+                    left.append(s)
+                    continue
+                cal = run_forecast(cal, cost, [s], [r])
+                cached = cached and cal.cached
+            if left:
+                notes.append(f"not calibrated at r = {r:.4g} m: {', '.join(left)} (predicted beyond "
+                             f"{100 * CALIBRATION_SHARE:.0f} % of the budget)")
+        return cal
+
+    def second_tolerance(cal, solvers_):  # each solver's second tolerance at its finest default radius calibrated
+        nonlocal cached
+        for s in solvers_:
+            if not tolerance_key(s) or not cal.for_solver(s):
+                continue
+            default = [p.particle_radius for p in cal.for_solver(s) if any(_same_radius(p.particle_radius, r)
+                                                                           for r in radii)]
+            r_tol = min(default or [p.particle_radius for p in cal.for_solver(s)])
+            if len({p.tolerance for p in cal.for_solver(s) if p.particle_radius == r_tol}) > 1:
+                continue  # cached
+            # about the cost of the same run at the scene's tolerance, its kernels loaded
+            cost = sum(fixed_time(p, cal.points) + p.steps * p.step_time
+                       for p in cal.for_solver(s) if p.particle_radius == r_tol)
+            if spent_of(cal) + reserved + cost * overrun() <= first:
+                cal = run_forecast(cal, cost, [s], [r_tol], 1.0 / TOLERANCE_STEP)
+                cached = cached and cal.cached
+            else:
+                notes.append(f"{s}'s tolerance not varied: its calibration at r = {r_tol:.4g} m was predicted to "
+                             f"take {cost:.3g} s, beyond {100 * CALIBRATION_SHARE:.0f} % of the budget")
+        return cal
+
+    cal = further(cal, lead)
+    for _ in range(MAX_ROUNDS):
+        models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
+        if not models:
+            raise PlanError(f"{scene.source}: the scene cannot be calibrated for --target-error {metric}: no "
+                            f"calibration run measured it")
+        candidates = [c for c in candidates_for(scene, models) if c.solver in lead]
+        if not candidates:
+            break
+        free = choose(candidates, budget_s, target_error, limit, scene.source, max_extrapolation=None)
+        if free.count_extrapolation <= MAX_COUNT_EXTRAPOLATION:
+            break
+        # the setting the fit would choose lies far beyond the calibration: one more point of its solver, when
+        # that fits in the calibration's share of the budget
+        r_new, cost, largest = next_point(cal, free, (share - spent_of(cal) - reserved) / overrun())
+        if r_new >= largest or spent_of(cal) + cost * overrun() + reserved > share:
+            break
+        cal = run_forecast(cal, cost, [free.solver], [r_new])
+        cached = cached and cal.cached
+    # then the lead's second tolerance, at its finest default radius: a budget plan chooses the finest radius first
+    # and the tolerance only between settings at one radius, so the finer points have the first claim on the share
+    cal = second_tolerance(cal, lead)
+    # the others after the lead's finer points, in rank order while they fit: their further radii and tolerance, then
+    # their whole runs (measured, dam break 60 s: the three profiles reserved first left no room for a finer point,
+    # and the plan stayed at 3.5k fluid particles, 3.9 s predicted of a 60 s budget)
+    others = [s for s in order if s not in lead]
+    cal = second_tolerance(further(cal, others), others)
+    models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
+    if not models:
+        raise PlanError(f"{scene.source}: the scene cannot be calibrated for --target-error {metric}: no "
+                        f"calibration run measured it")
+    candidates = candidates_for(scene, models)
+    profiled += profile_solvers([s for s in order if s not in profiled],
+                                {s: c * overrun() for s, c in profile_costs.items()}, spent_of(cal) + reserved, first)
+    unprofiled = [s for s in order if s in profile_costs and s not in profiled]
+    for s in profiled:
+        if s not in whole_runs:
+            take_profile(s)
     if profile is not None:
         models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
         candidates = candidates_for(scene, models)
@@ -262,6 +291,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                      f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
                      f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
                      f"last calibrated frame's")
+    if budget_s is not None and target_error is None:
+        cap = budget_cap(candidates, chosen, budget_s, limit, scene.source)
+        if cap is not None:
+            notes.append(cap)
     failed = {p.solver: p.error for p in cal.failures() if p.solver in names and p.solver not in models}
     alternatives = []
     for s in models:
@@ -279,6 +312,27 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                 machine=cal.machine, failed_solvers=failed, metric=metric, notes=notes,
                 points=[point_summary(p) for p in cal.points if p.solver in names]
                 + [point_summary(p, whole=True) for p in (profile.points if profile is not None else [])])
+
+
+def budget_cap(candidates, chosen, budget_s: float, limit, source: str) -> str | None:
+    """The line that says the count extrapolation, not the budget, stopped the plan: the finest setting of the
+    chosen solver at its tolerance predicted within the budget's BUDGET_SAFETY with no limit on the extrapolation,
+    when it is finer than ``chosen`` (None otherwise; at another tolerance the line named a tighter one, extrapolated
+    11x from the count its effect was measured at, where the chosen tolerance's was 4x)."""
+    from .advisor import BUDGET_SAFETY, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, choose
+
+    try:
+        free = choose([c for c in candidates if c.solver == chosen.solver and c.tolerance == chosen.tolerance],
+                      budget_s, None, limit, source, max_extrapolation=None)
+    except PlanError:
+        return None
+    if free.particle_radius >= chosen.particle_radius * (1.0 - 1e-6):
+        return None
+    return (f"the budget would allow r = {free.particle_radius:.4g} m ({free.fluid_particles:,} fluid particles, "
+            f"predicted {free.wall_time:.3g} s, {100 * free.wall_time / budget_s:.0f} % of the budget), but that is "
+            f"{free.count_extrapolation:.2f}x the largest calibrated count and a plan extrapolates at most "
+            f"{MAX_COUNT_EXTRAPOLATION:g}x: no finer calibration point fitted in its {100 * CALIBRATION_SHARE:.0f} % "
+            f"share; the plan uses {100 * chosen.wall_time / budget_s:.0f} % (up to {100 * BUDGET_SAFETY:.0f} % aimed)")
 
 
 def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> list:
@@ -328,14 +382,17 @@ def whole_run_cost(points, scale: float, others=()) -> float:
 
 def point_cost(cal, solver: str, radius: float) -> float:
     """Predicted seconds of a calibration run of ``solver`` at ``radius`` [m], scaled from its finest point run:
-    its time outside the steps as it was, its steps' time times (r / radius)^4 (particles ~ r^-3, steps ~ r^-1);
+    its time outside the steps (``advisor.fixed_time``: without the kernel loads), its steps' time times
+    (r / radius)^4 (particles ~ r^-3, steps ~ r^-1);
     0 when the point is cached or the solver has none."""
     pts = cal.for_solver(solver)
     if not pts or any(abs(p.particle_radius / radius - 1.0) <= 1e-6 for p in pts):
         return 0.0
+    from .advisor import fixed_time
+
     p = min(pts, key=lambda q: q.particle_radius)
     steps = p.steps * p.step_time
-    return max(p.seconds - steps, 0.0) + steps * (p.particle_radius / radius) ** 4
+    return fixed_time(p, cal.points) + steps * (p.particle_radius / radius) ** 4
 
 
-__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "plan", "profile_solvers", "whole_run_cost"]
+__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "plan", "point_cost", "profile_solvers", "whole_run_cost"]

@@ -108,6 +108,11 @@ class Plan:
     notes: list = field(default_factory=list)           # what the calibration left out and why
     points: list = field(default_factory=list)          # the calibration runs the plan used (``point_summary``)
 
+    @property
+    def budget_used(self) -> float | None:
+        """[-] the chosen setting's predicted wall time over the budget (None without a budget)."""
+        return self.chosen.wall_time / self.budget_s if self.budget_s else None
+
     def prediction(self) -> dict:
         """The chosen setting's predicted figures, as the scene's [plan] table stores them."""
         c = self.chosen
@@ -120,7 +125,8 @@ class Plan:
 
     def to_dict(self) -> dict:
         """The plan as plain JSON types (``warp-sph bench plan`` records it)."""
-        return {"scene": self.scene, "source": self.source, "budget_s": self.budget_s, "metric": self.metric,
+        return {"scene": self.scene, "source": self.source, "budget_s": self.budget_s, "budget_used": self.budget_used,
+                "metric": self.metric,
                 "notes": self.notes, "target_error": self.target_error, "duration": self.duration, "frames": self.frames,
                 "chosen": self.chosen.to_dict(), "alternatives": [c.to_dict() for c in self.alternatives],
                 "candidates": [c.to_dict() for c in self.candidates],
@@ -153,7 +159,7 @@ def predict(scene, model: SolverModel, radius: float, tolerance: float | None = 
     frames = int(round(scene.duration * scene.fps))
     steps = max(model.steps_per_second.steps(d, scene.duration, model.tolerance_factor("steps_per_second", tolerance)),
                 frames)
-    step = model.step_time(fluid, boundary) * model.tolerance_factor("step_time", tolerance)
+    step = model.step_cost(fluid, boundary) * model.tolerance_factor("step_time", tolerance)
     wall = model.load_time + model.setup_time(n) + steps * step + frames * model.frame_overhead(n)
     mem = estimate_memory(s, fluid, boundary)
     # another tolerance than the scene's: its effect was measured at one particle count (iterations grow with the
@@ -248,15 +254,39 @@ def candidates_for(scene, models: dict) -> list:
     return out
 
 
-def next_point(cal: Calibration, free: Candidate) -> tuple[float, float, float]:
+#: a finer calibration point smaller than the STEP_UP one (to fit in what is left of the share) has at least this
+#: factor more particles than the largest calibrated one, or is not run
+LEAST_STEP_UP = 1.5
+
+
+def next_point(cal: Calibration, free: Candidate, room: float | None = None) -> tuple[float, float, float]:
     """(radius [m], predicted cost [s], largest calibrated radius [m]) of the next calibration point of
-    ``free``'s solver: a quarter of its particle count, but at most STEP_UP x the largest calibrated count (the
-    fit is least sure beyond it); the cost scaled from the largest point run: its time outside the steps as it
-    was, its steps' time times particles x steps (steps ~ 1/d)."""
+    ``free``'s solver: a quarter of its particle count, at least LEAST_STEP_UP x and at most STEP_UP x the largest
+    calibrated count (the fit is least sure beyond it), and where its cost exceeds ``room`` [s] (what is left of the share) the count
+    whose cost fits, when that is at least LEAST_STEP_UP x the largest (a finer point than none: the plan may then
+    extrapolate further). The cost scaled from the largest point run: its time outside the steps (``fixed_time``),
+    its steps' time times particles x steps (steps ~ 1/d, so ~ N^(4/3))."""
     largest = max(cal.for_solver(free.solver), key=lambda q: q.particles)
-    target = min(free.particles / 4.0, STEP_UP * largest.particles)
-    r_new = float(f"{largest.particle_radius * (largest.particles / target) ** (1.0 / 3.0):.4g}")
     steps = largest.steps * largest.step_time
-    cost = (max(largest.seconds - steps, 0.0)
-            + steps * (target / largest.particles) * (largest.particle_radius / r_new))
+    fixed = fixed_time(largest, cal.points)
+    target = min(max(free.particles / 4.0, LEAST_STEP_UP * largest.particles), STEP_UP * largest.particles)
+    if room is not None and steps > 0 and fixed + steps * (target / largest.particles) ** (4.0 / 3.0) > room:
+        fits = largest.particles * (max(room - fixed, 0.0) / steps) ** 0.75
+        if fits >= LEAST_STEP_UP * largest.particles:
+            target = fits
+    r_new = float(f"{largest.particle_radius * (largest.particles / target) ** (1.0 / 3.0):.4g}")
+    cost = fixed + steps * (target / largest.particles) * (largest.particle_radius / r_new)
     return r_new, cost, largest.particle_radius
+
+
+def fixed_time(p, others=()) -> float:
+    """[s] a calibration run's time outside its steady steps, without the kernel loads a later run of the process
+    does not pay: less its first step's excess (``load_time``), and for the process's first run (which also loaded
+    the kernels every run shares) at most the least of ``others``' (completed, not a process's first). Measured,
+    hydrostatic 60 s at load 5: DFSPH's first run, 1.67 s, scaled as it was, put its second radius (0.44 s when run
+    in another plan) beyond the share."""
+    def own(q):
+        return max(q.seconds - q.steps * q.step_time - q.load_time, 0.0)
+
+    rest = [own(q) for q in others if not q.first_in_process and q.status == "completed"]
+    return min([own(p), *rest]) if p.first_in_process else own(p)

@@ -120,6 +120,7 @@ class Calibration:
     path: str = ""                      # the cache file
     step_floor: float = 0.0             # [1/s] fewest substeps per simulated second (``fit.step_floor``)
     step_quantum: float = 0.0           # [1/s] the frame rate: frames are split into whole steps (0: unknown)
+    split_particles: int = 0            # particles from which a CPU launch splits over the threads (0: never)
 
     def for_solver(self, solver: str, tolerance: float | None | str = "any") -> list[Point]:
         """The completed points of ``solver`` (at ``tolerance`` only, unless "any")."""
@@ -377,5 +378,18 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
     ran = points[len(points) - len(todo):] if todo else []
     t = scene.time
     floor = step_floor(scene.fps, t.dt_max, t.fixed_dt)
-    return Calibration(key=key, machine=machine, points=points, step_floor=floor,
+    return Calibration(key=key, machine=machine, points=points, step_floor=floor, split_particles=split_particles(dev),
                        step_quantum=float(scene.fps), seconds=sum(p.seconds for p in ran), cached=not todo, path=str(path))
+
+
+def split_particles(device) -> int:
+    """[particles] on a CPU, the count from which a launch splits over 2 threads (``core.launch``: ranges of at least
+    MIN_RANGE indices); 0 on a GPU. The step's cost per particle differs either side of it and a plan's target lies
+    above it: there the cost is fitted to the points above it alone (``models.SolverModel.step_time_split``).
+    Measured (hydrostatic DFSPH, 4 frames, load 7.8, ``WARP_SPH_CPU_THREADS`` 1 / 2): 20.3 / 21.2, 10.4 / 7.6, 3.8 /
+    5.8 and 3.4 / 4.9 us per fluid particle-step at 561, 1,684, 4,530 and 9,516 particles: the fall below ~4.5k
+    particles comes with one thread too (the per-step overhead and the solver's sweeps, 3.7 / 5.7 / 4.2 / 3.7), so
+    the boundary holds on one thread as well."""
+    from ..core.launch import MIN_RANGE
+
+    return 2 * MIN_RANGE if device.is_cpu else 0

@@ -7,8 +7,12 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
 - wall time = load + setup(N) + S * step(Nf, Nb) + frames * frame_overhead(N): the step's cost fitted against the
   fluid and the wall counts (``StepCost``: the fluid's share of N grows as d shrinks), the others lines in N; load: the
   time a fresh process spends loading the step's kernels (the largest first-step excess measured) and the kernels
-  every run shares (the process's first calibration run's set-up beyond the others': ``process_overhead``);
-- mean density error over the run: the calibration's frames measured e_cal(d) = A d^p, the rest of the run at
+  every run shares (the process's first calibration run's set-up beyond the others': ``process_overhead``); on a CPU
+  whose launches split over the threads from 2 x 1,024 indices (``core.launch``), a target at or above that count
+  takes the step's cost fitted to the calibration points there alone, once two counts or more lie there
+  (``step_time_split``: a line across both regimes need not hold beyond them);
+- mean density error over the run: the calibration's frames measured e_cal(d) = A d^p (fitted to the finest
+  ERROR_FIT_POINTS radii), the rest of the run at
   R e_cal(d): (F_c + (F - F_c) R) e_cal / F over F frames, F_c of them calibrated. The profile is a run of the whole
   duration at the coarsest radius: R = its mean error over frames F_c+1..F / its mean over frames 1..F_c (a dam
   break's impact doubles the error after the release the short runs see); without one (no room in the budget) the
@@ -30,8 +34,16 @@ from .metrics import DENSITY
 
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
 #: (hydrostatic, DFSPH, 0.5 s): the calibration's last frames give p' = -2.4 between d = 0.085 and 0.057 m,
-#: the whole runs -1.4 between 0.057 and 0.030 m: the clamped -1 predicted 1.25x under, the fit 1.9x over
-ORDER_RANGE = (-1.0, 4.0)
+#: the whole runs -1.4 between 0.057 and 0.030 m: the clamped -1 predicted 1.25x under, the fit 1.9x over. The dam
+#: break's PBF: -2.55 between r = 0.0747 and 0.05 m, the calibrated frames 0.146 % at r = 0.0315 m; clamped to -1,
+#: 0.054 % predicted at r = 0.0296 m (the 60 s plan's error came out 2.34x its prediction), at -2: 0.112 %
+ORDER_RANGE = (-2.0, 4.0)
+#: the error's laws are fitted to this many of the finest calibrated radii: the order near the settings a plan
+#: chooses, not the coarse points' (measured, dam break PBF: 0.0158, 0.0439, 0.146, 0.241, 0.272 % at r = 0.0747 to
+#: 0.014 m: order -2.5 between the two coarsest, clamped to -1 and extrapolated to r = 0.0296 m, predicted 0.054 %
+#: in the calibrated frames where r = 0.0315 m measured 0.146 %: the 60 s plan's error came out 2.34x its prediction;
+#: the finest three give -0.77)
+ERROR_FIT_POINTS = 3
 #: tolerance candidates of a solver with two calibrated tolerances: this many, geometric, between them
 TOLERANCE_LADDER = 3
 
@@ -59,6 +71,15 @@ class SolverModel:
     tolerance_particles: int = 0                        # particles of the pair the tolerance's effect was measured on
     tolerance_exponents: dict = field(default_factory=dict)  # figure -> k: figure ~ (t / t0)^k
     profile: list = field(default_factory=list)  # [-] per-frame mean density error of a whole run at the coarsest radius
+    split_particles: int = 0                     # particles from which the CPU launches split over the threads (0: never)
+    step_time_split: StepCost | None = None      # [s] the step's cost fitted to the points at or above that count only
+
+    def step_cost(self, fluid: int, boundary: int) -> float:
+        """[s] one step at the scene's tolerance: above the thread split from the points above it where two or more
+        counts were calibrated there, else from every point (module docstring)."""
+        if self.step_time_split is not None and fluid + boundary >= self.split_particles:
+            return self.step_time_split(fluid, boundary)
+        return self.step_time(fluid, boundary)
 
     def later_ratio(self, frames: int) -> float:
         """R: the profile's mean error over the frames after the calibrated ones / its mean over the calibrated
@@ -156,10 +177,19 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         rate = replace(rate, speeds=tuple(speeds), cfl=float(scene.time.cfl), gravity=float(g), per_substep=per_substep,
                        speed_spacing=2.0 * _profile_radius(profile, solver, t0),
                        speed_exponent=fit_speed_exponent(d, [p.frame_speeds[1:] for p in pts]))
+    # the error's laws from the finest ERROR_FIT_POINTS radii: the order near the settings a plan extrapolates to
+    fine = pts[:ERROR_FIT_POINTS]
+    d_fine = [p.spacing for p in fine]
+    # the step's cost above the thread split from the points there alone, where two counts or more were calibrated
+    split = int(getattr(cal, "split_particles", 0) or 0)
+    above = [p for p in pts if split and p.particles >= split]
+    split_cost = (fit_step_cost([p.fluid for p in above], [max(p.boundary, 0) for p in above],
+                                [p.step_time for p in above])
+                  if len({p.particles for p in above}) >= 2 and len(above) < len(pts) else None)
     return SolverModel(
         solver=solver,
         steps_per_second=rate,
-        error=fit_power_law(d, [max(p.density_error_mean, 1e-9) for p in pts], ORDER_RANGE),
+        error=fit_power_law(d_fine, [max(p.density_error_mean, 1e-9) for p in fine], ORDER_RANGE),
         step_time=fit_step_cost([p.fluid for p in pts], [max(p.boundary, 0) for p in pts], [p.step_time for p in pts]),
         setup_time=setup,
         frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
@@ -169,10 +199,11 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         # as the process's first calibration run did
         load_time=max(p.load_time for p in pts) + process_overhead(cal, scene),
         calibrated_radii=[p.particle_radius for p in pts], calibrated_particles=n,
-        error_last=_error_law(d, [p.density_error_last or p.density_error_mean for p in pts]),
+        error_last=_error_law(d_fine, [p.density_error_last or p.density_error_mean for p in fine]),
         calibrated_frames=min(p.frames for p in pts), metric=metric, metric_error=metric_law,
         tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents, tolerance_particles=pair_particles,
-        profile=_profile(profile, solver, t0) if profile is not None else [])
+        profile=_profile(profile, solver, t0) if profile is not None else [],
+        split_particles=split if split_cost is not None else 0, step_time_split=split_cost)
 
 
 def _profile_radius(profile: Calibration, solver: str, t0) -> float:

@@ -94,6 +94,9 @@ def table_lines(p: Plan) -> list[str]:
     out += [model_line(m) for m in p.models.values()]
     for s, why in p.failed_solvers.items():
         out.append(f"{s}: not a candidate, its calibration failed: {why}")
+    if p.budget_used is not None:
+        out.append(f"budget used: {100 * p.budget_used:.0f} % predicted ({duration_text(p.chosen.wall_time)} of "
+                   f"{duration_text(p.budget_s)})")
     when = "from the cache, nothing ran now" if p.calibration_cached else "run now"
     out.append(f"calibration: {duration_text(p.calibration_seconds)} of runs ({when}; {p.cache_path})")
     out += [f"note: {n}" for n in p.notes]
@@ -132,6 +135,10 @@ def model_line(m) -> str:
     text += (f"; {_steps_text(m.steps_per_second)}; "
              f"{1e9 * m.step_time.fluid:.3g} ns per fluid particle-step + {1e9 * m.step_time.boundary:.3g} ns per wall "
              f"particle-step + {1e3 * m.step_time.intercept:.3g} ms per step")
+    if m.step_time_split is not None:
+        c = m.step_time_split
+        text += (f" (from {m.split_particles:,} particles, where the CPU launches split over the threads: "
+                 f"{1e9 * c.fluid:.3g} + {1e9 * c.boundary:.3g} ns + {1e3 * c.intercept:.3g} ms)")
     if m.tolerance is None:
         text += "; no tolerance"
     elif len(m.tolerances) < 2:
