@@ -8,11 +8,12 @@ import copy
 import importlib.resources
 import re
 import tomllib
+import warnings
 from pathlib import Path
 
 from ..core.errors import SceneError
 from .types import Scene
-from .validate import Validator
+from .validate import UnusedKeyWarning, Validator, unused_method_keys
 
 # --------------------------------------------------------------------------------------------
 # Overrides
@@ -158,14 +159,32 @@ def load_scene(name_or_path: str, overrides: list[str] | dict | None = None) -> 
     relative mesh paths resolve against the file's folder.
     overrides: ``["particle_radius=0.02", "fluid[0].max=[1,1,1]", "output.usd=false"]``, one such string, or a
     dict.
-    Raises SceneError naming the file, the key path and what was expected.
+    Raises SceneError naming the file, the key path and what was expected; warns (UnusedKeyWarning, one
+    line per section) of keys set in another solver's or boundary's section, which change nothing.
     """
     path = _resolve(name_or_path)
     data = read_toml(path)
     if isinstance(overrides, str):  # one "KEY=VALUE" (it was read character by character: --set 'p')
         overrides = [overrides]
     data = apply_overrides(data, overrides, str(path))
-    return scene_from_dict(data, source=str(path), base_dir=path.parent)
+    scene = scene_from_dict(data, source=str(path), base_dir=path.parent)
+    # another solver's keys: one line each, the run goes on. A built-in scene carries each solver's tuning on
+    # purpose (--set solver=pbf picks it up): there only the keys of --set are the user's to be told about
+    only = _override_keys(overrides) if path.parent == _scenes_dir() else None
+    for line in unused_method_keys(data, scene, only):
+        warnings.warn(line, UnusedKeyWarning, stacklevel=2)
+    return scene
+
+
+def _override_keys(overrides) -> set:
+    """The (table, key) pairs that ``--set`` overrides name (``pbf.max_iterations`` -> ("pbf", "max_iterations"))."""
+    keys = overrides.keys() if isinstance(overrides, dict) else [str(o).partition("=")[0] for o in overrides or ()]
+    out = set()
+    for key in keys:
+        tokens = _parse_key_path(str(key))  # already parsed by apply_overrides: valid here
+        if len(tokens) == 2 and all(isinstance(t, str) for t in tokens):
+            out.add(tuple(tokens))
+    return out
 
 
 def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path | None = None) -> Scene:
