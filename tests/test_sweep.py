@@ -434,3 +434,19 @@ def test_sweep_folder_among_a_users_files_or_a_file_is_refused(tmp_path, capsys)
         assert len(res.err.strip().splitlines()) == 1 and res.out == ""
     assert (mine / "sweep.md").read_text() == "my notes" and [p.name for p in mine.iterdir()] == ["sweep.md"]
     assert notes.read_text() == "mine"
+
+
+def test_a_param_given_twice_or_also_set_is_refused_before_any_case(tmp_path, capsys):
+    """``--param r=0.1 --param r=0.2`` ran only r = 0.2 (the first list silently dropped), and ``--set r=0.1
+    --param r=0.2,0.3`` ignored the --set in every case: one line each, exit 2, no folder."""
+    out = tmp_path / "o"
+    code, res = _sweep_cli(["dam_break", "--param", "particle_radius=0.1", "--param", "particle_radius=0.2,0.1",
+                            "--out", str(out)], capsys)
+    assert code == 2 and res.out == "" and not out.exists()
+    assert res.err.strip() == ("warp-sph: error: --param particle_radius is given twice; give its values in one "
+                               "list: --param particle_radius=0.1,0.2")
+    code, res = _sweep_cli(["dam_break", "--set", "particle_radius=0.1", "--param", "particle_radius=0.2,0.3",
+                            "--out", str(out)], capsys)
+    assert code == 2 and res.out == "" and not out.exists()
+    assert res.err.strip() == ("warp-sph: error: --set particle_radius=0.1 has no effect: --param particle_radius "
+                               "sets particle_radius in every case; drop one of them")

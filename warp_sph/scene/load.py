@@ -120,18 +120,24 @@ def list_scenes() -> list[tuple[str, str]]:
     return out
 
 
+def _refuse_folder(path: Path, text: str):
+    run = (path / "run.json").is_file()
+    raise SceneError(f"{text}: is a folder; expected a scene file (.toml) or a built-in scene name"
+                     + (f" (it holds a run: warp-sph run --resume {text} continues it)" if run else ""))
+
+
 def _resolve(name_or_path: str) -> Path:
     text = str(name_or_path)
     path = Path(text).expanduser()
     if path.suffix.lower() == ".toml" or "/" in text or "\\" in text or path.is_file():
         if path.is_dir():  # e.g. a run folder given where a scene goes
-            run = (path / "run.json").is_file()
-            raise SceneError(f"{text}: is a folder; expected a scene file (.toml) or a built-in scene name"
-                             + (f" (it holds a run: warp-sph run --resume {text} continues it)" if run else ""))
+            _refuse_folder(path, text)
         if not path.is_file():
             raise SceneError(f"{text}: scene file not found")
         return path
     builtin = _scenes_dir() / f"{text}.toml"
+    if not builtin.is_file() and path.is_dir():  # a folder of that name here (a built-in scene's name wins)
+        _refuse_folder(path, text)
     if not builtin.is_file():
         names = ", ".join(n for n, _ in list_scenes())
         raise SceneError(f"{text}: no such scene file or built-in scene; built-in scenes: {names}")
