@@ -8,7 +8,7 @@ import pytest
 
 from warp_sph.core.errors import SceneError
 from warp_sph.scene import load_scene, scene_from_dict
-from warp_sph.scene.validate import UnusedKeyWarning
+from warp_sph.scene.unused import UnusedKeyWarning
 
 SCENE = """
 particle_radius = 0.1
@@ -102,3 +102,19 @@ def test_the_cli_prints_the_warning_as_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"warp-sph: warning: {f}: pbf.max_iterations: no effect with solver 'dfsph' (the [pbf] keys "
                    "apply with solver = 'pbf', e.g. --set solver=pbf)"], err
+
+
+def test_akinci_friction_keys_warn_with_the_penalty_boundary(tmp_path):
+    """material.boundary_friction and bodies[].fluid_friction are the Akinci boundary's friction term (sigma);
+    the penalty wall has none."""
+    f = tmp_path / "mine.toml"
+    f.write_text(SCENE.format(solver='solver = "pbf"\nboundary = "penalty"\n[material]\nboundary_friction = 0.2\n'))
+    scene, lines = _load(str(f))
+    assert scene.material.boundary_friction == 0.2
+    assert lines == [f"{f}: material.boundary_friction: no effect with boundary 'penalty' (the friction of the "
+                     "akinci2012 boundary: boundary = 'akinci2012', e.g. --set boundary=akinci2012)"]
+    assert _load(str(f), ["boundary=akinci2012"])[1] == []
+    assert _load(str(f), ["material.boundary_friction=0"])[1] == []  # 0: no friction either way
+    # a built-in scene: the keys given with --set only
+    _, lines = _load("floating_bodies", ["boundary=penalty", "bodies[1].fluid_friction=0.5"])
+    assert len(lines) == 1 and ": bodies[1].fluid_friction: no effect with boundary 'penalty'" in lines[0]

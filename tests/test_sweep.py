@@ -456,7 +456,7 @@ def test_a_param_given_twice_or_also_set_is_refused_before_any_case(tmp_path, ca
 def test_another_solvers_keys_are_named_once_by_the_sweep_not_again_by_each_case(tmp_path, capsys):
     """The sweep's process names a key of an unused solver's table once (one line); a case, which runs in a Dask
     worker of its own, does not say it again (there in Python's two-line format, once per worker)."""
-    from warp_sph.scene.validate import UnusedKeyWarning
+    from warp_sph.scene.unused import UnusedKeyWarning
     from warp_sph.sweep.runs import run_case
 
     f = tmp_path / "mine.toml"

@@ -13,7 +13,8 @@ from pathlib import Path
 
 from ..core.errors import SceneError
 from .types import Scene
-from .validate import UnusedKeyWarning, Validator, unused_method_keys
+from .unused import UnusedKeyWarning, unused_keys
+from .validate import Validator
 
 # --------------------------------------------------------------------------------------------
 # Overrides
@@ -177,18 +178,19 @@ def load_scene(name_or_path: str, overrides: list[str] | dict | None = None) -> 
     # another solver's keys: one line each, the run goes on. A built-in scene carries each solver's tuning on
     # purpose (--set solver=pbf picks it up): there only the keys of --set are the user's to be told about
     only = _override_keys(overrides) if path.parent == _scenes_dir() else None
-    for line in unused_method_keys(data, scene, only):
+    for line in unused_keys(data, scene, only):
         warnings.warn(line, UnusedKeyWarning, stacklevel=2)
     return scene
 
 
 def _override_keys(overrides) -> set:
-    """The (table, key) pairs that ``--set`` overrides name (``pbf.max_iterations`` -> ("pbf", "max_iterations"))."""
+    """The (table, key) pairs that ``--set`` overrides name, indices left out (``pbf.max_iterations`` ->
+    ("pbf", "max_iterations"), ``bodies[0].fluid_friction`` -> ("bodies", "fluid_friction"))."""
     keys = overrides.keys() if isinstance(overrides, dict) else [str(o).partition("=")[0] for o in overrides or ()]
     out = set()
     for key in keys:
-        tokens = _parse_key_path(str(key))  # already parsed by apply_overrides: valid here
-        if len(tokens) == 2 and all(isinstance(t, str) for t in tokens):
+        tokens = [t for t in _parse_key_path(str(key)) if isinstance(t, str)]  # parsed by apply_overrides: valid
+        if len(tokens) == 2:
             out.add(tuple(tokens))
     return out
 

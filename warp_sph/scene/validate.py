@@ -394,41 +394,6 @@ class Validator:
             check_emission(scene, self.fail)
 
 
-#: keys of a method's section that other methods read too: the fluid's speed of sound c_s comes from these
-#: whatever the solver (warp_sph.core.model._speed_of_sound: the Akinci friction and the penalty force scale with it)
-SHARED_KEYS = {"wcsph": ("equation_of_state", "speed_of_sound", "speed_of_sound_factor", "stiffness")}
-
-
-class UnusedKeyWarning(UserWarning):
-    """A scene key that is valid but changes nothing in this scene (another method's section)."""
-
-
-def unused_method_keys(data: dict, scene: Scene, only: set | None = None) -> list[str]:
-    """One line per solver or boundary section the scene's ``data`` (as written, overrides applied) sets to
-    values other than the defaults while another method is in use: ``[pbf] max_iterations = 3`` with solver
-    dfsph changes nothing, yet ``--set solver=pbf`` makes it count, so it is a warning, not an error (a key no
-    section knows stays an error). Keys at their defaults are not named: a scene written out whole
-    (``Scene.to_dict``: every section, as ``plan --apply`` writes) loads without warnings.
-    only: the (section, key) pairs to consider (None: all)."""
-    in_use = {**{n: ("solver", scene.solver) for n in registry.solvers()},
-              **{n: ("boundary", scene.boundary) for n in registry.boundaries()}}
-    params = by_section(all_parameters())
-    lines = []
-    for name in registry.methods_with_parameters():
-        raw = data.get(name) if isinstance(data, dict) else None
-        what, used = in_use[name]
-        if not isinstance(raw, dict) or name == used:
-            continue
-        values = scene.sections[name]
-        changed = [k for k in raw if k in params[name] and getattr(values, k) != params[name][k].default
-                   and k not in SHARED_KEYS.get(name, ()) and (only is None or (name, k) in only)]
-        if changed:
-            keys = ", ".join(f"{name}.{k}" for k in changed)
-            lines.append(f"{scene.source}: {keys}: no effect with {what} {used!r} (the [{name}] keys apply with "
-                         f"{what} = {name!r}, e.g. --set {what}={name})")
-    return lines
-
-
 def lattice_neighbor_counts(scene) -> tuple[int, int]:
     """(neighbours within the kernel support of a particle inside a rest lattice of spacing d,
     of a particle in the top layer of a flat free surface), self excluded."""

@@ -212,7 +212,7 @@ def run_case(task: dict) -> dict:
 
         init_warp()  # quiet, once per process
         from ..scene import load_scene
-        from ..scene.validate import UnusedKeyWarning
+        from ..scene.unused import UnusedKeyWarning
 
         with warnings.catch_warnings():  # the sweep's own process said it of this case (driver.plan) already
             warnings.simplefilter("ignore", UnusedKeyWarning)
