@@ -175,9 +175,9 @@ def load_scene(name_or_path: str, overrides: list[str] | dict | None = None) -> 
         overrides = [overrides]
     data = apply_overrides(data, overrides, str(path))
     scene = scene_from_dict(data, source=str(path), base_dir=path.parent)
-    # another solver's keys: one line each, the run goes on. A built-in scene carries each solver's tuning on
-    # purpose (--set solver=pbf picks it up): there only the keys of --set are the user's to be told about
-    only = _override_keys(overrides) if path.parent == _scenes_dir() else None
+    # another solver's keys: one line each, the run goes on. A shipped scene (built-in or validation) carries each
+    # solver's tuning on purpose (--set solver=pbf picks it up): there only the keys of --set are the user's
+    only = _override_keys(overrides) if _scenes_dir().resolve() in path.resolve().parents else None
     for line in unused_keys(data, scene, only):
         warnings.warn(line, UnusedKeyWarning, stacklevel=2)
     return scene
