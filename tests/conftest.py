@@ -1,3 +1,5 @@
+import os
+
 import pytest
 import warp as wp
 
@@ -27,3 +29,17 @@ DEVICES = ["cpu", pytest.param("cuda:0", marks=pytest.mark.skipif(
 def device(request):
     """The warp device of a physics test: "cpu", and "cuda:0" where one exists (skipped, saying so, where not)."""
     return request.param
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _session_plan_cache(tmp_path_factory):
+    """warp-sph plan's calibration cache (and the Pareto plot it draws beside it) of any test, or of a command a
+    test runs, goes to a folder of this session, never to the user's ~/.cache/warp-sph/plan (which would also
+    make a test's calibration depend on an earlier run's)."""
+    before = os.environ.get("WARP_SPH_CACHE_DIR")
+    os.environ["WARP_SPH_CACHE_DIR"] = str(tmp_path_factory.mktemp("plan_cache"))
+    yield
+    if before is None:
+        os.environ.pop("WARP_SPH_CACHE_DIR", None)
+    else:
+        os.environ["WARP_SPH_CACHE_DIR"] = before

@@ -62,6 +62,22 @@ def test_a_folder_given_as_the_scene_says_so(tmp_path, capsys):
     assert sorted(p.name for p in run.iterdir()) == ["run.json"]
 
 
+def test_a_folder_named_without_a_slash_says_so_and_a_builtin_name_still_wins(tmp_path, monkeypatch, capsys):
+    """``warp-sph run ok1`` (a run folder in the working directory, written without a slash) said 'no such scene
+    file or built-in scene'; a folder named like a built-in scene (``--out dam_break``) does not shadow it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "ok1").mkdir()
+    (tmp_path / "ok1" / "run.json").write_text("{}")
+    assert cli_main(["check", "ok1"]) == 2
+    assert capsys.readouterr().err.strip() == ("warp-sph: error: ok1: is a folder; expected a scene file (.toml) or a "
+                                               "built-in scene name (it holds a run: warp-sph run --resume ok1 "
+                                               "continues it)")
+    (tmp_path / "dam_break").mkdir()
+    from warp_sph.scene import load_scene
+
+    assert load_scene("dam_break").name == "dam_break"
+
+
 def test_version(capsys):
     """``warp-sph --version`` was 'unrecognized arguments': now the package's version, exit status 0."""
     import pytest

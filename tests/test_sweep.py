@@ -10,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -434,3 +435,39 @@ def test_sweep_folder_among_a_users_files_or_a_file_is_refused(tmp_path, capsys)
         assert len(res.err.strip().splitlines()) == 1 and res.out == ""
     assert (mine / "sweep.md").read_text() == "my notes" and [p.name for p in mine.iterdir()] == ["sweep.md"]
     assert notes.read_text() == "mine"
+
+
+def test_a_param_given_twice_or_also_set_is_refused_before_any_case(tmp_path, capsys):
+    """``--param r=0.1 --param r=0.2`` ran only r = 0.2 (the first list silently dropped), and ``--set r=0.1
+    --param r=0.2,0.3`` ignored the --set in every case: one line each, exit 2, no folder."""
+    out = tmp_path / "o"
+    code, res = _sweep_cli(["dam_break", "--param", "particle_radius=0.1", "--param", "particle_radius=0.2,0.1",
+                            "--out", str(out)], capsys)
+    assert code == 2 and res.out == "" and not out.exists()
+    assert res.err.strip() == ("warp-sph: error: --param particle_radius is given twice; give its values in one "
+                               "list: --param particle_radius=0.1,0.2")
+    code, res = _sweep_cli(["dam_break", "--set", "particle_radius=0.1", "--param", "particle_radius=0.2,0.3",
+                            "--out", str(out)], capsys)
+    assert code == 2 and res.out == "" and not out.exists()
+    assert res.err.strip() == ("warp-sph: error: --set particle_radius=0.1 has no effect: --param particle_radius "
+                               "sets particle_radius in every case; drop one of them")
+
+
+def test_another_solvers_keys_are_named_once_by_the_sweep_not_again_by_each_case(tmp_path, capsys):
+    """The sweep's process names a key of an unused solver's table once (one line); a case, which runs in a Dask
+    worker of its own, does not say it again (there in Python's two-line format, once per worker)."""
+    from warp_sph.scene.unused import UnusedKeyWarning
+    from warp_sph.sweep.runs import run_case
+
+    f = tmp_path / "mine.toml"
+    f.write_text((Path(__file__).parents[1] / "scenes" / "dam_break.toml").read_text() + "\n[pbf]\nmax_iterations = 3\n")
+    code, res = _sweep_cli([str(f), "--param", "time.cfl=0.3,0.4", "--frames", "2", "--out", str(tmp_path / "o"),
+                            "--no-progress"] + sum((["--set", t] for t in TINY), []), capsys)
+    assert code == 0
+    assert res.err.strip().splitlines() == [f"warp-sph: warning: {f}: pbf.max_iterations: no effect with solver "
+                                            "'dfsph' (the [pbf] keys apply with solver = 'pbf', e.g. --set solver=pbf)"]
+    case = Case("c", str(f), TINY, {}, 2)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        row = run_case({"case": case.to_dict(), "folder": str(tmp_path / "c"), "device": None})
+    assert row["status"] == "completed" and not [w for w in caught if w.category is UnusedKeyWarning]

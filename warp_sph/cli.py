@@ -193,8 +193,8 @@ def _cmd_preview(args) -> int:
 def _cmd_sweep(args) -> int:
     import shlex
 
-    from .sweep import build_cases, is_sweep_file, load_sweep_file, make_executor, parse_param, run_sweep
-    from .sweep.cases import SweepError
+    from .sweep import build_cases, is_sweep_file, load_sweep_file, make_executor, run_sweep
+    from .sweep.cases import SweepError, parse_params
 
     _quiet_warp()
     if args.frames is not None and args.frames < 1:
@@ -208,7 +208,7 @@ def _cmd_sweep(args) -> int:
             raise SweepError(f"{args.scene} is a sweep file: put the --param lists in its [sweep] param table")
         cases = load_sweep_file(args.scene, frames=args.frames, fixed=args.set)
     else:
-        cases = build_cases(args.scene, dict(parse_param(p) for p in args.param), fixed=args.set, frames=args.frames)
+        cases = build_cases(args.scene, parse_params(args.param, args.set), fixed=args.set, frames=args.frames)
     out = Path(args.out) if args.out else Path("runs") / f"sweep-{Path(args.scene).stem}"
     workers = args.workers
     if workers is ALL_CORES:  # --workers without N

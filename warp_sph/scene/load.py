@@ -8,10 +8,12 @@ import copy
 import importlib.resources
 import re
 import tomllib
+import warnings
 from pathlib import Path
 
 from ..core.errors import SceneError
 from .types import Scene
+from .unused import UnusedKeyWarning, unused_keys
 from .validate import Validator
 
 # --------------------------------------------------------------------------------------------
@@ -119,18 +121,24 @@ def list_scenes() -> list[tuple[str, str]]:
     return out
 
 
+def _refuse_folder(path: Path, text: str):
+    run = (path / "run.json").is_file()
+    raise SceneError(f"{text}: is a folder; expected a scene file (.toml) or a built-in scene name"
+                     + (f" (it holds a run: warp-sph run --resume {text} continues it)" if run else ""))
+
+
 def _resolve(name_or_path: str) -> Path:
     text = str(name_or_path)
     path = Path(text).expanduser()
     if path.suffix.lower() == ".toml" or "/" in text or "\\" in text or path.is_file():
         if path.is_dir():  # e.g. a run folder given where a scene goes
-            run = (path / "run.json").is_file()
-            raise SceneError(f"{text}: is a folder; expected a scene file (.toml) or a built-in scene name"
-                             + (f" (it holds a run: warp-sph run --resume {text} continues it)" if run else ""))
+            _refuse_folder(path, text)
         if not path.is_file():
             raise SceneError(f"{text}: scene file not found")
         return path
     builtin = _scenes_dir() / f"{text}.toml"
+    if not builtin.is_file() and path.is_dir():  # a folder of that name here (a built-in scene's name wins)
+        _refuse_folder(path, text)
     if not builtin.is_file():
         names = ", ".join(n for n, _ in list_scenes())
         raise SceneError(f"{text}: no such scene file or built-in scene; built-in scenes: {names}")
@@ -158,14 +166,33 @@ def load_scene(name_or_path: str, overrides: list[str] | dict | None = None) -> 
     relative mesh paths resolve against the file's folder.
     overrides: ``["particle_radius=0.02", "fluid[0].max=[1,1,1]", "output.usd=false"]``, one such string, or a
     dict.
-    Raises SceneError naming the file, the key path and what was expected.
+    Raises SceneError naming the file, the key path and what was expected; warns (UnusedKeyWarning, one
+    line per section) of keys set in another solver's or boundary's section, which change nothing.
     """
     path = _resolve(name_or_path)
     data = read_toml(path)
     if isinstance(overrides, str):  # one "KEY=VALUE" (it was read character by character: --set 'p')
         overrides = [overrides]
     data = apply_overrides(data, overrides, str(path))
-    return scene_from_dict(data, source=str(path), base_dir=path.parent)
+    scene = scene_from_dict(data, source=str(path), base_dir=path.parent)
+    # another solver's keys: one line each, the run goes on. A shipped scene (built-in or validation) carries each
+    # solver's tuning on purpose (--set solver=pbf picks it up): there only the keys of --set are the user's
+    only = _override_keys(overrides) if _scenes_dir().resolve() in path.resolve().parents else None
+    for line in unused_keys(data, scene, only):
+        warnings.warn(line, UnusedKeyWarning, stacklevel=2)
+    return scene
+
+
+def _override_keys(overrides) -> set:
+    """The (table, key) pairs that ``--set`` overrides name, indices left out (``pbf.max_iterations`` ->
+    ("pbf", "max_iterations"), ``bodies[0].fluid_friction`` -> ("bodies", "fluid_friction"))."""
+    keys = overrides.keys() if isinstance(overrides, dict) else [str(o).partition("=")[0] for o in overrides or ()]
+    out = set()
+    for key in keys:
+        tokens = [t for t in _parse_key_path(str(key)) if isinstance(t, str)]  # parsed by apply_overrides: valid
+        if len(tokens) == 2:
+            out.add(tuple(tokens))
+    return out
 
 
 def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path | None = None) -> Scene:

@@ -87,6 +87,23 @@ def parse_param(text: str) -> tuple[str, list[str]]:
     return key.strip(), split_values(values)
 
 
+def parse_params(texts: list[str], fixed: list[str] | None = None) -> dict[str, list[str]]:
+    """The ``--param`` flags as {key: values}; a key given twice (the first list was dropped) or also fixed by a
+    ``--set`` (every case overrides it) is a SweepError naming it."""
+    params: dict[str, list[str]] = {}
+    for text in texts:
+        key, values = parse_param(text)
+        if key in params:
+            merged = ",".join(dict.fromkeys(params[key] + values))
+            raise SweepError(f"--param {key} is given twice; give its values in one list: --param {key}={merged}")
+        params[key] = values
+    for item in fixed or []:
+        key = str(item).partition("=")[0].strip()
+        if key in params:
+            raise SweepError(f"--set {item} has no effect: --param {key} sets {key} in every case; drop one of them")
+    return params
+
+
 def expand_product(params: dict[str, list[str]]) -> list[dict[str, str]]:
     """Cartesian product of the parameter lists, in the order given (the last key varies fastest)."""
     keys = list(params)

@@ -14,6 +14,7 @@ import os
 import platform
 import resource
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -211,8 +212,11 @@ def run_case(task: dict) -> dict:
 
         init_warp()  # quiet, once per process
         from ..scene import load_scene
+        from ..scene.unused import UnusedKeyWarning
 
-        scene = load_scene(case["scene"], overrides=list(case["overrides"]))
+        with warnings.catch_warnings():  # the sweep's own process said it of this case (driver.plan) already
+            warnings.simplefilter("ignore", UnusedKeyWarning)
+            scene = load_scene(case["scene"], overrides=list(case["overrides"]))
         frames = requested_frames(case, scene)
         state = folder_state(folder, scene, frames)
         if state == "other":
