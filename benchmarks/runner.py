@@ -399,6 +399,7 @@ def cmd_validation(args, argv: list[str], log=print) -> int:
         from warp_sph.core.errors import WarpSphError
 
         raise WarpSphError(f"bench validation: --radius {args.radius!r}: expected a particle radius > 0 [m]")
+    V.check_scenes(cases, solvers, resolutions, extra=args.set, radius=args.radius)  # bad --set: one line, exit 2
     records = V.run_validation(cases, solvers, resolutions, Path(args.runs), device=args.device, extra=args.set, log=log,
                                radius=args.radius)
     for r in records:

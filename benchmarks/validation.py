@@ -121,7 +121,19 @@ def add_arguments(v) -> None:
                    help="one run per case and solver at this particle radius [m] instead of --resolution (a third, "
                         "finer point of a convergence study; its records' resolution is r=<radius>)")
     v.add_argument("--runs", default=str(Path("runs") / "bench" / "validation"),
-                   help="folder of the run folders (default runs/bench/validation; replaced on every run)")
+                   help="folder of the run folders (default runs/bench/validation); a case's folder <case>-<solver>-<resolution> "
+                        "is replaced when that case runs again, the others are kept")
+
+
+def check_scenes(cases, solvers, resolutions, extra=None, radius: float | None = None) -> None:
+    """Load every case's scene with every solver at every resolution (no kernel runs) so that a bad ``--set`` key or
+    value is one line (SceneError, exit 2) before the first case starts, not one failed record per case."""
+    for name in cases:
+        case = CASES[name]
+        for res in resolutions:
+            r = radius or case.radii[0 if res == "coarse" else 1]
+            for solver in solvers:
+                load_case_scene(case, solver, r, extra)
 
 
 def case_names(text: str | None) -> list[str]:

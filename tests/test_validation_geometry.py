@@ -88,6 +88,20 @@ def test_bench_radius_option(tmp_path, monkeypatch):
     assert not (tmp_path / "out" / "validation.jsonl").exists()
 
 
+def test_bench_validation_bad_set_is_one_error_before_any_case(tmp_path, monkeypatch):
+    """``bench validation --set bogus=1`` (or a bad value) stops with the scene loader's one-line error before the
+    first case runs (it failed every case one by one, exit 1), and no run folder or record is written."""
+    from warp_sph.benchmarks import runner, validation as V
+    from warp_sph.core.errors import WarpSphError
+
+    monkeypatch.setattr(V, "run_one", lambda *a, **kw: pytest.fail("a case ran"))
+    for bad, match in (("bogus=1", "bogus: unknown key"), ("dfsph.target_density_error=abc", "target_density_error")):
+        with pytest.raises(WarpSphError, match=match):
+            runner.main(["validation", "--cases", "hydrostatic,lobovsky", "--solvers", "dfsph", "--set", bad,
+                         "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out")])
+    assert not (tmp_path / "runs").exists() and not (tmp_path / "out" / "validation.jsonl").exists()
+
+
 def test_scene_file_is_the_bench_case(tmp_path):
     """``warp-sph run scenes/validation/lobovsky.toml`` builds what the bench runs (one source of truth: the scene
     file's ``container.inner``): at r = 10 mm with DFSPH the same fluid and wall particles, container and probes as
