@@ -2,13 +2,13 @@
 (notation there: V = m / rho0 [m^3], G_ij = V grad_i W_ij [1/m], the boundary term gb_ib [1/m],
 s_i, D_i, f_i = 1 / D_i [m^2], delta_i(u)); host half ``warp_sph/methods/solvers/dfsph_search.py``.
 
-Neighbours and the factor come from one search per step (``collect_fluid_pairs``, a prefix sum of
-its pair counts, ``fluid_search_kernel`` then ``boundary_factor_kernel``, over the cell grids of
-``warp_sph.neighbors.NeighborLists``, walked with ``cell_rows`` / ``row_points`` of
-``kernels/neighbors.py`` as every list build is): each pair within the support radius is found once,
-and its G_ij goes straight into a compressed row layout (``DfsphPairs``), read as one stream by every
-later pass; the solves evaluate no smoothing kernel (with the search skin the pairs come from lists:
-``kernels/dfsph_skin.py``). The same search writes the fluid and boundary
+Neighbours and the factor come from one search per step (``fluid_search_kernel`` then
+``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``, walked with
+``cell_rows`` / ``row_points`` of ``kernels/neighbors.py`` as every list build is): each pair within
+the support radius is found once, and its G_ij goes straight into row i of the pair cache
+(``DfsphPairs``, row i at i x the list capacity), read as one stream per particle by every later pass;
+the solves evaluate no smoothing kernel (with the search skin the pairs come from lists, in compressed
+rows: ``kernels/dfsph_skin.py``). The same search writes the fluid and boundary
 neighbour lists (fluid lists without i itself) that the shared viscosity and XSPH stages read.
 Kernels taking ``tid_offset`` are split over CPU cores and write only their own particle (no
 atomics), so results are bitwise reproducible for any thread count.
@@ -27,8 +27,8 @@ class DfsphPairs:
 
     Pairs of particle i (neighbours j != i closer than the support radius): entries
     offset[i] .. offset[i] + count[i] - 1 of index (neighbour j) and gradient (G_ij = V grad_i W_ij
-    [1/m]); the 1-D arrays hold fluid_count x the list capacity entries, of which the rows use the
-    first sum(count). gradient_sum[i] = s_i [1/m]; boundary_gradient[i] = sum_b gb_ib [1/m];
+    [1/m]); the 1-D arrays hold fluid_count x the list capacity entries (the per-step search puts row i
+    at i x capacity; the search skin's rows are compressed, one after the other). gradient_sum[i] = s_i [1/m]; boundary_gradient[i] = sum_b gb_ib [1/m];
     boundary_velocity[i] = sum_b v_b . gb_ib [1/s]; active[i] = 1 when i has at least the threshold
     of neighbours (fluid, plus boundary when the boundary enters the density): its divergence error
     counts.

@@ -1,7 +1,7 @@
 """DFSPH's per-step search on the host (``DfsphSearch``, a base of ``DfsphSolver``): the pair cache
 and search kernels it allocates, and the one search per step that launches ``kernels/dfsph_search.py``
 (neighbour lists, density, factor f_i = 1/D_i [m^2], the pair cache G_ij = V grad W_ij [1/m] in
-compressed rows, divergence source and warm start). ``dfsph.py`` decides when it runs (the "density"
+one row per particle, divergence source and warm start). ``dfsph.py`` decides when it runs (the "density"
 and "stabilize" stages) and runs the solves on what it leaves; the attributes the search reads
 (``factor_floor``, ``neighbor_threshold``, ``with_bodies``, ``config``, ``skin``) are set by
 ``DfsphSolver.__init__``.
@@ -73,8 +73,8 @@ class DfsphSearch:
             self._built = None  # (particle count, list arrays) of the last build
 
     def _pairs(self):
-        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): the compressed rows
-        the solves read (and, with the skin, a padded row per particle for the pair pass)."""
+        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): the rows the solves
+        read (row i at i x capacity; with the skin compressed, and a padded row per particle for the pair pass)."""
         pairs = self.sim.fields["dfsph_pairs"]
         capacity = self.nl.capacities[0]
         if capacity != self._pairs_capacity:
