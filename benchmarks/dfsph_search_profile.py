@@ -7,7 +7,7 @@ Side by side: runs the default dam break (no output) for that many frames, then 
 (process CPU, one thread: ``WARP_SPH_CPU_THREADS=1``, the first round not counted) the given number of
 rounds of the cell sort and the search of each variant, in turn: the per-step search (cells of H_s),
 cells of H_s / 2, and the skin at 0.5 d and 1 d with the lists rebuilt and reused; and each kernel
-launch of the search. "rate": the same run for each skin, counting list builds against searches and the
+launch of the search (launched one by one, not through ``run_loop``: bitwise the same). "rate": the same run for each skin, counting list builds against searches and the
 particles' displacement per step [d]. One JSON object on stdout. Wrap it in ``flock
 /tmp/warp_sph_bench.lock`` on a shared machine. A diagnostic beside ``warp-sph bench splishsplash``.
 """
@@ -58,6 +58,8 @@ def side_by_side(frames: int, rounds: int) -> dict:
         kernel_s[current[0] + ": " + getattr(kernel, "key", str(kernel)).split("__")[0]].append(time.process_time() - t)
 
     host.launch = timed_launch
+    for sim in variants.values():
+        sim.solver.sweep_loop = False  # each kernel through ``launch`` (bitwise the run_loop path), timed
     try:
         for r in range(rounds + 1):
             for name, sim in variants.items():

@@ -2,13 +2,13 @@
 (notation there: V = m / rho0 [m^3], G_ij = V grad_i W_ij [1/m], the boundary term gb_ib [1/m],
 s_i, D_i, f_i = 1 / D_i [m^2], delta_i(u)); host half ``warp_sph/methods/solvers/dfsph_search.py``.
 
-Neighbours and the factor come from one search per step (``collect_fluid_pairs``, a prefix sum of
-its pair counts, ``fluid_search_kernel`` then ``boundary_factor_kernel``, over the cell grids of
-``warp_sph.neighbors.NeighborLists``, walked with ``cell_rows`` / ``row_points`` of
-``kernels/neighbors.py`` as every list build is): each pair within the support radius is found once,
-and its G_ij goes straight into a compressed row layout (``DfsphPairs``), read as one stream by every
-later pass; the solves evaluate no smoothing kernel (with the search skin the pairs come from lists:
-``kernels/dfsph_skin.py``). The same search writes the fluid and boundary
+Neighbours and the factor come from one search per step (``fluid_search_kernel`` then
+``boundary_factor_kernel``, over the cell grids of ``warp_sph.neighbors.NeighborLists``, walked with
+``cell_rows`` / ``row_points`` of ``kernels/neighbors.py`` as every list build is): each pair within
+the support radius is found once, and its G_ij goes straight into row i of the pair cache
+(``DfsphPairs``, row i at i x the list capacity), read as one stream per particle by every later pass;
+the solves evaluate no smoothing kernel (with the search skin the pairs come from lists, in compressed
+rows: ``kernels/dfsph_skin.py``). The same search writes the fluid and boundary
 neighbour lists (fluid lists without i itself) that the shared viscosity and XSPH stages read.
 Kernels taking ``tid_offset`` are split over CPU cores and write only their own particle (no
 atomics), so results are bitwise reproducible for any thread count.
@@ -27,8 +27,8 @@ class DfsphPairs:
 
     Pairs of particle i (neighbours j != i closer than the support radius): entries
     offset[i] .. offset[i] + count[i] - 1 of index (neighbour j) and gradient (G_ij = V grad_i W_ij
-    [1/m]); the 1-D arrays hold fluid_count x the list capacity entries, of which the rows use the
-    first sum(count). gradient_sum[i] = s_i [1/m]; boundary_gradient[i] = sum_b gb_ib [1/m];
+    [1/m]); the 1-D arrays hold fluid_count x the list capacity entries (the per-step search puts row i
+    at i x capacity; the search skin's rows are compressed, one after the other). gradient_sum[i] = s_i [1/m]; boundary_gradient[i] = sum_b gb_ib [1/m];
     boundary_velocity[i] = sum_b v_b . gb_ib [1/s]; active[i] = 1 when i has at least the threshold
     of neighbours (fluid, plus boundary when the boundary enters the density): its divergence error
     counts.
@@ -44,86 +44,42 @@ class DfsphPairs:
     active: wp.array(dtype=wp.int32)
 
 
-@wp.kernel(enable_backward=False)
-def collect_fluid_pairs(
-    tid_offset: int,
-    # Fluid cell grid:
-    grid_lo: wp.vec3,
-    inv_cell_size: float,
-    grid_dims: wp.vec3i,
-    cell_start: wp.array(dtype=wp.int32),
-    cell_point: wp.array(dtype=wp.int32),
-    sorted_points: wp.array(dtype=wp.vec3),
-    support_radius: float,
-    # Out:
-    found_out: wp.array(dtype=wp.int32),
-    neighbor_index_out: wp.array2d(dtype=wp.int32),
-    room_out: wp.array(dtype=wp.int32),
-):
-    """The first half of the fluid search, over the fluid cell grid: for particle i (thread k_i = its
-    sorted index, cell order) the sorted indices k of every point within the support radius (i itself
-    included), in walk order, into row i of neighbor_index_out (the first ``capacity``; when more are
-    found the last slot keeps being overwritten, and the step is redone with larger lists); found_out[i]
-    = their number; room_out[i] = the pairs j != i among those kept (the compressed rows' sizes)."""
-    k_self = wp.tid() + tid_offset
-    i = int(cell_point[k_self])
-    xi = sorted_points[k_self]
-    q = (xi - grid_lo) * inv_cell_size
-    qr = support_radius * inv_cell_size
-    radius2 = support_radius * support_radius
-    capacity = neighbor_index_out.shape[1]
-    rows = cell_rows(q, qr, grid_dims)
-    # the candidates closer than the support radius, without a branch (an unpredictable branch per
-    # candidate was measured 15 % slower)
-    last = capacity - 1
-    found = int(0)
-    self_rank = capacity  # where i itself falls among the found (kept when < capacity)
-    for z in range(rows[2], rows[3] + 1):
-        for y in range(rows[0], rows[1] + 1):
-            span = row_points(q, qr, y, z, grid_dims, cell_start)
-            k = span[0]
-            k_end = span[1]
-            while k < k_end:
-                x_ij = xi - sorted_points[k]
-                neighbor_index_out[i, wp.min(found, last)] = k
-                self_rank = wp.where(k == k_self, found, self_rank)
-                found += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
-                k += 1
-    found_out[i] = found
-    room_out[i] = wp.min(found, capacity) - wp.where(self_rank < capacity, 1, 0)
-
-
 @functools.cache
 def fluid_search_kernel(smoothing: str):
-    """The second half of the fluid search, after ``collect_fluid_pairs`` and the exclusive prefix sum
-    of its room (offset): for particle i (threads in cell order) the kept points in walk order. Writes
-    the fluid neighbour list (j != i; the count is exact; when i and its neighbours do not fit the
-    capacity, entries are dropped and max_count_out[i] keeps the largest such number), the compressed
-    row of the pair cache (count <= room[i], index j, G_ij at offset[i] ..), and the fluid parts of:
-    rho_i = m sum_j W_ij (self included) [kg/m^3], s_i, sum_j |G_ij|^2 and delta_i(v) [1/s] (finished
-    by ``boundary_factor_kernel``)."""
+    """The fluid search in one pass per particle i (threads in cell order, k_i = i's sorted index) over
+    the fluid cell grid. First the walk: the sorted indices k of every point within the support radius
+    (i itself included), in walk order, into row i of neighbor_index_out (the first ``capacity``; when
+    more are found the last slot keeps being overwritten, and the step is redone with larger lists),
+    without a branch per candidate (an unpredictable branch per candidate was measured 15 % slower).
+    Then, over that row while it is in cache, the kept points in walk order: the fluid neighbour list
+    (j != i, rewritten in place; the count is exact; when i and its neighbours do not fit the capacity,
+    entries are dropped and max_count_out[i] keeps the largest such number), row i of the pair cache
+    (offset i x capacity, count, index j, G_ij) and the fluid parts of: rho_i = m sum_j W_ij (self
+    included) [kg/m^3], s_i, sum_j |G_ij|^2 and delta_i(v) [1/s] (finished by ``boundary_factor_kernel``)."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
 
     @wp.kernel(enable_backward=False, module="unique")
     def search_fluid(
         tid_offset: int,
         # Fluid cell grid:
+        grid_lo: wp.vec3,
+        inv_cell_size: float,
+        grid_dims: wp.vec3i,
+        cell_start: wp.array(dtype=wp.int32),
         cell_point: wp.array(dtype=wp.int32),
         sorted_points: wp.array(dtype=wp.vec3),
+        support_radius: float,
         # Model:
         particle_mass: float,
         smoothing_length: float,
         rest_density: float,
         # State in:
-        particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
-        found: wp.array(dtype=wp.int32),
-        room: wp.array(dtype=wp.int32),
-        offset: wp.array(dtype=wp.int32),
-        # Out (neighbor_index_out: the sorted indices of ``collect_fluid_pairs`` in):
+        # Out:
         neighbor_count_out: wp.array(dtype=wp.int32),
         neighbor_index_out: wp.array2d(dtype=wp.int32),
         max_count_out: wp.array(dtype=wp.int32),
+        pair_offset_out: wp.array(dtype=wp.int32),
         pair_count_out: wp.array(dtype=wp.int32),
         pair_index_out: wp.array(dtype=wp.int32),
         pair_gradient_out: wp.array(dtype=wp.vec3),
@@ -132,23 +88,42 @@ def fluid_search_kernel(smoothing: str):
         square_sum_out: wp.array(dtype=float),
         divergence_out: wp.array(dtype=float),
     ):
-        i = int(cell_point[wp.tid() + tid_offset])
-        xi = particle_x[i]
+        k_self = wp.tid() + tid_offset
+        i = int(cell_point[k_self])
+        xi = sorted_points[k_self]
+        q = (xi - grid_lo) * inv_cell_size
+        qr = support_radius * inv_cell_size
+        radius2 = support_radius * support_radius
+        capacity = neighbor_index_out.shape[1]
+        rows = cell_rows(q, qr, grid_dims)
+        last = capacity - 1
+        found = int(0)
+        self_rank = capacity  # where i itself falls among the found (kept when < capacity)
+        for z in range(rows[2], rows[3] + 1):
+            for y in range(rows[0], rows[1] + 1):
+                span = row_points(q, qr, y, z, grid_dims, cell_start)
+                k = span[0]
+                k_end = span[1]
+                while k < k_end:
+                    x_ij = xi - sorted_points[k]
+                    neighbor_index_out[i, wp.min(found, last)] = k
+                    self_rank = wp.where(k == k_self, found, self_rank)
+                    found += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
+                    k += 1
+        # the values over the row just written, in walk order; i itself adds W(0) to the density and is
+        # dropped from the lists
+        keep = wp.min(found, capacity) - wp.where(self_rank < capacity, 1, 0)
         vi = particle_v[i]
         h = smoothing_length
         volume = particle_mass / rest_density
-        capacity = neighbor_index_out.shape[1]
-        base = offset[i]
-        # i itself adds W(0) to the density and is dropped from the lists
+        base = i * capacity
         w_sum = float(0.0)
         s = wp.vec3(0.0)
         sq = float(0.0)
         div = float(0.0)
         n = int(0)
         e = int(0)
-        found_i = found[i]
-        keep = room[i]  # (less than the row's j != i only when the row overflowed: its last slot is overwritten)
-        e_end = wp.min(found_i, capacity)
+        e_end = wp.min(found, capacity)
         while e < e_end:
             k = neighbor_index_out[i, e]
             x_ij = xi - sorted_points[k]
@@ -164,10 +139,11 @@ def fluid_search_kernel(smoothing: str):
                 pair_gradient_out[base + n] = g
                 n += 1
             e += 1
+        pair_offset_out[i] = base
         pair_count_out[i] = n
-        if found_i > capacity:  # pairs were dropped: the frame is redone with larger lists
-            max_count_out[i] = wp.max(max_count_out[i], found_i)  # per particle, no atomics
-            n = found_i - 1
+        if found > capacity:  # pairs were dropped: the frame is redone with larger lists
+            max_count_out[i] = wp.max(max_count_out[i], found)  # per particle, no atomics
+            n = found - 1
         neighbor_count_out[i] = n
         particle_density_out[i] = particle_mass * w_sum
         gradient_sum_out[i] = s

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from small_scenes import small_tank, stage
-from test_dfsph import Oracle, block_on_floor, prepared
+from test_dfsph import Oracle, assert_rows_apart, block_on_floor, prepared
 from warp_sph.run.simulation import Simulation
 
 SKIN = 0.5  # [spacings d]
@@ -22,8 +22,8 @@ def check_search_against_oracle(sim, o):
     np.testing.assert_allclose(pairs.boundary_gradient.numpy(), o.sb, rtol=1e-3, atol=1e-4 * np.abs(o.sb).max())
     count, offset = pairs.count.numpy(), pairs.offset.numpy()
     np.testing.assert_array_equal(count, o.mask.sum(1))
-    np.testing.assert_array_equal(offset, np.concatenate([[0], np.cumsum(count)[:-1]]))
     index, grad = pairs.index.numpy(), pairs.gradient.numpy()
+    assert_rows_apart(offset, count, index.shape[0])
     for i in range(m.fluid_count):
         js = index[offset[i]:offset[i] + count[i]]
         assert sorted(js) == sorted(np.nonzero(o.mask[i])[0])
@@ -100,8 +100,7 @@ def test_skin_run_is_bitwise_reproducible_over_thread_counts(monkeypatch, device
 
 def test_search_reports_full_lists_and_keeps_its_rows_apart_until_they_grow(device):
     """Lists of 8 (fewer than a particle's neighbours): the search reports the largest count that did not
-    fit and writes no compressed row past its room (offsets: the prefix sum of the rooms, at most 8
-    each); after the lists grow to that count the search equals the oracle again."""
+    fit and writes no row past its room (at most 8 each, the rows apart); after the lists grow to that count the search equals the oracle again."""
     sim, o = prepared(device=device)
     nl = sim.solver.nl
     nl._allocate(nl.fluid, 8)
@@ -112,6 +111,7 @@ def test_search_reports_full_lists_and_keeps_its_rows_apart_until_they_grow(devi
     count, offset = pairs.count.numpy(), pairs.offset.numpy()
     room = np.diff(np.concatenate([offset, [offset[-1] + 8]]))
     assert (count <= room).all() and (room <= 8).all() and (count < o.mask.sum(1)).any()
+    assert_rows_apart(offset, count, pairs.index.shape[0])
     nl.grow(worst)
     stage(sim, "density").run(sim, 3e-3)
     assert nl.overflow() == 0

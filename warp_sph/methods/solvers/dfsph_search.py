@@ -1,7 +1,7 @@
 """DFSPH's per-step search on the host (``DfsphSearch``, a base of ``DfsphSolver``): the pair cache
 and search kernels it allocates, and the one search per step that launches ``kernels/dfsph_search.py``
 (neighbour lists, density, factor f_i = 1/D_i [m^2], the pair cache G_ij = V grad W_ij [1/m] in
-compressed rows, divergence source and warm start). ``dfsph.py`` decides when it runs (the "density"
+one row per particle, divergence source and warm start). ``dfsph.py`` decides when it runs (the "density"
 and "stabilize" stages) and runs the solves on what it leaves; the attributes the search reads
 (``factor_floor``, ``neighbor_threshold``, ``with_bodies``, ``config``, ``skin``) are set by
 ``DfsphSolver.__init__``.
@@ -18,8 +18,6 @@ A helper of the solver ``dfsph.py`` (it registers nothing; the registry imports 
 from __future__ import annotations
 
 import warp as wp
-
-from functools import partial
 
 from ...core.launch import LIGHT_MIN_RANGE, launch, run_loop
 from ...core.smoothing import get_smoothing_kernel, lattice_offsets
@@ -55,8 +53,7 @@ class DfsphSearch:
                             ("boundary_gradient", wp.vec3), ("boundary_velocity", float), ("active", wp.int32)):
             setattr(pairs, name, wp.zeros(size, dtype=dtype, device=dev))
         sim.fields["dfsph_pairs"] = pairs
-        self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle
-        self._found = wp.zeros(size, dtype=wp.int32, device=dev)   # points within H_s per particle (self included)
+        self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle (search skin)
         self._square_sum = wp.zeros(size, dtype=float, device=dev)  # sum_j |G_ij|^2 (fluid part of D_i)
         self._pairs_capacity = 0
         self._search = _search.fluid_search_kernel(m.smoothing.name)
@@ -76,8 +73,8 @@ class DfsphSearch:
             self._built = None  # (particle count, list arrays) of the last build
 
     def _pairs(self):
-        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): the compressed rows
-        the solves read (and, with the skin, a padded row per particle for the pair pass)."""
+        """The pair cache, sized for the fluid lists' capacity (which grows on overflow): the rows the solves
+        read (row i at i x capacity; with the skin compressed, and a padded row per particle for the pair pass)."""
         pairs = self.sim.fields["dfsph_pairs"]
         capacity = self.nl.capacities[0]
         if capacity != self._pairs_capacity:
@@ -106,14 +103,10 @@ class DfsphSearch:
         n, dev = m.fluid_count, m.device
         pairs = self._pairs()
         fc = nl.fluid_cells
-        collect = (_search.collect_fluid_pairs, n,
-                   [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.support_radius],
-                   [self._found, nl.fluid.index, self._room])
-        scan = partial(wp.utils.array_scan, self._room, pairs.offset, inclusive=False)
-        values = (self._search, n,
-                  [fc.cell_point, fc.sorted_x, m.particle_mass, m.smoothing_length, m.rest_density, f["particle_x"],
-                   f["particle_v"], self._found, self._room, pairs.offset],
-                  [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.count, pairs.index, pairs.gradient,
+        search = (self._search, n,
+                  [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.support_radius,
+                   m.particle_mass, m.smoothing_length, m.rest_density, f["particle_v"]],
+                  [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.offset, pairs.count, pairs.index, pairs.gradient,
                    f["particle_density"], pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]])
         empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
                  self._no_mask, 0]
@@ -142,15 +135,11 @@ class DfsphSearch:
                    f["dfsph_acceleration"], f["dfsph_error"], f["boundary_force"]])
         replays = getattr(self, "_replays", None)
         if replays is not None and self.sweep_loop and n > 0:
-            # CPU: the three passes and the scan in one run_loop (one hand-off, recorded launches; bitwise
-            # the launches below)
-            run_loop([[replays.get(*collect, device=dev, tag="search")], [scan],
-                      [replays.get(*values, device=dev, tag="search")],
+            # CPU: the two passes in one run_loop (one hand-off, recorded launches; bitwise the launches below)
+            run_loop([[replays.get(*search, device=dev, tag="search")],
                       [replays.get(*factor, device=dev, tag="search")]], 1)
             return
-        launch(*collect, device=dev)
-        scan()
-        launch(*values, device=dev)
+        launch(*search, device=dev)
         launch(*factor, device=dev)
 
     # --- search skin -----------------------------------------------------------------------
