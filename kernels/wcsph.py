@@ -12,6 +12,7 @@ import warp as wp
 
 from .density import NEIGHBOR_TYPES
 from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
+from .pbf import PairCache, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -93,6 +94,77 @@ def start_density_correction(
 
 
 @functools.cache
+def density_pairs_kernel(smoothing: str, boundary_terms=None):
+    """rho_i = m sum_j W_ij + rho0 sum_b density_b(W_ib, V_b) [kg/m^3] (report eq. 7/13) over neighbour lists that
+    hold pairs up to H_s + a skin (``wcsph.search_skin``; pairs at or beyond H_s add nothing), and the step's
+    ``PairCache`` of the pairs closer than H_s (j != i): index j and grad_i W_ij [1/m^4] in the lists' order, which
+    the force kernel (``acceleration_kernel``, neighbors "pairs") reads instead of evaluating the kernel again.
+    The density is bitwise the list pass's (``density.density_kernel``) and the fused search's over the same lists;
+    the cached gradient bitwise ``gradient(x_ij, h)`` (``pbf.value_gradient_function``)."""
+    value_gradient = value_gradient_function(smoothing)
+    value = SMOOTHING_FUNCTIONS[smoothing][0]
+    with_boundary = boundary_terms is not None and boundary_terms.density is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    density_term = boundary_terms.density if with_boundary else None
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_density_pairs(
+        tid_offset: int,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        boundary_params: BoundaryParams,
+        boundary_neighbors: NeighborList,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        fluid_neighbors: NeighborList,
+        particle_x: wp.array(dtype=wp.vec3),
+        # Out:
+        particle_density_out: wp.array(dtype=float),
+        pairs_out: PairCache,
+    ):
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        xi = particle_x[i]
+        h = smoothing_length
+        support2 = support_radius * support_radius
+        total = float(0.0)
+        n = int(0)
+        k = int(0)
+        k_end = int(neighbor_count(fluid_neighbors, i))
+        while k < k_end:
+            j = fluid_neighbors.index[i, k]
+            x_ij = xi - particle_x[j]
+            if wp.dot(x_ij, x_ij) < support2:
+                wg = wp.static(value_gradient)(x_ij, h)
+                total += wg[0]
+                if j != i:
+                    pairs_out.index[i, n] = j
+                    pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                    n += 1
+            k += 1
+        pairs_out.count[i] = n
+        rho = particle_mass * total
+        if wp.static(with_boundary):
+            boundary_sum = float(0.0)
+            k = int(0)
+            k_end = int(neighbor_count(boundary_neighbors, i))
+            while k < k_end:
+                b = boundary_neighbors.index[i, k]
+                x_ib = xi - boundary_x[b]
+                if wp.dot(x_ib, x_ib) < support2:
+                    w = wp.static(value)(wp.length(x_ib), h)
+                    boundary_sum += wp.static(density_term)(boundary_params, w, boundary_volume[b])
+                k += 1
+            rho += rest_density * boundary_sum
+        particle_density_out[i] = rho
+
+    return compute_density_pairs
+
+
+@functools.cache
 def pressure_kernel(equation_of_state: str):
     """Linear p = max(K (rho/rho0 - 1), 0) (report eq. 9, K = B rho0) or Tait
     p = max(K ((rho/rho0)^7 - 1), 0); K = stiffness [Pa]; and p / rho^2 [m^5/(kg s^2)], the term of
@@ -149,10 +221,15 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
     layer carried no pressure and crossed the wall (tests/test_wcsph_diffusion.py).
     The density it acts on is particle_density: the summation (eq. 7) plus delta rho, whose rate is then
     sum_j m v_ij . grad W_ij + D_i, the continuity equation with the delta-SPH term.
+    neighbors "pairs": lists that hold pairs up to H_s + a skin (``wcsph.search_skin``) and the step's ``PairCache``
+    (``density_pairs_kernel``): the fluid pairs and their grad W come from the cache (bitwise the list loop's
+    values and order), listed boundary pairs at or beyond H_s are skipped (their terms are zero).
     """
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
-    lists = neighbors == "list"
-    Neighbors = NEIGHBOR_TYPES[neighbors]
+    cached = neighbors == "pairs"
+    lists = neighbors in ("list", "pairs")
+    Neighbors = NEIGHBOR_TYPES["list" if cached else neighbors]
+    pair_x = with_artificial_viscosity or with_density_diffusion  # terms that read x_ij, v_ij or rho_j
     with_pressure = boundary_terms is not None and boundary_terms.pressure is not None
     with_force = boundary_terms is not None and boundary_terms.force is not None
     with_boundary = with_pressure or with_force
@@ -203,6 +280,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
         boundary_volume: wp.array(dtype=float),
         # State in:
         fluid_neighbors: Neighbors,
+        pairs: PairCache,
         particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
         particle_density: wp.array(dtype=float),
@@ -229,12 +307,37 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
             boundary_pressure_term_out[i] = p_rho2_b
         h = smoothing_length
         eps_h2 = 0.01 * h * h
+        support2 = support_radius * support_radius
         a = wp.vec3(0.0)
         drho = float(0.0)
         diffuse_i = True  # the pairs of a particle next to a wall do not diffuse (docstring)
         if wp.static(wall_guard):
             diffuse_i = not touches_wall(boundary_neighbors, boundary_x, xi, i, support_radius)
-        if wp.static(lists):
+        if wp.static(cached):
+            k = int(0)
+            k_end = int(pairs.count[i])
+            while k < k_end:
+                j = pairs.index[i, k]
+                grad = pairs.gradient[i, k]
+                x_ij = wp.vec3(0.0)
+                v_ij = wp.vec3(0.0)
+                rho_j = float(0.0)
+                if wp.static(pair_x):
+                    x_ij = xi - particle_x[j]
+                    v_ij = vi - particle_v[j]
+                    rho_j = particle_density[j]
+                a += fluid_pair(x_ij, v_ij, grad, p_rho2_i, pressure_term[j], rho_i, rho_j, particle_mass, eps_h2,
+                                alpha_h_c)
+                if wp.static(with_density_diffusion):
+                    diffuse = diffuse_i
+                    if wp.static(wall_guard):
+                        if diffuse:
+                            diffuse = not touches_wall(boundary_neighbors, boundary_x, particle_x[j], j, support_radius)
+                    if diffuse:
+                        drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i, rho_j,
+                                                       x_ij, grad, eps_h2, particle_mass / rho_j)
+                k += 1
+        elif wp.static(lists):
             k = int(0)
             k_end = int(neighbor_count(fluid_neighbors, i))
             while k < k_end:
@@ -283,8 +386,14 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                 k_end = int(neighbor_count(boundary_neighbors, i))
                 while k < k_end:
                     b = boundary_neighbors.index[i, k]
-                    a_boundary += boundary_pair(boundary_params, b, xi - boundary_x[b], vi - boundary_v[b],
-                                                boundary_volume[b], p_rho2_b, rho_i, h)
+                    x_ib = xi - boundary_x[b]
+                    if wp.static(cached):
+                        if wp.dot(x_ib, x_ib) < support2:
+                            a_boundary += boundary_pair(boundary_params, b, x_ib, vi - boundary_v[b],
+                                                        boundary_volume[b], p_rho2_b, rho_i, h)
+                    else:
+                        a_boundary += boundary_pair(boundary_params, b, x_ib, vi - boundary_v[b],
+                                                    boundary_volume[b], p_rho2_b, rho_i, h)
                     k += 1
             else:
                 bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
