@@ -45,32 +45,42 @@ def oracle(sim, x):
     return rho, grads
 
 
-def test_kept_lists_density_and_pairs_match_brute_force(device):
-    sim = Simulation(falling_block(0.5), device=device)
-    kept = sim.solver.kept_lists
-    for _ in range(2):
-        sim.advance_frame()
-    assert kept.builds < 0.5 * kept.steps  # most steps read the kept lists
-    # one more step that reuses the lists (no reorder within a frame): check what it wrote
-    with sim.in_cell_order():
-        while True:
-            before = kept.builds
-            x = sim.fields["particle_x"].numpy().copy()  # where the step's density stage reads
-            sim.step(sim.frame_dt / 64)
-            if kept.builds == before:
-                break
-        rho = sim.fields["particle_density"].numpy().copy()  # (a CPU array's numpy() is a view: copy before unsort)
-        ref_rho, ref_pairs = oracle(sim, x)
-        pairs = kept.pairs
-        count = pairs.count.numpy().copy()
-        index = pairs.index.numpy().copy()
-        grad = pairs.gradient.numpy().copy()
+def check_step(sim, kept):
+    """One step: its density and pair cache against the oracle at the positions its density stage read."""
+    x = sim.fields["particle_x"].numpy().copy()
+    sim.step(sim.frame_dt / 64)
+    rho = sim.fields["particle_density"].numpy()
+    ref_rho, ref_pairs = oracle(sim, x)
     np.testing.assert_allclose(rho, ref_rho, rtol=2e-5)
+    count, index, grad = kept.pairs.count.numpy(), kept.pairs.index.numpy(), kept.pairs.gradient.numpy()
     got = {(i, int(index[i, k])): grad[i, k] for i in range(len(count)) for k in range(count[i])}
     assert set(got) == set(ref_pairs)  # exactly the pairs closer than H_s, none lost by the kept lists
     scale = max(float(np.abs(g).max()) for g in ref_pairs.values())
     for key, g in ref_pairs.items():
         np.testing.assert_allclose(got[key], g, atol=1e-5 * scale)
+
+
+@pytest.mark.parametrize("skin", [0.5, 0.02])
+def test_kept_lists_density_and_pairs_match_brute_force(skin, device):
+    """Steps that reuse the lists and steps that search (the small skin: the drift passes skin / 2 within a few
+    steps, and a list kept past it would miss pairs that came closer than H_s)."""
+    sim = Simulation(falling_block(skin), device=device)
+    kept = sim.solver.kept_lists
+    for _ in range(3):
+        sim.advance_frame()
+    if skin >= 0.5:
+        assert kept.builds < 0.5 * kept.steps  # most steps read the kept lists
+    with sim.in_cell_order():  # (the frame's order: a CPU array's numpy() is a view, read inside)
+        first = kept.builds
+        check_step(sim, kept)  # the particles were reordered since the lists were searched: a search
+        assert kept.builds == first + 1
+        for _ in range(12):
+            check_step(sim, kept)
+        searches = kept.builds - first - 1
+    if skin >= 0.5:
+        assert searches < 12
+    else:
+        assert searches >= 1  # the drift passed skin / 2
 
 
 def test_kept_lists_run_matches_the_per_step_search(device):
