@@ -49,9 +49,8 @@ class KeptLists:
         self.moving_bodies = bool(moving_bodies)
         self.nl = simulation_neighbor_lists(sim, self.skin)
         m = sim.model
-        sim.allocate("particle_density", float)
-        self.neighbor_x = sim.allocate("wcsph_neighbor_x", wp.vec3)
-        self.neighbor_slot = sim.allocate("wcsph_neighbor_slot", wp.int32)
+        for name, dtype in (("particle_density", float), ("wcsph_neighbor_x", wp.vec3), ("wcsph_neighbor_slot", wp.int32)):
+            sim.allocate(name, dtype)  # (per-particle fields: read from sim.fields, which emitters resize)
         chunks = max(1, -(-m.capacity // _reduce.REDUCE_CHUNK))
         self._drift_partial = wp.zeros(chunks, dtype=float, device=m.device)
         self._density_kernel = _wcsph.density_pairs_kernel(m.smoothing.name, sim.boundary_terms)
@@ -67,7 +66,7 @@ class KeptLists:
         self._built = None
 
     def _must_search(self) -> bool:
-        m, nl = self.sim.model, self.nl
+        m, nl, f = self.sim.model, self.nl, self.sim.fields
         if self._built is None or self.moving_bodies or self._built != (m.fluid_count, nl.capacities):
             return True
         n = m.fluid_count
@@ -75,7 +74,7 @@ class KeptLists:
             return False
         chunks = -(-n // _reduce.REDUCE_CHUNK)
         launch(_lists_reuse.neighbor_drift_chunks, chunks,
-               [_reduce.REDUCE_CHUNK, n, self.sim.fields["particle_x"], self.neighbor_x, self.neighbor_slot],
+               [_reduce.REDUCE_CHUNK, n, f["particle_x"], f["wcsph_neighbor_x"], f["wcsph_neighbor_slot"]],
                [self._drift_partial], device=m.device)
         self.last_drift = float(self._drift_partial.numpy()[:chunks].max())
         return self.last_drift > 0.5 * self.skin
@@ -93,9 +92,9 @@ class KeptLists:
         self.steps += 1
         if self._search:
             nl.build_lists(x)
-            launch(_lists_reuse.identity_slots, m.fluid_count, [], [self.neighbor_slot], device=m.device,
+            launch(_lists_reuse.identity_slots, m.fluid_count, [], [f["wcsph_neighbor_slot"]], device=m.device,
                    min_range=LIGHT_MIN_RANGE)
-            wp.copy(self.neighbor_x, x, count=m.fluid_count)
+            wp.copy(f["wcsph_neighbor_x"], x, count=m.fluid_count)
             self._built = (m.fluid_count, nl.capacities)
             self.builds += 1
             self.last_drift = 0.0
