@@ -44,7 +44,7 @@ EQUATIONS_OF_STATE = ("linear", "tait")
 WALL_ESCAPE_FRACTION = {"eq16": 0.25, "mirrored": 0.40}
 
 #: default ``wcsph.search_skin`` [spacings d] (issue #32)
-SEARCH_SKIN = 0.3
+SEARCH_SKIN = 0.2
 
 
 @register_solver
