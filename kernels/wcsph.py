@@ -13,7 +13,7 @@ import warp as wp
 from .density import NEIGHBOR_TYPES
 from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
 from .pbf import PairCache, value_gradient_function
-from .smoothing import SMOOTHING_FUNCTIONS
+from .smoothing import PI, SMOOTHING_FUNCTIONS
 
 
 @wp.func
@@ -93,6 +93,23 @@ def start_density_correction(
     particle_density[i] = rest_density
 
 
+@wp.func
+def cubic_value_gradient_select(x_ij: wp.vec3, h: float) -> wp.vec4:
+    """(W(|x_ij|, h), grad_i W) of the cubic spline [1/m^3, 1/m^4] without branches: with t2 = max(2 - q, 0) and
+    t1 = max(1 - q, 0), W = a/6 (t2^3 - 4 t1^3) and dW/dq = a/6 (12 t1^2 - 3 t2^2), a = 3 / (2 pi h^3) (the
+    two pieces of ``smoothing.cubic_value`` in one expression: equal to rounding; both 0 from q = 2 on). A
+    list pass over pairs of random distances mispredicts the pieces' branches at about every other pair."""
+    r = wp.length(x_ij)
+    q = r / h
+    t2 = wp.max(2.0 - q, 0.0)
+    t1 = wp.max(1.0 - q, 0.0)
+    a6 = 1.0 / (4.0 * PI * h * h * h)  # a / 6
+    w = a6 * (t2 * t2 * t2 - 4.0 * t1 * t1 * t1)
+    dwdq = a6 * (12.0 * t1 * t1 - 3.0 * t2 * t2)  # 0 at q = 0
+    g = x_ij * (dwdq / (h * wp.max(r, 1.0e-30)))
+    return wp.vec4(w, g[0], g[1], g[2])
+
+
 @functools.cache
 def density_pairs_kernel(smoothing: str, boundary_terms=None):
     """rho_i = m sum_j W_ij + rho0 sum_b density_b(W_ib, V_b) [kg/m^3] (report eq. 7/13) over neighbour lists that
@@ -100,8 +117,12 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
     ``PairCache`` of the pairs closer than H_s (j != i): index j and grad_i W_ij [1/m^4] in the lists' order, which
     the force kernel (``acceleration_kernel``, neighbors "pairs") reads instead of evaluating the kernel again.
     The density is bitwise the list pass's (``density.density_kernel``) and the fused search's over the same lists;
-    the cached gradient bitwise ``gradient(x_ij, h)`` (``pbf.value_gradient_function``)."""
-    value_gradient = value_gradient_function(smoothing)
+    the cached gradient bitwise ``gradient(x_ij, h)`` (``pbf.value_gradient_function``); the cubic spline is
+    evaluated without branches (``cubic_value_gradient_select``, equal to rounding) and the cache is filled
+    without a branch per pair (every listed pair is written at the next free slot, which only the pairs closer
+    than H_s advance)."""
+    select = smoothing == "cubic"
+    value_gradient = cubic_value_gradient_select if select else value_gradient_function(smoothing)
     value = SMOOTHING_FUNCTIONS[smoothing][0]
     with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
@@ -137,13 +158,20 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
         while k < k_end:
             j = fluid_neighbors.index[i, k]
             x_ij = xi - particle_x[j]
-            if wp.dot(x_ij, x_ij) < support2:
-                wg = wp.static(value_gradient)(x_ij, h)
+            if wp.static(select):  # W = 0 and grad W = 0 from H_s on: no test for the sum
+                wg = cubic_value_gradient_select(x_ij, h)
                 total += wg[0]
-                if j != i:
-                    pairs_out.index[i, n] = j
-                    pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
-                    n += 1
+                pairs_out.index[i, n] = j
+                pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                n += wp.where((wp.dot(x_ij, x_ij) < support2) and (j != i), 1, 0)
+            else:
+                if wp.dot(x_ij, x_ij) < support2:
+                    wg = wp.static(value_gradient)(x_ij, h)
+                    total += wg[0]
+                    if j != i:
+                        pairs_out.index[i, n] = j
+                        pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                        n += 1
             k += 1
         pairs_out.count[i] = n
         rho = particle_mass * total
