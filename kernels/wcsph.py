@@ -12,8 +12,8 @@ import warp as wp
 
 from .density import NEIGHBOR_TYPES
 from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
-from .pbf import PairCache, value_gradient_function
-from .smoothing import PI, SMOOTHING_FUNCTIONS
+from .pbf import PairCache, cubic_value_gradient_select, value_gradient_function
+from .smoothing import SMOOTHING_FUNCTIONS
 
 
 @wp.func
@@ -91,23 +91,6 @@ def start_density_correction(
     i = wp.tid() + tid_offset
     density_correction_out[i] = rest_density - particle_density[i]
     particle_density[i] = rest_density
-
-
-@wp.func
-def cubic_value_gradient_select(x_ij: wp.vec3, h: float) -> wp.vec4:
-    """(W(|x_ij|, h), grad_i W) of the cubic spline [1/m^3, 1/m^4] without branches: with t2 = max(2 - q, 0) and
-    t1 = max(1 - q, 0), W = a/6 (t2^3 - 4 t1^3) and dW/dq = a/6 (12 t1^2 - 3 t2^2), a = 3 / (2 pi h^3) (the
-    two pieces of ``smoothing.cubic_value`` in one expression: equal to rounding; both 0 from q = 2 on). A
-    list pass over pairs of random distances mispredicts the pieces' branches at about every other pair."""
-    r = wp.length(x_ij)
-    q = r / h
-    t2 = wp.max(2.0 - q, 0.0)
-    t1 = wp.max(1.0 - q, 0.0)
-    a6 = 1.0 / (4.0 * PI * h * h * h)  # a / 6
-    w = a6 * (t2 * t2 * t2 - 4.0 * t1 * t1 * t1)
-    dwdq = a6 * (12.0 * t1 * t1 - 3.0 * t2 * t2)  # 0 at q = 0
-    g = x_ij * (dwdq / (h * wp.max(r, 1.0e-30)))
-    return wp.vec4(w, g[0], g[1], g[2])
 
 
 @functools.cache
