@@ -109,3 +109,30 @@ def test_kept_lists_bitwise_over_threads(threads, monkeypatch, device):
     sim.advance_frame()
     assert np.array_equal(sim.get_field("particle_x"), ref.get_field("particle_x"))
     assert np.array_equal(sim.get_field("particle_v"), ref.get_field("particle_v"))
+
+
+def test_branch_free_cubic_matches_the_cubic_spline():
+    """``pbf.cubic_value_gradient_select`` (the pair passes of PBF and WCSPH) against ``smoothing.cubic_value`` and
+    ``cubic_gradient`` from r = 0 to past the support, to float32 rounding; 0 from H_s on."""
+    import warp as wp
+
+    from warp_sph.kernels.pbf import cubic_value_gradient_select
+
+    @wp.kernel
+    def evaluate_select(x: wp.array(dtype=wp.vec3), h: float, out: wp.array(dtype=wp.vec4)):
+        i = wp.tid()
+        out[i] = cubic_value_gradient_select(x[i], h)
+
+    h = 0.05
+    rng = np.random.default_rng(3)
+    directions = rng.normal(size=(400, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    offsets = (directions * np.linspace(0.0, 2.4 * h, 400)[:, None]).astype(np.float32)
+    out = wp.zeros(len(offsets), dtype=wp.vec4, device="cpu")
+    wp.launch(evaluate_select, len(offsets), [wp.array(offsets, dtype=wp.vec3, device="cpu"), h, out], device="cpu")
+    got = out.numpy()
+    w, g = evaluate("cubic", offsets, h)
+    np.testing.assert_allclose(got[:, 0], w, rtol=2e-6, atol=1e-6 * w.max())
+    np.testing.assert_allclose(got[:, 1:], g, rtol=0, atol=2e-6 * np.abs(g).max())
+    outside = np.linalg.norm(offsets, axis=1) >= 2.0 * h
+    assert outside.any() and not got[outside].any()
