@@ -21,7 +21,7 @@ import warp as wp
 
 from ...core.launch import LIGHT_MIN_RANGE, launch
 from ...core.step_graph import Stage
-from ...kernels import wcsph as _wcsph
+from ...kernels import wcsph_lists as _wcsph
 from ...kernels import pbf_search as _lists_reuse  # identity_slots, neighbor_drift_chunks: generic list-reuse checks
 from ...kernels import reduction as _reduce
 from ...neighbors.cell_lists import simulation_neighbor_lists
