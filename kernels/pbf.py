@@ -94,37 +94,29 @@ def constraint_offset(
 
 
 @wp.func
-def cubic_value_gradient(x_ij: wp.vec3, h: float) -> wp.vec4:
-    """(W(|x_ij|, h), grad_i W) of the cubic spline [1/m^3, 1/m^4] from one r = |x_ij| and one q = r / h:
-    the expressions of ``smoothing.cubic_value(r, h)`` and ``smoothing.cubic_gradient(x_ij, h)`` (so bitwise
-    their values) without evaluating the length and the ratio twice per pair."""
+def cubic_value_gradient_select(x_ij: wp.vec3, h: float) -> wp.vec4:
+    """(W(|x_ij|, h), grad_i W) of the cubic spline [1/m^3, 1/m^4] without branches: with t2 = max(2 - q, 0) and
+    t1 = max(1 - q, 0), W = a/6 (t2^3 - 4 t1^3) and dW/dq = a/6 (12 t1^2 - 3 t2^2), a = 3 / (2 pi h^3) (the
+    two pieces of ``smoothing.cubic_value`` in one expression: equal to rounding; both 0 from q = 2 on). A
+    list pass over pairs of random distances mispredicts the pieces' branches at about every other pair."""
     r = wp.length(x_ij)
     q = r / h
-    w = float(0.0)
-    a = 3.0 / (2.0 * PI * h * h * h)
-    if q < 1.0:
-        w = a * (2.0 / 3.0 - q * q + 0.5 * q * q * q)
-    elif q < 2.0:
-        t = 2.0 - q
-        w = a * t * t * t / 6.0
-    if r <= 0.0 or q >= 2.0:
-        return wp.vec4(w, 0.0, 0.0, 0.0)
-    ag = 3.0 / (2.0 * PI * h * h * h * h)
-    df = float(0.0)
-    if q < 1.0:
-        df = -2.0 * q + 1.5 * q * q
-    else:
-        t = 2.0 - q
-        df = -0.5 * t * t
-    g = x_ij * (ag * df / r)
+    t2 = wp.max(2.0 - q, 0.0)
+    t1 = wp.max(1.0 - q, 0.0)
+    a6 = 1.0 / (4.0 * PI * h * h * h)  # a / 6
+    w = a6 * (t2 * t2 * t2 - 4.0 * t1 * t1 * t1)
+    dwdq = a6 * (12.0 * t1 * t1 - 3.0 * t2 * t2)  # 0 at q = 0
+    g = x_ij * (dwdq / (h * wp.max(r, 1.0e-30)))
     return wp.vec4(w, g[0], g[1], g[2])
 
 
 def value_gradient_function(smoothing: str):
-    """A ``@wp.func (x_ij, h) -> vec4(W, grad_i W)`` for the smoothing kernel: the cubic spline's shares r and q;
-    the others call the kernel's value and gradient."""
+    """A ``@wp.func (x_ij, h) -> vec4(W, grad_i W)`` for the smoothing kernel: the cubic spline's without
+    branches (``cubic_value_gradient_select``: equal to ``smoothing.cubic_value`` and ``cubic_gradient`` to
+    rounding; every PBF pass over the fluid pairs uses it, so the passes stay bitwise one another's); the
+    others call the kernel's value and gradient."""
     if smoothing == "cubic":
-        return cubic_value_gradient
+        return cubic_value_gradient_select
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
 
     @wp.func(module="unique")

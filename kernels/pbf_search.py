@@ -166,6 +166,7 @@ def constraint_kernel(smoothing: str, boundary_terms):
     constraint offset reads at x (no lambda, no pair cache: the step's density stage writes those at x*).
     The same pairs, order and expressions as ``pbf.density_lambda_pairs_kernel``: bitwise its density and C."""
     value = SMOOTHING_FUNCTIONS[smoothing][0]
+    value_gradient = value_gradient_function(smoothing)  # the fluid pairs' W as the density passes evaluate it
     with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
     density_term = boundary_terms.density if with_boundary else None
@@ -201,7 +202,7 @@ def constraint_kernel(smoothing: str, boundary_terms):
         while k < k_end:
             x_ij = xi - predicted_x[fluid_neighbors.index[i, k]]
             if wp.dot(x_ij, x_ij) < support2:
-                w_sum += wp.static(value)(wp.length(x_ij), h)
+                w_sum += wp.static(value_gradient)(x_ij, h)[0]
             k += 1
         ratio = volume * w_sum
         if wp.static(with_boundary):

@@ -12,6 +12,7 @@ import warp as wp
 
 from .density import NEIGHBOR_TYPES
 from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
+from .pbf import PairCache
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -149,10 +150,15 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
     layer carried no pressure and crossed the wall (tests/test_wcsph_diffusion.py).
     The density it acts on is particle_density: the summation (eq. 7) plus delta rho, whose rate is then
     sum_j m v_ij . grad W_ij + D_i, the continuity equation with the delta-SPH term.
+    neighbors "pairs": lists that hold pairs up to H_s + a skin (``wcsph.search_skin``) and the step's
+    ``PairCache`` (``wcsph_lists.density_pairs_kernel``): the fluid pairs and their grad W come from the cache,
+    in the lists' order; listed boundary pairs at or beyond H_s are skipped (their terms are zero).
     """
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
-    lists = neighbors == "list"
-    Neighbors = NEIGHBOR_TYPES[neighbors]
+    cached = neighbors == "pairs"
+    lists = neighbors in ("list", "pairs")
+    Neighbors = NEIGHBOR_TYPES["list" if cached else neighbors]
+    pair_x = with_artificial_viscosity or with_density_diffusion  # terms that read x_ij, v_ij or rho_j
     with_pressure = boundary_terms is not None and boundary_terms.pressure is not None
     with_force = boundary_terms is not None and boundary_terms.force is not None
     with_boundary = with_pressure or with_force
@@ -203,6 +209,7 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
         boundary_volume: wp.array(dtype=float),
         # State in:
         fluid_neighbors: Neighbors,
+        pairs: PairCache,
         particle_x: wp.array(dtype=wp.vec3),
         particle_v: wp.array(dtype=wp.vec3),
         particle_density: wp.array(dtype=float),
@@ -229,12 +236,37 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
             boundary_pressure_term_out[i] = p_rho2_b
         h = smoothing_length
         eps_h2 = 0.01 * h * h
+        support2 = support_radius * support_radius
         a = wp.vec3(0.0)
         drho = float(0.0)
         diffuse_i = True  # the pairs of a particle next to a wall do not diffuse (docstring)
         if wp.static(wall_guard):
             diffuse_i = not touches_wall(boundary_neighbors, boundary_x, xi, i, support_radius)
-        if wp.static(lists):
+        if wp.static(cached):
+            k = int(0)
+            k_end = int(pairs.count[i])
+            while k < k_end:
+                j = pairs.index[i, k]
+                grad = pairs.gradient[i, k]
+                x_ij = wp.vec3(0.0)
+                v_ij = wp.vec3(0.0)
+                rho_j = float(0.0)
+                if wp.static(pair_x):
+                    x_ij = xi - particle_x[j]
+                    v_ij = vi - particle_v[j]
+                    rho_j = particle_density[j]
+                a += fluid_pair(x_ij, v_ij, grad, p_rho2_i, pressure_term[j], rho_i, rho_j, particle_mass, eps_h2,
+                                alpha_h_c)
+                if wp.static(with_density_diffusion):
+                    diffuse = diffuse_i
+                    if wp.static(wall_guard):
+                        if diffuse:
+                            diffuse = not touches_wall(boundary_neighbors, boundary_x, particle_x[j], j, support_radius)
+                    if diffuse:
+                        drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i, rho_j,
+                                                       x_ij, grad, eps_h2, particle_mass / rho_j)
+                k += 1
+        elif wp.static(lists):
             k = int(0)
             k_end = int(neighbor_count(fluid_neighbors, i))
             while k < k_end:
@@ -283,8 +315,14 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                 k_end = int(neighbor_count(boundary_neighbors, i))
                 while k < k_end:
                     b = boundary_neighbors.index[i, k]
-                    a_boundary += boundary_pair(boundary_params, b, xi - boundary_x[b], vi - boundary_v[b],
-                                                boundary_volume[b], p_rho2_b, rho_i, h)
+                    x_ib = xi - boundary_x[b]
+                    if wp.static(cached):
+                        if wp.dot(x_ib, x_ib) < support2:
+                            a_boundary += boundary_pair(boundary_params, b, x_ib, vi - boundary_v[b],
+                                                        boundary_volume[b], p_rho2_b, rho_i, h)
+                    else:
+                        a_boundary += boundary_pair(boundary_params, b, x_ib, vi - boundary_v[b],
+                                                    boundary_volume[b], p_rho2_b, rho_i, h)
                     k += 1
             else:
                 bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)

@@ -32,6 +32,7 @@ from ..density import density_stage, neighbors_stage
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
 from ..force import FORCE_ACCELERATION, ForceSlot
+from .wcsph_lists import KeptLists, pair_cache
 
 EQUATIONS_OF_STATE = ("linear", "tait")
 
@@ -41,6 +42,9 @@ EQUATIONS_OF_STATE = ("linear", "tait")
 #: throwing one particle at the floor (c_s = 100 m/s, d = 0.1 m, tests/test_robust.py): eq16 turns
 #: 0.25 c_s back and lets 0.30 c_s through, mirrored 0.40 / 0.50. Independent of the time step.
 WALL_ESCAPE_FRACTION = {"eq16": 0.25, "mirrored": 0.40}
+
+#: default ``wcsph.search_skin`` [spacings d] (issue #32)
+SEARCH_SKIN = 0.2
 
 
 @register_solver
@@ -82,6 +86,11 @@ class WcsphSolver(Solver):
               "Becker & Teschner 2007): nu = 2 alpha h c_s / (rho_i + rho_j) on approaching pairs only; dissipates "
               "impacts (a 14 m/s drop keeps 30 % of its energy with 0.5 instead of 100 %), the acoustic step shrinks "
               "by 1 + 0.6 alpha", ge=0.0, le=10.0),
+        Param("wcsph.search_skin", "float", "-", SEARCH_SKIN, "neighbour lists within H_s + skin (in spacings d) kept "
+              "over the steps until a particle drifted more than skin / 2 (Verlet lists, "
+              "``wcsph_lists.py``): the acoustic step moves particles far less than d per step, so one cell walk "
+              "serves several steps; 0: a search every step. Changes results only by the order of sums",
+              ge=0.0, le=2.0),
     )
 
     def __init__(self, sim, lists: bool = True):
@@ -93,6 +102,8 @@ class WcsphSolver(Solver):
         self.stiffness = float(self.config.stiffness) if self.config.stiffness > 0 else (
             m.rest_density * c_s * c_s / (7.0 if eos == "tait" else 1.0))
         self.density_diffusion = float(self.config.density_diffusion)
+        self.search_skin = float(self.config.search_skin) * m.spacing if self.lists else 0.0  # [m]
+        self.kept_lists = None  # ``KeptLists`` with a skin (``stages``)
         self._started = False  # the start's correction is set once (``refresh_density``)
 
     def density_diffusion_constants(self) -> tuple[float, wp.vec3]:
@@ -124,8 +135,9 @@ class WcsphSolver(Solver):
         with_forces = bool(explicit)
         accel = sim.fields[FORCE_ACCELERATION] if with_forces else wp.zeros(1, dtype=wp.vec3, device=m.device)
         diffusion = self.density_diffusion > 0.0
+        skin = self.search_skin > 0.0
         force_kernel = _wcsph.acceleration_kernel(m.smoothing.name, terms, with_forces, mirrored,
-                                                  "list" if self.lists else "grid",
+                                                  "pairs" if skin else "list" if self.lists else "grid",
                                                   self.config.artificial_viscosity > 0.0, bodies, diffusion)
         correction = (sim.allocate("wcsph_density_correction", float) if diffusion
                       else wp.zeros(1, dtype=float, device=m.device))
@@ -140,6 +152,11 @@ class WcsphSolver(Solver):
                    [sim.fields["particle_pressure"], sim.fields["wcsph_pressure_term"]], device=m.device,
                    min_range=LIGHT_MIN_RANGE)
 
+        no_pairs = None if skin else pair_cache(1, 1, m.device)  # the pairs argument without a skin (unread)
+
+        def pairs():
+            return self.kept_lists.pairs if skin else no_pairs
+
         def run_forces(sim, dt):
             f = sim.fields
             if self.lists:
@@ -151,7 +168,7 @@ class WcsphSolver(Solver):
                    [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, gravity,
                     float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound),
                     coefficient, hydrostatic, float(dt), params, bn,
-                    m.boundary_x, m.boundary_v, m.boundary_volume, fn, f["particle_x"], f["particle_v"],
+                    m.boundary_x, m.boundary_v, m.boundary_volume, fn, pairs(), f["particle_x"], f["particle_v"],
                     f["particle_density"], f["particle_pressure"], f["wcsph_pressure_term"], accel],
                    [f["particle_acceleration"], f["boundary_force"], term, correction], device=m.device)
 
@@ -182,7 +199,13 @@ class WcsphSolver(Solver):
         if with_forces:
             terms_doc.append("forces (" + ", ".join(f.name for f in forces.of_mode("explicit")) + ")")
         terms_doc.append("gravity")
-        density = density_stage(sim, self.lists)
+        if skin:
+            self.kept_lists = KeptLists(sim, self.search_skin, bodies)
+            neighbors_and_density = self.kept_lists.stages(
+                ("boundary_x", "boundary_volume") if terms is not None and terms.density is not None else ())
+        else:
+            neighbors_and_density = (neighbors_stage(sim, self.lists), density_stage(sim, self.lists))
+        density = neighbors_and_density[1]
         if diffusion:  # rho = the summation + the density the diffusion moved (module docstring)
             summation = density.run
 
@@ -194,15 +217,15 @@ class WcsphSolver(Solver):
             density = Stage("density", run_density, reads=density.reads + ("wcsph_density_correction",),
                             writes=density.writes, updates=density.updates,
                             doc=density.doc + " + delta rho (delta-SPH density correction)")
-        stages = [neighbors_stage(sim, self.lists), density]
+        stages = [neighbors_and_density[0], density]
         stages += forces.filter_stages(slot) + explicit
         stages += [
             Stage("pressure", run_pressure, reads=("particle_density",),
                   writes=("particle_pressure", "wcsph_pressure_term"),
                   doc=f"{self.config.equation_of_state} equation of state, K = {stiffness:.4g} Pa"),
             Stage("forces", run_forces,
-                  reads=(neighbors, "particle_x", "particle_v", "particle_density", "particle_pressure",
-                         "wcsph_pressure_term") + boundary_reads
+                  reads=(neighbors, "particle_x", "particle_v", "particle_density", "particle_pressure")
+                  + ("wcsph_pressure_term",) + (("wcsph_pairs",) if skin else ()) + boundary_reads
                   + ((FORCE_ACCELERATION,) if with_forces else ()),
                   writes=("particle_acceleration", "boundary_force") + (("boundary_pressure_term",) if bodies else ()),
                   updates=("wcsph_density_correction",) if diffusion else (),
@@ -222,6 +245,8 @@ class WcsphSolver(Solver):
         """The density at the current positions; at the start (the first refresh of a run's first step, unless
         a checkpoint was restored) with delta-SPH, the correction is set so that every particle starts at rho0
         (``start_density_correction``); otherwise (a resume, a retry, later) the carried correction is added."""
+        if self.kept_lists is not None:
+            self.kept_lists.invalidate()  # positions changed from outside: search anew
         if self.density_diffusion > 0.0 and not self._started and self.sim.state.step == 0:
             self._started = True
             f = self.sim.fields
@@ -234,14 +259,19 @@ class WcsphSolver(Solver):
         super().refresh_density()
 
     def carried_fields(self) -> tuple[str, ...]:
-        """The delta-SPH density correction (when on): the density the diffusion moved so far."""
-        return ("wcsph_density_correction",) if self.density_diffusion > 0.0 else ()
+        """The delta-SPH density correction (when on): the density the diffusion moved so far; with a search skin
+        the kept neighbour lists and where (and at which index) each particle was when they were searched."""
+        kept = ("neighbor_lists", "wcsph_neighbor_x", "wcsph_neighbor_slot") if self.search_skin > 0.0 else ()
+        return (("wcsph_density_correction",) if self.density_diffusion > 0.0 else ()) + kept
 
     def checkpoint_arrays(self) -> dict:
-        return {"wcsph_density_correction": self.sim.fields["wcsph_density_correction"]} if self.carried_fields() else {}
+        return ({"wcsph_density_correction": self.sim.fields["wcsph_density_correction"]} if self.density_diffusion > 0.0
+                else {})
 
     def restore_arrays(self, arrays) -> None:
-        if not self.carried_fields():
+        if self.kept_lists is not None:
+            self.kept_lists.invalidate()
+        if self.density_diffusion <= 0.0:
             return
         self._started = True  # the restored correction is the state: no start rule after it
         f = self.sim.fields["wcsph_density_correction"]

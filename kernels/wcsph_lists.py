@@ -1,0 +1,93 @@
+"""WCSPH's pass over neighbour lists kept over several steps (``wcsph.search_skin``; host:
+``warp_sph/methods/solvers/wcsph_lists.py``): the density (report eq. 7/13) over lists that hold pairs up to
+H_s + a skin, and the step's ``PairCache`` (``kernels/pbf.py``) of the pairs closer than H_s with grad W, which
+the force kernel (``wcsph.acceleration_kernel``, neighbors "pairs") reads."""
+import functools
+
+import warp as wp
+
+from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
+from .pbf import PairCache, cubic_value_gradient_select, value_gradient_function
+from .smoothing import SMOOTHING_FUNCTIONS
+
+
+@functools.cache
+def density_pairs_kernel(smoothing: str, boundary_terms=None):
+    """rho_i = m sum_j W_ij + rho0 sum_b density_b(W_ib, V_b) [kg/m^3] (report eq. 7/13) over neighbour lists that
+    hold pairs up to H_s + a skin (``wcsph.search_skin``; pairs at or beyond H_s add nothing), and the step's
+    ``PairCache`` of the pairs closer than H_s (j != i): index j and grad_i W_ij [1/m^4] in the lists' order, which
+    the force kernel (``acceleration_kernel``, neighbors "pairs") reads instead of evaluating the kernel again.
+    The density is bitwise the list pass's (``density.density_kernel``) and the fused search's over the same lists;
+    the cached gradient bitwise ``gradient(x_ij, h)`` (``pbf.value_gradient_function``); the cubic spline is
+    evaluated without branches (``cubic_value_gradient_select``, equal to rounding) and the cache is filled
+    without a branch per pair (every listed pair is written at the next free slot, which only the pairs closer
+    than H_s advance)."""
+    select = smoothing == "cubic"
+    value_gradient = cubic_value_gradient_select if select else value_gradient_function(smoothing)
+    value = SMOOTHING_FUNCTIONS[smoothing][0]
+    with_boundary = boundary_terms is not None and boundary_terms.density is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    density_term = boundary_terms.density if with_boundary else None
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def compute_density_pairs(
+        tid_offset: int,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        boundary_params: BoundaryParams,
+        boundary_neighbors: NeighborList,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        fluid_neighbors: NeighborList,
+        particle_x: wp.array(dtype=wp.vec3),
+        # Out:
+        particle_density_out: wp.array(dtype=float),
+        pairs_out: PairCache,
+    ):
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        xi = particle_x[i]
+        h = smoothing_length
+        support2 = support_radius * support_radius
+        total = float(0.0)
+        n = int(0)
+        k = int(0)
+        k_end = int(neighbor_count(fluid_neighbors, i))
+        while k < k_end:
+            j = fluid_neighbors.index[i, k]
+            x_ij = xi - particle_x[j]
+            if wp.static(select):  # W = 0 and grad W = 0 from H_s on: no test for the sum
+                wg = cubic_value_gradient_select(x_ij, h)
+                total += wg[0]
+                pairs_out.index[i, n] = j
+                pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                n += wp.where((wp.dot(x_ij, x_ij) < support2) and (j != i), 1, 0)
+            else:
+                if wp.dot(x_ij, x_ij) < support2:
+                    wg = wp.static(value_gradient)(x_ij, h)
+                    total += wg[0]
+                    if j != i:
+                        pairs_out.index[i, n] = j
+                        pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                        n += 1
+            k += 1
+        pairs_out.count[i] = n
+        rho = particle_mass * total
+        if wp.static(with_boundary):
+            boundary_sum = float(0.0)
+            k = int(0)
+            k_end = int(neighbor_count(boundary_neighbors, i))
+            while k < k_end:
+                b = boundary_neighbors.index[i, k]
+                x_ib = xi - boundary_x[b]
+                if wp.dot(x_ib, x_ib) < support2:
+                    w = wp.static(value)(wp.length(x_ib), h)
+                    boundary_sum += wp.static(density_term)(boundary_params, w, boundary_volume[b])
+                k += 1
+            rho += rest_density * boundary_sum
+        particle_density_out[i] = rho
+
+    return compute_density_pairs

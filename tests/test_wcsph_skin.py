@@ -1,0 +1,138 @@
+"""WCSPH's kept neighbour lists (``wcsph.search_skin``, ``warp_sph/methods/solvers/wcsph_lists.py``): the lists
+are searched on a fraction of the steps, the density and the pair cache the forces read match a brute-force
+NumPy oracle on steps that reused the lists, the run agrees with the per-step search (skin 0) to rounding, and
+the split over CPU threads changes nothing."""
+import numpy as np
+import pytest
+
+from small_scenes import small_tank
+from warp_sph.core.smoothing import evaluate
+from warp_sph.run.simulation import Simulation
+
+
+def falling_block(skin: float, **kw):
+    """A block falling into a tank at WCSPH's acoustic step (some hundred particles, walls on every side)."""
+    return small_tank("wcsph_skin", solver="wcsph", wcsph={"search_skin": skin}, particle_radius=0.03,
+                      fluid=[{"shape": "box", "min": [0.0, 0.0, 0.1], "max": [0.4, 0.3, 0.5]}], **kw)
+
+
+def oracle(sim, x):
+    """rho_i = m sum_j W_ij + rho0 sum_b V_b W_ib at positions x over every particle closer than H_s (brute
+    force), and the fluid pairs (i, j != i) closer than H_s with grad_i W_ij."""
+    m = sim.model
+    x = x.astype(np.float64)
+    bx = m.boundary_x.numpy().astype(np.float64)
+    vb = m.boundary_volume.numpy().astype(np.float64)
+    H = m.support_radius
+    d = x[:, None, :] - x[None, :, :]
+    r = np.linalg.norm(d, axis=2)
+    near = r < H
+    w, g = evaluate(m.smoothing.name, d[near], m.smoothing_length)
+    wf = np.zeros(r.shape)
+    wf[near] = w
+    db = x[:, None, :] - bx[None, :, :]
+    rb = np.linalg.norm(db, axis=2)
+    nb = rb < H
+    wbv, _ = evaluate(m.smoothing.name, db[nb], m.smoothing_length)
+    wb = np.zeros(rb.shape)
+    wb[nb] = wbv
+    rho = m.particle_mass * wf.sum(axis=1) + m.rest_density * (wb * vb[None, :]).sum(axis=1)
+    grads = {}
+    ii, jj = np.nonzero(near)
+    for (i, j), gij in zip(zip(ii, jj), g):
+        if i != j:
+            grads[(int(i), int(j))] = gij
+    return rho, grads
+
+
+def check_step(sim, kept):
+    """One step: its density and pair cache against the oracle at the positions its density stage read."""
+    x = sim.fields["particle_x"].numpy().copy()
+    sim.step(sim.frame_dt / 64)
+    rho = sim.fields["particle_density"].numpy()
+    ref_rho, ref_pairs = oracle(sim, x)
+    np.testing.assert_allclose(rho, ref_rho, rtol=2e-5)
+    count, index, grad = kept.pairs.count.numpy(), kept.pairs.index.numpy(), kept.pairs.gradient.numpy()
+    got = {(i, int(index[i, k])): grad[i, k] for i in range(len(count)) for k in range(count[i])}
+    assert set(got) == set(ref_pairs)  # exactly the pairs closer than H_s, none lost by the kept lists
+    scale = max(float(np.abs(g).max()) for g in ref_pairs.values())
+    for key, g in ref_pairs.items():
+        np.testing.assert_allclose(got[key], g, atol=1e-5 * scale)
+
+
+@pytest.mark.parametrize("skin", [0.5, 0.02])
+def test_kept_lists_density_and_pairs_match_brute_force(skin, device):
+    """Steps that reuse the lists and steps that search (the small skin: the drift passes skin / 2 within a few
+    steps, and a list kept past it would miss pairs that came closer than H_s)."""
+    sim = Simulation(falling_block(skin), device=device)
+    kept = sim.solver.kept_lists
+    for _ in range(3):
+        sim.advance_frame()
+    if skin >= 0.5:
+        assert kept.builds < 0.5 * kept.steps  # most steps read the kept lists
+    with sim.in_cell_order():  # (the frame's order: a CPU array's numpy() is a view, read inside)
+        first = kept.builds
+        check_step(sim, kept)  # the particles were reordered since the lists were searched: a search
+        assert kept.builds == first + 1
+        for _ in range(12):
+            check_step(sim, kept)
+        searches = kept.builds - first - 1
+    if skin >= 0.5:
+        assert searches < 12
+    else:
+        assert searches >= 1  # the drift passed skin / 2
+
+
+def test_kept_lists_run_matches_the_per_step_search(device):
+    """Same scene, skin 0 (a search every step, the reference) and 0.5 d: the same pairs, summed in another
+    order (cells of H_s + skin instead of H_s), so the runs agree to rounding."""
+    a = Simulation(falling_block(0.0), device=device)
+    b = Simulation(falling_block(0.5), device=device)
+    assert a.solver.kept_lists is None
+    for _ in range(2):
+        a.advance_frame()
+        b.advance_frame()
+    assert b.solver.kept_lists.builds < b.state.step
+    np.testing.assert_allclose(b.get_field("particle_x"), a.get_field("particle_x"), atol=2e-6)
+    np.testing.assert_allclose(b.get_field("particle_v"), a.get_field("particle_v"), atol=2e-4)
+
+
+@pytest.mark.parametrize("threads", ["1", "3"])
+def test_kept_lists_bitwise_over_threads(threads, monkeypatch, device):
+    if device != "cpu":
+        pytest.skip("the thread split is the CPU path")
+    monkeypatch.setenv("WARP_SPH_CPU_THREADS", "2")
+    ref = Simulation(falling_block(0.5), device=device)
+    ref.advance_frame()
+    monkeypatch.setenv("WARP_SPH_CPU_THREADS", threads)
+    sim = Simulation(falling_block(0.5), device=device)
+    sim.advance_frame()
+    assert np.array_equal(sim.get_field("particle_x"), ref.get_field("particle_x"))
+    assert np.array_equal(sim.get_field("particle_v"), ref.get_field("particle_v"))
+
+
+def test_branch_free_cubic_matches_the_cubic_spline():
+    """``pbf.cubic_value_gradient_select`` (the pair passes of PBF and WCSPH) against ``smoothing.cubic_value`` and
+    ``cubic_gradient`` from r = 0 to past the support, to float32 rounding; 0 from H_s on."""
+    import warp as wp
+
+    from warp_sph.kernels.pbf import cubic_value_gradient_select
+
+    @wp.kernel
+    def evaluate_select(x: wp.array(dtype=wp.vec3), h: float, out: wp.array(dtype=wp.vec4)):
+        i = wp.tid()
+        out[i] = cubic_value_gradient_select(x[i], h)
+
+    h = 0.05
+    rng = np.random.default_rng(3)
+    directions = rng.normal(size=(400, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    offsets = (directions * np.linspace(0.0, 2.4 * h, 400)[:, None]).astype(np.float32)
+    out = wp.zeros(len(offsets), dtype=wp.vec4, device="cpu")
+    wp.launch(evaluate_select, len(offsets), [wp.array(offsets, dtype=wp.vec3, device="cpu"), h, out], device="cpu")
+    got = out.numpy()
+    w, g = evaluate("cubic", offsets, h)
+    np.testing.assert_allclose(got[:, 0], w, rtol=2e-6, atol=1e-6 * w.max())
+    np.testing.assert_allclose(got[:, 1:], g, rtol=0, atol=2e-6 * np.abs(g).max())
+    outside = np.linalg.norm(offsets, axis=1) >= 2.0 * h
+    assert outside.any() and not got[outside].any()

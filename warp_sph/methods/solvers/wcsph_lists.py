@@ -1,0 +1,122 @@
+"""WCSPH's neighbour lists kept over several steps (``wcsph.search_skin`` > 0; Verlet lists), a helper of
+``wcsph.py`` (it registers nothing).
+
+The lists hold every pair closer than H_s + s (s = skin [m]); while no particle has moved more than s / 2
+from where they were searched, no pair closer than H_s can be missing from them (two particles close in by
+at most s together). A step then skips the cell sort and the cell walk: its density is a pass over the kept
+lists (``kernels/density.py``, list variant; pairs beyond H_s add W = 0), and the force kernel reads the same
+lists (pairs beyond H_s filtered out). Otherwise the step sorts and walks as without a skin, over cells of
+H_s + s, and sums the density in the same walk. WCSPH's acoustic step moves a particle far less than a
+spacing per step (the dam break at c_s = 11 sqrt(2 g H): at most 0.04 d), so one search serves several steps.
+
+The lists are searched anew when a particle drifted past s / 2 (one chunked maximum on the device, one host
+read per step), when the particles were reordered since (the frame's cell-order sort: a per-particle slot
+field that is permuted with them, as PBF's, ``kernels/pbf_search.py``), when the particle count or the lists'
+capacities changed, with moving bodies (their particles move every step), and after a restore or a density
+refresh. Results differ from the per-step search (skin 0) only by the order of the sums (the cells are larger).
+"""
+from __future__ import annotations
+
+import warp as wp
+
+from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...core.step_graph import Stage
+from ...kernels import wcsph_lists as _wcsph
+from ...kernels import pbf_search as _lists_reuse  # identity_slots, neighbor_drift_chunks: generic list-reuse checks
+from ...kernels import reduction as _reduce
+from ...neighbors.cell_lists import simulation_neighbor_lists
+
+
+def pair_cache(n: int, capacity: int, device) -> _wcsph.PairCache:
+    """A ``PairCache`` (``kernels/pbf.py``) with n rows of ``capacity`` pairs: index and grad W (no values, no
+    boundary gradient: WCSPH's force kernel reads the boundary lists)."""
+    pairs = _wcsph.PairCache()
+    pairs.count = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
+    pairs.index = wp.zeros((max(n, 1), max(capacity, 1)), dtype=wp.int32, device=device)
+    pairs.gradient = wp.zeros((max(n, 1), max(capacity, 1)), dtype=wp.vec3, device=device)
+    pairs.value = wp.zeros((1, 1), dtype=float, device=device)
+    pairs.boundary_gradient = wp.zeros(1, dtype=wp.vec3, device=device)
+    return pairs
+
+
+class KeptLists:
+    """The "neighbors" and "density" stages of WCSPH with lists kept while the particles drift less than
+    skin / 2 [m] (see the module docstring). ``builds`` counts the searches, ``steps`` the density stages."""
+
+    def __init__(self, sim, skin: float, moving_bodies: bool):
+        self.sim = sim
+        self.skin = float(skin)
+        self.moving_bodies = bool(moving_bodies)
+        self.nl = simulation_neighbor_lists(sim, self.skin)
+        m = sim.model
+        for name, dtype in (("particle_density", float), ("wcsph_neighbor_x", wp.vec3), ("wcsph_neighbor_slot", wp.int32)):
+            sim.allocate(name, dtype)  # (per-particle fields: read from sim.fields, which emitters resize)
+        chunks = max(1, -(-m.capacity // _reduce.REDUCE_CHUNK))
+        self._drift_partial = wp.zeros(chunks, dtype=float, device=m.device)
+        self._density_kernel = _wcsph.density_pairs_kernel(m.smoothing.name, sim.boundary_terms)
+        self.pairs = None  # the step's ``PairCache`` (``wcsph_pairs``), rows as long as the fluid lists'
+        self._built = None  # (fluid count, capacities) at the last search; None: search at the next step
+        self._search = True
+        self.builds = 0
+        self.steps = 0
+        self.last_drift = 0.0
+
+    def invalidate(self) -> None:
+        """Search at the next step (after a restore, or positions changed from outside)."""
+        self._built = None
+
+    def _must_search(self) -> bool:
+        m, nl, f = self.sim.model, self.nl, self.sim.fields
+        if self._built is None or self.moving_bodies or self._built != (m.fluid_count, nl.capacities):
+            return True
+        n = m.fluid_count
+        if n == 0:
+            return False
+        chunks = -(-n // _reduce.REDUCE_CHUNK)
+        launch(_lists_reuse.neighbor_drift_chunks, chunks,
+               [_reduce.REDUCE_CHUNK, n, f["particle_x"], f["wcsph_neighbor_x"], f["wcsph_neighbor_slot"]],
+               [self._drift_partial], device=m.device)
+        self.last_drift = float(self._drift_partial.numpy()[:chunks].max())
+        return self.last_drift > 0.5 * self.skin
+
+    def run_neighbors(self, sim, dt) -> None:
+        """Decide whether this step searches; if so, sort the fluid into the cells."""
+        self._search = self._must_search()
+        if self._search:
+            self.nl.sort(sim.fields["particle_x"])
+
+    def run_density(self, sim, dt) -> None:
+        """The lists and, in the same walk, the density (a search step), or the density over the kept lists."""
+        m, f, nl = sim.model, sim.fields, self.nl
+        x = f["particle_x"]
+        self.steps += 1
+        if self._search:
+            nl.build_lists(x)
+            launch(_lists_reuse.identity_slots, m.fluid_count, [], [f["wcsph_neighbor_slot"]], device=m.device,
+                   min_range=LIGHT_MIN_RANGE)
+            wp.copy(f["wcsph_neighbor_x"], x, count=m.fluid_count)
+            self._built = (m.fluid_count, nl.capacities)
+            self.builds += 1
+            self.last_drift = 0.0
+        capacity = nl.capacities[0]
+        if self.pairs is None or self.pairs.index.shape[1] != capacity:
+            self.pairs = f["wcsph_pairs"] = pair_cache(m.capacity, capacity, m.device)
+        launch(self._density_kernel, m.fluid_count,
+               [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, sim.boundary_params,
+                nl.boundary, m.boundary_x, m.boundary_volume, nl.fluid, x],
+               [f["particle_density"], self.pairs], device=m.device)
+
+    def stages(self, boundary_reads: tuple[str, ...]) -> tuple[Stage, Stage]:
+        """(neighbors, density) stages for the solver's graph."""
+        kept = ("neighbor_lists", "wcsph_neighbor_x", "wcsph_neighbor_slot")
+        moving = ("moving_boundary_grid",) if getattr(self.sim, "bodies", None) is not None else ()
+        s = self.sim.model.spacing
+        return (Stage("neighbors", self.run_neighbors, reads=("particle_x",), updates=kept[1:],
+                      writes=("neighbor_cells",),
+                      doc=f"when a particle drifted > {0.5 * self.skin / s:.3g} d since the last search (or the "
+                          f"particles were reordered): fluid sorted into cells of {self.nl.search_radius:.4g} m"),
+                Stage("density", self.run_density, reads=("neighbor_cells", "particle_x") + boundary_reads + moving,
+                      updates=kept, writes=("particle_density", "wcsph_pairs"),
+                      doc=f"neighbour lists within H_s + {self.skin / s:.3g} d (capacities {self.nl.capacities}) "
+                          "when the step searched; eq. 7/13 over the lists and the pairs closer than H_s with "
+                          "grad W (PairCache) for the forces"))
