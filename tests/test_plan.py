@@ -97,6 +97,17 @@ def test_lattice_count_recovers_the_wall_gap():
     assert fit_lattice_count([0.1], [1000], 2)(0.05) == 4000
 
 
+def test_lattice_count_gives_the_measured_count_at_a_calibrated_spacing():
+    """Small lattices are whole numbers of particles (27 = 3^3 at one radius, where a line through the other
+    points gives 26): at a calibrated spacing the fit returns what was sampled there, between them the fit (the
+    plan of a tiny scene predicted 26 particles at its 27-particle radius when timing changed the radii calibrated)."""
+    d, n = [0.06, 0.04, 0.03], [27, 64, 216]
+    f = fit_lattice_count(d, n, 3)
+    assert [f(x) for x in d] == n
+    a, b = np.polyfit(d, np.asarray(d) * np.asarray(n, dtype=float) ** (1 / 3), 1)[::-1]
+    assert f(0.05) == round(((a + b * 0.05) / 0.05) ** 3)  # between calibrated spacings: the fitted lattice line
+
+
 def test_step_rate_floor_and_cfl_order():
     d = np.array([0.08, 0.06, 0.04])
     wcsph = fit_step_rate(d, 40.0 / d, floor=200.0)  # dt ~ d above the floor

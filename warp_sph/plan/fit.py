@@ -159,20 +159,26 @@ class LatticeCount:
     a: float
     b: float
     k: int
+    measured: tuple = ()  # ((d [m], N), ...): the counts sampled at the calibrated spacings, returned as they are
 
     def __call__(self, d: float) -> int:
+        for dm, n in self.measured:  # a calibrated spacing: its count was measured, not predicted
+            if abs(float(d) / float(dm) - 1.0) <= 1e-9:
+                return int(n)
         return int(round((max(self.a + self.b * float(d), 0.0) / float(d)) ** self.k))
 
 
 def fit_lattice_count(d, n, k: int) -> LatticeCount:
     """The LatticeCount through the measured counts ``n`` at spacings ``d`` (least squares on N^(1/k) d against
-    d; one spacing: b = 0)."""
+    d; one spacing: b = 0); at a measured spacing it gives the measured count (a fit through the others may miss a
+    small lattice's count by a particle, and which radii were calibrated depends on the calibration's timing)."""
     d = np.asarray(d, dtype=np.float64)
     y = d * np.asarray(n, dtype=np.float64) ** (1.0 / k)
+    measured = tuple(sorted({(float(di), int(ni)) for di, ni in zip(d, n)}))
     if len(d) >= 2 and np.ptp(d) > 0:
         b, a = np.polyfit(d, y, 1)
-        return LatticeCount(float(a), float(b), k)
-    return LatticeCount(float(y.mean()), 0.0, k)
+        return LatticeCount(float(a), float(b), k, measured)
+    return LatticeCount(float(y.mean()), 0.0, k, measured)
 
 
 @dataclass(frozen=True)
