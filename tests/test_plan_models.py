@@ -239,8 +239,9 @@ def test_parse_target(text, metric, value):
 
 @pytest.mark.parametrize("text", ["front:", "front:x", ":4%", "fr ont:4%", "front:150%"])
 def test_parse_target_rejects(text):
-    with pytest.raises(PlanError, match="--target-error"):
+    with pytest.raises(PlanError, match="--target-error") as e:
         parse_target(text)
+    assert f"--target-error {text!r}:" in str(e.value)  # the whole value as given, not only its error part
 
 
 def test_unknown_or_absent_metric_lists_the_scenes_metrics(tiny):

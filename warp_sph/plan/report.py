@@ -25,8 +25,9 @@ def parse_budget(text: str) -> float:
     return seconds
 
 
-def parse_error(text: str) -> float:
-    """A mean density error as a fraction: ``0.5%`` -> 0.005, ``0.005`` -> 0.005. PlanError otherwise."""
+def parse_error(text: str, given: str | None = None) -> float:
+    """A mean density error as a fraction: ``0.5%`` -> 0.005, ``0.005`` -> 0.005. PlanError otherwise, quoting
+    ``given`` (the whole --target-error text, e.g. ``front:abc``) when the error is a part of it."""
     t = str(text).strip()
     pct = t.endswith("%")
     try:
@@ -34,7 +35,8 @@ def parse_error(text: str) -> float:
     except ValueError:
         v = math.nan
     if not (math.isfinite(v) and 0 < v < 1):
-        raise PlanError(f"--target-error {text!r}: expected an error such as 0.5% or 0.005 (between 0 and 1), "
+        raise PlanError(f"--target-error {given if given is not None else text!r}: expected an error such as 0.5% "
+                        "or 0.005 (between 0 and 1), "
                         "optionally after a metric: front:4%")
     return v
 
@@ -49,7 +51,7 @@ def parse_target(text: str) -> tuple[str, float]:
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", metric.strip()):
         raise PlanError(f"--target-error {text!r}: expected METRIC:ERROR such as front:4% (a metric name, then the "
                         "error)")
-    return metric.strip(), parse_error(value)
+    return metric.strip(), parse_error(value, given=t)
 
 
 def duration_text(s: float) -> str:
