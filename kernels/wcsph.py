@@ -189,6 +189,22 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
             a += wp.static(force_term)(params, b, x_ib, v_ib, grad, volume_b, rho_i)
         return a
 
+    @wp.func(module="unique")
+    def diffusion_pair(diffuse_i: bool, boundary_neighbors: Neighbors, boundary_x: wp.array(dtype=wp.vec3),
+                       x_j: wp.vec3, j: int, support_radius: float, diffusion_coefficient: float,
+                       hydrostatic_density: wp.vec3, rho_i: float, rho_j: float, x_ij: wp.vec3, grad: wp.vec3,
+                       eps_h2: float, volume_j: float) -> float:
+        """D_ij of the delta-SPH term (``density_diffusion_pair``), 0 when i or, with walls, j touches a wall."""
+        diffuse = diffuse_i
+        if wp.static(wall_guard):
+            if diffuse:
+                diffuse = not touches_wall(boundary_neighbors, boundary_x, x_j, j, support_radius)
+        d = float(0.0)
+        if diffuse:
+            d = density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i, rho_j, x_ij, grad, eps_h2,
+                                       volume_j)
+        return d
+
     @wp.kernel(enable_backward=False, module="unique")
     def compute_acceleration(
         tid_offset: int,
@@ -258,13 +274,9 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                 a += fluid_pair(x_ij, v_ij, grad, p_rho2_i, pressure_term[j], rho_i, rho_j, particle_mass, eps_h2,
                                 alpha_h_c)
                 if wp.static(with_density_diffusion):
-                    diffuse = diffuse_i
-                    if wp.static(wall_guard):
-                        if diffuse:
-                            diffuse = not touches_wall(boundary_neighbors, boundary_x, particle_x[j], j, support_radius)
-                    if diffuse:
-                        drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i, rho_j,
-                                                       x_ij, grad, eps_h2, particle_mass / rho_j)
+                    drho += diffusion_pair(diffuse_i, boundary_neighbors, boundary_x, particle_x[j], j, support_radius,
+                                           diffusion_coefficient, hydrostatic_density, rho_i, rho_j, x_ij, grad,
+                                           eps_h2, particle_mass / rho_j)
                 k += 1
         elif wp.static(lists):
             k = int(0)
@@ -278,13 +290,9 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                     a += fluid_pair(x_ij, vi - particle_v[j], grad, p_rho2_i, pressure_term[j],
                                     rho_i, rho_j, particle_mass, eps_h2, alpha_h_c)
                     if wp.static(with_density_diffusion):
-                        diffuse = diffuse_i
-                        if wp.static(wall_guard):
-                            if diffuse:
-                                diffuse = not touches_wall(boundary_neighbors, boundary_x, particle_x[j], j, support_radius)
-                        if diffuse:
-                            drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i, rho_j,
-                                                           x_ij, grad, eps_h2, particle_mass / rho_j)
+                        drho += diffusion_pair(diffuse_i, boundary_neighbors, boundary_x, particle_x[j], j,
+                                               support_radius, diffusion_coefficient, hydrostatic_density, rho_i,
+                                               rho_j, x_ij, grad, eps_h2, particle_mass / rho_j)
                 k += 1
         else:
             query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
@@ -298,14 +306,9 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
                         a += fluid_pair(x_ij, vi - particle_v[j], grad, p_rho2_i, pressure_term[j],
                                         rho_i, rho_j, particle_mass, eps_h2, alpha_h_c)
                         if wp.static(with_density_diffusion):
-                            diffuse = diffuse_i
-                            if wp.static(wall_guard):
-                                if diffuse:
-                                    diffuse = not touches_wall(boundary_neighbors, boundary_x, particle_x[j], j,
-                                                               support_radius)
-                            if diffuse:
-                                drho += density_diffusion_pair(diffusion_coefficient, hydrostatic_density, rho_i,
-                                                               rho_j, x_ij, grad, eps_h2, particle_mass / rho_j)
+                            drho += diffusion_pair(diffuse_i, boundary_neighbors, boundary_x, particle_x[j], j,
+                                                   support_radius, diffusion_coefficient, hydrostatic_density, rho_i,
+                                                   rho_j, x_ij, grad, eps_h2, particle_mass / rho_j)
         if wp.static(with_density_diffusion):
             density_correction[i] = density_correction[i] + dt * drho
         a_boundary = wp.vec3(0.0)
