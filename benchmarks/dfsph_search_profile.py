@@ -26,7 +26,47 @@ def _scene(over: list[str]):
     return load_scene("dam_break", overrides=["output.usd=false", "output.surface=false"] + over)
 
 
+def candidates(sim) -> float:
+    """Candidates per fluid particle of the fluid walk (points in the trimmed rows of ``row_points_split``),
+    counted in NumPy from the grid the search just used."""
+    import numpy as np
+
+    fc = sim.fields["neighbor_lists"].fluid_cells
+    n = sim.model.fluid_count
+    x = fc.sorted_x.numpy()[:n].astype(np.float64)
+    lo = np.array([fc.lo[0], fc.lo[1], fc.lo[2]])
+    dims = np.array([fc.dims[0], fc.dims[1], fc.dims[2]])
+    k, start = fc.x_split, fc.sub_start.numpy()
+    q = (x - lo) * fc.inv_cell_size
+    qr = sim.fields["neighbor_lists"].search_radius * fc.inv_cell_size
+
+    def rows(c):  # first and last row of each query along one axis (``cell_rows``)
+        return (np.clip(np.floor(q[:, c] - qr), 0, dims[c] - 1).astype(int),
+                np.clip(np.floor(q[:, c] + qr), 0, dims[c] - 1).astype(int))
+
+    def distance(c, cell):  # from q to the row's cells along one axis (border rows reach to infinity)
+        return (np.where((cell > 0) & (q[:, c] < cell), cell - q[:, c], 0.0)
+                + np.where((cell < dims[c] - 1) & (q[:, c] > cell + 1), q[:, c] - cell - 1, 0.0))
+
+    (y0, y1), (z0, z1) = rows(1), rows(2)
+    total = 0
+    for oz in range(int(np.ceil(2 * qr)) + 2):
+        for oy in range(int(np.ceil(2 * qr)) + 2):
+            z, y = z0 + oz, y0 + oy
+            dy, dz = distance(1, y), distance(2, z)
+            rest = qr * qr - dy * dy - dz * dz
+            ok = (z <= z1) & (y <= y1) & (rest > 0)
+            xr = np.sqrt(np.maximum(rest, 0.0))
+            slabs = dims[0] * k
+            row = slabs * (np.minimum(y, dims[1] - 1) + dims[1] * np.minimum(z, dims[2] - 1))
+            x0 = np.clip(np.floor((q[:, 0] - xr) * k).astype(int), 0, slabs - 1)
+            x1 = np.clip(np.floor((q[:, 0] + xr) * k).astype(int), 0, slabs - 1)
+            total += np.where(ok, start[row + x1 + 1] - start[row + x0], 0).sum()
+    return round(float(total) / n, 1)
+
+
 def side_by_side(frames: int, rounds: int) -> dict:
+    import warp_sph.methods.solvers.dfsph as dfsph
     import warp_sph.methods.solvers.dfsph_search as host
     import warp_sph.neighbors.cell_lists as cell_lists
     from warp_sph.run.simulation import Simulation
@@ -35,18 +75,23 @@ def side_by_side(frames: int, rounds: int) -> dict:
     for _ in range(frames):
         sim0.advance_frame()
     x, v = sim0.get_field("particle_x"), sim0.get_field("particle_v")
+    split = host.SEARCH_X_SPLIT
 
-    def variant(over, cells_per_radius=1):
-        cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, cells_per_radius)
+    def variant(over, cells_per_radius=1, x_split=split):
+        cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, cells_per_radius, None)
+        dfsph.SEARCH_X_SPLIT = x_split
         try:
             sim = Simulation(_scene(over))
         finally:
-            cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, 1)
+            cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, 1, None)
+            dfsph.SEARCH_X_SPLIT = split
         sim.set_field("particle_x", x)
         sim.set_field("particle_v", v)
         return sim
 
-    variants = {"per-step search": sim0, "cells H_s/2": variant([], 2),
+    variants = {f"per-step search (x split {split})": sim0, "x split 1": variant([], x_split=1),
+                "x split 2": variant([], x_split=2), "x split 8": variant([], x_split=8),
+                "cells H_s/2, x split 1": variant([], 2, 1), f"cells H_s/2, x split {split}": variant([], 2),
                 "skin 0.5 d": variant(["dfsph.search_skin=0.5"]), "skin 1 d": variant(["dfsph.search_skin=1.0"])}
     call_s, kernel_s = collections.defaultdict(list), collections.defaultdict(list)
     plain_launch = host.launch
@@ -87,7 +132,9 @@ def side_by_side(frames: int, rounds: int) -> dict:
         host.launch = plain_launch
     n = sim0.model.fluid_count
     return {"frames": frames, "rounds": rounds, "fluid": n, "boundary": sim0.model.boundary_count,
-            "threads": os.environ.get("WARP_SPH_CPU_THREADS", "all"),
+            "threads": os.environ.get("WARP_SPH_CPU_THREADS", "all"), "load": os.getloadavg(),
+            "fluid walk candidates per particle": {name: candidates(sim) for name, sim in variants.items()
+                                                   if not sim.solver.skin},
             "ms per call": {k: round(1e3 * sum(v) / len(v), 3) for k, v in call_s.items()},
             "kernel ms per call": {k: round(1e3 * sum(v) / len(v), 3) for k, v in kernel_s.items()},
             "fluid pairs per particle (j != i, < H_s)": round(float(sim0.fields["dfsph_pairs"].count.numpy()[:n].mean()), 2),
