@@ -184,17 +184,30 @@ def compute_cell_keys(
 
 
 @wp.kernel(enable_backward=False)
-def cell_start_of_slabs(
+def compute_slab_start(
     tid_offset: int,
     # In:
+    point_count: int,
+    slab_count: int,
     x_split: int,
-    sub_start: wp.array(dtype=wp.int32),
+    slab_key: wp.array(dtype=wp.int32),
     # Out:
+    sub_start_out: wp.array(dtype=wp.int32),
     cell_start_out: wp.array(dtype=wp.int32),
 ):
-    """cell_start[c] = sub_start[c x_split] (the first slab of cell c; c = 0..cell_count)."""
-    c = wp.tid() + tid_offset
-    cell_start_out[c] = sub_start[c * x_split]
+    """``compute_cell_start`` over the slab keys of a split grid (point_count + 1 threads): sub_start[s] =
+    first sorted index with key >= s (s = 0..slab_count), and cell_start[c] = sub_start[c x_split]."""
+    k = wp.tid() + tid_offset
+    below = int(-1)
+    if k > 0:
+        below = int(slab_key[k - 1])
+    above = slab_count
+    if k < point_count:
+        above = int(slab_key[k])
+    for s in range(below + 1, above + 1):
+        sub_start_out[s] = k
+        if s % x_split == 0:
+            cell_start_out[s // x_split] = k
 
 
 @wp.kernel(enable_backward=False)

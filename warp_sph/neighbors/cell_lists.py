@@ -73,11 +73,12 @@ class CellGrid:
             # keys < cell_count x_split: sort only their low bits (measured 0.22 -> 0.1 ms at 6.9k points)
             wp.utils.radix_sort_pairs(self._keys, self.cell_point, n, 0,
                                       max(1, int(self.cell_count * k - 1).bit_length()))
-        launch(_dev.compute_cell_start, n + 1, [n, self.cell_count * k, self._keys], [self.sub_start],
-               device=self.device, min_range=LIGHT_MIN_RANGE)
-        if k > 1:
-            launch(_dev.cell_start_of_slabs, self.cell_count + 1, [k, self.sub_start], [self.cell_start],
+        if k == 1:
+            launch(_dev.compute_cell_start, n + 1, [n, self.cell_count, self._keys], [self.cell_start],
                    device=self.device, min_range=LIGHT_MIN_RANGE)
+        else:
+            launch(_dev.compute_slab_start, n + 1, [n, self.cell_count * k, k, self._keys],
+                   [self.sub_start, self.cell_start], device=self.device, min_range=LIGHT_MIN_RANGE)
         launch(_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device, min_range=LIGHT_MIN_RANGE)
 
     def occupied_near_mask(self, reach: int = 1) -> wp.array:
