@@ -5,10 +5,12 @@
 
 Side by side: runs the default dam break (no output) for that many frames, then at that state times
 (process CPU, one thread: ``WARP_SPH_CPU_THREADS=1``, the first round not counted) the given number of
-rounds of the cell sort and the search of each variant, in turn: the per-step search (cells of H_s),
-cells of H_s / 2, and the skin at 0.5 d and 1 d with the lists rebuilt and reused; and each kernel
-launch of the search (launched one by one, not through ``run_loop``: bitwise the same). "rate": the same run for each skin, counting list builds against searches and the
-particles' displacement per step [d]. One JSON object on stdout. Wrap it in ``flock
+rounds of the cell sort and the search of each variant, in turn (medians over the rounds): the
+per-step search (cells of H_s split in ``SEARCH_X_SPLIT`` slabs along x), its grids split in 1, 2 and
+8 slabs, cells of H_s / 2 (unsplit and split), and the skin at 0.5 d and 1 d with the lists rebuilt and
+reused; each kernel launch of the search (launched one by one, not through ``run_loop``: bitwise the
+same); and the fluid walk's candidates per particle (counted in NumPy). "rate": the same run for each
+skin, counting list builds against searches and the particles' displacement per step [d]. One JSON object on stdout. Wrap it in ``flock
 /tmp/warp_sph_bench.lock`` on a shared machine. A diagnostic beside ``warp-sph bench splishsplash``.
 """
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import collections
 import json
 import os
+import statistics
 import sys
 import time
 
@@ -135,8 +138,8 @@ def side_by_side(frames: int, rounds: int) -> dict:
             "threads": os.environ.get("WARP_SPH_CPU_THREADS", "all"), "load": os.getloadavg(),
             "fluid walk candidates per particle": {name: candidates(sim) for name, sim in variants.items()
                                                    if not sim.solver.skin},
-            "ms per call": {k: round(1e3 * sum(v) / len(v), 3) for k, v in call_s.items()},
-            "kernel ms per call": {k: round(1e3 * sum(v) / len(v), 3) for k, v in kernel_s.items()},
+            "ms per call (median)": {k: round(1e3 * statistics.median(v), 3) for k, v in call_s.items()},
+            "kernel ms per call (median)": {k: round(1e3 * statistics.median(v), 3) for k, v in kernel_s.items()},
             "fluid pairs per particle (j != i, < H_s)": round(float(sim0.fields["dfsph_pairs"].count.numpy()[:n].mean()), 2),
             "wall neighbours per particle": round(float(sim0.fields["neighbor_lists"].boundary.count.numpy()[:n].mean()), 2)}
 

@@ -31,9 +31,11 @@ from ...kernels import reduction as _reduce
 NEIGHBOR_THRESHOLD_CUBIC = 20
 #: D_i d^2 below this: the particle is nearly isolated and gets no pressure (f_i = 0)
 FACTOR_FLOOR = 1e-6
-#: slabs per cell along x of the search's cell grids (``CellGrid.x_split``): each row of cells is trimmed
-#: to the sphere at a quarter cell, 97 -> 70 candidates per particle for 25 pairs (dam break, r = 0.025)
-SEARCH_X_SPLIT = 4
+#: slabs per cell along x of the search's cell grids (``CellGrid.x_split``). 1: unsplit. Measured on the
+#: dam break (r = 0.025, docs/methods.md "Cells split in x slabs"): 4 slabs trim each row of cells to the
+#: sphere at a quarter cell (97.7 -> 70.2 candidates per particle for 24.6 pairs), and the search's kernels
+#: save what the cell sort then spends on 4x the cell starts: no gain per step, so off.
+SEARCH_X_SPLIT = 1
 
 
 def neighbor_threshold(smoothing: str, h: float, spacing: float) -> int:
