@@ -29,19 +29,22 @@ def _scene(over: list[str]):
     return load_scene("dam_break", overrides=["output.usd=false", "output.surface=false"] + over)
 
 
-def candidates(sim) -> float:
-    """Candidates per fluid particle of the fluid walk (points in the trimmed rows of ``row_points_split``),
-    counted in NumPy from the grid the search just used."""
+def candidates(grid, x, radius: float, mask=None) -> tuple[float, float]:
+    """The walk's candidates per query point x (points in the trimmed rows of ``row_points_split`` over
+    ``grid``, a built ``CellGrid``), counted in NumPy, the share of queries that walk (not in a cell
+    whose ``mask`` is 0, as the boundary walk skips them) and the rows each walking query visits."""
     import numpy as np
 
-    fc = sim.fields["neighbor_lists"].fluid_cells
-    n = sim.model.fluid_count
-    x = fc.sorted_x.numpy()[:n].astype(np.float64)
-    lo = np.array([fc.lo[0], fc.lo[1], fc.lo[2]])
-    dims = np.array([fc.dims[0], fc.dims[1], fc.dims[2]])
-    k, start = fc.x_split, fc.sub_start.numpy()
-    q = (x - lo) * fc.inv_cell_size
-    qr = sim.fields["neighbor_lists"].search_radius * fc.inv_cell_size
+    x = np.asarray(x, dtype=np.float64)
+    lo = np.array([grid.lo[0], grid.lo[1], grid.lo[2]])
+    dims = np.array([grid.dims[0], grid.dims[1], grid.dims[2]])
+    k, start = grid.x_split, grid.sub_start.numpy()
+    q = (x - lo) * grid.inv_cell_size
+    qr = radius * grid.inv_cell_size
+    walks = np.ones(len(x), dtype=bool)
+    if mask is not None:
+        c = np.clip(np.floor(q).astype(int), 0, dims - 1)
+        walks = mask.numpy()[c[:, 0] + dims[0] * (c[:, 1] + dims[1] * c[:, 2])] != 0
 
     def rows(c):  # first and last row of each query along one axis (``cell_rows``)
         return (np.clip(np.floor(q[:, c] - qr), 0, dims[c] - 1).astype(int),
@@ -52,20 +55,35 @@ def candidates(sim) -> float:
                 + np.where((cell < dims[c] - 1) & (q[:, c] > cell + 1), q[:, c] - cell - 1, 0.0))
 
     (y0, y1), (z0, z1) = rows(1), rows(2)
-    total = 0
+    total = visited = 0
     for oz in range(int(np.ceil(2 * qr)) + 2):
         for oy in range(int(np.ceil(2 * qr)) + 2):
             z, y = z0 + oz, y0 + oy
             dy, dz = distance(1, y), distance(2, z)
             rest = qr * qr - dy * dy - dz * dz
-            ok = (z <= z1) & (y <= y1) & (rest > 0)
+            ok = walks & (z <= z1) & (y <= y1) & (rest > 0)
             xr = np.sqrt(np.maximum(rest, 0.0))
             slabs = dims[0] * k
             row = slabs * (np.minimum(y, dims[1] - 1) + dims[1] * np.minimum(z, dims[2] - 1))
             x0 = np.clip(np.floor((q[:, 0] - xr) * k).astype(int), 0, slabs - 1)
             x1 = np.clip(np.floor((q[:, 0] + xr) * k).astype(int), 0, slabs - 1)
             total += np.where(ok, start[row + x1 + 1] - start[row + x0], 0).sum()
-    return round(float(total) / n, 1)
+            visited += ok.sum()
+    walking = max(1, int(walks.sum()))
+    return round(float(total) / len(x), 1), round(float(walks.mean()), 3), round(float(visited) / walking, 1)
+
+
+def walk_counts(sim) -> dict:
+    """Candidates per fluid particle of the fluid walk and of the static wall walk (and the share of
+    particles that walk the wall grid) on the grids the search just used."""
+    nl, n = sim.fields["neighbor_lists"], sim.model.fluid_count
+    x = nl.fluid_cells.sorted_x.numpy()[:n]
+    fluid, _, rows = candidates(nl.fluid_cells, x, nl.search_radius)
+    out = {"fluid walk candidates": fluid, "fluid walk rows": rows}
+    if nl.boundary_cells is not None:
+        per_particle, share, _ = candidates(nl.boundary_cells, x, nl.search_radius, nl.boundary_mask)
+        out.update({"wall walk candidates": per_particle, "share walking the walls": share})
+    return out
 
 
 def side_by_side(frames: int, rounds: int) -> dict:
@@ -92,10 +110,10 @@ def side_by_side(frames: int, rounds: int) -> dict:
         sim.set_field("particle_v", v)
         return sim
 
-    variants = {f"per-step search (x split {split})": sim0, "x split 1": variant([], x_split=1),
-                "x split 2": variant([], x_split=2), "x split 8": variant([], x_split=8),
-                "cells H_s/2, x split 1": variant([], 2, 1), f"cells H_s/2, x split {split}": variant([], 2),
-                "skin 0.5 d": variant(["dfsph.search_skin=0.5"]), "skin 1 d": variant(["dfsph.search_skin=1.0"])}
+    variants = {f"per-step search (x split {split})": sim0}
+    variants.update({f"x split {k}": variant([], x_split=k) for k in (1, 2, 4, 8) if k != split})
+    variants.update({f"cells H_s/2, x split {k}": variant([], 2, k) for k in (1, 4)})
+    variants.update({"skin 0.5 d": variant(["dfsph.search_skin=0.5"]), "skin 1 d": variant(["dfsph.search_skin=1.0"])})
     call_s, kernel_s = collections.defaultdict(list), collections.defaultdict(list)
     plain_launch = host.launch
     current = [""]
@@ -136,11 +154,14 @@ def side_by_side(frames: int, rounds: int) -> dict:
     n = sim0.model.fluid_count
     return {"frames": frames, "rounds": rounds, "fluid": n, "boundary": sim0.model.boundary_count,
             "threads": os.environ.get("WARP_SPH_CPU_THREADS", "all"), "load": os.getloadavg(),
-            "fluid walk candidates per particle": {name: candidates(sim) for name, sim in variants.items()
-                                                   if not sim.solver.skin},
+            "candidates per fluid particle": {name: walk_counts(sim) for name, sim in variants.items()
+                                              if not sim.solver.skin},
             "ms per call (median)": {k: round(1e3 * statistics.median(v), 3) for k, v in call_s.items()},
             "kernel ms per call (median)": {k: round(1e3 * statistics.median(v), 3) for k, v in kernel_s.items()},
             "fluid pairs per particle (j != i, < H_s)": round(float(sim0.fields["dfsph_pairs"].count.numpy()[:n].mean()), 2),
+            "wall particles within H_s per walking particle": round(float(
+                sim0.fields["neighbor_lists"].boundary.count.numpy()[:n].sum()
+                / max(1.0, walk_counts(sim0).get("share walking the walls", 0.0) * n)), 2),
             "wall neighbours per particle": round(float(sim0.fields["neighbor_lists"].boundary.count.numpy()[:n].mean()), 2)}
 
 
