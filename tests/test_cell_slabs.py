@@ -31,7 +31,7 @@ def walk_split_rows(grid_lo: wp.vec3, inv_cell_size: float, grid_dims: wp.vec3i,
             while k < span[1]:
                 seen += 1
                 d = xi - sorted_x[k]
-                if wp.dot(d, d) < radius * radius and n < found_out.shape[1]:
+                if wp.dot(d, d) < radius * radius and n < found_out.shape[1] - 1:  # the last slot: n
                     found_out[i, n] = cell_point[k]
                     n += 1
                 k += 1
@@ -47,6 +47,7 @@ def walk(grid, points, queries, radius, device):
                                               wp.array(queries, dtype=wp.vec3, device=device)],
               [cand, found], device=device)
     f = found.numpy()
+    assert (f[:, -1] < f.shape[1] - 1).all()  # every neighbour fit
     return cand.numpy(), [set(row[: row[-1]].tolist()) for row in f]
 
 

@@ -132,7 +132,8 @@ class NeighborLists:
         self.x_split = int(x_split)  # slabs per cell along x of every grid (``CellGrid``)
         self.device = device
         self.fluid_count = int(fluid_count)
-        self.fluid_cells = CellGrid(search_radius, lo, hi, fluid_count, cells_per_radius, device=device, x_split=x_split)
+        self.fluid_cells = CellGrid(search_radius, lo, hi, fluid_count, cells_per_radius, device=device,
+                                    x_split=x_split)
         self.boundary_cells = None
         self.moving_cells = None
         self._no_mask = wp.zeros(1, dtype=wp.uint8, device=device)
