@@ -5,10 +5,12 @@
 
 Side by side: runs the default dam break (no output) for that many frames, then at that state times
 (process CPU, one thread: ``WARP_SPH_CPU_THREADS=1``, the first round not counted) the given number of
-rounds of the cell sort and the search of each variant, in turn: the per-step search (cells of H_s),
-cells of H_s / 2, and the skin at 0.5 d and 1 d with the lists rebuilt and reused; and each kernel
-launch of the search (launched one by one, not through ``run_loop``: bitwise the same). "rate": the same run for each skin, counting list builds against searches and the
-particles' displacement per step [d]. One JSON object on stdout. Wrap it in ``flock
+rounds of the cell sort and the search of each variant, in turn (medians over the rounds): the
+per-step search (cells of H_s split in ``SEARCH_X_SPLIT`` slabs along x), its grids split in 1, 2 and
+8 slabs, cells of H_s / 2 (unsplit and split), and the skin at 0.5 d and 1 d with the lists rebuilt and
+reused; each kernel launch of the search (launched one by one, not through ``run_loop``: bitwise the
+same); and the fluid walk's candidates per particle (counted in NumPy). "rate": the same run for each
+skin, counting list builds against searches and the particles' displacement per step [d]. One JSON object on stdout. Wrap it in ``flock
 /tmp/warp_sph_bench.lock`` on a shared machine. A diagnostic beside ``warp-sph bench splishsplash``.
 """
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import collections
 import json
 import os
+import statistics
 import sys
 import time
 
@@ -26,7 +29,65 @@ def _scene(over: list[str]):
     return load_scene("dam_break", overrides=["output.usd=false", "output.surface=false"] + over)
 
 
+def candidates(grid, x, radius: float, mask=None) -> tuple[float, float]:
+    """The walk's candidates per query point x (points in the trimmed rows of ``row_points_split`` over
+    ``grid``, a built ``CellGrid``), counted in NumPy, the share of queries that walk (not in a cell
+    whose ``mask`` is 0, as the boundary walk skips them) and the rows each walking query visits."""
+    import numpy as np
+
+    x = np.asarray(x, dtype=np.float64)
+    lo = np.array([grid.lo[0], grid.lo[1], grid.lo[2]])
+    dims = np.array([grid.dims[0], grid.dims[1], grid.dims[2]])
+    k, start = grid.x_split, grid.sub_start.numpy()
+    q = (x - lo) * grid.inv_cell_size
+    qr = radius * grid.inv_cell_size
+    walks = np.ones(len(x), dtype=bool)
+    if mask is not None:
+        c = np.clip(np.floor(q).astype(int), 0, dims - 1)
+        walks = mask.numpy()[c[:, 0] + dims[0] * (c[:, 1] + dims[1] * c[:, 2])] != 0
+
+    def rows(c):  # first and last row of each query along one axis (``cell_rows``)
+        return (np.clip(np.floor(q[:, c] - qr), 0, dims[c] - 1).astype(int),
+                np.clip(np.floor(q[:, c] + qr), 0, dims[c] - 1).astype(int))
+
+    def distance(c, cell):  # from q to the row's cells along one axis (border rows reach to infinity)
+        return (np.where((cell > 0) & (q[:, c] < cell), cell - q[:, c], 0.0)
+                + np.where((cell < dims[c] - 1) & (q[:, c] > cell + 1), q[:, c] - cell - 1, 0.0))
+
+    (y0, y1), (z0, z1) = rows(1), rows(2)
+    total = visited = 0
+    for oz in range(int(np.ceil(2 * qr)) + 2):
+        for oy in range(int(np.ceil(2 * qr)) + 2):
+            z, y = z0 + oz, y0 + oy
+            dy, dz = distance(1, y), distance(2, z)
+            rest = qr * qr - dy * dy - dz * dz
+            ok = walks & (z <= z1) & (y <= y1) & (rest > 0)
+            xr = np.sqrt(np.maximum(rest, 0.0))
+            slabs = dims[0] * k
+            row = slabs * (np.minimum(y, dims[1] - 1) + dims[1] * np.minimum(z, dims[2] - 1))
+            x0 = np.clip(np.floor((q[:, 0] - xr) * k).astype(int), 0, slabs - 1)
+            x1 = np.clip(np.floor((q[:, 0] + xr) * k).astype(int), 0, slabs - 1)
+            total += np.where(ok, start[row + x1 + 1] - start[row + x0], 0).sum()
+            visited += ok.sum()
+    walking = max(1, int(walks.sum()))
+    return round(float(total) / len(x), 1), round(float(walks.mean()), 3), round(float(visited) / walking, 1)
+
+
+def walk_counts(sim) -> dict:
+    """Candidates per fluid particle of the fluid walk and of the static wall walk (and the share of
+    particles that walk the wall grid) on the grids the search just used."""
+    nl, n = sim.fields["neighbor_lists"], sim.model.fluid_count
+    x = nl.fluid_cells.sorted_x.numpy()[:n]
+    fluid, _, rows = candidates(nl.fluid_cells, x, nl.search_radius)
+    out = {"fluid walk candidates": fluid, "fluid walk rows": rows}
+    if nl.boundary_cells is not None:
+        per_particle, share, _ = candidates(nl.boundary_cells, x, nl.search_radius, nl.boundary_mask)
+        out.update({"wall walk candidates": per_particle, "share walking the walls": share})
+    return out
+
+
 def side_by_side(frames: int, rounds: int) -> dict:
+    import warp_sph.methods.solvers.dfsph as dfsph
     import warp_sph.methods.solvers.dfsph_search as host
     import warp_sph.neighbors.cell_lists as cell_lists
     from warp_sph.run.simulation import Simulation
@@ -35,19 +96,24 @@ def side_by_side(frames: int, rounds: int) -> dict:
     for _ in range(frames):
         sim0.advance_frame()
     x, v = sim0.get_field("particle_x"), sim0.get_field("particle_v")
+    split = host.SEARCH_X_SPLIT
 
-    def variant(over, cells_per_radius=1):
-        cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, cells_per_radius)
+    def variant(over, cells_per_radius=1, x_split=split):
+        cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, cells_per_radius, None)
+        dfsph.SEARCH_X_SPLIT = x_split
         try:
             sim = Simulation(_scene(over))
         finally:
-            cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, 1)
+            cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, 1, None)
+            dfsph.SEARCH_X_SPLIT = split
         sim.set_field("particle_x", x)
         sim.set_field("particle_v", v)
         return sim
 
-    variants = {"per-step search": sim0, "cells H_s/2": variant([], 2),
-                "skin 0.5 d": variant(["dfsph.search_skin=0.5"]), "skin 1 d": variant(["dfsph.search_skin=1.0"])}
+    variants = {f"per-step search (x split {split})": sim0}
+    variants.update({f"x split {k}": variant([], x_split=k) for k in (1, 2, 4, 8) if k != split})
+    variants.update({f"cells H_s/2, x split {k}": variant([], 2, k) for k in (1, 4)})
+    variants.update({"skin 0.5 d": variant(["dfsph.search_skin=0.5"]), "skin 1 d": variant(["dfsph.search_skin=1.0"])})
     call_s, kernel_s = collections.defaultdict(list), collections.defaultdict(list)
     plain_launch = host.launch
     current = [""]
@@ -87,10 +153,15 @@ def side_by_side(frames: int, rounds: int) -> dict:
         host.launch = plain_launch
     n = sim0.model.fluid_count
     return {"frames": frames, "rounds": rounds, "fluid": n, "boundary": sim0.model.boundary_count,
-            "threads": os.environ.get("WARP_SPH_CPU_THREADS", "all"),
-            "ms per call": {k: round(1e3 * sum(v) / len(v), 3) for k, v in call_s.items()},
-            "kernel ms per call": {k: round(1e3 * sum(v) / len(v), 3) for k, v in kernel_s.items()},
+            "threads": os.environ.get("WARP_SPH_CPU_THREADS", "all"), "load": os.getloadavg(),
+            "candidates per fluid particle": {name: walk_counts(sim) for name, sim in variants.items()
+                                              if not sim.solver.skin},
+            "ms per call (median)": {k: round(1e3 * statistics.median(v), 3) for k, v in call_s.items()},
+            "kernel ms per call (median)": {k: round(1e3 * statistics.median(v), 3) for k, v in kernel_s.items()},
             "fluid pairs per particle (j != i, < H_s)": round(float(sim0.fields["dfsph_pairs"].count.numpy()[:n].mean()), 2),
+            "wall particles within H_s per walking particle": round(float(
+                sim0.fields["neighbor_lists"].boundary.count.numpy()[:n].sum()
+                / max(1.0, walk_counts(sim0).get("share walking the walls", 0.0) * n)), 2),
             "wall neighbours per particle": round(float(sim0.fields["neighbor_lists"].boundary.count.numpy()[:n].mean()), 2)}
 
 

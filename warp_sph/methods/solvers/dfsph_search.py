@@ -21,6 +21,7 @@ import warp as wp
 
 from ...core.launch import LIGHT_MIN_RANGE, launch, run_loop
 from ...core.smoothing import get_smoothing_kernel, lattice_offsets
+from ...kernels import dfsph_factor as _factor
 from ...kernels import dfsph_search as _search
 from ...kernels import dfsph_skin as _skin
 from ...kernels import reduction as _reduce
@@ -30,6 +31,11 @@ from ...kernels import reduction as _reduce
 NEIGHBOR_THRESHOLD_CUBIC = 20
 #: D_i d^2 below this: the particle is nearly isolated and gets no pressure (f_i = 0)
 FACTOR_FLOOR = 1e-6
+#: slabs per cell along x of the search's cell grids (``CellGrid.x_split``). 1: unsplit. Measured on the
+#: dam break (r = 0.025, docs/methods.md "Cells split in x slabs"): 4 slabs trim each row of cells to the
+#: sphere at a quarter cell (97.7 -> 70.2 candidates per particle for 24.6 pairs), and the search's kernels
+#: save what the cell sort then spends on 4x the cell starts: no gain per step, so off.
+SEARCH_X_SPLIT = 1
 
 
 def neighbor_threshold(smoothing: str, h: float, spacing: float) -> int:
@@ -59,14 +65,14 @@ class DfsphSearch:
         self._search = _search.fluid_search_kernel(m.smoothing.name)
         terms = sim.boundary_terms
         moving = self.with_bodies and self.nl.moving_cells is not None
-        self._boundary_factor = _search.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0, moving)
+        self._boundary_factor = _factor.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0, moving)
         self._no_volume = wp.zeros(1, dtype=float, device=dev)
         self._no_mask = wp.zeros(1, dtype=wp.uint8, device=dev)
         self._no_cells = wp.zeros(2, dtype=wp.int32, device=dev)  # an empty grid: one cell, no point
         self.list_builds = 0   # list builds with the search skin (tests and run statistics read it)
         if self.skin > 0.0:
             self._pairs_from_lists = _skin.fluid_pairs_kernel(m.smoothing.name)
-            self._boundary_from_lists = _search.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0,
+            self._boundary_from_lists = _factor.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0,
                                                                        moving, lists=True)
             self._searched_x = wp.zeros(size, dtype=wp.vec3, device=dev)  # x at the last list build
             self._drift_partial = wp.zeros(max(1, -(-size // _reduce.REDUCE_CHUNK)), dtype=float, device=dev)
@@ -104,24 +110,25 @@ class DfsphSearch:
         pairs = self._pairs()
         fc = nl.fluid_cells
         search = (self._search, n,
-                  [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, m.support_radius,
+                  [fc.lo, fc.inv_cell_size, fc.dims, fc.sub_start, fc.x_split, fc.cell_point, fc.sorted_x,
+                   m.support_radius,
                    m.particle_mass, m.smoothing_length, m.rest_density, f["particle_v"]],
                   [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.offset, pairs.count, pairs.index, pairs.gradient,
                    f["particle_density"], pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]])
-        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
-                 self._no_mask, 0]
+        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, 1, self._no_cells, m.boundary_x,
+                 self._no_volume, self._no_mask, 0]
         bc = nl.boundary_cells
         if bc is not None:
             mask = nl.boundary_mask
-            grid = [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, nl.boundary_weight,
-                    self._no_mask if mask is None else mask, int(mask is not None)]
+            grid = [bc.lo, bc.inv_cell_size, bc.dims, bc.sub_start, bc.x_split, bc.cell_point, bc.sorted_x,
+                    nl.boundary_weight, self._no_mask if mask is None else mask, int(mask is not None)]
         else:
             grid = list(empty)
         mc = nl.moving_cells if self.with_bodies else None
         if mc is not None:  # the bodies' particles, after the static ones (``NeighborLists.update_moving``)
             mask = nl.moving_mask
-            grid += [mc.lo, mc.inv_cell_size, mc.dims, mc.cell_start, mc.cell_point, mc.sorted_x, nl.moving_weight,
-                     self._no_mask if mask is None else mask, int(mask is not None), nl.moving_start]
+            grid += [mc.lo, mc.inv_cell_size, mc.dims, mc.sub_start, mc.x_split, mc.cell_point, mc.sorted_x,
+                     nl.moving_weight, self._no_mask if mask is None else mask, int(mask is not None), nl.moving_start]
         else:
             grid += empty + [0]
         factor = (self._boundary_factor, n,
@@ -175,8 +182,8 @@ class DfsphSearch:
                [nl.fluid, m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, x, f["particle_v"]],
                [self._pair_index_rows, self._pair_rows, self._room, f["particle_density"], pairs.gradient_sum,
                 self._square_sum, f["dfsph_divergence_source"]], device=dev)
-        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x, self._no_volume,
-                 self._no_mask, 0]
+        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, 1, self._no_cells, m.boundary_x,
+                 self._no_volume, self._no_mask, 0]
         launch(self._boundary_from_lists, n,
                empty + empty + [0]
                + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor, self.neighbor_threshold,
