@@ -181,7 +181,7 @@ def _block_energy_share(x: np.ndarray, v: np.ndarray, lo: np.ndarray, block: flo
     return float(np.sum(count[:, None] * mean * mean)) / total if total > 0.0 else 0.0
 
 
-def motion(solver: str, radius: float, duration: float, extra: list[str], every: int = 3) -> dict:
+def motion(solver: str, radius: float, duration: float, extra: list[str], every: int = 3, stagger: float = 0.0) -> dict:
     """What moves in the tank at rest (issue #31), frame by frame to ``duration``: per frame the mean |v| [m/s] of
     all particles, per lattice layer (the start's z index), of the columns at the side walls (the outer ring),
     of the corner columns and of the interior; every ``every`` frames the velocity field's character
@@ -190,7 +190,9 @@ def motion(solver: str, radius: float, duration: float, extra: list[str], every:
     2 pi / sqrt(g k tanh(k D)), k = pi / L, is reported beside (``slosh_period``); and the decay rate of the
     mean |v| fitted over each second, log(v) = a - t / tau; with the character, per layer the spread (standard
     deviation) and mean of the particles' vertical displacement from the start [d], whose spread is the columns'
-    slip along themselves (``lattice_slip_stiffness``), and the mean horizontal displacement [d]."""
+    slip along themselves (``lattice_slip_stiffness``), and the mean horizontal displacement [d]. ``stagger`` > 0
+    raises every other column (a checkerboard in x, y) by stagger d before the first step: at 0.5 the bulk's
+    columns stand half a spacing apart, the arrangement the slip heads for (its slip stiffness positive)."""
     from warp_sph.run.simulation import Simulation
     from warp_sph.validation.cases import CASES, load_case_scene, water_offset
 
@@ -204,6 +206,13 @@ def motion(solver: str, radius: float, duration: float, extra: list[str], every:
     hi = np.array([float(c.max[a]) - off for a in (0, 1)])
     x0 = sim.get_field("particle_x").astype(np.float64)[: m.fluid_count]
     layer = np.round((x0[:, 2] - lo[2] - 0.5 * d) / d).astype(int)
+    if stagger:  # an experiment, not a start: every other column (a checkerboard in x, y) raised by stagger d
+        ij = np.round((x0[:, :2] - lo[:2] - 0.5 * d) / d).astype(int)
+        x = sim.get_field("particle_x")
+        x[: m.fluid_count, 2] += np.where(ij.sum(axis=1) % 2 == 1, stagger * d, 0.0).astype(x.dtype)
+        sim.set_field("particle_x", x)
+        sim.refresh_density()
+        x0 = x[: m.fluid_count].astype(np.float64)
     wall_dist = np.minimum(x0[:, :2] - lo[:2], hi - x0[:, :2]).min(axis=1)
     edge_count = ((x0[:, :2] - lo[:2] < d) | (hi - x0[:, :2] < d)).sum(axis=1)
     ring = wall_dist < d
@@ -267,9 +276,11 @@ def main(argv=None) -> None:
     ap.add_argument("--motion", action="store_true", help="what moves (issue #31): speeds per layer, wall ring, "
                     "corners and interior per frame, the field's correlations, the sloshing tilt, the decay rate")
     ap.add_argument("--every", type=int, default=3, help="--motion: frames between the field's character samples")
+    ap.add_argument("--stagger", type=float, default=0.0, help="--motion: raise every other column by this many d "
+                    "before the first step (an experiment: 0.5 starts the bulk on the packing the slip heads for)")
     a = ap.parse_args(argv)
     if a.motion:
-        print(json.dumps(motion(a.solver, a.radius, a.duration, a.set, a.every)))
+        print(json.dumps(motion(a.solver, a.radius, a.duration, a.set, a.every, a.stagger)))
         return
     print(json.dumps(profile(a.solver, a.radius, a.duration, a.set), indent=1))
 
