@@ -190,7 +190,9 @@ def motion(solver: str, radius: float, duration: float, extra: list[str], every:
     2 pi / sqrt(g k tanh(k D)), k = pi / L, is reported beside (``slosh_period``); and the decay rate of the
     mean |v| fitted over each second, log(v) = a - t / tau; with the character, per layer the spread (standard
     deviation) and mean of the particles' vertical displacement from the start [d], whose spread is the columns'
-    slip along themselves (``lattice_slip_stiffness``), and the mean horizontal displacement [d]. ``stagger`` > 0
+    slip along themselves (``lattice_slip_stiffness``), and the mean horizontal displacement [d]; over the second
+    half, per step, the walls' vertical load over the weight (mean, mean step-to-step change) and the solver's
+    iteration counts (``load_second_half``). ``stagger`` > 0
     raises every other column (a checkerboard in x, y) by stagger d before the first step: at 0.5 the bulk's
     columns stand half a spacing apart, the arrangement the slip heads for (its slip stiffness positive)."""
     from warp_sph.run.simulation import Simulation
@@ -222,7 +224,16 @@ def motion(solver: str, radius: float, duration: float, extra: list[str], every:
     L = float(hi[0] - lo[0])
     depth = float(layer.max() + 1) * d
     k = np.pi / L
-    frames, character = [], []
+    frames, character, steps = [], [], []
+    weight = m.fluid_count * m.particle_mass * G
+
+    def record(sim, dt):  # per step: the walls' vertical load over the weight, the solver's iterations
+        steps.append((float(sim.state.time), float(sim.get_field("boundary_force")[:, 2].astype(np.float64).sum())
+                      / weight, int(getattr(sim.solver, "last_iterations", 0))))
+
+    from warp_sph.core.step_graph import Stage
+
+    sim.graph.insert(Stage("wall_load", record, reads=("boundary_force",)))
     c0 = time.process_time()
     f = 0
     while sim.state.time < duration - 1e-9:
@@ -258,13 +269,18 @@ def motion(solver: str, radius: float, duration: float, extra: list[str], every:
             slope = float(np.polyfit(t[sel], np.log(mv[sel]), 1)[0])
             decay.append({"from": float(a), "to": float(a + 1.0), "rate_per_s": -slope,
                           "tau_s": -1.0 / slope if slope < 0.0 else None})
+    S = np.array(steps)
+    late = S[S[:, 0] >= 0.5 * duration - 1e-9] if len(S) else S
+    load = {"steps": int(len(late)), "mean": float(late[:, 1].mean()),
+            "step_to_step": float(np.abs(np.diff(late[:, 1])).mean()) if len(late) > 1 else 0.0,
+            "iterations": sorted({int(k) for k in late[:, 2]})} if len(late) else {}
     counts = {g: int(sel.sum()) for g, sel in groups.items()}
     counts["top_layer"] = int(top.sum())
     return {"solver": solver, "radius": radius, "duration": duration, "overrides": extra, "cpu_s": cpu,
             "fluid_particles": int(m.fluid_count), "counts": counts,
             "slosh_period": 2.0 * np.pi / np.sqrt(G * k * np.tanh(k * depth)),
             "lattice_slip_stiffness": lattice_slip_stiffness(m.smoothing.name, float(m.smoothing_length), d),
-            "decay": decay, "frames": frames, "character": character}
+            "decay": decay, "load_second_half": load, "frames": frames, "character": character}
 
 
 def main(argv=None) -> None:

@@ -86,7 +86,7 @@ def test_block_energy_share_of_exact_fields():
 def test_motion_record_of_two_frames():
     """The case's coarse tank (1440 particles, DFSPH) for two frames: one row per frame, the groups partition the
     fluid (400 wall-ring, 40 corner-column, 1000 interior particles; 144 in the top layer), the speed shares lie in
-    [0, 1], a character sample per frame with one slip figure per layer."""
+    [0, 1], a character sample per frame with one slip figure per layer, the walls' load per step near the weight."""
     r = motion("dfsph", 0.025, 2.0 / 24.0, [], every=1)
     assert r["counts"] == {"wall_ring": 400, "corner_columns": 40, "interior": 1000, "top_layer": 144}
     assert len(r["frames"]) == 2 and len(r["character"]) == 2
@@ -95,4 +95,7 @@ def test_motion_record_of_two_frames():
         assert 0.0 < f["share_top_layer"] < 1.0 and 0.0 < f["share_wall_ring_and_corners"] < 1.0
         assert 0.0 < f["mean"] < 0.1
     assert len(r["character"][-1]["slip_sd_dz_d"]) == 10
+    # the walls carry the water's weight over the second frame, step by step (DFSPH's continuous stop: no bounce)
+    load = r["load_second_half"]
+    assert load["steps"] > 3 and load["mean"] == pytest.approx(1.0, abs=0.03) and load["iterations"]
     assert r["slosh_period"] == pytest.approx(2 * np.pi / np.sqrt(9.81 * np.pi / 0.6 * np.tanh(np.pi / 0.6 * 0.5)))
