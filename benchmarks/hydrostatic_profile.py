@@ -2,6 +2,7 @@
 
     python -m benchmarks.hydrostatic_profile --solver dfsph --radius 0.0125 --duration 2
     python -m benchmarks.hydrostatic_profile --solver wcsph --radius 0.025 --set material.viscosity=0.2
+    python -m benchmarks.hydrostatic_profile --motion --solver pbf --duration 5   # what moves (``motion``)
 
 Steps the case's scene (``warp_sph.validation.cases``, as ``bench validation`` loads it) frame by frame with
 ``Simulation.advance_frame`` and reports, as one JSON object on stdout:
