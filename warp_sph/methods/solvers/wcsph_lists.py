@@ -2,11 +2,11 @@
 ``wcsph.py`` (it registers nothing).
 
 The lists hold every pair closer than H_s + s (s = skin [m]); a pair closer than H_s can be missing from them
-only once two particles closed in by more than s since the search, |d_i - d_j| > s with d_i = x_i - x_i(search).
-Both 2 max_i |d_i| and the diagonal of the bounding box of all d_i bound |d_i - d_j| for every pair, so the lists
-are kept while the smaller of the two is at most s: the first is the usual "no particle moved more than s / 2";
-the second allows more when the fluid moves one way (the dam break's collapse: a front running +x while the
-column falls, the box diagonal ~ 0.55 x 2 max |d|), and is never used where it is larger. A step then skips the cell sort and the cell walk: its density is a pass over the kept
+only once two particles closed in by more than s since the search, |d_i - d_j| > s with d_i = x_i - x_i(search)
+(d = 0 for the static wall particles). Both 2 max_i |d_i| and the diagonal of the bounding box of all d_i and of
+0 bound |d_i - d_j| for every pair, so the lists are kept while the smaller of the two is at most s: the first
+is the usual "no particle moved more than s / 2"; the second allows up to twice as long when the fluid moves one
+way (a block in free fall: the box's diagonal is max |d|), and is never used where it is larger. A step then skips the cell sort and the cell walk: its density is a pass over the kept
 lists (``kernels/density.py``, list variant; pairs beyond H_s add W = 0), and the force kernel reads the same
 lists (pairs beyond H_s filtered out). Otherwise the step sorts and walks as without a skin, over cells of
 H_s + s, and sums the density in the same walk. WCSPH's acoustic step moves a particle far less than a
@@ -83,7 +83,8 @@ class KeptLists:
                [self._drift_partial], device=m.device)
         b = self._drift_partial.numpy()[:chunks].max(axis=0).astype(np.float64)  # one read
         self.last_drift = float(b[0])
-        diagonal = float(np.linalg.norm(b[1:4] + b[4:7]))  # upper corner - lower corner
+        # the box of the d_i and of d = 0, the static walls' (a pair with a wall particle closes in by |d_i|)
+        diagonal = float(np.linalg.norm(np.maximum(b[1:4], 0.0) + np.maximum(b[4:7], 0.0)))
         self.last_spread = min(2.0 * self.last_drift, diagonal)
         return self.last_spread > self.skin
 
