@@ -91,3 +91,43 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
         particle_density_out[i] = rho
 
     return compute_density_pairs
+
+
+@wp.kernel(enable_backward=False)
+def displacement_bounds_chunks(
+    chunk: int,
+    count: int,
+    # In:
+    particle_x: wp.array(dtype=wp.vec3),
+    neighbor_x: wp.array(dtype=wp.vec3),
+    neighbor_slot: wp.array(dtype=wp.int32),
+    # Out:
+    partial_out: wp.array2d(dtype=float),
+):
+    """Per chunk of the first ``count`` particles, of the displacements d_i = x_i - x_i(search) [m]: the largest
+    |d_i| (column 0) and the bounding box of the d_i, its lower corner negated (columns 1-3) and its upper corner
+    (columns 4-6), so that the host's maximum over the chunks gives both; 1e30 everywhere when a particle is no
+    longer at the index it had at the search (neighbor_slot[i] != i: reordered, the lists' indices are stale).
+    Maxima only: the result does not depend on the thread count."""
+    k = wp.tid()
+    lo = k * chunk
+    hi = wp.min(lo + chunk, count)
+    drift = float(0.0)
+    neg_lo = wp.vec3(-1.0e30)
+    up = wp.vec3(-1.0e30)
+    for i in range(lo, hi):
+        d = particle_x[i] - neighbor_x[i]
+        if neighbor_slot[i] != i:
+            drift = 1.0e30
+            d = wp.vec3(1.0e30)
+            neg_lo = wp.vec3(1.0e30)
+        drift = wp.max(drift, wp.length(d))
+        neg_lo = wp.max(neg_lo, -d)
+        up = wp.max(up, d)
+    partial_out[k, 0] = drift
+    partial_out[k, 1] = neg_lo[0]
+    partial_out[k, 2] = neg_lo[1]
+    partial_out[k, 3] = neg_lo[2]
+    partial_out[k, 4] = up[0]
+    partial_out[k, 5] = up[1]
+    partial_out[k, 6] = up[2]

@@ -1,28 +1,32 @@
 """WCSPH's neighbour lists kept over several steps (``wcsph.search_skin`` > 0; Verlet lists), a helper of
 ``wcsph.py`` (it registers nothing).
 
-The lists hold every pair closer than H_s + s (s = skin [m]); while no particle has moved more than s / 2
-from where they were searched, no pair closer than H_s can be missing from them (two particles close in by
-at most s together). A step then skips the cell sort and the cell walk: its density is a pass over the kept
+The lists hold every pair closer than H_s + s (s = skin [m]); a pair closer than H_s can be missing from them
+only once two particles closed in by more than s since the search, |d_i - d_j| > s with d_i = x_i - x_i(search)
+(d = 0 for the static wall particles). Both 2 max_i |d_i| and the diagonal of the bounding box of all d_i and of
+0 bound |d_i - d_j| for every pair, so the lists are kept while the smaller of the two is at most s: the first
+is the usual "no particle moved more than s / 2"; the second allows up to twice as long when the fluid moves one
+way (a block in free fall: the box's diagonal is max |d|), and is never used where it is larger. A step then skips the cell sort and the cell walk: its density is a pass over the kept
 lists (``kernels/density.py``, list variant; pairs beyond H_s add W = 0), and the force kernel reads the same
 lists (pairs beyond H_s filtered out). Otherwise the step sorts and walks as without a skin, over cells of
 H_s + s, and sums the density in the same walk. WCSPH's acoustic step moves a particle far less than a
 spacing per step (the dam break at c_s = 11 sqrt(2 g H): at most 0.04 d), so one search serves several steps.
 
-The lists are searched anew when a particle drifted past s / 2 (one chunked maximum on the device, one host
-read per step), when the particles were reordered since (the frame's cell-order sort: a per-particle slot
+The lists are searched anew when that bound exceeds s (chunked maxima of |d_i| and of the box's corners on the
+device, one host read per step), when the particles were reordered since (the frame's cell-order sort: a per-particle slot
 field that is permuted with them, as PBF's, ``kernels/pbf_search.py``), when the particle count or the lists'
 capacities changed, with moving bodies (their particles move every step), and after a restore or a density
 refresh. Results differ from the per-step search (skin 0) only by the order of the sums (the cells are larger).
 """
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from ...core.launch import LIGHT_MIN_RANGE, launch
 from ...core.step_graph import Stage
 from ...kernels import wcsph_lists as _wcsph
-from ...kernels import pbf_search as _lists_reuse  # identity_slots, neighbor_drift_chunks: generic list-reuse checks
+from ...kernels import pbf_search as _lists_reuse  # identity_slots: generic list-reuse slots
 from ...kernels import reduction as _reduce
 from ...neighbors.cell_lists import simulation_neighbor_lists
 
@@ -52,7 +56,7 @@ class KeptLists:
         for name, dtype in (("particle_density", float), ("wcsph_neighbor_x", wp.vec3), ("wcsph_neighbor_slot", wp.int32)):
             sim.allocate(name, dtype)  # (per-particle fields: read from sim.fields, which emitters resize)
         chunks = max(1, -(-m.capacity // _reduce.REDUCE_CHUNK))
-        self._drift_partial = wp.zeros(chunks, dtype=float, device=m.device)
+        self._drift_partial = wp.zeros((chunks, 7), dtype=float, device=m.device)  # max |d|, box corners
         self._density_kernel = _wcsph.density_pairs_kernel(m.smoothing.name, sim.boundary_terms)
         self.pairs = None  # the step's ``PairCache`` (``wcsph_pairs``), rows as long as the fluid lists'
         self._built = None  # (fluid count, capacities) at the last search; None: search at the next step
@@ -60,6 +64,7 @@ class KeptLists:
         self.builds = 0
         self.steps = 0
         self.last_drift = 0.0
+        self.last_spread = 0.0  # bound on |d_i - d_j| at the last check [m] (``_must_search``)
 
     def invalidate(self) -> None:
         """Search at the next step (after a restore, or positions changed from outside)."""
@@ -73,11 +78,15 @@ class KeptLists:
         if n == 0:
             return False
         chunks = -(-n // _reduce.REDUCE_CHUNK)
-        launch(_lists_reuse.neighbor_drift_chunks, chunks,
+        launch(_wcsph.displacement_bounds_chunks, chunks,
                [_reduce.REDUCE_CHUNK, n, f["particle_x"], f["wcsph_neighbor_x"], f["wcsph_neighbor_slot"]],
                [self._drift_partial], device=m.device)
-        self.last_drift = float(self._drift_partial.numpy()[:chunks].max())
-        return self.last_drift > 0.5 * self.skin
+        b = self._drift_partial.numpy()[:chunks].max(axis=0).astype(np.float64)  # one read
+        self.last_drift = float(b[0])
+        # the box of the d_i and of d = 0, the static walls' (a pair with a wall particle closes in by |d_i|)
+        diagonal = float(np.linalg.norm(np.maximum(b[1:4], 0.0) + np.maximum(b[4:7], 0.0)))
+        self.last_spread = min(2.0 * self.last_drift, diagonal)
+        return self.last_spread > self.skin
 
     def run_neighbors(self, sim, dt) -> None:
         """Decide whether this step searches; if so, sort the fluid into the cells."""
@@ -98,6 +107,7 @@ class KeptLists:
             self._built = (m.fluid_count, nl.capacities)
             self.builds += 1
             self.last_drift = 0.0
+            self.last_spread = 0.0
         capacity = nl.capacities[0]
         if self.pairs is None or self.pairs.index.shape[1] != capacity:
             self.pairs = f["wcsph_pairs"] = pair_cache(m.capacity, capacity, m.device)
@@ -113,8 +123,9 @@ class KeptLists:
         s = self.sim.model.spacing
         return (Stage("neighbors", self.run_neighbors, reads=("particle_x",), updates=kept[1:],
                       writes=("neighbor_cells",),
-                      doc=f"when a particle drifted > {0.5 * self.skin / s:.3g} d since the last search (or the "
-                          f"particles were reordered): fluid sorted into cells of {self.nl.search_radius:.4g} m"),
+                      doc=f"when two particles may have closed in by > {self.skin / s:.3g} d since the last search "
+                          f"(min(2 max |d|, the displacements' box diagonal); or the particles were reordered): fluid "
+                          f"sorted into cells of {self.nl.search_radius:.4g} m"),
                 Stage("density", self.run_density, reads=("neighbor_cells", "particle_x") + boundary_reads + moving,
                       updates=kept, writes=("particle_density", "wcsph_pairs"),
                       doc=f"neighbour lists within H_s + {self.skin / s:.3g} d (capacities {self.nl.capacities}) "
