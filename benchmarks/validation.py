@@ -92,6 +92,14 @@ def ensemble_figures(figures: dict, members: list[dict]) -> tuple[dict, dict]:
     return out, met
 
 
+def member_figures(figures: dict) -> dict:
+    """What an ensemble keeps of one run's Lobovsky figures: per sensor its peak and time, and the steadier
+    figures beside them (the arrival's error, the mean over the curve's peak span, the 4 ms peak)."""
+    keep = ("rise_time_error", "span_mean_error", "peak_4ms_error", "kernel_peak_error")
+    return {s: {"peak": v["sim_peak"], "time": v["sim_time"], **{k: v.get(k) for k in keep}}
+            for s, v in figures.items() if isinstance(v, dict)}
+
+
 def run_member(case: Case, solver: str, resolution: str, radius: float, out_root: Path, seed: int, jitter: float,
                device=None, extra=None) -> dict:
     """One perturbed run of an ensemble (every fluid block's ``jitter`` [d] and ``seed``) into
@@ -109,9 +117,7 @@ def run_member(case: Case, solver: str, resolution: str, radius: float, out_root
         info = runner.run(scene, out=folder, overwrite=True, progress=False, device=device, log=lambda *a: None)
         out.update(status=info["status"], cpu_time=time.process_time() - c0)
         figures, _, _ = evaluate(case.name, folder, info)
-        for s, v in figures.items():
-            if isinstance(v, dict):
-                out[s] = {"peak": v["sim_peak"], "time": v["sim_time"]}
+        out.update(member_figures(figures))
     except Exception as exc:  # a failed run is kept as one; the ensemble's statistics use the completed ones
         out["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
     return out
@@ -123,7 +129,7 @@ def run_ensemble(rec: dict, case: Case, solver: str, resolution: str, radius: fl
     lattice as it is) and runs - 1 perturbed ones (seeds 1 ..)."""
     f = rec.get("figures") or {}
     members = [{"seed": 0, "jitter": 0.0, "status": rec["status"], "cpu_time": rec.get("cpu_time")}]
-    members[0].update({s: {"peak": v["sim_peak"], "time": v["sim_time"]} for s, v in f.items() if isinstance(v, dict)})
+    members[0].update(member_figures(f))
     for seed in range(1, runs):
         m = run_member(case, solver, resolution, radius, out_root, seed, jitter, device=device, extra=extra)
         m["jitter"] = jitter
