@@ -254,8 +254,9 @@ def ensemble_rows(recs: list[dict], fmt) -> list[str]:
             t2 = st.get("table2")
             if t2:
                 lo, hi = t2["band"]
-                cells.append(f"{fmt(st['median_peak'])} vs {fmt(t2['median'])} ({100 * t2['median_error']:+.0f} %, "
-                             f"{'in' if t2['in_band'] else 'outside'} the band); {fmt(st['peak_min'])}-"
+                cells.append(f"{fmt(st['median_peak'])} vs {fmt(t2['median'])} ({100 * t2['median_error']:+.1f} %, "
+                             f"{'in' if t2['in_band'] else 'outside'} the band; the curve's {fmt(st['exp_peak'])}: "
+                             f"{100 * st['peak_error']:+.0f} %); {fmt(st['peak_min'])}-"
                              f"{fmt(st['peak_max'])} ({100 * st['spread']:.0f} %) vs {fmt(lo)}-{fmt(hi)} "
                              f"({100 * t2['exp_spread']:.0f} %); T {fmt(st['median_time'])} vs {fmt(st['exp_time'])} "
                              f"({100 * st['time_error']:+.1f} %)")
@@ -272,7 +273,7 @@ def ensemble_rows(recs: list[dict], fmt) -> list[str]:
         for s, ok in (r.get("ensemble_goals_met") or {}).items():
             st = r["ensemble"]["sensors"][s]
             perr = st["table2"]["median_error"] if "table2" in st else st["peak_error"]
-            miss = [f"median peak {100 * perr:+.0f} %"] if not ok.get("peak") else []
+            miss = [f"median peak {100 * perr:+.1f} %"] if not ok.get("peak") else []
             miss += [f"median time {100 * st['time_error']:+.1f} %"] if not ok.get("time") else []
             if miss:
                 bad.append(f"{r['solver']} {r['resolution']} {s}: " + ", ".join(miss)
@@ -287,10 +288,20 @@ def ensemble_rows(recs: list[dict], fmt) -> list[str]:
     return lines
 
 
+def member_median(rec: dict, sensor: str, key: str) -> float | None:
+    """The median over an ensemble's completed runs of one of their kept figures (``member_figures``), None if
+    no run has it."""
+    vals = [m[sensor][key] for m in rec["ensemble"].get("members") or []
+            if m.get("status") == "completed" and sensor in m and m[sensor].get(key) is not None]
+    return float(np.median(vals)) if vals else None
+
+
 def refinement(recs: list[dict]) -> list[str]:
-    """Per solver and sensor with an ensemble at both resolutions: the median peak's error against Table 2's median
-    and the median time's against the curve's, coarse -> fine, and whether each moves toward the experiment."""
+    """Per solver and sensor with an ensemble at both resolutions: the median peak's error against Table 2's median,
+    the median time's against the curve's, and the medians of the steadier figures (the mean over the curve's peak
+    span, the arrival), coarse -> fine, and whether each moves toward the experiment."""
     by = {(r["solver"], r["resolution"]): r["ensemble"]["sensors"] for r in recs}
+    rec = {(r["solver"], r["resolution"]): r for r in recs}
     out = []
     for solver in dict.fromkeys(r["solver"] for r in recs):
         c, f = by.get((solver, "coarse")), by.get((solver, "fine"))
@@ -304,9 +315,15 @@ def refinement(recs: list[dict]) -> list[str]:
                 return st["table2"]["median_error"] if "table2" in st else st["peak_error"]
 
             parts = []
-            for name, a, b in (("peak", perr(c[s]), perr(f[s])), ("time", c[s]["time_error"], f[s]["time_error"])):
-                parts.append(f"{name} {100 * a:+.{0 if name == 'peak' else 1}f} -> {100 * b:+.{0 if name == 'peak' else 1}f} % "
-                             f"({'toward' if abs(b) < abs(a) else 'away'})")
+            pairs = [("peak", perr(c[s]), perr(f[s])), ("time", c[s]["time_error"], f[s]["time_error"])]
+            for key, name in (("span_mean_error", "peak-span mean"), ("rise_time_error", "arrival")):
+                a, b = (member_median(rec[(solver, res)], s, key) for res in ("coarse", "fine"))
+                if a is not None and b is not None and (key != "span_mean_error" or s != "sensor1"):
+                    pairs.append((name, a, b))  # (sensor 1's peak span is one point of the curve)
+            for name, a, b in pairs:
+                digits = 0 if name in ("peak", "peak-span mean") else 1
+                parts.append(f"{name} {100 * a:+.{digits}f} -> {100 * b:+.{digits}f} % "
+                             f"({'toward' if abs(b) < abs(a) else 'away' if abs(b) > abs(a) else 'unchanged'})")
             out.append(f"{solver} {s}: " + ", ".join(parts))
     return out
 

@@ -67,18 +67,21 @@ def test_ensemble_goals_and_refinement_in_the_report():
     recs = []
     for res, factor in (("coarse", 1.3), ("fine", 1.05)):
         members = [{"status": "completed", **{s: {"peak": figures[s]["table2"]["median"] * factor * x,
-                                                  "time": figures[s]["exp_time"] * (1.0 + 0.1 * (x - 1.0))}
+                                                  "time": figures[s]["exp_time"] * (1.0 + 0.1 * (x - 1.0)),
+                                                  "span_mean_error": (factor - 1.0) * x, "rise_time_error": 0.02 * x}
                                               for s in V.LOBOVSKY_SENSORS}} for x in (0.8, 1.0, 1.2)]
         stats, met = V.ensemble_figures(figures, members)
         recs.append({"solver": "dfsph", "resolution": res, "ensemble": {"runs": 3, "completed": 3, "jitter": 1e-4,
-                                                                       "cpu_time": 1.0, "sensors": stats},
+                                                                       "cpu_time": 1.0, "sensors": stats,
+                                                                       "members": members},
                      "ensemble_goals_met": met})
         assert all(m["time"] for m in met.values())
         assert all(m["peak"] for m in met.values()) == (res == "fine")  # median off by 30 % (coarse), 5 % (fine)
     text = "\n".join(VR.ensemble_rows(recs, lambda v, k=1: f"{v * k:.3g}"))
-    assert "Ensemble misses" in text and "dfsph coarse sensor1: median peak +30 %" in text
+    assert "Ensemble misses" in text and "dfsph coarse sensor1: median peak +30.0 %" in text
     assert "dfsph fine" not in text.split("Ensemble misses")[1].split("Refining")[0]
-    assert "dfsph sensor1: peak +30 -> +5 % (toward)" in text
+    assert "dfsph sensor1: peak +30 -> +5 % (toward), time +0.0 -> +0.0 % (unchanged), arrival +2.0 -> +2.0 % (unchanged)" in text
+    assert "dfsph sensor3: peak +30 -> +5 % (toward), time +0.0 -> +0.0 % (unchanged), peak-span mean +30 -> +5 % (toward)" in text
 
 
 def _tank(jitter=None, seed=None):
