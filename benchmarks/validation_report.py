@@ -52,7 +52,9 @@ def plot_case(case: str, records: list[dict], path: Path) -> Path | None:
                     ax.errorbar([st["median_time"]], [st["median_peak"]],
                                 yerr=[[st["median_peak"] - st["peak_min"]], [st["peak_max"] - st["median_peak"]]],
                                 fmt="D" if r["resolution"] == "fine" else "d", ms=5, capsize=3, color=f"C{i % 10}",
-                                mfc="none" if r["resolution"] != "fine" else f"C{i % 10}", zorder=11)
+                                mfc="none" if r["resolution"] != "fine" else f"C{i % 10}", zorder=11,
+                                label=f"{r['solver']} {r['resolution']}: median of {st['runs']} runs' peaks (bar: "
+                                      "their range)" if key == LOBOVSKY_SENSORS[0] else None)
                     t2 = st.get("table2") or t2
                     texp = st["exp_time"]
             if t2:
