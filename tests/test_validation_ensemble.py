@@ -148,6 +148,8 @@ def test_bench_refuses_bad_input_with_exit_2(tmp_path, capsys):
         assert not (tmp_path / "r").exists()  # before any run
 
 
-def test_scene_jitter_of_d_or_more_is_refused():
-    with pytest.raises(SceneError, match=r"fluid\[0\]\.jitter"):
-        _tank(1.0, 0)
+@pytest.mark.parametrize("jitter, seed, key", [(1.0, 0, "jitter"), (-0.1, 0, "jitter"), (0.1, -1, "seed")])
+def test_scene_jitter_of_d_or_more_or_a_negative_seed_is_refused(jitter, seed, key):
+    with pytest.raises(SceneError, match=rf"fluid\[0\]\.{key}") as e:
+        _tank(jitter, seed)
+    assert "\n" not in str(e.value)

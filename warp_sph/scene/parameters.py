@@ -193,7 +193,8 @@ _TAIL = (
     _P("fluid[].jitter", "float", "-", 0.0, "seeded perturbation of the start, a fraction of d: each coordinate of "
        "each particle of the block moves by a uniform draw in [-jitter d, +jitter d] (an ensemble of runs of a "
        "chaotic flow, docs/validation.md); 0: the lattice as it is", ge=0.0, lt=1.0),
-    _P("fluid[].seed", "int", "-", 0, "seed of fluid[].jitter's draws (the same seed, the same start bit for bit)"),
+    _P("fluid[].seed", "int", "-", 0, "seed of fluid[].jitter's draws (the same seed, the same start bit for bit)",
+       ge=0),
     # obstacles
     _P("obstacles", "tables", "-", [], "static obstacles ([[obstacles]]), sampled as boundary particles",
        default_text="none"),
