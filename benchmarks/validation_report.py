@@ -32,7 +32,8 @@ def plot_case(case: str, records: list[dict], path: Path) -> Path | None:
     else:
         panels = [("floor", None, "t [s]", "p / (ρ0 g (h - z)), floor", None),
                   ("middle", None, "t [s]", "p / (ρ0 g (h - z)), mid-depth", None)]
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 3.8), squeeze=False)
+    below = case == "lobovsky"  # its legend (a line per run, an ensemble marker per run) goes under the panels
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 5.0 if below else 3.8), squeeze=False)
     for ax, (key, data, xl, yl, xlim) in zip(axes[0], panels):
         if data:
             te, ve, cite = E.load_series(data)
@@ -66,9 +67,13 @@ def plot_case(case: str, records: list[dict], path: Path) -> Path | None:
             ax.set_xlim(*xlim)
         ax.set_title(key, fontsize=9)
         ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
     fig.suptitle(CASES[case].title, fontsize=10)
-    fig.tight_layout()
+    if below:
+        fig.legend(*axes[0][0].get_legend_handles_labels(), loc="lower center", ncol=3, fontsize=7)
+        fig.tight_layout(rect=(0.0, 0.2, 1.0, 1.0))
+    else:
+        axes[0][0].legend(fontsize=7)
+        fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=100)
     plt.close(fig)
