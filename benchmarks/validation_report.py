@@ -59,7 +59,8 @@ def plot_case(case: str, records: list[dict], path: Path) -> Path | None:
                     t2 = st.get("table2") or t2
                     texp = st["exp_time"]
             if t2:
-                ax.errorbar([texp], [t2["median"]], yerr=[[t2["median"] - t2["band"][0]], [t2["band"][1] - t2["median"]]],
+                lo, hi = t2["band"]
+                ax.errorbar([texp], [t2["median"]], yerr=[[t2["median"] - lo], [hi - t2["median"]]],
                             fmt="ks", ms=5, capsize=4, zorder=12, label="Table 2: median, 2.5-97.5 % of 100 runs")
         ax.set_xlabel(xl)
         ax.set_ylabel(yl)
