@@ -400,8 +400,9 @@ def cmd_validation(args, argv: list[str], log=print) -> int:
 
         raise WarpSphError(f"bench validation: --radius {args.radius!r}: expected a particle radius > 0 [m]")
     V.check_scenes(cases, solvers, resolutions, extra=args.set, radius=args.radius)  # bad --set: one line, exit 2
+    ensemble = V.ensemble_settings(args.ensemble, args.jitter)  # bad --ensemble / --jitter: one line, exit 2
     records = V.run_validation(cases, solvers, resolutions, Path(args.runs), device=args.device, extra=args.set, log=log,
-                               radius=args.radius)
+                               radius=args.radius, ensemble=ensemble)
     for r in records:
         r.update(host=host_info(), versions=versions(), date=now())
     out = _save("validation", records, args, argv, invocation, log)

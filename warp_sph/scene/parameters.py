@@ -190,6 +190,11 @@ _TAIL = (
     _P("fluid[].velocity", "vec3", "m/s", (0.0, 0.0, 0.0), "initial velocity"),
     _P("fluid[].spacing_scale", "float", "-", 1.0, "lattice spacing / d; < 1 starts the block "
        "over-dense (compressed)", ge=0.5, le=2.0),
+    _P("fluid[].jitter", "float", "-", 0.0, "seeded perturbation of the start, a fraction of d: each coordinate of "
+       "each particle of the block moves by a uniform draw in [-jitter d, +jitter d] (an ensemble of runs of a "
+       "chaotic flow, docs/validation.md); 0: the lattice as it is", ge=0.0, lt=1.0),
+    _P("fluid[].seed", "int", "-", 0, "seed of fluid[].jitter's draws (the same seed, the same start bit for bit)",
+       ge=0),
     # obstacles
     _P("obstacles", "tables", "-", [], "static obstacles ([[obstacles]]), sampled as boundary particles",
        default_text="none"),

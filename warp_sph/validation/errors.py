@@ -13,6 +13,8 @@ peak_shape     on the experiment's curve, the span within the peak goal of its m
                peak) and the mean over that span, each against the simulation's.
 peak_statistics  one simulated peak against the experiment's per-run peak statistics (Lobovsky Table 2: median,
                2.5-97.5 % band of 100 runs).
+ensemble_statistics  N runs' peaks and times of one sensor (starts perturbed below the resolution): their medians
+               against the curve and Table 2's median, their range beside the experiment's band.
 gauge_rms      RMS of (h_sim(T_i) - h_i) over the experimental points in the simulated span, in the series' units
                (heights over the initial height: an absolute figure, as h -> 0 makes relative errors meaningless).
 """
@@ -187,3 +189,27 @@ def gauge_rms(t_sim, h_sim, t_exp, h_exp) -> dict:
         return {"rms": None, "points": 0}
     err = pred[ok] - np.asarray(h_exp, dtype=np.float64)[ok]
     return {"rms": float(np.sqrt(np.mean(err * err))), "points": int(ok.sum())}
+
+
+def ensemble_statistics(peaks, times, exp_peak: float, exp_time: float, median: float | None = None,
+                        low: float | None = None, high: float | None = None) -> dict:
+    """One sensor's peaks and their times from N runs of a chaotic case (their starts perturbed below the
+    resolution), against the experiment: the experiment's own figure is a statistic of repeated runs (Lobovsky
+    Table 2: the median of 100 runs' peaks and their 2.5-97.5 % band), so one run is one sample of it.
+    median_peak, median_time   the medians over the runs (numpy.median: the mean of the middle two for even N);
+    peak_min, peak_max         the simulated range; spread = (max - min) / median_peak;
+    peak_error, time_error     median_peak / exp_peak - 1, median_time / exp_time - 1 (the digitised curve);
+    table2                     ``peak_statistics`` of median_peak against the experiment's median and band
+                               (when given), with the band's own relative width exp_spread = (high - low) / median."""
+    p, t = np.asarray(peaks, dtype=np.float64), np.asarray(times, dtype=np.float64)
+    if p.size == 0 or p.shape != t.shape:
+        raise ValueError(f"ensemble_statistics: expected as many times as peaks (>= 1), got {p.size} and {t.size}")
+    med, tmed = float(np.median(p)), float(np.median(t))
+    out = {"runs": int(p.size), "peaks": [float(v) for v in p], "times": [float(v) for v in t],
+           "median_peak": med, "median_time": tmed, "peak_min": float(p.min()), "peak_max": float(p.max()),
+           "spread": float((p.max() - p.min()) / med), "peak_error": float(med / exp_peak - 1.0),
+           "time_error": float(tmed / exp_time - 1.0), "exp_peak": float(exp_peak), "exp_time": float(exp_time)}
+    if median is not None:
+        out["table2"] = peak_statistics(med, median, low, high)
+        out["table2"]["exp_spread"] = float((high - low) / median)
+    return out
