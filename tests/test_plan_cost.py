@@ -93,3 +93,15 @@ def test_the_whole_runs_step_cost_ratio(tiny, measured, applied):  # noqa: F811
     # without a whole run there is nothing to say and nothing applied
     m0 = fit_models(_cal(*window), "wcsph", tiny)
     assert m0.cost_ratio == 1.0 and m0.cost_ratio_measured is None and cost_notes(m0, c) == []
+
+
+def test_the_count_law_takes_the_points_whose_fluid_splits(tiny):  # noqa: F811
+    """A dam break's coarse points pass the thread split on their walls (216 fluid with 2,022 wall particles): their
+    cost per fluid particle is mostly the walls' and the steps' overhead, so the count law takes only the points
+    whose fluid count reaches the split; with one such count there is no law."""
+    walls = [_point("wcsph", _radius(n), None, fluid=n, boundary=3000, step_time=3e-3 + 1e-6 * n) for n in (216, 512)]
+    fine = [_point("wcsph", _radius(n), None, fluid=n, boundary=6000, step_time=2e-6 * n) for n in (4000, 8000)]
+    m = fit_models(_cal(*walls, *fine, split=2048), "wcsph", tiny)
+    assert m.count_fluid == 8000 and m.count_law.measured == pytest.approx(1.0)
+    assert m.count_law(32000) == pytest.approx(2e-6 * 32000)
+    assert fit_models(_cal(*walls, fine[0], split=2048), "wcsph", tiny).count_law is None

@@ -11,8 +11,8 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
   whose launches split over the threads from 2 x 1,024 indices (``core.launch``), a target at or above that count
   takes the step's cost fitted to the calibration points there alone, once two counts or more lie there
   (``step_time_split``: a line across both regimes need not hold beyond them); beyond the largest calibrated count
-  (CPU, two counts or more above the split) the cost is at least that count's measured cost times (Nf / Nf_max)^b,
-  b measured over the largest counts and clipped to COUNT_EXPONENT_RANGE (``fit.fit_count_law``: the per-particle
+  (CPU, two fluid counts or more at or above the split) the cost is at least that count's measured cost times
+  (Nf / Nf_max)^b, b measured over the largest counts and clipped to COUNT_EXPONENT_RANGE (``fit.fit_count_law``: the per-particle
   cost stops falling beyond the calibrated counts); and the step's cost over the whole run is the calibration
   window's times the whole-run profile's cost ratio C (its steady step time over the same radius's calibration
   point's; ``whole_run_cost_ratio``);
@@ -210,8 +210,10 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     split_cost = (fit_step_cost([p.fluid for p in above], [max(p.boundary, 0) for p in above],
                                 [p.step_time for p in above])
                   if len({p.particles for p in above}) >= 2 and len(above) < len(pts) else None)
-    count_law = fit_count_law([p.fluid for p in above], [p.step_time for p in above], COUNT_EXPONENT_RANGE,
-                              COUNT_FIT_POINTS) if above else None
+    # the count law from the points whose fluid alone splits (a dam break's coarse points pass the split on their walls)
+    split_fluid = [p for p in pts if split and p.fluid >= split]
+    count_law = fit_count_law([p.fluid for p in split_fluid], [p.step_time for p in split_fluid], COUNT_EXPONENT_RANGE,
+                              COUNT_FIT_POINTS) if split_fluid else None
     measured_ratio = whole_run_cost_ratio(pts, profile, solver, t0) if profile is not None else None
     return SolverModel(
         solver=solver,
@@ -231,7 +233,7 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents, tolerance_particles=pair_particles,
         profile=_profile(profile, solver, t0) if profile is not None else [],
         split_particles=split if split_cost is not None else 0, step_time_split=split_cost,
-        count_law=count_law, count_fluid=max(p.fluid for p in above) if count_law is not None else 0,
+        count_law=count_law, count_fluid=max(p.fluid for p in split_fluid) if count_law is not None else 0,
         cost_ratio=applied_cost_ratio(measured_ratio), cost_ratio_measured=measured_ratio)
 
 
