@@ -117,14 +117,16 @@ def run_detail(p, info: dict) -> dict:
     errors = [float(f["density_error_mean"]) for f in advanced]
     fc = m.calibrated_frames
     frames = len(errors)
-    r_run = (sum(errors[fc:]) / len(errors[fc:])) / (sum(errors[:fc]) / fc) if frames > fc >= 1 and sum(errors[:fc]) > 0 else None
+    r_run = None
+    if frames > fc >= 1 and sum(errors[:fc]) > 0:
+        r_run = (sum(errors[fc:]) / len(errors[fc:])) / (sum(errors[:fc]) / fc)
     actual_step = float(info["sim_time_per_step_ms"]) * 1e-3
     largest = max((q for q in p.points if q["solver"] == c.solver and not q["whole_run"] and q["status"] == "completed"
                    and q["tolerance"] == c.tolerance), key=lambda q: q["fluid"], default=None)
     return {"step_time": {"predicted": step, "actual": actual_step},
             "per_fluid_particle_step": {"predicted": step / c.fluid_particles,
                                         "actual": actual_step / max(int(info["fluid_particles"]), 1),
-                                        "largest_calibrated": (largest["step_time"] / largest["fluid"]) if largest else None},
+                                        "largest_calibrated": largest["step_time"] / largest["fluid"] if largest else None},
             "sweeps": {"largest_calibrated": largest["sweeps"] if largest else None, "actual": solver_sweeps(advanced)},
             "cost_ratio": {"measured": m.cost_ratio_measured, "applied": m.cost_ratio},
             "count_law_exponent": m.count_law.exponent if m.count_law is not None else None,
