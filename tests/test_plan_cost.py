@@ -90,6 +90,9 @@ def test_the_whole_runs_step_cost_ratio(tiny, measured, applied):  # noqa: F811
     notes = cost_notes(m, c)
     assert len(notes) == 1 and f"{measured:.3g}x the calibration window's" in notes[0]
     assert ("applied: x" in notes[0]) == (applied != 1.0)
+    # against the process's first calibration run (its steady steps are not a reference): no ratio
+    first = replace(window[0], first_in_process=True)
+    assert fit_models(_cal(first, window[1]), "wcsph", tiny, profile=_cal(whole)).cost_ratio_measured is None
     # without a whole run there is nothing to say and nothing applied
     m0 = fit_models(_cal(*window), "wcsph", tiny)
     assert m0.cost_ratio == 1.0 and m0.cost_ratio_measured is None and cost_notes(m0, c) == []

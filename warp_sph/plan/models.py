@@ -57,8 +57,8 @@ COUNT_EXPONENT_RANGE = (1.0, 1.25)
 COUNT_FIT_POINTS = 3
 #: the whole run's step cost over the calibration window's (C, ``whole_run_cost_ratio``): within COST_RATIO_NOISE of 1
 #: it is taken as 1, and it is clipped to COST_RATIO_RANGE. Measured at the coarsest radius (2.2k particles, 2 shared
-#: cores, eight plans): PBF 0.96-1.07, DFSPH 0.76-1.46 (the DFSPH window point being the process's first run): at
-#: that count the launches' overhead dominates and the ratio is mostly the machine's load
+#: cores, eight plans): PBF 0.96-1.07, DFSPH 0.76-1.46 where its window point was the process's first run (then not
+#: used, ``whole_run_cost_ratio``): at that count the launches' overhead dominates and the ratio is mostly noise
 COST_RATIO_NOISE = 0.1
 COST_RATIO_RANGE = (0.8, 1.5)
 
@@ -240,12 +240,15 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
 def whole_run_cost_ratio(pts, profile: Calibration, solver: str, t0) -> float | None:
     """C: the steady step time of ``solver``'s whole run (``profile``) over that of its calibration point in ``pts``
     at the same radius (None without both). The steps' number over the run is modelled apart (``StepRate``); C is
-    what each step costs later in the run against the calibration window (a dam break's splash: more neighbours)."""
+    what each step costs later in the run against the calibration window (a dam break's splash: more neighbours).
+    Not against the process's first calibration run (None then): its steady steps measured 0.76-1.46x the whole run's
+    (DFSPH, six plans), the other runs' 0.96-1.07x (PBF, four)."""
     whole = profile.for_solver(solver, t0)
     if not whole:
         return None
     w = max(whole, key=lambda p: p.particle_radius)
-    same = [p for p in pts if abs(p.particle_radius / w.particle_radius - 1.0) <= 1e-6 and p.step_time > 0]
+    same = [p for p in pts if abs(p.particle_radius / w.particle_radius - 1.0) <= 1e-6 and p.step_time > 0
+            and not p.first_in_process]
     if not same or w.step_time <= 0:
         return None
     return float(w.step_time / same[0].step_time)
