@@ -135,7 +135,7 @@ def fit_step_cost(fluid, boundary, t) -> StepCost:
     return StepCost(best.get("intercept", 0.0), best.get("fluid", 0.0), best.get("boundary", 0.0))
 
 
-def fit_count_law(fluid, t, exponent_range=(1.0, 1.25), points: int = 3) -> PowerLaw | None:
+def fit_count_law(fluid, t, exponent_range=(1.0, 1.1), points: int = 3) -> PowerLaw | None:
     """The step's cost beyond the largest calibrated count: t = c Nf^b through the point of the largest fluid count
     ``fluid`` [particles] (its measured step time ``t`` [s]), b the least-squares exponent of log t against log Nf
     over the ``points`` largest counts, clipped to ``exponent_range`` (None with fewer than two counts). Anchored at
