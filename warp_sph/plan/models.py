@@ -53,8 +53,9 @@ ERROR_FIT_POINTS = 3
 TOLERANCE_LADDER = 3
 #: the exponent b of the step's cost ~ Nf^b beyond the largest calibrated count is clipped to this range, fitted to the
 #: COUNT_FIT_POINTS largest counts above the thread split (``fit.fit_count_law``). Measured: 0.59-0.91 over the
-#: calibrated counts, 1.0-1.05 from the largest calibrated count to the whole run's 3-5x that count (dam break PBF,
-#: hydrostatic DFSPH); 1.19 once from a calibration point slowed by the machine's load (hydrostatic, load 3-6)
+#: calibrated counts, 0.93-1.09 from the largest calibrated count to the whole run's 3-5x that count (dam break PBF,
+#: hydrostatic DFSPH; the runs' wall time less set-up per step); 1.19 once from a calibration point slowed by the
+#: machine's load (hydrostatic, load 3-6)
 COUNT_EXPONENT_RANGE = (1.0, 1.1)
 COUNT_FIT_POINTS = 3
 #: the whole run's step cost over the calibration window's (C, ``whole_run_cost_ratio``): within COST_RATIO_NOISE of 1
