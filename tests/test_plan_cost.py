@@ -73,8 +73,9 @@ def test_the_cost_per_particle_stops_falling_beyond_the_largest_count(tiny):  # 
 def test_the_whole_runs_step_cost_ratio(tiny, measured, applied):  # noqa: F811
     """The whole-run profile (the scene's duration at the coarsest radius) takes ``measured`` x the calibration
     point's steady step time at that radius: the wall prediction's steps cost that much more (within 10 % of 1 it is
-    timing noise and taken as 1; clipped to 0.8-1.5), the plan's notes say so."""
-    window = [_point("wcsph", 0.03, None), _point("wcsph", 0.02, None)]
+    timing noise and taken as 1; clipped to 0.8-1.5; not applied against a point whose steps took under 0.5 s), the
+    plan's notes say so."""
+    window = [_point("wcsph", 0.03, None, step_time=0.02), _point("wcsph", 0.02, None, step_time=0.05)]  # 0.6 s, 2.25 s
     whole = _point("wcsph", 0.03, None, frames=12, steps=120, step_time=window[0].step_time * measured,
                    density_errors=[1e-3] * 12)
     m = fit_models(_cal(*window), "wcsph", tiny, profile=_cal(whole))
@@ -90,6 +91,12 @@ def test_the_whole_runs_step_cost_ratio(tiny, measured, applied):  # noqa: F811
     notes = cost_notes(m, c)
     assert len(notes) == 1 and f"{measured:.3g}x the calibration window's" in notes[0]
     assert ("applied: x" in notes[0]) == (applied != 1.0)
+    # against a calibration point whose steps took under 0.5 s: measured and noted, not applied (a sample of the load)
+    short = replace(window[0], step_time=0.01)                                               # 30 steps: 0.3 s
+    ms = fit_models(_cal(short, window[1]), "wcsph", tiny, profile=_cal(replace(whole, step_time=0.01 * measured)))
+    assert ms.cost_ratio_measured == pytest.approx(measured) and ms.cost_ratio == 1.0
+    assert abs(measured - 1.0) <= 0.1 or "not applied: the calibration point's steps took 0.3 s, under 0.5 s" in \
+        cost_notes(ms, c)[0]
     # against the process's first calibration run (its steady steps are not a reference): no ratio
     first = replace(window[0], first_in_process=True)
     assert fit_models(_cal(first, window[1]), "wcsph", tiny, profile=_cal(whole)).cost_ratio_measured is None

@@ -30,6 +30,7 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, replace
 
 from .calibrate import Calibration, scene_tolerance
@@ -64,6 +65,10 @@ COUNT_FIT_POINTS = 3
 #: used, ``whole_run_cost_ratio``): at that count the launches' overhead dominates and the ratio is mostly noise
 COST_RATIO_NOISE = 0.1
 COST_RATIO_RANGE = (0.8, 1.5)
+#: C is applied only where the calibration point's steps took at least this long [s]: a shorter window is a sample of
+#: the machine's load, not a timing (measured, load 4.3-5.3: PBF's C 0.59 and 1.22 from windows of 27 steps, 0.06-0.08
+#: s; the whole runs' wall time then 1.93x and 0.88x the prediction with C, 1.55x and 1.07x without)
+COST_RATIO_MIN_WINDOW = 0.5
 
 @dataclass
 class SolverModel:
@@ -95,6 +100,7 @@ class SolverModel:
     count_fluid: int = 0                         # the largest calibrated fluid count above the split
     cost_ratio: float = 1.0                      # C applied: the whole run's step cost over the calibration window's
     cost_ratio_measured: float | None = None     # C as measured (None: no whole run of this solver)
+    cost_ratio_window: float = 0.0               # [s] the steps' time of the calibration point C was measured against
 
     def step_cost(self, fluid: int, boundary: int) -> float:
         """[s] one step at the scene's tolerance over the whole run: above the thread split from the points above it
@@ -217,7 +223,7 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     split_fluid = [p for p in pts if split and p.fluid >= split]
     count_law = fit_count_law([p.fluid for p in split_fluid], [p.step_time for p in split_fluid], COUNT_EXPONENT_RANGE,
                               COUNT_FIT_POINTS) if split_fluid else None
-    measured_ratio = whole_run_cost_ratio(pts, profile, solver, t0) if profile is not None else None
+    measured_ratio, window = whole_run_cost_ratio(pts, profile, solver, t0) if profile is not None else (None, 0.0)
     return SolverModel(
         solver=solver,
         steps_per_second=rate,
@@ -237,30 +243,32 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         profile=_profile(profile, solver, t0) if profile is not None else [],
         split_particles=split if split_cost is not None else 0, step_time_split=split_cost,
         count_law=count_law, count_fluid=max(p.fluid for p in split_fluid) if count_law is not None else 0,
-        cost_ratio=applied_cost_ratio(measured_ratio), cost_ratio_measured=measured_ratio)
+        cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
+        cost_ratio_window=window)
 
 
-def whole_run_cost_ratio(pts, profile: Calibration, solver: str, t0) -> float | None:
-    """C: the steady step time of ``solver``'s whole run (``profile``) over that of its calibration point in ``pts``
-    at the same radius (None without both). The steps' number over the run is modelled apart (``StepRate``); C is
-    what each step costs later in the run against the calibration window (a dam break's splash: more neighbours).
-    Not against the process's first calibration run (None then): its steady steps measured 0.76-1.46x the whole run's
-    (DFSPH, six plans), the other runs' 0.96-1.07x (PBF, four)."""
+def whole_run_cost_ratio(pts, profile: Calibration, solver: str, t0) -> tuple:
+    """(C, the calibration point's steps' time [s]): C the steady step time of ``solver``'s whole run (``profile``)
+    over that of its calibration point in ``pts`` at the same radius. The steps' number over the run is modelled
+    apart (``StepRate``); C is what each step costs later in the run against the calibration window (a dam break's
+    splash: more neighbours). Not against the process's first calibration run: its steady steps measured 0.76-1.46x
+    the whole run's (DFSPH, six plans), the other runs' 0.96-1.07x (PBF, four). (None, 0) without both."""
     whole = profile.for_solver(solver, t0)
     if not whole:
-        return None
+        return None, 0.0
     w = max(whole, key=lambda p: p.particle_radius)
     same = [p for p in pts if abs(p.particle_radius / w.particle_radius - 1.0) <= 1e-6 and p.step_time > 0
             and not p.first_in_process]
     if not same or w.step_time <= 0:
-        return None
-    return float(w.step_time / same[0].step_time)
+        return None, 0.0
+    return float(w.step_time / same[0].step_time), float(same[0].steps * same[0].step_time)
 
 
-def applied_cost_ratio(measured: float | None) -> float:
-    """C as the wall prediction applies it: 1 without a measurement or within COST_RATIO_NOISE of 1 (the timing
-    noise of two runs: a plan made again on fresh timings then takes the same), else clipped to COST_RATIO_RANGE."""
-    if measured is None or abs(measured - 1.0) <= COST_RATIO_NOISE:
+def applied_cost_ratio(measured: float | None, window: float = math.inf) -> float:
+    """C as the wall prediction applies it: 1 without a measurement, within COST_RATIO_NOISE of 1 (the timing noise of
+    two runs: a plan made again on fresh timings then takes the same) or measured against a window of steps shorter
+    than COST_RATIO_MIN_WINDOW [s]; else clipped to COST_RATIO_RANGE."""
+    if measured is None or abs(measured - 1.0) <= COST_RATIO_NOISE or window < COST_RATIO_MIN_WINDOW:
         return 1.0
     lo, hi = COST_RATIO_RANGE
     return float(min(max(measured, lo), hi))
