@@ -53,7 +53,7 @@ ERROR_FIT_POINTS = 3
 #: tolerance candidates of a solver with two calibrated tolerances: this many, geometric, between them
 TOLERANCE_LADDER = 3
 #: the exponent b of the step's cost ~ Nf^b beyond the largest calibrated count is clipped to this range, fitted to the
-#: COUNT_FIT_POINTS largest counts above the thread split (``fit.fit_count_law``). Measured: 0.59-0.91 over the
+#: COUNT_FIT_POINTS largest counts above the thread split (``fit.fit_count_law``). Measured: 0.72-0.91 over the
 #: calibrated counts, 0.93-1.09 from the largest calibrated count to the whole run's 3-5x that count (dam break PBF,
 #: hydrostatic DFSPH; the runs' wall time less set-up per step); 1.19 once from a calibration point slowed by the
 #: machine's load (hydrostatic, load 3-6)
