@@ -86,6 +86,7 @@ def run_case(scene_name: str, budget_text: str, duration: float, solvers: list[s
     pred, act = rec["predicted"], rec["actual"]
     wall_ratio = act["wall_time"] / pred["wall_time"]
     err_ratio = act["density_error"] / pred["density_error"] if pred["density_error"] > 0 else float("inf")
+    record.update(detail=run_detail(p, info))
     record.update(status=info.get("status", "?"), solver=c.solver, particle_radius=c.particle_radius,
                   tolerance=c.tolerance, notes=p.notes, extrapolated=c.extrapolated(),
                   fluid_particles=info["fluid_particles"], predicted=pred, actual=act,
@@ -99,6 +100,38 @@ def run_case(scene_name: str, budget_text: str, duration: float, solvers: list[s
                          "calibration_under_10pct": p.calibration_seconds <= CALIBRATION_GOAL * budget})
     shutil.rmtree(folder / "run", ignore_errors=True)  # the USD of a whole run: only its figures are kept
     return record
+
+
+def run_detail(p, info: dict) -> dict:
+    """The chosen setting's step cost and error course, predicted against the whole run's (run.json ``info``): the
+    steady step time [s] and per fluid particle-step, the solver's sweeps per step (the calibration's largest count's
+    and the run's), the whole-run cost ratio C (measured at the coarsest radius, applied), and the error's later-frames
+    ratio R: the plan's (measured at the coarsest radius) against the run's own at the chosen radius (its mean over
+    the frames after the calibrated ones over its mean over those)."""
+    from warp_sph.plan.calibrate import solver_sweeps
+
+    c = p.chosen
+    m = p.models[c.solver]
+    step = m.step_cost(c.fluid_particles, c.boundary_particles) * m.tolerance_factor("step_time", c.tolerance)
+    advanced = [f for f in info["frames"] if f["frame"] > 1]
+    errors = [float(f["density_error_mean"]) for f in advanced]
+    fc = m.calibrated_frames
+    frames = len(errors)
+    r_run = None
+    if frames > fc >= 1 and sum(errors[:fc]) > 0:
+        r_run = (sum(errors[fc:]) / len(errors[fc:])) / (sum(errors[:fc]) / fc)
+    actual_step = float(info["sim_time_per_step_ms"]) * 1e-3
+    largest = max((q for q in p.points if q["solver"] == c.solver and not q["whole_run"] and q["status"] == "completed"
+                   and q["tolerance"] == c.tolerance), key=lambda q: q["fluid"], default=None)
+    return {"step_time": {"predicted": step, "actual": actual_step},
+            "per_fluid_particle_step": {"predicted": step / c.fluid_particles,
+                                        "actual": actual_step / max(int(info["fluid_particles"]), 1),
+                                        "largest_calibrated": largest["step_time"] / largest["fluid"] if largest else None},
+            "sweeps": {"largest_calibrated": largest["sweeps"] if largest else None, "actual": solver_sweeps(advanced)},
+            "cost_ratio": {"measured": m.cost_ratio_measured, "applied": m.cost_ratio},
+            "count_law_exponent": m.count_law.exponent if m.count_law is not None else None,
+            "later_ratio": {"plan": m.later_ratio(frames) if m.has_profile(frames) else None, "run": r_run},
+            "density_errors": errors}
 
 
 def plan_scene(scene_name: str, overrides: list, **kwargs):
@@ -175,6 +208,25 @@ def section(records: list[dict], fmt, head) -> list[str]:
         names = list(done[0]["goals"])
         lines += ["Goals met: " + ", ".join(f"{k.replace('_', ' ')} {sum(r['goals'][k] for r in done)}/{len(done)}"
                                             for k in names) + ".", ""]
+    detailed = [r for r in records if r.get("detail")]
+    if detailed:
+        lines += ["The chosen setting's step and error course, predicted against the run: the steady time per step, per "
+                  "fluid particle-step (and at the largest calibrated count), the solver's sweeps per step (pressure and "
+                  "divergence iterations: at the largest calibrated count / in the run), the whole-run step cost ratio "
+                  "C (measured at the coarsest radius / applied) and the error's later-frames ratio R (the plan's, "
+                  "measured at the coarsest radius / the run's own at the chosen radius).", "",
+                  "| scene | budget | step pred. / actual [ms] | us per fluid particle-step pred. / actual / largest calib. "
+                  "| sweeps calib. / run | C measured / applied | R plan / run |", "|---|---|---|---|---|---|---|"]
+        for r in detailed:
+            d = r["detail"]
+            lines.append("| " + " | ".join([
+                r["params"]["scene"], fmt(r["params"]["budget"]),
+                "/".join(fmt(d["step_time"][k], 1e3) for k in ("predicted", "actual")),
+                "/".join(fmt(d["per_fluid_particle_step"][k], 1e6) for k in ("predicted", "actual", "largest_calibrated")),
+                "/".join(fmt(d["sweeps"][k]) for k in ("largest_calibrated", "actual")),
+                "/".join(fmt(d["cost_ratio"][k]) for k in ("measured", "applied")),
+                "/".join(fmt(d["later_ratio"][k]) for k in ("plan", "run"))]) + " |")
+        lines.append("")
     notes = [f"- {r['params']['scene']} {fmt(r['params']['budget'])} s: {n}" for r in records for n in r.get("notes") or []]
     if notes:
         lines += ["What the calibration left out (to keep within 10 % of the budget) and what stopped a plan short "

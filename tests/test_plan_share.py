@@ -150,3 +150,22 @@ def test_solver_sweeps_per_step_weighted_by_steps():
               {"steps": 4}]  # a frame without solver figures: its steps count, no sweeps
     assert solver_sweeps(frames) == pytest.approx((9 * 3.0 + 27 * 7.0) / 40)
     assert solver_sweeps([{"steps": 5, "solver": {}}]) == 0.0 and solver_sweeps([]) == 0.0
+
+
+@pytest.mark.parametrize("first, then", [({"budget_s": 30.0}, {"budget_s": 60.0}),
+                                         ({"budget_s": 60.0}, {"budget_s": 30.0}),
+                                         ({"budget_s": 45.0}, {"target_error": 1.2e-3}),
+                                         ({"target_error": 1.2e-3}, {"budget_s": 45.0})])
+def test_a_plan_decides_the_same_after_another_plans_calibration(tiny, monkeypatch, first, then):
+    """A plan sees only the calibration points it asks for, each with its measured cost whether run now or read from
+    the cache: made after another budget's or target's plan filled the cache, it takes the decisions it takes on an
+    empty cache (the same points, notes, calibration cost and choice), on a fake clock (no timing noise)."""
+    def made(*kws):
+        clock = FakeClock(1.3, 2e-7, level={"wcsph": 0.5e-3}, rise={"pbf": 2.0})
+        monkeypatch.setattr(calibrate_module, "calibrate", clock)
+        return [plan(tiny, solvers=["wcsph", "pbf"], **kw) for kw in kws][-1]
+
+    fresh, after = made(then), made(first, then)
+    assert after.chosen == fresh.chosen and after.notes == fresh.notes
+    assert after.calibration_seconds == pytest.approx(fresh.calibration_seconds)
+    assert after.points == fresh.points

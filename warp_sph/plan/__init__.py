@@ -6,6 +6,7 @@ short calibration runs of the scene itself (docs/plan.md).
     metrics.py    the errors a target may name: density, or a validation scene's error against its experiment
     models.py     a solver's models fitted to its calibration points (SolverModel)
     advisor.py    models -> candidates (solver x tolerance x radius) -> the recommendation (Plan)
+    share.py      the calibration's decisions: the solvers' order, the runs' predicted costs, what fits the share
     report.py     the table, the Pareto plot, the scene file or --set flags of --apply
 """
 from __future__ import annotations
@@ -15,6 +16,7 @@ from dataclasses import replace
 
 from .advisor import Candidate, Plan, SolverModel
 from .calibrate import PlanError
+from .share import budget_cap, cost_notes, point_cost, profile_solvers, rank_solvers, whole_run_cost
 
 #: calibration rounds of a plan at most: the default radii, then finer points towards the setting chosen
 MAX_ROUNDS = 4
@@ -291,6 +293,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                      f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
                      f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
                      f"last calibrated frame's")
+    notes += cost_notes(models[chosen.solver], chosen)
     if budget_s is not None and target_error is None:
         cap = budget_cap(candidates, chosen, budget_s, limit, scene.source)
         if cap is not None:
@@ -314,85 +317,5 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                 + [point_summary(p, whole=True) for p in (profile.points if profile is not None else [])])
 
 
-def budget_cap(candidates, chosen, budget_s: float, limit, source: str) -> str | None:
-    """The line that says the count extrapolation, not the budget, stopped the plan: the finest setting of the
-    chosen solver at its tolerance predicted within the budget's BUDGET_SAFETY with no limit on the extrapolation,
-    when it is finer than ``chosen`` (None otherwise; at another tolerance the line named a tighter one, extrapolated
-    11x from the count its effect was measured at, where the chosen tolerance's was 4x)."""
-    from .advisor import BUDGET_SAFETY, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, choose
-
-    try:
-        free = choose([c for c in candidates if c.solver == chosen.solver and c.tolerance == chosen.tolerance],
-                      budget_s, None, limit, source, max_extrapolation=None)
-    except PlanError:
-        return None
-    if free.particle_radius >= chosen.particle_radius * (1.0 - 1e-6):
-        return None
-    return (f"the budget would allow r = {free.particle_radius:.4g} m ({free.fluid_particles:,} fluid particles, "
-            f"predicted {free.wall_time:.3g} s, {100 * free.wall_time / budget_s:.0f} % of the budget), but that is "
-            f"{free.count_extrapolation:.2f}x the largest calibrated count and a plan extrapolates at most "
-            f"{MAX_COUNT_EXTRAPOLATION:g}x: no finer calibration point fitted in its {100 * CALIBRATION_SHARE:.0f} % "
-            f"share; the plan uses {100 * chosen.wall_time / budget_s:.0f} % (up to {100 * BUDGET_SAFETY:.0f} % aimed)")
-
-
-def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> list:
-    """``names`` in the order the plan would prefer them from the calibration so far (each solver's own best
-    setting, ranked as ``advisor.choose`` ranks settings); solvers without a setting last."""
-    from .advisor import candidates_for, choose, fit_models
-
-    best = {}
-    for s in names:
-        m = fit_models(cal, s, scene, metric)
-        if m is None:
-            continue
-        try:
-            best[s] = choose(candidates_for(scene, {s: m}), budget_s, target_error, limit, scene.source)
-        except PlanError:
-            continue
-    key = (lambda c: (c.wall_time, c.error)) if target_error is not None else (
-        lambda c: (c.particle_radius, c.error, c.wall_time))
-    return sorted(best, key=lambda s: key(best[s])) + [s for s in names if s not in best]
-
-
-def profile_solvers(order, costs: dict, spent: float, share: float) -> list:
-    """The solvers of ``order`` (those with a cost in ``costs`` [s]) whose whole-run error profile fits, taken in
-    order while ``spent`` [s] plus their costs stays within ``share`` [s]; one that does not fit is skipped and the
-    next, cheaper one may still fit."""
-    out = []
-    for s in order:
-        if s in costs and spent + costs[s] <= share:
-            out.append(s)
-            spent += costs[s]
-    return out
-
-
-def whole_run_cost(points, scale: float, others=()) -> float:
-    """Predicted seconds of a whole-duration run from ``points`` (one solver's calibration runs at the radius):
-    each one's steps and export waits times ``scale`` (the whole run's frames over a calibration run's) plus its
-    time outside them, less the kernel loads: its first step's excess, and where it was the process's first run,
-    the shared kernels' too (its fixed time then the least of ``others``' completed runs that were not a process's
-    first; measured, dam break: DFSPH's first 3-frame run at r = 0.0747 m took 1.09 s, its 12-frame run 0.74 s)."""
-    def fixed(p):
-        return max(p.seconds - p.steps * p.step_time - p.export_wait - p.load_time, 0.0)
-
-    rest = [fixed(q) for q in others if not q.first_in_process and q.status == "completed"]
-    return sum((min([fixed(p), *rest]) if p.first_in_process else fixed(p))
-               + (p.steps * p.step_time + p.export_wait) * scale for p in points)
-
-
-def point_cost(cal, solver: str, radius: float) -> float:
-    """Predicted seconds of a calibration run of ``solver`` at ``radius`` [m], scaled from its finest point run:
-    its time outside the steps (``advisor.fixed_time``: without the kernel loads), its steps' time times
-    (r / radius)^4 (particles ~ r^-3, steps ~ r^-1);
-    0 when the point is cached or the solver has none."""
-    pts = cal.for_solver(solver)
-    if not pts or any(abs(p.particle_radius / radius - 1.0) <= 1e-6 for p in pts):
-        return 0.0
-    from .advisor import fixed_time
-
-    p = min(pts, key=lambda q: q.particle_radius)
-    steps = p.steps * p.step_time
-    return fixed_time(p, cal.points) + steps * (p.particle_radius / radius) ** 4
-
-
-__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "plan", "point_cost", "profile_solvers", "whole_run_cost"]
+__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "cost_notes", "plan", "point_cost", "profile_solvers",
+           "rank_solvers", "whole_run_cost"]

@@ -10,7 +10,12 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
   every run shares (the process's first calibration run's set-up beyond the others': ``process_overhead``); on a CPU
   whose launches split over the threads from 2 x 1,024 indices (``core.launch``), a target at or above that count
   takes the step's cost fitted to the calibration points there alone, once two counts or more lie there
-  (``step_time_split``: a line across both regimes need not hold beyond them);
+  (``step_time_split``: a line across both regimes need not hold beyond them); beyond the largest calibrated count
+  (CPU, two fluid counts or more at or above the split) the cost is at least that count's measured cost times
+  (Nf / Nf_max)^b, b measured over the largest counts and clipped to COUNT_EXPONENT_RANGE (``fit.fit_count_law``:
+  the per-particle cost stops falling beyond the calibrated counts); and the step's cost over the whole run is the
+  calibration window's times the whole-run profile's cost ratio C (its steady step time over the same radius's
+  calibration point's; ``whole_run_cost_ratio``);
 - mean density error over the run: the calibration's frames measured e_cal(d) = A d^p (fitted to the finest
   ERROR_FIT_POINTS radii), the rest of the run at
   R e_cal(d): (F_c + (F - F_c) R) e_cal / F over F frames, F_c of them calibrated. The profile is a run of the whole
@@ -25,11 +30,12 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, replace
 
 from .calibrate import Calibration, scene_tolerance
-from .fit import (LatticeCount, Line, PowerLaw, StepCost, StepRate, fit_lattice_count, fit_line, fit_power_law,
-                  fit_speed_exponent, fit_step_cost, fit_step_rate, log_slope, scene_bound_rate)
+from .fit import (LatticeCount, Line, PowerLaw, StepCost, StepRate, fit_count_law, fit_lattice_count, fit_line,
+                  fit_power_law, fit_speed_exponent, fit_step_cost, fit_step_rate, log_slope, scene_bound_rate)
 from .metrics import DENSITY
 
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
@@ -46,6 +52,23 @@ ORDER_RANGE = (-2.0, 4.0)
 ERROR_FIT_POINTS = 3
 #: tolerance candidates of a solver with two calibrated tolerances: this many, geometric, between them
 TOLERANCE_LADDER = 3
+#: the exponent b of the step's cost ~ Nf^b beyond the largest calibrated count is clipped to this range, fitted to the
+#: COUNT_FIT_POINTS largest counts above the thread split (``fit.fit_count_law``). Measured: 0.72-0.91 over the
+#: calibrated counts, 0.93-1.09 from the largest calibrated count to the whole run's 3-5x that count (dam break PBF,
+#: hydrostatic DFSPH; the runs' wall time less set-up per step); 1.19 once from a calibration point slowed by the
+#: machine's load (hydrostatic, load 3-6)
+COUNT_EXPONENT_RANGE = (1.0, 1.1)
+COUNT_FIT_POINTS = 3
+#: the whole run's step cost over the calibration window's (C, ``whole_run_cost_ratio``): within COST_RATIO_NOISE of 1
+#: it is taken as 1, and it is clipped to COST_RATIO_RANGE. Measured at the coarsest radius (2.2k particles, 2 shared
+#: cores, eight plans): PBF 0.96-1.07, DFSPH 0.76-1.46 where its window point was the process's first run (then not
+#: used, ``whole_run_cost_ratio``): at that count the launches' overhead dominates and the ratio is mostly noise
+COST_RATIO_NOISE = 0.1
+COST_RATIO_RANGE = (0.8, 1.5)
+#: C is applied only where the calibration point's steps took at least this long [s]: a shorter window is a sample of
+#: the machine's load, not a timing (measured, load 4.3-5.3: PBF's C 0.59 and 1.22 from windows of 27 steps, 0.06-0.08
+#: s; the whole runs' wall time then 1.93x and 0.88x the prediction with C, 1.55x and 1.07x without)
+COST_RATIO_MIN_WINDOW = 0.5
 
 @dataclass
 class SolverModel:
@@ -73,13 +96,23 @@ class SolverModel:
     profile: list = field(default_factory=list)  # [-] per-frame mean density error of a whole run at the coarsest radius
     split_particles: int = 0                     # particles from which the CPU launches split over the threads (0: never)
     step_time_split: StepCost | None = None      # [s] the step's cost fitted to the points at or above that count only
+    count_law: PowerLaw | None = None            # [s] the step's least cost against Nf beyond ``count_fluid``
+    count_fluid: int = 0                         # the largest calibrated fluid count above the split
+    cost_ratio: float = 1.0                      # C applied: the whole run's step cost over the calibration window's
+    cost_ratio_measured: float | None = None     # C as measured (None: no whole run of this solver)
+    cost_ratio_window: float = 0.0               # [s] the steps' time of the calibration point C was measured against
 
     def step_cost(self, fluid: int, boundary: int) -> float:
-        """[s] one step at the scene's tolerance: above the thread split from the points above it where two or more
-        counts were calibrated there, else from every point (module docstring)."""
+        """[s] one step at the scene's tolerance over the whole run: above the thread split from the points above it
+        where two or more counts were calibrated there, else from every point; beyond the largest calibrated count at
+        least ``count_law``'s; times the whole-run cost ratio C (module docstring)."""
         if self.step_time_split is not None and fluid + boundary >= self.split_particles:
-            return self.step_time_split(fluid, boundary)
-        return self.step_time(fluid, boundary)
+            base = self.step_time_split(fluid, boundary)
+        else:
+            base = self.step_time(fluid, boundary)
+        if self.count_law is not None and fluid > self.count_fluid:
+            base = max(base, self.count_law(fluid))
+        return base * self.cost_ratio
 
     def later_ratio(self, frames: int) -> float:
         """R: the profile's mean error over the frames after the calibrated ones / its mean over the calibrated
@@ -186,6 +219,11 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     split_cost = (fit_step_cost([p.fluid for p in above], [max(p.boundary, 0) for p in above],
                                 [p.step_time for p in above])
                   if len({p.particles for p in above}) >= 2 and len(above) < len(pts) else None)
+    # the count law from the points whose fluid alone splits (a dam break's coarse points pass the split on their walls)
+    split_fluid = [p for p in pts if split and p.fluid >= split]
+    count_law = fit_count_law([p.fluid for p in split_fluid], [p.step_time for p in split_fluid], COUNT_EXPONENT_RANGE,
+                              COUNT_FIT_POINTS) if split_fluid else None
+    measured_ratio, window = whole_run_cost_ratio(pts, profile, solver, t0) if profile is not None else (None, 0.0)
     return SolverModel(
         solver=solver,
         steps_per_second=rate,
@@ -203,7 +241,37 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         calibrated_frames=min(p.frames for p in pts), metric=metric, metric_error=metric_law,
         tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents, tolerance_particles=pair_particles,
         profile=_profile(profile, solver, t0) if profile is not None else [],
-        split_particles=split if split_cost is not None else 0, step_time_split=split_cost)
+        split_particles=split if split_cost is not None else 0, step_time_split=split_cost,
+        count_law=count_law, count_fluid=max(p.fluid for p in split_fluid) if count_law is not None else 0,
+        cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
+        cost_ratio_window=window)
+
+
+def whole_run_cost_ratio(pts, profile: Calibration, solver: str, t0) -> tuple:
+    """(C, the calibration point's steps' time [s]): C the steady step time of ``solver``'s whole run (``profile``)
+    over that of its calibration point in ``pts`` at the same radius. The steps' number over the run is modelled
+    apart (``StepRate``); C is what each step costs later in the run against the calibration window (a dam break's
+    splash: more neighbours). Not against the process's first calibration run: its steady steps measured 0.76-1.46x
+    the whole run's (DFSPH, six plans), the other runs' 0.96-1.07x (PBF, four). (None, 0) without both."""
+    whole = profile.for_solver(solver, t0)
+    if not whole:
+        return None, 0.0
+    w = max(whole, key=lambda p: p.particle_radius)
+    same = [p for p in pts if abs(p.particle_radius / w.particle_radius - 1.0) <= 1e-6 and p.step_time > 0
+            and not p.first_in_process]
+    if not same or w.step_time <= 0:
+        return None, 0.0
+    return float(w.step_time / same[0].step_time), float(same[0].steps * same[0].step_time)
+
+
+def applied_cost_ratio(measured: float | None, window: float = math.inf) -> float:
+    """C as the wall prediction applies it: 1 without a measurement, within COST_RATIO_NOISE of 1 (the timing noise of
+    two runs: a plan made again on fresh timings then takes the same) or measured against a window of steps shorter
+    than COST_RATIO_MIN_WINDOW [s]; else clipped to COST_RATIO_RANGE."""
+    if measured is None or abs(measured - 1.0) <= COST_RATIO_NOISE or window < COST_RATIO_MIN_WINDOW:
+        return 1.0
+    lo, hi = COST_RATIO_RANGE
+    return float(min(max(measured, lo), hi))
 
 
 def _profile_radius(profile: Calibration, solver: str, t0) -> float:
