@@ -88,7 +88,7 @@ class WcsphSolver(Solver):
               "by 1 + 0.6 alpha", ge=0.0, le=10.0),
         Param("wcsph.search_skin", "float", "-", SEARCH_SKIN, "neighbour lists within H_s + skin (in spacings d) kept "
               "over the steps until two particles may have closed in by more than the skin (Verlet lists; "
-              "min(2 max |d|, the diagonal of the displacements' box), "
+              "the smaller of twice the largest displacement and the diagonal of the displacements' box, "
               "``wcsph_lists.py``): the acoustic step moves particles far less than d per step, so one cell walk "
               "serves several steps; 0: a search every step. Changes results only by the order of sums",
               ge=0.0, le=2.0),
