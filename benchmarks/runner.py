@@ -221,8 +221,10 @@ def cmd_executors(args, argv: list[str], log=print) -> int:
 
 
 def cmd_splishsplash(args, argv: list[str], log=print) -> int:
+    from warp_sph.sweep.cases import split_values
+
     from . import splishsplash as S
-    from .report import speed_ratios
+    from .splishsplash_report import speed_ratios
 
     invocation = now()
     if args.publish and not args.skip_warp_sph:
@@ -234,9 +236,10 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
                                "published page compares both engines in the same run: pip install pysplishsplash")
     if args.adaptive:
         return _splishsplash_adaptive(args, argv, invocation, log)
+    check_names("--solvers", args.solvers, S.FIXED_STEP_SOLVERS)
     records = S.run_comparison(
         particle_radius=args.particle_radius, frames=args.frames, threads=args.threads or 1,
-        solvers=[s.strip() for s in args.solvers.split(",") if s.strip()],
+        solvers=split_values(args.solvers) if args.solvers else list(S.FIXED_STEP_SOLVERS),
         dt={"wcsph": args.dt_wcsph, "pbf": args.dt_pbf, "dfsph": args.dt_dfsph},
         device=args.device, isolate=not args.in_process, skip_warp_sph=args.skip_warp_sph,
         splishsplash_gap=args.splishsplash_gap, warp_sph_overrides=args.warp_sph_set, log=log)
@@ -269,8 +272,18 @@ def parse_resolutions(text: str) -> list[tuple[float, float]]:
 def _splishsplash_adaptive(args, argv: list[str], invocation: str, log) -> int:
     from . import splishsplash as S
 
+    from warp_sph.methods.registry import solver_names
+    from warp_sph.sweep.cases import split_values
+
     resolutions = parse_resolutions(args.resolutions) if args.resolutions else list(S.ADAPTIVE_RESOLUTIONS)
-    records = S.run_adaptive(resolutions, threads=args.threads or 2, device=args.device, isolate=not args.in_process,
+    ours, theirs = list(solver_names()), list(S.ADAPTIVE_SPLISHSPLASH)
+    if args.solvers:  # filters both engines' cases: dfsph -> warp-sph dfsph and SPlisHSPlasH's DFSPH cases
+        check_names("--solvers", args.solvers, sorted(set(ours) | {method for _, method, _ in theirs}))
+        chosen = split_values(args.solvers)
+        ours = [s for s in ours if s in chosen]
+        theirs = [case for case in theirs if case[1] in chosen]
+    records = S.run_adaptive(resolutions, threads=args.threads or 2, warp_sph_solvers=ours, splishsplash_cases=theirs,
+                             device=args.device, isolate=not args.in_process,
                              skip_warp_sph=args.skip_warp_sph, warp_sph_overrides=args.warp_sph_set,
                              repeats=args.repeats, log=log)
     out = _save("splishsplash", records, args, argv, invocation, log)
@@ -558,7 +571,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default 0.025:1.0,0.0125:0.3: 6,859 particles for 1 s, 59,319 for 0.3 s)")
     x.add_argument("--repeats", type=positive_int, default=1,
                    help="with --adaptive: runs of every case, in turns; the fastest of each counts (default 1)")
-    x.add_argument("--solvers", default="wcsph,pbf,dfsph", help="wcsph,pbf (both engines), dfsph (SPlisHSPlasH only)")
+    x.add_argument("--solvers", default=None,
+                   help="comma-separated solvers; fixed step (default wcsph,pbf,dfsph): wcsph,pbf in both engines, "
+                        "dfsph in SPlisHSPlasH only; --adaptive (default: all): each named warp-sph solver and the "
+                        "SPlisHSPlasH cases of that method (dfsph, iisph, pbf, wcsph)")
     x.add_argument("--dt-wcsph", type=positive_float, default=None, help="fixed step for WCSPH [s] (default: CFL 0.4 bound)")
     x.add_argument("--dt-pbf", type=positive_float, default=None, help="fixed step for PBF [s] (default 0.002 * r/0.025)")
     x.add_argument("--dt-dfsph", type=positive_float, default=None, help="fixed step for DFSPH [s] (default: as PBF)")
