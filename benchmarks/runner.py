@@ -566,7 +566,7 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument("--adaptive", action="store_true",
                    help="each engine's own adaptive step (SPlisHSPlasH cflMethod 1) and defaults: every warp-sph "
                         "solver and SPlisHSPlasH's DFSPH, IISPH, PBF and WCSPH (stiffness 50,000) at each "
-                        "--resolutions; one speed/accuracy plot per resolution")
+                        "--resolutions (--solvers picks some); one speed/accuracy plot per resolution")
     x.add_argument("--resolutions", default=None, metavar="R:S,...",
                    help="with --adaptive: particle radius [m] and simulated seconds per resolution "
                         "(default 0.025:1.0,0.0125:0.3: 6,859 particles for 1 s, 59,319 for 0.3 s)")
