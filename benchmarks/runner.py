@@ -221,8 +221,10 @@ def cmd_executors(args, argv: list[str], log=print) -> int:
 
 
 def cmd_splishsplash(args, argv: list[str], log=print) -> int:
+    from warp_sph.sweep.cases import split_values
+
     from . import splishsplash as S
-    from .report import speed_ratios
+    from .splishsplash_report import speed_ratios
 
     invocation = now()
     if args.publish and not args.skip_warp_sph:
@@ -234,9 +236,10 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
                                "published page compares both engines in the same run: pip install pysplishsplash")
     if args.adaptive:
         return _splishsplash_adaptive(args, argv, invocation, log)
+    check_names("--solvers", args.solvers, S.FIXED_STEP_SOLVERS)
     records = S.run_comparison(
         particle_radius=args.particle_radius, frames=args.frames, threads=args.threads or 1,
-        solvers=[s.strip() for s in args.solvers.split(",") if s.strip()],
+        solvers=split_values(args.solvers) if args.solvers else list(S.FIXED_STEP_SOLVERS),
         dt={"wcsph": args.dt_wcsph, "pbf": args.dt_pbf, "dfsph": args.dt_dfsph},
         device=args.device, isolate=not args.in_process, skip_warp_sph=args.skip_warp_sph,
         splishsplash_gap=args.splishsplash_gap, warp_sph_overrides=args.warp_sph_set, log=log)
@@ -269,8 +272,18 @@ def parse_resolutions(text: str) -> list[tuple[float, float]]:
 def _splishsplash_adaptive(args, argv: list[str], invocation: str, log) -> int:
     from . import splishsplash as S
 
+    from warp_sph.methods.registry import solver_names
+    from warp_sph.sweep.cases import split_values
+
     resolutions = parse_resolutions(args.resolutions) if args.resolutions else list(S.ADAPTIVE_RESOLUTIONS)
-    records = S.run_adaptive(resolutions, threads=args.threads or 2, device=args.device, isolate=not args.in_process,
+    ours, theirs = list(solver_names()), list(S.ADAPTIVE_SPLISHSPLASH)
+    if args.solvers:  # filters both engines' cases: dfsph -> warp-sph dfsph and SPlisHSPlasH's DFSPH cases
+        check_names("--solvers", args.solvers, sorted(set(ours) | {method for _, method, _ in theirs}))
+        chosen = split_values(args.solvers)
+        ours = [s for s in ours if s in chosen]
+        theirs = [case for case in theirs if case[1] in chosen]
+    records = S.run_adaptive(resolutions, threads=args.threads or 2, warp_sph_solvers=ours, splishsplash_cases=theirs,
+                             device=args.device, isolate=not args.in_process,
                              skip_warp_sph=args.skip_warp_sph, warp_sph_overrides=args.warp_sph_set,
                              repeats=args.repeats, log=log)
     out = _save("splishsplash", records, args, argv, invocation, log)
@@ -514,12 +527,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_sweep)
 
     c = sub.add_parser("scaling", help="time and memory per particle against particle count")
-    c.add_argument("--scene", default="dam_break")
+    c.add_argument("--scene", default="dam_break", help="built-in scene or .toml path (default: dam_break)")
     c.add_argument("--radii", type=positive_floats, default=None, help=f"comma-separated particle radii [m] (default {','.join(map(str, SCALING_RADII))})")
     c.add_argument("--steps", type=positive_int, default=20, help="substeps timed per resolution (default 20)")
     c.add_argument("--repeats", type=positive_int, default=3,
                    help="time that many consecutive blocks of --steps substeps and keep the fastest (default 3)")
-    c.add_argument("--solver", default="wcsph")
+    c.add_argument("--solver", default="wcsph", help="solver to scale (default: wcsph)")
     c.add_argument("--fixed-dt", type=positive_float, default=None, metavar="SECONDS",
                    help="fixed step at r = 0.025 m [s], scaled with the particle radius (the same CFL number at "
                         "every resolution; default: the scene's step for the fluid at rest)")
@@ -546,20 +559,24 @@ def build_parser() -> argparse.ArgumentParser:
     e.set_defaults(func=cmd_executors)
 
     x = sub.add_parser("splishsplash", help="the same dam break in warp-sph and SPlisHSPlasH (pysplishsplash)")
-    x.add_argument("--particle-radius", type=positive_float, default=0.025)
+    x.add_argument("--particle-radius", type=positive_float, default=0.025,
+                   help="particle radius [m] of the fixed-step comparison (default 0.025: 6,859 fluid particles)")
     x.add_argument("--frames", type=positive_int, default=25, help="frames at 24 fps (default 25: about 1 s)")
     x.add_argument("--threads", type=positive_int, default=None,
                    help="OMP_NUM_THREADS for SPlisHSPlasH (default 1; 2 with --adaptive)")
     x.add_argument("--adaptive", action="store_true",
                    help="each engine's own adaptive step (SPlisHSPlasH cflMethod 1) and defaults: every warp-sph "
                         "solver and SPlisHSPlasH's DFSPH, IISPH, PBF and WCSPH (stiffness 50,000) at each "
-                        "--resolutions; one speed/accuracy plot per resolution")
+                        "--resolutions (--solvers picks some); one speed/accuracy plot per resolution")
     x.add_argument("--resolutions", default=None, metavar="R:S,...",
                    help="with --adaptive: particle radius [m] and simulated seconds per resolution "
                         "(default 0.025:1.0,0.0125:0.3: 6,859 particles for 1 s, 59,319 for 0.3 s)")
     x.add_argument("--repeats", type=positive_int, default=1,
                    help="with --adaptive: runs of every case, in turns; the fastest of each counts (default 1)")
-    x.add_argument("--solvers", default="wcsph,pbf,dfsph", help="wcsph,pbf (both engines), dfsph (SPlisHSPlasH only)")
+    x.add_argument("--solvers", default=None,
+                   help="comma-separated solvers; fixed step (default wcsph,pbf,dfsph): wcsph,pbf in both engines, "
+                        "dfsph in SPlisHSPlasH only; --adaptive (default: all): each named warp-sph solver and the "
+                        "SPlisHSPlasH cases of that method (dfsph, iisph, pbf, wcsph)")
     x.add_argument("--dt-wcsph", type=positive_float, default=None, help="fixed step for WCSPH [s] (default: CFL 0.4 bound)")
     x.add_argument("--dt-pbf", type=positive_float, default=None, help="fixed step for PBF [s] (default 0.002 * r/0.025)")
     x.add_argument("--dt-dfsph", type=positive_float, default=None, help="fixed step for DFSPH [s] (default: as PBF)")

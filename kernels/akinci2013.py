@@ -21,7 +21,8 @@ import functools
 import warp as wp
 
 from .density import NEIGHBOR_TYPES
-from .neighbors import neighbor_count, particle_in_cell_order
+from .neighbors import particle_in_cell_order
+from .pair_sum import neighbor_sum
 from .smoothing import PI, SMOOTHING_FUNCTIONS
 
 #: pairs closer than this fraction of H get no cohesion direction (coincident particles)
@@ -51,12 +52,31 @@ def adhesion_kernel(r: float, support: float) -> float:
     return 0.007 / wp.pow(support, 3.25) * wp.pow(wp.max(q, 0.0), 0.25)
 
 
+@wp.struct
+class NormalPairs:
+    """What the normal's pair term reads: m [kg], h [m], rho [kg/m^3]."""
+    particle_mass: float
+    smoothing_length: float
+    particle_density: wp.array(dtype=float)
+
+
+@functools.cache
+def normal_pair(smoothing: str):
+    """(m / rho_j) grad_i W_ij [1/m] (``NormalPairs``)."""
+    _, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.func(module="unique")
+    def pair(d: NormalPairs, i: int, j: int, x_ij: wp.vec3) -> wp.vec3:
+        return (d.particle_mass / d.particle_density[j]) * wp.static(gradient)(x_ij, d.smoothing_length)
+
+    return pair
+
+
 @functools.cache
 def normals_kernel(smoothing: str, neighbors: str = "list"):
     """n_i = H sum_j (m / rho_j) grad_i W_ij [-] (Akinci 2013 eq. 9; fluid neighbours only)."""
-    _, gradient = SMOOTHING_FUNCTIONS[smoothing]
-    lists = neighbors == "list"
     Neighbors = NEIGHBOR_TYPES[neighbors]
+    normal_sum = neighbor_sum(normal_pair(smoothing), NormalPairs, neighbors)
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_normals(
@@ -73,24 +93,11 @@ def normals_kernel(smoothing: str, neighbors: str = "list"):
         particle_normal_out: wp.array(dtype=wp.vec3),
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
-        xi = particle_x[i]
-        n = wp.vec3(0.0)
-        if wp.static(lists):
-            k = int(0)
-            k_end = int(neighbor_count(fluid_neighbors, i))
-            while k < k_end:
-                j = fluid_neighbors.index[i, k]
-                x_ij = xi - particle_x[j]
-                if wp.length(x_ij) < support_radius:
-                    n += (particle_mass / particle_density[j]) * wp.static(gradient)(x_ij, smoothing_length)
-                k += 1
-        else:
-            query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
-            j = int(0)
-            while wp.hash_grid_query_next(query, j):
-                x_ij = xi - particle_x[j]
-                if wp.length(x_ij) < support_radius:
-                    n += (particle_mass / particle_density[j]) * wp.static(gradient)(x_ij, smoothing_length)
+        d = NormalPairs()
+        d.particle_mass = particle_mass
+        d.smoothing_length = smoothing_length
+        d.particle_density = particle_density
+        n = wp.static(normal_sum)(fluid_neighbors, particle_x, i, particle_x[i], support_radius, d)
         particle_normal_out[i] = support_radius * n
 
     return compute_normals
@@ -109,13 +116,64 @@ def pair_acceleration(cohesion: float, curvature: float, particle_mass: float, r
     return k_ij * a
 
 
+@wp.struct
+class TensionPairs:
+    """What the cohesion + curvature pair term reads: gamma [m^4/(kg s^2)], gamma_k [m/s^2], m [kg],
+    rho0 [kg/m^3], H [m], rho [kg/m^3], n [-]."""
+    cohesion: float
+    curvature: float
+    particle_mass: float
+    rest_density: float
+    support_radius: float
+    particle_density: wp.array(dtype=float)
+    particle_normal: wp.array(dtype=wp.vec3)
+
+
+@functools.cache
+def tension_pair(with_curvature: bool):
+    """``pair_acceleration`` of fluid pair ij [m/s^2] (``TensionPairs``); without curvature n = 0 (not read)."""
+
+    @wp.func(module="unique")
+    def pair(d: TensionPairs, i: int, j: int, x_ij: wp.vec3) -> wp.vec3:
+        n_i = wp.vec3(0.0)
+        n_j = wp.vec3(0.0)
+        if wp.static(with_curvature):
+            n_i = d.particle_normal[i]
+            n_j = d.particle_normal[j]
+        return pair_acceleration(d.cohesion, d.curvature, d.particle_mass, d.rest_density, d.support_radius,
+                                 d.particle_density[i], d.particle_density[j], x_ij, n_i, n_j)
+
+    return pair
+
+
+@wp.struct
+class AdhesionPairs:
+    """What the adhesion pair term reads: beta [m^4/(kg s^2)], rho0 [kg/m^3], H [m], V_b [m^3]."""
+    adhesion: float
+    rest_density: float
+    support_radius: float
+    boundary_volume: wp.array(dtype=float)
+
+
+@wp.func
+def adhesion_pair(d: AdhesionPairs, i: int, b: int, x_ib: wp.vec3) -> wp.vec3:
+    """-beta rho0 V_b A(r_ib) x^_ib [m/s^2] of boundary particle b (``AdhesionPairs``), 0 closer than
+    MIN_DISTANCE_FRACTION H."""
+    r = wp.length(x_ib)
+    a = wp.vec3(0.0)
+    if r > MIN_DISTANCE_FRACTION * d.support_radius:
+        a = -((d.adhesion * d.rest_density * d.boundary_volume[b] * adhesion_kernel(r, d.support_radius) / r) * x_ib)
+    return a
+
+
 @functools.cache
 def force_kernel(with_adhesion: bool, with_reaction: bool, neighbors: str = "list", with_curvature: bool = True):
     """a_i [m/s^2] of cohesion + curvature (+ adhesion to the boundary particles) added to
     ``force_acceleration``; with_reaction: m a_i(walls) [N] is added to the boundary force;
     with_curvature=False: no curvature term (the normals are not read)."""
-    lists = neighbors == "list"
     Neighbors = NEIGHBOR_TYPES[neighbors]
+    tension_sum = neighbor_sum(tension_pair(with_curvature), TensionPairs, neighbors, skip_self=True)
+    adhesion_sum = neighbor_sum(adhesion_pair, AdhesionPairs, neighbors)
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_surface_tension(
@@ -141,59 +199,22 @@ def force_kernel(with_adhesion: bool, with_reaction: bool, neighbors: str = "lis
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
         xi = particle_x[i]
-        rho_i = particle_density[i]
-        n_i = wp.vec3(0.0)
-        if wp.static(with_curvature):
-            n_i = particle_normal[i]
-        a = wp.vec3(0.0)
-        if wp.static(lists):
-            k = int(0)
-            k_end = int(neighbor_count(fluid_neighbors, i))
-            while k < k_end:
-                j = fluid_neighbors.index[i, k]
-                if j != i:
-                    x_ij = xi - particle_x[j]
-                    if wp.length(x_ij) < support_radius:
-                        n_j = wp.vec3(0.0)
-                        if wp.static(with_curvature):
-                            n_j = particle_normal[j]
-                        a += pair_acceleration(cohesion, curvature, particle_mass, rest_density, support_radius,
-                                               rho_i, particle_density[j], x_ij, n_i, n_j)
-                k += 1
-        else:
-            query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
-            j = int(0)
-            while wp.hash_grid_query_next(query, j):
-                if j != i:
-                    x_ij = xi - particle_x[j]
-                    if wp.length(x_ij) < support_radius:
-                        n_j = wp.vec3(0.0)
-                        if wp.static(with_curvature):
-                            n_j = particle_normal[j]
-                        a += pair_acceleration(cohesion, curvature, particle_mass, rest_density, support_radius,
-                                               rho_i, particle_density[j], x_ij, n_i, n_j)
+        t = TensionPairs()
+        t.cohesion = cohesion
+        t.curvature = curvature
+        t.particle_mass = particle_mass
+        t.rest_density = rest_density
+        t.support_radius = support_radius
+        t.particle_density = particle_density
+        t.particle_normal = particle_normal
+        a = wp.static(tension_sum)(fluid_neighbors, particle_x, i, xi, support_radius, t)
         if wp.static(with_adhesion):
-            a_b = wp.vec3(0.0)
-            if wp.static(lists):
-                k = int(0)
-                k_end = int(neighbor_count(boundary_neighbors, i))
-                while k < k_end:
-                    b = boundary_neighbors.index[i, k]
-                    x_ib = xi - boundary_x[b]
-                    r = wp.length(x_ib)
-                    if r < support_radius and r > MIN_DISTANCE_FRACTION * support_radius:
-                        a_b -= (adhesion * rest_density * boundary_volume[b] * adhesion_kernel(r, support_radius)
-                                / r) * x_ib
-                    k += 1
-            else:
-                bquery = wp.hash_grid_query(boundary_neighbors, xi, support_radius)
-                b = int(0)
-                while wp.hash_grid_query_next(bquery, b):
-                    x_ib = xi - boundary_x[b]
-                    r = wp.length(x_ib)
-                    if r < support_radius and r > MIN_DISTANCE_FRACTION * support_radius:
-                        a_b -= (adhesion * rest_density * boundary_volume[b] * adhesion_kernel(r, support_radius)
-                                / r) * x_ib
+            b = AdhesionPairs()
+            b.adhesion = adhesion
+            b.rest_density = rest_density
+            b.support_radius = support_radius
+            b.boundary_volume = boundary_volume
+            a_b = wp.static(adhesion_sum)(boundary_neighbors, boundary_x, i, xi, support_radius, b)
             a += a_b
             if wp.static(with_reaction):
                 boundary_force[i] = boundary_force[i] + particle_mass * a_b

@@ -10,7 +10,8 @@ import functools
 import warp as wp
 
 from .density import NEIGHBOR_TYPES
-from .neighbors import neighbor_count, particle_in_cell_order
+from .neighbors import particle_in_cell_order
+from .pair_sum import neighbor_sum
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -22,12 +23,36 @@ def viscosity_acceleration(viscosity: float, particle_mass: float, rho_i: float,
     return (20.0 * viscosity * particle_mass / (rho_i + rho_j)) * wp.dot(v_ij, x_ij) / (r2 + eps_h2) * grad
 
 
+@wp.struct
+class ViscosityPairs:
+    """What the viscosity pair term reads: nu [m^2/s], m [kg], h [m], 0.01 h^2 [m^2], v [m/s], rho [kg/m^3]."""
+    viscosity: float
+    particle_mass: float
+    smoothing_length: float
+    eps_h2: float
+    particle_v: wp.array(dtype=wp.vec3)
+    particle_density: wp.array(dtype=float)
+
+
+@functools.cache
+def viscosity_pair(smoothing: str):
+    """``viscosity_acceleration`` of fluid pair ij [m/s^2] (``ViscosityPairs``)."""
+    _, gradient = SMOOTHING_FUNCTIONS[smoothing]
+
+    @wp.func(module="unique")
+    def pair(d: ViscosityPairs, i: int, j: int, x_ij: wp.vec3) -> wp.vec3:
+        return viscosity_acceleration(d.viscosity, d.particle_mass, d.particle_density[i], d.particle_density[j],
+                                      d.particle_v[i] - d.particle_v[j], x_ij, d.eps_h2,
+                                      wp.static(gradient)(x_ij, d.smoothing_length))
+
+    return pair
+
+
 @functools.cache
 def viscosity_kernel(smoothing: str, neighbors: str = "grid"):
     """Adds the explicit viscosity acceleration a_i [m/s^2] (module docstring) to ``acceleration``."""
-    _, gradient = SMOOTHING_FUNCTIONS[smoothing]
-    lists = neighbors == "list"
     Neighbors = NEIGHBOR_TYPES[neighbors]
+    viscosity_sum = neighbor_sum(viscosity_pair(smoothing), ViscosityPairs, neighbors, skip_self=True)
 
     @wp.kernel(enable_backward=False, module="unique")
     def explicit_viscosity(
@@ -46,31 +71,15 @@ def viscosity_kernel(smoothing: str, neighbors: str = "grid"):
         acceleration: wp.array(dtype=wp.vec3),
     ):
         i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
-        xi = particle_x[i]
-        vi = particle_v[i]
         h = smoothing_length
-        eps_h2 = 0.01 * h * h
-        a = wp.vec3(0.0)
-        if wp.static(lists):
-            k = int(0)
-            k_end = int(neighbor_count(fluid_neighbors, i))
-            while k < k_end:
-                j = fluid_neighbors.index[i, k]
-                if j != i:
-                    x_ij = xi - particle_x[j]
-                    if wp.length(x_ij) < support_radius:
-                        a += viscosity_acceleration(viscosity, particle_mass, particle_density[i], particle_density[j],
-                                                    vi - particle_v[j], x_ij, eps_h2, wp.static(gradient)(x_ij, h))
-                k += 1
-        else:
-            query = wp.hash_grid_query(fluid_neighbors, xi, support_radius)
-            j = int(0)
-            while wp.hash_grid_query_next(query, j):
-                if j != i:
-                    x_ij = xi - particle_x[j]
-                    if wp.length(x_ij) < support_radius:
-                        a += viscosity_acceleration(viscosity, particle_mass, particle_density[i], particle_density[j],
-                                                    vi - particle_v[j], x_ij, eps_h2, wp.static(gradient)(x_ij, h))
+        d = ViscosityPairs()
+        d.viscosity = viscosity
+        d.particle_mass = particle_mass
+        d.smoothing_length = h
+        d.eps_h2 = 0.01 * h * h
+        d.particle_v = particle_v
+        d.particle_density = particle_density
+        a = wp.static(viscosity_sum)(fluid_neighbors, particle_x, i, particle_x[i], support_radius, d)
         acceleration[i] = acceleration[i] + a
 
     return explicit_viscosity

@@ -270,7 +270,7 @@ def test_surface_bench_tiny(tmp_path):
 
 def test_speed_ratio_against_splishsplash():
     """The ratio is warp-sph's wall time per simulated second over SPlisHSPlasH's, per solver."""
-    from warp_sph.benchmarks.report import speed_ratios
+    from warp_sph.benchmarks.splishsplash_report import speed_ratios
 
     def rec(engine, solver, speed, err, cpu=None):
         return {"engine": engine, "status": "ok", "threads": 2, "params": {"solver": solver},

@@ -39,13 +39,24 @@ def _quiet_warp():
     return wp
 
 
+def _load_scene(name: str, overrides: list[str]):
+    """load_scene; an error about a key that --set gave says so (the value is not in the file)."""
+    from .core.errors import SceneError
+    from .scene import load_scene
+    from .scene.load import with_override
+
+    try:
+        return load_scene(name, overrides=overrides)
+    except SceneError as exc:
+        raise SceneError(with_override(str(exc), overrides)) from None
+
+
 def _cmd_run(args) -> int:
     from .run import runner
-    from .scene import load_scene
 
     _quiet_warp()
     if args.resume:
-        ignored = [flag for flag, given in (("a scene", args.scene != "dam_break"), ("--out", args.out),
+        ignored = [flag for flag, given in ((f"the scene {args.scene!r}", args.scene is not None), ("--out", args.out),
                                             ("--set", args.set), ("--overwrite", args.overwrite)) if given]
         if ignored:
             from .core.errors import WarpSphError
@@ -55,7 +66,7 @@ def _cmd_run(args) -> int:
         info = runner.run(None, device=args.device, frames=args.frames, progress=not args.no_progress,
                           resume=Path(args.resume))
     else:
-        scene = load_scene(args.scene, overrides=args.set)
+        scene = _load_scene(args.scene or "dam_break", args.set)
         info = runner.run(scene, out=Path(args.out) if args.out else None, device=args.device,
                           frames=args.frames, overwrite=args.overwrite, progress=not args.no_progress)
     print_summary(info)
@@ -108,10 +119,9 @@ def _cmd_scenes(args) -> int:
 def _cmd_check(args) -> int:
     from .run.preflight import preflight_checks, time_step_summary
     from .run.simulation import Simulation
-    from .scene import load_scene
 
     wp = _quiet_warp()
-    scene = load_scene(args.scene, overrides=args.set)
+    scene = _load_scene(args.scene, args.set)
     sim = Simulation(scene, device=wp.get_device("cpu"))
     preflight_checks(scene, sim)
     s = sim.summary()
@@ -265,7 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command")
 
     r = sub.add_parser("run", parents=[common], help="simulate a scene (default: dam_break) into a run folder")
-    r.add_argument("scene", nargs="?", default="dam_break", help="built-in scene name or path to a .toml file (default: dam_break)")
+    r.add_argument("scene", nargs="?", default=None, help="built-in scene name or path to a .toml file (default: dam_break)")
     r.add_argument("--out", help="output folder (default: runs/<scene>, or runs/<scene>-N if that holds a run)")
     r.add_argument("--frames", type=int, help="frames to write including the initial one (default: duration * fps + 1)")
     r.add_argument("--device", default=None, help="Warp device: cpu or cuda:0 (default: Warp's default device)")
@@ -282,12 +292,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("check", parents=[common], help="validate a scene (and sample it) without running")
     c.add_argument("scene", nargs="?", default="dam_break", help="built-in scene name or path to a .toml file (default: dam_break)")
-    c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene value by key path, as for run (repeatable)")
     c.set_defaults(func=_cmd_check)
 
     e = sub.add_parser("export", parents=[common], help="re-export a run's recorded frames (surface, USD or mesh sequence) without simulating")
     e.add_argument("run", help="run folder")
-    e.add_argument("--format", default="usd", choices=["usd", "obj", "ply", "vtk"])
+    e.add_argument("--format", default="usd", choices=["usd", "obj", "ply", "vtk"],
+                   help="usd: particles, surface and static meshes in one .usdc; obj, ply, vtk: one surface file per frame (default: usd)")
     e.add_argument("--out", help="output file (usd) or folder (meshes); default inside the run folder under export/")
     e.add_argument("--surface-cell", type=float, default=None, help="surface grid cell per particle radius (default: the run's)")
     e.add_argument("--surface-iso", type=float, default=None, help="iso level of the colour field (default: the run's)")

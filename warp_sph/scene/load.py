@@ -183,6 +183,21 @@ def load_scene(name_or_path: str, overrides: list[str] | dict | None = None) -> 
     return scene
 
 
+def with_override(message: str, overrides) -> str:
+    """A scene error about a key that an override set (or about the table holding it) says so, as
+    ``warp-sph run`` and ``check`` print it: "FILE: particle_radius: expected ..., got -1 (from --set
+    particle_radius)": the value is not in the file."""
+    parts = message.split(": ")
+    if len(parts) < 3:
+        return message
+    where = parts[1]  # "FILE: KEYPATH: what was expected"
+    keys = overrides.keys() if isinstance(overrides, dict) else [str(o).partition("=")[0] for o in overrides or ()]
+    for key in (str(k).strip() for k in keys):
+        if key and any(a == b or a.startswith(b + ".") or a.startswith(b + "[") for a, b in ((key, where), (where, key))):
+            return f"{message} (from --set {key})"
+    return message
+
+
 def _override_keys(overrides) -> set:
     """The (table, key) pairs that ``--set`` overrides name, indices left out (``pbf.max_iterations`` ->
     ("pbf", "max_iterations"), ``bodies[0].fluid_friction`` -> ("bodies", "fluid_friction"))."""
