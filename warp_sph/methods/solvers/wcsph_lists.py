@@ -20,10 +20,11 @@ refresh. Results differ from the per-step search (skin 0) only by the order of t
 
 The fluid-static-wall lists (same radius H_s + s) are kept across fluid searches, with their own reference
 positions x_i(wall search): a wall particle does not move, so a pair closes in by at most |x_i - x_i(wall search)|
-and the wall lists hold every wall pair closer than H_s while that drift is at most s. A fluid search also searches
-the walls when that drift is past s / 2 (else they would soon force a search of their own), and any step searches
-(both) when it is past s. Reordered particles, a new count or new capacities, a restore or a density refresh search
-the walls too, and with moving bodies they are searched at every (fluid) search as before. The kept wall lists hold
+and the wall lists hold every wall pair closer than H_s while that drift is at most s (the fluid lists' rule,
+two moving particles, gives out at about s / 2). Past s they are searched again: with the fluid's when that step
+searches, else alone (over the static grid, with no fluid sort). Reordered particles, a new count or new
+capacities, a restore or a density refresh search them with the fluid's; with moving bodies they are searched at
+every step as before. The kept wall lists hold
 the fresh lists' pairs in the same order (the walk visits the wall cells in grid order) plus pairs beyond H_s
 that add nothing, so the results are bitwise those of wall lists searched with the fluid.
 """
@@ -87,7 +88,8 @@ class KeptLists:
         self._walls_valid = False
 
     def _must_search(self) -> bool:
-        """Whether this step searches the fluid lists; sets ``_search_walls`` (the wall lists too)."""
+        """Whether this step searches the fluid lists; sets ``_search_walls`` (whether it searches the wall lists,
+        with the fluid's or alone)."""
         m, nl, f = self.sim.model, self.nl, self.sim.fields
         self._search_walls = True
         if self._built is None or self.moving_bodies or self._built != (m.fluid_count, nl.capacities):
@@ -95,6 +97,7 @@ class KeptLists:
             return True
         n = m.fluid_count
         if n == 0:
+            self._search_walls = False
             return False
         chunks = -(-n // _reduce.REDUCE_CHUNK)
         launch(_wcsph.displacement_bounds_chunks, chunks,
@@ -107,9 +110,10 @@ class KeptLists:
         self.last_spread = min(2.0 * self.last_drift, diagonal)
         # a wall pair closes in by |x_i - x_i(wall search)|: s bounds it for the walls' lists
         self.last_wall_drift = float(b[7])
-        walls_ok = self.keep_walls and self._walls_valid and self.last_wall_drift <= self.skin
-        self._search_walls = not (walls_ok and self.last_wall_drift <= 0.5 * self.skin)
-        return self.last_spread > self.skin or not walls_ok
+        search = self.last_spread > self.skin
+        walls_ok = self._walls_valid and self.last_wall_drift <= self.skin
+        self._search_walls = not walls_ok if self.keep_walls else search
+        return search
 
     def run_neighbors(self, sim, dt) -> None:
         """Decide whether this step searches; if so, sort the fluid into the cells."""
@@ -136,6 +140,11 @@ class KeptLists:
             self.builds += 1
             self.last_drift = 0.0
             self.last_spread = 0.0
+        elif self._search_walls:  # the fluid lists still hold: the wall lists alone (the static grid, no sort)
+            nl.build_boundary_lists(x)
+            wp.copy(f["wcsph_wall_x"], x, count=m.fluid_count)
+            self.wall_builds += 1
+            self.last_wall_drift = 0.0
         capacity = nl.capacities[0]
         if self.pairs is None or self.pairs.index.shape[1] != capacity:
             self.pairs = f["wcsph_pairs"] = pair_cache(m.capacity, capacity, m.device)
@@ -152,12 +161,11 @@ class KeptLists:
         return (Stage("neighbors", self.run_neighbors, reads=("particle_x",), updates=kept[1:],
                       writes=("neighbor_cells",),
                       doc=f"when two particles may have closed in by > {self.skin / s:.3g} d since the last search "
-                          f"(min(2 max |d|, the displacements' box diagonal)), or one moved > "
-                          f"{self.skin / s:.3g} d since the wall lists were searched, or the particles were reordered: fluid "
+                          f"(min(2 max |d|, the displacements' box diagonal); or the particles were reordered): fluid "
                           f"sorted into cells of {self.nl.search_radius:.4g} m"),
                 Stage("density", self.run_density, reads=("neighbor_cells", "particle_x") + boundary_reads + moving,
                       updates=kept, writes=("particle_density", "wcsph_pairs"),
                       doc=f"neighbour lists within H_s + {self.skin / s:.3g} d (capacities {self.nl.capacities}) "
-                          "when the step searched (the static-wall lists too when a particle moved > "
-                          f"{0.5 * self.skin / s:.3g} d since they were searched, or they are stale); eq. 7/13 "
+                          "when the step searched; the static-wall lists when a particle moved > "
+                          f"{self.skin / s:.3g} d since they were searched (or they are stale); eq. 7/13 "
                           "over the lists and the pairs closer than H_s with grad W (PairCache) for the forces"))
