@@ -24,9 +24,9 @@ and the wall lists hold every wall pair closer than H_s while that drift is at m
 two moving particles, gives out at about s / 2). Past s they are searched again: with the fluid's when that step
 searches, else alone (over the static grid, with no fluid sort). Reordered particles, a new count or new
 capacities, a restore or a density refresh search them with the fluid's; with moving bodies they are searched at
-every step as before. The kept wall lists hold
-the fresh lists' pairs in the same order (the walk visits the wall cells in grid order) plus pairs beyond H_s
-that add nothing, so the results are bitwise those of wall lists searched with the fluid.
+every step as before. The kept wall lists hold the fresh lists' pairs in the same order (the walk visits the wall
+cells in grid order) plus pairs beyond H_s that add nothing, so the results are bitwise those of wall lists searched
+with every fluid search (``keep_walls = False``).
 """
 from __future__ import annotations
 
