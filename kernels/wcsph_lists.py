@@ -101,13 +101,15 @@ def displacement_bounds_chunks(
     particle_x: wp.array(dtype=wp.vec3),
     neighbor_x: wp.array(dtype=wp.vec3),
     neighbor_slot: wp.array(dtype=wp.int32),
+    wall_x: wp.array(dtype=wp.vec3),
     # Out:
     partial_out: wp.array2d(dtype=float),
 ):
     """Per chunk of the first ``count`` particles, of the displacements d_i = x_i - x_i(search) [m]: the largest
     |d_i| (column 0) and the bounding box of the d_i, its lower corner negated (columns 1-3) and its upper corner
-    (columns 4-6), so that the host's maximum over the chunks gives both; 1e30 everywhere when a particle is no
-    longer at the index it had at the search (neighbor_slot[i] != i: reordered, the lists' indices are stale).
+    (columns 4-6), so that the host's maximum over the chunks gives both; the largest |x_i - wall_x_i| (column 7,
+    the drift since the static-wall lists were searched); 1e30 everywhere when a particle is no longer at the index
+    it had at the search (neighbor_slot[i] != i: reordered, the lists' indices are stale).
     Maxima only: the result does not depend on the thread count."""
     k = wp.tid()
     lo = k * chunk
@@ -115,10 +117,13 @@ def displacement_bounds_chunks(
     drift = float(0.0)
     neg_lo = wp.vec3(-1.0e30)
     up = wp.vec3(-1.0e30)
+    wall_drift = float(0.0)
     for i in range(lo, hi):
         d = particle_x[i] - neighbor_x[i]
+        wall_drift = wp.max(wall_drift, wp.length(particle_x[i] - wall_x[i]))
         if neighbor_slot[i] != i:
             drift = 1.0e30
+            wall_drift = 1.0e30
             d = wp.vec3(1.0e30)
             neg_lo = wp.vec3(1.0e30)
         drift = wp.max(drift, wp.length(d))
@@ -131,3 +136,4 @@ def displacement_bounds_chunks(
     partial_out[k, 4] = up[0]
     partial_out[k, 5] = up[1]
     partial_out[k, 6] = up[2]
+    partial_out[k, 7] = wall_drift

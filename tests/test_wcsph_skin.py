@@ -167,3 +167,47 @@ def test_branch_free_cubic_matches_the_cubic_spline():
     np.testing.assert_allclose(got[:, 1:], g, rtol=0, atol=2e-6 * np.abs(g).max())
     outside = np.linalg.norm(offsets, axis=1) >= 2.0 * h
     assert outside.any() and not got[outside].any()
+
+
+def test_kept_wall_lists_bitwise_the_fresh_ones(device):
+    """The fluid-static-wall lists kept across fluid searches (``KeptLists.keep_walls``) against wall lists searched
+    at every fluid search: the kept lists hold the same pairs closer than H_s in the same order (plus pairs beyond
+    H_s that add nothing), so densities, positions and velocities are bitwise equal, with fewer wall searches."""
+    sims = []
+    for keep in (True, False):
+        sim = Simulation(falling_block(0.2), device=device)
+        sim.solver.kept_lists.keep_walls = keep
+        for _ in range(5):  # the block lands at the third frame, then sloshes: searches every few steps
+            sim.advance_frame()
+        sims.append(sim)
+    kept, fresh = (sim.solver.kept_lists for sim in sims)
+    assert fresh.wall_builds == fresh.builds == kept.builds
+    assert kept.wall_builds < 0.8 * kept.builds  # the walls' lists outlived fluid searches
+    for name in ("particle_density", "particle_x", "particle_v"):
+        assert np.array_equal(sims[0].get_field(name), sims[1].get_field(name)), name
+
+
+def test_kept_wall_lists_searched_once_a_particle_moved_the_skin(device):
+    """A block falling onto the floor with a small skin: the wall lists are kept across fluid searches while no
+    particle drifted past the skin since they were searched (a wall particle does not move: a wall pair closes in
+    by the fluid particle's drift), and searched again after; every step's density, with the wall term, matches
+    the brute-force oracle, which fails once a wall pair closer than H_s is missing from lists kept too long."""
+    sim = Simulation(falling_block(0.05), device=device)
+    kept = sim.solver.kept_lists
+    for _ in range(3):  # landed: the fluid searches about every step, the walls every other
+        sim.advance_frame()
+    with sim.in_cell_order():
+        check_step(sim, kept)  # reordered since the last search: both lists searched
+        builds, wall_builds = kept.builds, kept.wall_builds
+        kept_over_search = 0  # fluid searches that kept the wall lists
+        for _ in range(8):
+            b, w = kept.builds, kept.wall_builds
+            check_step(sim, kept)
+            if kept.wall_builds == w:
+                assert kept.last_wall_drift <= kept.skin
+                kept_over_search += kept.builds > b
+            else:
+                assert kept.last_wall_drift == 0.0
+        assert kept_over_search >= 1
+        assert kept.wall_builds > wall_builds  # the drift passed the skin since the walls were searched
+        assert kept.wall_builds - wall_builds < kept.builds - builds

@@ -212,8 +212,9 @@ class NeighborLists:
 
     def build_lists(self, particle_x: wp.array, density_out: wp.array | None = None, smoothing: str = "",
                     smoothing_length: float = 0.0, particle_mass: float = 0.0, rest_density: float = 0.0,
-                    boundary_terms=None, boundary_params=None) -> None:
-        """Both lists for the positions ``particle_x`` [m] that ``sort`` was given; with ``density_out``
+                    boundary_terms=None, boundary_params=None, boundary: bool = True) -> None:
+        """Both lists (``boundary`` False: the fluid list alone, the boundary list kept as it is) for the
+        positions ``particle_x`` [m] that ``sort`` was given; with ``density_out``
         also rho_i = m sum_j W_ij [+ rho0 sum_b density_b(W_ib, V_b) with a boundary method's
         ``boundary_terms`` that has a density term, and its ``boundary_params``] [kg/m^3] over the same
         pairs (``smoothing`` kernel name, h [m], m [kg], rho0 [kg/m^3]; the boundary term needs
@@ -235,6 +236,8 @@ class NeighborLists:
                 self._no_mask, 0, 0, 0, self.search_radius, float(smoothing_length), float(particle_mass),
                 self._no_params, fc.cell_point, particle_x],
                [self.fluid.count, self.fluid.index, self._max_count, density], device=self.device)
+        if not boundary:
+            return
         self._build_boundary(particle_x, density, smoothing, smoothing_length, rest_density, boundary_terms,
                              boundary_params, boundary_density)
 

@@ -262,7 +262,8 @@ class WcsphSolver(Solver):
     def carried_fields(self) -> tuple[str, ...]:
         """The delta-SPH density correction (when on): the density the diffusion moved so far; with a search skin
         the kept neighbour lists and where (and at which index) each particle was when they were searched."""
-        kept = ("neighbor_lists", "wcsph_neighbor_x", "wcsph_neighbor_slot") if self.search_skin > 0.0 else ()
+        kept = (("neighbor_lists", "wcsph_neighbor_x", "wcsph_neighbor_slot", "wcsph_wall_x") if self.search_skin > 0.0
+                else ())
         return (("wcsph_density_correction",) if self.density_diffusion > 0.0 else ()) + kept
 
     def checkpoint_arrays(self) -> dict:

@@ -17,6 +17,16 @@ device, one host read per step), when the particles were reordered since (the fr
 field that is permuted with them, as PBF's, ``kernels/pbf_search.py``), when the particle count or the lists'
 capacities changed, with moving bodies (their particles move every step), and after a restore or a density
 refresh. Results differ from the per-step search (skin 0) only by the order of the sums (the cells are larger).
+
+The fluid-static-wall lists (same radius H_s + s) are kept across fluid searches, with their own reference
+positions x_i(wall search): a wall particle does not move, so a pair closes in by at most |x_i - x_i(wall search)|
+and the wall lists hold every wall pair closer than H_s while that drift is at most s (the fluid lists' rule,
+two moving particles, gives out at about s / 2). Past s they are searched again: with the fluid's when that step
+searches, else alone (over the static grid, with no fluid sort). Reordered particles, a new count or new
+capacities, a restore or a density refresh search them with the fluid's; with moving bodies they are searched at
+every step as before. The kept wall lists hold the fresh lists' pairs in the same order (the walk visits the wall
+cells in grid order) plus pairs beyond H_s that add nothing, so the results are bitwise those of wall lists searched
+with every fluid search (``keep_walls = False``).
 """
 from __future__ import annotations
 
@@ -56,12 +66,18 @@ class KeptLists:
         for name, dtype in (("particle_density", float), ("wcsph_neighbor_x", wp.vec3), ("wcsph_neighbor_slot", wp.int32)):
             sim.allocate(name, dtype)  # (per-particle fields: read from sim.fields, which emitters resize)
         chunks = max(1, -(-m.capacity // _reduce.REDUCE_CHUNK))
-        self._drift_partial = wp.zeros((chunks, 7), dtype=float, device=m.device)  # max |d|, box corners
+        sim.allocate("wcsph_wall_x", wp.vec3)  # where each particle was when the static-wall lists were searched
+        self._drift_partial = wp.zeros((chunks, 8), dtype=float, device=m.device)  # max |d|, box corners, wall drift
         self._density_kernel = _wcsph.density_pairs_kernel(m.smoothing.name, sim.boundary_terms)
         self.pairs = None  # the step's ``PairCache`` (``wcsph_pairs``), rows as long as the fluid lists'
         self._built = None  # (fluid count, capacities) at the last search; None: search at the next step
         self._search = True
+        self.keep_walls = True  # False: search the wall lists at every fluid search (the reference behaviour)
+        self._walls_valid = False  # the wall lists hold every wall pair closer than H_s + s of x(wall search)
+        self._search_walls = True
         self.builds = 0
+        self.wall_builds = 0  # searches of the fluid-static-wall lists
+        self.last_wall_drift = 0.0  # max |x_i - x_i(wall search)| at the last check [m]
         self.steps = 0
         self.last_drift = 0.0
         self.last_spread = 0.0  # bound on |d_i - d_j| at the last check [m] (``_must_search``)
@@ -69,24 +85,35 @@ class KeptLists:
     def invalidate(self) -> None:
         """Search at the next step (after a restore, or positions changed from outside)."""
         self._built = None
+        self._walls_valid = False
 
     def _must_search(self) -> bool:
+        """Whether this step searches the fluid lists; sets ``_search_walls`` (whether it searches the wall lists,
+        with the fluid's or alone)."""
         m, nl, f = self.sim.model, self.nl, self.sim.fields
+        self._search_walls = True
         if self._built is None or self.moving_bodies or self._built != (m.fluid_count, nl.capacities):
+            self._walls_valid = False
             return True
         n = m.fluid_count
         if n == 0:
+            self._search_walls = False
             return False
         chunks = -(-n // _reduce.REDUCE_CHUNK)
         launch(_wcsph.displacement_bounds_chunks, chunks,
-               [_reduce.REDUCE_CHUNK, n, f["particle_x"], f["wcsph_neighbor_x"], f["wcsph_neighbor_slot"]],
-               [self._drift_partial], device=m.device)
+               [_reduce.REDUCE_CHUNK, n, f["particle_x"], f["wcsph_neighbor_x"], f["wcsph_neighbor_slot"],
+                f["wcsph_wall_x"]], [self._drift_partial], device=m.device)
         b = self._drift_partial.numpy()[:chunks].max(axis=0).astype(np.float64)  # one read
         self.last_drift = float(b[0])
         # the box of the d_i and of d = 0, the static walls' (a pair with a wall particle closes in by |d_i|)
         diagonal = float(np.linalg.norm(np.maximum(b[1:4], 0.0) + np.maximum(b[4:7], 0.0)))
         self.last_spread = min(2.0 * self.last_drift, diagonal)
-        return self.last_spread > self.skin
+        # a wall pair closes in by |x_i - x_i(wall search)|: s bounds it for the walls' lists
+        self.last_wall_drift = float(b[7])
+        search = self.last_spread > self.skin
+        walls_ok = self._walls_valid and self.last_wall_drift <= self.skin
+        self._search_walls = not walls_ok if self.keep_walls else search
+        return search
 
     def run_neighbors(self, sim, dt) -> None:
         """Decide whether this step searches; if so, sort the fluid into the cells."""
@@ -100,7 +127,12 @@ class KeptLists:
         x = f["particle_x"]
         self.steps += 1
         if self._search:
-            nl.build_lists(x)
+            nl.build_lists(x, boundary=self._search_walls)
+            if self._search_walls:
+                wp.copy(f["wcsph_wall_x"], x, count=m.fluid_count)
+                self.wall_builds += 1
+                self.last_wall_drift = 0.0
+            self._walls_valid = True
             launch(_lists_reuse.identity_slots, m.fluid_count, [], [f["wcsph_neighbor_slot"]], device=m.device,
                    min_range=LIGHT_MIN_RANGE)
             wp.copy(f["wcsph_neighbor_x"], x, count=m.fluid_count)
@@ -108,6 +140,11 @@ class KeptLists:
             self.builds += 1
             self.last_drift = 0.0
             self.last_spread = 0.0
+        elif self._search_walls:  # the fluid lists still hold: the wall lists alone (the static grid, no sort)
+            nl.build_boundary_lists(x)
+            wp.copy(f["wcsph_wall_x"], x, count=m.fluid_count)
+            self.wall_builds += 1
+            self.last_wall_drift = 0.0
         capacity = nl.capacities[0]
         if self.pairs is None or self.pairs.index.shape[1] != capacity:
             self.pairs = f["wcsph_pairs"] = pair_cache(m.capacity, capacity, m.device)
@@ -118,7 +155,7 @@ class KeptLists:
 
     def stages(self, boundary_reads: tuple[str, ...]) -> tuple[Stage, Stage]:
         """(neighbors, density) stages for the solver's graph."""
-        kept = ("neighbor_lists", "wcsph_neighbor_x", "wcsph_neighbor_slot")
+        kept = ("neighbor_lists", "wcsph_neighbor_x", "wcsph_neighbor_slot", "wcsph_wall_x")
         moving = ("moving_boundary_grid",) if getattr(self.sim, "bodies", None) is not None else ()
         s = self.sim.model.spacing
         return (Stage("neighbors", self.run_neighbors, reads=("particle_x",), updates=kept[1:],
@@ -129,5 +166,6 @@ class KeptLists:
                 Stage("density", self.run_density, reads=("neighbor_cells", "particle_x") + boundary_reads + moving,
                       updates=kept, writes=("particle_density", "wcsph_pairs"),
                       doc=f"neighbour lists within H_s + {self.skin / s:.3g} d (capacities {self.nl.capacities}) "
-                          "when the step searched; eq. 7/13 over the lists and the pairs closer than H_s with "
-                          "grad W (PairCache) for the forces"))
+                          "when the step searched; the static-wall lists when a particle moved > "
+                          f"{self.skin / s:.3g} d since they were searched (or they are stale); eq. 7/13 "
+                          "over the lists and the pairs closer than H_s with grad W (PairCache) for the forces"))
