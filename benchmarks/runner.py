@@ -242,7 +242,8 @@ def cmd_splishsplash(args, argv: list[str], log=print) -> int:
         solvers=split_values(args.solvers) if args.solvers else list(S.FIXED_STEP_SOLVERS),
         dt={"wcsph": args.dt_wcsph, "pbf": args.dt_pbf, "dfsph": args.dt_dfsph},
         device=args.device, isolate=not args.in_process, skip_warp_sph=args.skip_warp_sph,
-        splishsplash_gap=args.splishsplash_gap, warp_sph_overrides=args.warp_sph_set, log=log)
+        splishsplash_gap=args.splishsplash_gap, warp_sph_overrides=args.warp_sph_set, repeats=args.repeats,
+        log=log)
     out = _save("splishsplash", records, args, argv, invocation, log)
     for q in speed_ratios(records):
         log(f"{q['solver']}: warp-sph time / SPlisHSPlasH time = {q['ratio']:.2f} wall"
@@ -572,7 +573,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --adaptive: particle radius [m] and simulated seconds per resolution "
                         "(default 0.025:1.0,0.0125:0.3: 6,859 particles for 1 s, 59,319 for 0.3 s)")
     x.add_argument("--repeats", type=positive_int, default=1,
-                   help="with --adaptive: runs of every case, in turns; the fastest of each counts (default 1)")
+                   help="runs of every case, in turns (fixed step: warp-sph and SPlisHSPlasH of each solver "
+                        "alternating); the fastest of each counts (default 1)")
     x.add_argument("--solvers", default=None,
                    help="comma-separated solvers; fixed step (default wcsph,pbf,dfsph): wcsph,pbf in both engines, "
                         "dfsph in SPlisHSPlasH only; --adaptive (default: all): each named warp-sph solver and the "
