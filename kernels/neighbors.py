@@ -101,10 +101,10 @@ def cell_rows(q: wp.vec3, qr: float, grid_dims: wp.vec3i) -> wp.vec4i:
 
 
 @wp.func
-def row_points(q: wp.vec3, qr: float, y: int, z: int, grid_dims: wp.vec3i, cell_start: wp.array(dtype=wp.int32)) -> wp.vec2i:
-    """Sorted indices [k0, k1) of the points in the cells of row (y, z) within qr cells of q (cell
-    units): the row's x range trimmed to the sphere (border rows extend to infinity, matching the
-    clamped cells of outside points); k1 <= k0 when the row is out of reach."""
+def row_reach(q: wp.vec3, qr: float, y: int, z: int, grid_dims: wp.vec3i) -> float:
+    """Half-length [cells] along x of the chord that the sphere of radius qr cells around q cuts from row
+    (y, z) (sqrt(qr^2 - dy^2 - dz^2), dy and dz the row's distance from q; border rows extend to infinity,
+    matching the clamped cells of outside points); -1 when the row is out of reach."""
     dz = float(0.0)
     if z > 0 and q[2] < float(z):
         dz = float(z) - q[2]
@@ -117,8 +117,18 @@ def row_points(q: wp.vec3, qr: float, y: int, z: int, grid_dims: wp.vec3i, cell_
         dy = q[1] - float(y + 1)
     rest = qr * qr - dy * dy - dz * dz
     if rest <= 0.0:
+        return -1.0
+    return wp.sqrt(rest)
+
+
+@wp.func
+def row_points(q: wp.vec3, qr: float, y: int, z: int, grid_dims: wp.vec3i, cell_start: wp.array(dtype=wp.int32)) -> wp.vec2i:
+    """Sorted indices [k0, k1) of the points in the cells of row (y, z) within qr cells of q (cell
+    units): the row's x range trimmed to the sphere (border rows extend to infinity, matching the
+    clamped cells of outside points); k1 <= k0 when the row is out of reach."""
+    xr = row_reach(q, qr, y, z, grid_dims)
+    if xr < 0.0:
         return wp.vec2i(0, 0)
-    xr = wp.sqrt(rest)
     row = grid_dims[0] * (y + grid_dims[1] * z)
     x0 = wp.clamp(int(wp.floor(q[0] - xr)), 0, grid_dims[0] - 1)
     x1 = wp.clamp(int(wp.floor(q[0] + xr)), 0, grid_dims[0] - 1)
@@ -133,20 +143,9 @@ def row_points_split(q: wp.vec3, qr: float, y: int, z: int, grid_dims: wp.vec3i,
     trimmed to the sphere at the slabs' width (cell size / x_split), so fewer candidates per row. With
     x_split = 1 (sub_start = cell_start) the same range as ``row_points``. Border slabs extend to infinity
     (points outside the grid fall in the first or last slab of the border cell)."""
-    dz = float(0.0)
-    if z > 0 and q[2] < float(z):
-        dz = float(z) - q[2]
-    if z < grid_dims[2] - 1 and q[2] > float(z + 1):
-        dz = q[2] - float(z + 1)
-    dy = float(0.0)
-    if y > 0 and q[1] < float(y):
-        dy = float(y) - q[1]
-    if y < grid_dims[1] - 1 and q[1] > float(y + 1):
-        dy = q[1] - float(y + 1)
-    rest = qr * qr - dy * dy - dz * dz
-    if rest <= 0.0:
+    xr = row_reach(q, qr, y, z, grid_dims)
+    if xr < 0.0:
         return wp.vec2i(0, 0)
-    xr = wp.sqrt(rest)
     slabs = grid_dims[0] * x_split
     row = slabs * (y + grid_dims[1] * z)
     split = float(x_split)
