@@ -27,8 +27,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ..core.device import cpu_model
-from ..core.errors import PlanError, WarpSphError  # noqa: F401 (PlanError: plan's error, re-exported)
+from ..core.errors import PlanError  # noqa: F401 (plan's error, re-exported)
 from .fit import step_floor
+from .points import Point, run_point, solver_sweeps  # noqa: F401 (re-exported)
 
 #: simulated time of a calibration run [s] (rounded up to whole frames, at least two frames)
 CALIBRATION_TIME = 0.1
@@ -41,71 +42,9 @@ PLANNED_KEYS = ("particle_radius", "solver", "plan", "name", "description")
 #: the second calibrated tolerance of a solver with one: the scene's divided by this
 TOLERANCE_STEP = 4.0
 #: the version of the cached points' fields (older cache files are not read)
-CACHE_SCHEMA = 3
+CACHE_SCHEMA = 4
 #: calibration runs made by this process so far (the first one's set-up includes loading the shared kernels)
 _RUNS_IN_PROCESS = [0]
-
-
-@dataclass
-class Point:
-    """One calibration run: the scene with ``solver`` at ``particle_radius`` [m] for ``frames`` frames."""
-
-    solver: str
-    particle_radius: float
-    tolerance: float | None = None      # the solver's density tolerance in this run (None: it has none)
-    status: str = "completed"           # "completed" or "failed"
-    error: str = ""                     # the one-line reason of a failed run
-    fluid: int = 0
-    boundary: int = 0
-    estimated_fluid: int = 0            # the geometric estimate at this radius (``memory.estimate_particle_counts``)
-    estimated_boundary: int = 0
-    frames: int = 0                     # frames advanced (the initial one not counted)
-    steps: int = 0
-    simulated_time: float = 0.0         # [s]
-    wall_time: float = 0.0              # [s] of run.json
-    step_time: float = 0.0              # [s] steady wall time of one substep (first call excluded)
-    export_wait: float = 0.0            # [s] the simulation thread spent on exports
-    first_step_time: float = 0.0        # [s] the first step's stages, kernel loads included
-    density_error_mean: float = 0.0     # [-] mean over the advanced frames of the frame's mean error
-    density_error_max: float = 0.0      # [-] largest of any frame
-    density_error_last: float = 0.0     # [-] the last frame's mean error
-    density_errors: list = field(default_factory=list)  # [-] each advanced frame's mean error, in order
-    frame_steps: list = field(default_factory=list)     # substeps of each advanced frame, in order
-    frame_speeds: list = field(default_factory=list)    # [m/s] fastest particle (fluid or body) at each frame's end, initial first
-    sweeps: float = 0.0                 # solver sweeps per step: pressure + divergence iterations, mean over the steps (0: none)
-    first_in_process: bool = False      # the process's first calibration run: its set-up loaded the shared kernels
-    reference: dict = field(default_factory=dict)  # metric -> error against the experiment (None: not measurable)
-    seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
-
-    @property
-    def spacing(self) -> float:
-        """Lattice spacing d = 2 r [m]."""
-        return 2.0 * self.particle_radius
-
-    @property
-    def particles(self) -> int:
-        """Fluid and boundary particles."""
-        return self.fluid + self.boundary
-
-    @property
-    def steps_per_second(self) -> float:
-        """Substeps per simulated second."""
-        return self.steps / self.simulated_time if self.simulated_time > 0 else math.nan
-
-    @property
-    def load_time(self) -> float:
-        """[s] the first step took beyond a steady one: loading (or compiling) the step's kernels."""
-        return max(self.first_step_time - self.step_time, 0.0)
-
-    @property
-    def setup_time(self) -> float:
-        """[s] of the run outside its steps, its per-frame exports and its kernel loads: sampling, model, files."""
-        return max(self.wall_time - self.steps * self.step_time - self.export_wait - self.load_time, 0.0)
-
-    @property
-    def frame_overhead(self) -> float:
-        """[s] per frame the simulation waited on exports."""
-        return self.export_wait / self.frames if self.frames else 0.0
 
 
 @dataclass
@@ -258,56 +197,6 @@ def variant(scene, solver: str, radius: float, tolerance: float | None = None):
 
     base = Path(scene.source).parent if str(scene.source).endswith(".toml") else None
     return scene_from_dict(variant_dict(scene, solver, radius, tolerance), source=scene.source, base_dir=base)
-
-
-def run_point(scene, solver: str, radius: float, frames: int, device, folder: Path,
-              tolerance: float | None = None) -> Point:
-    """One calibration run into ``folder`` (removed afterwards); a run that fails gives a failed Point."""
-    from ..run import runner
-    from ..run.memory import estimate_particle_counts
-    from .metrics import evaluate_reference
-
-    point = Point(solver=solver, particle_radius=radius,
-                  tolerance=tolerance if tolerance is not None else scene_tolerance(scene, solver))
-    try:
-        s = variant(scene, solver, radius, tolerance)
-        point.estimated_fluid, point.estimated_boundary = estimate_particle_counts(s)
-        info = runner.run(s, out=folder, device=device, frames=frames, progress=False, log=lambda *a, **k: None)
-        point.reference = evaluate_reference(s, folder, info)
-    except WarpSphError as exc:
-        point.status, point.error = "failed", str(exc).splitlines()[0]
-        return point
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
-    advanced = [f for f in info["frames"] if f["frame"] > 1]
-    point.fluid, point.boundary = int(info["fluid_particles"]), int(info["boundary_particles"])
-    point.frames = len(advanced)
-    point.steps = int(info["steps"])
-    point.simulated_time = float(info["simulated_time"])
-    point.wall_time = float(info["wall_time"])
-    point.step_time = float(info["sim_time_per_step_ms"]) * 1e-3
-    point.export_wait = float(info.get("export_wait_time", 0.0))
-    point.first_step_time = float(info.get("first_step_time", 0.0))
-    point.density_error_mean = sum(f["density_error_mean"] for f in advanced) / max(len(advanced), 1)
-    point.density_error_max = max((f["density_error_max"] for f in advanced), default=0.0)
-    point.density_error_last = advanced[-1]["density_error_mean"] if advanced else 0.0
-    point.density_errors = [float(f["density_error_mean"]) for f in advanced]
-    point.frame_steps = [int(f["steps"]) for f in advanced]
-    point.sweeps = solver_sweeps(advanced)
-    point.frame_speeds = [max(float(f.get("max_speed", 0.0)), float(f.get("body_speed", 0.0))) for f in info["frames"]]
-    return point
-
-
-def solver_sweeps(frames) -> float:
-    """Solver sweeps per step over run.json ``frames``: each frame's mean pressure (``iterations``) and divergence
-    iterations, weighted by its steps (0 for a solver that reports none, WCSPH)."""
-    steps = sweeps = 0.0
-    for f in frames:
-        solver = f.get("solver") or {}
-        n = float(f.get("steps", 0))
-        steps += n
-        sweeps += n * sum(float((solver.get(k) or {}).get("mean", 0.0)) for k in ("iterations", "divergence_iterations"))
-    return sweeps / steps if steps > 0 else 0.0
 
 
 def _same_radius(a: float, b: float) -> bool:

@@ -89,7 +89,8 @@ def point_cost(cal, solver: str, radius: float) -> float:
 
 def cost_notes(model, chosen) -> list:
     """The lines that say how the chosen setting's step cost was carried beyond the calibration: the whole-run cost
-    ratio C (applied or not, and its measured value) and the count law beyond the largest calibrated count."""
+    ratio C (applied or not, and its measured value), the count law beyond the largest calibrated count and the
+    sweeps' factor (``models.SolverModel.sweep_factor``)."""
     from .models import COST_RATIO_MIN_WINDOW, COST_RATIO_NOISE
 
     out = []
@@ -106,4 +107,11 @@ def cost_notes(model, chosen) -> list:
         out.append(f"{model.solver}'s step cost beyond {model.count_fluid:,} fluid particles (the largest calibrated) "
                    f"at least ~ Nf^{law.exponent:.2f} from that count's (exponent measured over the largest counts: "
                    f"{law.measured:.2f})")
+    d = 2.0 * chosen.particle_radius
+    factor = model.sweep_factor(chosen.fluid_particles, d)
+    if factor != 1.0:
+        out.append(f"{model.solver}'s step cost beyond {model.sweeps_fluid:,} fluid particles x {factor:.3g} for its sweeps: "
+                   f"{model.sweeps_at(d):.3g} per step predicted at r = {chosen.particle_radius:.4g} m (~ d^"
+                   f"{model.sweeps.exponent:.2f} over the finest calibrated radii) against {model.sweeps_reference:.3g} "
+                   f"at that count, whose sweeps' stages took {100 * model.solve_share:.0f} % of its step")
     return out
