@@ -16,7 +16,7 @@ from dataclasses import replace
 
 from .advisor import Candidate, Plan, SolverModel
 from .calibrate import PlanError
-from .share import budget_cap, cost_notes, point_cost, profile_solvers, rank_solvers, whole_run_cost
+from .share import budget_cap, cost_notes, least_run_time, point_cost, profile_solvers, rank_solvers, whole_run_cost
 
 #: calibration rounds of a plan at most: the default radii, then finer points towards the setting chosen
 MAX_ROUNDS = 4
@@ -64,11 +64,11 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     from ..run.memory import available_device_memory, available_host_memory
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
-    from .advisor import (CALIBRATION_MARGIN, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose,
-                          fit_models, fixed_time, next_point, point_summary)
+    from .advisor import (BUDGET_SAFETY, CALIBRATION_MARGIN, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for,
+                          choose, fit_models, fixed_time, next_point, point_summary)
     from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, _same_radius, _same_tolerance, calibrate,
-                            calibration_frames as cal_frames, calibration_radii as default_radii, scene_tolerance,
-                            tolerance_key)
+                            calibration_frames as cal_frames, calibration_radii as default_radii, is_cached,
+                            scene_tolerance, tolerance_key)
     from .metrics import DENSITY, calibration_time, check_metric
 
     if budget_s is None and target_error is None:
@@ -87,6 +87,15 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         raise PlanError(f"--solvers: unknown {', '.join(unknown)}; expected some of {', '.join(solver_names())}")
     radii = list(calibration_radii) if calibration_radii else default_radii(scene)
     frames = calibration_frames or cal_frames(scene, calibration_time(scene, metric, CALIBRATION_TIME))
+    # a budget whose BUDGET_SAFETY (the share a plan may use) not even the coarsest setting's least cost on this
+    # machine fits is refused before calibrating (the calibration would refuse it after spending seconds; where the
+    # scene's coarsest points are cached nothing runs, and the plan's own refusal names the cheapest setting)
+    least = (least_run_time(scene, names, max(radii), cache, dev) if budget_s is not None
+             and (refresh or not is_cached(scene, names, max(radii), frames, cache, dev)) else None)
+    if least is not None and least[0] > BUDGET_SAFETY * budget_s:
+        raise PlanError(f"{scene.source}: --budget {budget_s:g} s is too small: {least[1]}, {least[0]:.3g} s in all "
+                        f"(plans keep {100 * BUDGET_SAFETY:.0f} % of the budget); give --budget "
+                        f"{math.ceil(least[0] / BUDGET_SAFETY)}s or more")
     limit = available_device_memory(dev) if dev.is_cuda else available_host_memory()
     # the decisions keep within CALIBRATION_MARGIN of the share, every predicted cost times what the runs so far
     # took over their prediction (``overrun``): the last run's own error then has room below the share
@@ -317,5 +326,6 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                 + [point_summary(p, whole=True) for p in (profile.points if profile is not None else [])])
 
 
-__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "cost_notes", "plan", "point_cost", "profile_solvers",
+__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "cost_notes", "least_run_time", "plan", "point_cost",
+           "profile_solvers",
            "rank_solvers", "whole_run_cost"]

@@ -111,6 +111,49 @@ def cache_key(scene, device, frames) -> tuple[str, str]:
     return hashlib.sha256(text.encode()).hexdigest(), machine
 
 
+def cached_points(path: Path) -> list[Point]:
+    """The points of a cache file ([] where there is none, or it is damaged or of another schema: calibrate again)."""
+    if not path.is_file():
+        return []
+    try:
+        return [Point(**p) for p in json.loads(path.read_text())["points"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+
+
+def is_cached(scene, solvers, radius: float, frames: int, cache, device) -> bool:
+    """Whether every solver of ``solvers`` has a point of ``scene`` at ``radius`` [m] over ``frames`` frames in the
+    cache (at the scene's tolerance): a calibration of them runs nothing."""
+    key, _ = cache_key(scene, device, frames)
+    pts = cached_points(cache_dir(cache) / f"calibration-{key[:20]}.json")
+    return all(any(p.solver == s and _same_radius(p.particle_radius, radius)
+                   and _same_tolerance(p.tolerance, scene_tolerance(scene, s)) for p in pts) for s in solvers)
+
+
+def machine_floor(cache: str | Path | None, device) -> dict | None:
+    """The least costs any cached calibration run measured on this machine (``machine_text``), over every scene's cache
+    file in the cache directory: ``start`` [s], a fresh process's least time outside its steady steps (the process's
+    first runs: set-up, shared and solver kernel loads; without one, any run's set-up), ``step`` [s] the least steady
+    step and ``particle_step`` [s] the least cost per particle-step. None where nothing of this machine is cached (no
+    honest floor without measuring)."""
+    machine = machine_text(device)
+    pts = []
+    for path in sorted(cache_dir(cache).glob("calibration-*.json")):
+        try:
+            data = json.loads(path.read_text())
+            if data.get("machine") == machine:
+                pts += [Point(**p) for p in data["points"]]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue  # a damaged or older file: not a measurement
+    pts = [p for p in pts if p.status == "completed" and p.step_time > 0 and p.particles > 0]
+    if not pts:
+        return None
+    first = [p.wall_time - p.steps * p.step_time - p.export_wait for p in pts if p.first_in_process]
+    return {"start": max(min(first) if first else min(p.setup_time for p in pts), 0.0),
+            "step": min(p.step_time for p in pts), "particle_step": min(p.step_time / p.particles for p in pts),
+            "points": len(pts)}
+
+
 def thinnest_fluid(scene) -> float:
     """The smallest extent [m] of any fluid block's bounding box."""
     ext = []
@@ -224,12 +267,7 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
     key, machine = cache_key(scene, dev, frames)
     folder = cache_dir(cache)
     path = folder / f"calibration-{key[:20]}.json"
-    points: list[Point] = []
-    if path.is_file() and not refresh:
-        try:
-            points = [Point(**p) for p in json.loads(path.read_text())["points"]]
-        except (OSError, ValueError, KeyError, TypeError):
-            points = []  # a damaged cache file: calibrate again
+    points = [] if refresh else cached_points(path)
     tol = {s: (None if t is None else t * tolerance_factor) for s in solvers
            for t in [scene_tolerance(scene, s)] if t is not None or tolerance_factor == 1.0}
     todo = [(s, r) for s in tol for r in radii

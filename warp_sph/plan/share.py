@@ -27,6 +27,31 @@ def budget_cap(candidates, chosen, budget_s: float, limit, source: str) -> str |
             f"share; the plan uses {100 * chosen.wall_time / budget_s:.0f} % (up to {100 * BUDGET_SAFETY:.0f} % aimed)")
 
 
+def least_run_time(scene, names, radius: float, cache, device) -> tuple[float, str] | None:
+    """(seconds, the bound in words): the least wall time a run of ``scene`` can take on this machine with any solver of
+    ``names``, before anything is calibrated: the coarsest setting a plan considers (``radius`` [m], the coarsest
+    calibration radius), its particles estimated from the geometry, its fewest steps (every frame at time.dt_max, or
+    time.fixed_dt), each at least the least step and the least cost per particle-step measured on this machine, plus a
+    fresh process's least start-up (``calibrate.machine_floor``); None where this machine has nothing cached."""
+    import math
+
+    from ..run.memory import estimate_particle_counts
+    from .calibrate import machine_floor, variant
+    from .fit import step_floor
+
+    floor = machine_floor(cache, device)
+    if floor is None:
+        return None
+    n = min(sum(estimate_particle_counts(variant(scene, s, radius))) for s in names)
+    t = scene.time
+    steps = max(math.ceil(step_floor(scene.fps, t.dt_max, t.fixed_dt) * scene.duration - 1e-9), 1)
+    step = max(floor["step"], n * floor["particle_step"])
+    seconds = floor["start"] + steps * step
+    return seconds, (f"the coarsest setting, r = {radius:.4g} m with {n:,} particles, takes at least {steps:,} steps of "
+                     f"{1e3 * step:.3g} ms after a {floor['start']:.3g} s start: the least measured on this machine "
+                     f"over {floor['points']} cached calibration runs")
+
+
 def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> list:
     """``names`` in the order the plan would prefer them from the calibration so far (each solver's own best
     setting, ranked as ``advisor.choose`` ranks settings); solvers without a setting last."""
