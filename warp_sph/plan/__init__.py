@@ -16,6 +16,7 @@ from dataclasses import replace
 
 from .advisor import Candidate, Plan, SolverModel
 from .calibrate import PlanError
+from .decisions import DECISION_MARGIN, decisions_path, keep_previous, read_previous, request_key, write_decision
 from .share import budget_cap, cost_notes, least_run_time, point_cost, profile_solvers, rank_solvers, whole_run_cost
 
 #: calibration rounds of a plan at most: the default radii, then finer points towards the setting chosen
@@ -146,7 +147,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     # 729 fluid particles, was held to 4x that count: 2.8 s predicted of 60 s, its error 2.34x the prediction)
     cal = run(names, radii[:1])
     cached = cal.cached
-    order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit)
+    # the previous plan of this request: its decisions stand within DECISION_MARGIN of fresh timings (``decisions.py``)
+    request, memo = request_key(budget_s, target_error, metric, names), decisions_path(cache, cal.key)
+    previous = read_previous(memo, request)
+    order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit, previous.get("lead"), DECISION_MARGIN)
     whole, r0 = int(round(scene.duration * scene.fps)) + 1, 0.0
     profile_costs = {}
     if whole > frames and any(cal.for_solver(s) for s in names):
@@ -302,6 +306,8 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                      f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
                      f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
                      f"last calibrated frame's")
+    chosen = keep_previous(chosen, candidates, previous, budget_s, target_error, limit)
+    write_decision(memo, request, chosen, (profiled or order or [None])[0])
     notes += cost_notes(models[chosen.solver], chosen)
     if budget_s is not None and target_error is None:
         cap = budget_cap(candidates, chosen, budget_s, limit, scene.source)

@@ -52,22 +52,29 @@ def least_run_time(scene, names, radius: float, cache, device) -> tuple[float, s
                      f"over {floor['points']} cached calibration runs")
 
 
-def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> list:
+def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit, previous_lead: str | None = None,
+                 margin: float = 0.0) -> list:
     """``names`` in the order the plan would prefer them from the calibration so far (each solver's own best
-    setting, ranked as ``advisor.choose`` ranks settings); solvers without a setting last."""
+    setting, ranked as ``advisor.choose`` ranks settings); solvers without a setting last. ``previous_lead``: the
+    solver that led the previous plan of the request (``decisions.py``): its best setting is taken within the budget
+    times (1 + ``margin``) and its wall time over (1 + ``margin``), so a timing change within the margin does not
+    move it down the ranking."""
     from .advisor import candidates_for, choose, fit_models
 
-    best = {}
+    best, slack = {}, {}
     for s in names:
         m = fit_models(cal, s, scene, metric)
         if m is None:
             continue
+        grace = 1.0 + margin if s == previous_lead else 1.0
         try:
-            best[s] = choose(candidates_for(scene, {s: m}), budget_s, target_error, limit, scene.source)
+            best[s] = choose(candidates_for(scene, {s: m}), budget_s * grace if budget_s is not None else None,
+                             target_error, limit, scene.source)
         except PlanError:
             continue
-    key = (lambda c: (c.wall_time, c.error)) if target_error is not None else (
-        lambda c: (c.particle_radius, c.error, c.wall_time))
+        slack[s] = grace
+    key = (lambda c: (c.wall_time / slack[c.solver], c.error)) if target_error is not None else (
+        lambda c: (c.particle_radius, c.error, c.wall_time / slack[c.solver]))
     return sorted(best, key=lambda s: key(best[s])) + [s for s in names if s not in best]
 
 
