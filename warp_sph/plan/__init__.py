@@ -2,11 +2,13 @@
 short calibration runs of the scene itself (docs/plan.md).
 
     calibrate.py  calibration runs at coarse radii for each solver; cached per scene and machine
+    points.py     one calibration run and the figures read from its run.json (Point)
     fit.py        the fitted models: power laws and non-negative lines
     metrics.py    the errors a target may name: density, or a validation scene's error against its experiment
     models.py     a solver's models fitted to its calibration points (SolverModel)
     advisor.py    models -> candidates (solver x tolerance x radius) -> the recommendation (Plan)
     share.py      the calibration's decisions: the solvers' order, the runs' predicted costs, what fits the share
+    decisions.py  the previous plan's decisions, kept where fresh timings move them within a margin
     report.py     the table, the Pareto plot, the scene file or --set flags of --apply
 """
 from __future__ import annotations
