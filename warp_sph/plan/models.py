@@ -103,7 +103,7 @@ class SolverModel:
     cost_ratio_measured: float | None = None     # C as measured (None: no whole run of this solver)
     cost_ratio_window: float = 0.0               # [s] the steps' time of the calibration point C was measured against
     sweeps: PowerLaw | None = None               # the solver's sweeps per step against d [m] (None: it has none)
-    sweeps_bounds: tuple = (0.0, math.inf)       # the fewest and most sweeps per step the scene allows
+    sweeps_bounds: tuple = (0.0, 0.0)            # the fewest and most sweeps per step the scene allows (most 0: none)
     sweeps_fluid: int = 0                        # the largest calibrated fluid count: the reference of the sweeps' part
     sweeps_reference: float = 0.0                # that point's sweeps per step
     solve_share: float = 0.0                     # [-] that point's steady step time share of the sweeps' stages
@@ -114,7 +114,8 @@ class SolverModel:
         if self.sweeps is None:
             return 0.0
         lo, hi = self.sweeps_bounds
-        return float(min(max(self.sweeps(d), lo), hi))
+        s = max(self.sweeps(d), lo)
+        return float(min(s, hi) if hi > 0 else s)
 
     def sweep_factor(self, fluid: int, d: float) -> float:
         """The step's cost beyond the largest calibrated fluid count as a per-step part plus a per-sweep part times the
@@ -275,7 +276,7 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         count_law=count_law, count_fluid=max(p.fluid for p in split_fluid) if count_law is not None else 0,
         cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
         cost_ratio_window=window, sweeps=fit_sweeps(d, [p.sweeps for p in pts], ERROR_FIT_POINTS),
-        sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, math.inf), sweeps_fluid=ref.fluid,
+        sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, 0.0), sweeps_fluid=ref.fluid,
         sweeps_reference=ref.sweeps, solve_share=ref.solve_share)
 
 

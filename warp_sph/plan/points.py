@@ -150,7 +150,8 @@ def solve_share(stage_times) -> float:
 def sweep_bounds(scene, solver: str) -> tuple[float, float]:
     """(fewest, most) solver sweeps per step the scene allows ``solver``: its ``min_iterations`` / ``max_iterations``
     plus, where it has a divergence solve that is on, ``divergence_min_iterations`` / ``divergence_max_iterations``
-    (the registry's keys, the scene's values; (0, inf) for a solver without them, WCSPH)."""
+    (the registry's keys, the scene's values; (0, 0) for a solver without them, WCSPH: a most of 0 is no cap, and the
+    figures stay JSON numbers)."""
     from ..methods.registry import solver as solver_class
 
     default = {p.path.split(".", 1)[1]: p.default for p in solver_class(solver).parameters
@@ -165,4 +166,4 @@ def sweep_bounds(scene, solver: str) -> tuple[float, float]:
         pairs.append(("divergence_min_iterations", "divergence_max_iterations"))
     lo = sum(float(value(a)) for a, b in pairs if a in default and b in default)
     hi = sum(float(value(b)) for a, b in pairs if a in default and b in default)
-    return lo, hi if hi > 0 else math.inf
+    return float(lo), float(hi)

@@ -39,10 +39,20 @@ def least_run_time(scene, names, radius: float, cache, device) -> tuple[float, s
     from .calibrate import machine_floor, variant
     from .fit import step_floor
 
+    from ..core.errors import WarpSphError
+
     floor = machine_floor(cache, device)
     if floor is None:
         return None
-    n = min(sum(estimate_particle_counts(variant(scene, s, radius))) for s in names)
+    counts = []
+    for s in names:
+        try:
+            counts.append(sum(estimate_particle_counts(variant(scene, s, radius))))
+        except WarpSphError:  # the scene refuses this radius with this solver: its calibration run says why
+            continue
+    if not counts:
+        return None
+    n = min(counts)
     t = scene.time
     steps = max(math.ceil(step_floor(scene.fps, t.dt_max, t.fixed_dt) * scene.duration - 1e-9), 1)
     step = max(floor["step"], n * floor["particle_step"])
@@ -141,7 +151,7 @@ def cost_notes(model, chosen) -> list:
                    f"{law.measured:.2f})")
     d = 2.0 * chosen.particle_radius
     factor = model.sweep_factor(chosen.fluid_particles, d)
-    if factor != 1.0:
+    if abs(factor - 1.0) >= 5e-4:  # shown as x 1 otherwise
         out.append(f"{model.solver}'s step cost beyond {model.sweeps_fluid:,} fluid particles x {factor:.3g} for its sweeps: "
                    f"{model.sweeps_at(d):.3g} per step predicted at r = {chosen.particle_radius:.4g} m (~ d^"
                    f"{model.sweeps.exponent:.2f} over the finest calibrated radii) against {model.sweeps_reference:.3g} "
