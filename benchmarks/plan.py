@@ -112,7 +112,8 @@ def run_detail(p, info: dict) -> dict:
 
     c = p.chosen
     m = p.models[c.solver]
-    step = m.step_cost(c.fluid_particles, c.boundary_particles) * m.tolerance_factor("step_time", c.tolerance)
+    d = 2.0 * c.particle_radius
+    step = m.step_cost(c.fluid_particles, c.boundary_particles, d) * m.tolerance_factor("step_time", c.tolerance)
     advanced = [f for f in info["frames"] if f["frame"] > 1]
     errors = [float(f["density_error_mean"]) for f in advanced]
     fc = m.calibrated_frames
@@ -127,7 +128,9 @@ def run_detail(p, info: dict) -> dict:
             "per_fluid_particle_step": {"predicted": step / c.fluid_particles,
                                         "actual": actual_step / max(int(info["fluid_particles"]), 1),
                                         "largest_calibrated": largest["step_time"] / largest["fluid"] if largest else None},
-            "sweeps": {"largest_calibrated": largest["sweeps"] if largest else None, "actual": solver_sweeps(advanced)},
+            "sweeps": {"largest_calibrated": largest["sweeps"] if largest else None, "predicted": m.sweeps_at(d),
+                       "factor": m.sweep_factor(c.fluid_particles, d), "solve_share": m.solve_share,
+                       "actual": solver_sweeps(advanced)},
             "cost_ratio": {"measured": m.cost_ratio_measured, "applied": m.cost_ratio},
             "count_law_exponent": m.count_law.exponent if m.count_law is not None else None,
             "later_ratio": {"plan": m.later_ratio(frames) if m.has_profile(frames) else None, "run": r_run},
@@ -212,18 +215,18 @@ def section(records: list[dict], fmt, head) -> list[str]:
     if detailed:
         lines += ["The chosen setting's step and error course, predicted against the run: the steady time per step, per "
                   "fluid particle-step (and at the largest calibrated count), the solver's sweeps per step (pressure and "
-                  "divergence iterations: at the largest calibrated count / in the run), the whole-run step cost ratio "
+                  "divergence iterations: at the largest calibrated count / predicted / in the run), the whole-run step cost ratio "
                   "C (measured at the coarsest radius / applied) and the error's later-frames ratio R (the plan's, "
                   "measured at the coarsest radius / the run's own at the chosen radius).", "",
                   "| scene | budget | step pred. / actual [ms] | us per fluid particle-step pred. / actual / largest calib. "
-                  "| sweeps calib. / run | C measured / applied | R plan / run |", "|---|---|---|---|---|---|---|"]
+                  "| sweeps calib. / pred. / run | C measured / applied | R plan / run |", "|---|---|---|---|---|---|---|"]
         for r in detailed:
             d = r["detail"]
             lines.append("| " + " | ".join([
                 r["params"]["scene"], fmt(r["params"]["budget"]),
                 "/".join(fmt(d["step_time"][k], 1e3) for k in ("predicted", "actual")),
                 "/".join(fmt(d["per_fluid_particle_step"][k], 1e6) for k in ("predicted", "actual", "largest_calibrated")),
-                "/".join(fmt(d["sweeps"][k]) for k in ("largest_calibrated", "actual")),
+                "/".join(fmt(d["sweeps"].get(k)) for k in ("largest_calibrated", "predicted", "actual")),
                 "/".join(fmt(d["cost_ratio"][k]) for k in ("measured", "applied")),
                 "/".join(fmt(d["later_ratio"][k]) for k in ("plan", "run"))]) + " |")
         lines.append("")

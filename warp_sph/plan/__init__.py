@@ -2,11 +2,13 @@
 short calibration runs of the scene itself (docs/plan.md).
 
     calibrate.py  calibration runs at coarse radii for each solver; cached per scene and machine
+    points.py     one calibration run and the figures read from its run.json (Point)
     fit.py        the fitted models: power laws and non-negative lines
     metrics.py    the errors a target may name: density, or a validation scene's error against its experiment
     models.py     a solver's models fitted to its calibration points (SolverModel)
     advisor.py    models -> candidates (solver x tolerance x radius) -> the recommendation (Plan)
     share.py      the calibration's decisions: the solvers' order, the runs' predicted costs, what fits the share
+    decisions.py  the previous plan's decisions, kept where fresh timings move them within a margin
     report.py     the table, the Pareto plot, the scene file or --set flags of --apply
 """
 from __future__ import annotations
@@ -16,7 +18,8 @@ from dataclasses import replace
 
 from .advisor import Candidate, Plan, SolverModel
 from .calibrate import PlanError
-from .share import budget_cap, cost_notes, point_cost, profile_solvers, rank_solvers, whole_run_cost
+from .decisions import DECISION_MARGIN, decisions_path, keep_previous, read_previous, request_key, write_decision
+from .share import budget_cap, cost_notes, least_run_time, point_cost, profile_solvers, rank_solvers, whole_run_cost
 
 #: calibration rounds of a plan at most: the default radii, then finer points towards the setting chosen
 MAX_ROUNDS = 4
@@ -64,11 +67,11 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     from ..run.memory import available_device_memory, available_host_memory
     from ..core.device import resolve_device
     from ..scene import Scene, load_scene
-    from .advisor import (CALIBRATION_MARGIN, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for, choose,
-                          fit_models, fixed_time, next_point, point_summary)
+    from .advisor import (BUDGET_SAFETY, CALIBRATION_MARGIN, CALIBRATION_SHARE, MAX_COUNT_EXTRAPOLATION, candidates_for,
+                          choose, fit_models, fixed_time, next_point, point_summary)
     from .calibrate import (CALIBRATION_TIME, TOLERANCE_STEP, _same_radius, _same_tolerance, calibrate,
-                            calibration_frames as cal_frames, calibration_radii as default_radii, scene_tolerance,
-                            tolerance_key)
+                            calibration_frames as cal_frames, calibration_radii as default_radii, is_cached,
+                            scene_tolerance, tolerance_key)
     from .metrics import DENSITY, calibration_time, check_metric
 
     if budget_s is None and target_error is None:
@@ -87,6 +90,15 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         raise PlanError(f"--solvers: unknown {', '.join(unknown)}; expected some of {', '.join(solver_names())}")
     radii = list(calibration_radii) if calibration_radii else default_radii(scene)
     frames = calibration_frames or cal_frames(scene, calibration_time(scene, metric, CALIBRATION_TIME))
+    # a budget whose BUDGET_SAFETY (the share a plan may use) not even the coarsest setting's least cost on this
+    # machine fits is refused before calibrating (the calibration would refuse it after spending seconds; where the
+    # scene's coarsest points are cached nothing runs, and the plan's own refusal names the cheapest setting)
+    least = (least_run_time(scene, names, max(radii), cache, dev) if budget_s is not None
+             and (refresh or not is_cached(scene, names, max(radii), frames, cache, dev)) else None)
+    if least is not None and least[0] > BUDGET_SAFETY * budget_s:
+        raise PlanError(f"{scene.source}: --budget {budget_s:g} s is too small: {least[1]}, {least[0]:.3g} s in all "
+                        f"(plans keep {100 * BUDGET_SAFETY:.0f} % of the budget); give --budget "
+                        f"{math.ceil(least[0] / BUDGET_SAFETY)}s or more")
     limit = available_device_memory(dev) if dev.is_cuda else available_host_memory()
     # the decisions keep within CALIBRATION_MARGIN of the share, every predicted cost times what the runs so far
     # took over their prediction (``overrun``): the last run's own error then has room below the share
@@ -137,7 +149,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     # 729 fluid particles, was held to 4x that count: 2.8 s predicted of 60 s, its error 2.34x the prediction)
     cal = run(names, radii[:1])
     cached = cal.cached
-    order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit)
+    # the previous plan of this request: its decisions stand within DECISION_MARGIN of fresh timings (``decisions.py``)
+    request, memo = request_key(budget_s, target_error, metric, names), decisions_path(cache, cal.key)
+    previous = read_previous(memo, request)
+    order = rank_solvers(scene, cal, names, metric, budget_s, target_error, limit, previous.get("lead"), DECISION_MARGIN)
     whole, r0 = int(round(scene.duration * scene.fps)) + 1, 0.0
     profile_costs = {}
     if whole > frames and any(cal.for_solver(s) for s in names):
@@ -293,6 +308,8 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                      f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
                      f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
                      f"last calibrated frame's")
+    chosen = keep_previous(chosen, candidates, previous, budget_s, target_error, limit)
+    write_decision(memo, request, chosen, (profiled or order or [None])[0])
     notes += cost_notes(models[chosen.solver], chosen)
     if budget_s is not None and target_error is None:
         cap = budget_cap(candidates, chosen, budget_s, limit, scene.source)
@@ -317,5 +334,6 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                 + [point_summary(p, whole=True) for p in (profile.points if profile is not None else [])])
 
 
-__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "cost_notes", "plan", "point_cost", "profile_solvers",
+__all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "cost_notes", "least_run_time", "plan", "point_cost",
+           "profile_solvers",
            "rank_solvers", "whole_run_cost"]

@@ -159,7 +159,7 @@ def predict(scene, model: SolverModel, radius: float, tolerance: float | None = 
     frames = int(round(scene.duration * scene.fps))
     steps = max(model.steps_per_second.steps(d, scene.duration, model.tolerance_factor("steps_per_second", tolerance)),
                 frames)
-    step = model.step_cost(fluid, boundary) * model.tolerance_factor("step_time", tolerance)
+    step = model.step_cost(fluid, boundary, d) * model.tolerance_factor("step_time", tolerance)
     wall = model.load_time + model.setup_time(n) + steps * step + frames * model.frame_overhead(n)
     mem = estimate_memory(s, fluid, boundary)
     # another tolerance than the scene's: its effect was measured at one particle count (iterations grow with the

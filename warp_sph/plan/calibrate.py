@@ -27,8 +27,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ..core.device import cpu_model
-from ..core.errors import PlanError, WarpSphError  # noqa: F401 (PlanError: plan's error, re-exported)
+from ..core.errors import PlanError  # noqa: F401 (plan's error, re-exported)
 from .fit import step_floor
+from .points import Point, run_point, solver_sweeps  # noqa: F401 (re-exported)
 
 #: simulated time of a calibration run [s] (rounded up to whole frames, at least two frames)
 CALIBRATION_TIME = 0.1
@@ -41,71 +42,9 @@ PLANNED_KEYS = ("particle_radius", "solver", "plan", "name", "description")
 #: the second calibrated tolerance of a solver with one: the scene's divided by this
 TOLERANCE_STEP = 4.0
 #: the version of the cached points' fields (older cache files are not read)
-CACHE_SCHEMA = 3
+CACHE_SCHEMA = 4
 #: calibration runs made by this process so far (the first one's set-up includes loading the shared kernels)
 _RUNS_IN_PROCESS = [0]
-
-
-@dataclass
-class Point:
-    """One calibration run: the scene with ``solver`` at ``particle_radius`` [m] for ``frames`` frames."""
-
-    solver: str
-    particle_radius: float
-    tolerance: float | None = None      # the solver's density tolerance in this run (None: it has none)
-    status: str = "completed"           # "completed" or "failed"
-    error: str = ""                     # the one-line reason of a failed run
-    fluid: int = 0
-    boundary: int = 0
-    estimated_fluid: int = 0            # the geometric estimate at this radius (``memory.estimate_particle_counts``)
-    estimated_boundary: int = 0
-    frames: int = 0                     # frames advanced (the initial one not counted)
-    steps: int = 0
-    simulated_time: float = 0.0         # [s]
-    wall_time: float = 0.0              # [s] of run.json
-    step_time: float = 0.0              # [s] steady wall time of one substep (first call excluded)
-    export_wait: float = 0.0            # [s] the simulation thread spent on exports
-    first_step_time: float = 0.0        # [s] the first step's stages, kernel loads included
-    density_error_mean: float = 0.0     # [-] mean over the advanced frames of the frame's mean error
-    density_error_max: float = 0.0      # [-] largest of any frame
-    density_error_last: float = 0.0     # [-] the last frame's mean error
-    density_errors: list = field(default_factory=list)  # [-] each advanced frame's mean error, in order
-    frame_steps: list = field(default_factory=list)     # substeps of each advanced frame, in order
-    frame_speeds: list = field(default_factory=list)    # [m/s] fastest particle (fluid or body) at each frame's end, initial first
-    sweeps: float = 0.0                 # solver sweeps per step: pressure + divergence iterations, mean over the steps (0: none)
-    first_in_process: bool = False      # the process's first calibration run: its set-up loaded the shared kernels
-    reference: dict = field(default_factory=dict)  # metric -> error against the experiment (None: not measurable)
-    seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
-
-    @property
-    def spacing(self) -> float:
-        """Lattice spacing d = 2 r [m]."""
-        return 2.0 * self.particle_radius
-
-    @property
-    def particles(self) -> int:
-        """Fluid and boundary particles."""
-        return self.fluid + self.boundary
-
-    @property
-    def steps_per_second(self) -> float:
-        """Substeps per simulated second."""
-        return self.steps / self.simulated_time if self.simulated_time > 0 else math.nan
-
-    @property
-    def load_time(self) -> float:
-        """[s] the first step took beyond a steady one: loading (or compiling) the step's kernels."""
-        return max(self.first_step_time - self.step_time, 0.0)
-
-    @property
-    def setup_time(self) -> float:
-        """[s] of the run outside its steps, its per-frame exports and its kernel loads: sampling, model, files."""
-        return max(self.wall_time - self.steps * self.step_time - self.export_wait - self.load_time, 0.0)
-
-    @property
-    def frame_overhead(self) -> float:
-        """[s] per frame the simulation waited on exports."""
-        return self.export_wait / self.frames if self.frames else 0.0
 
 
 @dataclass
@@ -170,6 +109,49 @@ def cache_key(scene, device, frames) -> tuple[str, str]:
     text = json.dumps({"scene": scene_hash(scene_content(scene)), "machine": machine, "frames": frames,
                        "versions": [__version__, wp.config.version], "schema": CACHE_SCHEMA}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest(), machine
+
+
+def cached_points(path: Path) -> list[Point]:
+    """The points of a cache file ([] where there is none, or it is damaged or of another schema: calibrate again)."""
+    if not path.is_file():
+        return []
+    try:
+        return [Point(**p) for p in json.loads(path.read_text())["points"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+
+
+def is_cached(scene, solvers, radius: float, frames: int, cache, device) -> bool:
+    """Whether every solver of ``solvers`` has a point of ``scene`` at ``radius`` [m] over ``frames`` frames in the
+    cache (at the scene's tolerance): a calibration of them runs nothing."""
+    key, _ = cache_key(scene, device, frames)
+    pts = cached_points(cache_dir(cache) / f"calibration-{key[:20]}.json")
+    return all(any(p.solver == s and _same_radius(p.particle_radius, radius)
+                   and _same_tolerance(p.tolerance, scene_tolerance(scene, s)) for p in pts) for s in solvers)
+
+
+def machine_floor(cache: str | Path | None, device) -> dict | None:
+    """The least costs any cached calibration run measured on this machine (``machine_text``), over every scene's cache
+    file in the cache directory: ``start`` [s], a fresh process's least time outside its steady steps (the process's
+    first runs: set-up, shared and solver kernel loads; without one, any run's set-up), ``step`` [s] the least steady
+    step and ``particle_step`` [s] the least cost per particle-step. None where nothing of this machine is cached (no
+    honest floor without measuring)."""
+    machine = machine_text(device)
+    pts = []
+    for path in sorted(cache_dir(cache).glob("calibration-*.json")):
+        try:
+            data = json.loads(path.read_text())
+            if data.get("machine") == machine:
+                pts += [Point(**p) for p in data["points"]]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue  # a damaged or older file: not a measurement
+    pts = [p for p in pts if p.status == "completed" and p.step_time > 0 and p.particles > 0]
+    if not pts:
+        return None
+    first = [p.wall_time - p.steps * p.step_time - p.export_wait for p in pts if p.first_in_process]
+    return {"start": max(min(first) if first else min(p.setup_time for p in pts), 0.0),
+            "step": min(p.step_time for p in pts), "particle_step": min(p.step_time / p.particles for p in pts),
+            "points": len(pts)}
 
 
 def thinnest_fluid(scene) -> float:
@@ -260,56 +242,6 @@ def variant(scene, solver: str, radius: float, tolerance: float | None = None):
     return scene_from_dict(variant_dict(scene, solver, radius, tolerance), source=scene.source, base_dir=base)
 
 
-def run_point(scene, solver: str, radius: float, frames: int, device, folder: Path,
-              tolerance: float | None = None) -> Point:
-    """One calibration run into ``folder`` (removed afterwards); a run that fails gives a failed Point."""
-    from ..run import runner
-    from ..run.memory import estimate_particle_counts
-    from .metrics import evaluate_reference
-
-    point = Point(solver=solver, particle_radius=radius,
-                  tolerance=tolerance if tolerance is not None else scene_tolerance(scene, solver))
-    try:
-        s = variant(scene, solver, radius, tolerance)
-        point.estimated_fluid, point.estimated_boundary = estimate_particle_counts(s)
-        info = runner.run(s, out=folder, device=device, frames=frames, progress=False, log=lambda *a, **k: None)
-        point.reference = evaluate_reference(s, folder, info)
-    except WarpSphError as exc:
-        point.status, point.error = "failed", str(exc).splitlines()[0]
-        return point
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
-    advanced = [f for f in info["frames"] if f["frame"] > 1]
-    point.fluid, point.boundary = int(info["fluid_particles"]), int(info["boundary_particles"])
-    point.frames = len(advanced)
-    point.steps = int(info["steps"])
-    point.simulated_time = float(info["simulated_time"])
-    point.wall_time = float(info["wall_time"])
-    point.step_time = float(info["sim_time_per_step_ms"]) * 1e-3
-    point.export_wait = float(info.get("export_wait_time", 0.0))
-    point.first_step_time = float(info.get("first_step_time", 0.0))
-    point.density_error_mean = sum(f["density_error_mean"] for f in advanced) / max(len(advanced), 1)
-    point.density_error_max = max((f["density_error_max"] for f in advanced), default=0.0)
-    point.density_error_last = advanced[-1]["density_error_mean"] if advanced else 0.0
-    point.density_errors = [float(f["density_error_mean"]) for f in advanced]
-    point.frame_steps = [int(f["steps"]) for f in advanced]
-    point.sweeps = solver_sweeps(advanced)
-    point.frame_speeds = [max(float(f.get("max_speed", 0.0)), float(f.get("body_speed", 0.0))) for f in info["frames"]]
-    return point
-
-
-def solver_sweeps(frames) -> float:
-    """Solver sweeps per step over run.json ``frames``: each frame's mean pressure (``iterations``) and divergence
-    iterations, weighted by its steps (0 for a solver that reports none, WCSPH)."""
-    steps = sweeps = 0.0
-    for f in frames:
-        solver = f.get("solver") or {}
-        n = float(f.get("steps", 0))
-        steps += n
-        sweeps += n * sum(float((solver.get(k) or {}).get("mean", 0.0)) for k in ("iterations", "divergence_iterations"))
-    return sweeps / steps if steps > 0 else 0.0
-
-
 def _same_radius(a: float, b: float) -> bool:
     return abs(a - b) <= 1e-6 * max(a, b)
 
@@ -335,12 +267,7 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
     key, machine = cache_key(scene, dev, frames)
     folder = cache_dir(cache)
     path = folder / f"calibration-{key[:20]}.json"
-    points: list[Point] = []
-    if path.is_file() and not refresh:
-        try:
-            points = [Point(**p) for p in json.loads(path.read_text())["points"]]
-        except (OSError, ValueError, KeyError, TypeError):
-            points = []  # a damaged cache file: calibrate again
+    points = [] if refresh else cached_points(path)
     tol = {s: (None if t is None else t * tolerance_factor) for s in solvers
            for t in [scene_tolerance(scene, s)] if t is not None or tolerance_factor == 1.0}
     todo = [(s, r) for s in tol for r in radii

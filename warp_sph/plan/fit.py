@@ -157,6 +157,26 @@ def fit_count_law(fluid, t, exponent_range=(1.0, 1.1), points: int = 3) -> Power
     return PowerLaw(t_max / n_max ** b, b, measured)
 
 
+#: the solver's sweeps per step against the spacing: the measured exponent is clipped to this range. Not below 0: sweeps
+#: that grow with refinement were measured between the coarsest points only (hydrostatic DFSPH, the first 0.125 s: 3.74
+#: and 5.70 at 125 and 648 fluid particles, then 4.31 to 3.58 from 2,925 to 7,497), and a plan calibrated at those alone
+#: (load 5) extrapolated them as d^-1: 7.87 sweeps per step predicted at r = 0.0239 m, where r = 0.0285 m had measured
+#: 5.70; so growth is not extrapolated (the largest count's sweeps held), a fall is
+SWEEPS_EXPONENT_RANGE = (0.0, 1.0)
+
+
+def fit_sweeps(d, sweeps, points: int = 3, exponent_range=SWEEPS_EXPONENT_RANGE) -> PowerLaw | None:
+    """The solver's sweeps per step s = a d^k through the ``points`` finest spacings ``d`` [m] that measured sweeps
+    (> 0), k least squares in log space clipped to ``exponent_range`` (one spacing: a constant); None where no point
+    measured any (WCSPH). Measured (hydrostatic DFSPH, the first 0.125 s): 4.31, 3.97 and 3.58 sweeps at r = 0.018,
+    0.0155 and 0.0136 m, k = 0.65, 3.00 at r = 0.0095 m where the whole run took 3.01 (its fewest: 2 + 1); the
+    largest count's 3.58, held, is 19 % high."""
+    pairs = sorted((float(x), float(s)) for x, s in zip(d, sweeps) if x > 0 and s > 0)[:points]
+    if not pairs:
+        return None
+    return fit_power_law([x for x, _ in pairs], [s for _, s in pairs], exponent_range)
+
+
 def log_slope(x0: float, y0: float, x1: float, y1: float) -> float:
     """The exponent k of y ~ x^k through two positive points (0 when either is not positive or x0 == x1)."""
     if min(x0, y0, x1, y1) <= 0 or x0 == x1:

@@ -35,7 +35,8 @@ from dataclasses import asdict, dataclass, field, replace
 
 from .calibrate import Calibration, scene_tolerance
 from .fit import (LatticeCount, Line, PowerLaw, StepCost, StepRate, fit_count_law, fit_lattice_count, fit_line,
-                  fit_power_law, fit_speed_exponent, fit_step_cost, fit_step_rate, log_slope, scene_bound_rate)
+                  fit_power_law, fit_speed_exponent, fit_step_cost, fit_step_rate, fit_sweeps, log_slope,
+                  scene_bound_rate)
 from .metrics import DENSITY
 
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
@@ -101,18 +102,44 @@ class SolverModel:
     cost_ratio: float = 1.0                      # C applied: the whole run's step cost over the calibration window's
     cost_ratio_measured: float | None = None     # C as measured (None: no whole run of this solver)
     cost_ratio_window: float = 0.0               # [s] the steps' time of the calibration point C was measured against
+    sweeps: PowerLaw | None = None               # the solver's sweeps per step against d [m] (None: it has none)
+    sweeps_bounds: tuple = (0.0, 0.0)            # the fewest and most sweeps per step the scene allows (most 0: none)
+    sweeps_fluid: int = 0                        # the largest calibrated fluid count: the reference of the sweeps' part
+    sweeps_reference: float = 0.0                # that point's sweeps per step
+    solve_share: float = 0.0                     # [-] that point's steady step time share of the sweeps' stages
 
-    def step_cost(self, fluid: int, boundary: int) -> float:
+    def sweeps_at(self, d: float) -> float:
+        """Sweeps per step at spacing ``d`` [m] at the scene's tolerance: ``sweeps`` within ``sweeps_bounds`` (0 for a
+        solver without sweeps)."""
+        if self.sweeps is None:
+            return 0.0
+        lo, hi = self.sweeps_bounds
+        s = max(self.sweeps(d), lo)
+        return float(min(s, hi) if hi > 0 else s)
+
+    def sweep_factor(self, fluid: int, d: float) -> float:
+        """The step's cost beyond the largest calibrated fluid count as a per-step part plus a per-sweep part times the
+        sweeps, a + b s, over that count's own, a + b s_ref: (1 - f) + f s(d) / s_ref, f the reference point's
+        ``solve_share`` (its sweeps' stages' share of its step; their time taken as proportional to the sweeps, an
+        upper bound on the sweeps' effect: those stages also hold a fixed part); 1 within the calibrated counts,
+        where the fit carries the points' own sweeps, and for a solver without sweeps."""
+        if self.sweeps is None or fluid <= self.sweeps_fluid or self.sweeps_reference <= 0 or self.solve_share <= 0:
+            return 1.0
+        f = self.solve_share
+        return float((1.0 - f) + f * self.sweeps_at(d) / self.sweeps_reference)
+
+    def step_cost(self, fluid: int, boundary: int, d: float | None = None) -> float:
         """[s] one step at the scene's tolerance over the whole run: above the thread split from the points above it
         where two or more counts were calibrated there, else from every point; beyond the largest calibrated count at
-        least ``count_law``'s; times the whole-run cost ratio C (module docstring)."""
+        least ``count_law``'s; times the whole-run cost ratio C and, at spacing ``d`` [m] (None: not), the sweeps'
+        factor (``sweep_factor``; module docstring)."""
         if self.step_time_split is not None and fluid + boundary >= self.split_particles:
             base = self.step_time_split(fluid, boundary)
         else:
             base = self.step_time(fluid, boundary)
         if self.count_law is not None and fluid > self.count_fluid:
             base = max(base, self.count_law(fluid))
-        return base * self.cost_ratio
+        return base * self.cost_ratio * (self.sweep_factor(fluid, d) if d is not None else 1.0)
 
     def later_ratio(self, frames: int) -> float:
         """R: the profile's mean error over the frames after the calibrated ones / its mean over the calibrated
@@ -224,6 +251,10 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     count_law = fit_count_law([p.fluid for p in split_fluid], [p.step_time for p in split_fluid], COUNT_EXPONENT_RANGE,
                               COUNT_FIT_POINTS) if split_fluid else None
     measured_ratio, window = whole_run_cost_ratio(pts, profile, solver, t0) if profile is not None else (None, 0.0)
+    # the sweeps per step against d (the finest radii), and the largest count's split of its step into the sweeps' part
+    # and the rest: the step's cost beyond that count as a + b x sweeps (``SolverModel.sweep_factor``)
+    ref = max(pts, key=lambda p: (p.fluid, -p.particle_radius))
+    from .points import sweep_bounds
     return SolverModel(
         solver=solver,
         steps_per_second=rate,
@@ -244,7 +275,9 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         split_particles=split if split_cost is not None else 0, step_time_split=split_cost,
         count_law=count_law, count_fluid=max(p.fluid for p in split_fluid) if count_law is not None else 0,
         cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
-        cost_ratio_window=window)
+        cost_ratio_window=window, sweeps=fit_sweeps(d, [p.sweeps for p in pts], ERROR_FIT_POINTS),
+        sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, 0.0), sweeps_fluid=ref.fluid,
+        sweeps_reference=ref.sweeps, solve_share=ref.solve_share)
 
 
 def whole_run_cost_ratio(pts, profile: Calibration, solver: str, t0) -> tuple:

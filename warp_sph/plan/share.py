@@ -27,22 +27,64 @@ def budget_cap(candidates, chosen, budget_s: float, limit, source: str) -> str |
             f"share; the plan uses {100 * chosen.wall_time / budget_s:.0f} % (up to {100 * BUDGET_SAFETY:.0f} % aimed)")
 
 
-def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit) -> list:
+def least_run_time(scene, names, radius: float, cache, device) -> tuple[float, str] | None:
+    """(seconds, the bound in words): the least wall time a run of ``scene`` can take on this machine with any solver of
+    ``names``, before anything is calibrated: the coarsest setting a plan considers (``radius`` [m], the coarsest
+    calibration radius), its particles estimated from the geometry, its fewest steps (every frame at time.dt_max, or
+    time.fixed_dt), each at least the least step and the least cost per particle-step measured on this machine, plus a
+    fresh process's least start-up (``calibrate.machine_floor``); None where this machine has nothing cached."""
+    import math
+
+    from ..run.memory import estimate_particle_counts
+    from .calibrate import machine_floor, variant
+    from .fit import step_floor
+
+    from ..core.errors import WarpSphError
+
+    floor = machine_floor(cache, device)
+    if floor is None:
+        return None
+    counts = []
+    for s in names:
+        try:
+            counts.append(sum(estimate_particle_counts(variant(scene, s, radius))))
+        except WarpSphError:  # the scene refuses this radius with this solver: its calibration run says why
+            continue
+    if not counts:
+        return None
+    n = min(counts)
+    t = scene.time
+    steps = max(math.ceil(step_floor(scene.fps, t.dt_max, t.fixed_dt) * scene.duration - 1e-9), 1)
+    step = max(floor["step"], n * floor["particle_step"])
+    seconds = floor["start"] + steps * step
+    return seconds, (f"the coarsest setting, r = {radius:.4g} m with {n:,} particles, takes at least {steps:,} steps of "
+                     f"{1e3 * step:.3g} ms after a {floor['start']:.3g} s start: the least measured on this machine "
+                     f"over {floor['points']} cached calibration runs")
+
+
+def rank_solvers(scene, cal, names, metric, budget_s, target_error, limit, previous_lead: str | None = None,
+                 margin: float = 0.0) -> list:
     """``names`` in the order the plan would prefer them from the calibration so far (each solver's own best
-    setting, ranked as ``advisor.choose`` ranks settings); solvers without a setting last."""
+    setting, ranked as ``advisor.choose`` ranks settings); solvers without a setting last. ``previous_lead``: the
+    solver that led the previous plan of the request (``decisions.py``): its best setting is taken within the budget
+    times (1 + ``margin``) and its wall time over (1 + ``margin``), so a timing change within the margin does not
+    move it down the ranking."""
     from .advisor import candidates_for, choose, fit_models
 
-    best = {}
+    best, slack = {}, {}
     for s in names:
         m = fit_models(cal, s, scene, metric)
         if m is None:
             continue
+        grace = 1.0 + margin if s == previous_lead else 1.0
         try:
-            best[s] = choose(candidates_for(scene, {s: m}), budget_s, target_error, limit, scene.source)
+            best[s] = choose(candidates_for(scene, {s: m}), budget_s * grace if budget_s is not None else None,
+                             target_error, limit, scene.source)
         except PlanError:
             continue
-    key = (lambda c: (c.wall_time, c.error)) if target_error is not None else (
-        lambda c: (c.particle_radius, c.error, c.wall_time))
+        slack[s] = grace
+    key = (lambda c: (c.wall_time / slack[c.solver], c.error)) if target_error is not None else (
+        lambda c: (c.particle_radius, c.error, c.wall_time / slack[c.solver]))
     return sorted(best, key=lambda s: key(best[s])) + [s for s in names if s not in best]
 
 
@@ -89,7 +131,8 @@ def point_cost(cal, solver: str, radius: float) -> float:
 
 def cost_notes(model, chosen) -> list:
     """The lines that say how the chosen setting's step cost was carried beyond the calibration: the whole-run cost
-    ratio C (applied or not, and its measured value) and the count law beyond the largest calibrated count."""
+    ratio C (applied or not, and its measured value), the count law beyond the largest calibrated count and the
+    sweeps' factor (``models.SolverModel.sweep_factor``)."""
     from .models import COST_RATIO_MIN_WINDOW, COST_RATIO_NOISE
 
     out = []
@@ -106,4 +149,11 @@ def cost_notes(model, chosen) -> list:
         out.append(f"{model.solver}'s step cost beyond {model.count_fluid:,} fluid particles (the largest calibrated) "
                    f"at least ~ Nf^{law.exponent:.2f} from that count's (exponent measured over the largest counts: "
                    f"{law.measured:.2f})")
+    d = 2.0 * chosen.particle_radius
+    factor = model.sweep_factor(chosen.fluid_particles, d)
+    if abs(factor - 1.0) >= 5e-4:  # shown as x 1 otherwise
+        out.append(f"{model.solver}'s step cost beyond {model.sweeps_fluid:,} fluid particles x {factor:.3g} for its sweeps: "
+                   f"{model.sweeps_at(d):.3g} per step predicted at r = {chosen.particle_radius:.4g} m (~ d^"
+                   f"{model.sweeps.exponent:.2f} over the finest calibrated radii) against {model.sweeps_reference:.3g} "
+                   f"at that count, whose sweeps' stages took {100 * model.solve_share:.0f} % of its step")
     return out
