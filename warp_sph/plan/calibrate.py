@@ -30,6 +30,7 @@ from ..core.device import cpu_model
 from ..core.errors import PlanError  # noqa: F401 (plan's error, re-exported)
 from .fit import step_floor
 from .points import Point, run_point, solver_sweeps  # noqa: F401 (re-exported)
+from .variants import scene_tolerance, tolerance_key, variant, variant_dict  # noqa: F401 (re-exported)
 
 #: simulated time of a calibration run [s] (rounded up to whole frames, at least two frames)
 CALIBRATION_TIME = 0.1
@@ -188,58 +189,6 @@ def calibration_radii(scene, counts=CALIBRATION_COUNTS) -> list[float]:
 def calibration_frames(scene, seconds: float = CALIBRATION_TIME) -> int:
     """Frames of a calibration run including the initial one: ``seconds`` of simulated time, at least 2 advanced."""
     return max(2, math.ceil(seconds * scene.fps - 1e-9)) + 1
-
-
-def tolerance_key(solver: str) -> str | None:
-    """The scene key of ``solver``'s density tolerance (``<solver>.target_density_error`` where the parameter
-    registry declares it: PBF, DFSPH), None for a solver without one (WCSPH: its compressibility follows from
-    the speed of sound)."""
-    from ..methods.registry import solver as solver_class
-
-    key = f"{solver}.target_density_error"
-    return key if any(p.path == key for p in solver_class(solver).parameters) else None
-
-
-def scene_tolerance(scene, solver: str) -> float | None:
-    """The scene's value of ``solver``'s density tolerance (None: the solver has none)."""
-    key = tolerance_key(solver)
-    if key is None:
-        return None
-    section, name = key.split(".")
-    return float(scene.to_dict().get(section, {}).get(name, _default(key)))
-
-
-def _default(key: str) -> float:
-    from ..methods.registry import solver as solver_class
-
-    return next(p.default for p in solver_class(key.split(".")[0]).parameters if p.path == key)
-
-
-def variant_dict(scene, solver: str, radius: float, tolerance: float | None = None) -> dict:
-    """The scene dict with ``solver``, ``particle_radius`` [m] and the solver's tolerance (None: the scene's),
-    without a [plan] table; a validation scene's probes placed for the radius (``metrics.case_overrides``)."""
-    from ..scene.load import apply_overrides
-    from .metrics import case_overrides
-
-    d = scene.to_dict()
-    d["solver"] = solver
-    d["particle_radius"] = float(radius)
-    d.pop("plan", None)
-    key = tolerance_key(solver)
-    if key is not None and tolerance is not None:
-        section, name = key.split(".")
-        d.setdefault(section, {})[name] = float(tolerance)
-    extra = case_overrides(scene, radius)
-    return apply_overrides(d, extra) if extra else d
-
-
-def variant(scene, solver: str, radius: float, tolerance: float | None = None):
-    """The scene with ``solver``, ``particle_radius`` and tolerance (``variant_dict``; validated again: a refusal is
-    a SceneError)."""
-    from ..scene import scene_from_dict
-
-    base = Path(scene.source).parent if str(scene.source).endswith(".toml") else None
-    return scene_from_dict(variant_dict(scene, solver, radius, tolerance), source=scene.source, base_dir=base)
 
 
 def _same_radius(a: float, b: float) -> bool:

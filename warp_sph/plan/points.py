@@ -91,7 +91,7 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     """One calibration run into ``folder`` (removed afterwards); a run that fails gives a failed Point."""
     from ..run import runner
     from ..run.memory import estimate_particle_counts
-    from .calibrate import scene_tolerance, variant
+    from .variants import scene_tolerance, variant
     from .metrics import evaluate_reference
 
     point = Point(solver=solver, particle_radius=radius,
