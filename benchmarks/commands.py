@@ -331,15 +331,16 @@ def cmd_validation(args, argv: list[str], log=print) -> int:
     for r in records:
         r.update(host=host_info(), versions=versions(), date=now())
     out = _save("validation", records, args, argv, invocation, log)
-    from . import validation_report as VR
     from .report import load_records
+    from .validation_plots import plot_case, plot_trade
+    from .validation_report import latest_per_run
 
-    merged = VR.latest_per_run(load_records(out).get("validation", []))  # cases re-run one at a time keep the rest
+    merged = latest_per_run(load_records(out).get("validation", []))  # cases re-run one at a time keep the rest
     for case in cases:
-        path = VR.plot_case(case, [r for r in merged if r.get("case") == case], out / f"validation_{case}.png")
+        path = plot_case(case, [r for r in merged if r.get("case") == case], out / f"validation_{case}.png")
         if path:
             log(f"plot: {path}")
-    path = VR.plot_trade(merged, out / "validation_tradeoff.png")
+    path = plot_trade(merged, out / "validation_tradeoff.png")
     if path:
         log(f"plot: {path}")
     return _finish(out, args, records, log)
