@@ -8,18 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
+from warp_sph.pyplot import pyplot_or_none
 from warp_sph.validation import errors as E
 from .validation import CASES, GOALS, LOBOVSKY_SENSORS
 
 
 def plot_case(case: str, records: list[dict], path: Path) -> Path | None:
     """The experiment (markers) beside every simulation of ``case`` (lines); None without matplotlib."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    plt = pyplot_or_none()
+    if plt is None:
         return None
     recs = [r for r in records if r["case"] == case and r.get("series")]
     if not recs:
@@ -89,12 +86,8 @@ TRADE_CAPTION = ("Cost (CPU seconds per simulated second) against the error that
 def plot_trade(records: list[dict], path: Path) -> Path | None:
     """Cost against the front RMS of the column collapse (and the mean density error where recorded): one point
     per solver and resolution, solvers by colour, coarse hollow, fine filled; None without matplotlib or data."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    plt = pyplot_or_none()
+    if plt is None:
         return None
     pts = [r for r in records if r.get("case") == "martin_moyce" and (r.get("figures") or {}).get("front_rms") is not None
            and r.get("cpu_time") and r.get("simulated_time")]

@@ -341,7 +341,7 @@ def test_report_without_matplotlib_keeps_the_plots_of_sections_it_did_not_rerun(
 
     lines = [rec("a", "2020-01-01T00:00:00", 3.0), rec("b", "2020-01-01T00:00:00", 4.0)]
     (tmp_path / "sweep.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
-    monkeypatch.setattr(P, "_pyplot", lambda: object())
+    monkeypatch.setattr(P, "pyplot_or_none", lambda: object())
     monkeypatch.setattr(R, "plot_tradeoff", lambda recs, path, title: fake_plot(recs, path))
     monkeypatch.setattr(R, "plot_series", lambda recs, keys, path, title: fake_plot(recs, path))
     md = R.write_report(tmp_path).read_text()
@@ -349,7 +349,7 @@ def test_report_without_matplotlib_keeps_the_plots_of_sections_it_did_not_rerun(
     # a new run of sweep b only, report rebuilt without matplotlib
     with open(tmp_path / "sweep.jsonl", "a") as f:
         f.write(json.dumps(rec("b", "2021-01-01T00:00:00", 5.0)) + "\n")
-    monkeypatch.setattr(P, "_pyplot", lambda: None)
+    monkeypatch.setattr(P, "pyplot_or_none", lambda: None)
     monkeypatch.setattr(R, "plot_tradeoff", lambda *a: None)
     monkeypatch.setattr(R, "plot_series", lambda *a: None)
     md = R.write_report(tmp_path).read_text()
