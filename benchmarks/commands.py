@@ -53,9 +53,29 @@ def _executor(args, log):
     return make_executor(workers=getattr(args, "workers", None), scheduler=getattr(args, "scheduler", None), log=log)
 
 
+def refuse_unloadable(specs) -> None:
+    """SceneError (one line, exit status 2) when no case's scene loads and all fail with the same error (an
+    unknown key or a bad value in --param or --set), before any case runs; a case that loads beside ones that
+    do not lets the runs go on (each bad one is a failed record, as in ``warp-sph sweep``)."""
+    from warp_sph.core.errors import SceneError
+    from warp_sph.scene import load_scene
+
+    errors = set()
+    for spec in specs:
+        try:
+            load_scene(spec.scene, overrides=list(spec.overrides))
+        except SceneError as exc:
+            errors.add(str(exc).splitlines()[0])
+        else:
+            return
+    if len(errors) == 1:
+        raise SceneError(f"bench: {'every case' if len(specs) > 1 else 'the case'}: {errors.pop()}")
+
+
 def _run(specs, args, log) -> list[dict]:
     from .cases import run_specs
 
+    refuse_unloadable(specs)
     return run_specs(specs, isolate=not args.in_process, log=log, executor=_executor(args, log))
 
 
@@ -74,7 +94,9 @@ def cmd_sweep(args, argv: list[str], log=print) -> int:
 
     if args.preset:
         if args.preset not in PRESETS:
-            raise SystemExit(f"warp-sph bench: unknown preset {args.preset!r}; presets: {', '.join(PRESETS)}")
+            from warp_sph.core.errors import WarpSphError
+
+            raise WarpSphError(f"bench sweep: --preset {args.preset!r}: unknown preset; expected one of {', '.join(PRESETS)}")
         sweeps = PRESETS[args.preset]
         name = args.preset
     else:
