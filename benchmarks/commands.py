@@ -304,8 +304,12 @@ def cmd_bodies(args, argv: list[str], log=print) -> int:
 
 
 def cmd_forces(args, argv: list[str], log=print) -> int:
+    from warp_sph.methods import registry
+
     from . import forces as F
 
+    check_names("--solvers", args.solvers, registry.solver_names())
+    check_names("--forces", args.forces, registry.force_names())
     specs = F.specs(args.scene, args.frames, args.repeats, solvers=[s for s in args.solvers.split(",") if s],
                     forces=[f for f in args.forces.split(",") if f], device=args.device, overrides=args.set)
     invocation = now()
@@ -377,6 +381,7 @@ def cmd_extremes(args, argv: list[str], log=print) -> int:
     check_names("--solvers", args.solvers, solver_names())
     cases = extreme_cases(split_values(args.solvers) if args.solvers else None, quick=args.quick)
     if args.families:
+        check_names("--families", args.families, sorted({c.family for c in extreme_cases(None)}, key=str))
         families = split_values(args.families)
         cases = [c for c in cases if c.family in families]
     invocation = now()

@@ -13,6 +13,8 @@ from warp_sph.cli import main
     (["bench", "emission", "--scene", "hydrostatic"], "scene 'hydrostatic' has no [[emitters]] or [[sinks]]"),
     (["bench", "sweep", "--param", "bogus=1,2", "--frames", "1", "--in-process"], "bogus: unknown key"),
     (["bench", "scaling", "--set", "time.cfl=7", "--steps", "1", "--in-process"], "time.cfl: expected a finite number"),
+    (["bench", "forces", "--forces", "bogus", "--frames", "1", "--in-process"], "--forces 'bogus': unknown 'bogus'"),
+    (["bench", "extremes", "--families", "dt,bogus", "--quick"], "--families 'dt,bogus': unknown 'bogus'"),
 ])
 def test_bad_bench_input_is_one_line_before_any_case(argv, expected, tmp_path, capsys):
     out = tmp_path / "bench"
