@@ -1,5 +1,6 @@
 """The subcommands of ``warp-sph bench``: each ``cmd_<name>(args, argv, log)`` runs its cases, appends
-the records (``records.py``), logs its summary and rebuilds the report; returns the exit status.
+the records (``records.py``), logs its summary and rebuilds the report; returns the exit status
+(``bench splishsplash`` and ``bench surface``, beside another tool: ``compare_commands.py``).
 The parser that calls them is ``runner.py``; the cases themselves are in ``cases.py`` and the
 benchmark's own module (``emission.py``, ``bodies.py``, ...).
 """
@@ -7,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .arguments import check_names, parse_resolutions
+from .arguments import check_names
 from .records import append_records, command_text, host_info, now, report_path, results_dir, stamp
 
 #: Named sweeps. Each preset is a list of sweeps (scene, parameter lists, fixed overrides, frames).
@@ -79,7 +80,7 @@ def _run(specs, args, log) -> list[dict]:
     return run_specs(specs, isolate=not args.in_process, log=log, executor=_executor(args, log))
 
 
-def _save(kind: str, records: list[dict], args, argv: list[str], invocation: str, log) -> Path:
+def save_records(kind: str, records: list[dict], args, argv: list[str], invocation: str, log) -> Path:
     stamp(records, command_text(argv), invocation)
     out = _out(args)
     path = append_records(out, kind, records)
@@ -113,7 +114,7 @@ def cmd_sweep(args, argv: list[str], log=print) -> int:
                                  time_limit=args.time_limit))
     invocation = now()
     records = _run(specs, args, log)
-    return _finish(_save("sweep", records, args, argv, invocation, log), args, records, log)
+    return finish_report(save_records("sweep", records, args, argv, invocation, log), args, records, log)
 
 
 def cmd_scaling(args, argv: list[str], log=print) -> int:
@@ -135,7 +136,7 @@ def cmd_scaling(args, argv: list[str], log=print) -> int:
                      params={"scene": args.scene, "solver": args.solver, "particle_radius": r}) for r in radii]
     invocation = now()
     records = _run(specs, args, log)
-    return _finish(_save("scaling", records, args, argv, invocation, log), args, records, log)
+    return finish_report(save_records("scaling", records, args, argv, invocation, log), args, records, log)
 
 
 def cmd_matrix(args, argv: list[str], log=print) -> int:
@@ -156,8 +157,8 @@ def cmd_matrix(args, argv: list[str], log=print) -> int:
     for r in records:
         counts[status_word(r)] = counts.get(status_word(r), 0) + 1
     log("matrix: " + ", ".join(f"{n} {w}" for w, n in sorted(counts.items())))
-    out = _save("matrix", records, args, argv, invocation, log)
-    _finish(out, args, records, log)
+    out = save_records("matrix", records, args, argv, invocation, log)
+    finish_report(out, args, records, log)
     return 1 if any(r["status"] == "failed" for r in records) else 0
 
 
@@ -167,103 +168,7 @@ def cmd_executors(args, argv: list[str], log=print) -> int:
     invocation = now()
     records = measure(workers=args.workers, particle_radius=args.particle_radius, frames=args.frames,
                       repeats=args.repeats, log=log)
-    return _finish(_save("executors", records, args, argv, invocation, log), args, records, log)
-
-
-def cmd_splishsplash(args, argv: list[str], log=print) -> int:
-    from warp_sph.sweep.cases import split_values
-
-    from . import splishsplash as S
-    from .splishsplash_report import speed_ratios
-
-    invocation = now()
-    if args.publish and not args.skip_warp_sph:
-        ok, why = S.available()
-        if not ok:
-            from warp_sph.core.errors import WarpSphError
-
-            raise WarpSphError(f"bench splishsplash --publish: SPlisHSPlasH cannot run here ({why}), and the "
-                               "published page compares both engines in the same run: pip install pysplishsplash")
-    if args.adaptive:
-        return _splishsplash_adaptive(args, argv, invocation, log)
-    check_names("--solvers", args.solvers, S.FIXED_STEP_SOLVERS)
-    records = S.run_comparison(
-        particle_radius=args.particle_radius, frames=args.frames, threads=args.threads or 1,
-        solvers=split_values(args.solvers) if args.solvers else list(S.FIXED_STEP_SOLVERS),
-        dt={"wcsph": args.dt_wcsph, "pbf": args.dt_pbf, "dfsph": args.dt_dfsph},
-        device=args.device, isolate=not args.in_process, skip_warp_sph=args.skip_warp_sph,
-        splishsplash_gap=args.splishsplash_gap, warp_sph_overrides=args.warp_sph_set, repeats=args.repeats,
-        log=log)
-    out = _save("splishsplash", records, args, argv, invocation, log)
-    for q in speed_ratios(records):
-        log(f"{q['solver']}: warp-sph time / SPlisHSPlasH time = {q['ratio']:.2f} wall"
-            + (f", {q['cpu_ratio']:.2f} CPU" if q.get("cpu_ratio") else "") + " "
-            f"(SPlisHSPlasH on {q['threads']} threads); mean density error {100 * (q['ours_error'] or 0):.3f} % "
-            f"vs {100 * (q['ref_error'] or 0):.3f} %")
-    return _finish(out, args, records, log)
-
-
-def _splishsplash_adaptive(args, argv: list[str], invocation: str, log) -> int:
-    from . import splishsplash as S
-
-    from warp_sph.methods.registry import solver_names
-    from warp_sph.sweep.cases import split_values
-
-    resolutions = parse_resolutions(args.resolutions) if args.resolutions else list(S.ADAPTIVE_RESOLUTIONS)
-    ours, theirs = list(solver_names()), list(S.ADAPTIVE_SPLISHSPLASH)
-    if args.solvers:  # filters both engines' cases: dfsph -> warp-sph dfsph and SPlisHSPlasH's DFSPH cases
-        check_names("--solvers", args.solvers, sorted(set(ours) | {method for _, method, _ in theirs}))
-        chosen = split_values(args.solvers)
-        ours = [s for s in ours if s in chosen]
-        theirs = [case for case in theirs if case[1] in chosen]
-    records = S.run_adaptive(resolutions, threads=args.threads or 2, warp_sph_solvers=ours, splishsplash_cases=theirs,
-                             device=args.device, isolate=not args.in_process,
-                             skip_warp_sph=args.skip_warp_sph, warp_sph_overrides=args.warp_sph_set,
-                             repeats=args.repeats, log=log)
-    out = _save("splishsplash", records, args, argv, invocation, log)
-    for q in S.adaptive_ratios(records):
-        log(f"{q['fluid_particles']} particles: warp-sph dfsph / SPlisHSPlasH {q['case']} = {q['ratio']:.2f} wall"
-            + (f", {q['cpu_ratio']:.2f} CPU" if q.get("cpu_ratio") else "")
-            + f" (SPlisHSPlasH on {q['threads']} threads); mean density error {100 * (q['ours_error'] or 0):.3f} % "
-            f"vs {100 * (q['ref_error'] or 0):.3f} %")
-    return _finish(out, args, records, log)
-
-
-def cmd_surface(args, argv: list[str], log=print) -> int:
-    from warp_sph.run.runner import versions
-
-    from .surface import run_surface_bench, splashsurf_available
-
-    if args.publish and not args.no_splashsurf and not splashsurf_available():
-        from warp_sph.core.errors import WarpSphError
-
-        raise WarpSphError("bench surface --publish: pysplashsurf is not installed, and the published page compares "
-                           "with splashsurf in the same run: pip install pysplashsurf (or pass --no-splashsurf)")
-    radii = [float(v) for v in args.radius.split(",")]
-    times = [float(v) for v in args.time.split(",")]
-    if len(times) == 1:
-        times = times * len(radii)
-    threads = [int(v) for v in args.threads.split(",")]
-    cases = [c.strip() for c in args.cases.split(",")]
-    bad = [c for c in cases if c not in ("frame", "run")]
-    if bad:
-        from warp_sph.core.errors import WarpSphError
-
-        raise WarpSphError(f"bench surface --cases: unknown case {bad[0]!r}; expected frame, run or both (frame,run)")
-    records = []
-    if "frame" in cases:
-        records += run_surface_bench(radii=radii, times=times, cells=[float(v) for v in args.cell.split(",")],
-                                     threads=threads, repeats=args.repeats, splashsurf=not args.no_splashsurf,
-                                     device=args.device, log=log)
-    if "run" in cases:
-        from .surface_run import run_default_run_bench
-
-        records += run_default_run_bench(radii=radii, threads=threads, splashsurf=not args.no_splashsurf,
-                                         device=args.device, frames=args.frames, log=log)
-    for r in records:
-        r.update(host=host_info(), versions=versions(), date=now())
-    out = _save("surface", records, args, argv, now(), log)
-    return _finish(out, args, records, log)
+    return finish_report(save_records("executors", records, args, argv, invocation, log), args, records, log)
 
 
 def cmd_emission(args, argv: list[str], log=print) -> int:
@@ -284,7 +189,7 @@ def cmd_emission(args, argv: list[str], log=print) -> int:
         log(f"emission {c['solver']} r = {c['particle_radius']:g} m: flow {b['flow_ms']:.3g} of {b['run_ms']:.4g} ms "
             f"CPU per frame, +{100 * b['share']:.2f} % per particle-step (goal <= +{100 * E.GOAL:.0f} %: "
             f"{'met' if c['met'] else 'not met'}){side}")
-    return _finish(_save("emission", records, args, argv, invocation, log), args, records, log)
+    return finish_report(save_records("emission", records, args, argv, invocation, log), args, records, log)
 
 
 def cmd_bodies(args, argv: list[str], log=print) -> int:
@@ -300,7 +205,7 @@ def cmd_bodies(args, argv: list[str], log=print) -> int:
         log(f"bodies: {s['bodies_ms']:.3g} ms per step, as static obstacles {s['obstacles_ms']:.3g} ms (fastest of "
             f"{args.repeats} each): {100 * s['extra']:+.1f} % (goal <= +{100 * B.GOAL:.0f} %: "
             f"{'met' if s['met'] else 'not met'})")
-    return _finish(_save("bodies", records, args, argv, invocation, log), args, records, log)
+    return finish_report(save_records("bodies", records, args, argv, invocation, log), args, records, log)
 
 
 def cmd_forces(args, argv: list[str], log=print) -> int:
@@ -317,7 +222,7 @@ def cmd_forces(args, argv: list[str], log=print) -> int:
     for s in F.summary(records):
         log(f"{s['solver']} + {s['force']}: the force {s['force_ns']:.0f} ns per particle-step, the step "
             f"{s['step_ns']:.0f} (without forces {s['bare_step_ns'] or float('nan'):.0f})")
-    return _finish(_save("forces", records, args, argv, invocation, log), args, records, log)
+    return finish_report(save_records("forces", records, args, argv, invocation, log), args, records, log)
 
 
 def cmd_whitewater(args, argv: list[str], log=print) -> int:
@@ -332,7 +237,7 @@ def cmd_whitewater(args, argv: list[str], log=print) -> int:
         log(f"whitewater, {W._rates_text(s)}: {s['on_ms']:.4g} CPU ms per step on, {s['off_ms']:.4g} off (fastest of "
             f"{args.repeats} each): {100 * s['extra']:+.1f} %{share} (goal <= +{100 * W.GOAL:.0f} %: "
             f"{'met' if s['met'] else 'not met'})")
-    return _finish(_save("whitewater", records, args, argv, invocation, log), args, records, log)
+    return finish_report(save_records("whitewater", records, args, argv, invocation, log), args, records, log)
 
 
 def cmd_validation(args, argv: list[str], log=print) -> int:
@@ -356,7 +261,7 @@ def cmd_validation(args, argv: list[str], log=print) -> int:
                                radius=args.radius, ensemble=ensemble)
     for r in records:
         r.update(host=host_info(), versions=versions(), date=now())
-    out = _save("validation", records, args, argv, invocation, log)
+    out = save_records("validation", records, args, argv, invocation, log)
     from .report import load_records
     from .validation_plots import plot_case, plot_trade
     from .validation_report import latest_per_run
@@ -369,7 +274,7 @@ def cmd_validation(args, argv: list[str], log=print) -> int:
     path = plot_trade(merged, out / "validation_tradeoff.png")
     if path:
         log(f"plot: {path}")
-    return _finish(out, args, records, log)
+    return finish_report(out, args, records, log)
 
 
 def cmd_extremes(args, argv: list[str], log=print) -> int:
@@ -390,7 +295,7 @@ def cmd_extremes(args, argv: list[str], log=print) -> int:
     log(f"extremes: {len(records)} cases, {len(bad)} silent bad")
     for r in bad:
         log(f"  bad: {r['label']}: {r['verdict']}")
-    out = _save("extremes", records, args, argv, invocation, log)
+    out = save_records("extremes", records, args, argv, invocation, log)
     if not args.no_report:
         from .report import write_report
 
@@ -403,10 +308,10 @@ def cmd_plan(args, argv: list[str], log=print) -> int:
 
     invocation = now()
     records = run_cases(args, _out(args), log=log)
-    return _finish(_save("plan", records, args, argv, invocation, log), args, records, log)
+    return finish_report(save_records("plan", records, args, argv, invocation, log), args, records, log)
 
 
-def _finish(out: Path, args, records: list[dict], log) -> int:
+def finish_report(out: Path, args, records: list[dict], log) -> int:
     if not getattr(args, "no_report", False):
         from .report import write_report
 

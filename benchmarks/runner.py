@@ -22,8 +22,8 @@ writes the committed ``benchmarks/results/`` and rebuilds ``benchmarks/RESULTS.m
 ``scaling`` and ``matrix`` run their cases on the executors of ``warp-sph sweep`` (``--workers N``:
 a Dask LocalCluster; ``--scheduler ADDR``: an existing cluster; default serial). The runs
 themselves are in ``cases.py``; records and where they go in ``records.py``; tables and plots in
-``report.py``. This module is the parser; the subcommands are ``commands.py`` (``cmd_<name>``), the
-argument types and name checks ``arguments.py``.
+``report.py``. This module is the parser; the subcommands are ``commands.py`` (``cmd_<name>``; those
+beside another tool ``compare_commands.py``), the argument types and name checks ``arguments.py``.
 """
 from __future__ import annotations
 
@@ -33,8 +33,8 @@ from pathlib import Path
 
 from .arguments import nonnegative_floats, positive_float, positive_floats, positive_int, positive_ints, whitewater_rates
 from .commands import (PRESETS, SCALING_RADII, cmd_bodies, cmd_emission, cmd_executors, cmd_extremes, cmd_forces,
-                       cmd_matrix, cmd_plan, cmd_report, cmd_scaling, cmd_splishsplash, cmd_surface, cmd_sweep,
-                       cmd_validation, cmd_whitewater)
+                       cmd_matrix, cmd_plan, cmd_report, cmd_scaling, cmd_sweep, cmd_validation, cmd_whitewater)
+from .compare_commands import cmd_splishsplash, cmd_surface
 
 
 def build_parser() -> argparse.ArgumentParser:
