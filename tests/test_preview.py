@@ -320,7 +320,9 @@ def test_preview_never_replaces_a_users_picture(tmp_path, capsys):
 @pytest.mark.parametrize("content, expected", [(None, "is not a warp-sph run folder (no run.json)"),
                                                (b"\xff\xfe{", "run.json: unreadable JSON"),
                                                (b"{", "run.json: unreadable JSON"),
-                                               (b"[]", "not a warp-sph run.json")])
+                                               (b"[]", "not a warp-sph run.json"),
+                                               (b'{"scene": {}, "frames": "abc"}', "'frames' is not a list of frame"),
+                                               (b'{"scene": {}, "frames": [{"x": 1}]}', "'frames' is not a list")])
 def test_a_missing_or_damaged_run_json_is_one_line_as_in_export(tmp_path, capsys, content, expected):
     """preview read run.json its own way: a file that is not UTF-8 ended in a UnicodeDecodeError traceback
     (exit 1). Now the run folder's one reader (``run_folder.read_run_json``), the lines of export and plot."""

@@ -21,7 +21,11 @@ def read_run(run_dir: Path) -> tuple[dict, list[int]]:
     ``plot``: ``run_folder.read_run_json``) when it is no run folder or its run.json is damaged."""
     meta = read_run_json(run_dir)
     if "frames" in meta:
-        recorded = sorted(int(f["frame"]) for f in meta["frames"])
+        try:
+            recorded = sorted(int(f["frame"]) for f in meta["frames"])
+        except (TypeError, KeyError, ValueError):
+            raise PreviewError(f"{run_dir / 'run.json'}: 'frames' is not a list of frame records; expected "
+                               "[{\"frame\": N, ...}, ...] as warp-sph run writes it") from None
     else:
         recorded = sorted(int(p.stem.split("_")[-1]) for p in (run_dir / "frames").glob("frame_*.npz"))
     return meta, recorded
