@@ -326,6 +326,11 @@ def cmd_report(args, argv: list[str], log=print) -> int:
     from .report import write_report
 
     out = _out(args)
+    if not any(out.glob("*.jsonl")):  # a new folder or a typo: an empty page written there helps no one
+        from warp_sph.core.errors import WarpSphError
+
+        raise WarpSphError(f"bench report: {out} holds no benchmark records (*.jsonl); expected the results folder "
+                           "of a benchmark run (--out DIR as given to it; default runs/bench)")
     md = write_report(out, md_path=Path(args.markdown) if args.markdown else report_path(out), log=log)
     log(f"report: {md}")
     return 0

@@ -15,6 +15,7 @@ from warp_sph.cli import main
     (["bench", "scaling", "--set", "time.cfl=7", "--steps", "1", "--in-process"], "time.cfl: expected a finite number"),
     (["bench", "forces", "--forces", "bogus", "--frames", "1", "--in-process"], "--forces 'bogus': unknown 'bogus'"),
     (["bench", "extremes", "--families", "dt,bogus", "--quick"], "--families 'dt,bogus': unknown 'bogus'"),
+    (["bench", "report"], "holds no benchmark records (*.jsonl)"),
 ])
 def test_bad_bench_input_is_one_line_before_any_case(argv, expected, tmp_path, capsys):
     out = tmp_path / "bench"
