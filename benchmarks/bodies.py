@@ -47,7 +47,10 @@ def specs(scene_name: str, frames: int, repeats: int, folder: Path, device=None,
 
     scene = load_scene(scene_name, overrides=list(overrides))
     if not scene.bodies:
-        raise SystemExit(f"warp-sph bench bodies: scene {scene_name!r} has no [[bodies]]")
+        from warp_sph.core.errors import WarpSphError
+
+        raise WarpSphError(f"bench bodies: --scene: scene {scene_name!r} has no [[bodies]]; expected a scene with "
+                           "moving bodies, e.g. floating_bodies")
     static = obstacle_overrides(scene, folder)
     out = []
     for k in range(max(1, int(repeats))):

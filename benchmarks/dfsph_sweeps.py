@@ -12,11 +12,10 @@ Writes one JSON line per case (to --out, default benchmarks/results/dfsph_sweeps
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import time
 from pathlib import Path
+
+from .records import print_profile_record
 
 
 def measure(radius: float, seconds: float, chebyshev: float, overrides=()) -> dict:
@@ -58,13 +57,7 @@ def main(argv=None) -> int:
     for item in a.radii.split(","):
         radius, seconds = (float(v) for v in item.split(":"))
         for rho in (float(v) for v in a.chebyshev.split(",")):
-            rec = {**measure(radius, seconds, rho, a.set), "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                   "machine": platform.node(), "load": os.getloadavg()[0], "warp": wp.__version__}
-            line = json.dumps(rec)
-            print(line, flush=True)
-            if a.out:
-                with open(a.out, "a") as f:
-                    f.write(line + "\n")
+            print_profile_record(measure(radius, seconds, rho, a.set), a.out)
     return 0
 
 

@@ -43,7 +43,10 @@ def specs(scene_name: str, frames: int, repeats: int, solvers=None, radius_text:
     solvers = list(solvers or solver_names())
     scene = load_scene(scene_name, overrides=list(overrides))
     if not (scene.emitters or scene.sinks):
-        raise SystemExit(f"warp-sph bench emission: scene {scene_name!r} has no [[emitters]] or [[sinks]]")
+        from warp_sph.core.errors import WarpSphError
+
+        raise WarpSphError(f"bench emission: --scene: scene {scene_name!r} has no [[emitters]] or [[sinks]]; expected "
+                           "a scene with either, e.g. river or faucet")
     variants = [("flow", [])] + ([("fixed", ["emitters=[]", "sinks=[]"])] if fixed else [])
     out = []
     for k in range(max(1, int(repeats))):

@@ -34,6 +34,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .records import SCHEMA, host_info, now
+from .tables import invocation_heads
 
 G = 9.81
 #: allowed rise of the total energy [-] of the scale (the watchdog's ENERGY_GROWTH_LIMIT)
@@ -317,13 +318,7 @@ def section(records: list[dict], fmt, head) -> list[str]:
     for r in records:
         counts[r.get("status", "?")] = counts.get(r.get("status", "?"), 0) + 1
     lines = ["## Extremes: every solver at the extremes", ""]
-    invocations: dict[str, list[dict]] = {}
-    for r in records:
-        invocations.setdefault(r.get("invocation", r.get("date", "?")), []).append(r)
-    if len(invocations) > 1:
-        lines += [f"The latest record of each case, from {len(invocations)} runs:", ""]
-    for inv in sorted(invocations):
-        lines += head(invocations[inv])
+    lines += invocation_heads(records, head)
     lines += [f"{len(records)} cases: " + ", ".join(f"{n} {s}" for s, n in sorted(counts.items()))
               + f"; **{len(bad)} silent bad** (goal 0). *energy* is (E − E(0)) / scale, E the fluid's kinetic + "
               "potential energy plus the bodies', the scale the initial energy counted from the floor (its largest "

@@ -14,13 +14,12 @@ benchmarks/results/impact_edge.jsonl).
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+
+from .records import print_profile_record
 
 #: the simulated time [s]: the sheet at about 2.5 V reaches the side walls (2 m away) after about 0.06 s
 DURATION = 0.05
@@ -67,13 +66,7 @@ def main(argv=None) -> int:
     import warp as wp
 
     wp.config.quiet = True
-    rec = {**measure(a.radius, a.solver, a.speed), "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-           "machine": platform.node(), "load": os.getloadavg()[0], "warp": wp.__version__}
-    line = json.dumps(rec)
-    print(line)
-    if a.out:
-        with open(a.out, "a") as f:
-            f.write(line + "\n")
+    print_profile_record(measure(a.radius, a.solver, a.speed), a.out)
     return 0
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 from .records import label, solver_names, scene_names
+from .tables import invocation_heads
 
 RADII = (0.025, 0.0125)
 #: the default dam break only, besides RADII (226,981 fluid particles)
@@ -101,13 +102,7 @@ def section(records: list[dict], fmt, head) -> list[str]:
     if not records:
         return []
     lines = ["## Matrix: every scene x every solver", ""]
-    invocations: dict[str, list[dict]] = {}
-    for r in records:
-        invocations.setdefault(r.get("invocation", r.get("date", "?")), []).append(r)
-    if len(invocations) > 1:
-        lines += [f"The latest record of each case, from {len(invocations)} runs:", ""]
-    for inv in sorted(invocations):
-        lines += head(invocations[inv])
+    lines += invocation_heads(records, head)
     finished = sum(1 for r in records if r.get("status") == "ok")
     lines += [f"{finished} of {len(records)} cases finished. Each case: the scene's first second (at most "
               f"{MAX_FRAMES} frames) from rest; *wall s / sim s* is stepping wall time per simulated second; "

@@ -6,6 +6,8 @@ import hashlib
 import json
 from pathlib import Path
 
+from warp_sph.pyplot import pyplot_or_none
+
 from . import metrics as M
 
 #: Accuracy metrics plotted against speed: (key in record metrics, axis label, scale).
@@ -26,18 +28,6 @@ def _m(r: dict, key: str):
 # --------------------------------------------------------------------------------------------
 # Plots
 # --------------------------------------------------------------------------------------------
-def _pyplot():
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        return plt
-    except ImportError:
-        return None
-
-
 def _short_label(label: str) -> str:
     """'scene=dam_break solver=pbf smoothing_kernel=cubic time.cfl=0.4' -> 'pbf cubic cfl=0.4'."""
     parts = []
@@ -54,7 +44,7 @@ def _short_label(label: str) -> str:
 
 def plot_tradeoff(records: list[dict], path: Path, title: str) -> Path | None:
     """Speed against each accuracy metric present, Pareto front marked; None if nothing to plot."""
-    plt = _pyplot()
+    plt = pyplot_or_none()
     ok = [r for r in records if r.get("status") in ("ok", "time_limit") and _m(r, SPEED_KEY) is not None]
     present = [(k, lab, s) for k, lab, s in ACCURACY_METRICS if any(_m(r, k) is not None for r in ok)]
     if plt is None or not ok or not present:
@@ -86,7 +76,7 @@ def plot_tradeoff(records: list[dict], path: Path, title: str) -> Path | None:
 def plot_adaptive(records: list[dict], path: Path, title: str) -> Path | None:
     """Speed (wall and CPU seconds per simulated second) against the mean density error of an adaptive
     comparison: warp-sph circles, SPlisHSPlasH triangles, the Pareto front over both engines in red."""
-    plt = _pyplot()
+    plt = pyplot_or_none()
     ok = [r for r in records if r.get("status") == "ok" and _m(r, SPEED_KEY) is not None
           and _m(r, "density_error_mean_avg") is not None]
     if plt is None or not ok:
@@ -128,7 +118,7 @@ def plot_adaptive(records: list[dict], path: Path, title: str) -> Path | None:
 
 def plot_series(records: list[dict], keys: list[tuple[str, str, float]], path: Path, title: str) -> Path | None:
     """Per-frame series (front, density error, energy, ...) of every run against time."""
-    plt = _pyplot()
+    plt = pyplot_or_none()
     ok = [r for r in records if r.get("series") and r["series"].get("time")]
     if plt is None or not ok:
         return None
@@ -154,7 +144,7 @@ def plot_series(records: list[dict], keys: list[tuple[str, str, float]], path: P
 
 
 def plot_scaling(records: list[dict], path: Path) -> Path | None:
-    plt = _pyplot()
+    plt = pyplot_or_none()
     ok = [r for r in records if r.get("status") == "ok" and r.get("fluid_particles")]
     if plt is None or not ok:
         return None
@@ -189,7 +179,7 @@ class Figures:
 
     def __init__(self, results_dir: Path):
         self.dir = Path(results_dir)
-        self.can_draw = _pyplot() is not None
+        self.can_draw = pyplot_or_none() is not None
         try:
             self.manifest = json.loads((self.dir / self.MANIFEST).read_text())
         except (OSError, ValueError):

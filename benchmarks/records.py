@@ -87,6 +87,24 @@ def append_records(out: Path, kind: str, records: list[dict]) -> Path:
     return path
 
 
+def print_profile_record(record: dict, out: str | None, time_key: str = "when") -> dict:
+    """A profile script's record (impact_edge.py, surface_tension.py, ...) stamped with the UTC time under
+    ``time_key``, the machine, its 1-minute load and Warp's version; printed as one JSON line and appended to
+    the JSON-lines file ``out`` (None or "": printed only). Returns the stamped record."""
+    import time
+
+    import warp as wp
+
+    record = {**record, time_key: time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": platform.node(),
+              "load": os.getloadavg()[0], "warp": wp.__version__}
+    line = json.dumps(record)
+    print(line, flush=True)
+    if out:
+        with open(out, "a") as f:
+            f.write(line + "\n")
+    return record
+
+
 def stamp(records: list[dict], command: str, invocation: str) -> None:
     for r in records:
         r["command"] = command

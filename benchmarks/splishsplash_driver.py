@@ -1,5 +1,5 @@
 """The SPlisHSPlasH side of ``warp-sph bench splishsplash``: runs inside a subprocess started with
-``LD_PRELOAD`` (``splishsplash._env``), as ``python splishsplash_driver.py CONFIG.json OUT.npz``:
+``LD_PRELOAD`` (``splishsplash_case._env``), as ``python splishsplash_driver.py CONFIG.json OUT.npz``:
 simulate the translated scene, record positions, velocities and densities per frame.
 Imports only the standard library and NumPy (and ``pysplishsplash``), never Warp.
 """

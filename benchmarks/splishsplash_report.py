@@ -8,7 +8,7 @@ the rows of the cases it ran. The particle masses are read from the records: SPl
 from __future__ import annotations
 
 from .plots import SPEED_KEY, Figures, plot_adaptive, plot_series, plot_tradeoff
-from .tables import failure_lines, fmt, latest, markdown_table, metric, section_head
+from .tables import failure_lines, fmt, invocation_heads, latest, markdown_table, metric, section_head
 
 
 def speed_ratios(records: list[dict]) -> list[dict]:
@@ -154,11 +154,7 @@ def adaptive_section(records: list[dict], figures: Figures, rel: str) -> list[st
         recs = latest_per_case(by_radius[radius])
         n = max((r.get("fluid_particles") or 0) for r in recs)
         lines += [f"### {n:,} fluid particles (r = {radius:g} m)", ""]
-        invocations: dict[str, list[dict]] = {}
-        for r in recs:
-            invocations.setdefault(r.get("invocation", r.get("date", "?")), []).append(r)
-        for inv in sorted(invocations):
-            lines += section_head(invocations[inv])
+        lines += invocation_heads(recs, count_runs=False)
         note = mass_note(recs)
         if note:
             lines += [note, ""]

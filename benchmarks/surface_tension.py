@@ -19,14 +19,13 @@ per particle-step of the droplet with and without the force, measured in the sam
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
+
+from .records import print_profile_record
 
 #: directions of the sphericity measure (a Fibonacci sphere)
 DIRECTIONS = 64
@@ -248,13 +247,7 @@ def main(argv=None) -> int:
     else:
         rec = {"measure": "rayleigh", **measure(a.cells or 7.0, a.sigma, a.solver, a.smoothing, a.periods, a.kick, a.step,
                                                 curvature=a.curvature)}
-    rec.update({"time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": platform.node(),
-                "load": os.getloadavg()[0], "warp": wp.__version__})
-    line = json.dumps(rec)
-    print(line)
-    if a.out:
-        with open(a.out, "a") as f:
-            f.write(line + "\n")
+    print_profile_record(rec, a.out, time_key="time")
     return 0
 
 

@@ -64,3 +64,17 @@ def section_head(recs: list[dict]) -> list[str]:
     cmd = recs[0].get("command", "?")
     return [f"Command: `{cmd}`  ", f"Run: {recs[0].get('invocation', recs[0].get('date', '?'))}; "
             f"machine: {_machine(recs)}; {_versions(recs)}", ""]
+
+
+def invocation_heads(records: list[dict], head=section_head, count_runs: bool = True) -> list[str]:
+    """The section head (``head``: command, machine, versions) of each invocation the records come from, oldest
+    first; ``count_runs``: first a line saying how many there are when more than one."""
+    invocations: dict[str, list[dict]] = {}
+    for r in records:
+        invocations.setdefault(r.get("invocation", r.get("date", "?")), []).append(r)
+    lines = []
+    if count_runs and len(invocations) > 1:
+        lines += [f"The latest record of each case, from {len(invocations)} runs:", ""]
+    for inv in sorted(invocations):
+        lines += head(invocations[inv])
+    return lines

@@ -160,10 +160,7 @@ def vertex_normals(
     while s < end:
         acc += face_cross[vertex_face[s]]
         s += 1
-    length = wp.length(acc)
-    if length > 0.0:
-        acc = acc / length
-    vertex_normal_out[v] = acc
+    vertex_normal_out[v] = wp.normalize(acc)  # the zero vector where acc is 0
 
 
 @wp.kernel(enable_backward=False)
@@ -185,10 +182,7 @@ def smooth_normals_step(
     while s < base + neighbor_count[v]:
         acc += vertex_normal[neighbor[s]]
         s += 1
-    length = wp.length(acc)
-    if length > 0.0:
-        acc = acc / length
-    vertex_normal_out[v] = acc
+    vertex_normal_out[v] = wp.normalize(acc)  # the zero vector where acc is 0
 
 
 @wp.kernel(enable_backward=False)
@@ -224,10 +218,7 @@ def volume_area_terms(
             vol += wp.dot(a - o, cr)
         s += 1
     length = wp.length(acc)
-    n = wp.vec3(0.0)
-    if length > 0.0:
-        n = acc / length
-    vertex_normal_out[v] = n
+    vertex_normal_out[v] = wp.normalize(acc)
     # sum of face areas = sum |cross| / 2 >= |sum cross| / 2 (equal on a flat fan): good enough for a weight
     terms_out[v] = wp.vec2(vertex_weight[v] * length / 6.0, vol)
 

@@ -13,6 +13,7 @@ from warp_sph.benchmarks import records as REC
 from warp_sph.benchmarks import report as R
 from warp_sph.benchmarks import runner as B
 from warp_sph.benchmarks import splishsplash as S
+from warp_sph.benchmarks import splishsplash_scene as SS
 
 
 # --- metrics ---------------------------------------------------------------------------------
@@ -214,7 +215,7 @@ def test_splishsplash_scene_matches_the_warp_sph_scene():
     scene = {"particle_radius": 0.025, "gravity": (0.0, 0.0, -9.81), "material": {"rest_density": 1000.0},
              "pbf": {"max_iterations": 50, "min_iterations": 2, "target_density_error": 0.005}}
     model = {"stiffness": 2.0e6, "equation_of_state": "linear"}
-    sj = S.scene_json(scene, model, (0.055, 0.055, 0.055), (0.955, 0.955, 0.955), "wcsph", 4e-4, "/tmp/box.obj")
+    sj = SS.scene_json(scene, model, (0.055, 0.055, 0.055), (0.955, 0.955, 0.955), "wcsph", 4e-4, "/tmp/box.obj")
     c = sj["Configuration"]
     assert c["gravitation"] == [0.0, -9.81, 0.0]            # Y-up
     assert c["simulationMethod"] == 0 and c["boundaryHandlingMethod"] == 0 and c["cflMethod"] == 0
@@ -222,9 +223,9 @@ def test_splishsplash_scene_matches_the_warp_sph_scene():
     b = sj["FluidBlocks"][0]
     # SPlisHSPlasH puts particles at start + d ... end - d: the lattice corners -/+ d
     assert b["start"] == pytest.approx([0.005, 0.005, 0.005]) and b["end"] == pytest.approx([1.005, 1.005, 1.005])
-    assert S.time_step_values(scene, model, "pbf")["MAX_ERROR"] == pytest.approx(0.5)
-    assert S.from_y_up(np.array([[1.0, 2.0, 3.0]])).tolist() == [[1.0, 3.0, 2.0]]
-    assert S.box_obj_text((0, 0, 0), (1, 2, 3)).count("\nf ") == 12
+    assert SS.time_step_values(scene, model, "pbf")["MAX_ERROR"] == pytest.approx(0.5)
+    assert SS.from_y_up(np.array([[1.0, 2.0, 3.0]])).tolist() == [[1.0, 3.0, 2.0]]
+    assert SS.box_obj_text((0, 0, 0), (1, 2, 3)).count("\nf ") == 12
 
 
 def test_isolated_run_in_a_fresh_process():
@@ -340,7 +341,7 @@ def test_report_without_matplotlib_keeps_the_plots_of_sections_it_did_not_rerun(
 
     lines = [rec("a", "2020-01-01T00:00:00", 3.0), rec("b", "2020-01-01T00:00:00", 4.0)]
     (tmp_path / "sweep.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
-    monkeypatch.setattr(P, "_pyplot", lambda: object())
+    monkeypatch.setattr(P, "pyplot_or_none", lambda: object())
     monkeypatch.setattr(R, "plot_tradeoff", lambda recs, path, title: fake_plot(recs, path))
     monkeypatch.setattr(R, "plot_series", lambda recs, keys, path, title: fake_plot(recs, path))
     md = R.write_report(tmp_path).read_text()
@@ -348,7 +349,7 @@ def test_report_without_matplotlib_keeps_the_plots_of_sections_it_did_not_rerun(
     # a new run of sweep b only, report rebuilt without matplotlib
     with open(tmp_path / "sweep.jsonl", "a") as f:
         f.write(json.dumps(rec("b", "2021-01-01T00:00:00", 5.0)) + "\n")
-    monkeypatch.setattr(P, "_pyplot", lambda: None)
+    monkeypatch.setattr(P, "pyplot_or_none", lambda: None)
     monkeypatch.setattr(R, "plot_tradeoff", lambda *a: None)
     monkeypatch.setattr(R, "plot_series", lambda *a: None)
     md = R.write_report(tmp_path).read_text()
@@ -456,7 +457,7 @@ def test_executor_benchmark_runs_both_executors(tmp_path):
 # --- adaptive-step comparison (warp-sph bench splishsplash --adaptive) ------------------------------
 def test_adaptive_splishsplash_scene_uses_its_cfl_step_and_method_defaults():
     scene = {"particle_radius": 0.025, "gravity": (0.0, 0.0, -9.81), "material": {"rest_density": 1000.0}}
-    sj = S.scene_json(scene, {}, (0.055,) * 3, (0.955,) * 3, "iisph", 1e-3, "/tmp/box.obj", adaptive=True,
+    sj = SS.scene_json(scene, {}, (0.055,) * 3, (0.955,) * 3, "iisph", 1e-3, "/tmp/box.obj", adaptive=True,
                       time_step={})
     c = sj["Configuration"]
     assert c["cflMethod"] == 1 and c["cflFactor"] == 1.0 and c["cflMaxTimeStepSize"] == 0.005
@@ -464,14 +465,15 @@ def test_adaptive_splishsplash_scene_uses_its_cfl_step_and_method_defaults():
     cases = {label: (method, values) for label, method, values in S.ADAPTIVE_SPLISHSPLASH}
     assert cases["wcsph stiffness=50000"] == ("wcsph", {"STIFFNESS": 50000.0})
     assert {m for m, _ in cases.values()} == {"dfsph", "iisph", "pbf", "wcsph"}
-    sj = S.scene_json(scene, {}, (0.055,) * 3, (0.955,) * 3, "wcsph", 1e-3, "/tmp/box.obj", adaptive=True,
+    sj = SS.scene_json(scene, {}, (0.055,) * 3, (0.955,) * 3, "wcsph", 1e-3, "/tmp/box.obj", adaptive=True,
                       time_step={"STIFFNESS": 50000.0})
     assert sj["Configuration"]["WCSPH"] == {"stiffness": 50000.0}
-    assert B.parse_resolutions("0.025:1.0,0.0125:0.3") == [(0.025, 1.0), (0.0125, 0.3)]
+    from warp_sph.benchmarks.arguments import parse_resolutions
     from warp_sph.core.errors import WarpSphError
 
+    assert parse_resolutions("0.025:1.0,0.0125:0.3") == [(0.025, 1.0), (0.0125, 0.3)]
     with pytest.raises(WarpSphError, match="RADIUS:SECONDS"):
-        B.parse_resolutions("0.025:x")
+        parse_resolutions("0.025:x")
 
 
 def test_adaptive_ratios_and_report_section(tmp_path):

@@ -315,3 +315,23 @@ def test_preview_never_replaces_a_users_picture(tmp_path, capsys):
     for _ in range(2):  # the run's own preview folder: its pictures are the run's files, replaced each time
         assert main(["preview", str(run), "--frame", "5", "--size", "32x24"]) == 0
     assert (run / "preview" / "particles_000005.png").read_bytes().startswith(b"\x89PNG")
+
+
+@pytest.mark.parametrize("content, expected", [(None, "is not a warp-sph run folder (no run.json)"),
+                                               (b"\xff\xfe{", "run.json: unreadable JSON"),
+                                               (b"{", "run.json: unreadable JSON"),
+                                               (b"[]", "not a warp-sph run.json"),
+                                               (b'{"scene": {}, "frames": "abc"}', "'frames' is not a list of frame"),
+                                               (b'{"scene": {}, "frames": [{"x": 1}]}', "'frames' is not a list")])
+def test_a_missing_or_damaged_run_json_is_one_line_as_in_export(tmp_path, capsys, content, expected):
+    """preview read run.json its own way: a file that is not UTF-8 ended in a UnicodeDecodeError traceback
+    (exit 1). Now the run folder's one reader (``run_folder.read_run_json``), the lines of export and plot."""
+    from warp_sph.cli import main
+
+    run = tmp_path / "run"
+    run.mkdir()
+    if content is not None:
+        (run / "run.json").write_bytes(content)
+    assert main(["preview", str(run)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and expected in err[0], err

@@ -5,7 +5,7 @@ import pytest
 import warp as wp
 
 from warp_sph.kernels import neighbors as _neighbors
-from warp_sph.kernels import weiler2018 as _weiler
+from warp_sph.kernels import weiler2018_cg as _cg
 from warp_sph.methods.forces.weiler2018 import Weiler2018Solve
 
 from sph_oracle import grad_W
@@ -109,7 +109,7 @@ def _apply(s, arrays, nu, nu_b, dt, u, device):
               outputs=[pairs, s.block_inverse, s.boundary_block, s.boundary_rhs], device=device)
     p = wp.array(u, dtype=wp.vec3, device=device)
     q = wp.zeros(len(u), dtype=wp.vec3, device=device)
-    control = wp.zeros(_weiler.CONTROL_COUNT, dtype=wp.float64, device=device)
+    control = wp.zeros(_cg.CONTROL_COUNT, dtype=wp.float64, device=device)
     wp.launch(s._matvec, len(u), inputs=[0, fn, pairs, s.boundary_block, p, control], outputs=[q], device=device)
     return q.numpy().astype(np.float64)
 

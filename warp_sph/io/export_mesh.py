@@ -7,7 +7,6 @@ the final name.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import meshio
 import numpy as np
@@ -55,18 +54,5 @@ class MeshSequenceWriter:
         # an empty surface gets no cell block (meshio's VTK writer fails on an empty one)
         mesh = meshio.Mesh(verts, [("triangle", tris)] if len(tris) else [])
         final = self.path(frame)
-        try:
-            fd, tmp = rf._mkstemp(Path(final), ".tmp")  # the umask's mode, like every run file
-            os.close(fd)
-        except OSError as exc:
-            raise rf.write_error(Path(final), exc) from None
-        try:
-            meshio.write(tmp, mesh, file_format=MESH_FORMATS[self.fmt])
-            os.replace(tmp, final)
-        except BaseException as exc:
-            if os.path.exists(tmp):
-                os.remove(tmp)
-            if isinstance(exc, OSError):
-                raise rf.write_error(Path(final), exc) from None
-            raise
+        rf.atomic_write_with(final, lambda tmp: meshio.write(tmp, mesh, file_format=MESH_FORMATS[self.fmt]))
         return final

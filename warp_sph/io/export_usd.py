@@ -31,13 +31,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..core.errors import OutputError
 from . import run_folder as rf
 from . import usd_whitewater
 from .crate_guard import crate_tail, restore_crate_tail
-from .usd_layout import (BODIES, RESERVED, clear_after, container_box_mesh, create_stage, extent, file_origin,
+from .usd_bodies import BodyMeshes
+from .usd_layout import (RESERVED, clear_after, container_box_mesh, create_stage, extent, file_origin,
                          first_line, open_for_resume, vec3f)
 
 __all__ = ["UsdWriter", "container_box_mesh"]
@@ -237,10 +238,7 @@ class UsdWriter:
                 if value is None:
                     raise OutputError(f"{self.path}: static mesh {prim.GetPath()} has no default {attr.GetName()}")
                 self._statics.append((attr, value))
-        self._bodies = {}
-        bodies = stage.GetPrimAtPath(BODIES)
-        for prim in bodies.GetChildren() if bodies.IsValid() else ():
-            self._bind_body(prim)
+        self._bodies = BodyMeshes(stage, self.path)
 
     # -- moving rigid bodies ---------------------------------------------------------------------
     def add_body(self, name: str, vertices: np.ndarray, triangles: np.ndarray) -> None:
@@ -250,63 +248,7 @@ class UsdWriter:
         body must already be there (same vertex count) and this only checks it."""
         if self.stage is None:
             raise OutputError(f"{self.path}: add_body after close")
-        if not Sdf.Path.IsValidIdentifier(name):
-            raise ValueError(f"body name {name!r} is not a valid USD identifier")
-        verts = np.asarray(vertices, dtype=np.float32).reshape(-1, 3)
-        tris = np.asarray(triangles, dtype=np.int32).reshape(-1, 3)
-        if len(tris) == 0 or tris.min() < 0 or tris.max() >= len(verts):
-            raise ValueError(f"body {name!r}: no triangles, or triangle indices out of range")
-        if name in self._bodies:
-            if len(self._bodies[name]["points"][1]) != len(verts):
-                raise OutputError(f"{self.path}: body {name!r} has another vertex count in the file")
-            return
-        if self.last_frame >= self.first_frame:
-            raise ValueError(f"body {name!r}: add bodies before the first frame is written")
-        UsdGeom.Xform.Define(self.stage, BODIES)
-        mesh = UsdGeom.Mesh.Define(self.stage, f"{BODIES}/{name}")
-        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        mesh.CreatePointsAttr(vec3f(verts))
-        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)))
-        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(tris.reshape(-1))))
-        mesh.CreateExtentAttr(extent(verts, 0.0))
-        mesh.AddTranslateOp()
-        mesh.AddOrientOp()
-        self.stage.Save()
-        self._bind_body(mesh.GetPrim())
-
-    def _bind_body(self, prim) -> None:
-        mesh = UsdGeom.Mesh(prim)
-        ops = {op.GetOpType(): op for op in mesh.GetOrderedXformOps()}
-        if not prim.IsA(UsdGeom.Mesh) or set(ops) != {UsdGeom.XformOp.TypeTranslate, UsdGeom.XformOp.TypeOrient}:
-            raise OutputError(f"{self.path}: {prim.GetPath()} is not a warp-sph body (a Mesh with translate and orient)")
-        entry = {"translate": ops[UsdGeom.XformOp.TypeTranslate], "orient": ops[UsdGeom.XformOp.TypeOrient]}
-        for key, attr in (("points", mesh.GetPointsAttr()), ("extent", mesh.GetExtentAttr())):
-            entry[key] = (attr, attr.Get(Usd.TimeCode.Default()))
-        self._bodies[prim.GetName()] = entry
-
-    def _body_poses(self, bodies) -> dict:
-        """{name: (Gf.Vec3d, Gf.Quatf)} checked before anything of the frame is written."""
-        bodies = dict(bodies or {})
-        if set(bodies) != set(self._bodies):
-            raise ValueError(f"write_frame needs exactly the poses of bodies {sorted(self._bodies)}; got {sorted(bodies)}")
-        out = {}
-        for name, (position, quaternion) in bodies.items():
-            p = np.asarray(position, dtype=np.float64).reshape(3)
-            q = np.asarray(quaternion, dtype=np.float64).reshape(4)
-            if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q)) and np.linalg.norm(q) > 0.0):
-                raise ValueError(f"body {name!r}: pose {p.tolist()}, {q.tolist()} is not finite")
-            if self.origin is not None:  # /sph carries the origin: the body's translate is relative to it
-                p = p - self.origin
-            out[name] = (Gf.Vec3d(*p), Gf.Quatf(float(q[3]), float(q[0]), float(q[1]), float(q[2])).GetNormalized())
-        return out
-
-    def _write_bodies(self, poses: dict, t: Usd.TimeCode) -> None:
-        for name, (translate, orient) in poses.items():
-            entry = self._bodies[name]
-            entry["translate"].Set(translate, t)
-            entry["orient"].Set(orient, t)
-            for attr, value in (entry["points"], entry["extent"]):
-                attr.Set(value, t)
+        self._bodies.add(self.stage, name, vertices, triangles, frames_written=self.last_frame >= self.first_frame)
 
     # -- frames --------------------------------------------------------------------------------
     def write_frame(
@@ -353,7 +295,7 @@ class UsdWriter:
         primvars = dict(primvars or {})
         if set(primvars) != set(self.primvar_names):
             raise ValueError(f"write_frame needs exactly the primvars {sorted(self.primvar_names)}; got {sorted(primvars)}")
-        bodies = self._body_poses(bodies)
+        bodies = self._bodies.poses(bodies, self.origin)
         t = Usd.TimeCode(frame)
         self._points.Set(vec3f(x), t)
         self._points_extent.Set(extent(x, self.particle_radius), t)
@@ -425,7 +367,7 @@ class UsdWriter:
                                                   1e-4 * self.particle_radius, self._local)
         for attr, value in self._statics:
             attr.Set(value, t)
-        self._write_bodies(bodies, t)
+        self._bodies.write(bodies, t)
         self.stage.SetEndTimeCode(frame)
         new_bytes = x.nbytes + 64 + (0 if self._velocities is None else x.nbytes) + 4 * n * len(self._primvars) \
             + (2 * verts.nbytes + 2 * tris.nbytes if self.with_surface else 0) + spray_bytes \

@@ -114,17 +114,18 @@ def check_free_space(path: Path, needed: int, what: str) -> None:
                           "continue with --resume")
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file and a rename: ``path`` holds either its
-    old or its new content, never a part. Raises OutputError (one line) when the write fails."""
+def atomic_write_with(path: Path, write, suffix: str = ".tmp") -> None:
+    """Call ``write(tmp)`` on a temporary file beside ``path`` (a name ending in ``suffix``), then rename it
+    to ``path``: ``path`` holds either its old or its new content, never a part; the temporary file is
+    removed when ``write`` fails. Raises OutputError (one line) when the write fails with an OSError."""
     path = Path(path)
     try:
-        fd, tmp = _mkstemp(path, ".tmp")
+        fd, tmp = _mkstemp(path, suffix)
+        os.close(fd)
     except OSError as exc:
         raise write_error(path, exc) from None
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
+        write(tmp)
         os.replace(tmp, path)
     except BaseException as exc:
         if os.path.exists(tmp):
@@ -132,6 +133,11 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         if isinstance(exc, OSError):
             raise write_error(path, exc) from None
         raise
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file and a rename (``atomic_write_with``)."""
+    atomic_write_with(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
 def to_json(obj, indent: int | None = None) -> str:
@@ -149,22 +155,8 @@ def npz_bytes(**arrays) -> int:
 
 
 def atomic_save_npz(path: Path, **arrays) -> None:
-    """``np.savez`` through a temporary file and a rename (see atomic_write_bytes)."""
-    path = Path(path)
-    try:
-        fd, tmp = _mkstemp(path, ".tmp.npz")
-        os.close(fd)
-    except OSError as exc:
-        raise write_error(path, exc) from None
-    try:
-        np.savez(tmp, **arrays)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        if isinstance(exc, OSError):
-            raise write_error(path, exc) from None
-        raise
+    """``np.savez`` through a temporary file and a rename (``atomic_write_with``)."""
+    atomic_write_with(path, lambda tmp: np.savez(tmp, **arrays), ".tmp.npz")
 
 
 def _json_default(o):

@@ -41,6 +41,14 @@ def _discover() -> None:
         pkg = importlib.import_module(f"{__package__}.{package}")
         for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
             importlib.import_module(f"{pkg.__name__}.{info.name}")
+    # a built-in whose module was imported before this discovery (a script, a test file) keeps its place: the
+    # built-ins in module-name order, then the methods registered from elsewhere in their order
+    for table in (_solvers, _boundaries, _forces):
+        items = list(table.items())
+        builtin = sorted((kv for kv in items if kv[1].__module__.startswith(f"{__package__}.")),
+                         key=lambda kv: kv[1].__module__)
+        table.clear()
+        table.update(builtin + [kv for kv in items if not kv[1].__module__.startswith(f"{__package__}.")])
 
 
 def _register(table: dict, others: tuple, cls, kind: str):

@@ -10,24 +10,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ..core.errors import OutputError, WarpSphError
+from ..core.errors import OutputError
 from ..io import run_folder as rf
 from ..io.probe_files import probe_csv_path, read_probe_csv
+from ..pyplot import pyplot
 
 LABELS = {"pressure": "pressure [Pa]", "height": "surface elevation z [m]", "front": "front position [m]"}
-
-
-def pyplot():
-    """matplotlib.pyplot on the Agg backend, or WarpSphError (one line) naming the extra to install."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise WarpSphError("plotting needs matplotlib, the 'plots' extra: pip install -e '.[plots]' in the warp-sph "
-                           "checkout (into the environment warp-sph runs in, e.g. .venv/bin/pip)") from None
-    return plt
 
 
 def save_figure(fig, path: Path) -> Path:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.run_folder import read_frame
+from ..io.run_folder import read_frame, read_run_json
 from .render import PreviewError
 
 BODY_COLOR = (0.78, 0.45, 0.18)  # orange-brown wood for moving rigid bodies
@@ -17,16 +17,15 @@ SPRAY_PRIM = "/sph/spray"
 
 
 def read_run(run_dir: Path) -> tuple[dict, list[int]]:
-    """(run.json as a dict, the recorded frame numbers in order); PreviewError when it is no run folder."""
-    meta_path = run_dir / "run.json"
-    if not meta_path.is_file():
-        raise PreviewError(f"{run_dir} is not a run folder: {meta_path.name} is missing")
-    try:
-        meta = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as err:
-        raise PreviewError(f"{meta_path}: not valid JSON ({err})") from err
+    """(run.json as a dict, the recorded frame numbers in order); OutputError (one line, as ``export`` and
+    ``plot``: ``run_folder.read_run_json``) when it is no run folder or its run.json is damaged."""
+    meta = read_run_json(run_dir)
     if "frames" in meta:
-        recorded = sorted(int(f["frame"]) for f in meta["frames"])
+        try:
+            recorded = sorted(int(f["frame"]) for f in meta["frames"])
+        except (TypeError, KeyError, ValueError):
+            raise PreviewError(f"{run_dir / 'run.json'}: 'frames' is not a list of frame records; expected "
+                               "[{\"frame\": N, ...}, ...] as warp-sph run writes it") from None
     else:
         recorded = sorted(int(p.stem.split("_")[-1]) for p in (run_dir / "frames").glob("frame_*.npz"))
     return meta, recorded

@@ -23,7 +23,7 @@ import warp as wp
 
 from ..core.errors import SceneError
 from ..core.step_graph import Stage
-from .coupling import BodyParticles, boundary_force_stage
+from .coupling import BodyParticles, boundary_force_stage, insert_coupling_stages
 from .spec import body_name
 from .world import RigidWorld, contact_frequency_for, static_colliders
 
@@ -76,13 +76,7 @@ class SimulationBodies:
     def insert_stages(self, stages: list[Stage], solver) -> list[Stage]:
         """The solver's stages with ``body_forces`` after its coupling stage and ``bodies`` at the end."""
         self.check_solver(solver)
-        names = [s.name for s in stages]
-        after = solver.body_coupling_after
-        if after not in names:
-            raise SceneError(f"bodies: the {solver.name} solver names stage {after!r} as its coupling point, but its "
-                             f"stages are {', '.join(names)}")
-        k = names.index(after) + 1
-        return stages[:k] + [self.force_stage(solver.body_coupling_velocity)] + stages[k:] + [self.motion_stage()]
+        return insert_coupling_stages(stages, solver, self.force_stage, self.motion_stage, "bodies")
 
     def force_stage(self, velocity: str = "particle_v") -> Stage:
         """The gather stage; ``velocity``: the workspace field of the fluid velocities the boundary force

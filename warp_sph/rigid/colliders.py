@@ -32,7 +32,7 @@ from ..kernels import colliders as _colliders_dev
 from ..scene.meshes import box_surface, load_triangle_mesh, points_inside, sample_surface
 from ..scene.paths import Path, matrix_quaternion
 from ..scene.sphere_obstacle import sphere_inside, sphere_surface, sphere_triangle_mesh
-from .coupling import BodyParticles, boundary_force_stage
+from .coupling import BodyParticles, boundary_force_stage, insert_coupling_stages
 from .sampling import BodySamples, akinci_volumes
 from .spec import box_mesh
 
@@ -180,9 +180,7 @@ class SimulationColliders:
         if not getattr(solver, "lists", True):
             raise SceneError(f"obstacles: the {solver.name} solver's hash-grid variant (lists=False) cannot move "
                              "animated obstacles; use its neighbour-list variant (the default)")
-        names = [s.name for s in stages]
-        k = names.index(solver.body_coupling_after) + 1
-        return stages[:k] + [self.force_stage(solver.body_coupling_velocity)] + stages[k:] + [self.motion_stage()]
+        return insert_coupling_stages(stages, solver, self.force_stage, self.motion_stage, "obstacles")
 
     def force_stage(self, velocity: str = "particle_v") -> Stage:
         return boundary_force_stage(self.sim, "collider_forces", self.start, self.count, self.force,

@@ -87,6 +87,21 @@ class BodyParticles:
                device=self.device)
 
 
+def insert_coupling_stages(stages: list[Stage], solver, force_stage, motion_stage, what: str) -> list[Stage]:
+    """The solver's stages with ``force_stage(solver.body_coupling_velocity)`` right after its coupling stage
+    (``solver.body_coupling_after``) and ``motion_stage()`` at the end: bodies and animated obstacles alike.
+    ``what``: the scene's word for them in the one-line SceneError of a solver naming a stage it lacks."""
+    from ..core.errors import SceneError
+
+    names = [s.name for s in stages]
+    after = solver.body_coupling_after
+    if after not in names:
+        raise SceneError(f"{what}: the {solver.name} solver names stage {after!r} as its coupling point, but its "
+                         f"stages are {', '.join(names)}")
+    k = names.index(after) + 1
+    return stages[:k] + [force_stage(solver.body_coupling_velocity)] + stages[k:] + [motion_stage()]
+
+
 def boundary_force_stage(sim, name: str, start: int, count: int, force: wp.array, writes: str, doc: str,
                          velocity: str = "particle_v") -> Stage:
     """The stage that gathers the fluid's force [N] on the moving boundary particles ``start ..

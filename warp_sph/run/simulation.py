@@ -17,13 +17,11 @@ from __future__ import annotations
 import math
 import numbers
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
 
 from ..core.errors import SceneError
-from ..kernels import diagnostics as _diag
 from ..kernels import neighbors as _neighbors_dev
 from ..kernels import reduction as _reduce
 from ..core.launch import launch
@@ -31,44 +29,8 @@ from ..core.model import build_model
 from ..neighbors import NeighborGrid, fluid_grid_dim
 from ..core.step_graph import StepGraph
 from ..methods.force import SimulationForces
+from .diagnostics import FrameDiagnostics, FrameStatistics
 from .watchdog import MAX_RETRIES, Watchdog, frame_substeps
-
-
-@dataclass
-class FrameStatistics:
-    """Diagnostics of the state at the end of a frame (one host read)."""
-
-    frame: int
-    time: float                 # [s]
-    steps: int                  # substeps in this frame
-    dt_min: float               # [s]
-    dt_max: float               # [s]
-    max_speed: float            # [m/s]
-    density_error_mean: float   # mean of max(rho/rho0 - 1, 0) [-] (compression only, as SPlisHSPlasH)
-    density_error_max: float    # max of rho/rho0 - 1 [-]
-    density_error_min: float    # min of rho/rho0 - 1 [-] (surface particles read under-dense)
-    kinetic_energy: float       # [J] of the fluid
-    potential_energy: float     # [J] of the fluid, relative to the local origin
-    non_finite: int
-    outside: int
-    max_acceleration: float = 0.0
-    body_speed: float = 0.0     # largest speed of a moving boundary particle (bound) [m/s]
-    bodies: dict = field(default_factory=dict)  # per body: pose, velocities, fluid force (``SimulationBodies``)
-    solver: dict = field(default_factory=dict)
-    retries: int = 0            # frames retried with a halved step (time.on_instability = "retry")
-    watch: dict = field(default_factory=dict)  # watchdog counts and first particle index per rule
-    compression_energy: float = 0.0  # [J] stored by the solver's equation of state (WCSPH; 0 for PBF, DFSPH);
-    #                                  not part of the total the energy rule checks (``warp_sph.run.energy``)
-    body_energy: float = 0.0    # [J] kinetic + potential of the rigid bodies (local origin)
-    energy_growth: float = 0.0  # (E - E(0)) / the scene's energy scale [-] (``warp_sph.run.energy``)
-    flow: dict = field(default_factory=dict)  # emitters and sinks: particles, emitted, removed (``ParticleFlow``)
-
-    def to_dict(self) -> dict:
-        """The statistics as a plain dict (the per-frame record in run.json; ``flow`` only with emitters or sinks)."""
-        out = dict(self.__dict__)
-        if not out["flow"]:
-            del out["flow"]
-        return out
 
 
 class Simulation:
@@ -133,7 +95,7 @@ class Simulation:
             self.colliders = SimulationColliders(self)
             self._inputs |= self.colliders.inputs
             self.unsorted_fields |= self.colliders.unsorted
-        self._stats = wp.zeros(_diag.STAT_COUNT, dtype=float, device=self.device)
+        self._diagnostics = FrameDiagnostics(self.device)
         #: per-chunk largest |v|^2 of ``current_speed``
         self._speed_partial = wp.zeros(max(1, -(-self.model.capacity // _reduce.REDUCE_CHUNK)), dtype=float,
                                        device=self.device)
@@ -434,57 +396,7 @@ class Simulation:
         (float64, one more small read) with the energy rule. at_time: the time [s] the free-fall speed limit is
         taken at (default: the state's time); given by the watchdog's stage-by-stage replay, which checks
         the device rules only (a state between stages has no meaningful energy), so energy is skipped."""
-        m = self.model
-        f = self.fields
-        acc = f.get("particle_acceleration")
-        if acc is None:
-            acc = self.allocate("particle_acceleration", wp.vec3)
-        check = m.container_lo is not None
-        tol = m.spacing
-        lo = wp.vec3(*(m.container_lo - tol)) if check else wp.vec3(0.0)
-        hi = wp.vec3(*(m.container_hi + tol)) if check else wp.vec3(0.0)
-        # a particle past an open face's plane left through it (or flies above an open top), one past a side
-        # wall's plane over an open top's rim went over it: neither is "outside" (``ParticleFlow.top``)
-        open_bounds, top = [[-1e30] * 3, [1e30] * 3], (-1, 1.0, 0.0)
-        if check and self.flow is not None:
-            for axis, side in self.flow.open_faces:
-                open_bounds[side][axis] = float((m.container_hi if side else m.container_lo)[axis])
-            if self.flow.top is not None:  # over an open top's rim, or spilled down a side wall's outside
-                axis, side = self.flow.top
-                rim = float((m.container_hi if side else m.container_lo)[axis])
-                top = (axis, 1.0 if side else -1.0, rim - (1.0 if side else -1.0) * self.flow.spill_band)
-        wd = self.watchdog
-        t = self.state.time if at_time is None else at_time
-        launch(_diag.reset_statistics, 1, [], [self._stats, wd.watch], device=self.device)
-        launch(_diag.accumulate_statistics, m.fluid_count,
-               [m.particle_mass, m.rest_density, wp.vec3(*m.gravity), lo, hi, int(check),
-                wp.vec3(*open_bounds[0]), wp.vec3(*open_bounds[1]), top[0], top[1], top[2], float(wd.speed_limit(t)), float(wd.density_limit),
-                f["particle_x"], f["particle_v"], f["particle_density"], acc], [self._stats, wd.watch],
-               device=self.device)
-        s = self._stats.numpy()
-        watch = wd.read()
-        n = m.fluid_count
-        bodies, body_speed = self.bodies.frame_record() if self.bodies is not None else ({}, 0.0)
-        if self.colliders is not None:
-            bodies = {**bodies, **self.colliders.frame_record()}
-        energy = {"kinetic_energy": float(s[_diag.STAT_KINETIC_ENERGY]),
-                  "potential_energy": float(s[_diag.STAT_POTENTIAL_ENERGY])}
-        if at_time is None:
-            e, growth, bad = wd.energy.check()
-            watch["energy"], watch["first_energy"] = int(bad), -1
-            energy = {"kinetic_energy": e.kinetic, "potential_energy": e.potential, "compression_energy": e.compression,
-                      "body_energy": e.bodies, "energy_growth": growth}
-        return FrameStatistics(
-            body_speed=body_speed, bodies=bodies,
-            frame=self.state.frame, time=self.state.time, steps=steps, dt_min=dt_min, dt_max=dt_max,
-            max_speed=float(s[_diag.STAT_MAX_SPEED]),
-            density_error_mean=float(s[_diag.STAT_SUM_COMPRESSION]) / n if n else 0.0,  # (none yet: emitters)
-            density_error_max=float(s[_diag.STAT_MAX_DENSITY_ERROR]) if n else 0.0,
-            density_error_min=float(s[_diag.STAT_MIN_DENSITY_ERROR]) if n else 0.0,
-            **energy, non_finite=watch["non_finite"], outside=watch["outside"],
-            max_acceleration=float(s[_diag.STAT_MAX_ACCELERATION]),
-            watch=watch, flow=self.flow.record() if self.flow is not None else {},
-        )
+        return self._diagnostics.read(self, steps, dt_min, dt_max, at_time)
 
     def check_health(self, stats: FrameStatistics) -> None:
         """Watchdog on a frame's statistics: raise SimulationError on a non-finite value, a particle

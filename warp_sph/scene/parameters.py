@@ -1,20 +1,21 @@
 """The scene parameter table: every key declared once, with its type, unit, default and valid range.
 
 The core rows are here; each registered method (a solver or boundary, ``warp_sph.methods``) adds the
-rows of its own section (``pbf.max_iterations``, ...). ``all_parameters()`` is the whole table in the
-order the scene-file reference (docs/scene-files.md) shows it. That table drives validation, defaults, ``--set`` overrides, the typed
-section classes (``warp_sph.scene.types``) and the generated docs (``warp_sph.docs``, ``parameter_table_markdown``).
+rows of its own section (``pbf.max_iterations``, ...); a row is a ``Param`` (``param.py``).
+``all_parameters()`` is the whole table in the order the scene-file reference (docs/scene-files.md)
+shows it. That table drives validation, defaults, ``--set`` overrides, the typed section classes
+(``warp_sph.scene.types``) and the generated docs (``warp_sph.docs``, ``parameter_table_markdown``).
 
 Key paths: ``particle_radius`` (top level), ``material.rest_density`` (a table), ``fluid[0].max``
 (an element of an array of tables; in the table written ``fluid[].max``).
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import replace
 
 from ..core.smoothing import SMOOTHING_KERNELS
+# the rows' type; Param, REQUIRED and TABLE_KINDS are imported from here too (validate.py, types.py, the methods)
+from .param import KIND_NAMES, REQUIRED, TABLE_KINDS, Param, default_text, valid_text  # noqa: F401
 
 MESH_SEQUENCE_FORMATS = ("", "obj", "ply", "vtk")
 PARTICLE_PRIMVARS = ("density", "pressure")
@@ -25,87 +26,6 @@ PROBE_KINDS = ("pressure", "height", "front")
 EMITTER_SHAPES = ("circle", "rectangle")
 #: faces of the container that ``container.open`` may name: sign and axis
 OPEN_FACES = ("-x", "+x", "-y", "+y", "-z", "+z")
-TABLE_KINDS = ("table", "tables", "table_or_false")
-
-
-class _Required:
-    def __repr__(self):
-        return "required"
-
-
-REQUIRED: Any = _Required()
-
-
-@dataclass(frozen=True)
-class Param:
-    """Definition of one scene parameter.
-
-    path: key path; ``a.b`` for a key of table ``a``, ``a[].b`` for a key of array of tables ``a``.
-    kind: "float", "int", "bool", "str", "vec3", "str_list", "table", "tables" or "table_or_false".
-    unit: SI unit, "-" for dimensionless.
-    default: value when absent (REQUIRED: must be given; None: optional, meaning in ``doc``).
-    gt/ge/lt/le: numeric bounds (for a vec3: bounds of its length); choices: allowed strings.
-    shapes: for fluid/obstacle keys, the shapes that use the key (None: every shape).
-    """
-
-    path: str
-    kind: str
-    unit: str
-    default: Any
-    doc: str
-    gt: float | None = None
-    ge: float | None = None
-    lt: float | None = None
-    le: float | None = None
-    choices: tuple[str, ...] | None = None
-    shapes: tuple[str, ...] | None = None
-    default_text: str | None = None
-
-    @property
-    def section(self) -> str:
-        return self.path.rpartition(".")[0]
-
-    @property
-    def key(self) -> str:
-        return self.path.rpartition(".")[2]
-
-    def expected(self) -> str:
-        """What a valid value looks like, in words (used in error messages and the docs)."""
-        if self.choices is not None:
-            opts = ", ".join(repr(c) for c in self.choices)
-            return f"a list of strings from {opts}" if self.kind == "str_list" else f"one of {opts}"
-        base = {
-            "float": "a finite number",
-            "int": "an integer",
-            "bool": "true or false",
-            "str": "a string",
-            "vec3": "a list of 3 finite numbers",
-            "table": "a table",
-            "tables": "an array of tables ([[...]])",
-            "table_or_false": "a table or false",
-        }[self.kind]
-        bounds = self.range_text()
-        if bounds and self.kind == "vec3":
-            return f"{base} of length {bounds}"
-        return f"{base} {bounds}" if bounds else base
-
-    def in_range(self, value: float) -> bool:
-        """Whether the number ``value`` (a vec3's length) is finite and within the bounds."""
-        v = float(value)
-        return (math.isfinite(v) and (self.gt is None or v > self.gt) and (self.ge is None or v >= self.ge)
-                and (self.lt is None or v < self.lt) and (self.le is None or v <= self.le))
-
-    def range_text(self) -> str:
-        parts = []
-        if self.gt is not None:
-            parts.append(f"> {self.gt:g}")
-        if self.ge is not None:
-            parts.append(f">= {self.ge:g}")
-        if self.lt is not None:
-            parts.append(f"< {self.lt:g}")
-        if self.le is not None:
-            parts.append(f"<= {self.le:g}")
-        return " and ".join(parts)
 
 
 _P = Param
@@ -481,40 +401,11 @@ def by_section(params: tuple[Param, ...]) -> dict[str, dict[str, Param]]:
     return out
 
 
-def _default_text(p: Param) -> str:
-    if p.default_text is not None:
-        return p.default_text
-    if p.default is REQUIRED:
-        return "required"
-    if p.kind in ("table", "tables"):
-        return ""
-    d = p.default
-    if isinstance(d, bool):
-        return "true" if d else "false"
-    if isinstance(d, str):
-        return f'"{d}"'
-    if isinstance(d, (list, tuple)):
-        return "[" + ", ".join(f'"{x}"' if isinstance(x, str) else f"{x:g}" for x in d) + "]"
-    if isinstance(d, float):
-        return f"{d:g}"
-    return str(d)
-
-
 def parameter_table_markdown() -> str:
     """The scene parameters as a Markdown table: key, type, unit, default, valid values, meaning."""
-    kinds = {"float": "float", "int": "int", "bool": "bool", "str": "string", "vec3": "[x, y, z]",
-             "str_list": "list of strings", "table": "table", "tables": "array of tables",
-             "table_or_false": "table or false"}
     lines = ["| key | type | unit | default | valid | description |", "|---|---|---|---|---|---|"]
     for p in all_parameters():
-        if p.choices is not None:
-            valid = ", ".join(f'"{c}"' for c in p.choices)
-        else:
-            valid = p.range_text()
-            if valid and p.kind == "vec3":
-                valid = f"length {valid}"
-        if p.shapes is not None:
-            valid = (valid + "; " if valid else "") + f"shape {', '.join(p.shapes)}"
         doc = p.doc.replace("|", "\\|")
-        lines.append(f"| `{p.path}` | {kinds[p.kind]} | {p.unit} | {_default_text(p)} | {valid} | {doc} |")
+        lines.append(f"| `{p.path}` | {KIND_NAMES[p.kind]} | {p.unit} | {default_text(p)} | {valid_text(p, vec3_length=True)} "
+                     f"| {doc} |")
     return "\n".join(lines) + "\n"

@@ -269,13 +269,17 @@ class Validator:
             path = local if local.is_file() or not shipped.is_file() else shipped
         return path.resolve()
 
-    def fluid_mesh(self, block, kp: str) -> None:
-        """A [[fluid]] mesh: readable, closed and consistently oriented, enclosing a volume; file made absolute."""
+    def read_mesh(self, block, kp: str):
+        """(absolute path, TriangleMesh) of ``block.file``; a file that cannot be read fails as ``<kp>.file``."""
         path = self.mesh_path(block.file)
         try:
-            mesh = load_triangle_mesh(path)
+            return path, load_triangle_mesh(path)
         except SceneError as exc:
             self.fail(f"{kp}.file", str(exc))
+
+    def fluid_mesh(self, block, kp: str) -> None:
+        """A [[fluid]] mesh: readable, closed and consistently oriented, enclosing a volume; file made absolute."""
+        path, mesh = self.read_mesh(block, kp)
         problem = closed_surface_problem(mesh)
         if problem:
             self.fail(f"{kp}.file", f"mesh {str(path)!r} cannot be filled with fluid: {problem}; a fluid mesh "
@@ -286,11 +290,8 @@ class Validator:
         block.file = str(path)
 
     def mesh_file(self, block, kp: str, what: str = "obstacles") -> None:
-        path = self.mesh_path(block.file)
-        try:
-            mesh = load_triangle_mesh(path)
-        except SceneError as exc:
-            self.fail(f"{kp}.file", str(exc))
+        """An obstacle's or a body's mesh: readable and closed; file made absolute."""
+        path, mesh = self.read_mesh(block, kp)
         holes = open_edge_count(mesh)
         if holes:
             self.fail(f"{kp}.file", f"mesh {str(path)!r} is not closed ({holes} edges belong to one triangle only); "

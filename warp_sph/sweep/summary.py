@@ -16,6 +16,7 @@ import math
 import time
 from pathlib import Path
 
+from ..pyplot import pyplot_or_none
 from .runs import ROW_KEYS, pareto_front
 
 JSONL = "sweep.jsonl"
@@ -61,22 +62,10 @@ def _fmt(v, scale=1.0) -> str:
     return f"{x:.3g}"
 
 
-def _pyplot():
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        return plt
-    except ImportError:
-        return None
-
-
 def plot_tradeoff(rows: list[dict], path: Path, title: str) -> Path | None:
     """Speed against mean density error of the completed rows; None without matplotlib or points."""
     pts = [r for r in rows if r.get("status") == "completed" and r.get(SPEED) and r.get(ERROR) is not None]
-    plt = _pyplot() if pts else None
+    plt = pyplot_or_none() if pts else None
     if plt is None:
         return None
     cost = [float(r[SPEED]) for r in pts]
@@ -176,7 +165,7 @@ class SweepSummary:
                   "`<case>/`.", ""]
         if png is not None:
             lines += [f"![speed against accuracy]({png.name})", ""]
-        elif _pyplot() is None:
+        elif pyplot_or_none() is None:
             lines += ["> Plot skipped: matplotlib is not installed (the `plots` extra: `pip install -e '.[plots]'`).", ""]
         lines += ["*step wall / sim s*: stepping wall time per simulated second (setup, kernel loading and "
                   "exports excluded); *wall / sim s* the whole run's; *mean ρ err*: mean over frames of the "

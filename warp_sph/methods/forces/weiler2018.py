@@ -1,5 +1,5 @@
-"""Implicit viscosity (Weiler, Koschier, Brand & Bender 2018), kernels in ``kernels/weiler2018.py``
-(equations there and in the research note ``forces.md`` section 3.2).
+"""Implicit viscosity (Weiler, Koschier, Brand & Bender 2018), kernels in ``kernels/weiler2018.py`` and its CG
+iteration in ``kernels/weiler2018_cg.py`` (equations there and in the research note ``forces.md`` section 3.2).
 
 Backward Euler on the velocities: A v_new = v* + c with A = I + dt (viscous Laplacian), solved for
 dv = v_new - v* by conjugate gradients with a 3x3 block-Jacobi preconditioner, warm-started from
@@ -29,6 +29,7 @@ from ...core.launch import launch
 from ...core.step_graph import Stage
 from ...kernels import reduction as _reduce
 from ...kernels import weiler2018 as _weiler
+from ...kernels import weiler2018_cg as _cg
 from ...scene.parameters import Param
 from ..force import Force, ForceSlot
 from ..registry import register_force
@@ -67,7 +68,7 @@ class Weiler2018Solve:
         self.pairs: wp.array | None = None
         chunks = max(1, -(-self.n // _reduce.REDUCE_CHUNK))
         self._partials = [wp.zeros(chunks, dtype=wp.float64, device=dev) for _ in range(4)]
-        self.control = wp.zeros(_weiler.CONTROL_COUNT, dtype=wp.float64, device=dev)
+        self.control = wp.zeros(_cg.CONTROL_COUNT, dtype=wp.float64, device=dev)
         # figures of the last solve (host values)
         self.last_iterations = 0
         self.last_residual = 0.0   # |r| / |r0| at the end [-]
@@ -81,7 +82,7 @@ class Weiler2018Solve:
     def _dots(self, a: wp.array, b: wp.array, c: wp.array, d: wp.array, first: int = 0) -> tuple:
         """Chunk sums of a . b and c . d into partial arrays ``first`` and ``first + 1``."""
         p, q = self._partials[first], self._partials[first + 1]
-        launch(_weiler.dot_chunks, p.shape[0], [_reduce.REDUCE_CHUNK, a, b, c, d, self.control], [p, q],
+        launch(_cg.dot_chunks, p.shape[0], [_reduce.REDUCE_CHUNK, a, b, c, d, self.control], [p, q],
                device=self.device)
         return p, q
 
@@ -107,36 +108,36 @@ class Weiler2018Solve:
                 float(model.support_radius), float(viscosity), float(boundary_viscosity), float(dt),
                 boundary_neighbors, boundary_x, boundary_v, boundary_volume, fn, particle_x, particle_density],
                [pairs, self.block_inverse, self.boundary_block, self.boundary_rhs], device=dev)
-        launch(_weiler.reset_control, 1, [], [control], device=dev)
+        launch(_cg.reset_control, 1, [], [control], device=dev)
         launch(self._start, n, [fn, pairs, self.block_inverse, self.boundary_block, self.boundary_rhs, particle_v, shift,
                                  warm],
                [warm, self.start_residual, self.residual, self.preconditioned, self.direction], device=dev)
         rz, rr = self._dots(self.residual, self.preconditioned, self.residual, self.residual)
         start, speed = self._dots(self.start_residual, self.start_residual, particle_v, particle_v, 2)
-        launch(_weiler.start_control, 1, [rz, rr, start, speed, self.tolerance, self.max_iterations], [control],
+        launch(_cg.start_control, 1, [rz, rr, start, speed, self.tolerance, self.max_iterations], [control],
                device=dev)
         self.solves += 1
         c = control.numpy()
         launched = 0
-        while c[_weiler.CONTROL_DONE] == 0.0 and launched < self.max_iterations:
+        while c[_cg.CONTROL_DONE] == 0.0 and launched < self.max_iterations:
             block = min(self.check_every, self.max_iterations - launched)
             for _ in range(block):
                 launch(self._matvec, n, [fn, pairs, self.boundary_block, self.direction, control], [self.product],
                        device=dev)
-                launch(_weiler.alpha_control, 1, [self._dots(self.direction, self.product, self.direction,
+                launch(_cg.alpha_control, 1, [self._dots(self.direction, self.product, self.direction,
                                                              self.product)[0]], [control], device=dev)
-                launch(_weiler.update, n, [fn, self.block_inverse, self.direction, self.product, control],
+                launch(_cg.update, n, [fn, self.block_inverse, self.direction, self.product, control],
                        [warm, self.residual, self.preconditioned], device=dev)
                 rz, rr = self._dots(self.residual, self.preconditioned, self.residual, self.residual)
-                launch(_weiler.beta_control, 1, [rz, rr, self.max_iterations], [control], device=dev)
-                launch(_weiler.new_direction, n, [fn, self.preconditioned, control], [self.direction], device=dev)
+                launch(_cg.beta_control, 1, [rz, rr, self.max_iterations], [control], device=dev)
+                launch(_cg.new_direction, n, [fn, self.preconditioned, control], [self.direction], device=dev)
             launched += block
             c = control.numpy()  # the one read per check
         launch(self._finish, n, [float(model.particle_mass), float(dt), shift, fn, self.boundary_block, self.boundary_rhs, warm],
                [particle_v, boundary_force, warm], device=dev)
-        start = float(c[_weiler.CONTROL_START])
-        rr = max(float(c[_weiler.CONTROL_RR]), 0.0)
-        self.last_iterations = int(c[_weiler.CONTROL_ITERATIONS])
+        start = float(c[_cg.CONTROL_START])
+        rr = max(float(c[_cg.CONTROL_RR]), 0.0)
+        self.last_iterations = int(c[_cg.CONTROL_ITERATIONS])
         self.last_residual = rr ** 0.5 / start if start > 0.0 else 0.0
         return self.last_iterations, self.last_residual
 
