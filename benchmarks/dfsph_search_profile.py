@@ -6,8 +6,7 @@
 Side by side: runs the default dam break (no output) for that many frames, then at that state times
 (process CPU, one thread: ``WARP_SPH_CPU_THREADS=1``, the first round not counted) the given number of
 rounds of the cell sort and the search of each variant, in turn (medians over the rounds): the
-per-step search (cells of H_s split in ``SEARCH_X_SPLIT`` slabs along x), its grids split in 1, 2 and
-8 slabs, cells of H_s / 2 (unsplit and split), and the skin at 0.5 d and 1 d with the lists rebuilt and
+per-step search (cells of H_s), cells of H_s / 2, and the skin at 0.5 d and 1 d with the lists rebuilt and
 reused; each kernel launch of the search (launched one by one, not through ``run_loop``: bitwise the
 same); and the fluid walk's candidates per particle (counted in NumPy). "rate": the same run for each
 skin, counting list builds against searches and the particles' displacement per step [d]. One JSON object on stdout. Wrap it in ``flock
@@ -30,7 +29,7 @@ def _scene(over: list[str]):
 
 
 def candidates(grid, x, radius: float, mask=None) -> tuple[float, float]:
-    """The walk's candidates per query point x (points in the trimmed rows of ``row_points_split`` over
+    """The walk's candidates per query point x (points in the trimmed rows of ``row_points`` over
     ``grid``, a built ``CellGrid``), counted in NumPy, the share of queries that walk (not in a cell
     whose ``mask`` is 0, as the boundary walk skips them) and the rows each walking query visits."""
     import numpy as np
@@ -38,7 +37,7 @@ def candidates(grid, x, radius: float, mask=None) -> tuple[float, float]:
     x = np.asarray(x, dtype=np.float64)
     lo = np.array([grid.lo[0], grid.lo[1], grid.lo[2]])
     dims = np.array([grid.dims[0], grid.dims[1], grid.dims[2]])
-    k, start = grid.x_split, grid.sub_start.numpy()
+    start = grid.cell_start.numpy()
     q = (x - lo) * grid.inv_cell_size
     qr = radius * grid.inv_cell_size
     walks = np.ones(len(x), dtype=bool)
@@ -63,10 +62,9 @@ def candidates(grid, x, radius: float, mask=None) -> tuple[float, float]:
             rest = qr * qr - dy * dy - dz * dz
             ok = walks & (z <= z1) & (y <= y1) & (rest > 0)
             xr = np.sqrt(np.maximum(rest, 0.0))
-            slabs = dims[0] * k
-            row = slabs * (np.minimum(y, dims[1] - 1) + dims[1] * np.minimum(z, dims[2] - 1))
-            x0 = np.clip(np.floor((q[:, 0] - xr) * k).astype(int), 0, slabs - 1)
-            x1 = np.clip(np.floor((q[:, 0] + xr) * k).astype(int), 0, slabs - 1)
+            row = dims[0] * (np.minimum(y, dims[1] - 1) + dims[1] * np.minimum(z, dims[2] - 1))
+            x0 = np.clip(np.floor(q[:, 0] - xr).astype(int), 0, dims[0] - 1)
+            x1 = np.clip(np.floor(q[:, 0] + xr).astype(int), 0, dims[0] - 1)
             total += np.where(ok, start[row + x1 + 1] - start[row + x0], 0).sum()
             visited += ok.sum()
     walking = max(1, int(walks.sum()))
@@ -87,7 +85,6 @@ def walk_counts(sim) -> dict:
 
 
 def side_by_side(frames: int, rounds: int) -> dict:
-    import warp_sph.methods.solvers.dfsph as dfsph
     import warp_sph.methods.solvers.dfsph_search as host
     import warp_sph.neighbors.cell_lists as cell_lists
     from warp_sph.run.simulation import Simulation
@@ -96,23 +93,19 @@ def side_by_side(frames: int, rounds: int) -> dict:
     for _ in range(frames):
         sim0.advance_frame()
     x, v = sim0.get_field("particle_x"), sim0.get_field("particle_v")
-    split = host.SEARCH_X_SPLIT
 
-    def variant(over, cells_per_radius=1, x_split=split):
-        cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, cells_per_radius, None)
-        dfsph.SEARCH_X_SPLIT = x_split
+    def variant(over, cells_per_radius=1):
+        cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, cells_per_radius)
         try:
             sim = Simulation(_scene(over))
         finally:
-            cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, 1, None)
-            dfsph.SEARCH_X_SPLIT = split
+            cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, 1)
         sim.set_field("particle_x", x)
         sim.set_field("particle_v", v)
         return sim
 
-    variants = {f"per-step search (x split {split})": sim0}
-    variants.update({f"x split {k}": variant([], x_split=k) for k in (1, 2, 4, 8) if k != split})
-    variants.update({f"cells H_s/2, x split {k}": variant([], 2, k) for k in (1, 4)})
+    variants = {"per-step search": sim0}
+    variants.update({"cells H_s/2": variant([], 2)})
     variants.update({"skin 0.5 d": variant(["dfsph.search_skin=0.5"]), "skin 1 d": variant(["dfsph.search_skin=1.0"])})
     call_s, kernel_s = collections.defaultdict(list), collections.defaultdict(list)
     plain_launch = host.launch
