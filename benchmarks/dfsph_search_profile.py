@@ -1,16 +1,20 @@
 """Where DFSPH's search time goes, and what the search skin (``dfsph.search_skin``) does to it.
 
-    python -m benchmarks.dfsph_search_profile 13 30            # side by side at one state
+    python -m benchmarks.dfsph_search_profile 13 30            # side by side at one state (process CPU)
+    python -m benchmarks.dfsph_search_profile 13 30 wall       # the same, wall-clock time
     python -m benchmarks.dfsph_search_profile 13 rate 0.5 1.0  # list builds over a run
 
 Side by side: runs the default dam break (no output) for that many frames, then at that state times
-(process CPU, one thread: ``WARP_SPH_CPU_THREADS=1``, the first round not counted) the given number of
-rounds of the cell sort and the search of each variant, in turn (medians over the rounds): the
-per-step search (cells of H_s), cells of H_s / 2, and the skin at 0.5 d and 1 d with the lists rebuilt and
-reused; each kernel launch of the search (launched one by one, not through ``run_loop``: bitwise the
-same); and the fluid walk's candidates per particle (counted in NumPy). "rate": the same run for each
-skin, counting list builds against searches and the particles' displacement per step [d]. One JSON object on stdout. Wrap it in ``flock
-/tmp/warp_sph_bench.lock`` on a shared machine. A diagnostic beside ``warp-sph bench splishsplash``.
+(process CPU, one thread: ``WARP_SPH_CPU_THREADS=1``; or wall-clock time with "wall"; the first round
+not counted) the given number of rounds of the cell sort and the search of each variant, in turn
+(medians over the rounds): the per-step search (cells of H_s; the static walls from their sub-cell
+lists, ``WALL_SUBCELLS``), the lists with 1, 2 and 4 sub-cells per cell, the per-step wall walk, cells
+of H_s / 2, and the skin at 0.5 d and 1 d with the lists rebuilt and reused; each kernel launch of the
+search (launched one by one, not through ``run_loop``: bitwise the same); the fluid walk's and the
+walls' candidates per particle (counted in NumPy) and the wall lists' memory. "rate": the same run for
+each skin, counting list builds against searches and the particles' displacement per step [d]. One JSON
+object on stdout. Wrap it in ``flock /tmp/warp_sph_bench.lock`` on a shared machine. A diagnostic beside
+``warp-sph bench splishsplash``.
 """
 from __future__ import annotations
 
@@ -78,14 +82,27 @@ def walk_counts(sim) -> dict:
     x = nl.fluid_cells.sorted_x.numpy()[:n]
     fluid, _, rows = candidates(nl.fluid_cells, x, nl.search_radius)
     out = {"fluid walk candidates": fluid, "fluid walk rows": rows}
-    if nl.boundary_cells is not None:
+    walls = getattr(sim.solver, "_walls", None)
+    if walls is not None:  # the static walls' sub-cell lists: the list of each particle's sub-cell
+        import numpy as np
+
+        lo = np.array([walls.cells.lo[a] for a in range(3)])
+        dims = np.array([walls.dims[a] for a in range(3)])
+        s = np.clip(np.floor((x - lo) * walls.inv_size).astype(int), 0, dims - 1)
+        length = np.diff(walls.start.numpy())[s[:, 0] + dims[0] * (s[:, 1] + dims[1] * s[:, 2])]
+        out.update({"wall list candidates": round(float(length.mean()), 1),
+                    "share with a wall list": round(float((length > 0).mean()), 3),
+                    "wall list bytes per wall particle": round(walls.nbytes / walls.cells.count, 1),
+                    "wall list entries per wall particle": round(walls.entries / walls.cells.count, 1)})
+    elif nl.boundary_cells is not None:
         per_particle, share, _ = candidates(nl.boundary_cells, x, nl.search_radius, nl.boundary_mask)
         out.update({"wall walk candidates": per_particle, "share walking the walls": share})
     return out
 
 
-def side_by_side(frames: int, rounds: int) -> dict:
+def side_by_side(frames: int, rounds: int, clock=time.process_time) -> dict:
     import warp_sph.methods.solvers.dfsph_search as host
+    import warp_sph.methods.solvers.dfsph_walls as walls
     import warp_sph.neighbors.cell_lists as cell_lists
     from warp_sph.run.simulation import Simulation
 
@@ -94,17 +111,23 @@ def side_by_side(frames: int, rounds: int) -> dict:
         sim0.advance_frame()
     x, v = sim0.get_field("particle_x"), sim0.get_field("particle_v")
 
-    def variant(over, cells_per_radius=1):
+    subcells = walls.WALL_SUBCELLS
+
+    def variant(over, cells_per_radius=1, wall_subcells=subcells):
         cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, cells_per_radius)
+        walls.WALL_SUBCELLS = wall_subcells
         try:
             sim = Simulation(_scene(over))
         finally:
             cell_lists.simulation_neighbor_lists.__defaults__ = (0.0, 1)
+            walls.WALL_SUBCELLS = subcells
         sim.set_field("particle_x", x)
         sim.set_field("particle_v", v)
         return sim
 
-    variants = {"per-step search": sim0}
+    variants = {f"per-step search (wall lists, {subcells} sub-cells)": sim0}
+    variants.update({f"wall lists, {k} sub-cells": variant([], wall_subcells=k) for k in (1, 2, 4) if k != subcells})
+    variants.update({"wall walk": variant([], wall_subcells=0)})
     variants.update({"cells H_s/2": variant([], 2)})
     variants.update({"skin 0.5 d": variant(["dfsph.search_skin=0.5"]), "skin 1 d": variant(["dfsph.search_skin=1.0"])})
     call_s, kernel_s = collections.defaultdict(list), collections.defaultdict(list)
@@ -112,9 +135,9 @@ def side_by_side(frames: int, rounds: int) -> dict:
     current = [""]
 
     def timed_launch(kernel, dim, *args, **kw):
-        t = time.process_time()
+        t = clock()
         plain_launch(kernel, dim, *args, **kw)
-        kernel_s[current[0] + ": " + getattr(kernel, "key", str(kernel)).split("__")[0]].append(time.process_time() - t)
+        kernel_s[current[0] + ": " + getattr(kernel, "key", str(kernel)).split("__")[0]].append(clock() - t)
 
     host.launch = timed_launch
     for sim in variants.values():
@@ -125,16 +148,16 @@ def side_by_side(frames: int, rounds: int) -> dict:
                 current[0] = name
                 nl, solver = sim.fields["neighbor_lists"], sim.solver
                 with sim.in_cell_order():
-                    t0 = time.process_time()
+                    t0 = clock()
                     nl.sort(sim.fields["particle_x"])
-                    t1 = time.process_time()
+                    t1 = clock()
                     if solver.skin:
                         solver._built = None  # the lists rebuilt
                     solver.search(3e-3)
-                    t2 = time.process_time()
+                    t2 = clock()
                     if solver.skin:
                         solver.search(3e-3)  # lists reused
-                    t3 = time.process_time()
+                    t3 = clock()
                 if r == 0:
                     kernel_s.clear()
                     continue
@@ -154,7 +177,7 @@ def side_by_side(frames: int, rounds: int) -> dict:
             "fluid pairs per particle (j != i, < H_s)": round(float(sim0.fields["dfsph_pairs"].count.numpy()[:n].mean()), 2),
             "wall particles within H_s per walking particle": round(float(
                 sim0.fields["neighbor_lists"].boundary.count.numpy()[:n].sum()
-                / max(1.0, walk_counts(sim0).get("share walking the walls", 0.0) * n)), 2),
+                / max(1.0, walk_counts(variants["wall walk"]).get("share walking the walls", 0.0) * n)), 2),
             "wall neighbours per particle": round(float(sim0.fields["neighbor_lists"].boundary.count.numpy()[:n].mean()), 2)}
 
 
@@ -197,7 +220,9 @@ def main(argv: list[str]) -> None:
     if len(argv) > 1 and argv[1] == "rate":
         result = rebuild_rate(frames, [float(a) for a in argv[2:]] or [0.5, 1.0])
     else:
-        result = side_by_side(frames, int(argv[1]) if len(argv) > 1 else 30)
+        wall = len(argv) > 2 and argv[2] == "wall"
+        result = side_by_side(frames, int(argv[1]) if len(argv) > 1 else 30, time.perf_counter if wall else time.process_time)
+        result["clock"] = "wall" if wall else "process CPU"
     print(json.dumps(result, indent=1))
 
 

@@ -18,9 +18,11 @@ from ...core.launch import launch
 from ...kernels import dfsph_walls as _walls
 
 #: sub-cells per cell of the search grid along each axis (0: walk the wall grid every step instead). The
-#: reach of a sub-cell of side a is a box grown by H_s: with cells of H_s, 1 -> 2 -> 4 sub-cells shrink it
-#: from 20.6 to 10.5 to 6.9 H_s^3 (the search sphere: 4.2 H_s^3); see docs/methods.md for the measured trade.
-WALL_SUBCELLS = 2
+#: reach of a sub-cell of side a is its box grown by H_s: with cells of H_s, 1 -> 2 -> 4 sub-cells shrink it
+#: from 20.6 to 10.5 to 6.9 H_s^3 (the search sphere: 4.2 H_s^3). Measured on the dam break (docs/methods.md
+#: "Where the search's time goes"): 21.7 / 10.2 / 5.9 wall candidates per particle, but the same time at 1
+#: and 2 (4 is slower: 432 list entries per wall particle) for 4x the memory at 2, so 1.
+WALL_SUBCELLS = 1
 #: most sub-cells (their list starts: 4 B each); fewer sub-cells per cell on larger grids
 MAX_SUBCELLS = 1 << 23
 #: margin [cells] added to the reach, so that rounding in a fluid particle's sub-cell never drops a wall
