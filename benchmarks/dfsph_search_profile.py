@@ -3,6 +3,8 @@
     python -m benchmarks.dfsph_search_profile 13 30            # side by side at one state (process CPU)
     python -m benchmarks.dfsph_search_profile 13 30 wall       # the same, wall-clock time
     python -m benchmarks.dfsph_search_profile 13 rate 0.5 1.0  # list builds over a run
+    python -m benchmarks.dfsph_search_profile 13 walls 3       # whole runs: wall lists against the wall walk
+    python -m benchmarks.dfsph_search_profile 5 20 particle_radius=0.0125  # key=value: scene overrides
 
 Side by side: runs the default dam break (no output) for that many frames, then at that state times
 (process CPU, one thread: ``WARP_SPH_CPU_THREADS=1``; or wall-clock time with "wall"; the first round
@@ -26,10 +28,14 @@ import sys
 import time
 
 
+#: scene overrides of every run (key=value arguments on the command line, e.g. particle_radius=0.0125)
+SCENE_SET: list[str] = []
+
+
 def _scene(over: list[str]):
     from warp_sph.scene import load_scene
 
-    return load_scene("dam_break", overrides=["output.usd=false", "output.surface=false"] + over)
+    return load_scene("dam_break", overrides=["output.usd=false", "output.surface=false"] + SCENE_SET + over)
 
 
 def candidates(grid, x, radius: float, mask=None) -> tuple[float, float]:
@@ -168,7 +174,7 @@ def side_by_side(frames: int, rounds: int, clock=time.process_time) -> dict:
     finally:
         host.launch = plain_launch
     n = sim0.model.fluid_count
-    return {"frames": frames, "rounds": rounds, "fluid": n, "boundary": sim0.model.boundary_count,
+    return {"frames": frames, "rounds": rounds, "set": SCENE_SET, "fluid": n, "boundary": sim0.model.boundary_count,
             "threads": os.environ.get("WARP_SPH_CPU_THREADS", "all"), "load": os.getloadavg(),
             "candidates per fluid particle": {name: walk_counts(sim) for name, sim in variants.items()
                                               if not sim.solver.skin},
@@ -215,10 +221,44 @@ def rebuild_rate(frames: int, skins: list[float]) -> dict:
     return {"frames": frames, "runs": out}
 
 
+def walls_runs(frames: int, repeats: int) -> dict:
+    """Whole runs of the dam break (``frames`` frames, no output) with the static walls from their sub-cell
+    lists (``WALL_SUBCELLS``) and with the per-step wall walk (0), ``repeats`` times in turns: process CPU
+    and wall seconds of each run (the first frames' kernel compiles are outside: a run of one frame first)."""
+    import warp_sph.methods.solvers.dfsph_walls as walls
+    from warp_sph.run.simulation import Simulation
+
+    subcells = walls.WALL_SUBCELLS
+    runs = collections.defaultdict(lambda: collections.defaultdict(list))
+    try:
+        for r in range(repeats + 1):
+            for k in (subcells, 0):
+                walls.WALL_SUBCELLS = k
+                sim = Simulation(_scene([]))
+                cpu, wall = time.process_time(), time.perf_counter()
+                for _ in range(frames if r else 1):
+                    sim.advance_frame()
+                if r:
+                    name = f"wall lists, {k} sub-cells" if k else "wall walk"
+                    runs[name]["cpu s"].append(round(time.process_time() - cpu, 3))
+                    runs[name]["wall s"].append(round(time.perf_counter() - wall, 3))
+                    runs[name]["steps"].append(int(sim.state.step))
+    finally:
+        walls.WALL_SUBCELLS = subcells
+    return {"frames": frames, "repeats": repeats, "threads": os.environ.get("WARP_SPH_CPU_THREADS", "all"),
+            "load": os.getloadavg(), "runs": {k: dict(v) for k, v in runs.items()},
+            "median cpu s": {k: statistics.median(v["cpu s"]) for k, v in runs.items()},
+            "median wall s": {k: statistics.median(v["wall s"]) for k, v in runs.items()}}
+
+
 def main(argv: list[str]) -> None:
+    SCENE_SET[:] = [a for a in argv if "=" in a]
+    argv = [a for a in argv if "=" not in a]
     frames = int(argv[0])
     if len(argv) > 1 and argv[1] == "rate":
         result = rebuild_rate(frames, [float(a) for a in argv[2:]] or [0.5, 1.0])
+    elif len(argv) > 1 and argv[1] == "walls":
+        result = walls_runs(frames, int(argv[2]) if len(argv) > 2 else 3)
     else:
         wall = len(argv) > 2 and argv[2] == "wall"
         result = side_by_side(frames, int(argv[1]) if len(argv) > 1 else 30, time.perf_counter if wall else time.process_time)

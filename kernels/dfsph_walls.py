@@ -43,6 +43,7 @@ def walls_in_reach(
     sorted_points: wp.array(dtype=wp.vec3),
     # Sub-cells:
     subcells: int,
+    cell_reach: float,
     reach: float,
     fill: int,
     entry_start: wp.array(dtype=wp.int32),
@@ -51,7 +52,10 @@ def walls_in_reach(
     entry_out: wp.array(dtype=wp.int32),
 ):
     """One thread per sub-cell s: the boundary particles k within ``reach`` [cells] of its box (border
-    sub-cells open outward), counted (fill = 0) or written in ascending k from entry_start[s] (fill = 1)."""
+    sub-cells open outward), counted (fill = 0) or written in ascending k from entry_start[s] (fill = 1).
+    Only cells that the cell walk of a point in the sub-cell's parent cell can visit are read: those less
+    than ``cell_reach`` = H_s / cell size [cells] of whole cells away (the walk's rows skip the others),
+    so the rounding margin in ``reach`` adds no particle the walk would not test."""
     s = wp.tid() + tid_offset
     nx = grid_dims[0] * subcells
     ny = grid_dims[1] * subcells
@@ -82,24 +86,31 @@ def walls_in_reach(
                   wp.clamp(int(wp.floor(wp.min(hi[1] + reach, float(grid_dims[1])))), 0, grid_dims[1] - 1),
                   wp.clamp(int(wp.floor(wp.min(hi[2] + reach, float(grid_dims[2])))), 0, grid_dims[2] - 1))
     reach2 = reach * reach
+    # only cells the walk of a point of the parent cell p can visit: whole cells between them < cell_reach
+    p = wp.vec3i(sx // subcells, sy // subcells, sz // subcells)
     n = int(0)
     out = int(0)
     if fill != 0:
         out = entry_start[s]
     for z in range(c0[2], c1[2] + 1):
+        gz = float(wp.max(wp.abs(z - p[2]) - 1, 0))
         for y in range(c0[1], c1[1] + 1):
+            gy = float(wp.max(wp.abs(y - p[1]) - 1, 0))
             row = grid_dims[0] * (y + grid_dims[1] * z)
-            k = cell_start[row + c0[0]]
-            k_end = cell_start[row + c1[0] + 1]
-            while k < k_end:
-                q = (sorted_points[k] - grid_lo) * inv_cell_size
-                dx = gap_to_box(q[0], lo[0], hi[0])
-                dy = gap_to_box(q[1], lo[1], hi[1])
-                dz = gap_to_box(q[2], lo[2], hi[2])
-                if dx * dx + dy * dy + dz * dz < reach2:
-                    if fill != 0:
-                        entry_out[out + n] = k
-                    n += 1
-                k += 1
+            for x in range(c0[0], c1[0] + 1):
+                gx = float(wp.max(wp.abs(x - p[0]) - 1, 0))
+                if gx * gx + gy * gy + gz * gz < cell_reach * cell_reach:
+                    k = cell_start[row + x]
+                    k_end = cell_start[row + x + 1]
+                    while k < k_end:
+                        q = (sorted_points[k] - grid_lo) * inv_cell_size
+                        dx = gap_to_box(q[0], lo[0], hi[0])
+                        dy = gap_to_box(q[1], lo[1], hi[1])
+                        dz = gap_to_box(q[2], lo[2], hi[2])
+                        if dx * dx + dy * dy + dz * dz < reach2:
+                            if fill != 0:
+                                entry_out[out + n] = k
+                            n += 1
+                        k += 1
     if fill == 0:
         count_out[s] = n

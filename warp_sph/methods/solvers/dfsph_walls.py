@@ -45,11 +45,12 @@ class WallReach:
         self.inv_size = float(cells.inv_cell_size * self.subcells)
         self.count = cells.cell_count * self.subcells ** 3
         self.radius = float(radius)
-        reach = self.radius * cells.inv_cell_size + REACH_MARGIN
+        cell_reach = self.radius * cells.inv_cell_size
+        reach = cell_reach + REACH_MARGIN
         self.start = wp.zeros(self.count + 1, dtype=wp.int32, device=device)
         counts = wp.zeros(self.count + 1, dtype=wp.int32, device=device)
         nothing = wp.zeros(1, dtype=wp.int32, device=device)
-        grid = [cells.lo, cells.inv_cell_size, cells.dims, cells.cell_start, cells.sorted_x, self.subcells, reach]
+        grid = [cells.lo, cells.inv_cell_size, cells.dims, cells.cell_start, cells.sorted_x, self.subcells, cell_reach, reach]
         launch(_walls.walls_in_reach, self.count, grid + [0, nothing], [counts, nothing], device=device)
         wp.utils.array_scan(counts, self.start, inclusive=False)
         total = int(self.start[self.count:].numpy()[0])
