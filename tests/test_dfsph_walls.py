@@ -1,7 +1,8 @@
 """DFSPH's static walls in reach of each sub-cell (``WallReach``, built once per run): every wall particle
 within the radius of a query is in its sub-cell's list, in the cell walk's order (ascending sorted index),
 against a brute-force NumPy oracle (queries and walls outside the grid included); finer sub-cells give
-shorter lists; and a DFSPH run with the lists is bitwise the run that walks the wall grid every step."""
+shorter lists; and a DFSPH run with the lists (and with a moving body, whose grid is still walked) is bitwise
+the run that walks the wall grid every step."""
 import numpy as np
 import pytest
 import warp as wp
@@ -103,17 +104,46 @@ def test_dfsph_with_wall_lists_is_bitwise_the_wall_walk(monkeypatch, device):
         sim = Simulation(small_tank("walls"), device=device)
         for _ in range(30):
             sim.step(4e-3)
-        assert (sim.solver._walls is None) == (subcells == 0)
-        nl = sim.fields["neighbor_lists"]
-        n = sim.model.fluid_count
-        count = nl.boundary.count.numpy()[:n]
-        assert count.sum() > n  # the walls were met
-        index = nl.boundary.index.numpy()[:n]
-        rows = [index[i, :c] for i, c in enumerate(count)]
-        return [sim.get_field(f) for f in ("particle_x", "particle_v", "particle_density")], count, rows
+        return check_walls(sim, subcells)
 
+    compare(run, (1, 2, 4))
+
+
+def test_dfsph_with_a_moving_body_lists_the_static_walls_then_walks_the_body(monkeypatch, device):
+    """A box moving in a pool (tests/test_rigid_stages.py), 4 steps: the static walls from their lists and
+    the body's particles from the per-step walk of its grid, bitwise the run that walks both."""
+    from test_rigid_stages import pool
+
+    def run(subcells):
+        monkeypatch.setattr(dfsph_walls, "WALL_SUBCELLS", subcells)
+        sim = Simulation(pool(solver="dfsph"), device=device)
+        for _ in range(4):
+            sim.step(2e-3)
+        assert sim.solver.nl.moving_cells is not None
+        S = sim.model.static_boundary_count
+        nl, n = sim.fields["neighbor_lists"], sim.model.fluid_count
+        assert (nl.boundary.index.numpy()[:n] >= S).any()  # the body is among the neighbours
+        return check_walls(sim, subcells)
+
+    compare(run, (1,))
+
+
+def check_walls(sim, subcells):
+    """The state, density and boundary neighbour lists of a run (walls met; lists built unless subcells = 0)."""
+    assert (sim.solver._walls is None) == (subcells == 0)
+    nl = sim.fields["neighbor_lists"]
+    n = sim.model.fluid_count
+    count = nl.boundary.count.numpy()[:n]
+    assert count.sum() > n  # the walls were met
+    index = nl.boundary.index.numpy()[:n]
+    rows = [index[i, :c] for i, c in enumerate(count)]
+    return [sim.get_field(f) for f in ("particle_x", "particle_v", "particle_density")], count, rows
+
+
+def compare(run, subcells_list):
+    """``run(subcells)`` with the lists equal bit for bit to ``run(0)`` (the wall walk)."""
     walk, walk_count, walk_rows = run(0)
-    for subcells in (1, 2, 4):
+    for subcells in subcells_list:
         fields, count, rows = run(subcells)
         for a, b in zip(walk, fields):
             assert np.array_equal(a, b)
