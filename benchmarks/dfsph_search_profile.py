@@ -261,7 +261,8 @@ def main(argv: list[str]) -> None:
         result = walls_runs(frames, int(argv[2]) if len(argv) > 2 else 3)
     else:
         wall = len(argv) > 2 and argv[2] == "wall"
-        result = side_by_side(frames, int(argv[1]) if len(argv) > 1 else 30, time.perf_counter if wall else time.process_time)
+        clock = time.perf_counter if wall else time.process_time
+        result = side_by_side(frames, int(argv[1]) if len(argv) > 1 else 30, clock)
         result["clock"] = "wall" if wall else "process CPU"
     print(json.dumps(result, indent=1))
 

@@ -22,9 +22,10 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
     ``BoundaryTerms`` has density and gradient terms, into rho_i (rho0 density_b), s_i (gb_ib) and
     delta_i(v) (v_i - v_b). With ``moving`` (rigid bodies) a second grid, over the moving boundary
     particles (boundary indices moving_start + k), is walked after the static one, its neighbours
-    listed after the static ones. With ``walls`` the static grid is not walked: the particle's sub-cell list
-    of static boundary particles in reach (``kernels/dfsph_walls.py``, built once per run) is tested, in
-    the walk's order (the same neighbours and sums, bitwise). With ``lists`` (the search skin) nothing is walked: the boundary
+    listed after the static ones. With ``walls`` the static grid is not walked: the particle's sub-cell
+    list of static boundary particles in reach (``kernels/dfsph_walls.py``, built once per run) is
+    tested, in the walk's order (the same neighbours and sums, bitwise). With ``lists`` (the search skin)
+    nothing is walked: the boundary
     neighbour list (built within H_s + skin, boundary indices) is read and its particles b closer than
     the support radius add the same terms (x_b from boundary_x, V_b from boundary_volume), in the
     list's order. Then, from the fluid parts: f_i = 1 / D_i (0 when D_i <= factor_floor),

@@ -90,7 +90,8 @@ def test_finer_sub_cells_give_shorter_lists(device):
         found = wp.zeros((len(queries), 1), dtype=wp.int32, device=device)
         listed = wp.zeros(len(queries), dtype=wp.int32, device=device)
         wp.launch(listed_in_reach, len(queries), [grid.lo, reach.inv_size, reach.dims, reach.start, reach.entry,
-                                                  grid.sorted_x, radius, wp.array(queries, dtype=wp.vec3, device=device)],
+                                                  grid.sorted_x, radius,
+                                                  wp.array(queries, dtype=wp.vec3, device=device)],
                   [found, listed], device=device)
         means.append(listed.numpy().mean())
     assert means[0] > 1.5 * means[1] > 1.5 * 1.2 * means[2] > 0

@@ -50,7 +50,8 @@ class WallReach:
         self.start = wp.zeros(self.count + 1, dtype=wp.int32, device=device)
         counts = wp.zeros(self.count + 1, dtype=wp.int32, device=device)
         nothing = wp.zeros(1, dtype=wp.int32, device=device)
-        grid = [cells.lo, cells.inv_cell_size, cells.dims, cells.cell_start, cells.sorted_x, self.subcells, cell_reach, reach]
+        grid = [cells.lo, cells.inv_cell_size, cells.dims, cells.cell_start, cells.sorted_x, self.subcells, cell_reach,
+                reach]
         launch(_walls.walls_in_reach, self.count, grid + [0, nothing], [counts, nothing], device=device)
         wp.utils.array_scan(counts, self.start, inclusive=False)
         total = int(self.start[self.count:].numpy()[0])
