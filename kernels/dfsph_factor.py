@@ -8,19 +8,24 @@ import functools
 
 import warp as wp
 
-from .neighbors import NoBoundaryParams, cell_of, cell_rows, row_points_split
+from .dfsph_walls import subcell_of
+from .neighbors import NoBoundaryParams, cell_of, cell_rows, row_points
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
 @functools.cache
-def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving: bool = False, lists: bool = False):
+def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving: bool = False, lists: bool = False,
+                           walls: bool = False):
     """The boundary half of the search and the factor (threads in cell order): with ``search``, every
     boundary particle b within the support radius goes into the boundary neighbour list (cells with
     no boundary particle within one cell are skipped by the mask), and, when the boundary method's
     ``BoundaryTerms`` has density and gradient terms, into rho_i (rho0 density_b), s_i (gb_ib) and
     delta_i(v) (v_i - v_b). With ``moving`` (rigid bodies) a second grid, over the moving boundary
     particles (boundary indices moving_start + k), is walked after the static one, its neighbours
-    listed after the static ones. With ``lists`` (the search skin) nothing is walked: the boundary
+    listed after the static ones. With ``walls`` the static grid is not walked: the particle's sub-cell
+    list of static boundary particles in reach (``kernels/dfsph_walls.py``, built once per run) is
+    tested, in the walk's order (the same neighbours and sums, bitwise). With ``lists`` (the search skin)
+    nothing is walked: the boundary
     neighbour list (built within H_s + skin, boundary indices) is read and its particles b closer than
     the support radius add the same terms (x_b from boundary_x, V_b from boundary_volume), in the
     list's order. Then, from the fluid parts: f_i = 1 / D_i (0 when D_i <= factor_floor),
@@ -41,8 +46,7 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         grid_lo: wp.vec3,
         inv_cell_size: float,
         grid_dims: wp.vec3i,
-        sub_start: wp.array(dtype=wp.int32),
-        x_split: int,
+        cell_start: wp.array(dtype=wp.int32),
         cell_point: wp.array(dtype=wp.int32),
         sorted_points: wp.array(dtype=wp.vec3),
         sorted_volume: wp.array(dtype=float),
@@ -79,7 +83,7 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
             rows = cell_rows(q, qr, grid_dims)
             for z in range(rows[2], rows[3] + 1):  # a branch per candidate: most boundary candidates are kept
                 for y in range(rows[0], rows[1] + 1):
-                    span = row_points_split(q, qr, y, z, grid_dims, sub_start, x_split)
+                    span = row_points(q, qr, y, z, grid_dims, cell_start)
                     k = span[0]
                     k_end = span[1]
                     while k < k_end:
@@ -98,6 +102,57 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
                                 sb += gb
                                 bvel += wp.dot(boundary_v[b], gb)
                         k += 1
+        return nb, ratio, sb, bvel
+
+    @wp.func(module="unique")
+    def reach_boundary(
+        i: int,
+        xi: wp.vec3,
+        grid_lo: wp.vec3,
+        wall_inv_size: float,
+        wall_dims: wp.vec3i,
+        wall_start: wp.array(dtype=wp.int32),
+        wall_entry: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
+        sorted_points: wp.array(dtype=wp.vec3),
+        sorted_volume: wp.array(dtype=float),
+        smoothing_length: float,
+        support_radius: float,
+        boundary_params: BoundaryParams,
+        boundary_v: wp.array(dtype=wp.vec3),
+        neighbor_index_out: wp.array2d(dtype=wp.int32),
+        ratio_in: float,
+        sb_in: wp.vec3,
+        bvel_in: float,
+    ):
+        """``walk_boundary`` over the static grid, from the sub-cell list of x_i (sorted indices k in the
+        walk's order): the same neighbours, listed first, and the same terms in the same order."""
+        nb = int(0)
+        ratio = ratio_in
+        sb = sb_in
+        bvel = bvel_in
+        h = smoothing_length
+        radius2 = support_radius * support_radius
+        capacity = neighbor_index_out.shape[1]
+        s = subcell_of(xi, grid_lo, wall_inv_size, wall_dims)
+        e = wall_start[s]
+        e_end = wall_start[s + 1]
+        while e < e_end:
+            k = wall_entry[e]
+            x_ib = xi - sorted_points[k]
+            dd = wp.dot(x_ib, x_ib)
+            if dd < radius2:
+                b = cell_point[k]
+                if nb < capacity:
+                    neighbor_index_out[i, nb] = b
+                nb += 1
+                if wp.static(with_terms):
+                    vol = sorted_volume[k]
+                    ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.sqrt(dd), h), vol)
+                    gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
+                    sb += gb
+                    bvel += wp.dot(boundary_v[b], gb)
+            e += 1
         return nb, ratio, sb, bvel
 
     @wp.func(module="unique")
@@ -148,19 +203,22 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         grid_lo: wp.vec3,
         inv_cell_size: float,
         grid_dims: wp.vec3i,
-        sub_start: wp.array(dtype=wp.int32),
-        x_split: int,
+        cell_start: wp.array(dtype=wp.int32),
         cell_point: wp.array(dtype=wp.int32),
         sorted_points: wp.array(dtype=wp.vec3),
         sorted_volume: wp.array(dtype=float),
         cell_mask: wp.array(dtype=wp.uint8),
         use_mask: int,
+        # Static boundary particles in reach of each sub-cell (with ``walls``, ``kernels/dfsph_walls.py``):
+        wall_inv_size: float,
+        wall_dims: wp.vec3i,
+        wall_start: wp.array(dtype=wp.int32),
+        wall_entry: wp.array(dtype=wp.int32),
         # Moving boundary cell grid (with ``moving``; boundary indices moving_start + its own):
         moving_lo: wp.vec3,
         moving_inv_cell_size: float,
         moving_dims: wp.vec3i,
-        moving_sub_start: wp.array(dtype=wp.int32),
-        moving_x_split: int,
+        moving_cell_start: wp.array(dtype=wp.int32),
         moving_cell_point: wp.array(dtype=wp.int32),
         moving_sorted_points: wp.array(dtype=wp.vec3),
         moving_sorted_volume: wp.array(dtype=float),
@@ -218,14 +276,20 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
             nb, ratio, sb, bvel = list_boundary(i, xi, boundary_x, boundary_volume, neighbor_count_out,
                                                 neighbor_index_out, smoothing_length, support_radius,
                                                 boundary_params, boundary_v, ratio, sb, bvel)
-        if wp.static(search and not lists):
-            nb, ratio, sb, bvel = walk_boundary(i, xi, grid_lo, inv_cell_size, grid_dims, sub_start, x_split,
+        if wp.static(search and not lists and walls):
+            nb, ratio, sb, bvel = reach_boundary(i, xi, grid_lo, wall_inv_size, wall_dims, wall_start, wall_entry,
+                                                 cell_point, sorted_points, sorted_volume, smoothing_length,
+                                                 support_radius, boundary_params, boundary_v, neighbor_index_out,
+                                                 ratio, sb, bvel)
+        if wp.static(search and not lists and not walls):
+            nb, ratio, sb, bvel = walk_boundary(i, xi, grid_lo, inv_cell_size, grid_dims, cell_start,
                                                 cell_point, sorted_points, sorted_volume, cell_mask, use_mask, 0,
                                                 smoothing_length, support_radius, boundary_params, boundary_v,
                                                 neighbor_index_out, nb, ratio, sb, bvel)
+        if wp.static(search and not lists):
             if wp.static(moving):
                 nb, ratio, sb, bvel = walk_boundary(i, xi, moving_lo, moving_inv_cell_size, moving_dims,
-                                                    moving_sub_start, moving_x_split, moving_cell_point,
+                                                    moving_cell_start, moving_cell_point,
                                                     moving_sorted_points, moving_sorted_volume, moving_cell_mask,
                                                     moving_use_mask,
                                                     moving_start, smoothing_length, support_radius,

@@ -4,8 +4,8 @@ s_i, D_i, f_i = 1 / D_i [m^2], delta_i(u)); host half ``warp_sph/methods/solvers
 
 Neighbours and the factor come from one search per step (``fluid_search_kernel`` here, then
 ``boundary_factor_kernel`` of ``kernels/dfsph_factor.py``, over the cell grids of
-``warp_sph.neighbors.NeighborLists``, walked with ``cell_rows`` / ``row_points_split`` of
-``kernels/neighbors.py``: rows of cells trimmed to the sphere at the width of the grids' x slabs): each pair within
+``warp_sph.neighbors.NeighborLists``, walked with ``cell_rows`` / ``row_points`` of
+``kernels/neighbors.py``: rows of cells trimmed to the sphere): each pair within
 the support radius is found once, and its G_ij goes straight into row i of the pair cache
 (``DfsphPairs``, row i at i x the list capacity), read as one stream per particle by every later pass;
 the solves evaluate no smoothing kernel (with the search skin the pairs come from lists, in compressed
@@ -18,7 +18,7 @@ import functools
 
 import warp as wp
 
-from .neighbors import cell_rows, row_points_split
+from .neighbors import cell_rows, row_points
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -66,8 +66,7 @@ def fluid_search_kernel(smoothing: str):
         grid_lo: wp.vec3,
         inv_cell_size: float,
         grid_dims: wp.vec3i,
-        sub_start: wp.array(dtype=wp.int32),
-        x_split: int,
+        cell_start: wp.array(dtype=wp.int32),
         cell_point: wp.array(dtype=wp.int32),
         sorted_points: wp.array(dtype=wp.vec3),
         support_radius: float,
@@ -103,7 +102,7 @@ def fluid_search_kernel(smoothing: str):
         self_rank = capacity  # where i itself falls among the found (kept when < capacity)
         for z in range(rows[2], rows[3] + 1):
             for y in range(rows[0], rows[1] + 1):
-                span = row_points_split(q, qr, y, z, grid_dims, sub_start, x_split)
+                span = row_points(q, qr, y, z, grid_dims, cell_start)
                 k = span[0]
                 k_end = span[1]
                 while k < k_end:

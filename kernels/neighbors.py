@@ -135,25 +135,6 @@ def row_points(q: wp.vec3, qr: float, y: int, z: int, grid_dims: wp.vec3i, cell_
     return wp.vec2i(cell_start[row + x0], cell_start[row + x1 + 1])
 
 
-@wp.func
-def row_points_split(q: wp.vec3, qr: float, y: int, z: int, grid_dims: wp.vec3i, sub_start: wp.array(dtype=wp.int32),
-                     x_split: int) -> wp.vec2i:
-    """``row_points`` over a grid whose cells are split into ``x_split`` slabs along x (``CellGrid.x_split``;
-    sub_start: the first sorted index of each slab, cell c's slabs at c x_split ..): the row's x range
-    trimmed to the sphere at the slabs' width (cell size / x_split), so fewer candidates per row. With
-    x_split = 1 (sub_start = cell_start) the same range as ``row_points``. Border slabs extend to infinity
-    (points outside the grid fall in the first or last slab of the border cell)."""
-    xr = row_reach(q, qr, y, z, grid_dims)
-    if xr < 0.0:
-        return wp.vec2i(0, 0)
-    slabs = grid_dims[0] * x_split
-    row = slabs * (y + grid_dims[1] * z)
-    split = float(x_split)
-    x0 = wp.clamp(int(wp.floor((q[0] - xr) * split)), 0, slabs - 1)
-    x1 = wp.clamp(int(wp.floor((q[0] + xr) * split)), 0, slabs - 1)
-    return wp.vec2i(sub_start[row + x0], sub_start[row + x1 + 1])
-
-
 @wp.kernel(enable_backward=False)
 def compute_cell_keys(
     tid_offset: int,
@@ -161,52 +142,17 @@ def compute_cell_keys(
     grid_lo: wp.vec3,
     inv_cell_size: float,
     grid_dims: wp.vec3i,
-    x_split: int,
     # In:
     points: wp.array(dtype=wp.vec3),
     # Out (length 2 n for the radix sort):
     cell_key_out: wp.array(dtype=wp.int32),
     cell_point_out: wp.array(dtype=wp.int32),
 ):
-    """Sort key of every point: its linear cell index c (x fastest) times x_split plus its slab along x
-    within the cell (0 .. x_split - 1, clamped like the cell), and the identity permutation. Sorted by
-    key, the points are sorted by cell, and within a cell by slab (x_split = 1: the cell index)."""
+    """Linear cell index (x fastest) of every point, and the identity permutation."""
     i = wp.tid() + tid_offset
-    x = points[i]
-    c = cell_of(x, grid_lo, inv_cell_size, grid_dims)
-    slab = int(0)
-    if x_split > 1:
-        fine = int(wp.floor((x[0] - grid_lo[0]) * inv_cell_size * float(x_split)))
-        slab = wp.clamp(fine - c[0] * x_split, 0, x_split - 1)
-    cell_key_out[i] = (c[0] + grid_dims[0] * (c[1] + grid_dims[1] * c[2])) * x_split + slab
+    c = cell_of(points[i], grid_lo, inv_cell_size, grid_dims)
+    cell_key_out[i] = c[0] + grid_dims[0] * (c[1] + grid_dims[1] * c[2])
     cell_point_out[i] = i
-
-
-@wp.kernel(enable_backward=False)
-def compute_slab_start(
-    tid_offset: int,
-    # In:
-    point_count: int,
-    slab_count: int,
-    x_split: int,
-    slab_key: wp.array(dtype=wp.int32),
-    # Out:
-    sub_start_out: wp.array(dtype=wp.int32),
-    cell_start_out: wp.array(dtype=wp.int32),
-):
-    """``compute_cell_start`` over the slab keys of a split grid (point_count + 1 threads): sub_start[s] =
-    first sorted index with key >= s (s = 0..slab_count), and cell_start[c] = sub_start[c x_split]."""
-    k = wp.tid() + tid_offset
-    below = int(-1)
-    if k > 0:
-        below = int(slab_key[k - 1])
-    above = slab_count
-    if k < point_count:
-        above = int(slab_key[k])
-    for s in range(below + 1, above + 1):
-        sub_start_out[s] = k
-        if s % x_split == 0:
-            cell_start_out[s // x_split] = k
 
 
 @wp.kernel(enable_backward=False)

@@ -13,12 +13,11 @@ from ..kernels import density as _density
 from ..neighbors.cell_lists import simulation_neighbor_lists
 
 
-def neighbors_stage(sim, lists: bool = True, margin: float = 0.0, x_split: int | None = None) -> Stage:
+def neighbors_stage(sim, lists: bool = True, margin: float = 0.0) -> Stage:
     """Sort the fluid into the cells of the neighbour lists (``density_stage`` then builds the lists), or
-    rebuild the fluid hash grid (cell = search radius = support radius H_s; lists: H_s + margin [m];
-    x_split: slabs per cell along x, ``CellGrid``)."""
+    rebuild the fluid hash grid (cell = search radius = support radius H_s; lists: H_s + margin [m])."""
     if lists:
-        nl = simulation_neighbor_lists(sim, margin, x_split=x_split)
+        nl = simulation_neighbor_lists(sim, margin)
 
         def run_sort(sim, dt):
             nl.sort(sim.fields["particle_x"])

@@ -22,12 +22,8 @@ class CellGrid:
     order [m]) and ``cell_start`` (first sorted index of each cell, shape (cell_count + 1,)).
     """
 
-    def __init__(self, search_radius: float, lo, hi, capacity: int, cells_per_radius: int = 1, device="cpu",
-                 x_split: int = 1):
+    def __init__(self, search_radius: float, lo, hi, capacity: int, cells_per_radius: int = 1, device="cpu"):
         import numpy as np
-
-        if x_split < 1 or x_split & (x_split - 1):
-            raise ValueError(f"CellGrid x_split must be a power of 2 (1, 2, 4, ...), got {x_split}")
 
         lo = np.asarray(lo, dtype=np.float64)
         hi = np.asarray(hi, dtype=np.float64)
@@ -49,12 +45,6 @@ class CellGrid:
         self.cell_point = wp.zeros(2 * max(capacity, 1), dtype=wp.int32, device=device)
         self.sorted_x = wp.zeros(max(capacity, 1), dtype=wp.vec3, device=device)
         self.cell_start = wp.zeros(self.cell_count + 1, dtype=wp.int32, device=device)
-        # x_split > 1: within a cell the points are sorted by slab along x (x_split slabs of cell_size /
-        # x_split), sub_start[c x_split + s] = first sorted index of slab s of cell c (``row_points_split``
-        # trims a row at the slabs' width); cell_start is unchanged for every other walk
-        self.x_split = int(x_split)
-        self.sub_start = (self.cell_start if x_split == 1 else
-                          wp.zeros(self.cell_count * x_split + 1, dtype=wp.int32, device=device))
         self.count = 0
 
     def build(self, points: wp.array) -> None:
@@ -66,19 +56,13 @@ class CellGrid:
         if n > self.capacity:
             raise ValueError(f"CellGrid holds {self.capacity} points, got {n}")
         self.count = n
-        k = self.x_split
-        launch(_dev.compute_cell_keys, n, [self.lo, self.inv_cell_size, self.dims, k, points],
+        launch(_dev.compute_cell_keys, n, [self.lo, self.inv_cell_size, self.dims, points],
                [self._keys, self.cell_point], device=self.device, min_range=LIGHT_MIN_RANGE)
         if n:
-            # keys < cell_count x_split: sort only their low bits (measured 0.22 -> 0.1 ms at 6.9k points)
-            wp.utils.radix_sort_pairs(self._keys, self.cell_point, n, 0,
-                                      max(1, int(self.cell_count * k - 1).bit_length()))
-        if k == 1:
-            launch(_dev.compute_cell_start, n + 1, [n, self.cell_count, self._keys], [self.cell_start],
-                   device=self.device, min_range=LIGHT_MIN_RANGE)
-        else:
-            launch(_dev.compute_slab_start, n + 1, [n, self.cell_count * k, k, self._keys],
-                   [self.sub_start, self.cell_start], device=self.device, min_range=LIGHT_MIN_RANGE)
+            # keys < cell_count: sort only their low bits (measured 0.22 -> 0.1 ms at 6.9k points)
+            wp.utils.radix_sort_pairs(self._keys, self.cell_point, n, 0, max(1, int(self.cell_count - 1).bit_length()))
+        launch(_dev.compute_cell_start, n + 1, [n, self.cell_count, self._keys], [self.cell_start],
+               device=self.device, min_range=LIGHT_MIN_RANGE)
         launch(_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device, min_range=LIGHT_MIN_RANGE)
 
     def occupied_near_mask(self, reach: int = 1) -> wp.array:
@@ -124,16 +108,14 @@ class NeighborLists:
 
     def __init__(self, search_radius: float, lo, hi, fluid_count: int, boundary_x: wp.array | None = None,
                  fluid_capacity: int = 64, boundary_capacity: int = 48, cells_per_radius: int = 1, device="cpu",
-                 boundary_volume: wp.array | None = None, moving_start: int | None = None, x_split: int = 1):
+                 boundary_volume: wp.array | None = None, moving_start: int | None = None):
         from ..kernels import neighbors as _dev
 
         self.search_radius = float(search_radius)
         self.cells_per_radius = int(cells_per_radius)
-        self.x_split = int(x_split)  # slabs per cell along x of every grid (``CellGrid``)
         self.device = device
         self.fluid_count = int(fluid_count)
-        self.fluid_cells = CellGrid(search_radius, lo, hi, fluid_count, cells_per_radius, device=device,
-                                    x_split=x_split)
+        self.fluid_cells = CellGrid(search_radius, lo, hi, fluid_count, cells_per_radius, device=device)
         self.boundary_cells = None
         self.moving_cells = None
         self._no_mask = wp.zeros(1, dtype=wp.uint8, device=device)
@@ -144,7 +126,7 @@ class NeighborLists:
         self.moving_start = total if moving_start is None else int(moving_start)
         if self.moving_start < total:
             k = total - self.moving_start
-            self.moving_cells = CellGrid(search_radius, lo, hi, k, cells_per_radius, device=device, x_split=x_split)
+            self.moving_cells = CellGrid(search_radius, lo, hi, k, cells_per_radius, device=device)
             self._moving_volume = boundary_volume[self.moving_start:] if boundary_volume is not None else None
             self._moving_weight = (wp.zeros(k, dtype=float, device=device) if boundary_volume is not None
                                    else self._no_weight)
@@ -156,7 +138,7 @@ class NeighborLists:
             boundary_x = boundary_x[: self.moving_start] if self.moving_start else None
         if boundary_x is not None and boundary_x.shape[0]:
             bc = self.boundary_cells = CellGrid(search_radius, lo, hi, boundary_x.shape[0], cells_per_radius,
-                                                device=device, x_split=x_split)
+                                                device=device)
             bc.build(boundary_x)
             # the mask grows by as many cells as the search radius spans (one for cells >= the radius)
             reach = max(1, math.ceil(self.search_radius / bc.cell_size - 1e-6))
@@ -330,25 +312,22 @@ class NeighborLists:
             self._allocate(self.boundary, new)
 
 
-def simulation_neighbor_lists(sim, margin: float = 0.0, cells_per_radius: int = 1,
-                              x_split: int | None = None) -> NeighborLists:
+def simulation_neighbor_lists(sim, margin: float = 0.0, cells_per_radius: int = 1) -> NeighborLists:
     """The simulation's per-step neighbour lists (created on first use, workspace field ``neighbor_lists``).
 
     Their dense cell grid covers the container, the boundary and the initial fluid, padded by two
     support radii (by a quarter of the extent without a container); particles beyond it stay exact.
     margin [m]: the search radius is H_s + margin (lists that stay complete while particles move
     by up to margin / 2); the capacities grow with the searched volume. cells_per_radius: cells per
-    search radius along each axis (2: cells of half the radius, fewer candidates per query). x_split: slabs
-    per cell along x (``CellGrid``; None: those of the existing lists, else 1). Lists of another search
-    radius, cell size or given x_split are replaced.
+    search radius along each axis (2: cells of half the radius, fewer candidates per query). Lists of
+    another search radius or cell size are replaced.
     """
 
     import numpy as np
 
     lists = sim.fields.get("neighbor_lists")
     if lists is not None and (not math.isclose(lists.search_radius, sim.model.support_radius + margin, rel_tol=1e-6)
-                              or lists.cells_per_radius != cells_per_radius
-                              or (x_split is not None and lists.x_split != x_split)):
+                              or lists.cells_per_radius != cells_per_radius):
         lists = None  # another search radius or cell size (a solver swapped in): new lists replace the old ones
     if lists is None:
         m = sim.model
@@ -370,6 +349,6 @@ def simulation_neighbor_lists(sim, margin: float = 0.0, cells_per_radius: int = 
                               fluid_capacity=int(math.ceil(64 * volume)), boundary_capacity=int(math.ceil(48 * volume)),
                               device=m.device, boundary_volume=m.boundary_volume if with_boundary else None,
                               moving_start=m.static_boundary_count if with_boundary else None,
-                              cells_per_radius=cells_per_radius, x_split=x_split or 1)
+                              cells_per_radius=cells_per_radius)
         sim.fields["neighbor_lists"] = lists
     return lists

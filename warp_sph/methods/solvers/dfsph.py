@@ -45,7 +45,7 @@ from ..density import neighbors_stage
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
 from ..force import ForceSlot
-from .dfsph_search import FACTOR_FLOOR, NEIGHBOR_THRESHOLD_CUBIC, SEARCH_X_SPLIT, DfsphSearch, neighbor_threshold
+from .dfsph_search import FACTOR_FLOOR, NEIGHBOR_THRESHOLD_CUBIC, DfsphSearch, neighbor_threshold
 
 #: stabilise when the mean over-density at x exceeds this many times the density target (and 0.1 %)
 STABILIZE_FACTOR = 10.0
@@ -334,7 +334,7 @@ class DfsphSolver(DfsphSearch, Solver):
 
     def stages(self) -> list[Stage]:
         sim, m, p = self.sim, self.model, self.config
-        self._neighbors = neighbors_stage(sim, True, self.skin, x_split=SEARCH_X_SPLIT)
+        self._neighbors = neighbors_stage(sim, True, self.skin)
         self._allocate()
         self._pairs()
         terms = sim.boundary_terms

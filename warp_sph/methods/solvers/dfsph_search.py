@@ -25,17 +25,13 @@ from ...kernels import dfsph_factor as _factor
 from ...kernels import dfsph_search as _search
 from ...kernels import dfsph_skin as _skin
 from ...kernels import reduction as _reduce
+from . import dfsph_walls as _walls
 
 #: neighbours (fluid + boundary, self excluded) a particle needs for its divergence error to count,
 #: on the cubic lattice with support 2d (26 interior, 17 on a flat free surface; SPlisHSPlasH: 20)
 NEIGHBOR_THRESHOLD_CUBIC = 20
 #: D_i d^2 below this: the particle is nearly isolated and gets no pressure (f_i = 0)
 FACTOR_FLOOR = 1e-6
-#: slabs per cell along x of the search's cell grids (``CellGrid.x_split``). 1: unsplit. Measured on the
-#: dam break (r = 0.025, docs/methods.md "Cells split in x slabs"): 4 slabs trim each row of cells to the
-#: sphere at a quarter cell (97.7 -> 70.2 candidates per particle for 24.6 pairs), and the search's kernels
-#: save what the cell sort then spends on 4x the cell starts: no gain per step, so off.
-SEARCH_X_SPLIT = 1
 
 
 def neighbor_threshold(smoothing: str, h: float, spacing: float) -> int:
@@ -65,7 +61,11 @@ class DfsphSearch:
         self._search = _search.fluid_search_kernel(m.smoothing.name)
         terms = sim.boundary_terms
         moving = self.with_bodies and self.nl.moving_cells is not None
-        self._boundary_factor = _factor.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0, moving)
+        # static walls: their sub-cell lists in reach (``dfsph_walls.py``, built on the first search)
+        self._wall_subcells = _walls.WALL_SUBCELLS if self.nl.boundary_cells is not None else 0
+        self._walls = None
+        self._boundary_factor = _factor.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0, moving,
+                                                               walls=self._wall_subcells > 0)
         self._no_volume = wp.zeros(1, dtype=float, device=dev)
         self._no_mask = wp.zeros(1, dtype=wp.uint8, device=dev)
         self._no_cells = wp.zeros(2, dtype=wp.int32, device=dev)  # an empty grid: one cell, no point
@@ -110,24 +110,25 @@ class DfsphSearch:
         pairs = self._pairs()
         fc = nl.fluid_cells
         search = (self._search, n,
-                  [fc.lo, fc.inv_cell_size, fc.dims, fc.sub_start, fc.x_split, fc.cell_point, fc.sorted_x,
+                  [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x,
                    m.support_radius,
                    m.particle_mass, m.smoothing_length, m.rest_density, f["particle_v"]],
                   [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.offset, pairs.count, pairs.index, pairs.gradient,
                    f["particle_density"], pairs.gradient_sum, self._square_sum, f["dfsph_divergence_source"]])
-        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, 1, self._no_cells, m.boundary_x,
+        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x,
                  self._no_volume, self._no_mask, 0]
         bc = nl.boundary_cells
         if bc is not None:
             mask = nl.boundary_mask
-            grid = [bc.lo, bc.inv_cell_size, bc.dims, bc.sub_start, bc.x_split, bc.cell_point, bc.sorted_x,
+            grid = [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x,
                     nl.boundary_weight, self._no_mask if mask is None else mask, int(mask is not None)]
         else:
             grid = list(empty)
+        grid += self._wall_reach(bc)
         mc = nl.moving_cells if self.with_bodies else None
         if mc is not None:  # the bodies' particles, after the static ones (``NeighborLists.update_moving``)
             mask = nl.moving_mask
-            grid += [mc.lo, mc.inv_cell_size, mc.dims, mc.sub_start, mc.x_split, mc.cell_point, mc.sorted_x,
+            grid += [mc.lo, mc.inv_cell_size, mc.dims, mc.cell_start, mc.cell_point, mc.sorted_x,
                      nl.moving_weight, self._no_mask if mask is None else mask, int(mask is not None), nl.moving_start]
         else:
             grid += empty + [0]
@@ -148,6 +149,17 @@ class DfsphSearch:
             return
         launch(*search, device=dev)
         launch(*factor, device=dev)
+
+    def _wall_reach(self, cells) -> list:
+        """The boundary kernel's arguments for the static walls' sub-cell lists (``WallReach`` over the static
+        boundary grid ``cells``, built on first use and again when the grid is replaced); placeholders
+        without them."""
+        if cells is None or self._wall_subcells <= 0:
+            return [0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells]
+        if self._walls is None or self._walls.cells is not cells:
+            self._walls = _walls.WallReach(cells, self.model.support_radius, self._wall_subcells, self.model.device)
+        w = self._walls
+        return [w.inv_size, w.dims, w.start, w.entry]
 
     # --- search skin -----------------------------------------------------------------------
     def _lists_stale(self) -> bool:
@@ -182,10 +194,10 @@ class DfsphSearch:
                [nl.fluid, m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, x, f["particle_v"]],
                [self._pair_index_rows, self._pair_rows, self._room, f["particle_density"], pairs.gradient_sum,
                 self._square_sum, f["dfsph_divergence_source"]], device=dev)
-        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, 1, self._no_cells, m.boundary_x,
+        empty = [wp.vec3(0.0), 0.0, wp.vec3i(1, 1, 1), self._no_cells, self._no_cells, m.boundary_x,
                  self._no_volume, self._no_mask, 0]
         launch(self._boundary_from_lists, n,
-               empty + empty + [0]
+               empty + self._wall_reach(None) + empty + [0]
                + [m.smoothing_length, m.support_radius, m.rest_density, self.factor_floor, self.neighbor_threshold,
                   self.sim.boundary_params, m.boundary_v, float(self.config.warm_start),
                   1.0 / dt if dt > 0 else 0.0, nl.fluid_cells.cell_point, x, f["particle_v"],
