@@ -49,8 +49,10 @@ from .pbf_passes import PbfPasses
 __all__ = ["LIST_MARGIN", "PbfSolver", "fluid_depth", "lattice_transport", "rest_denominator"]
 
 #: default search margin of the neighbour lists [spacings d]: lists hold pairs within H_s + margin
-#: and are rebuilt once a particle moved more than margin / 2 during the solve
-LIST_MARGIN = 0.2
+#: and are rebuilt once a particle moved more than margin / 2 during the solve. A step's corrections move a
+#: particle far less (the dam break at 2 ms: at most 0.016 d per iteration), and every pass reads the listed
+#: pairs: 0.1 d lists 12 % fewer pairs than 0.2 d (issue #32: 0.90x the CPU per step, 1 % more searches)
+LIST_MARGIN = 0.1
 
 
 @register_solver
