@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...core.launch import LIGHT_MIN_RANGE
 from ...core.smoothing import evaluate
 from ...core.step_graph import Stage
 from ...kernels import pbf as _pbf
@@ -177,8 +177,8 @@ class PbfSolver(PbfPasses, Solver):
                 wp.copy(f["predicted_x"], f["particle_x"])
                 self.reuse_neighbors()
                 self.constraint_pass()  # C at x, all the offset needs
-            launch(_pbf.constraint_offset, self.model.fluid_count, [1.0 - share, f["pbf_constraint"]],
-                   [f["pbf_constraint_offset"]], device=self.model.device, min_range=LIGHT_MIN_RANGE)
+            self._run(_pbf.constraint_offset, self.model.fluid_count, [1.0 - share, f["pbf_constraint"]],
+                      [f["pbf_constraint_offset"]], min_range=LIGHT_MIN_RANGE)
             self._offset_set = True
 
     def mean_error(self) -> float:
@@ -208,10 +208,10 @@ class PbfSolver(PbfPasses, Solver):
 
     def run_predict(self, sim, dt) -> None:
         m, f = self.model, sim.fields
-        launch(_pbf.predict_positions, m.fluid_count, [wp.vec3(*m.gravity), float(dt), f["particle_x"]],
-               [f["particle_v"], f["predicted_x"], f["boundary_force"]], device=m.device, min_range=LIGHT_MIN_RANGE)
+        self._run(_pbf.predict_positions, m.fluid_count, [wp.vec3(*m.gravity), float(dt), f["particle_x"]],
+                  [f["particle_v"], f["predicted_x"], f["boundary_force"]], min_range=LIGHT_MIN_RANGE)
         if self.with_bodies:
-            launch(_pbf.clear_float, m.fluid_count, [], [self._term], device=m.device, min_range=LIGHT_MIN_RANGE)
+            self._run(_pbf.clear_float, m.fluid_count, [], [self._term], min_range=LIGHT_MIN_RANGE)
 
     def run_neighbors(self, sim, dt) -> None:
         if self.lists:
@@ -255,9 +255,8 @@ class PbfSolver(PbfPasses, Solver):
 
     def run_update(self, sim, dt) -> None:
         m, f = self.model, sim.fields
-        launch(_pbf.update_velocity, m.fluid_count, [wp.vec3(*m.gravity), float(dt), 1.0 / dt, f["predicted_x"]],
-               [f["particle_v"], f["particle_x"], f["particle_acceleration"]], device=m.device,
-               min_range=LIGHT_MIN_RANGE)
+        self._run(_pbf.update_velocity, m.fluid_count, [wp.vec3(*m.gravity), float(dt), 1.0 / dt, f["predicted_x"]],
+                  [f["particle_v"], f["particle_x"], f["particle_acceleration"]], min_range=LIGHT_MIN_RANGE)
 
     def stages(self) -> list[Stage]:
         sim, m, p = self.sim, self.model, self.config
