@@ -48,10 +48,8 @@ from .pbf_passes import PbfPasses
 
 __all__ = ["LIST_MARGIN", "PbfSolver", "fluid_depth", "lattice_transport", "rest_denominator"]
 
-#: default search margin of the neighbour lists [spacings d]: lists hold pairs within H_s + margin
-#: and are rebuilt once a particle moved more than margin / 2 during the solve. A step's corrections move a
-#: particle far less (the dam break at 2 ms: at most 0.016 d per iteration), and every pass reads the listed
-#: pairs: 0.1 d lists 12 % fewer pairs than 0.2 d (issue #32: 0.90x the CPU per step, 1 % more searches)
+#: search margin of the lists [spacings d]: pairs within H_s + margin, rebuilt once a particle moved margin / 2;
+#: 0.1 d: a step's corrections move particles far less, and fewer pairs per pass pay (docs/methods.md, issue #32)
 LIST_MARGIN = 0.1
 
 
