@@ -63,3 +63,29 @@ def test_stabilize_reuses_the_lists_and_reads_the_same_error(device):
     np.testing.assert_allclose(xa, xb, atol=1e-6)
     np.testing.assert_allclose(va, vb, atol=1e-4)
     np.testing.assert_allclose(ea, eb, rtol=1e-3, atol=1e-7)
+
+
+
+def uneven_steps(sim, steps=6):
+    """A frame, then ``steps`` substeps of growing dt (each launch's dt-dependent arguments change every step)."""
+    sim.advance_frame()
+    base = sim.frame_dt / 64
+    with sim.in_cell_order():
+        for k in range(steps):
+            sim.step(base * (1.0 + 0.25 * k))
+    return sim.get_field("particle_x"), sim.get_field("particle_v")
+
+
+def test_replayed_launches_bitwise_the_plain_ones(device):
+    """On the CPU the passes replay recorded launches (``PbfPasses._run``, ``core.launch.Replays``): a replay must
+    re-bind every argument that changed since it was recorded (here dt and the correction's 1 / dt^2, which change
+    every step), or it would run on stale values (checked: replays that never re-bind fail this test). A tank with
+    a frame and then steps of growing dt, and the fixed-step tank (its stabilize stage: the constraint offset),
+    with replays and with plain launches: bitwise the same positions and velocities."""
+    for scene in (small_tank("pbf_replay", solver="pbf"), fixed_step_tank()):
+        replayed = Simulation(scene, device=device)
+        plain = Simulation(scene, device=device)
+        plain.solver._replays = None  # every launch through core.launch.launch
+        a, b = uneven_steps(replayed), uneven_steps(plain)
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+        assert (replayed.solver._replays is not None) == replayed.model.device.is_cpu

@@ -211,3 +211,34 @@ def test_kept_wall_lists_searched_once_a_particle_moved_the_skin(device):
         assert kept_over_search >= 1
         assert kept.wall_builds > wall_builds  # the drift passed the skin since the walls were searched
         assert kept.wall_builds - wall_builds < kept.builds - builds
+
+
+def test_replayed_launches_bitwise_the_plain_ones(monkeypatch, device):
+    """On the CPU WCSPH's own launches (density over the kept lists, drift check, pressure, forces, integration)
+    replay recorded launches (``wcsph_lists.replaying_launch``); each must re-bind the arguments that changed (dt,
+    the pair cache after the lists grew, the lists after a search; checked: replays that never re-bind fail this
+    test). A frame of the falling block, then steps of growing dt, replayed against plain ``launch``: bitwise the
+    same positions and velocities."""
+    from warp_sph.core.launch import MIN_RANGE, launch
+    from warp_sph.methods.solvers import wcsph as wcsph_solver
+    from warp_sph.methods.solvers import wcsph_lists
+
+    def plain_launch(dev):
+        def run(kernel, dim, inputs, outputs=(), min_range=MIN_RANGE, tag=None):
+            launch(kernel, dim, inputs, outputs, device=dev, min_range=min_range)
+        return run
+
+    replayed = Simulation(falling_block(0.2), device=device)
+    with monkeypatch.context() as m:
+        m.setattr(wcsph_solver, "replaying_launch", plain_launch)
+        m.setattr(wcsph_lists, "replaying_launch", plain_launch)
+        plain = Simulation(falling_block(0.2), device=device)
+    for sim in (replayed, plain):
+        sim.advance_frame()
+        base = sim.frame_dt / 200
+        with sim.in_cell_order():
+            for k in range(6):
+                sim.step(base * (1.0 + 0.25 * k))
+    assert replayed.solver.kept_lists.builds == plain.solver.kept_lists.builds >= 2
+    assert np.array_equal(replayed.get_field("particle_x"), plain.get_field("particle_x"))
+    assert np.array_equal(replayed.get_field("particle_v"), plain.get_field("particle_v"))

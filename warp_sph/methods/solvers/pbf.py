@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...core.launch import LIGHT_MIN_RANGE
 from ...core.smoothing import evaluate
 from ...core.step_graph import Stage
 from ...kernels import pbf as _pbf
@@ -48,9 +48,9 @@ from .pbf_passes import PbfPasses
 
 __all__ = ["LIST_MARGIN", "PbfSolver", "fluid_depth", "lattice_transport", "rest_denominator"]
 
-#: default search margin of the neighbour lists [spacings d]: lists hold pairs within H_s + margin
-#: and are rebuilt once a particle moved more than margin / 2 during the solve
-LIST_MARGIN = 0.2
+#: search margin of the lists [spacings d]: pairs within H_s + margin, rebuilt once a particle moved margin / 2;
+#: 0.1 d: a step's corrections move particles far less, and fewer pairs per pass pay (docs/methods.md, issue #32)
+LIST_MARGIN = 0.1
 
 
 @register_solver
@@ -175,8 +175,8 @@ class PbfSolver(PbfPasses, Solver):
                 wp.copy(f["predicted_x"], f["particle_x"])
                 self.reuse_neighbors()
                 self.constraint_pass()  # C at x, all the offset needs
-            launch(_pbf.constraint_offset, self.model.fluid_count, [1.0 - share, f["pbf_constraint"]],
-                   [f["pbf_constraint_offset"]], device=self.model.device, min_range=LIGHT_MIN_RANGE)
+            self._run(_pbf.constraint_offset, self.model.fluid_count, [1.0 - share, f["pbf_constraint"]],
+                      [f["pbf_constraint_offset"]], min_range=LIGHT_MIN_RANGE)
             self._offset_set = True
 
     def mean_error(self) -> float:
@@ -206,10 +206,10 @@ class PbfSolver(PbfPasses, Solver):
 
     def run_predict(self, sim, dt) -> None:
         m, f = self.model, sim.fields
-        launch(_pbf.predict_positions, m.fluid_count, [wp.vec3(*m.gravity), float(dt), f["particle_x"]],
-               [f["particle_v"], f["predicted_x"], f["boundary_force"]], device=m.device, min_range=LIGHT_MIN_RANGE)
+        self._run(_pbf.predict_positions, m.fluid_count, [wp.vec3(*m.gravity), float(dt), f["particle_x"]],
+                  [f["particle_v"], f["predicted_x"], f["boundary_force"]], min_range=LIGHT_MIN_RANGE)
         if self.with_bodies:
-            launch(_pbf.clear_float, m.fluid_count, [], [self._term], device=m.device, min_range=LIGHT_MIN_RANGE)
+            self._run(_pbf.clear_float, m.fluid_count, [], [self._term], min_range=LIGHT_MIN_RANGE)
 
     def run_neighbors(self, sim, dt) -> None:
         if self.lists:
@@ -253,9 +253,8 @@ class PbfSolver(PbfPasses, Solver):
 
     def run_update(self, sim, dt) -> None:
         m, f = self.model, sim.fields
-        launch(_pbf.update_velocity, m.fluid_count, [wp.vec3(*m.gravity), float(dt), 1.0 / dt, f["predicted_x"]],
-               [f["particle_v"], f["particle_x"], f["particle_acceleration"]], device=m.device,
-               min_range=LIGHT_MIN_RANGE)
+        self._run(_pbf.update_velocity, m.fluid_count, [wp.vec3(*m.gravity), float(dt), 1.0 / dt, f["predicted_x"]],
+                  [f["particle_v"], f["particle_x"], f["particle_acceleration"]], min_range=LIGHT_MIN_RANGE)
 
     def stages(self) -> list[Stage]:
         sim, m, p = self.sim, self.model, self.config

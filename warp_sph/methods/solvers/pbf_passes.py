@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...core.launch import LIGHT_MIN_RANGE, MIN_RANGE, Replays, launch
 from ...kernels import pbf as _pbf
 from ...kernels import pbf_hash_grid as _pbf_grid
 from ...kernels import pbf_search as _pbf_search
@@ -43,6 +43,8 @@ class PbfPasses:
         # moving bodies: sum over the step's corrections of -lambda_i / (rho0 dt^2) (``correction``)
         self._term = sim.allocate("boundary_pressure_term", float) if self.with_bodies else wp.zeros(
             1, dtype=float, device=dev)
+        # CPU: each call site's launch recorded once and replayed (``_run``)
+        self._replays = Replays() if wp.get_device(dev).is_cpu else None
         chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
         self._error_partial = wp.zeros(chunks, dtype=float, device=dev)
         self._correction_partial = wp.zeros((chunks, 2), dtype=float, device=dev)
@@ -65,6 +67,16 @@ class PbfPasses:
             self.nl = None
             self._density_kernel = _pbf_grid.density_lambda_kernel(m.smoothing.name, terms)
             self._correction_kernel = _pbf_grid.correction_kernel(m.smoothing.name, terms, tensile)
+
+    def _run(self, kernel, dim: int, inputs, outputs=(), min_range: int = MIN_RANGE, tag=None) -> None:
+        """``launch`` on the model's device; on the CPU a replay of the launch recorded at this call site
+        (``core.launch.Replays``: Warp packs the ~20 arguments once, ~50 us less per launch; the same
+        ranges, so bitwise ``launch``). ``tag`` tells apart two call sites of one kernel."""
+        if self._replays is None:
+            launch(kernel, dim, inputs, outputs, device=self.model.device, min_range=min_range)
+        elif dim > 0:
+            self._replays.get(kernel, dim, inputs, outputs, device=self.model.device, min_range=min_range,
+                              tag=tag).launch()
 
     @property
     def _with_boundary_gradient(self) -> bool:
@@ -97,8 +109,8 @@ class PbfPasses:
             self.nl.build(x)
         else:
             self.sim.fluid_grid.build(x)
-        launch(_pbf_search.identity_slots, self.model.fluid_count, [], [self.sim.fields["pbf_neighbor_slot"]],
-               device=self.model.device, min_range=LIGHT_MIN_RANGE)
+        self._run(_pbf_search.identity_slots, self.model.fluid_count, [], [self.sim.fields["pbf_neighbor_slot"]],
+                  min_range=LIGHT_MIN_RANGE)
         self._searched_at(x)
 
     def sort_neighbors(self) -> None:
@@ -122,13 +134,13 @@ class PbfPasses:
         + ``density_pass``."""
         m, f, nl = self.model, self.sim.fields, self.nl
         fc = nl.fluid_cells
-        launch(self._search_kernel, m.fluid_count,
-               [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, nl.search_radius,
-                m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
-                self.sim.boundary_params, nl.boundary, m.boundary_x, m.boundary_volume, f["predicted_x"],
-                f["pbf_constraint_offset"]],
-               [nl.fluid, nl.max_count, f["particle_density"], f["particle_lambda"], f["pbf_constraint"],
-                self._pair_cache(), f["pbf_neighbor_slot"]], device=m.device)
+        self._run(self._search_kernel, m.fluid_count,
+                  [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, nl.search_radius,
+                   m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
+                   self.sim.boundary_params, nl.boundary, m.boundary_x, m.boundary_volume, f["predicted_x"],
+                   f["pbf_constraint_offset"]],
+                  [nl.fluid, nl.max_count, f["particle_density"], f["particle_lambda"], f["pbf_constraint"],
+                   self._pair_cache(), f["pbf_neighbor_slot"]])
         self._sum_error()
 
     def constraint_pass(self) -> None:
@@ -138,11 +150,11 @@ class PbfPasses:
             self.density_pass()
             return
         m, f = self.model, self.sim.fields
-        launch(self._constraint_kernel, m.fluid_count,
-               [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.sim.boundary_params,
-                self.nl.boundary, m.boundary_x, m.boundary_volume, self.nl.fluid, f["predicted_x"],
-                f["pbf_constraint_offset"]],
-               [f["particle_density"], f["pbf_constraint"]], device=m.device)
+        self._run(self._constraint_kernel, m.fluid_count,
+                  [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.sim.boundary_params,
+                   self.nl.boundary, m.boundary_x, m.boundary_volume, self.nl.fluid, f["predicted_x"],
+                   f["pbf_constraint_offset"]],
+                  [f["particle_density"], f["pbf_constraint"]])
         self._sum_error()
 
     def reuse_neighbors(self) -> None:
@@ -161,9 +173,9 @@ class PbfPasses:
         """The largest distance of x* from where the neighbours were searched [m] (device maximum per
         chunk); 1e30 when the particles were reordered since."""
         m, f = self.model, self.sim.fields
-        launch(_pbf_search.neighbor_drift_chunks, self._drift_partial.shape[0],
-               [_reduce.REDUCE_CHUNK, m.fluid_count, f["predicted_x"], f["pbf_neighbor_x"], f["pbf_neighbor_slot"]],
-               [self._drift_partial], device=m.device)
+        self._run(_pbf_search.neighbor_drift_chunks, self._drift_partial.shape[0],
+                  [_reduce.REDUCE_CHUNK, m.fluid_count, f["predicted_x"], f["pbf_neighbor_x"], f["pbf_neighbor_slot"]],
+                  [self._drift_partial])
         return float(self._drift_partial.numpy().max())
 
     def refresh_neighbors(self) -> None:
@@ -178,25 +190,24 @@ class PbfPasses:
         bn, fn = self._neighbor_args()
         params = self.sim.boundary_params
         if self.lists:
-            launch(self._density_kernel, m.fluid_count,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon, params,
-                    bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"], f["pbf_constraint_offset"]],
-                   [f["particle_density"], f["particle_lambda"], f["pbf_constraint"], self._pair_cache()],
-                   device=m.device)
+            self._run(self._density_kernel, m.fluid_count,
+                      [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon, params,
+                       bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"], f["pbf_constraint_offset"]],
+                      [f["particle_density"], f["particle_lambda"], f["pbf_constraint"], self._pair_cache()])
         else:
-            launch(self._density_kernel, m.fluid_count,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
-                    self.query_radius, params, bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"],
-                    f["pbf_constraint_offset"]],
-                   [f["particle_density"], f["particle_lambda"], f["pbf_constraint"]], device=m.device)
+            self._run(self._density_kernel, m.fluid_count,
+                      [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.epsilon,
+                       self.query_radius, params, bn, m.boundary_x, m.boundary_volume, fn, f["predicted_x"],
+                       f["pbf_constraint_offset"]],
+                      [f["particle_density"], f["particle_lambda"], f["pbf_constraint"]])
         self._sum_error()
 
     def _sum_error(self) -> None:
         """``last_error_sum``: the sum of C_i of the pass just run, ``last_error_count`` its particles."""
         m, f = self.model, self.sim.fields
         # sum of C_i in a fixed order: chunk sums on the device, their sum on the host (one read)
-        launch(_reduce.sum_chunks, self._error_partial.shape[0], [_reduce.REDUCE_CHUNK, f["pbf_constraint"]],
-               [self._error_partial], device=m.device)
+        self._run(_reduce.sum_chunks, self._error_partial.shape[0], [_reduce.REDUCE_CHUNK, f["pbf_constraint"]],
+                  [self._error_partial])
         self.last_error_sum = float(self._error_partial.numpy().sum(dtype=np.float64))
         self.last_error_count = m.fluid_count
 
@@ -207,22 +218,22 @@ class PbfPasses:
         inv_dt2 = 1.0 / (dt * dt) if dt > 0 else 0.0
         tensile = (float(p.tensile_k), int(p.tensile_n), self.tensile_inv_w, self.tensile_scale)
         if self.lists:
-            launch(self._correction_kernel, m.fluid_count,
-                   [m.particle_mass, *tensile, inv_dt2, self.max_step, -inv_dt2 / m.rest_density, fn, f["pbf_pairs"],
-                    f["particle_lambda"]],
-                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"], self._term,
-                    f["predicted_x"]], device=m.device)  # x* += dx in the same kernel
+            self._run(self._correction_kernel, m.fluid_count,
+                      [m.particle_mass, *tensile, inv_dt2, self.max_step, -inv_dt2 / m.rest_density, fn, f["pbf_pairs"],
+                       f["particle_lambda"]],
+                      [f["position_correction"], f["boundary_force"], f["pbf_correction_size"], self._term,
+                       f["predicted_x"]])  # x* += dx in the same kernel
         else:
-            launch(self._correction_kernel, m.fluid_count,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
-                    *tensile, inv_dt2, self.max_step, self.sim.boundary_params, bn, m.boundary_x, m.boundary_volume,
-                    fn, f["predicted_x"], f["particle_lambda"]],
-                   [f["position_correction"], f["boundary_force"], f["pbf_correction_size"]], device=m.device)
-            launch(_pbf.apply_correction, m.fluid_count, [f["position_correction"]], [f["predicted_x"]],
-                   device=m.device, min_range=LIGHT_MIN_RANGE)
-        launch(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
-               [_reduce.REDUCE_CHUNK, f["pbf_correction_size"], f["predicted_x"], f["pbf_neighbor_x"]],
-               [self._correction_partial], device=m.device)
+            self._run(self._correction_kernel, m.fluid_count,
+                      [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, self.query_radius,
+                       *tensile, inv_dt2, self.max_step, self.sim.boundary_params, bn, m.boundary_x, m.boundary_volume,
+                       fn, f["predicted_x"], f["particle_lambda"]],
+                      [f["position_correction"], f["boundary_force"], f["pbf_correction_size"]])
+            self._run(_pbf.apply_correction, m.fluid_count, [f["position_correction"]], [f["predicted_x"]],
+                      min_range=LIGHT_MIN_RANGE)
+        self._run(_pbf.max_correction_drift_chunks, self._correction_partial.shape[0],
+                  [_reduce.REDUCE_CHUNK, f["pbf_correction_size"], f["predicted_x"], f["pbf_neighbor_x"]],
+                  [self._correction_partial])
         s = self._correction_partial.numpy().max(axis=0)  # one read
         self.last_iteration_correction = float(s[0])
         self.last_drift = float(s[1])

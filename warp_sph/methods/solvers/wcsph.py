@@ -32,7 +32,7 @@ from ..density import density_stage, neighbors_stage
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
 from ..force import FORCE_ACCELERATION, ForceSlot
-from .wcsph_lists import KeptLists, pair_cache
+from .wcsph_lists import KeptLists, pair_cache, replaying_launch
 
 EQUATIONS_OF_STATE = ("linear", "tait")
 
@@ -147,11 +147,11 @@ class WcsphSolver(Solver):
         gravity = wp.vec3(*m.gravity)
         neighbors = "neighbor_lists" if self.lists else "fluid_grid"
         stiffness = self.stiffness
+        run = replaying_launch(m.device)  # the step's own launches, replayed on the CPU
 
         def run_pressure(sim, dt):
-            launch(pressure_kernel, m.fluid_count, [m.rest_density, stiffness, sim.fields["particle_density"]],
-                   [sim.fields["particle_pressure"], sim.fields["wcsph_pressure_term"]], device=m.device,
-                   min_range=LIGHT_MIN_RANGE)
+            run(pressure_kernel, m.fluid_count, [m.rest_density, stiffness, sim.fields["particle_density"]],
+                [sim.fields["particle_pressure"], sim.fields["wcsph_pressure_term"]], min_range=LIGHT_MIN_RANGE)
 
         no_pairs = None if skin else pair_cache(1, 1, m.device)  # the pairs argument without a skin (unread)
 
@@ -165,18 +165,18 @@ class WcsphSolver(Solver):
                 bn, fn = nl.boundary, nl.fluid
             else:
                 bn, fn = m.boundary_grid_id, sim.fluid_grid.id
-            launch(force_kernel, m.fluid_count,
-                   [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, gravity,
-                    float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound),
-                    coefficient, hydrostatic, float(dt), params, bn,
-                    m.boundary_x, m.boundary_v, m.boundary_volume, fn, pairs(), f["particle_x"], f["particle_v"],
-                    f["particle_density"], f["particle_pressure"], f["wcsph_pressure_term"], accel],
-                   [f["particle_acceleration"], f["boundary_force"], term, correction], device=m.device)
+            run(force_kernel, m.fluid_count,
+                [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, gravity,
+                 float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound),
+                 coefficient, hydrostatic, float(dt), params, bn,
+                 m.boundary_x, m.boundary_v, m.boundary_volume, fn, pairs(), f["particle_x"], f["particle_v"],
+                 f["particle_density"], f["particle_pressure"], f["wcsph_pressure_term"], accel],
+                [f["particle_acceleration"], f["boundary_force"], term, correction])
 
         def run_integrate(sim, dt):
             f = sim.fields
-            launch(_integrate.integrate_symplectic_euler, m.fluid_count, [f["particle_acceleration"], float(dt)],
-                   [f["particle_v"], f["particle_x"]], device=m.device, min_range=LIGHT_MIN_RANGE)
+            run(_integrate.integrate_symplectic_euler, m.fluid_count, [f["particle_acceleration"], float(dt)],
+                [f["particle_v"], f["particle_x"]], min_range=LIGHT_MIN_RANGE)
 
         def run_kick(sim, dt):
             f = sim.fields
@@ -212,8 +212,8 @@ class WcsphSolver(Solver):
 
             def run_density(sim, dt):
                 summation(sim, dt)
-                launch(_wcsph.add_density_correction, m.fluid_count, [correction], [sim.fields["particle_density"]],
-                       device=m.device, min_range=LIGHT_MIN_RANGE)
+                run(_wcsph.add_density_correction, m.fluid_count, [correction], [sim.fields["particle_density"]],
+                    min_range=LIGHT_MIN_RANGE)
 
             density = Stage("density", run_density, reads=density.reads + ("wcsph_density_correction",),
                             writes=density.writes, updates=density.updates,
