@@ -173,12 +173,35 @@ def lattice_block(block: FluidBlock, spacing: float, region=None) -> np.ndarray:
     lo = lo + shift
     axes = [lo[i] + 0.5 * step + step * np.arange(n[i]) for i in range(3)]
     pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    if getattr(block, "lattice", "cubic") == "fcc":
+        touch = (region[0] >= lo - shift - _EPS * step, region[1] <= hi + _EPS * step) if region is not None else (
+            clip_lo, clip_hi)  # fcc never fits a box exactly: a side given flush with a wall counts as clipped
+        pts = _fcc_points(lo - shift, hi, clip_lo | touch[0], clip_hi | touch[1], step)
     if block.shape == "sphere":
         r = np.linalg.norm(pts - np.asarray(block.center), axis=1)
         pts = pts[r <= block.radius * (1.0 + _EPS)]
+    elif block.shape == "mesh" and getattr(block, "lattice", "cubic") == "fcc":
+        pts = pts[points_inside(block.mesh(), pts)]
     elif block.shape == "mesh":
         pts = pts[lattice_inside(block.mesh(), *axes).reshape(-1)]
     return pts
+
+
+def _fcc_points(lo: np.ndarray, hi: np.ndarray, clip_lo: np.ndarray, clip_hi: np.ndarray, step: float) -> np.ndarray:
+    """FCC start in the box [lo, hi] [m] (``fluid[].lattice = "fcc"``, nearest neighbours ``step`` apart): the points
+    of the cubic grid of spacing step / sqrt 2 from lo + step / 2 (a wall's gap, as the cubic lattice's first layer)
+    to hi - step / 2 whose indices sum to an even number. Every face of the box is then a (100) plane of the FCC
+    lattice: a square net of spacing step (turned 45 degrees), as many particles per area as a wall's square layer,
+    and each particle sits in the hollow of four of the plane below. The leftover goes where the cubic lattice's does."""
+    c = step / np.sqrt(2.0)
+    n = np.floor((hi - lo - step) / c + _EPS).astype(np.int64) + 1
+    if np.any(hi - lo < step * (1.0 - _EPS)):
+        return np.zeros((0, 3))
+    leftover = np.maximum(hi - lo - step - (n - 1) * c, 0.0)
+    lo = lo + np.where(clip_lo & clip_hi, 0.5 * leftover, np.where(clip_hi & ~clip_lo, leftover, 0.0))
+    k = np.stack(np.meshgrid(*(np.arange(m) for m in n), indexing="ij"), axis=-1).reshape(-1, 3)
+    k = k[k.sum(axis=1) % 2 == 0]
+    return lo + 0.5 * step + c * k
 
 
 def _append_unique(existing: list[np.ndarray], new: np.ndarray, min_distance: float) -> np.ndarray:
@@ -239,6 +262,12 @@ def sample_scene(scene: Scene) -> SampledScene:
     boundary_n = np.concatenate(bn) if bn else np.zeros((0, 3))
     boundary_o = np.concatenate(bo) if bo else np.zeros(0, dtype=np.int32)
 
+    # fluid blocks
+    lattices = sorted({str(getattr(b, "lattice", "cubic")) for b in scene.fluid})
+    if len(lattices) > 1 or (lattices == ["fcc"] and getattr(scene, "emitters", None)):
+        raise SceneError(f"{scene.source}: fluid[].lattice: {' and '.join(lattices)} in one scene; expected one "
+                         "lattice for every fluid block (the particle mass is calibrated on it), and cubic with "
+                         "emitters")
     # fluid blocks
     fx, fv, fb = [], [], []
     for i, block in enumerate(scene.fluid):
