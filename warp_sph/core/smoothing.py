@@ -83,7 +83,8 @@ LATTICE_LAYER = {"cubic": 1.0, "fcc": 1.0 / math.sqrt(2.0)}
 def lattice_offsets(spacing: float, radius: float, lattice: str = "cubic") -> np.ndarray:
     """Offsets of a lattice (spacing d) within ``radius`` of the origin, origin included: "cubic" the simple cubic
     lattice; "fcc" square layers of spacing d stacked d / sqrt 2 apart, each shifted by (d/2, d/2) (face-centred
-    cubic, nearest neighbours d apart)."""
+    cubic, nearest neighbours d apart; the sampler's fcc block is the same lattice turned 45 degrees about z, which
+    changes no kernel sum)."""
     c = LATTICE_LAYER[lattice]
     n = int(math.ceil(radius / (c * spacing))) + 1
     k = np.arange(-n, n + 1)
