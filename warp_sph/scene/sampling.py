@@ -204,6 +204,44 @@ def _fcc_points(lo: np.ndarray, hi: np.ndarray, clip_lo: np.ndarray, clip_hi: np
     return lo + 0.5 * step + c * k
 
 
+def _fcc_walls(scene, d: float, gap: float, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The container's faces for an fcc start (``fluid[].lattice = "fcc"``): each closed face a (100) net of the
+    first block's fcc lattice, the points of its grid (spacing d / sqrt 2) on the face plane whose indices, with the
+    nearest fluid plane's index plus one, sum to an even number (the hollows of that plane), so wall and fluid
+    layers register as the fluid's own planes do; same particles per area as the square wall layer. Falls back to
+    the square faces ``p``, ``n`` when the first block samples nothing."""
+    block = scene.fluid[0]
+    c = scene.container
+    lo, hi = np.asarray(c.min, dtype=np.float64), np.asarray(c.max, dtype=np.float64)
+    shrink = gap - 0.5 * block.spacing_scale * d
+    fluid = lattice_block(block, d, (lo + shrink, hi - shrink))
+    if not len(fluid):
+        return p, n
+    step = block.spacing_scale * d / np.sqrt(2.0)
+    o = fluid[0]
+    first, last = np.round((fluid.min(axis=0) - o) / step), np.round((fluid.max(axis=0) - o) / step)
+    opened = open_faces(scene)
+    pts, nrm = [], []
+    for axis in range(3):
+        a, b = [x for x in range(3) if x != axis]
+        ja, jb = (np.arange(np.ceil((lo[i] - o[i]) / step - _EPS), np.floor((hi[i] - o[i]) / step + _EPS) + 1)
+                  for i in (a, b))
+        ga, gb = (g.ravel() for g in np.meshgrid(ja, jb, indexing="ij"))
+        for side, (plane, beyond) in enumerate(((lo[axis], first[axis] - 1), (hi[axis], last[axis] + 1))):
+            if (axis, side) in opened:
+                continue
+            keep = (ga + gb + beyond) % 2 == 0
+            q = np.zeros((int(keep.sum()), 3))
+            q[:, axis] = plane
+            q[:, a] = o[a] + step * ga[keep]
+            q[:, b] = o[b] + step * gb[keep]
+            q = q[_append_unique(pts, q, DUPLICATE_DISTANCE * d)]
+            normal = np.zeros(3)
+            normal[axis] = 1.0 if side == 0 else -1.0
+            pts.append(q), nrm.append(np.broadcast_to(normal, q.shape))
+    return np.concatenate(pts), np.ascontiguousarray(np.concatenate(nrm))
+
+
 def _append_unique(existing: list[np.ndarray], new: np.ndarray, min_distance: float) -> np.ndarray:
     """Mask of ``new`` points at least ``min_distance`` away from every point in ``existing``."""
     if not existing or len(new) == 0:
@@ -240,6 +278,8 @@ def sample_scene(scene: Scene) -> SampledScene:
     c = scene.container
     if c is not None:
         p, n = box_surface(c.min, c.max, d, inward=True, open_faces=open_faces(scene))  # (open: an outflow)
+        if scene.fluid and getattr(scene.fluid[0], "lattice", "cubic") == "fcc":
+            p, n = _fcc_walls(scene, d, gap, p, n)
         bx.append(p), bn.append(n), bo.append(np.full(len(p), -1, dtype=np.int32))
     inside_tests = []
     for i, ob in enumerate(scene.obstacles):
