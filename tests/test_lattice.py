@@ -109,3 +109,28 @@ def test_mixed_lattices_are_refused():
                                         "lattice": "fcc"}])
     with pytest.raises(SceneError, match=r"fluid\[\]\.lattice: cubic and fcc"):
         sample_scene(scene)
+
+
+def test_fcc_walls_register_with_the_fluid():
+    """With an fcc start the container's faces are (100) nets of the fluid's grid: every floor particle under the
+    fluid's footprint stands in a hollow of the bottom plane (horizontally d / sqrt 2 from its nearest four), every
+    side-wall particle level with the fluid likewise in a hollow of the outermost plane, and a face carries one
+    particle per d^2 as the square wall layer does (within 5 %)."""
+    from warp_sph.scene.sampling import sample_scene
+
+    scene = _fcc_tank(9)
+    s = sample_scene(scene)
+    x, b = s.fluid_x, s.boundary_x
+    c = D / math.sqrt(2.0)
+    for axis in (2, 0):
+        a1, a2 = [k for k in range(3) if k != axis]
+        plane = x[np.isclose(x[:, axis], x[:, axis].min())]
+        wall = b[np.isclose(b[:, axis], b[:, axis].min())]
+        inner = wall[(wall[:, a1] > x[:, a1].min() + D) & (wall[:, a1] < x[:, a1].max() - D)
+                     & (wall[:, a2] > x[:, a2].min() + D) & (wall[:, a2] < x[:, a2].max() - D)]
+        assert len(inner) >= 4
+        dist = np.linalg.norm(inner[:, None, [a1, a2]] - plane[None, :, [a1, a2]], axis=2)
+        near = np.sort(dist, axis=1)[:, :5]
+        assert near[:, :4] == pytest.approx(c, rel=1e-6) and np.all(near[:, 4] > 1.4 * c)
+        extent = [float(np.ptp(wall[:, k])) + c for k in (a1, a2)]
+        assert len(wall) / (extent[0] * extent[1]) == pytest.approx(1.0 / D ** 2, rel=0.05)
