@@ -7,6 +7,10 @@ gap at which the first fluid layer over one Akinci wall layer is at rest density
   bounding box whose centres are inside it, a closed mesh those inside it (generalised winding
   number where a ray would graze an edge, ray parity per lattice column elsewhere:
   ``meshes.lattice_inside``), about volume / (s d)^3 of them.
+- fcc start (``fluid[].lattice = "fcc"``, ``_fcc_points``): the block's points on a cubic grid of spacing
+  s d / sqrt 2 with even index sums (face-centred cubic, nearest neighbours s d), first plane at the gap, the
+  leftover split as for clipped sides; the container's faces then are (100) nets of that grid in the hollows of
+  the nearest fluid plane (``_fcc_walls``), the wall gap calibrated on the fcc lattice (``scene.wall_gap``).
 - Walls: the six faces of the container carry one layer of boundary particles on a square
   lattice (spacing L/round(L/d), i.e. d when the size is a multiple of d) on the wall planes.
 - Gap at walls: a block touching (or closer than the gap to) a wall is first clipped to the
