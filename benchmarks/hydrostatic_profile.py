@@ -65,6 +65,15 @@ def lattice_slip_stiffness(name: str, h: float, spacing: float, shift: float = 1
     return -(a[0] - a[1]) / (2.0 * shift * spacing) * spacing * spacing
 
 
+def _plane_spacing(scene, d: float) -> float:
+    """Spacing of the start's horizontal planes [m]: d for the cubic lattice, d / sqrt 2 for fcc (its planes are
+    the per-layer figures' layers)."""
+    from warp_sph.core.model import fluid_lattice
+    from warp_sph.core.smoothing import LATTICE_LAYER
+
+    return LATTICE_LAYER[fluid_lattice(scene)] * d
+
+
 def profile(solver: str, radius: float, duration: float, extra: list[str]) -> dict:
     from warp_sph.run.simulation import Simulation
     from warp_sph.validation.cases import CASES, load_case_scene, water_offset
@@ -114,7 +123,7 @@ def profile(solver: str, radius: float, duration: float, extra: list[str]) -> di
     rho = sim.get_field("particle_density") if "particle_density" in fields else None
     pr = sim.get_field("particle_pressure") if "particle_pressure" in fields else None
     first = floor + 0.5 * d
-    k = np.round((x[:, 2] - first) / d).astype(int)
+    k = np.round((x[:, 2] - first) / _plane_spacing(scene, d)).astype(int)  # the start's planes (fcc: d / sqrt 2)
     layers = []
     for j in range(k.min(), k.max() + 1):
         s = k == j
@@ -208,7 +217,7 @@ def motion(solver: str, radius: float, duration: float, extra: list[str], every:
     lo = np.array([float(c.min[a]) + off for a in range(3)])
     hi = np.array([float(c.max[a]) - off for a in (0, 1)])
     x0 = sim.get_field("particle_x").astype(np.float64)[: m.fluid_count]
-    layer = np.round((x0[:, 2] - lo[2] - 0.5 * d) / d).astype(int)
+    layer = np.round((x0[:, 2] - lo[2] - 0.5 * d) / _plane_spacing(scene, d)).astype(int)
     if stagger:  # an experiment, not a start: every other column (a checkerboard in x, y) raised by stagger d
         ij = np.round((x0[:, :2] - lo[:2] - 0.5 * d) / d).astype(int)
         x = sim.get_field("particle_x")

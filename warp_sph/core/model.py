@@ -16,7 +16,7 @@ from .errors import SceneError
 from ..kernels import density as _density_dev
 from ..neighbors import NeighborGrid
 from .launch import launch
-from .smoothing import SmoothingKernel, calibrated_mass, get_smoothing_kernel, lattice_sum
+from .smoothing import LATTICE_LAYER, SmoothingKernel, calibrated_mass, get_smoothing_kernel, lattice_sum
 
 
 @dataclass
@@ -170,6 +170,12 @@ def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_l
     return v_ref, c_s, source
 
 
+def fluid_lattice(scene) -> str:
+    """The fluid's start lattice: the blocks' ``fluid[].lattice`` (sampling refuses a mix), "cubic" without blocks."""
+    names = sorted({str(getattr(b, "lattice", "cubic")) for b in getattr(scene, "fluid", ())})
+    return names[0] if names else "cubic"
+
+
 def build_model(scene, sampled, device) -> tuple[Model, State]:
     """Model and initial State from a validated Scene and its SampledScene."""
     kernel = get_smoothing_kernel(scene.smoothing_kernel)
@@ -178,8 +184,9 @@ def build_model(scene, sampled, device) -> tuple[Model, State]:
     h = scene.smoothing_length
     support = scene.support_radius
     rho0 = float(scene.material.rest_density)
-    mass = calibrated_mass(kernel.name, h, d, rho0)
-    bias = lattice_sum(kernel.name, h, d) * d**3 - 1.0
+    lattice = fluid_lattice(scene)  # the fluid's start lattice (one per scene): its calibrated mass
+    mass = calibrated_mass(kernel.name, h, d, rho0, lattice)
+    bias = lattice_sum(kernel.name, h, d, lattice) * LATTICE_LAYER[lattice] * d**3 - 1.0
 
     fluid_x = np.asarray(sampled.fluid_x, dtype=np.float64).reshape(-1, 3)
     fluid_v = np.asarray(sampled.fluid_v, dtype=np.float32).reshape(-1, 3)

@@ -75,32 +75,45 @@ def evaluate(name: str, offsets: np.ndarray, h: float, device="cpu") -> tuple[np
     return w.numpy(), g.numpy()
 
 
-def lattice_offsets(spacing: float, radius: float) -> np.ndarray:
-    """Offsets of a simple cubic lattice (spacing d) within ``radius`` of the origin, origin included."""
-    n = int(math.ceil(radius / spacing)) + 1
+#: a fluid start's lattice: its layer spacing over d (square layers of spacing d in x and y, each shifted by
+#: (d/2, d/2) from the one below for "fcc"); the lattice's volume per particle is layer d^3
+LATTICE_LAYER = {"cubic": 1.0, "fcc": 1.0 / math.sqrt(2.0)}
+
+
+def lattice_offsets(spacing: float, radius: float, lattice: str = "cubic") -> np.ndarray:
+    """Offsets of a lattice (spacing d) within ``radius`` of the origin, origin included: "cubic" the simple cubic
+    lattice; "fcc" square layers of spacing d stacked d / sqrt 2 apart, each shifted by (d/2, d/2) (face-centred
+    cubic, nearest neighbours d apart; the sampler's fcc block is the same lattice turned 45 degrees about z, which
+    changes no kernel sum)."""
+    c = LATTICE_LAYER[lattice]
+    n = int(math.ceil(radius / (c * spacing))) + 1
     k = np.arange(-n, n + 1)
-    g = np.stack(np.meshgrid(k, k, k, indexing="ij"), axis=-1).reshape(-1, 3) * spacing
+    i, j, l = (a.reshape(-1) for a in np.meshgrid(k, k, k, indexing="ij"))
+    s = 0.0 if lattice == "cubic" else 0.5
+    g = np.stack([i + s * l, j + s * l, c * l], axis=1) * spacing
     return g[np.linalg.norm(g, axis=1) < radius]
 
 
 @functools.lru_cache(maxsize=64)
-def lattice_sum(name: str, h: float, spacing: float) -> float:
-    """sum_j W(x_ij, h) [1/m^3] for an interior particle of a perfect cubic lattice, self included."""
+def lattice_sum(name: str, h: float, spacing: float, lattice: str = "cubic") -> float:
+    """sum_j W(x_ij, h) [1/m^3] for an interior particle of a perfect lattice (``lattice_offsets``), self included."""
     kernel = get_smoothing_kernel(name)
-    offsets = lattice_offsets(spacing, kernel.support_radius(h))
+    offsets = lattice_offsets(spacing, kernel.support_radius(h), lattice)
     w, _ = evaluate(name, offsets, h)
     return float(np.sum(w.astype(np.float64)))
 
 
-def calibrated_mass(name: str, h: float, spacing: float, rest_density: float) -> float:
+def calibrated_mass(name: str, h: float, spacing: float, rest_density: float, lattice: str = "cubic") -> float:
     """Particle mass m [kg] with rest_density = m sum_j W_ij on a perfect lattice (report 7.3)."""
-    return rest_density / lattice_sum(name, h, spacing)
+    return rest_density / lattice_sum(name, h, spacing, lattice)
 
 
-def first_layer_density(name: str, h: float, spacing: float, gap: float, rest_density: float = 1.0) -> float:
+def first_layer_density(name: str, h: float, spacing: float, gap: float, rest_density: float = 1.0,
+                        lattice: str = "cubic") -> float:
     """Density [kg/m^3] of a fluid particle in the first layer of a half-space lattice (spacing d,
-    calibrated mass) whose layer sits ``gap`` [m] above one Akinci wall layer (square lattice at
-    spacing d, V_b = 1 / sum_k W_bk). Physics note section 7: at gap = d this reads ~6 % over rho0."""
+    calibrated mass; ``lattice_offsets``' layers, the first one square) whose layer sits ``gap`` [m] above one
+    Akinci wall layer (square lattice at spacing d, V_b = 1 / sum_k W_bk). Physics note section 7: at gap = d
+    this reads ~6 % over rho0 (cubic lattice)."""
     kernel = get_smoothing_kernel(name)
     support = kernel.support_radius(h)
     n = int(math.ceil(support / spacing)) + 1
@@ -109,21 +122,25 @@ def first_layer_density(name: str, h: float, spacing: float, gap: float, rest_de
     plane = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
     w_wall, _ = evaluate(name, plane, h)
     volume = 1.0 / float(np.sum(w_wall.astype(np.float64)))
-    fluid = np.concatenate([plane + [0.0, 0.0, k * spacing] for k in range(n + 1)])
+    c, s = LATTICE_LAYER[lattice], 0.0 if lattice == "cubic" else 0.5
+    layers = int(math.ceil(support / (c * spacing))) + 1
+    fluid = np.concatenate([plane + [s * (k % 2) * spacing, s * (k % 2) * spacing, k * c * spacing]
+                            for k in range(layers)])
     w_fluid, _ = evaluate(name, fluid, h)
     w_bound, _ = evaluate(name, plane + [0.0, 0.0, gap], h)
-    mass = calibrated_mass(name, h, spacing, rest_density)
+    mass = calibrated_mass(name, h, spacing, rest_density, lattice)
     return mass * float(np.sum(w_fluid.astype(np.float64))) + rest_density * volume * float(np.sum(w_bound.astype(np.float64)))
 
 
 @functools.lru_cache(maxsize=64)
-def wall_gap(name: str, h: float, spacing: float) -> float:
+def wall_gap(name: str, h: float, spacing: float, lattice: str = "cubic") -> float:
     """Distance [m] between an Akinci wall layer and the first fluid layer at which that layer sits
-    at rest density (bisection; about 1.1 d for the cubic kernel, physics note section 7)."""
+    at rest density (bisection; about 1.1 d for the cubic kernel on the cubic lattice, physics note section 7;
+    about 0.95 d on the fcc lattice, whose second layer is d / sqrt 2 above the first)."""
     lo, hi = 0.8 * spacing, 1.6 * spacing
     for _ in range(40):
         mid = 0.5 * (lo + hi)
-        if first_layer_density(name, h, spacing, mid) > 1.0:
+        if first_layer_density(name, h, spacing, mid, 1.0, lattice) > 1.0:
             lo = mid
         else:
             hi = mid

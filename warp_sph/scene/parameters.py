@@ -110,6 +110,12 @@ _TAIL = (
     _P("fluid[].velocity", "vec3", "m/s", (0.0, 0.0, 0.0), "initial velocity"),
     _P("fluid[].spacing_scale", "float", "-", 1.0, "lattice spacing / d; < 1 starts the block "
        "over-dense (compressed)", ge=0.5, le=2.0),
+    _P("fluid[].lattice", "str", "-", "cubic", "the start's lattice: cubic (spacing d); fcc, face-centred cubic with "
+       "nearest neighbours d (the points of a cubic grid of spacing d/sqrt(2) whose indices sum to an even number: "
+       "every face a square net of spacing d, each particle over four of the layer below), 1.41x the particles, "
+       "mass and wall gap calibrated on it; a stable rest state under pressure where the cubic lattice's columns "
+       "slip (issue #31, docs/validation.md); one lattice for every block, cubic with emitters",
+       choices=("cubic", "fcc")),
     _P("fluid[].jitter", "float", "-", 0.0, "seeded perturbation of the start, a fraction of d: each coordinate of "
        "each particle of the block moves by a uniform draw in [-jitter d, +jitter d] (an ensemble of runs of a "
        "chaotic flow, docs/validation.md); 0: the lattice as it is", ge=0.0, lt=1.0),

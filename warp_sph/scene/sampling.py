@@ -7,6 +7,10 @@ gap at which the first fluid layer over one Akinci wall layer is at rest density
   bounding box whose centres are inside it, a closed mesh those inside it (generalised winding
   number where a ray would graze an edge, ray parity per lattice column elsewhere:
   ``meshes.lattice_inside``), about volume / (s d)^3 of them.
+- fcc start (``fluid[].lattice = "fcc"``, ``_fcc_points``): the block's points on a cubic grid of spacing
+  s d / sqrt 2 with even index sums (face-centred cubic, nearest neighbours s d), first plane at the gap, the
+  leftover split as for clipped sides; the container's faces then are (100) nets of that grid in the hollows of
+  the nearest fluid plane (``_fcc_walls``), the wall gap calibrated on the fcc lattice (``scene.wall_gap``).
 - Walls: the six faces of the container carry one layer of boundary particles on a square
   lattice (spacing L/round(L/d), i.e. d when the size is a multiple of d) on the wall planes.
 - Gap at walls: a block touching (or closer than the gap to) a wall is first clipped to the
@@ -173,12 +177,73 @@ def lattice_block(block: FluidBlock, spacing: float, region=None) -> np.ndarray:
     lo = lo + shift
     axes = [lo[i] + 0.5 * step + step * np.arange(n[i]) for i in range(3)]
     pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    if getattr(block, "lattice", "cubic") == "fcc":
+        touch = (region[0] >= lo - shift - _EPS * step, region[1] <= hi + _EPS * step) if region is not None else (
+            clip_lo, clip_hi)  # fcc never fits a box exactly: a side given flush with a wall counts as clipped
+        pts = _fcc_points(lo - shift, hi, clip_lo | touch[0], clip_hi | touch[1], step)
     if block.shape == "sphere":
         r = np.linalg.norm(pts - np.asarray(block.center), axis=1)
         pts = pts[r <= block.radius * (1.0 + _EPS)]
+    elif block.shape == "mesh" and getattr(block, "lattice", "cubic") == "fcc":
+        pts = pts[points_inside(block.mesh(), pts)]
     elif block.shape == "mesh":
         pts = pts[lattice_inside(block.mesh(), *axes).reshape(-1)]
     return pts
+
+
+def _fcc_points(lo: np.ndarray, hi: np.ndarray, clip_lo: np.ndarray, clip_hi: np.ndarray, step: float) -> np.ndarray:
+    """FCC start in the box [lo, hi] [m] (``fluid[].lattice = "fcc"``, nearest neighbours ``step`` apart): the points
+    of the cubic grid of spacing step / sqrt 2 from lo + step / 2 (a wall's gap, as the cubic lattice's first layer)
+    to hi - step / 2 whose indices sum to an even number. Every face of the box is then a (100) plane of the FCC
+    lattice: a square net of spacing step (turned 45 degrees), as many particles per area as a wall's square layer,
+    and each particle sits in the hollow of four of the plane below. The leftover goes where the cubic lattice's does."""
+    c = step / np.sqrt(2.0)
+    n = np.floor((hi - lo - step) / c + _EPS).astype(np.int64) + 1
+    if np.any(hi - lo < step * (1.0 - _EPS)):
+        return np.zeros((0, 3))
+    leftover = np.maximum(hi - lo - step - (n - 1) * c, 0.0)
+    lo = lo + np.where(clip_lo & clip_hi, 0.5 * leftover, np.where(clip_hi & ~clip_lo, leftover, 0.0))
+    k = np.stack(np.meshgrid(*(np.arange(m) for m in n), indexing="ij"), axis=-1).reshape(-1, 3)
+    k = k[k.sum(axis=1) % 2 == 0]
+    return lo + 0.5 * step + c * k
+
+
+def _fcc_walls(scene, d: float, gap: float, p: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The container's faces for an fcc start (``fluid[].lattice = "fcc"``): each closed face a (100) net of the
+    first block's fcc lattice, the points of its grid (spacing d / sqrt 2) on the face plane whose indices, with the
+    nearest fluid plane's index plus one, sum to an even number (the hollows of that plane), so wall and fluid
+    layers register as the fluid's own planes do; same particles per area as the square wall layer. Falls back to
+    the square faces ``p``, ``n`` when the first block samples nothing."""
+    block = scene.fluid[0]
+    c = scene.container
+    lo, hi = np.asarray(c.min, dtype=np.float64), np.asarray(c.max, dtype=np.float64)
+    shrink = gap - 0.5 * block.spacing_scale * d
+    fluid = lattice_block(block, d, (lo + shrink, hi - shrink))
+    if not len(fluid):
+        return p, n
+    step = block.spacing_scale * d / np.sqrt(2.0)
+    o = fluid[0]
+    first, last = np.round((fluid.min(axis=0) - o) / step), np.round((fluid.max(axis=0) - o) / step)
+    opened = open_faces(scene)
+    pts, nrm = [], []
+    for axis in range(3):
+        a, b = [x for x in range(3) if x != axis]
+        ja, jb = (np.arange(np.ceil((lo[i] - o[i]) / step - _EPS), np.floor((hi[i] - o[i]) / step + _EPS) + 1)
+                  for i in (a, b))
+        ga, gb = (g.ravel() for g in np.meshgrid(ja, jb, indexing="ij"))
+        for side, (plane, beyond) in enumerate(((lo[axis], first[axis] - 1), (hi[axis], last[axis] + 1))):
+            if (axis, side) in opened:
+                continue
+            keep = (ga + gb + beyond) % 2 == 0
+            q = np.zeros((int(keep.sum()), 3))
+            q[:, axis] = plane
+            q[:, a] = o[a] + step * ga[keep]
+            q[:, b] = o[b] + step * gb[keep]
+            q = q[_append_unique(pts, q, DUPLICATE_DISTANCE * d)]
+            normal = np.zeros(3)
+            normal[axis] = 1.0 if side == 0 else -1.0
+            pts.append(q), nrm.append(np.broadcast_to(normal, q.shape))
+    return np.concatenate(pts), np.ascontiguousarray(np.concatenate(nrm))
 
 
 def _append_unique(existing: list[np.ndarray], new: np.ndarray, min_distance: float) -> np.ndarray:
@@ -217,6 +282,8 @@ def sample_scene(scene: Scene) -> SampledScene:
     c = scene.container
     if c is not None:
         p, n = box_surface(c.min, c.max, d, inward=True, open_faces=open_faces(scene))  # (open: an outflow)
+        if scene.fluid and getattr(scene.fluid[0], "lattice", "cubic") == "fcc":
+            p, n = _fcc_walls(scene, d, gap, p, n)
         bx.append(p), bn.append(n), bo.append(np.full(len(p), -1, dtype=np.int32))
     inside_tests = []
     for i, ob in enumerate(scene.obstacles):
@@ -239,6 +306,12 @@ def sample_scene(scene: Scene) -> SampledScene:
     boundary_n = np.concatenate(bn) if bn else np.zeros((0, 3))
     boundary_o = np.concatenate(bo) if bo else np.zeros(0, dtype=np.int32)
 
+    # fluid blocks
+    lattices = sorted({str(getattr(b, "lattice", "cubic")) for b in scene.fluid})
+    if len(lattices) > 1 or (lattices == ["fcc"] and getattr(scene, "emitters", None)):
+        raise SceneError(f"{scene.source}: fluid[].lattice: {' and '.join(lattices)} in one scene; expected one "
+                         "lattice for every fluid block (the particle mass is calibrated on it), and cubic with "
+                         "emitters")
     # fluid blocks
     fx, fv, fb = [], [], []
     for i, block in enumerate(scene.fluid):

@@ -74,7 +74,9 @@ def relax_start(scene, fluid_x: np.ndarray, boundary_x: np.ndarray,
     if not len(fluid_x) or not len(boundary_x):
         return fluid_x, 0, 0.0
     name, h, support = scene.smoothing_kernel, scene.smoothing_length, scene.support_radius
-    volume = calibrated_mass(name, h, scene.spacing, 1.0)  # m / rho0 [m^3]
+    from ...core.model import fluid_lattice
+
+    volume = calibrated_mass(name, h, scene.spacing, 1.0, fluid_lattice(scene))  # m / rho0 [m^3]
     reach = PointGrid(boundary_x, 2.0 * support).nearest_distance(fluid_x, 2.0 * support) < 2.0 * support
     near = np.nonzero(reach if movable is None else reach & np.asarray(movable, dtype=bool))[0]
     if not len(near):

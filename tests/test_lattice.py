@@ -1,0 +1,136 @@
+"""Issue #31: a fluid start that is a stable rest state under load. ``benchmarks.lattice_stability``'s dynamical
+matrix against a brute-force force sum (finite differences of the SPH pressure force), the cubic and fcc starts'
+stiffness signs, and the ``fluid[].lattice = "fcc"`` start: its geometry, calibrated mass and wall gap."""
+import math
+
+import numpy as np
+import pytest
+
+from benchmarks.lattice_stability import STARTS, Lattice, lattice_points
+from warp_sph.core.errors import SceneError
+from warp_sph.core.smoothing import calibrated_mass, evaluate, first_layer_density, wall_gap
+from tests.small_scenes import small_tank
+
+D = 0.05
+
+
+def _pressure_acceleration(name, h, x, volume):
+    """a_0 / (P / rho0) = -2 V sum_j grad W(x_0 - x_j) [1/m] of the first point of ``x`` under a uniform particle
+    pressure P: the symmetric pressure force's sum over every point, by brute force."""
+    _, g = evaluate(name, x[0] - x[1:], h)
+    return -2.0 * volume * g.astype(np.float64).sum(axis=0)
+
+
+@pytest.mark.parametrize("start,q_frac,u", [
+    ("cubic", (0.5, 0.5, 0.0), (0.0, 0.0, 1.0)),      # the columns' checkerboard slip: the cubic lattice's weakest
+    ("cubic", (0.25, 0.0, 0.125), (0.6, 0.0, 0.8)),
+    ("fcc", (0.5, 0.0, 0.25), (0.0, 1.0, 0.0)),
+    ("fcc", (0.125, 0.375, -0.25), (0.48, 0.6, 0.64)),
+    ("bcc", (0.0, 0.5, -0.5), (1.0, 0.0, 0.0)),
+])
+def test_dynamical_matrix_against_the_force_sum(start, q_frac, u):
+    """Displace every point of a lattice patch by eps u cos(q . x_j) (eps = +-1e-3 d) and sum the pressure force on
+    the origin's point directly: its change over the displacement, -(a(+eps) - a(-eps)) / (2 eps), is
+    (2 V / rho0)... D(q) u, the tool's stiffness matrix times u (within 2 % of |D u| and 1e-3 d^-2 scaled)."""
+    layer, shift = STARTS[start]
+    L = Lattice("cubic", D, D, layer, shift)
+    x = lattice_points(D, layer, shift, 2.0 * 2.0 * D + 2.0 * D)       # the origin first; reaches past the support
+    q = np.asarray(q_frac) @ L.b
+    u = np.asarray(u, dtype=np.float64)
+    eps = 1e-3 * D
+    a = []
+    for s in (eps, -eps):
+        y = x + s * np.cos(x @ q)[:, None] * u
+        a.append(_pressure_acceleration("cubic", D, y, L.volume))
+    k_force = -(a[0] - a[1]) / (2.0 * eps) * D * D                 # k d^2 / (P / rho0) per unit u
+    Dm, _ = L.dynamical(q)
+    k_tool = 2.0 * L.volume * D * D * (Dm @ u)
+    assert k_force == pytest.approx(k_tool, abs=0.02 * np.linalg.norm(k_tool) + 1e-3)
+
+
+def test_the_cubic_lattice_slips_and_the_fcc_lattice_holds():
+    """Cubic spline, h = d: the cubic lattice's column checkerboard has a negative stiffness under pressure (-0.27),
+    the whole Brillouin zone of the fcc lattice (nearest neighbours d) a positive one (its smallest, at the longest
+    wave of the grid, +0.009); the calibrated volumes are the lattices' own, d^3 and d^3 / sqrt 2, within 1 %."""
+    cubic = Lattice("cubic", D, D, *STARTS["cubic"])
+    assert cubic.column_slip() == pytest.approx(-0.27, abs=0.01)
+    assert cubic.scan(8)["hidden"]["k"] < -0.2
+    fcc = Lattice("cubic", D, D, *STARTS["fcc"])
+    low = fcc.scan(8)
+    assert low["all"]["k"] > 0.005 and low["hidden"]["k"] > 0.005
+    assert fcc.volume / D ** 3 == pytest.approx(1.0 / math.sqrt(2.0), rel=0.01)
+    assert cubic.volume / D ** 3 == pytest.approx(1.0, rel=0.01)
+
+
+def _fcc_tank(width_cells: int, **kw):
+    w = D + (width_cells - 1) * D / math.sqrt(2.0) + 1e-9          # a tank the fcc start fits exactly
+    return small_tank("fcc", particle_radius=D / 2, container={"min": [0.0, 0.0, 0.0], "max": [w, w, 0.5],
+                                                                 "inner": True},
+                      fluid=[{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [w, w, 0.25], "lattice": "fcc"}], **kw)
+
+
+def test_fcc_start_geometry_mass_and_gap():
+    """The sampled fcc block: every interior particle has 12 nearest neighbours at d (face-centred cubic), the
+    first layer stands the fcc wall gap over the floor's wall particles, and the model's mass is rho0 over the fcc
+    lattice's kernel sum, so a particle deep inside reads rho0 (within 1e-3) where the cubic mass would read
+    sqrt 2 more."""
+    from warp_sph.run.simulation import Simulation
+    from warp_sph.scene.sampling import sample_scene
+
+    scene = _fcc_tank(9)
+    sim = Simulation(scene)
+    m = sim.model
+    x = sim.get_field("particle_x")[: m.fluid_count].astype(np.float64)
+    r = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=2)
+    centre = np.argmin(np.linalg.norm(x - x.mean(axis=0), axis=1))
+    near = np.sort(r[centre])[1:14]
+    assert near[:12] == pytest.approx(D, rel=1e-5) and near[12] > 1.3 * D
+    gap = wall_gap("cubic", D, D, "fcc")
+    assert 0.9 * D < gap < 1.0 * D < wall_gap("cubic", D, D)
+    assert first_layer_density("cubic", D, D, gap, 1.0, "fcc") == pytest.approx(1.0, abs=1e-3)
+    sampled = sample_scene(scene)
+    floor = float(sampled.boundary_x[:, 2].min())
+    assert float(sampled.fluid_x[:, 2].min()) - floor == pytest.approx(gap, rel=1e-4)
+    side = float(sampled.boundary_x[:, 0].min())
+    assert float(sampled.fluid_x[:, 0].min()) - side == pytest.approx(gap, rel=1e-4)
+    assert m.particle_mass == pytest.approx(calibrated_mass("cubic", D, D, 1000.0, "fcc"), rel=1e-6)
+    assert m.particle_mass / calibrated_mass("cubic", D, D, 1000.0) == pytest.approx(1.0 / math.sqrt(2.0), rel=0.01)
+    sim.refresh_density()
+    rho = sim.get_field("particle_density")[: m.fluid_count]
+    assert rho[centre] / 1000.0 == pytest.approx(1.0, abs=1e-3)
+
+
+def test_mixed_lattices_are_refused():
+    """Two blocks on different lattices: one clear line naming the key, before any kernel runs."""
+    from warp_sph.scene.sampling import sample_scene
+
+    scene = small_tank("mixed", fluid=[{"shape": "box", "min": [0.0, 0.0, 0.0], "max": [0.3, 0.5, 0.5]},
+                                       {"shape": "box", "min": [0.4, 0.0, 0.0], "max": [0.7, 0.5, 0.5],
+                                        "lattice": "fcc"}])
+    with pytest.raises(SceneError, match=r"fluid\[\]\.lattice: cubic and fcc"):
+        sample_scene(scene)
+
+
+def test_fcc_walls_register_with_the_fluid():
+    """With an fcc start the container's faces are (100) nets of the fluid's grid: every floor particle under the
+    fluid's footprint stands in a hollow of the bottom plane (horizontally d / sqrt 2 from its nearest four), every
+    side-wall particle level with the fluid likewise in a hollow of the outermost plane, and a face carries one
+    particle per d^2 as the square wall layer does (within 5 %)."""
+    from warp_sph.scene.sampling import sample_scene
+
+    scene = _fcc_tank(9)
+    s = sample_scene(scene)
+    x, b = s.fluid_x, s.boundary_x
+    c = D / math.sqrt(2.0)
+    for axis in (2, 0):
+        a1, a2 = [k for k in range(3) if k != axis]
+        plane = x[np.isclose(x[:, axis], x[:, axis].min())]
+        wall = b[np.isclose(b[:, axis], b[:, axis].min())]
+        inner = wall[(wall[:, a1] > x[:, a1].min() + D) & (wall[:, a1] < x[:, a1].max() - D)
+                     & (wall[:, a2] > x[:, a2].min() + D) & (wall[:, a2] < x[:, a2].max() - D)]
+        assert len(inner) >= 4
+        dist = np.linalg.norm(inner[:, None, [a1, a2]] - plane[None, :, [a1, a2]], axis=2)
+        near = np.sort(dist, axis=1)[:, :5]
+        assert near[:, :4] == pytest.approx(c, rel=1e-6) and np.all(near[:, 4] > 1.4 * c)
+        extent = [float(np.ptp(wall[:, k])) + c for k in (a1, a2)]
+        assert len(wall) / (extent[0] * extent[1]) == pytest.approx(1.0 / D ** 2, rel=0.05)
