@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from warp_sph.validation import errors as E
-from warp_sph.validation.cases import (CASES, GOALS, LOBOVSKY_HEIGHTS_MM, LOBOVSKY_SENSORS, Case,  # noqa: F401
+from warp_sph.validation.cases import (CASES, GOALS, LOBOVSKY_HEIGHTS_MM, LOBOVSKY_SENSORS, Case, case_kind,  # noqa: F401
                                       _scene_dir, evaluate, has_pressure, load_case_scene, read_probe)
 
 
@@ -178,9 +178,9 @@ def run_one(case: Case, solver: str, resolution: str, out_root: Path, device=Non
             if last.get("kinetic_energy") is not None:
                 mass = float(info["model"]["particle_mass"]) * float(info["fluid_particles"])
                 rec["rms_speed_final"] = math.sqrt(2.0 * float(last["kinetic_energy"]) / mass)
-                if case.name == "hydrostatic" and "settled" not in met:  # no last state: rms >= mean |v|
+                if case_kind(case.name) == "hydrostatic" and "settled" not in met:  # no last state: rms >= mean |v|
                     met["settled"] = rec["rms_speed_final"] < GOALS["settled_speed"]
-        if case.name in ("lobovsky", "hydrostatic"):
+        if case_kind(case.name) in ("lobovsky", "hydrostatic"):
             # wall probes read the walls' force (before: the particle pressure); Lobovsky's are 4.2 mm transducers
             rec["pressure_probe"] = "transducer" if case.name == "lobovsky" else "wall load"
         if rec["simulated_time"]:
@@ -205,7 +205,7 @@ def summary_text(rec: dict) -> str:
         return "; ".join(f"{s}: peak {100 * v['peak_error']:+.0f} %, time {100 * v['time_error']:+.1f} %"
                          + (f" (2D-kernel load {100 * v['kernel_peak_error']:+.0f} %)" if "kernel_peak_error" in v else "")
                          for s, v in f.items() if isinstance(v, dict)) or f.get("note", "")
-    if rec["case"] == "hydrostatic":
+    if case_kind(rec["case"]) == "hydrostatic":
         return ", ".join(f"{k} {100 * v:+.2f} %" for k, v in f.items() if k.endswith("_error")) or \
             f"surface {f.get('surface_height', 0):.4f} m (no pressure field)"
     return ""

@@ -35,6 +35,12 @@ class Case:
     title: str = ""
 
 
+def _centred_probe(index: int, z: float):
+    """An override placing probe ``index`` at the centre of the fcc tank (``fcc_tank_width``) at height z [m]."""
+    return lambda d: (f"probes[{index}].position=[{fcc_tank_width(d) / 2:.12g}, {fcc_tank_width(d) / 2:.12g}, "
+                      f"{z:g}]")
+
+
 def _scene_dir() -> Path:
     """scenes/validation in the source tree, or the installed package's copy."""
     if SCENE_DIR.is_dir():
@@ -55,7 +61,32 @@ CASES = {
     "hydrostatic": Case("hydrostatic", "hydrostatic_probes.toml", (0.025, 0.0125),
                         {"last_state": lambda d: f"output.checkpoint_every={LAST_STATE_EVERY}"},
                         "Hydrostatic tank, floor and mid-depth pressure"),
+    # the same tank started on the fcc lattice (``fluid[].lattice``), which holds under load where the cubic one's
+    # columns slip (docs/validation.md "A start that holds under load"); its tank is the fcc block's own width
+    # (``fcc_tank_width``), so the water fills it exactly at both radii, as the cubic case's 0.6 m tank does
+    "hydrostatic_fcc": Case("hydrostatic_fcc", "hydrostatic_probes.toml", (0.025, 0.0125),
+                            {"last_state": lambda d: f"output.checkpoint_every={LAST_STATE_EVERY}",
+                             "lattice": lambda d: "fluid[0].lattice=fcc",
+                             "tank": lambda d: f"container.max=[{fcc_tank_width(d):.12g}, {fcc_tank_width(d):.12g}, 1.0]",
+                             "water": lambda d: f"fluid[0].max=[{fcc_tank_width(d):.12g}, {fcc_tank_width(d):.12g}, 0.5]",
+                             **{f"probe{i}": _centred_probe(i, z) for i, z in ((0, 0.0), (1, 0.25), (2, 0.0))}},
+                            "Hydrostatic tank started on the fcc lattice"),
 }
+#: the cases whose figures are the hydrostatic tank's (``case_kind``)
+HYDROSTATIC_CASES = ("hydrostatic", "hydrostatic_fcc")
+
+
+def case_kind(name: str) -> str:
+    """The kind of figures a case has: its own name, or "hydrostatic" for every hydrostatic tank."""
+    return "hydrostatic" if name in HYDROSTATIC_CASES else name
+
+
+def fcc_tank_width(d: float, width: float = 0.6) -> float:
+    """Width [m] of the tank an fcc block of nearest spacing d [m] fills exactly, nearest to ``width``: its square
+    face nets have n columns d / sqrt(2) apart, so d + (n - 1) d / sqrt(2) (0.6157 m at d = 0.05 m, 0.6084 m at
+    0.025 m)."""
+    step = d / math.sqrt(2.0)
+    return d + round((width - d) / step) * step
 LOBOVSKY_SENSORS = ("sensor1", "sensor3", "sensor4")
 LOBOVSKY_HEIGHTS_MM = {"sensor1": 3.0, "sensor3": 30.0, "sensor4": 80.0}
 #: the shipped series a probe may name (``probes[].experiment``): (time unit [s], value unit [SI], label) of their
@@ -165,7 +196,7 @@ def evaluate(case: str, folder: Path, info: dict, pressure_window: float = E.PRE
             series[s] = _series(T, P, 4)
         if not figures:
             figures["note"] = "no pressure field (solver without pressure): pressure probes not run"
-    elif case == "hydrostatic":
+    elif case_kind(case) == "hydrostatic":
         t, h = read_probe(folder, "surface")
         late = t >= 0.5 * t[-1]
         out = {}
