@@ -65,3 +65,25 @@ def test_bench_reads_the_mean_speed_of_the_last_frame(tmp_path):
     assert expect > 1e-4 and fig["mean_speed_final"] == pytest.approx(expect, rel=1e-3)
     assert met["settled"] is (expect < 1e-3)
     assert rf.latest_checkpoint(tmp_path / "run").name == frames[-1]
+
+
+@pytest.mark.parametrize("radius", [0.025, 0.0125])
+def test_fcc_tank_fills_its_width_at_both_radii(radius):
+    """The hydrostatic_fcc case's tank is the fcc block's own width, d + (n - 1) d / sqrt(2) nearest 0.6 m (n = 17
+    columns at d = 0.05 m, 34 at 0.025 m): the outer fcc columns rest one wall gap from their walls' particle
+    planes on all four sides (as the cubic case's water fills its 0.6 m tank), and the probes stand at its centre.
+    A width rounded below the exact one drops a column (1,664 instead of 1,879 particles at r = 0.025 m, floor
+    -2.05 % against -0.94 %)."""
+    from warp_sph.validation.cases import fcc_tank_width
+
+    scene = load_case_scene(CASES["hydrostatic_fcc"], "dfsph", radius)
+    x = sample_scene(scene).fluid_x.astype(np.float64)
+    d, g, c = 2.0 * radius, scene.wall_gap, scene.container
+    w = fcc_tank_width(d)
+    n = round((w - d) / (d / np.sqrt(2.0))) + 1
+    assert abs(w - 0.6) <= d / np.sqrt(2.0) / 2
+    assert len(np.unique(np.round(x[:, 0] / (d / np.sqrt(2.0))))) == n
+    np.testing.assert_allclose(x.min(axis=0)[:2] - np.asarray(c.min)[:2], g, atol=0.01 * d)
+    np.testing.assert_allclose(np.asarray(c.max)[:2] - x.max(axis=0)[:2], g, atol=0.01 * d)
+    for p in scene.to_dict()["probes"]:
+        assert p["position"][:2] == pytest.approx([w / 2, w / 2], abs=1e-9)
