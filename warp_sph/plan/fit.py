@@ -139,8 +139,9 @@ def fit_count_law(fluid, t, exponent_range=(1.0, 1.1), points: int = 3) -> Power
     """The step's cost beyond the largest calibrated count: t = c Nf^b through the point of the largest fluid count
     ``fluid`` [particles] (its measured step time ``t`` [s]), b the least-squares exponent of log t against log Nf
     over the ``points`` largest counts, clipped to ``exponent_range``; one count: b the range's lower bound, not
-    measured (``measured`` None); no point: None. Anchored at the largest count, not at the points' mean: the per-particle cost falls with the count over the calibrated range
-    (the launches' overhead spread over more particles), and the largest count's is the nearest the target's.
+    measured (``measured`` None); no point: None. Anchored at the largest count, not at the points' mean: the
+    per-particle cost falls with the count over the calibrated range (the launches' overhead spread over more
+    particles), and the largest count's is the nearest the target's.
     Measured (CPU, 2 cores, per fluid particle-step at the largest calibrated count -> at 3-5x that count in the
     plan's whole run): dam break PBF 1.93 -> 2.08 us and 1.94 -> 2.22 us, hydrostatic DFSPH 2.83 -> 2.57 us, where
     the exponents over the calibrated counts were 0.72-0.91 (a law with those, or a line with an intercept, predicted
