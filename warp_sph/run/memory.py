@@ -85,12 +85,16 @@ def available_device_memory(device) -> int | None:
 
 def particle_count_contributions(scene) -> list[tuple[str, str, int]]:
     """[(key path, "fluid" | "boundary", particles)] estimated from the scene's geometry without
-    sampling: a block's volume / (s d)^3, a wall's or obstacle's area / d^2."""
+    sampling: a box block's lattice inside the container less the wall gap (``_box_lattice_count``), another
+    block's volume / (s d)^3, a wall's or obstacle's area / d^2."""
     d = scene.spacing
     out = []
     for i, b in enumerate(scene.fluid):
         step = b.spacing_scale * d
-        vol = b.volume()  # box, sphere or closed mesh [m^3]
+        if b.shape == "box":
+            out.append((f"fluid[{i}]", "fluid", _box_lattice_count(scene, b)))
+            continue
+        vol = b.volume()  # sphere or closed mesh [m^3]
         out.append((f"fluid[{i}]", "fluid", int(min(vol / step**3, 2**62))))
 
     def box_area(lo, hi):
@@ -122,6 +126,22 @@ def particle_count_contributions(scene) -> list[tuple[str, str, int]]:
         if extra > 0:
             out.append(("max_particles" if scene.max_particles else "emitters", "fluid", int(min(extra, 2**62))))
     return out
+
+
+def _box_lattice_count(scene, block) -> int:
+    """Lattice points of a box fluid block as ``sampling.lattice_block`` places them, without placing them: per axis
+    floor(extent / (s d)) of the block clipped to the container shrunk by the wall gap g d - s r. Measured, hydrostatic
+    at r = 0.0426 m (a 0.61 m tank): 125 sampled where volume / d^3 gave 300 (the gap takes a column a side)."""
+    from ..scene.sampling import _EPS
+
+    step = block.spacing_scale * scene.spacing
+    lo, hi = (np.asarray(x, dtype=np.float64) for x in block.bounds())
+    c = scene.container
+    if c is not None:
+        shrink = scene.wall_gap - 0.5 * step
+        lo, hi = np.maximum(lo, np.asarray(c.min) + shrink), np.minimum(hi, np.asarray(c.max) - shrink)
+    n = np.floor((hi - lo) / step + _EPS)
+    return 0 if np.any(n <= 0) else int(min(float(np.prod(n)), 2**62))
 
 
 def estimate_particle_counts(scene) -> tuple[int, int]:
