@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import subprocess
 import sys
 import tempfile
@@ -137,7 +138,7 @@ def run_splishsplash_tank(sc, solver: str, threads: int, folder: Path, duration:
     return rec
 
 
-def warp_sph_series(folder: Path, run: dict) -> dict:
+def warp_sph_series(folder: Path) -> dict:
     """warp-sph's speed series every ``SAMPLE`` s from its run folder's frames (frames/*.npz velocities); without
     them the rms speed from run.json's kinetic energies (mean |v| then missing)."""
     frames = sorted(Path(folder).glob("frames/frame_*.npz"))
@@ -170,7 +171,7 @@ def run_warp_sph(solver: str, radius: float, out_root: Path, log=print) -> dict:
     if v.get("error"):
         rec["error"] = v["error"]
     if v.get("out"):
-        rec["series"] = warp_sph_series(Path(v["out"]), v)
+        rec["series"] = warp_sph_series(Path(v["out"]))
     return rec
 
 
@@ -225,7 +226,7 @@ def main(argv=None) -> int:
                     recs.append(run_splishsplash_tank(sc, s, a.threads, root / "splishsplash" / f"r{r:g}", duration, gaps))
                 for rec in recs:
                     rec.update(schema=SCHEMA, kind="splishsplash_tank", command=command,
-                               load_average=list(__import__("os").getloadavg()),
+                               load_average=list(os.getloadavg()),
                                date=time.strftime("%Y-%m-%dT%H:%M:%S+00:00", time.gmtime()))
                     with open(out / "splishsplash_tank.jsonl", "a") as f:
                         f.write(json.dumps(rec) + "\n")

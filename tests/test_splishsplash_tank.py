@@ -80,7 +80,7 @@ def test_warp_sph_series_reads_the_frames_every_sample(tmp_path):
     (tmp_path / "frames").mkdir()
     for i, t in enumerate(np.arange(0, 0.55, 1 / 24)):
         np.savez(tmp_path / "frames" / f"frame_{i + 1:06d}.npz", v=np.full((4, 3), t), time=np.float64(t))
-    s = T.warp_sph_series(tmp_path, {})
+    s = T.warp_sph_series(tmp_path)
     assert s["time"] == pytest.approx([0.0, 0.25, 0.5])
     np.testing.assert_allclose(s["mean_speed"], np.sqrt(3) * np.array([0.0, 0.25, 0.5]), rtol=1e-6)
 
