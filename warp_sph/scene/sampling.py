@@ -306,7 +306,7 @@ def sample_scene(scene: Scene) -> SampledScene:
     boundary_n = np.concatenate(bn) if bn else np.zeros((0, 3))
     boundary_o = np.concatenate(bo) if bo else np.zeros(0, dtype=np.int32)
 
-    # fluid blocks
+    # one lattice for every fluid block
     lattices = sorted({str(getattr(b, "lattice", "cubic")) for b in scene.fluid})
     if len(lattices) > 1 or (lattices == ["fcc"] and getattr(scene, "emitters", None)):
         raise SceneError(f"{scene.source}: fluid[].lattice: {' and '.join(lattices)} in one scene; expected one "
