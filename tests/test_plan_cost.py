@@ -38,15 +38,9 @@ def test_count_law_measures_its_exponent_clips_it_and_passes_through_the_largest
     assert law(64000) == pytest.approx(t[-1] * 4.0**expected)       # NumPy oracle of the clipped law
 
 
-def test_count_law_from_one_count_holds_its_cost_per_particle():
-    """One count at the split: b is the range's lower bound, through that count's (geometric mean) time, and not
-    measured; no point: no law."""
-    law = fit_count_law([5000, 5000], [1e-2, 1.1e-2], COUNT_EXPONENT_RANGE)
-    assert law.exponent == 1.0 and law.measured is None and not law.clipped
-    assert law(5000) == pytest.approx((1e-2 * 1.1e-2) ** 0.5)
-    assert law(20000) == pytest.approx(4.0 * (1e-2 * 1.1e-2) ** 0.5)
+def test_count_law_needs_two_counts():
+    assert fit_count_law([5000, 5000], [1e-2, 1.1e-2]) is None
     assert fit_count_law([], []) is None
-    assert fit_count_law([0, 5000], [1e-2, 0.0]) is None
     # a repeated largest count: the law passes through the geometric mean of its times
     law = fit_count_law([2000, 4000, 4000], [4e-3, 8e-3, 8e-3 * 1.21])
     assert law(4000) == pytest.approx(8e-3 * 1.1)
@@ -114,33 +108,10 @@ def test_the_whole_runs_step_cost_ratio(tiny, measured, applied):  # noqa: F811
 def test_the_count_law_takes_the_points_whose_fluid_splits(tiny):  # noqa: F811
     """A dam break's coarse points pass the thread split on their walls (216 fluid with 2,022 wall particles): their
     cost per fluid particle is mostly the walls' and the steps' overhead, so the count law takes only the points
-    whose fluid count reaches the split; with one such count the law holds that count's cost per particle."""
+    whose fluid count reaches the split; with one such count there is no law."""
     walls = [_point("wcsph", _radius(n), None, fluid=n, boundary=3000, step_time=3e-3 + 1e-6 * n) for n in (216, 512)]
     fine = [_point("wcsph", _radius(n), None, fluid=n, boundary=6000, step_time=2e-6 * n) for n in (4000, 8000)]
     m = fit_models(_cal(*walls, *fine, split=2048), "wcsph", tiny)
     assert m.count_fluid == 8000 and m.count_law.measured == pytest.approx(1.0)
     assert m.count_law(32000) == pytest.approx(2e-6 * 32000)
-    one = fit_models(_cal(*walls, fine[0], split=2048), "wcsph", tiny)
-    assert one.count_fluid == 4000 and one.count_law.measured is None
-    assert one.count_law(32000) == pytest.approx(2e-6 * 32000)
-    # no fluid count at the split: no law (the walls' launches split, the fluid's do not)
-    assert fit_models(_cal(*walls, split=2048), "wcsph", tiny).count_law is None
-
-
-def test_one_count_at_the_split_does_not_lower_the_cost_per_particle_beyond_it(tiny):  # noqa: F811
-    """The hydrostatic 60 s plan of the bench (14:14, load 3.4): one fluid count at the thread split (2,352 fluid with
-    2,178 wall particles, 13.03 ms a step: 5.54 us per fluid particle-step) and one below it whose walls pass it (1,440
-    with 1,682, 11.62 ms, slowed by the load). The line through both (``step_time_split``) put 9.3 ms in its intercept
-    and predicted 2.34 us per fluid particle-step at 11,767 (x the sweeps' 0.925: 2.17) where the run took 4.34 us;
-    beyond the split count the step now costs at least that count's cost per particle. Inside it, the line holds."""
-    pts = [_point("wcsph", 0.0426, None, fluid=125, boundary=436, step_time=1.96e-3),
-           _point("wcsph", 0.0285, None, fluid=648, boundary=1036, step_time=6.24e-3),
-           _point("wcsph", 0.0222, None, fluid=1440, boundary=1682, step_time=11.62e-3),
-           _point("wcsph", 0.0194, None, fluid=2352, boundary=2178, step_time=13.03e-3)]
-    m = fit_models(_cal(*pts, split=2048), "wcsph", tiny)
-    assert m.step_time_split(11767, 5866) / 11767 < 2.5e-6            # the line's 2.34 us: what the plan took before
-    assert m.count_fluid == 2352 and m.count_law.measured is None
-    assert m.step_cost(11767, 5866) == pytest.approx(13.03e-3 * 11767 / 2352)   # 5.54 us per fluid particle-step
-    assert m.step_cost(2000, 2000) == pytest.approx(m.step_time_split(2000, 2000))
-    line = __import__("warp_sph.plan.report", fromlist=["model_line"]).model_line(m)
-    assert "beyond 2,352 fluid particles at least ~ Nf^1.00" in line and "not measured" in line
+    assert fit_models(_cal(*walls, fine[0], split=2048), "wcsph", tiny).count_law is None

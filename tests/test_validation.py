@@ -150,7 +150,7 @@ def test_validation_scenes_run_and_probe(case, solver):
     if solver == "pbf":
         names = {p.name for p in scene.probes if p.kind == "pressure"}
         lobovsky = set(V.LOBOVSKY_SENSORS) | {f"{s}_kernel" for s in V.LOBOVSKY_SENSORS}  # transducers, kernel loads
-        assert names == {"lobovsky": lobovsky, "hydrostatic": {"floor"}}.get(case, set())
+        assert names == {"lobovsky": lobovsky, "hydrostatic": {"floor"}}.get(V.case_kind(case), set())
 
 
 def test_hydrostatic_evaluation_figures(tmp_path):

@@ -138,24 +138,21 @@ def fit_step_cost(fluid, boundary, t) -> StepCost:
 def fit_count_law(fluid, t, exponent_range=(1.0, 1.1), points: int = 3) -> PowerLaw | None:
     """The step's cost beyond the largest calibrated count: t = c Nf^b through the point of the largest fluid count
     ``fluid`` [particles] (its measured step time ``t`` [s]), b the least-squares exponent of log t against log Nf
-    over the ``points`` largest counts, clipped to ``exponent_range``; one count: b the range's lower bound, not
-    measured (``measured`` None); no point: None. Anchored at the largest count, not at the points' mean: the
-    per-particle cost falls with the count over the calibrated range (the launches' overhead spread over more
-    particles), and the largest count's is the nearest the target's.
+    over the ``points`` largest counts, clipped to ``exponent_range`` (None with fewer than two counts). Anchored at
+    the largest count, not at the points' mean: the per-particle cost falls with the count over the calibrated range
+    (the launches' overhead spread over more particles), and the largest count's is the nearest the target's.
     Measured (CPU, 2 cores, per fluid particle-step at the largest calibrated count -> at 3-5x that count in the
     plan's whole run): dam break PBF 1.93 -> 2.08 us and 1.94 -> 2.22 us, hydrostatic DFSPH 2.83 -> 2.57 us, where
     the exponents over the calibrated counts were 0.72-0.91 (a law with those, or a line with an intercept, predicted
-    1.3-1.7 us): the per-particle cost stops falling beyond the calibrated counts, hence b >= 1. With one count at the
-    split (hydrostatic 60 s: 2,352 fluid particles there, 1,440 below) a line through the points took the intercept of
-    the launches' overhead and predicted 2.17 us per fluid particle-step at 11,767 where that count measured 5.54 us
-    and the run took 4.34 us (wall time 1.96x the prediction; 0.85x with b = 1 from that count)."""
+    1.3-1.7 us): the per-particle cost stops falling beyond the calibrated counts, hence b >= 1. With one count at
+    the thread split no law is fitted (the line through the points stands): holding that count's per-particle cost
+    beyond it (b = 1) was tried and dropped: it over-predicted the quiet hydrostatic 60 s plan 2x (DFSPH, 8,984
+    fluid particles from 2,352 at the split: 27.3 s predicted, 13.8 s run, load 1.0-1.7), where the line had read
+    0.93x quiet and 1.96x under load 3-5."""
     pairs = sorted({(float(n), float(v)) for n, v in zip(fluid, t) if n > 0 and v > 0})
     counts = sorted({n for n, _ in pairs})
-    if not counts:
+    if len(counts) < 2:
         return None
-    if len(counts) == 1:
-        return PowerLaw(float(np.exp(np.mean(np.log([v for _, v in pairs])))) / counts[0] ** exponent_range[0],
-                        float(exponent_range[0]))
     top = [(n, v) for n, v in pairs if n >= counts[-min(points, len(counts))]]
     measured = float(np.polyfit(np.log([n for n, _ in top]), np.log([v for _, v in top]), 1)[0])
     b = float(np.clip(measured, *exponent_range))

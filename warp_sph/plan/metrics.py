@@ -37,13 +37,14 @@ CASE_METRICS = {
 
 @lru_cache(maxsize=None)
 def _case_scene_names() -> dict:
-    """{scene name in the case's file: case} of the validation cases."""
+    """{scene name in the case's file: case} of the validation cases; a file two cases share is the first's (the
+    hydrostatic tank's, not hydrostatic_fcc's, which starts the same file on another lattice)."""
     from ..validation.cases import CASES, _scene_dir
 
     out = {}
     for name, case in CASES.items():
         try:
-            out[tomllib.loads((_scene_dir() / case.scene).read_text())["name"]] = name
+            out.setdefault(tomllib.loads((_scene_dir() / case.scene).read_text())["name"], name)
         except (OSError, KeyError, tomllib.TOMLDecodeError):
             continue
     return out

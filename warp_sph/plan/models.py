@@ -11,10 +11,10 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
   whose launches split over the threads from 2 x 1,024 indices (``core.launch``), a target at or above that count
   takes the step's cost fitted to the calibration points there alone, once two counts or more lie there
   (``step_time_split``: a line across both regimes need not hold beyond them); beyond the largest calibrated count
-  (CPU, a fluid count or more at or above the split) the cost is at least that count's measured cost times
-  (Nf / Nf_max)^b, b measured over the largest counts and clipped to COUNT_EXPONENT_RANGE, with one such count b = 1
-  (``fit.fit_count_law``: the per-particle cost stops falling beyond the calibrated counts); and the step's cost over
-  the whole run is the calibration window's times the whole-run profile's cost ratio C (its steady step time over the same radius's
+  (CPU, two fluid counts or more at or above the split) the cost is at least that count's measured cost times
+  (Nf / Nf_max)^b, b measured over the largest counts and clipped to COUNT_EXPONENT_RANGE (``fit.fit_count_law``:
+  the per-particle cost stops falling beyond the calibrated counts); and the step's cost over the whole run is the
+  calibration window's times the whole-run profile's cost ratio C (its steady step time over the same radius's
   calibration point's; ``whole_run_cost_ratio``);
 - mean density error over the run: the calibration's frames measured e_cal(d) = A d^p (fitted to the finest
   ERROR_FIT_POINTS radii), the rest of the run at

@@ -143,9 +143,8 @@ def model_line(m) -> str:
                  f"{1e9 * c.fluid:.3g} + {1e9 * c.boundary:.3g} ns + {1e3 * c.intercept:.3g} ms)")
     if m.count_law is not None:
         text += (f"; beyond {m.count_fluid:,} fluid particles at least ~ Nf^{m.count_law.exponent:.2f} from its "
-                 f"{1e9 * m.count_law(m.count_fluid) / m.count_fluid:.3g} ns per fluid particle-step ("
-                 + (f"measured exponent {m.count_law.measured:.2f})" if m.count_law.measured is not None
-                    else "the only count at the thread split: not measured)"))
+                 f"{1e9 * m.count_law(m.count_fluid) / m.count_fluid:.3g} ns per fluid particle-step (measured "
+                 f"exponent {m.count_law.measured:.2f})")
     if m.cost_ratio_measured is not None:
         text += (f"; whole-run step cost x {m.cost_ratio:.3g} the calibration's (measured "
                  f"{m.cost_ratio_measured:.3g})")

@@ -147,9 +147,8 @@ def cost_notes(model, chosen) -> list:
     if model.count_law is not None and chosen.fluid_particles > model.count_fluid:
         law = model.count_law
         out.append(f"{model.solver}'s step cost beyond {model.count_fluid:,} fluid particles (the largest calibrated) "
-                   f"at least ~ Nf^{law.exponent:.2f} from that count's (" +
-                   (f"exponent measured over the largest counts: {law.measured:.2f})" if law.measured is not None
-                    else "the only calibrated count at the thread split: the exponent not measured)"))
+                   f"at least ~ Nf^{law.exponent:.2f} from that count's (exponent measured over the largest counts: "
+                   f"{law.measured:.2f})")
     d = 2.0 * chosen.particle_radius
     factor = model.sweep_factor(chosen.fluid_particles, d)
     if abs(factor - 1.0) >= 5e-4:  # shown as x 1 otherwise
