@@ -145,10 +145,10 @@ def fit_count_law(fluid, t, exponent_range=(1.0, 1.1), points: int = 3) -> Power
     plan's whole run): dam break PBF 1.93 -> 2.08 us and 1.94 -> 2.22 us, hydrostatic DFSPH 2.83 -> 2.57 us, where
     the exponents over the calibrated counts were 0.72-0.91 (a law with those, or a line with an intercept, predicted
     1.3-1.7 us): the per-particle cost stops falling beyond the calibrated counts, hence b >= 1. With one count at
-    the thread split no law is fitted (the line through the points stands): holding that count's per-particle cost
-    beyond it (b = 1) was tried and dropped: it over-predicted the quiet hydrostatic 60 s plan 2x (DFSPH, 8,984
-    fluid particles from 2,352 at the split: 27.3 s predicted, 13.8 s run, load 1.0-1.7), where the line had read
-    0.93x quiet and 1.96x under load 3-5."""
+    the thread split no law is fitted (the line through the points stands). Holding that count's per-particle cost
+    beyond it (b = 1) was tried and not kept: no measurement separates the two rules on this VM (the quiet
+    hydrostatic 60 s plan predicted 27.3 s with it and 29.5 s with the line for the same setting, DFSPH at 7,938
+    fluid particles, which ran 13.8 s and 24.5 s fifteen minutes apart, load 0.8-2.1)."""
     pairs = sorted({(float(n), float(v)) for n, v in zip(fluid, t) if n > 0 and v > 0})
     counts = sorted({n for n, _ in pairs})
     if len(counts) < 2:
