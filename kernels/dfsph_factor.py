@@ -39,6 +39,18 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
     density_term = boundary_terms.density if with_terms else None
     gradient_term = boundary_terms.gradient if with_terms else None
 
+    if with_terms:
+        @wp.func(module="unique")
+        def add_pair_terms(boundary_params: BoundaryParams, x_ib: wp.vec3, dd: float, h: float, vol: float,
+                           vb: wp.vec3, ratio: float, sb: wp.vec3, bvel: float):
+            """One boundary particle b's terms added to (ratio, sb, bvel): the density term of W(|x_ib|), its
+            gradient term gb_ib and v_b . gb_ib (the boundary method's ``BoundaryTerms``, volume V_b)."""
+            gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
+            return (ratio + wp.static(density_term)(boundary_params, wp.static(value)(wp.sqrt(dd), h), vol),
+                    sb + gb, bvel + wp.dot(vb, gb))
+    else:
+        add_pair_terms = None
+
     @wp.func(module="unique")
     def walk_boundary(
         i: int,
@@ -95,12 +107,9 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
                                 neighbor_index_out[i, nb] = b
                             nb += 1
                             if wp.static(with_terms):
-                                vol = sorted_volume[k]
-                                ratio += wp.static(density_term)(boundary_params,
-                                                                 wp.static(value)(wp.sqrt(dd), h), vol)
-                                gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
-                                sb += gb
-                                bvel += wp.dot(boundary_v[b], gb)
+                                ratio, sb, bvel = wp.static(add_pair_terms)(boundary_params, x_ib, dd, h,
+                                                                            sorted_volume[k], boundary_v[b],
+                                                                            ratio, sb, bvel)
                         k += 1
         return nb, ratio, sb, bvel
 
@@ -147,11 +156,8 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
                     neighbor_index_out[i, nb] = b
                 nb += 1
                 if wp.static(with_terms):
-                    vol = sorted_volume[k]
-                    ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.sqrt(dd), h), vol)
-                    gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
-                    sb += gb
-                    bvel += wp.dot(boundary_v[b], gb)
+                    ratio, sb, bvel = wp.static(add_pair_terms)(boundary_params, x_ib, dd, h, sorted_volume[k],
+                                                                boundary_v[b], ratio, sb, bvel)
             e += 1
         return nb, ratio, sb, bvel
 
@@ -188,11 +194,8 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
             if dd < radius2:
                 nb += 1
                 if wp.static(with_terms):
-                    vol = boundary_volume[b]
-                    ratio += wp.static(density_term)(boundary_params, wp.static(value)(wp.sqrt(dd), h), vol)
-                    gb = wp.static(gradient_term)(boundary_params, wp.static(gradient)(x_ib, h), vol)
-                    sb += gb
-                    bvel += wp.dot(boundary_v[b], gb)
+                    ratio, sb, bvel = wp.static(add_pair_terms)(boundary_params, x_ib, dd, h, boundary_volume[b],
+                                                                boundary_v[b], ratio, sb, bvel)
             e += 1
         return nb, ratio, sb, bvel
 
