@@ -39,6 +39,23 @@ from ...kernels import wcsph_lists as _wcsph
 from ...kernels import pbf_search as _lists_reuse  # identity_slots: generic list-reuse slots
 from ...kernels import reduction as _reduce
 from ...neighbors.cell_lists import simulation_neighbor_lists
+from .dfsph_walls import WallReach
+
+#: the static walls' boundary lists are built from per-run sub-cell lists (``static_wall_lists``); False: the
+#: per-search walk of the wall grid (the reference: the same lists bitwise)
+STATIC_WALL_LISTS = True
+
+
+def static_wall_lists(nl) -> None:
+    """Give the lists ``nl`` (``NeighborLists``) the static wall particles in reach of each cell of their wall grid
+    (DFSPH's ``WallReach`` at the lists' radius, built once per run): their boundary searches (WCSPH's wall lists,
+    PBF's boundary lists) then test one short list per fluid particle instead of walking the wall cells, bitwise
+    the same lists. Moving boundary particles keep the walk of their own grid."""
+    bc = nl.boundary_cells
+    if not STATIC_WALL_LISTS or bc is None:
+        nl.static_walls = None
+    elif nl.static_walls is None or nl.static_walls.cells is not bc:
+        nl.static_walls = WallReach(bc, nl.search_radius, device=nl.device)
 
 
 def pair_cache(n: int, capacity: int, device) -> _wcsph.PairCache:
@@ -80,6 +97,7 @@ class KeptLists:
         self.skin = float(skin)
         self.moving_bodies = bool(moving_bodies)
         self.nl = simulation_neighbor_lists(sim, self.skin)
+        static_wall_lists(self.nl)
         m = sim.model
         for name, dtype in (("particle_density", float), ("wcsph_neighbor_x", wp.vec3), ("wcsph_neighbor_slot", wp.int32)):
             sim.allocate(name, dtype)  # (per-particle fields: read from sim.fields, which emitters resize)
