@@ -5,6 +5,7 @@ from typing import Any
 
 import warp as wp
 
+from .dfsph_walls import subcell_of
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -199,7 +200,7 @@ class NoBoundaryParams:
 
 
 @functools.cache
-def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
+def neighbor_list_kernel(smoothing: str = "", boundary_terms=None, walls: bool = False):
     """Kernel that builds fixed-capacity neighbour lists over a ``CellGrid`` (one thread per query
     point, in the order ``query_order``); with ``smoothing`` it also sums the density of the same
     pairs (the WCSPH density pass fused into the search, report eq. 7/13).
@@ -221,7 +222,12 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
 
     Rows of cells (fixed y, z) farther than the radius are skipped and each row's x range is trimmed
     to the sphere, so the cells visited hug the sphere (cells may be smaller than the radius). Border
-    cells extend to infinity here, matching the clamping of out-of-grid points."""
+    cells extend to infinity here, matching the clamping of out-of-grid points.
+
+    ``walls`` (static boundary particles): the cells are not walked; the points tested are those of the
+    query's sub-cell list (``kernels/dfsph_walls.py``, built once per run over the same grid: wall_inv_size,
+    wall_dims, wall_start, wall_entry), the points the walk could reach in its order, so the lists and sums
+    are bitwise the walk's."""
     with_density = bool(smoothing)
     value = SMOOTHING_FUNCTIONS[smoothing or "cubic"][0]
     boundary_density = with_density and boundary_terms is not None and boundary_terms.density is not None
@@ -248,6 +254,11 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
         smoothing_length: float,
         weight_scale: float,
         boundary_params: BoundaryParams,
+        # Sub-cell lists of the searched points (with ``walls``):
+        wall_inv_size: float,
+        wall_dims: wp.vec3i,
+        wall_start: wp.array(dtype=wp.int32),
+        wall_entry: wp.array(dtype=wp.int32),
         # Query points (threads in the order ``query_order``):
         query_order: wp.array(dtype=wp.int32),
         query_x: wp.array(dtype=wp.vec3),
@@ -274,24 +285,43 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None):
         if append != 0:
             n = neighbor_count_out[i]
         total = float(0.0)
-        for z in range(rows[2], rows[3] + 1):
-            for y in range(rows[0], rows[1] + 1):
-                span = row_points(q, qr, y, z, grid_dims, cell_start)
-                k = span[0]
-                k_end = span[1]
-                while k < k_end:  # a while loop: measured 20 % faster than range() here
-                    d = xi - sorted_points[k]
-                    dd = wp.dot(d, d)
-                    if dd < radius2:
-                        if n < capacity:
-                            neighbor_index_out[i, n] = cell_point[k] + index_offset
-                        n += 1
-                        if wp.static(with_density):
-                            w = wp.static(value)(wp.sqrt(dd), smoothing_length)
-                            if wp.static(boundary_density):
-                                w = wp.static(density_term)(boundary_params, w, sorted_weight[k])
-                            total += w
-                    k += 1
+        if wp.static(walls):
+            s = subcell_of(xi, grid_lo, wall_inv_size, wall_dims)
+            e = wall_start[s]
+            e_end = wall_start[s + 1]
+            while e < e_end:
+                k = wall_entry[e]
+                d = xi - sorted_points[k]
+                dd = wp.dot(d, d)
+                if dd < radius2:
+                    if n < capacity:
+                        neighbor_index_out[i, n] = cell_point[k] + index_offset
+                    n += 1
+                    if wp.static(with_density):
+                        w = wp.static(value)(wp.sqrt(dd), smoothing_length)
+                        if wp.static(boundary_density):
+                            w = wp.static(density_term)(boundary_params, w, sorted_weight[k])
+                        total += w
+                e += 1
+        else:
+            for z in range(rows[2], rows[3] + 1):
+                for y in range(rows[0], rows[1] + 1):
+                    span = row_points(q, qr, y, z, grid_dims, cell_start)
+                    k = span[0]
+                    k_end = span[1]
+                    while k < k_end:  # a while loop: measured 20 % faster than range() here
+                        d = xi - sorted_points[k]
+                        dd = wp.dot(d, d)
+                        if dd < radius2:
+                            if n < capacity:
+                                neighbor_index_out[i, n] = cell_point[k] + index_offset
+                            n += 1
+                            if wp.static(with_density):
+                                w = wp.static(value)(wp.sqrt(dd), smoothing_length)
+                                if wp.static(boundary_density):
+                                    w = wp.static(density_term)(boundary_params, w, sorted_weight[k])
+                                total += w
+                        k += 1
         neighbor_count_out[i] = n
         if n > capacity:  # per particle, no atomics: split launches write disjoint particles
             max_count_out[i] = wp.max(max_count_out[i], n)

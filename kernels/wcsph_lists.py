@@ -6,7 +6,7 @@ import functools
 
 import warp as wp
 
-from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
+from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, particle_in_cell_order, row_points
 from .pbf import PairCache, cubic_value_gradient_select, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
@@ -91,6 +91,111 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
         particle_density_out[i] = rho
 
     return compute_density_pairs
+
+
+@functools.cache
+def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
+    """A search step's fluid lists within ``search_radius`` = H_s + skin [m] (as ``neighbors.neighbor_list_kernel``:
+    count exact, entries past the capacity dropped, max_count_out[i] their largest count) and, in the same walk
+    over the cells, what ``density_pairs_kernel`` then computes over those lists: the density [kg/m^3] and the
+    ``PairCache``. The stored pairs in the lists' order with the same expressions (sorted_points[k] is a copy of
+    x_j), so bitwise that pass; the boundary lists are built before it (it reads them), as in PBF's fused
+    search (``kernels/pbf_search.py``)."""
+    select = smoothing == "cubic"
+    value_gradient = cubic_value_gradient_select if select else value_gradient_function(smoothing)
+    value = SMOOTHING_FUNCTIONS[smoothing][0]
+    with_boundary = boundary_terms is not None and boundary_terms.density is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    density_term = boundary_terms.density if with_boundary else None
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def search_density_pairs(
+        tid_offset: int,
+        # Grid of the fluid (sorted on particle_x):
+        grid_lo: wp.vec3,
+        inv_cell_size: float,
+        grid_dims: wp.vec3i,
+        cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
+        sorted_points: wp.array(dtype=wp.vec3),
+        search_radius: float,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        support_radius: float,
+        rest_density: float,
+        boundary_params: BoundaryParams,
+        boundary_neighbors: NeighborList,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        particle_x: wp.array(dtype=wp.vec3),
+        # Out:
+        fluid_neighbors: NeighborList,
+        max_count_out: wp.array(dtype=wp.int32),
+        particle_density_out: wp.array(dtype=float),
+        pairs_out: PairCache,
+    ):
+        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        xi = particle_x[i]
+        q = (xi - grid_lo) * inv_cell_size
+        qr = search_radius * inv_cell_size
+        radius2 = search_radius * search_radius
+        capacity = fluid_neighbors.index.shape[1]
+        rows = cell_rows(q, qr, grid_dims)
+        h = smoothing_length
+        support2 = support_radius * support_radius
+        total = float(0.0)
+        m = int(0)  # listed
+        n = int(0)  # cached pairs
+        for z in range(rows[2], rows[3] + 1):
+            for y in range(rows[0], rows[1] + 1):
+                span = row_points(q, qr, y, z, grid_dims, cell_start)
+                k = span[0]
+                k_end = span[1]
+                while k < k_end:
+                    x_ij = xi - sorted_points[k]
+                    dd = wp.dot(x_ij, x_ij)
+                    if dd < radius2:
+                        if m < capacity:  # a stored pair: density_pairs_kernel's body
+                            j = cell_point[k]
+                            fluid_neighbors.index[i, m] = j
+                            if wp.static(select):
+                                wg = cubic_value_gradient_select(x_ij, h)
+                                total += wg[0]
+                                pairs_out.index[i, n] = j
+                                pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                                n += wp.where((dd < support2) and (j != i), 1, 0)
+                            else:
+                                if dd < support2:
+                                    wg = wp.static(value_gradient)(x_ij, h)
+                                    total += wg[0]
+                                    if j != i:
+                                        pairs_out.index[i, n] = j
+                                        pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                                        n += 1
+                        m += 1
+                    k += 1
+        fluid_neighbors.count[i] = m
+        if m > capacity:  # per particle, no atomics (the boundary lists' launch wrote before this one)
+            max_count_out[i] = wp.max(max_count_out[i], m)
+        pairs_out.count[i] = n
+        rho = particle_mass * total
+        if wp.static(with_boundary):
+            boundary_sum = float(0.0)
+            k = int(0)
+            k_end = int(neighbor_count(boundary_neighbors, i))
+            while k < k_end:
+                b = boundary_neighbors.index[i, k]
+                x_ib = xi - boundary_x[b]
+                if wp.dot(x_ib, x_ib) < support2:
+                    w = wp.static(value)(wp.length(x_ib), h)
+                    boundary_sum += wp.static(density_term)(boundary_params, w, boundary_volume[b])
+                k += 1
+            rho += rest_density * boundary_sum
+        particle_density_out[i] = rho
+
+    return search_density_pairs
 
 
 @wp.kernel(enable_backward=False)

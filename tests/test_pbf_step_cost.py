@@ -89,3 +89,51 @@ def test_replayed_launches_bitwise_the_plain_ones(device):
         a, b = uneven_steps(replayed), uneven_steps(plain)
         assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
         assert (replayed.solver._replays is not None) == replayed.model.device.is_cpu
+
+
+def test_static_wall_lists_bitwise_the_walk(device):
+    """PBF's boundary lists from the per-run lists of the static walls in reach of each cell
+    (``NeighborLists.static_walls``, DFSPH's ``WallReach`` at the lists' radius) against the per-search walk of the
+    wall grid: the same walls in the same order, so positions and velocities are bitwise equal."""
+    runs = []
+    for walls in (True, False):
+        sim = Simulation(fixed_step_tank(), device=device)
+        nl = sim.fields["neighbor_lists"]
+        assert nl.static_walls is not None and nl.static_walls.cells is nl.boundary_cells
+        if not walls:
+            nl.static_walls = None
+        runs.append(run_frames(sim, 2))
+    assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
+
+
+def test_static_wall_lists_match_the_walk_outside_the_grid(device):
+    """The boundary lists of points all over the wall grid, beyond its border included (clamped into the border
+    cells), from the static walls' per-cell lists and from the walk: the same counts and the same indices in the
+    same order, each wall closer than the search radius listed (a NumPy brute force)."""
+    import warp as wp
+
+    sim = Simulation(fixed_step_tank(), device=device)
+    nl = sim.fields["neighbor_lists"]
+    n = sim.model.fluid_count
+    bc = nl.boundary_cells
+    lo = np.array([bc.lo[a] for a in range(3)])
+    hi = lo + np.array([bc.dims[a] for a in range(3)]) / bc.inv_cell_size
+    rng = np.random.default_rng(7)
+    x = (lo - 0.1 + rng.random((n, 3)) * (hi - lo + 0.2)).astype(np.float32)
+    xs = wp.array(x, dtype=wp.vec3, device=sim.model.device)
+    nl.sort(xs)
+    got = []
+    for walls in (nl.static_walls, None):
+        nl.static_walls = walls
+        nl.build_boundary_lists(xs)
+        got.append((nl.boundary.count.numpy()[:n].copy(), nl.boundary.index.numpy()[:n].copy()))
+    (count, index), (ref_count, ref_index) = got
+    assert np.array_equal(count, ref_count)
+    assert count.max() <= index.shape[1] and count.sum() > n  # none dropped: the comparison covers every entry
+    for i in range(n):
+        assert np.array_equal(index[i, :count[i]], ref_index[i, :count[i]])
+    bx = sim.model.boundary_x.numpy()
+    r = np.linalg.norm(x[:, None, :].astype(np.float64) - bx[None, :, :], axis=2)
+    near = r < nl.search_radius * (1 - 1e-5)
+    for i in range(0, n, 7):
+        assert set(np.nonzero(near[i])[0]) <= set(index[i, :count[i]].tolist())

@@ -213,6 +213,40 @@ def test_kept_wall_lists_searched_once_a_particle_moved_the_skin(device):
         assert kept.wall_builds - wall_builds < kept.builds - builds
 
 
+def test_fused_search_bitwise_the_lists_then_the_density_pass(device):
+    """A search step's fused walk (``kernels/wcsph_lists.search_density_pairs_kernel``: lists, density and pair
+    cache at once) against the lists built first and the density pass over them (``KeptLists.fused_search``
+    False): the same pairs in the same order with the same expressions, so bitwise equal."""
+    sims = []
+    for fused in (True, False):
+        sim = Simulation(falling_block(0.2), device=device)
+        sim.solver.kept_lists.fused_search = fused
+        for _ in range(4):
+            sim.advance_frame()
+        sims.append(sim)
+    assert sims[0].solver.kept_lists.builds == sims[1].solver.kept_lists.builds > 10
+    for name in ("particle_density", "particle_x", "particle_v"):
+        assert np.array_equal(sims[0].get_field(name), sims[1].get_field(name)), name
+
+
+def test_static_wall_lists_bitwise_the_walk(device):
+    """WCSPH's wall lists from the per-run lists of the static walls in reach of each cell
+    (``NeighborLists.static_walls``) against the per-search walk of the wall grid: bitwise equal."""
+    sims = []
+    for walls in (True, False):
+        sim = Simulation(falling_block(0.2), device=device)
+        nl = sim.solver.kept_lists.nl
+        assert nl.static_walls is not None
+        if not walls:
+            nl.static_walls = None
+        for _ in range(4):
+            sim.advance_frame()
+        sims.append(sim)
+    assert sims[0].solver.kept_lists.wall_builds > 5
+    for name in ("particle_density", "particle_x", "particle_v"):
+        assert np.array_equal(sims[0].get_field(name), sims[1].get_field(name)), name
+
+
 def test_replayed_launches_bitwise_the_plain_ones(monkeypatch, device):
     """On the CPU WCSPH's own launches (density over the kept lists, drift check, pressure, forces, integration)
     replay recorded launches (``wcsph_lists.replaying_launch``); each must re-bind the arguments that changed (dt,

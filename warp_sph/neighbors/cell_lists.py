@@ -122,6 +122,12 @@ class NeighborLists:
         self._no_weight = wp.zeros(1, dtype=float, device=device)
         self._no_density = wp.zeros(1, dtype=float, device=device)
         self._no_params = _dev.NoBoundaryParams()
+        self._no_walls = [0.0, wp.vec3i(1, 1, 1), wp.zeros(2, dtype=wp.int32, device=device),
+                          wp.zeros(1, dtype=wp.int32, device=device)]
+        #: the static boundary particles in reach of each cell of ``boundary_cells``, built once per run (a
+        #: ``WallReach`` of ``methods/solvers/dfsph_walls.py``, set by the solver): the boundary lists test
+        #: them instead of walking the grid, bitwise the same lists and sums. None: the walk.
+        self.static_walls = None
         total = boundary_x.shape[0] if boundary_x is not None else 0
         self.moving_start = total if moving_start is None else int(moving_start)
         if self.moving_start < total:
@@ -216,7 +222,7 @@ class NeighborLists:
         launch(kernel, n,
                [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, self._no_weight,
                 self._no_mask, 0, 0, 0, self.search_radius, float(smoothing_length), float(particle_mass),
-                self._no_params, fc.cell_point, particle_x],
+                self._no_params] + self._no_walls + [fc.cell_point, particle_x],
                [self.fluid.count, self.fluid.index, self._max_count, density], device=self.device)
         if not boundary:
             return
@@ -237,6 +243,7 @@ class NeighborLists:
         fc = self.fluid_cells
         if not self.has_boundary:
             return
+        walls = self.static_walls
         if boundary_density:
             kernel = _dev.neighbor_list_kernel(smoothing, boundary_terms)
             params = boundary_params
@@ -246,10 +253,16 @@ class NeighborLists:
         bc = self.boundary_cells
         if bc is not None:
             mask = self._boundary_mask
-            launch(kernel, n,
+            wall_args = self._no_walls
+            static_kernel = kernel
+            if walls is not None and walls.cells is bc:
+                wall_args = [walls.inv_size, walls.dims, walls.start, walls.entry]
+                static_kernel = _dev.neighbor_list_kernel(smoothing if boundary_density else "",
+                                                          boundary_terms if boundary_density else None, True)
+            launch(static_kernel, n,
                    [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, self._boundary_weight,
                     self._no_mask if mask is None else mask, int(mask is not None), 0, 0, self.search_radius,
-                    float(smoothing_length), float(rest_density), params, fc.cell_point, particle_x],
+                    float(smoothing_length), float(rest_density), params] + wall_args + [fc.cell_point, particle_x],
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
         mc = self.moving_cells
         if mc is not None:  # the moving particles after the static ones (the lists then hold both)
@@ -258,7 +271,7 @@ class NeighborLists:
                    [mc.lo, mc.inv_cell_size, mc.dims, mc.cell_start, mc.cell_point, mc.sorted_x, self._moving_weight,
                     self._no_mask if mask is None else mask, int(mask is not None), self.moving_start,
                     int(bc is not None), self.search_radius,
-                    float(smoothing_length), float(rest_density), params, fc.cell_point, particle_x],
+                    float(smoothing_length), float(rest_density), params] + self._no_walls + [fc.cell_point, particle_x],
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
 
     @property

@@ -24,6 +24,7 @@ from ...kernels import pbf_hash_grid as _pbf_grid
 from ...kernels import pbf_search as _pbf_search
 from ...kernels import reduction as _reduce
 from ...neighbors.cell_lists import simulation_neighbor_lists
+from .wcsph_lists import static_wall_lists
 
 
 class PbfPasses:
@@ -53,6 +54,7 @@ class PbfPasses:
         tensile = bool(self.config.tensile_correction)
         if self.lists:
             self.nl = simulation_neighbor_lists(sim, self.margin)
+            static_wall_lists(self.nl)
             self._density_kernel = _pbf.density_lambda_pairs_kernel(m.smoothing.name, terms, tensile)
             self._search_kernel = _pbf_search.search_density_lambda_kernel(m.smoothing.name, terms, tensile)
             self._constraint_kernel = _pbf_search.constraint_kernel(m.smoothing.name, terms)

@@ -39,6 +39,23 @@ from ...kernels import wcsph_lists as _wcsph
 from ...kernels import pbf_search as _lists_reuse  # identity_slots: generic list-reuse slots
 from ...kernels import reduction as _reduce
 from ...neighbors.cell_lists import simulation_neighbor_lists
+from .dfsph_walls import WallReach
+
+#: the static walls' boundary lists are built from per-run sub-cell lists (``static_wall_lists``); False: the
+#: per-search walk of the wall grid (the reference: the same lists bitwise)
+STATIC_WALL_LISTS = True
+
+
+def static_wall_lists(nl) -> None:
+    """Give the lists ``nl`` (``NeighborLists``) the static wall particles in reach of each cell of their wall grid
+    (DFSPH's ``WallReach`` at the lists' radius, built once per run): their boundary searches (WCSPH's wall lists,
+    PBF's boundary lists) then test one short list per fluid particle instead of walking the wall cells, bitwise
+    the same lists. Moving boundary particles keep the walk of their own grid."""
+    bc = nl.boundary_cells
+    if not STATIC_WALL_LISTS or bc is None:
+        nl.static_walls = None
+    elif nl.static_walls is None or nl.static_walls.cells is not bc:
+        nl.static_walls = WallReach(bc, nl.search_radius, device=nl.device)
 
 
 def pair_cache(n: int, capacity: int, device) -> _wcsph.PairCache:
@@ -80,6 +97,7 @@ class KeptLists:
         self.skin = float(skin)
         self.moving_bodies = bool(moving_bodies)
         self.nl = simulation_neighbor_lists(sim, self.skin)
+        static_wall_lists(self.nl)
         m = sim.model
         for name, dtype in (("particle_density", float), ("wcsph_neighbor_x", wp.vec3), ("wcsph_neighbor_slot", wp.int32)):
             sim.allocate(name, dtype)  # (per-particle fields: read from sim.fields, which emitters resize)
@@ -87,6 +105,8 @@ class KeptLists:
         sim.allocate("wcsph_wall_x", wp.vec3)  # where each particle was when the static-wall lists were searched
         self._drift_partial = wp.zeros((chunks, 8), dtype=float, device=m.device)  # max |d|, box corners, wall drift
         self._density_kernel = _wcsph.density_pairs_kernel(m.smoothing.name, sim.boundary_terms)
+        self._search_kernel = _wcsph.search_density_pairs_kernel(m.smoothing.name, sim.boundary_terms)
+        self.fused_search = True  # False: a search step builds the lists, then runs the density pass over them
         self.pairs = None  # the step's ``PairCache`` (``wcsph_pairs``), rows as long as the fluid lists'
         self._built = None  # (fluid count, capacities) at the last search; None: search at the next step
         self._search = True
@@ -144,8 +164,21 @@ class KeptLists:
         m, f, nl = sim.model, sim.fields, self.nl
         x = f["particle_x"]
         self.steps += 1
+        capacity = nl.capacities[0]
+        if self.pairs is None or self.pairs.index.shape[1] != capacity:
+            self.pairs = f["wcsph_pairs"] = pair_cache(m.capacity, capacity, m.device)
         if self._search:
-            nl.build_lists(x, boundary=self._search_walls)
+            if not self.fused_search:
+                nl.build_lists(x, boundary=self._search_walls)
+            else:  # the wall lists first (the fused kernel reads them), then the fluid lists with the density
+                if self._search_walls:
+                    nl.build_boundary_lists(x)
+                fc = nl.fluid_cells
+                self._launch(self._search_kernel, m.fluid_count,
+                             [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x,
+                              nl.search_radius, m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density,
+                              sim.boundary_params, nl.boundary, m.boundary_x, m.boundary_volume, x],
+                             [nl.fluid, nl.max_count, f["particle_density"], self.pairs])
             if self._search_walls:
                 wp.copy(f["wcsph_wall_x"], x, count=m.fluid_count)
                 self.wall_builds += 1
@@ -163,9 +196,8 @@ class KeptLists:
             wp.copy(f["wcsph_wall_x"], x, count=m.fluid_count)
             self.wall_builds += 1
             self.last_wall_drift = 0.0
-        capacity = nl.capacities[0]
-        if self.pairs is None or self.pairs.index.shape[1] != capacity:
-            self.pairs = f["wcsph_pairs"] = pair_cache(m.capacity, capacity, m.device)
+        if self._search and self.fused_search:
+            return
         self._launch(self._density_kernel, m.fluid_count,
                      [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, sim.boundary_params,
                       nl.boundary, m.boundary_x, m.boundary_volume, nl.fluid, x],
