@@ -15,7 +15,10 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
   (Nf / Nf_max)^b, b measured over the largest counts and clipped to COUNT_EXPONENT_RANGE (``fit.fit_count_law``:
   the per-particle cost stops falling beyond the calibrated counts); and the step's cost over the whole run is the
   calibration window's times the whole-run profile's cost ratio C (its steady step time over the same radius's
-  calibration point's; ``whole_run_cost_ratio``);
+  calibration point's; ``whole_run_cost_ratio``); on a CPU a point that stepped slower than a larger count on
+  its side of the split is left out (the load only adds time, ``points.slowed_points``), and where no count law
+  holds, a fitted cost growing slower than Nf^MIN_COUNT_EXPONENT beyond the largest count at the split holds that
+  count's cost per fluid particle-step (``SolverModel.flat_growth``);
 - mean density error over the run: the calibration's frames measured e_cal(d) = A d^p (fitted to the finest
   ERROR_FIT_POINTS radii), the rest of the run at
   R e_cal(d): (F_c + (F - F_c) R) e_cal / F over F frames, F_c of them calibrated. The profile is a run of the whole
@@ -38,6 +41,7 @@ from .fit import (LatticeCount, Line, PowerLaw, StepCost, StepRate, fit_count_la
                   fit_power_law, fit_speed_exponent, fit_step_cost, fit_step_rate, fit_sweeps, log_slope,
                   scene_bound_rate)
 from .metrics import DENSITY
+from .points import slowed_points
 
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
 #: (hydrostatic, DFSPH, 0.5 s): the calibration's last frames give p' = -2.4 between d = 0.085 and 0.057 m,
@@ -312,27 +316,6 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         cost_ratio_window=window, sweeps=fit_sweeps(d, [p.sweeps for p in pts], ERROR_FIT_POINTS),
         sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, 0.0), sweeps_fluid=ref.fluid,
         sweeps_reference=ref.sweeps, solve_share=ref.solve_share)
-
-
-def slowed_points(pts, split: int) -> list:
-    """[(p, q)]: on a CPU (``split`` > 0 particles, the thread split), each point p whose steady step took longer than
-    that of a point q on the same side of the split with at least as many fluid and wall particles (and more of one):
-    a larger count cannot cost less per step, and the machine's load only adds time, so q's is the nearer to what p's
-    step costs and p's was slowed (left out of the step's cost, the plan's notes name it). Not across the split (one
-    thread against two: a count just above it may step as fast as one below) and not on a GPU (its step is launch
-    overhead up to many thousand particles: equal costs, noise either way). Measured (hydrostatic DFSPH, load 10.8):
-    648 / 1,440 / 2,352 fluid particles at 23.7 / 25.3 / 5.84 us per fluid particle-step, 15.4 / 36.4 / 13.7 ms per step
-    (quiet, load 1.5-3.3: 4.58 and 4.22 us at 648 and 2,156 fluid)."""
-    if not split:
-        return []
-    out = []
-    for p in pts:
-        side = p.particles >= split
-        by = [q for q in pts if (q.particles >= split) == side and q.fluid >= p.fluid and q.boundary >= p.boundary
-              and (q.fluid, q.boundary) != (p.fluid, p.boundary) and q.step_time < p.step_time]
-        if by:
-            out.append((p, min(by, key=lambda q: q.step_time)))
-    return out
 
 
 def whole_run_cost_ratio(pts, profile: Calibration, solver: str, t0) -> tuple:

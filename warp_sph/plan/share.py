@@ -146,9 +146,9 @@ def cost_notes(model, chosen) -> list:
         out.append(f"{model.solver}'s step cost over the whole run: {model.cost_ratio_measured:.3g}x the calibration "
                    f"window's at the same radius ({how})")
     for r, nf, t, r2, nf2, t2 in model.slowed:
-        out.append(f"{model.solver}'s calibration point at r = {r:.4g} m ({nf:,} fluid particles, {1e3 * t:.3g} ms per step) "
-                   f"took longer per step than the larger count at r = {r2:.4g} m ({nf2:,}, {1e3 * t2:.3g} ms): slowed by "
-                   f"the machine's load, left out of the step's cost")
+        out.append(f"{model.solver}'s calibration point at r = {r:.4g} m ({nf:,} fluid particles, {1e3 * t:.3g} ms "
+                   f"per step) took longer per step than the larger count at r = {r2:.4g} m ({nf2:,}, {1e3 * t2:.3g} "
+                   f"ms): slowed by the machine's load, left out of the step's cost")
     k = model.flat_growth(chosen.fluid_particles, chosen.boundary_particles)
     if k is not None:
         nf = model.count_anchor[0]
