@@ -15,7 +15,10 @@ For each solver that calibrated, the models (``fit.py``) predict at any particle
   (Nf / Nf_max)^b, b measured over the largest counts and clipped to COUNT_EXPONENT_RANGE (``fit.fit_count_law``:
   the per-particle cost stops falling beyond the calibrated counts); and the step's cost over the whole run is the
   calibration window's times the whole-run profile's cost ratio C (its steady step time over the same radius's
-  calibration point's; ``whole_run_cost_ratio``);
+  calibration point's; ``whole_run_cost_ratio``); on a CPU a point that stepped slower than a larger count on
+  its side of the split is left out (the load only adds time, ``points.slowed_points``), and where no count law
+  holds, a fitted cost growing slower than Nf^MIN_COUNT_EXPONENT beyond the largest count at the split holds that
+  count's cost per fluid particle-step (``SolverModel.flat_growth``);
 - mean density error over the run: the calibration's frames measured e_cal(d) = A d^p (fitted to the finest
   ERROR_FIT_POINTS radii), the rest of the run at
   R e_cal(d): (F_c + (F - F_c) R) e_cal / F over F frames, F_c of them calibrated. The profile is a run of the whole
@@ -38,6 +41,7 @@ from .fit import (LatticeCount, Line, PowerLaw, StepCost, StepRate, fit_count_la
                   fit_power_law, fit_speed_exponent, fit_step_cost, fit_step_rate, fit_sweeps, log_slope,
                   scene_bound_rate)
 from .metrics import DENSITY
+from .points import slowed_points
 
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
 #: (hydrostatic, DFSPH, 0.5 s): the calibration's last frames give p' = -2.4 between d = 0.085 and 0.057 m,
@@ -70,6 +74,13 @@ COST_RATIO_RANGE = (0.8, 1.5)
 #: the machine's load, not a timing (measured, load 4.3-5.3: PBF's C 0.59 and 1.22 from windows of 27 steps, 0.06-0.08
 #: s; the whole runs' wall time then 1.93x and 0.88x the prediction with C, 1.55x and 1.07x without)
 COST_RATIO_MIN_WINDOW = 0.5
+#: on a CPU (a thread split), beyond the largest calibrated fluid count a fitted step cost that grows slower than
+#: Nf^MIN_COUNT_EXPONENT there (a line whose slope came out 0: the mean of the points) is not a cost law but the
+#: points' noise: the plan then holds that count's measured cost per fluid particle-step (b = 1). Measured (hydrostatic
+#: DFSPH, load 10.8): two points above the split, 36.4 ms per step at 1,440 fluid (slowed by the load) and 13.7 ms at
+#: 2,352, gave a constant 25 ms per step: 1.97 us per fluid particle-step predicted at 11,767 where the largest count
+#: measured 5.84 and the run took 14.8
+MIN_COUNT_EXPONENT = 0.5
 
 @dataclass
 class SolverModel:
@@ -99,6 +110,10 @@ class SolverModel:
     step_time_split: StepCost | None = None      # [s] the step's cost fitted to the points at or above that count only
     count_law: PowerLaw | None = None            # [s] the step's least cost against Nf beyond ``count_fluid``
     count_fluid: int = 0                         # the largest calibrated fluid count above the split
+    count_anchor: tuple = ()                     # (Nf, Nb, step time [s]) of the largest fluid count kept where its
+                                                 # fluid alone reaches the thread split (CPU only; () else)
+    slowed: list = field(default_factory=list)   # points left out of the step's cost (``slowed_points``): [(r [m], Nf,
+                                                 # step [s], the larger count's r [m], Nf, step [s])]
     cost_ratio: float = 1.0                      # C applied: the whole run's step cost over the calibration window's
     cost_ratio_measured: float | None = None     # C as measured (None: no whole run of this solver)
     cost_ratio_window: float = 0.0               # [s] the steps' time of the calibration point C was measured against
@@ -139,7 +154,24 @@ class SolverModel:
             base = self.step_time(fluid, boundary)
         if self.count_law is not None and fluid > self.count_fluid:
             base = max(base, self.count_law(fluid))
+        elif self.flat_growth(fluid, boundary) is not None:
+            nf, _, t = self.count_anchor
+            base = t * fluid / nf
         return base * self.cost_ratio * (self.sweep_factor(fluid, d) if d is not None else 1.0)
+
+    def flat_growth(self, fluid: int, boundary: int) -> float | None:
+        """The exponent k of the fitted step cost ~ Nf^k from the largest calibrated fluid count (``count_anchor``) to
+        ``fluid`` where it is under MIN_COUNT_EXPONENT and no count law holds (``step_cost`` then holds that count's
+        measured cost per fluid particle-step); None otherwise (within the calibrated counts, on a GPU)."""
+        if not self.count_anchor or self.count_law is not None or fluid <= self.count_anchor[0]:
+            return None
+        nf, nb, _ = self.count_anchor
+        fit = self.step_time_split if self.step_time_split is not None and nf + nb >= self.split_particles \
+            else self.step_time
+        fit_t = self.step_time_split if self.step_time_split is not None and fluid + boundary >= self.split_particles \
+            else self.step_time
+        k = log_slope(nf, fit(nf, nb), fluid, fit_t(fluid, boundary))
+        return k if k < MIN_COUNT_EXPONENT else None
 
     def later_ratio(self, frames: int) -> float:
         """R: the profile's mean error over the frames after the calibrated ones / its mean over the calibrated
@@ -216,6 +248,9 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
                  key=lambda p: p.particle_radius)
     if not pts:
         return None
+    split = int(getattr(cal, "split_particles", 0) or 0)
+    slowed = slowed_points(pts, split)
+    timed = [p for p in pts if all(p is not a for a, _ in slowed)]  # the points the step's cost is fitted to
     d = [p.spacing for p in pts]
     n = [p.particles for p in pts]
     steady = [p for p in pts if not p.first_in_process] or pts
@@ -241,25 +276,26 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     fine = pts[:ERROR_FIT_POINTS]
     d_fine = [p.spacing for p in fine]
     # the step's cost above the thread split from the points there alone, where two counts or more were calibrated
-    split = int(getattr(cal, "split_particles", 0) or 0)
-    above = [p for p in pts if split and p.particles >= split]
+    above = [p for p in timed if split and p.particles >= split]
     split_cost = (fit_step_cost([p.fluid for p in above], [max(p.boundary, 0) for p in above],
                                 [p.step_time for p in above])
-                  if len({p.particles for p in above}) >= 2 and len(above) < len(pts) else None)
+                  if len({p.particles for p in above}) >= 2 and len(above) < len(timed) else None)
     # the count law from the points whose fluid alone splits (a dam break's coarse points pass the split on their walls)
-    split_fluid = [p for p in pts if split and p.fluid >= split]
+    split_fluid = [p for p in timed if split and p.fluid >= split]
     count_law = fit_count_law([p.fluid for p in split_fluid], [p.step_time for p in split_fluid], COUNT_EXPONENT_RANGE,
                               COUNT_FIT_POINTS) if split_fluid else None
     measured_ratio, window = whole_run_cost_ratio(pts, profile, solver, t0) if profile is not None else (None, 0.0)
     # the sweeps per step against d (the finest radii), and the largest count's split of its step into the sweeps' part
     # and the rest: the step's cost beyond that count as a + b x sweeps (``SolverModel.sweep_factor``)
     ref = max(pts, key=lambda p: (p.fluid, -p.particle_radius))
+    top = max(timed, key=lambda p: (p.fluid, -p.particle_radius))
     from .points import sweep_bounds
     return SolverModel(
         solver=solver,
         steps_per_second=rate,
         error=fit_power_law(d_fine, [max(p.density_error_mean, 1e-9) for p in fine], ORDER_RANGE),
-        step_time=fit_step_cost([p.fluid for p in pts], [max(p.boundary, 0) for p in pts], [p.step_time for p in pts]),
+        step_time=fit_step_cost([p.fluid for p in timed], [max(p.boundary, 0) for p in timed],
+                                [p.step_time for p in timed]),
         setup_time=setup,
         frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
         fluid_count=fit_lattice_count(d, [p.fluid for p in pts], 3),
@@ -274,6 +310,8 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         profile=_profile(profile, solver, t0) if profile is not None else [],
         split_particles=split if split_cost is not None else 0, step_time_split=split_cost,
         count_law=count_law, count_fluid=max(p.fluid for p in split_fluid) if count_law is not None else 0,
+        count_anchor=(top.fluid, max(top.boundary, 0), top.step_time) if split and top.fluid >= split else (),
+        slowed=[(p.particle_radius, p.fluid, p.step_time, q.particle_radius, q.fluid, q.step_time) for p, q in slowed],
         cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
         cost_ratio_window=window, sweeps=fit_sweeps(d, [p.sweeps for p in pts], ERROR_FIT_POINTS),
         sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, 0.0), sweeps_fluid=ref.fluid,

@@ -126,6 +126,27 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     return point
 
 
+def slowed_points(pts, split: int) -> list:
+    """[(p, q)]: on a CPU (``split`` > 0 particles, the thread split), each point p whose steady step took longer than
+    that of a point q on the same side of the split with at least as many fluid and wall particles (and more of one):
+    a larger count cannot cost less per step, and the machine's load only adds time, so q's is the nearer to what p's
+    step costs and p's was slowed (left out of the step's cost, the plan's notes name it). Not across the split (one
+    thread against two: a count just above it may step as fast as one below) and not on a GPU (its step is launch
+    overhead up to many thousand particles: equal costs, noise either way). Measured (hydrostatic DFSPH, load 10.8):
+    648 / 1,440 / 2,352 fluid particles at 23.7 / 25.3 / 5.84 us per fluid particle-step, 15.4 / 36.4 / 13.7 ms per step
+    (quiet, load 1.5-3.3: 4.58 and 4.22 us at 648 and 2,156 fluid)."""
+    if not split:
+        return []
+    out = []
+    for p in pts:
+        side = p.particles >= split
+        by = [q for q in pts if (q.particles >= split) == side and q.fluid >= p.fluid and q.boundary >= p.boundary
+              and (q.fluid, q.boundary) != (p.fluid, p.boundary) and q.step_time < p.step_time]
+        if by:
+            out.append((p, min(by, key=lambda q: q.step_time)))
+    return out
+
+
 def solver_sweeps(frames) -> float:
     """Solver sweeps per step over run.json ``frames``: each frame's mean pressure (``iterations``) and divergence
     iterations, weighted by its steps (0 for a solver that reports none, WCSPH)."""

@@ -131,9 +131,10 @@ def point_cost(cal, solver: str, radius: float) -> float:
 
 def cost_notes(model, chosen) -> list:
     """The lines that say how the chosen setting's step cost was carried beyond the calibration: the whole-run cost
-    ratio C (applied or not, and its measured value), the count law beyond the largest calibrated count and the
-    sweeps' factor (``models.SolverModel.sweep_factor``)."""
-    from .models import COST_RATIO_MIN_WINDOW, COST_RATIO_NOISE
+    ratio C (applied or not, and its measured value), the calibration points left out as slowed by the load, a fitted
+    cost too flat beyond the largest count (held per particle instead), the count law beyond the largest calibrated
+    count and the sweeps' factor (``models.SolverModel.sweep_factor``)."""
+    from .models import COST_RATIO_MIN_WINDOW, COST_RATIO_NOISE, MIN_COUNT_EXPONENT
 
     out = []
     if model.cost_ratio_measured is not None:
@@ -144,6 +145,16 @@ def cost_notes(model, chosen) -> list:
                else "not applied")
         out.append(f"{model.solver}'s step cost over the whole run: {model.cost_ratio_measured:.3g}x the calibration "
                    f"window's at the same radius ({how})")
+    for r, nf, t, r2, nf2, t2 in model.slowed:
+        out.append(f"{model.solver}'s calibration point at r = {r:.4g} m ({nf:,} fluid particles, {1e3 * t:.3g} ms "
+                   f"per step) took longer per step than the larger count at r = {r2:.4g} m ({nf2:,}, {1e3 * t2:.3g} "
+                   f"ms): slowed by the machine's load, left out of the step's cost")
+    k = model.flat_growth(chosen.fluid_particles, chosen.boundary_particles)
+    if k is not None:
+        nf = model.count_anchor[0]
+        out.append(f"{model.solver}'s fitted step cost grows as Nf^{k:.2f} beyond {nf:,} fluid particles (the largest "
+                   f"calibrated), under Nf^{MIN_COUNT_EXPONENT:g}: that count's measured cost per fluid particle-step "
+                   f"held instead")
     if model.count_law is not None and chosen.fluid_particles > model.count_fluid:
         law = model.count_law
         out.append(f"{model.solver}'s step cost beyond {model.count_fluid:,} fluid particles (the largest calibrated) "
