@@ -134,7 +134,8 @@ class Lattice:
         A / D over an n^3 grid of the Brillouin zone and its wave (in pi / d); ``relaxation_convergent`` and
         ``relaxation_monotone``: the smallest pbf.relaxation (eps over the solver's D0, ``rest_denominator``: the
         cubic lattice's sum with this lattice's mass) at which no wave grows (factor >= -1) and no wave overshoots
-        (factor >= 0)."""
+        (factor >= 0); ``relaxation_smoother``: the Jacobi smoother's optimum for the upper half of the waves
+        (A in [A_max / 2, A_max]: D + eps = 3/4 A_max, factors within +-1/3 there)."""
         from warp_sph.methods.solvers.pbf_lattice import rest_denominator
 
         g = self.volume * self.grad
@@ -147,7 +148,8 @@ class Lattice:
         D0 = rest_denominator(self.name, self.h, self.d, self.volume, 1.0)
         return {"A_over_D": float(A[k] / D), "q_pi_over_d": [round(float(v) * self.d / np.pi, 3) for v in Q[k]],
                 "D_over_D0": D / D0, "factor_at_default": 1.0 - float(A[k]) / (D + 1e-4 * D0),
-                "relaxation_convergent": (0.5 * float(A[k]) - D) / D0, "relaxation_monotone": (float(A[k]) - D) / D0}
+                "relaxation_convergent": (0.5 * float(A[k]) - D) / D0, "relaxation_monotone": (float(A[k]) - D) / D0,
+                "relaxation_smoother": (0.75 * float(A[k]) - D) / D0}
 
 
 STARTS = {"cubic": (1.0, 0.0), "bcc": (0.5, 0.5), "fcc": (1.0 / math.sqrt(2.0), 0.5)}

@@ -193,4 +193,4 @@ def test_pbf_jacobi_symbol_against_a_brute_force_correction(start):
         A = float(np.sum((np.sin(L.x @ q) @ g) ** 2))
         assert brute == pytest.approx(A, rel=2e-3, abs=1e-6 * A + 1e-12)
     assert jac["factor_at_default"] < -1.0
-    assert jac["relaxation_convergent"] < jac["relaxation_monotone"]
+    assert jac["relaxation_convergent"] < jac["relaxation_smoother"] < jac["relaxation_monotone"]
