@@ -18,8 +18,8 @@ Steps the case's scene (``warp_sph.validation.cases``, as ``bench validation`` l
   one (1.0201 for the cubic spline at h = d): the bulk's particle pressures balance gravity at rho0 g / C;
 - ``columns``: the floor's load per fluid column (the bottom layers' F_z by nearest lattice column, over the
   column's share of the floor) against the mean, along the centre row: how the weight is spread.
-The case's tank is 0.6 m wide (its water fills it at every resolution). Wrap it in
-``flock /tmp/warp_sph_bench.lock`` on a shared machine.
+The case's tank is 0.6 m wide (its water fills it at every resolution); ``--case hydrostatic_fcc`` runs the fcc
+start in its fitted tank. Wrap it in ``flock /tmp/warp_sph_bench.lock`` on a shared machine.
 """
 from __future__ import annotations
 
@@ -74,11 +74,11 @@ def _plane_spacing(scene, d: float) -> float:
     return LATTICE_LAYER[fluid_lattice(scene)] * d
 
 
-def profile(solver: str, radius: float, duration: float, extra: list[str]) -> dict:
+def profile(solver: str, radius: float, duration: float, extra: list[str], case: str = "hydrostatic") -> dict:
     from warp_sph.run.simulation import Simulation
     from warp_sph.validation.cases import CASES, load_case_scene, water_offset
 
-    scene = load_case_scene(CASES["hydrostatic"], solver, radius, extra)
+    scene = load_case_scene(CASES[case], solver, radius, extra)
     sim = Simulation(scene)
     m = sim.model
     rho0, d = float(m.rest_density), float(m.spacing)
@@ -191,7 +191,8 @@ def _block_energy_share(x: np.ndarray, v: np.ndarray, lo: np.ndarray, block: flo
     return float(np.sum(count[:, None] * mean * mean)) / total if total > 0.0 else 0.0
 
 
-def motion(solver: str, radius: float, duration: float, extra: list[str], every: int = 3, stagger: float = 0.0) -> dict:
+def motion(solver: str, radius: float, duration: float, extra: list[str], every: int = 3, stagger: float = 0.0,
+           case: str = "hydrostatic") -> dict:
     """What moves in the tank at rest (issue #31), frame by frame to ``duration``: per frame the mean |v| [m/s] of
     all particles, per lattice layer (the start's z index), of the columns at the side walls (the outer ring),
     of the corner columns and of the interior; every ``every`` frames the velocity field's character
@@ -208,7 +209,7 @@ def motion(solver: str, radius: float, duration: float, extra: list[str], every:
     from warp_sph.run.simulation import Simulation
     from warp_sph.validation.cases import CASES, load_case_scene, water_offset
 
-    scene = load_case_scene(CASES["hydrostatic"], solver, radius, extra)
+    scene = load_case_scene(CASES[case], solver, radius, extra)
     sim = Simulation(scene)
     m = sim.model
     d = float(m.spacing)
@@ -304,11 +305,13 @@ def main(argv=None) -> None:
     ap.add_argument("--every", type=int, default=3, help="--motion: frames between the field's character samples")
     ap.add_argument("--stagger", type=float, default=0.0, help="--motion: raise every other column by this many d "
                     "before the first step (an experiment: 0.5 starts the bulk on the packing the slip heads for)")
+    ap.add_argument("--case", default="hydrostatic", choices=["hydrostatic", "hydrostatic_fcc"],
+                    help="the bench's hydrostatic case (hydrostatic_fcc: the fcc start in its fitted tank)")
     a = ap.parse_args(argv)
     if a.motion:
-        print(json.dumps(motion(a.solver, a.radius, a.duration, a.set, a.every, a.stagger)))
+        print(json.dumps(motion(a.solver, a.radius, a.duration, a.set, a.every, a.stagger, a.case)))
         return
-    print(json.dumps(profile(a.solver, a.radius, a.duration, a.set), indent=1))
+    print(json.dumps(profile(a.solver, a.radius, a.duration, a.set, a.case), indent=1))
 
 
 if __name__ == "__main__":

@@ -126,6 +126,30 @@ class Lattice:
         in a checkerboard, q = (pi / d, pi / d, 0), u = e_z: the slip of the cubic lattice's columns (issue #31)."""
         D, _ = self.dynamical(np.array([np.pi / self.d, np.pi / self.d, 0.0]))
         return 2.0 * self.volume * self.d ** 2 * float(D[2, 2])
+    def pbf_jacobi(self, n: int = 8) -> dict:
+        """PBF's Jacobi solve on this lattice (issue #31): the constraint C_i = rho_i / rho0 - 1 linearised, a
+        correction dx = J^T lambda (dx_i = sum_j V (lambda_i + lambda_j) grad W_ij) with lambda = -C / (D + eps) changes
+        a wave lambda_j = cos(q . x_j) of C by the factor 1 - A(q) / (D + eps), A(q) = |sum_j V grad W_j sin(q . x_j)|^2
+        the symbol of J J^T and D = sum_j |V grad W_j|^2 its diagonal (interior particle). Returns the largest
+        A / D over an n^3 grid of the Brillouin zone and its wave (in pi / d); ``relaxation_convergent`` and
+        ``relaxation_monotone``: the smallest pbf.relaxation (eps over the solver's D0, ``rest_denominator``: the
+        cubic lattice's sum with this lattice's mass) at which no wave grows (factor >= -1) and no wave overshoots
+        (factor >= 0); ``relaxation_smoother``: the Jacobi smoother's optimum for the upper half of the waves
+        (A in [A_max / 2, A_max]: D + eps = 3/4 A_max, factors within +-1/3 there)."""
+        from warp_sph.methods.solvers.pbf_lattice import rest_denominator
+
+        g = self.volume * self.grad
+        D = float(np.sum(g * g))
+        f = (np.arange(n) - n // 2 + 1) / n
+        F = np.stack(np.meshgrid(f, f, f, indexing="ij"), axis=-1).reshape(-1, 3)
+        Q = F @ self.b
+        A = np.sum((np.sin(Q @ self.x.T) @ g) ** 2, axis=1)
+        k = int(np.argmax(A))
+        D0 = rest_denominator(self.name, self.h, self.d, self.volume, 1.0)
+        return {"A_over_D": float(A[k] / D), "q_pi_over_d": [round(float(v) * self.d / np.pi, 3) for v in Q[k]],
+                "D_over_D0": D / D0, "factor_at_default": 1.0 - float(A[k]) / (D + 1e-4 * D0),
+                "relaxation_convergent": (0.5 * float(A[k]) - D) / D0, "relaxation_monotone": (float(A[k]) - D) / D0,
+                "relaxation_smoother": (0.75 * float(A[k]) - D) / D0}
 
 
 STARTS = {"cubic": (1.0, 0.0), "bcc": (0.5, 0.5), "fcc": (1.0 / math.sqrt(2.0), 0.5)}
@@ -145,7 +169,7 @@ def table(kernels, hs, starts, d: float = 0.05, n: int = 8) -> list[dict]:
                              "kernel": name, "h_per_d": hd, "volume_per_particle_d3": layer,
                              "neighbours": int(len(L.x)), "calibrated_volume_d3": L.volume / d ** 3,
                              "column_slip": L.column_slip() if shift == 0.0 else None,
-                             "min_all": s["all"], "min_hidden": s["hidden"]})
+                             "min_all": s["all"], "min_hidden": s["hidden"], "pbf_jacobi": L.pbf_jacobi(n)})
     return rows
 
 

@@ -132,5 +132,65 @@ def test_fcc_walls_register_with_the_fluid():
         dist = np.linalg.norm(inner[:, None, [a1, a2]] - plane[None, :, [a1, a2]], axis=2)
         near = np.sort(dist, axis=1)[:, :5]
         assert near[:, :4] == pytest.approx(c, rel=1e-6) and np.all(near[:, 4] > 1.4 * c)
-        extent = [float(np.ptp(wall[:, k])) + c for k in (a1, a2)]
+        extent = [len(np.unique(np.round(wall[:, k] / c, 6))) * c for k in (a1, a2)]  # its rows, c apart
         assert len(wall) / (extent[0] * extent[1]) == pytest.approx(1.0 / D ** 2, rel=0.05)
+
+
+@pytest.mark.parametrize("width_cells", [9, 10])
+def test_fcc_tank_edges_start_no_denser_than_the_flat_walls_depart(width_cells):
+    """Where two faces meet, their nets share one lattice row; it lies on the edge (``_fcc_walls``), so no particle
+    of the fcc tank starts further over rho0 than the flat walls' own layers depart from it (first -0.18 %, second
+    -1.1 %: one Akinci layer for two missing lattice planes), within 0.05 %, at the corners and edges of a tank with
+    corner particles (9 columns: +0.67 %) and without (10: +1.13 %). Kept in one net at its own plane, 0.34 d from
+    the other's, the row left the corner particle 5.9 % over rho0 and the edges 2.3 %. The top planes (the free
+    surface) are left out."""
+    from warp_sph.run.simulation import Simulation
+
+    sim = Simulation(_fcc_tank(width_cells))
+    m = sim.model
+    sim.refresh_density()
+    x = sim.get_field("particle_x")[: m.fluid_count].astype(np.float64)
+    dev = sim.get_field("particle_density")[: m.fluid_count].astype(np.float64) / 1000.0 - 1.0
+    below_top = x[:, 2] < x[:, 2].max() - 2.5 * D / math.sqrt(2.0)
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    side = np.minimum(x[:, :2] - lo[:2], hi[:2] - x[:, :2]).min(axis=1)
+    flat = below_top & (side > 1.4 * D)          # the floor's layers, out of the side walls' reach
+    band = float(np.abs(dev[flat]).max())
+    assert 0.005 < band < 0.015
+    assert float(dev[below_top].max()) <= band + 5e-4
+
+
+@pytest.mark.parametrize("start", ["cubic", "fcc"])
+def test_pbf_jacobi_symbol_against_a_brute_force_correction(start):
+    """``Lattice.pbf_jacobi``'s symbol A(q) of J J^T against PBF's correction applied by brute force: every particle
+    within 2 H_s of the origin moved by dx_k = sum_j V (lambda_k + lambda_j) grad W_kj with lambda_j = cos(q . x_j),
+    the origin's density re-summed at +-t dx (central differences): dC_0 / dt = A(q) lambda_0, at the lattice's worst
+    wave and at a long one. That worst wave grows under the default pbf.relaxation (1e-4 D0): factor 1 - A / D below
+    -1 (cubic -1.8, fcc -2.3; docs/validation.md, "PBF at rest")."""
+    layer, shift = STARTS[start]
+    L = Lattice("cubic", D, D, layer, shift)
+    jac = L.pbf_jacobi(8)
+    support = 2.0 * D
+    x = lattice_points(D, layer, shift, 2.0 * support + 1e-9)
+    inner = np.linalg.norm(x, axis=1) < support + 1e-9          # the origin and its neighbours: the ones that move
+    for q in (np.array(jac["q_pi_over_d"]) * np.pi / D, np.array([0.2, 0.1, 0.05]) * np.pi / D):
+        lam = np.cos(x @ q)
+        dx = np.zeros_like(x)
+        for k in np.nonzero(inner)[0]:
+            r = x[k] - x
+            near = (np.linalg.norm(r, axis=1) < support) & (np.linalg.norm(r, axis=1) > 0)
+            _, g = evaluate("cubic", r[near], D)
+            dx[k] = L.volume * ((lam[k] + lam[near])[:, None] * g.astype(np.float64)).sum(axis=0)
+
+        def c0(t):
+            y = x + t * dx
+            w, _ = evaluate("cubic", y[0] - y, D)
+            return L.volume * float(np.sum(w.astype(np.float64)))
+
+        t = 1e-4 * D / float(np.abs(dx).max())
+        brute = (c0(t) - c0(-t)) / (2.0 * t)
+        g = L.volume * L.grad
+        A = float(np.sum((np.sin(L.x @ q) @ g) ** 2))
+        assert brute == pytest.approx(A, rel=2e-3, abs=1e-6 * A + 1e-12)
+    assert jac["factor_at_default"] < -1.0
+    assert jac["relaxation_convergent"] < jac["relaxation_smoother"] < jac["relaxation_monotone"]

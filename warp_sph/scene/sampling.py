@@ -212,8 +212,12 @@ def _fcc_walls(scene, d: float, gap: float, p: np.ndarray, n: np.ndarray) -> tup
     """The container's faces for an fcc start (``fluid[].lattice = "fcc"``): each closed face a (100) net of the
     first block's fcc lattice, the points of its grid (spacing d / sqrt 2) on the face plane whose indices, with the
     nearest fluid plane's index plus one, sum to an even number (the hollows of that plane), so wall and fluid
-    layers register as the fluid's own planes do; same particles per area as the square wall layer. Falls back to
-    the square faces ``p``, ``n`` when the first block samples nothing."""
+    layers register as the fluid's own planes do; same particles per area as the square wall layer. Where two closed
+    faces meet, both nets hold the same lattice row, between the fluid's first planes: it lies on the edge, pushed
+    out of the fluid by the gap along both faces' normals as each net is along its own (as ``box_surface`` puts its
+    edge points), once. (Kept in one net at its own plane, 0.34 d from the other's, it left the fcc tank's corner
+    particle 5.9 % over rest density and its edges 2.3 %; on the edge: 0.7 %, the flat wall's second layer -1.1 %.)
+    Falls back to the square faces ``p``, ``n`` when the first block samples nothing."""
     block = scene.fluid[0]
     c = scene.container
     lo, hi = np.asarray(c.min, dtype=np.float64), np.asarray(c.max, dtype=np.float64)
@@ -239,6 +243,10 @@ def _fcc_walls(scene, d: float, gap: float, p: np.ndarray, n: np.ndarray) -> tup
             q[:, axis] = plane
             q[:, a] = o[a] + step * ga[keep]
             q[:, b] = o[b] + step * gb[keep]
+            for k in (a, b):  # an edge row: on the edge, where its copy in the other face's net is (docstring)
+                for edge, end in ((lo[k], 0), (hi[k], 1)):
+                    near = np.abs(q[:, k] - edge) < DUPLICATE_DISTANCE * d
+                    q[near & ((k, end) not in opened), k] = edge
             q = q[_append_unique(pts, q, DUPLICATE_DISTANCE * d)]
             normal = np.zeros(3)
             normal[axis] = 1.0 if side == 0 else -1.0
