@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 from ..core.errors import OutputError
+from ..io import atomic
 from ..io import run_folder as rf
 from ..io.probe_files import probe_csv_path, read_probe_csv
 from ..pyplot import pyplot
@@ -29,7 +30,7 @@ def save_figure(fig, path: Path) -> Path:
     except OSError as exc:
         if tmp.exists():
             tmp.unlink()
-        raise rf.write_error(path, exc) from None
+        raise atomic.write_error(path, exc) from None
     return path
 
 
