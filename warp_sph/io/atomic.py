@@ -41,13 +41,27 @@ def _mkstemp(path: Path, suffix: str) -> tuple[int, str]:
     return fd, tmp
 
 
-def free_bytes(path: Path) -> int | None:
-    """Bytes free to this user on the file system holding ``path`` (its nearest existing folder)."""
+def nearest_existing(path: Path) -> Path:
+    """``path`` when it exists, else its nearest parent that does (the file system's root at the last)."""
     p = Path(path)
     while not p.exists() and p != p.parent:
         p = p.parent
+    return p
+
+
+def not_a_folder(folder: Path) -> str | None:
+    """Why ``folder`` cannot be a folder to write into: "is a file", or "lies under the file P" (its nearest
+    existing parent is a file); None when it is a folder or can be made one."""
+    p = nearest_existing(folder)
+    if p.exists() and not p.is_dir():
+        return "is a file" if p == Path(folder) else f"lies under the file {p}"
+    return None
+
+
+def free_bytes(path: Path) -> int | None:
+    """Bytes free to this user on the file system holding ``path`` (its nearest existing folder)."""
     try:
-        st = os.statvfs(p)
+        st = os.statvfs(nearest_existing(path))
     except (OSError, AttributeError):
         return None
     return st.f_bavail * st.f_frsize
