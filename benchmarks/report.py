@@ -63,6 +63,7 @@ def sweep_table(records: list[dict]) -> list[str]:
 
 
 def stage_table(records: list[dict]) -> list[str]:
+    """Each record's time per stage as a folded Markdown table (``<details>``); [] when no record has stage times."""
     stages: list[str] = []
     for r in records:
         for s in r.get("stage_times") or []:
@@ -75,7 +76,8 @@ def stage_table(records: list[dict]) -> list[str]:
         by = {s["stage"]: s for s in r.get("stage_times") or []}
         rows.append([r["label"]] + [(fmt(by[s]["ms_per_call"]) + f" ({100 * by[s].get('fraction', 0):.0f}%)")
                                     if s in by and by[s]["calls"] else "-" for s in stages])
-    return markdown_table(["case (ms per call, share)"] + stages, rows)
+    return (["<details><summary>time per stage</summary>", ""] + markdown_table(["case (ms per call, share)"] + stages, rows)
+            + ["", "</details>", ""])
 
 
 # --------------------------------------------------------------------------------------------
@@ -132,9 +134,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                               lambda p: plot_series(sr, keys, p, f"{name}: {s} over time"))
             if png:
                 lines += [f"![series, {s}]({rel}/{png.name})", ""]
-            st = stage_table(sr)
-            if st:
-                lines += ["<details><summary>time per stage</summary>", ""] + st + ["", "</details>", ""]
+            lines += stage_table(sr)
         lines += failure_lines(recs) + [""]
 
     # the latest scaling run of each solver
@@ -181,9 +181,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
         png = figures.get(f"{stem}.png", scaling, lambda p: plot_scaling(scaling, p))
         if png:
             lines += [f"![scaling, {solver}]({rel}/{png.name})", ""]
-        st = stage_table(scaling)
-        if st:
-            lines += ["<details><summary>time per stage</summary>", ""] + st + ["", "</details>", ""]
+        lines += stage_table(scaling)
         lines += failure_lines(scaling) + [""]
 
     compared = splishsplash_report.fixed_step_section(data.get("splishsplash", []), figures, rel)

@@ -475,6 +475,7 @@ def test_resume_without_checkpoint_restarts_from_the_start(workdir, capsys):
     """A run killed before its first checkpoint left run.json (and maybe its USD) but no checkpoint:
     --resume refused ("no checkpoint") and a plain run refused the folder. Now --resume runs it again
     from frame 1 in its folder, says so in one line, and keeps the user's files there."""
+    from warp_sph.io import atomic
     from warp_sph.io import run_folder as rf
     from warp_sph.scene import load_scene
 
@@ -483,7 +484,7 @@ def test_resume_without_checkpoint_restarts_from_the_start(workdir, capsys):
     out.mkdir()
     (out / "mine.txt").write_text("keep me\n")
     # what a run killed in its first second leaves: run.json written first, a USD, no frame, no checkpoint
-    rf.atomic_write_json(out / "run.json", {"scene": scene.to_dict(), "frames_requested": 2, "frames": [],
+    atomic.atomic_write_json(out / "run.json", {"scene": scene.to_dict(), "frames_requested": 2, "frames": [],
                                             "status": "starting", "out": str(out)})
     (out / "tiny.usdc").write_bytes(b"PXR-USDC partial")
     code = main(["run", "--resume", str(out), "--no-progress"])

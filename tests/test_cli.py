@@ -7,7 +7,8 @@ import sys
 
 import pytest
 
-from warp_sph.cli import print_summary, build_parser, main
+from warp_sph.cli import build_parser, main
+from warp_sph.cli_commands import print_summary
 
 COMMANDS = ["run", "scenes", "check", "export", "preview", "plot", "sweep", "plan", "bench"]
 

@@ -97,9 +97,9 @@ def test_usd_save_that_fails_keeps_the_last_good_file(small_disk, monkeypatch):
     """When the space check is fooled (another program fills the disk between the check and the
     save), the failed save is undone: the file opens with every frame saved before."""
     from warp_sph.core.errors import OutputError
-    from warp_sph.io import export_usd, run_folder
+    from warp_sph.io import atomic, export_usd
 
-    monkeypatch.setattr(run_folder, "free_bytes", lambda path: 1 << 40)  # "plenty of room"
+    monkeypatch.setattr(atomic, "free_bytes", lambda path: 1 << 40)  # "plenty of room"
     path = small_disk / "full.usdc"
     fill(small_disk, 3_000_000)
     rng = np.random.default_rng(0)

@@ -491,7 +491,7 @@ def test_progress_shows_the_summary_error(tmp_path, capsys):
     assert info["frames"][-1]["density_error_max"] < worst
     assert shown[-1] == pytest.approx(100 * worst, abs=0.006)
     cli_main_out = io.StringIO()
-    from warp_sph.cli import print_summary
+    from warp_sph.cli_commands import print_summary
     with contextlib.redirect_stdout(cli_main_out):
         print_summary(info)
     assert f"max {100 * worst:.3f} %" in cli_main_out.getvalue()

@@ -367,7 +367,8 @@ def test_bad_scheduler_address_is_one_line(tmp_path, capsys):
 
 def test_workers_zero_is_refused_and_bare_workers_means_every_core(tmp_path, capsys):
     """``--workers 0`` silently meant one worker per core."""
-    from warp_sph.cli import ALL_CORES, build_parser
+    from warp_sph.cli import build_parser
+    from warp_sph.cli_parser import ALL_CORES
 
     code, out = _sweep_cli(["dam_break", "--workers", "0", "--out", str(tmp_path / "o")], capsys)
     assert code == 2

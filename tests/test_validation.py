@@ -179,18 +179,19 @@ def test_hydrostatic_evaluation_figures(tmp_path):
     assert fig["surface_drop_d"] == pytest.approx(0.1, abs=3e-3)
     assert met == {"floor_error": True, "middle_error": True}
     # with the run's last state (the case's last_state checkpoint) the mean |v| at the end, the figure
+    from warp_sph.io import atomic
     from warp_sph.io import run_folder as rf
 
     v = np.zeros((12 * 12 * 10, 3))
     v[:, 0], v[::2, 2] = 3e-4, 4e-4                  # |v| = 3e-4 and 5e-4 m/s, about half each: mean 4e-4
     n = len(v)
     (tmp_path / "checkpoints").mkdir()
-    rf.atomic_save_npz(rf.checkpoint_path(tmp_path, 1), particle_x_local=np.zeros((n, 3)), particle_v=10 * v, step=0,
-                       frame=1, state_frame=1, time=0.0, last_max_speed=0.0)
+    atomic.atomic_save_npz(rf.checkpoint_path(tmp_path, 1), particle_x_local=np.zeros((n, 3)), particle_v=10 * v, step=0,
+                           frame=1, state_frame=1, time=0.0, last_max_speed=0.0)
     fig, met, _ = V.evaluate("hydrostatic", tmp_path, info)
     assert fig["mean_speed_final"] == pytest.approx(4e-3, rel=1e-3) and met["settled"] is False
-    rf.atomic_save_npz(rf.checkpoint_path(tmp_path, 49), particle_x_local=np.zeros((n, 3)), particle_v=v, step=9,
-                       frame=49, state_frame=49, time=2.0, last_max_speed=0.0)
+    atomic.atomic_save_npz(rf.checkpoint_path(tmp_path, 49), particle_x_local=np.zeros((n, 3)), particle_v=v, step=9,
+                           frame=49, state_frame=49, time=2.0, last_max_speed=0.0)
     fig, met, _ = V.evaluate("hydrostatic", tmp_path, info)
     assert fig["mean_speed_final"] == pytest.approx(4e-4, rel=1e-3) and met["settled"] is True
 

@@ -9,6 +9,17 @@ import re
 from .core.errors import WarpSphError
 
 
+class _AllCores:
+    """``--workers`` given without N: one worker per core (a non-string const, which argparse does not
+    convert, so that an explicit 0 stays distinguishable and is refused)."""
+
+    def __repr__(self):
+        return "ALL_CORES"
+
+
+ALL_CORES = _AllCores()
+
+
 class UsageError(WarpSphError):
     """A command line argparse refused: ``main`` prints it as one line, exit status 2."""
 

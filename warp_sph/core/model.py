@@ -172,7 +172,7 @@ def _speed_of_sound(scene, fluid_x: np.ndarray, fluid_v: np.ndarray, container_l
 
 def fluid_lattice(scene) -> str:
     """The fluid's start lattice: the blocks' ``fluid[].lattice`` (sampling refuses a mix), "cubic" without blocks."""
-    names = sorted({str(getattr(b, "lattice", "cubic")) for b in getattr(scene, "fluid", ())})
+    names = sorted({str(b.lattice) for b in scene.fluid})
     return names[0] if names else "cubic"
 
 

@@ -79,25 +79,24 @@ class StepGraph:
             k = self.index(after) + 1
         else:
             k = len(self.stages)
-        old = list(self.stages)
-        self.stages.insert(k, stage)
-        try:
-            self.validate()
-        except StepGraphError:
-            self.stages = old
-            raise
+        self._edit(lambda stages: stages.insert(k, stage))
 
     def remove(self, name: str) -> Stage:
         """Remove the stage ``name`` and return it; the graph is re-validated (StepGraphError, and
         the graph unchanged, when a later stage reads a field only that stage wrote)."""
+        return self._edit(lambda stages: stages.pop(self.index(name)))
+
+    def _edit(self, change):
+        """``change(self.stages)`` (in place), then re-validate; on a StepGraphError the stages as they were
+        before, and the error raised. Returns what ``change`` returned."""
         old = list(self.stages)
-        s = self.stages.pop(self.index(name))
+        result = change(self.stages)
         try:
             self.validate()
         except StepGraphError:
             self.stages = old
             raise
-        return s
+        return result
 
     def validate(self) -> None:
         """Every read/update is produced before; no field has two writers; names unique."""

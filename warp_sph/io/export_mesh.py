@@ -12,7 +12,7 @@ import meshio
 import numpy as np
 
 from ..core.errors import OutputError
-from . import run_folder as rf
+from . import atomic
 
 #: format name -> meshio file_format
 MESH_FORMATS = {"obj": "obj", "ply": "ply", "vtk": "vtk"}
@@ -54,5 +54,5 @@ class MeshSequenceWriter:
         # an empty surface gets no cell block (meshio's VTK writer fails on an empty one)
         mesh = meshio.Mesh(verts, [("triangle", tris)] if len(tris) else [])
         final = self.path(frame)
-        rf.atomic_write_with(final, lambda tmp: meshio.write(tmp, mesh, file_format=MESH_FORMATS[self.fmt]))
+        atomic.atomic_write_with(final, lambda tmp: meshio.write(tmp, mesh, file_format=MESH_FORMATS[self.fmt]))
         return final

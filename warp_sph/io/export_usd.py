@@ -34,7 +34,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..core.errors import OutputError
-from . import run_folder as rf
+from . import atomic
 from . import usd_whitewater
 from .crate_guard import crate_tail, restore_crate_tail
 from .usd_bodies import BodyMeshes
@@ -177,19 +177,19 @@ class UsdWriter:
         else:
             samples = 8 * (max(self.last_frame - self.first_frame, 0) + 2) if hasattr(self, "last_frame") else 16
             needed = new_bytes + 2 * len(saved[2]) + samples * 32 + (1 << 16)
-        free = rf.free_bytes(Path(self.path))
+        free = atomic.free_bytes(Path(self.path))
         if free is not None and free < needed:
             self._failed = True
             raise OutputError(f"no space left on device for {self.path}: its next save needs about "
-                              f"{rf.format_bytes(needed)}, {rf.format_bytes(free)} free; the file keeps frames "
+                              f"{atomic.format_bytes(needed)}, {atomic.format_bytes(free)} free; the file keeps frames "
                               f"up to {self._last_saved()}; free some space, then continue with --resume")
         try:
             self.stage.Save()
         except Exception as exc:  # pxr's Tf.ErrorException (e.g. "No space left on device")
             self._failed = True
             restored = saved is not None and restore_crate_tail(self.path, saved)
-            free = rf.free_bytes(Path(self.path))
-            raise OutputError(f"cannot save {self.path} ({rf.format_bytes(free)} free): {first_line(exc)}; "
+            free = atomic.free_bytes(Path(self.path))
+            raise OutputError(f"cannot save {self.path} ({atomic.format_bytes(free)} free): {first_line(exc)}; "
                               + (f"the file keeps frames up to {self._last_saved()}" if restored else
                                  "the file may be damaged") + "; free some space, then continue with --resume") from None
 

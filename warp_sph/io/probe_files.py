@@ -18,7 +18,7 @@ import math
 from pathlib import Path
 
 from ..core.errors import OutputError
-from .run_folder import atomic_write_bytes, write_error
+from .atomic import atomic_write_bytes, write_error
 
 VALUE_NAMES = {"pressure": "pressure", "height": "height", "front": "front"}
 

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import atomic
 from . import run_folder as rf
 from ..core.errors import OutputError, SceneError, WarpSphError
 
@@ -343,7 +344,7 @@ def _move_into_place(partial: Path, target: Path, fmt: str, overwrite: bool) -> 
             os.replace(partial / name, target / name)
         partial.rmdir()
     except OSError as exc:
-        raise rf.write_error(target, exc) from None
+        raise atomic.write_error(target, exc) from None
 
 
 def _write_frames(wanted, files, origin, surface, device, usd, mesh_writer, body_poses) -> None:

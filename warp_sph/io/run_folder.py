@@ -1,4 +1,5 @@
-"""The run folder: run.json, recorded frames, checkpoints; atomic writes; never clobber a user's files.
+"""The run folder: run.json, recorded frames, checkpoints; never clobber a user's files (the writes are
+atomic: ``warp_sph.io.atomic``).
 
 Layout of DIR:
     run.json                      resolved scene, versions, device, counts, per-frame statistics
@@ -13,11 +14,8 @@ Layout of DIR:
 """
 from __future__ import annotations
 
-import errno
 import json
-import os
 import re
-import tempfile
 import zipfile
 from pathlib import Path
 
@@ -38,7 +36,7 @@ RUN_FILE_PATTERNS = {
 }
 #: the probes' CSV files beside run.json (``warp_sph.io.probe_files``)
 PROBE_CSV_PATTERN = re.compile(r"probe_[A-Za-z0-9_-]+\.csv")
-#: temporary files of the atomic writes below (left behind only by a crash during a write)
+#: temporary files of the atomic writes (``warp_sph.io.atomic``; left behind only by a crash during a write)
 _TEMP_PATTERN = re.compile(r"\.(frame|checkpoint|surface|particles|run|probe)[A-Za-z0-9_.-]*\.tmp(\.npz)?")
 
 
@@ -48,125 +46,6 @@ def safe_name(name: str) -> str:
     left. ``"../precious"`` -> ``"precious"``, ``"my tank/v2"`` -> ``"my_tank_v2"``."""
     text = re.sub(r"[^A-Za-z0-9._-]", "_", str(name)).lstrip("._")
     return text[:120] or "scene"
-
-
-def _umask() -> int:
-    """The process umask, read without changing it (Linux /proc); else set and restored."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError, IndexError):
-        pass
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def _mkstemp(path: Path, suffix: str) -> tuple[int, str]:
-    """A temporary file beside ``path`` with the mode a plain ``open()`` would give (0666 & ~umask;
-    mkstemp alone gives 0600)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())
-    except (OSError, AttributeError):
-        pass
-    return fd, tmp
-
-
-def free_bytes(path: Path) -> int | None:
-    """Bytes free to this user on the file system holding ``path`` (its nearest existing folder)."""
-    p = Path(path)
-    while not p.exists() and p != p.parent:
-        p = p.parent
-    try:
-        st = os.statvfs(p)
-    except (OSError, AttributeError):
-        return None
-    return st.f_bavail * st.f_frsize
-
-
-def format_bytes(n: float | None) -> str:
-    if n is None:
-        return "unknown"
-    for unit in ("B", "kB", "MB", "GB"):
-        if abs(n) < 1000.0 or unit == "GB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1000.0
-    return f"{n:.1f} TB"
-
-
-def write_error(path: Path, exc: OSError) -> OutputError:
-    """A one-line OutputError for a failed write: the path and, for a full disk, the free space."""
-    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-        return OutputError(f"no space left on device writing {path} ({format_bytes(free_bytes(path))} free); "
-                           "free some space, then continue with --resume")
-    return OutputError(f"cannot write {path}: {exc.strerror or exc}")
-
-
-def check_free_space(path: Path, needed: int, what: str) -> None:
-    """Raise OutputError before writing ``needed`` bytes at ``path`` when the disk has fewer free."""
-    free = free_bytes(path)
-    if free is not None and free < needed:
-        raise OutputError(f"no space left on device for {what} in {Path(path).parent}: needs about "
-                          f"{format_bytes(needed)}, {format_bytes(free)} free; free some space, then "
-                          "continue with --resume")
-
-
-def atomic_write_with(path: Path, write, suffix: str = ".tmp") -> None:
-    """Call ``write(tmp)`` on a temporary file beside ``path`` (a name ending in ``suffix``), then rename it
-    to ``path``: ``path`` holds either its old or its new content, never a part; the temporary file is
-    removed when ``write`` fails. Raises OutputError (one line) when the write fails with an OSError."""
-    path = Path(path)
-    try:
-        fd, tmp = _mkstemp(path, suffix)
-        os.close(fd)
-    except OSError as exc:
-        raise write_error(path, exc) from None
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        if isinstance(exc, OSError):
-            raise write_error(path, exc) from None
-        raise
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file and a rename (``atomic_write_with``)."""
-    atomic_write_with(path, lambda tmp: Path(tmp).write_bytes(data))
-
-
-def to_json(obj, indent: int | None = None) -> str:
-    """JSON text of run data (NumPy scalars and arrays, Paths included)."""
-    return json.dumps(obj, indent=indent, default=_json_default)
-
-
-def atomic_write_json(path: Path, obj) -> None:
-    atomic_write_bytes(path, to_json(obj, indent=1).encode())
-
-
-def npz_bytes(**arrays) -> int:
-    """Size of ``np.savez(**arrays)`` [bytes] (uncompressed zip: data + about 300 B per array)."""
-    return sum(np.asarray(a).nbytes + 300 for a in arrays.values()) + 100
-
-
-def atomic_save_npz(path: Path, **arrays) -> None:
-    """``np.savez`` through a temporary file and a rename (``atomic_write_with``)."""
-    atomic_write_with(path, lambda tmp: np.savez(tmp, **arrays), ".tmp.npz")
-
-
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def is_run_folder(path: Path) -> bool:

@@ -11,10 +11,10 @@
 from __future__ import annotations
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom
 
 from ..core.errors import OutputError
-from .usd_layout import BODIES, extent, vec3f
+from .usd_layout import BODIES, define_triangle_mesh, extent
 
 
 class BodyMeshes:
@@ -44,12 +44,7 @@ class BodyMeshes:
         if frames_written:
             raise ValueError(f"body {name!r}: add bodies before the first frame is written")
         UsdGeom.Xform.Define(stage, BODIES)
-        mesh = UsdGeom.Mesh.Define(stage, f"{BODIES}/{name}")
-        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        mesh.CreatePointsAttr(vec3f(verts))
-        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)))
-        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(tris.reshape(-1))))
-        mesh.CreateExtentAttr(extent(verts, 0.0))
+        mesh = define_triangle_mesh(stage, f"{BODIES}/{name}", verts, tris)
         mesh.AddTranslateOp()
         mesh.AddOrientOp()
         stage.Save()

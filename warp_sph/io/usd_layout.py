@@ -91,6 +91,34 @@ def first_line(exc: BaseException) -> str:
 
 
 
+def define_points(stage, path: str, with_velocities: bool, width: float | None = None):
+    """A Points prim at ``path``: points, extent and widths (constant: ``width`` [m], or set per frame when None)
+    and velocities (``with_velocities``) created without samples; returns it."""
+    points = UsdGeom.Points.Define(stage, path)
+    points.CreatePointsAttr()
+    points.CreateExtentAttr()
+    if width is None:
+        points.CreateWidthsAttr()
+    else:
+        points.CreateWidthsAttr(Vt.FloatArray([width]))
+    points.SetWidthsInterpolation(UsdGeom.Tokens.constant)
+    if with_velocities:
+        points.CreateVelocitiesAttr()
+    return points
+
+
+def define_triangle_mesh(stage, path: str, verts: np.ndarray, tris: np.ndarray):
+    """A Mesh prim of triangles at ``path`` (no subdivision): points ``verts`` [m] (the file's coordinates),
+    faces ``tris`` (T, 3) and their extent; returns it."""
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreatePointsAttr(vec3f(verts))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(tris.reshape(-1))))
+    mesh.CreateExtentAttr(extent(verts, 0.0))
+    return mesh
+
+
 def create_stage(path: str, fps: float, particle_radius: float, first_frame: int, origin, primvars: tuple[str, ...],
                  with_surface: bool, with_velocities: bool, with_normals: bool, with_spray: bool, static_meshes,
                  overwrite: bool, local) -> Usd.Stage:
@@ -126,13 +154,7 @@ def create_stage(path: str, fps: float, particle_radius: float, first_frame: int
     if origin is not None:
         root.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Vec3d(*origin.tolist()))
 
-    points = UsdGeom.Points.Define(stage, "/sph/particles")
-    points.CreatePointsAttr()
-    points.CreateExtentAttr()
-    points.CreateWidthsAttr(Vt.FloatArray([2.0 * particle_radius]))
-    points.SetWidthsInterpolation(UsdGeom.Tokens.constant)
-    if with_velocities:
-        points.CreateVelocitiesAttr()
+    points = define_points(stage, "/sph/particles", with_velocities, width=2.0 * particle_radius)
     api = UsdGeom.PrimvarsAPI(points)
     for name in primvars:
         api.CreatePrimvar(name, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex)
@@ -149,13 +171,7 @@ def create_stage(path: str, fps: float, particle_radius: float, first_frame: int
                                                     UsdGeom.Tokens.vertex)
 
     if with_spray:
-        spray = UsdGeom.Points.Define(stage, "/sph/spray")
-        spray.CreatePointsAttr()
-        spray.CreateExtentAttr()
-        spray.CreateWidthsAttr()
-        spray.SetWidthsInterpolation(UsdGeom.Tokens.constant)
-        if with_velocities:
-            spray.CreateVelocitiesAttr()
+        define_points(stage, "/sph/spray", with_velocities)
 
     for name, verts, tris in static_meshes:
         if not Sdf.Path.IsValidIdentifier(name) or name in RESERVED:
@@ -164,12 +180,7 @@ def create_stage(path: str, fps: float, particle_radius: float, first_frame: int
         tris = np.asarray(tris, dtype=np.int32).reshape(-1, 3)
         if len(tris) and (tris.min() < 0 or tris.max() >= len(verts)):
             raise ValueError(f"static mesh {name!r}: triangle indices out of range")
-        mesh = UsdGeom.Mesh.Define(stage, f"/sph/{name}")
-        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        mesh.CreatePointsAttr(vec3f(verts))
-        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(tris), 3, np.int32)))
-        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(tris.reshape(-1))))
-        mesh.CreateExtentAttr(extent(verts, 0.0))
+        define_triangle_mesh(stage, f"/sph/{name}", verts, tris)
     return stage
 
 

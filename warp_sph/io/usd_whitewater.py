@@ -15,7 +15,7 @@ import numpy as np
 from pxr import Sdf, UsdGeom, Vt
 
 from ..core.errors import OutputError
-from .usd_layout import extent, vec3f
+from .usd_layout import define_points, extent, vec3f
 
 #: the parent prim and the sets under it
 ROOT = "/sph/whitewater"
@@ -26,13 +26,7 @@ def define(stage, with_velocities: bool) -> None:
     """Create /sph/whitewater and its three Points prims (no samples yet)."""
     UsdGeom.Xform.Define(stage, ROOT)
     for name in SETS:
-        points = UsdGeom.Points.Define(stage, f"{ROOT}/{name}")
-        points.CreatePointsAttr()
-        points.CreateExtentAttr()
-        points.CreateWidthsAttr()
-        points.SetWidthsInterpolation(UsdGeom.Tokens.constant)
-        if with_velocities:
-            points.CreateVelocitiesAttr()
+        points = define_points(stage, f"{ROOT}/{name}", with_velocities)
         UsdGeom.PrimvarsAPI(points).CreatePrimvar("age", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex)
 
 

@@ -207,7 +207,7 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
     again). The Calibration holds every cached point of the scene (other solvers, radii and tolerances included).
     Raises PlanError when no run of these completes."""
     from ..core.device import resolve_device
-    from ..io.run_folder import atomic_write_json
+    from ..io.atomic import atomic_write_json
     from ..run.progress import Progress
 
     dev = resolve_device(device)

@@ -39,7 +39,7 @@ def read_previous(path: Path, request: str) -> dict:
 
 def write_decision(path: Path, request: str, chosen, lead: str | None) -> None:
     """Record the plan's decisions for ``request`` (atomically; the other requests' kept)."""
-    from ..io.run_folder import atomic_write_json
+    from ..io.atomic import atomic_write_json
 
     try:
         data = json.loads(path.read_text()) if path.is_file() else {}

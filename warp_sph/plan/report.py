@@ -275,7 +275,7 @@ def check_plot_and_cache(args) -> None:
 def apply_scene(scene, p: Plan, out: Path, force: bool = False) -> Path:
     """Write ``scene`` with the chosen setting and its [plan] prediction to ``out`` (atomic; an existing file
     only with ``force``). The file loads with ``load_scene(out)``."""
-    from ..io.run_folder import atomic_write_bytes
+    from ..io.atomic import atomic_write_bytes
     from ..scene import scene_from_dict
 
     out = Path(out)

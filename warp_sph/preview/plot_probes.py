@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 from ..core.errors import OutputError
+from ..io import atomic
 from ..io import run_folder as rf
 from ..io.probe_files import probe_csv_path, read_probe_csv
 from ..pyplot import pyplot
@@ -29,19 +30,16 @@ def save_figure(fig, path: Path) -> Path:
     except OSError as exc:
         if tmp.exists():
             tmp.unlink()
-        raise rf.write_error(path, exc) from None
+        raise atomic.write_error(path, exc) from None
     return path
 
 
 def _check_out(folder: Path, run: Path, names: list[str], overwrite: bool) -> None:
     """Refuse, before plotting, an output folder that is a file or lies under one, and (without
     ``overwrite``) a file of a name it would write in a folder other than the run's own plots/."""
-    p = folder
-    while not p.exists() and p != p.parent:
-        p = p.parent
-    if p.exists() and not p.is_dir():
-        raise OutputError(f"--out {folder} " + ("is a file" if p == folder else f"lies under the file {p}") +
-                          "; expected a folder for the plots")
+    where = atomic.not_a_folder(folder)
+    if where:
+        raise OutputError(f"--out {folder} {where}; expected a folder for the plots")
     if overwrite or folder.resolve() == (run / "plots").resolve():
         return
     there = [n for n in names if (folder / n).exists()]

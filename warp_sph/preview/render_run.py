@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.atomic import not_a_folder
 from .images import save_gif, save_png
 from .render import (
     BACKGROUND,
@@ -58,11 +59,8 @@ def speed_colors(v: np.ndarray | None, speed_scale: float, count: int) -> np.nda
 def _check_out_dir(out_dir: Path) -> None:
     """Refuse, before any rendering, an output folder that is a file or lies under one (nothing is
     written beside it or over it)."""
-    p = out_dir
-    while not p.exists() and p != p.parent:
-        p = p.parent
-    if p.exists() and not p.is_dir():
-        where = "is a file" if p == out_dir else f"lies under the file {p}"
+    where = not_a_folder(out_dir)
+    if where:
         raise PreviewError(f"--out {out_dir} {where}, not a folder; preview writes its PNG files (and GIF) into a "
                            "folder: choose a new or existing folder")
 

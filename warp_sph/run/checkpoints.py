@@ -18,7 +18,7 @@ import warp as wp
 
 from ..core.errors import OutputError
 from ..core.version import __version__
-from ..io import run_folder as rf
+from ..io import atomic
 
 #: version of the checkpoint layout (``checkpoint_info``); a newer one is refused on resume
 CHECKPOINT_FORMAT = 2
@@ -41,7 +41,7 @@ def versions() -> dict:
 
 def scene_hash(scene_dict: dict) -> str:
     """sha256 of a scene (``Scene.to_dict()`` or run.json's ``scene``), independent of key order."""
-    canonical = json.dumps(json.loads(rf.to_json(scene_dict)), sort_keys=True, separators=(",", ":"))
+    canonical = json.dumps(json.loads(atomic.to_json(scene_dict)), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
@@ -67,7 +67,7 @@ def checkpoint_info(sim, frame: int, frame_log: list[dict], digest: str = "") ->
     v = versions()
     return dict(step=np.int64(s.step), frame=np.int64(frame), state_frame=np.int64(s.frame),
                 time=np.float64(s.time), last_max_speed=np.float64(last),
-                frame_log=np.array(rf.to_json(frame_log)),
+                frame_log=np.array(atomic.to_json(frame_log)),
                 checkpoint_format=np.int64(CHECKPOINT_FORMAT), scene_hash=np.array(digest or scene_hash(sim.scene.to_dict())),
                 fluid_count=np.int64(sim.model.fluid_count), boundary_count=np.int64(sim.model.boundary_count),
                 solver=np.array(sim.scene.solver), warp_sph_version=np.array(v["warp_sph"]),

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from ..io import atomic
 from ..io import run_folder as rf
 from .memory import SNAPSHOT_QUEUE_BYTES
 from .simulation import Simulation
@@ -149,8 +150,8 @@ class Exporter:
         self._check_space(frame, len(x_world), surface, "checkpoint" in snap)
         if self.record:
             ids = {"id": snap["id"].numpy()} if "id" in snap else {}
-            rf.atomic_save_npz(rf.frame_path(self.out, frame), x=x_world.astype(world), v=v, density=rho,
-                               time=np.float64(t), **ids)
+            atomic.atomic_save_npz(rf.frame_path(self.out, frame), x=x_world.astype(world), v=v, density=rho,
+                                   time=np.float64(t), **ids)
         if surface is not None and self.mesh_writer is not None:
             self.mesh_writer.write_frame(frame, surface[0].astype(world), surface[1])
         if self.usd is not None:
@@ -165,8 +166,8 @@ class Exporter:
                                  ids=snap["id"].numpy() if "id" in snap else None)
         if "checkpoint" in snap:  # after the frame's outputs: checkpoint k implies frames <= k are saved
             (self.out / "checkpoints").mkdir(exist_ok=True)
-            rf.atomic_save_npz(rf.checkpoint_path(self.out, frame), particle_x_local=snap["x"].numpy(),
-                               particle_v=v, **snap["checkpoint"])
+            atomic.atomic_save_npz(rf.checkpoint_path(self.out, frame), particle_x_local=snap["x"].numpy(),
+                                   particle_v=v, **snap["checkpoint"])
         self.seconds += time.perf_counter() - t0
 
     def _check_space(self, frame: int, n: int, surface, checkpoint: bool) -> None:
@@ -180,7 +181,7 @@ class Exporter:
                 need += 12 * verts + 16 * tris
             if self.mesh_writer is not None:
                 need += 80 * verts + 40 * tris  # text OBJ: ~3 x 25 characters per vertex
-        rf.check_free_space(self.out / "run.json", need, f"frame {frame}")
+        atomic.check_free_space(self.out / "run.json", need, f"frame {frame}")
 
     def close(self) -> None:
         if self.usd is not None:

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import warp as wp
 
+from ..io import atomic
 from ..io import run_folder as rf
 from ..io.probe_files import ProbeFiles
 from ..core.device import resolve_device
@@ -141,7 +142,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             run_info["plan"] = compare_with_plan(sim.scene.plan, run_info, out)
         if probe_files is not None:
             run_info["probes"] = probe_files.summary(sim.probes.skipped())
-        rf.atomic_write_json(out / rf.RUN_JSON, run_info)
+        atomic.atomic_write_json(out / rf.RUN_JSON, run_info)
 
     if exporter.far:
         _note_far_from_origin(sim, log)
@@ -303,9 +304,9 @@ def _fresh_outputs(sim: Simulation, out: Path, scene, total: int) -> tuple[Expor
         rf.clear_run(out)
     created = rf.create_run_folder(out)
     try:
-        rf.atomic_write_json(out / rf.RUN_JSON, {"scene": scene.to_dict(), "versions": versions(),
-                                                  "frames_requested": total, "frames": [], "status": "starting",
-                                                  "out": str(out)})
+        atomic.atomic_write_json(out / rf.RUN_JSON, {"scene": scene.to_dict(), "versions": versions(),
+                                                      "frames_requested": total, "frames": [], "status": "starting",
+                                                      "out": str(out)})
         exporter = Exporter(sim, out)
         probe_files = ProbeFiles.create(out, sim.probes.lines, scene.name) if sim.probes is not None else None
         return exporter, created, probe_files

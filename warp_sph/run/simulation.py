@@ -30,7 +30,8 @@ from ..neighbors import NeighborGrid, fluid_grid_dim
 from ..core.step_graph import StepGraph
 from ..methods.force import SimulationForces
 from .diagnostics import FrameDiagnostics, FrameStatistics
-from .watchdog import MAX_RETRIES, Watchdog, frame_substeps
+from . import frame_loop
+from .watchdog import Watchdog
 
 
 class Simulation:
@@ -262,68 +263,10 @@ class Simulation:
         return dt * self.watchdog.dt_scale
 
     def advance_frame(self) -> FrameStatistics:
-        """Advance to the next frame time in substeps no larger than the time-step bound: equal ones sized
-        once for the frame (the last frame's speed), or, when the solver asks for it
-        (``per_substep_step``), each sized for the speed at its start.
-
-        During the substeps the per-particle fields are in cell order (``cell_order``, see
-        ``warp_sph.neighbors.particle_order``); before and after, every particle is at its stable index.
-        The watchdog checks the frame's end state (non-finite values, escaped, too fast or too
-        compressed particles). On a violation the frame is retried from its start with half the
-        step (``time.on_instability = "retry"``) or a SimulationError names the stage, step, time,
-        particle and likely cause (the state is left at the failure).
-        """
-        wd = self.watchdog
-        if self.flow is not None:  # sinks and emitters, outside the cell order (every solver's first stage
-            self.flow.begin_frame()  # computes the density of the new count: no refresh needed here)
-        last = self.last_frame if self.last_frame else self.statistics()
-        max_speed = max(last.max_speed, last.body_speed)  # the CFL includes the bodies' particles
-        if self.colliders is not None:  # and the animated obstacles' top speed over the coming frame
-            max_speed = max(max_speed, self.colliders.max_speed(self.state.time, self.state.time + self.frame_dt))
-        if self.flow is not None:  # the particles just emitted enter at the nozzle's speed
-            max_speed = max(max_speed, self.flow.last_speed)
-        wd.save()
-        retries = 0
-        while True:
-            solver_stats = []
-            with self.in_cell_order():
-                if self.per_substep_step:
-                    n, dt_min, dt_max = self._substeps_for_speed(solver_stats)
-                else:
-                    bound = self.time_step(max_speed)
-                    n = frame_substeps(self.frame_dt, bound)
-                    dt_min = dt_max = self.frame_dt / n
-                    if self.bodies is not None:
-                        self.bodies.plan_frame(dt_max, max_speed)
-                    for _ in range(n):
-                        self.step(dt_max)
-                        solver_stats.append({**self.solver.step_statistics(), **self.forces.step_statistics()})
-                self.solver.finish_frame()  # e.g. PBF: the density at the frame's positions, for the statistics
-            if self._grow_neighbor_lists():
-                wd.restore()  # neighbours were dropped: redo the frame with the larger lists
-                continue
-            self.state.frame += 1
-            self.state.time = self.state.frame * self.frame_dt
-            if self.colliders is not None:  # at the exact frame time (a resume starts there)
-                self.colliders.place(self.state.time)
-            stats = self.statistics(steps=n, dt_min=dt_min, dt_max=dt_max)
-            stats.retries = retries
-            if wd.broken(stats.watch) is None:
-                break
-            if wd.mode == "retry" and retries < MAX_RETRIES:
-                wd.restore()
-                wd.dt_scale *= 0.5
-                retries += 1
-                continue
-            raise wd.error(stats, n, dt_max, retries, max_speed)
-        if retries == 0:
-            wd.dt_scale = min(1.0, 2.0 * wd.dt_scale)
-        if solver_stats and solver_stats[0]:
-            keys = solver_stats[0].keys()
-            stats.solver = {k: {"mean": float(np.mean([s[k] for s in solver_stats])),
-                                "max": float(np.max([s[k] for s in solver_stats]))} for k in keys}
-        self.last_frame = stats
-        return stats
+        """Advance to the next frame time in substeps no larger than the time-step bound, in cell order; the
+        watchdog checks the frame's end state and retries it with half the step or raises SimulationError
+        (``warp_sph.run.frame_loop.advance_frame``)."""
+        return frame_loop.advance_frame(self)
 
     @property
     def per_substep_step(self) -> bool:
@@ -339,23 +282,6 @@ class Simulation:
         launch(_reduce.max_speed_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, self.fields["particle_v"]],
                [partial], device=self.device)
         return math.sqrt(float(partial.numpy().max()))
-
-    def _substeps_for_speed(self, solver_stats: list) -> tuple[int, float, float]:
-        """One frame in substeps each sized for the flow's speed at its start: what is left of the frame
-        split into equal substeps no larger than ``time_step(current_speed())``, the first of them taken.
-        A steady bound gives equal substeps (a resting tank steps as with one size per frame; steps that
-        change size every substep stir the solves' warm start), a growing speed shorter ones. Appends
-        each substep's solver statistics; returns (substeps, smallest dt, largest dt) [-, s, s]."""
-        elapsed, n, dt_min, dt_max = 0.0, 0, math.inf, 0.0
-        while self.frame_dt - elapsed > 1e-9 * self.frame_dt:
-            remaining = self.frame_dt - elapsed
-            dt = remaining / frame_substeps(remaining, self.time_step(self.current_speed()))
-            self.step(dt)
-            solver_stats.append({**self.solver.step_statistics(), **self.forces.step_statistics()})
-            elapsed += dt
-            n += 1
-            dt_min, dt_max = min(dt_min, dt), max(dt_max, dt)
-        return n, dt_min, dt_max
 
     @contextmanager
     def in_cell_order(self):
@@ -373,22 +299,6 @@ class Simulation:
         finally:
             if sorted_:
                 self._cell_order.unsort()
-
-    def _grow_neighbor_lists(self) -> bool:
-        """Once per frame (one host read): True, after growing them, if a particle had more neighbours
-        than the neighbour lists hold."""
-        lists = self.fields.get("neighbor_lists")
-        if lists is None:
-            return False
-        worst = lists.overflow()
-        if worst:
-            import warnings
-
-            warnings.warn(f"frame {self.state.frame + 1}: a particle had {worst} neighbours, more than the list "
-                          f"capacities {lists.capacities}; the lists grow and the frame is redone",
-                          RuntimeWarning, stacklevel=3)
-            lists.grow(worst)
-        return bool(worst)
 
     def statistics(self, steps: int = 0, dt_min: float = 0.0, dt_max: float = 0.0,
                    at_time: float | None = None) -> FrameStatistics:

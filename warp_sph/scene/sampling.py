@@ -177,14 +177,14 @@ def lattice_block(block: FluidBlock, spacing: float, region=None) -> np.ndarray:
     lo = lo + shift
     axes = [lo[i] + 0.5 * step + step * np.arange(n[i]) for i in range(3)]
     pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    if getattr(block, "lattice", "cubic") == "fcc":
+    if block.lattice == "fcc":
         touch = (region[0] >= lo - shift - _EPS * step, region[1] <= hi + _EPS * step) if region is not None else (
             clip_lo, clip_hi)  # fcc never fits a box exactly: a side given flush with a wall counts as clipped
         pts = _fcc_points(lo - shift, hi, clip_lo | touch[0], clip_hi | touch[1], step)
     if block.shape == "sphere":
         r = np.linalg.norm(pts - np.asarray(block.center), axis=1)
         pts = pts[r <= block.radius * (1.0 + _EPS)]
-    elif block.shape == "mesh" and getattr(block, "lattice", "cubic") == "fcc":
+    elif block.shape == "mesh" and block.lattice == "fcc":
         pts = pts[points_inside(block.mesh(), pts)]
     elif block.shape == "mesh":
         pts = pts[lattice_inside(block.mesh(), *axes).reshape(-1)]
@@ -315,8 +315,8 @@ def sample_scene(scene: Scene) -> SampledScene:
     boundary_o = np.concatenate(bo) if bo else np.zeros(0, dtype=np.int32)
 
     # one lattice for every fluid block
-    lattices = sorted({str(getattr(b, "lattice", "cubic")) for b in scene.fluid})
-    if len(lattices) > 1 or (lattices == ["fcc"] and getattr(scene, "emitters", None)):
+    lattices = sorted({str(b.lattice) for b in scene.fluid})
+    if len(lattices) > 1 or (lattices == ["fcc"] and scene.emitters):
         raise SceneError(f"{scene.source}: fluid[].lattice: {' and '.join(lattices)} in one scene; expected one "
                          "lattice for every fluid block (the particle mass is calibrated on it), and cubic with "
                          "emitters")

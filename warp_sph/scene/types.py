@@ -188,7 +188,7 @@ class Scene:
         layer sits at rest density with this kernel and h (``smoothing.wall_gap``)."""
         if self.boundary_gap is not None:
             return self.boundary_gap * self.spacing
-        lattice = "fcc" if any(getattr(b, "lattice", "cubic") == "fcc" for b in self.fluid) else "cubic"
+        lattice = "fcc" if any(b.lattice == "fcc" for b in self.fluid) else "cubic"
         return wall_gap(self.smoothing_kernel, self.smoothing_length, self.spacing, lattice)
 
     def to_dict(self) -> dict:

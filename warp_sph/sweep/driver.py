@@ -5,6 +5,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
+from ..io.atomic import not_a_folder
 from .cases import Case, SweepError
 from .runs import ROW_KEYS, folder_state, requested_frames, row_from_run, run_case
 from .summary import JSONL, PAGE, PLOT, SweepSummary, read_rows
@@ -17,12 +18,9 @@ def check_sweep_folder(out: Path) -> None:
     case there, never over a user's file. A new or empty folder, an earlier sweep's (resumed, also one killed
     before its first case finished) or one of folders only is fine: each case folder is checked on its own."""
     out = Path(out)
-    p = out
-    while not p.exists() and p != p.parent:
-        p = p.parent
-    if p.exists() and not p.is_dir():
-        raise SweepError(f"--out {out} " + ("is a file" if p == out else f"lies under the file {p}") +
-                         "; expected a folder for the sweep")
+    where = not_a_folder(out)
+    if where:
+        raise SweepError(f"--out {out} {where}; expected a folder for the sweep")
     if not out.is_dir() or (out / JSONL).is_file():
         return
     foreign = sorted(f.name for f in out.iterdir() if not f.is_dir() and f.name not in (PAGE, PLOT)

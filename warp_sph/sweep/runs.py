@@ -92,7 +92,7 @@ def pareto_front(cost, error) -> list[bool]:
 # The run folder of a case
 # --------------------------------------------------------------------------------------------
 def _json_roundtrip(obj):
-    from ..io.run_folder import to_json
+    from ..io.atomic import to_json
 
     return json.loads(to_json(obj))
 

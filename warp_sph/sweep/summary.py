@@ -124,7 +124,7 @@ class SweepSummary:
         return [self.rows[n] for n in self.order if n in self.rows]
 
     def write_rows(self) -> Path:
-        from ..io.run_folder import atomic_write_bytes
+        from ..io.atomic import atomic_write_bytes
 
         self.out.mkdir(parents=True, exist_ok=True)
         text = "".join(json.dumps(r, allow_nan=False) + "\n" for r in self.ordered())
@@ -144,7 +144,7 @@ class SweepSummary:
 
     def write_page(self, plot: bool | None = None) -> Path:
         """The page; its plot too when ``plot``, or (None) when the last one is ``plot_every`` old."""
-        from ..io.run_folder import atomic_write_bytes
+        from ..io.atomic import atomic_write_bytes
 
         self._page_at = time.monotonic()
         rows = self.ordered()
