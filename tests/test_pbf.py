@@ -350,16 +350,19 @@ def test_same_start_no_initial_explosion(kernel, device):
     for _ in range(10):
         sim.step(4e-3)
     # Free fall over these 40 ms would give 0.39 m/s; the report's kernel swap exploded at m/s.
-    # Measured max speeds: cubic 0.21, quadric 0.23, quintic 0.47 m/s, all at the block's bottom
+    # Measured max speeds: cubic 0.21, quadric 0.23, quintic 0.45 m/s, all at the block's bottom
     # corners and edges (Jacobi: the bulk's lambda_j push a wall-corner particle before its own
-    # wall term answers), so "small" here means below the 0.39 m/s scale, not zero.
+    # wall term answers), so "small" here means below the 0.39 m/s scale, not zero. Medians: cubic
+    # 0.12, quadric 0.15, quintic 0.23 m/s: the quintic block sinks into its start (mean v_z -0.17 m/s),
+    # caught by two iterations per step whose long-wave correction is D0 / (D0 + eps) = 0.61 of a full
+    # one at the default relaxation (issue #31; at relaxation 1e-4: median 0.19, mean v_z -0.13 m/s).
     v = np.linalg.norm(sim.get_field("particle_v"), axis=1)
-    assert v.max() < 0.6 and np.median(v) < 0.2
+    assert v.max() < 0.6 and np.median(v) < 0.25
 
 
 def test_block_at_rest_stays_at_rest_for_ten_thousand_steps(device):
     """A 6x6x4 block on the floor between walls (cubic, dt = 2 ms) settles, then holds max |v| below
-    1e-3 m/s for 10^4 steps (issue 4). Plain Jacobi (relaxation 1e-4 D0, the default) overshoots:
+    1e-3 m/s for 10^4 steps (issue 4). Plain Jacobi (relaxation 1e-4 D0, the old default) overshoots:
     on a disordered packing every step injects a little energy and the block keeps creeping at
     ~1e-2 m/s (measured, even with 30 iterations per step). Under-relaxing with eps = 5 D0 and a
     little viscosity (2e-3 m^2/s) lets it settle. Settling is a sequence of rearrangements whose
