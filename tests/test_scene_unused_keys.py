@@ -15,7 +15,7 @@ particle_radius = 0.1
 {solver}
 [pbf]
 max_iterations = 3
-relaxation = 1e-4
+target_density_error = 0.005
 
 [container]
 min = [0.0, 0.0, 0.0]
@@ -38,7 +38,7 @@ def test_another_solvers_keys_warn_once_naming_key_section_and_solver(tmp_path):
     f = tmp_path / "mine.toml"
     f.write_text(SCENE.format(solver=""))
     scene, lines = _load(str(f))
-    # relaxation = 1e-4 is pbf's default: it changes nothing whichever solver runs, so it is not named
+    # target_density_error = 0.005 is pbf's default: it changes nothing whichever solver runs, so it is not named
     assert lines == [f"{f}: pbf.max_iterations: no effect with solver 'dfsph' (the [pbf] keys apply with "
                      "solver = 'pbf', e.g. --set solver=pbf)"]
     assert scene.solver == "dfsph" and scene.pbf.max_iterations == 3  # kept: --set solver=pbf uses it

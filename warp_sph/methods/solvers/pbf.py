@@ -17,9 +17,11 @@ particles at 5 ms in the dam break). The "pressure solve" time-step bound keeps 
 
 Why the report's solver exploded (physics notes 4.4): dx ~ C grad C / |grad C|^2, so a denominator
 sum_k |grad_k C_i|^2 that is too small gives a correction that is too large. Here grad C uses
-V = m/rho0 (report eq. 20 with consistent units), and the relaxation epsilon is dimensionless:
-eps = relaxation * D0, with D0 the denominator of an interior particle of a rest lattice, computed
-once on the host from the same kernel (``rest_denominator``).
+V = m/rho0 (report eq. 20 with consistent units), and an explicit relaxation is dimensionless:
+eps = relaxation * D0, with D0 the denominator of an interior particle of the start's rest lattice,
+computed once on the host from the same kernel (``rest_denominator``). By default eps = 3/4 A_max - D0
+(``auto_epsilon``): one Jacobi iteration multiplies a density wave by 1 - A(q) / (D0 + eps), A the symbol
+of J J^T; A_max / D0 = 2.8 (cubic) / 3.3 (fcc), so eps ~ 0 amplifies the short waves (issue #31).
 
 Neighbours: lists built once per step on x* with the search radius H_s + margin
 (``warp_sph.neighbors.NeighborLists``), read by every solver iteration and by the forces, rebuilt only when a particle drifted farther than margin / 2; or the reference hash-grid
@@ -36,6 +38,7 @@ import numpy as np
 import warp as wp
 
 from ...core.launch import LIGHT_MIN_RANGE
+from ...core.model import fluid_lattice
 from ...core.smoothing import evaluate
 from ...core.step_graph import Stage
 from ...kernels import pbf as _pbf
@@ -43,7 +46,7 @@ from ...scene.parameters import Param
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
 from ..force import ForceSlot
-from .pbf_lattice import fluid_depth, lattice_transport, rest_denominator
+from .pbf_lattice import auto_epsilon, fluid_depth, lattice_transport, rest_denominator
 from .pbf_passes import PbfPasses
 
 __all__ = ["LIST_MARGIN", "PbfSolver", "fluid_depth", "lattice_transport", "rest_denominator"]
@@ -84,10 +87,12 @@ class PbfSolver(PbfPasses, Solver):
               "(fraction of rho0) is below this", gt=0.0, lt=1.0),
         Param("pbf.max_iterations", "int", "-", 50, "most constraint iterations per substep", ge=1, le=10000),
         Param("pbf.min_iterations", "int", "-", 2, "fewest constraint iterations per substep", ge=0, le=10000),
-        Param("pbf.relaxation", "float", "-", 1e-4, "constraint-force mixing epsilon, relative to the "
-              "rest-lattice denominator sum_k (grad_k C)^2; about 5 under-relaxes the Jacobi solve so that fluid "
-              "at rest settles (with viscosity 2e-3 m^2/s a resting block holds speeds below 1e-3 m/s); the "
-              "small default applies each correction in full: fewer iterations in violent flows", ge=0.0, le=1e6),
+        Param("pbf.relaxation", "float", "-", None, "constraint-force mixing epsilon, relative to the "
+              "denominator D0 = sum_k (grad_k C)^2 of the start's rest lattice (cubic or fcc); absent (auto): "
+              "eps = 3/4 A_max - D0, A_max the largest symbol of J J^T on that lattice (1.12 D0 cubic, 1.50 D0 fcc "
+              "with the cubic kernel), the Jacobi solve's best damping of short density waves; below "
+              "1/2 A_max / D0 - 1 (0.41 cubic, 0.67 fcc) the solve amplifies them", ge=0.0, le=1e6,
+              default_text="auto"),
         Param("pbf.tensile_correction", "bool", "-", False, "artificial pressure s_corr against clustering"),
         Param("pbf.tensile_k", "float", "-", 0.1, "s_corr strength k", ge=0.0, le=10.0),
         Param("pbf.tensile_n", "int", "-", 4, "s_corr exponent n", ge=1, le=16),
@@ -132,11 +137,10 @@ class PbfSolver(PbfPasses, Solver):
         self.last_stabilization = 0
         self.last_trace = None
         self.grid_builds = 0
-        self.rest_denominator = rest_denominator(m.smoothing.name, m.smoothing_length, m.spacing, m.particle_mass,
-                                                 m.rest_density)
-        self.epsilon = float(p.relaxation) * self.rest_denominator
-        self.kappa = lattice_transport(m.smoothing.name, m.smoothing_length, m.spacing, m.particle_mass,
-                                       m.rest_density, self.epsilon)
+        rest = (m.smoothing.name, m.smoothing_length, m.spacing, m.particle_mass, m.rest_density, fluid_lattice(sim.scene))
+        self.rest_denominator = rest_denominator(*rest)  # on the start's own lattice (cubic or fcc)
+        self.epsilon = auto_epsilon(*rest) if p.relaxation is None else float(p.relaxation) * self.rest_denominator
+        self.kappa = lattice_transport(*rest[:5], self.epsilon, rest[5])
         self.fluid_depth = fluid_depth(sim.sampled, m.gravity)
         w_dq, _ = evaluate(m.smoothing.name, np.array([[p.tensile_dq * m.smoothing_length, 0.0, 0.0]]),
                            m.smoothing_length)
@@ -299,7 +303,7 @@ class PbfSolver(PbfPasses, Solver):
             Stage("solve", self.run_solve, reads=("particle_lambda", "pbf_constraint_offset") + boundary_reads + moving,
                   updates=(nb, "pbf_neighbor_x", "pbf_neighbor_slot") + passes + correction,
                   doc=f"iterations of [density pass +] Jacobi correction (eq. 18) until the pass reads mean C < "
-                      f"{target:g} ({p.min_iterations}-{p.max_iterations} iterations), eps = {p.relaxation:g} D0"
+                      f"{target:g} ({p.min_iterations}-{p.max_iterations} iterations), eps = {self.epsilon / self.rest_denominator:.3g} D0"
                       + (", s_corr" if p.tensile_correction else "")),
             Stage("update", self.run_update, reads=("predicted_x",), updates=("particle_v", "particle_x",
                                                                               "particle_acceleration"),
