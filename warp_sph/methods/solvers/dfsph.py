@@ -12,7 +12,8 @@ Step (one dt per substep):
   v += dt a(P^v) -> [the scene's forces (slot "before_pressure") and the boundary method's force] -> density source for
   v* = v + dt g (the over-density already at x enters with the share s = ``error_share(dt)``: 1 at the
   adaptive step, 2 dt / bound for a smaller fixed step, so that it becomes a velocity e d / tau, not
-  e d / dt) -> density solve: Jacobi sweeps on P with Chebyshev weights (``dfsph.chebyshev``; weights
+  e d / dt) -> density solve: Jacobi sweeps on P with Chebyshev weights (``dfsph.chebyshev``, for fluid
+  that starts at least ``dfsph.chebyshev_min_layers`` layers deep, ``fluid_layers``; else plain Jacobi; weights
   on the device, ``kernels/dfsph.py`` solve_control) until the mean predicted over-density is below
   target_density_error, ending on the target's crossing between the last two sweeps
   (``dfsph.continuous_stop``) -> integrate: v = v* + dt a(P), x += dt v.
