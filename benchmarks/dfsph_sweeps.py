@@ -5,7 +5,8 @@
 The default dam break (its own adaptive step) at each particle radius [m] for the given simulated
 seconds, once per ``dfsph.chebyshev`` value (0: plain Jacobi), the cases of one radius run one after the
 other in this process. Reported per case: fluid particles, steps, density and divergence sweeps per
-step, the mean density error of the solves [%] and the process CPU time per step [ms] (wrap the run in
+step, the mean density error of the solves [%] and the process CPU time per step [ms], the fluid's
+layers and the estimate the solver used (0 below ``dfsph.chebyshev_min_layers``) (wrap the run in
 ``flock /tmp/warp_sph_bench.lock`` on a shared machine; sweeps and errors do not depend on the load).
 Writes one JSON line per case (to --out, default benchmarks/results/dfsph_sweeps.jsonl).
 """
@@ -39,6 +40,8 @@ def measure(radius: float, seconds: float, chebyshev: float, overrides=()) -> di
         error += s["density_error"]["mean"] * st.steps
     cpu = time.process_time() - cpu0
     return {"particle_radius": radius, "particles": sim.model.fluid_count, "seconds": seconds, "chebyshev": chebyshev,
+            # what the solver used: plain Jacobi (0) for fluid shallower than dfsph.chebyshev_min_layers
+            "fluid_layers": sim.solver.fluid_layers, "chebyshev_used": sim.solver.chebyshev,
             "steps": int(steps), "density_sweeps_per_step": sweeps / steps, "divergence_sweeps_per_step": div_sweeps / steps,
             "density_error_percent": 100.0 * error / steps, "cpu_ms_per_step": 1000.0 * cpu / steps,
             "overrides": list(overrides)}

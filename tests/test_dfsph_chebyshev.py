@@ -1,6 +1,7 @@
 """DFSPH's density solve with Chebyshev weights (``dfsph.chebyshev``, Wang 2015): the weight sequence
-against its closed-form limit, sweeps against a NumPy oracle, and fewer sweeps than plain Jacobi to the
-same target on a deep column."""
+against its closed-form limit, sweeps against a NumPy oracle, fewer sweeps than plain Jacobi to the
+same target on a deep column, and the depth rule (``dfsph.chebyshev_min_layers``) that keeps shallow fluid on
+plain Jacobi."""
 import math
 
 import numpy as np
@@ -8,7 +9,7 @@ import pytest
 
 from small_scenes import small_tank, stage
 from test_dfsph import prepared
-from warp_sph.methods.solvers.dfsph import CHEBYSHEV_DELAY, chebyshev_weight
+from warp_sph.methods.solvers.dfsph import CHEBYSHEV_DELAY, chebyshev_weight, fluid_layers
 from warp_sph.run.simulation import Simulation
 
 
@@ -33,7 +34,7 @@ def test_chebyshev_sweeps_against_numpy(device):
     oracle's operator, then P <- max(0, Q + w (P^J - Q)) with Q the P of the sweep before; the last
     sweep applied w != 1, so the solve returns the P its stop test checked (Q), not the extrapolation."""
     rho = 0.9
-    sim, o = prepared(seed=1, device=device, dfsph={"chebyshev": rho})
+    sim, o = prepared(seed=1, device=device, dfsph={"chebyshev": rho, "chebyshev_min_layers": 0})
     m, s = sim.model, sim.solver
     dt = 2e-3
     stage(sim, "density").run(sim, dt)
@@ -109,3 +110,32 @@ def test_accelerated_solve_is_bitwise_reproducible_over_thread_counts(monkeypatc
     for x, v, figures in res[1:]:
         assert np.array_equal(x, res[0][0]) and np.array_equal(v, res[0][1])
         assert figures == res[0][2]
+
+
+def test_fluid_layers_counts_the_lattice_layers_along_gravity():
+    """fluid_layers: a lattice of nz layers at spacing d reads nz along -g whatever the other extents, along
+    the gravity's own axis when it is not z, and along the largest extent without gravity; no fluid: 0."""
+    d = 0.05
+    grid = np.stack(np.meshgrid(np.arange(8) * d, np.arange(3) * d, np.arange(5) * d, indexing="ij"), -1).reshape(-1, 3)
+    grid = grid + np.random.default_rng(0).uniform(-0.01, 0.01, grid.shape) * d  # round-off of a settled lattice
+    assert fluid_layers(grid, (0.0, 0.0, -9.81), d) == 5
+    assert fluid_layers(grid, (-9.81, 0.0, 0.0), d) == 8
+    assert fluid_layers(grid, (0.0, 0.0, 0.0), d) == 8
+    assert fluid_layers(np.zeros((0, 3)), (0.0, 0.0, -9.81), d) == 0
+
+
+def test_shallow_fluid_keeps_plain_jacobi_and_deep_fluid_gets_the_weights(device):
+    """The default estimate (0.8) applies from dfsph.chebyshev_min_layers (10) layers: the 5-layer tank of
+    tests/test_settle.py keeps plain Jacobi (at 0.8 its packing pass stays at 3.2e-3 m/s after 3000 steps
+    instead of settling below 1.2e-3 m/s in 1372: test_settle fails), a 12-layer block gets the weights, and
+    chebyshev_min_layers = 0 gives them to any depth."""
+    from test_dfsph import block_on_floor
+    from test_settle import tank
+
+    shallow = Simulation(tank(1.2e-3), device=device).solver
+    assert shallow.fluid_layers == 5 and shallow.chebyshev == 0.0
+    assert shallow.config.chebyshev == 0.8 and shallow.config.chebyshev_min_layers == 10  # the defaults
+    deep = Simulation(block_on_floor(nx=4, ny=4, nz=12), device=device).solver
+    assert deep.fluid_layers == 12 and deep.chebyshev == 0.8
+    forced = Simulation(tank(1.2e-3, dfsph={"chebyshev_min_layers": 0}), device=device).solver
+    assert forced.chebyshev == 0.8

@@ -12,7 +12,8 @@ Step (one dt per substep):
   v += dt a(P^v) -> [the scene's forces (slot "before_pressure") and the boundary method's force] -> density source for
   v* = v + dt g (the over-density already at x enters with the share s = ``error_share(dt)``: 1 at the
   adaptive step, 2 dt / bound for a smaller fixed step, so that it becomes a velocity e d / tau, not
-  e d / dt) -> density solve: Jacobi sweeps on P with Chebyshev weights (``dfsph.chebyshev``; weights
+  e d / dt) -> density solve: Jacobi sweeps on P with Chebyshev weights (``dfsph.chebyshev``, for fluid
+  that starts at least ``dfsph.chebyshev_min_layers`` layers deep, ``fluid_layers``; else plain Jacobi; weights
   on the device, ``kernels/dfsph.py`` solve_control) until the mean predicted over-density is below
   target_density_error, ending on the target's crossing between the last two sweeps
   (``dfsph.continuous_stop``) -> integrate: v = v* + dt a(P), x += dt v.
@@ -75,6 +76,19 @@ def chebyshev_weight(sweep: int, rho: float, last: float) -> float:
     return 4.0 / (4.0 - rho * rho * last)
 
 
+def fluid_layers(x: np.ndarray, gravity, spacing: float) -> int:
+    """Particle layers of the fluid at ``x`` [m] (N, 3) along gravity: round(height / spacing) + 1, the height
+    the extent of the positions along -g (without gravity: their largest extent along an axis); 0 without
+    fluid."""
+    x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+    if len(x) == 0:
+        return 0
+    g = np.asarray(gravity, dtype=np.float64)
+    gn = float(np.linalg.norm(g))
+    height = float(np.ptp(x @ (-g / gn))) if gn > 0.0 else float(np.ptp(x, axis=0).max())
+    return int(round(height / spacing)) + 1
+
+
 @register_solver
 class DfsphSolver(DfsphSearch, Solver):
     """Divergence-free SPH: a divergence solve and a density solve per step, both Jacobi on the
@@ -112,12 +126,17 @@ class DfsphSolver(DfsphSearch, Solver):
               "each step (off: only the density solve, as in IISPH)"),
         Param("dfsph.warm_start", "float", "-", 0.5, "fraction of the last step's pressures the solves start from "
               "(where a particle is being compressed; 0: start from zero)", ge=0.0, le=1.0),
-        Param("dfsph.chebyshev", "float", "-", 0.0, "spectral-radius estimate of the density solve's Jacobi sweep "
-              "for its Chebyshev acceleration (Wang 2015; 0: plain Jacobi); with dfsph.continuous_stop off a solve "
-              "ending on an accelerated sweep keeps the P its stop test checked. 0.8: a third fewer sweeps at 59k "
-              "particles and the same hydrostatic load as plain Jacobi, but the packing pass (time.settle) does "
-              "not bring a resting tank below 1.2e-3 m/s in 3000 steps; higher values leave fluid at rest jittering",
-              ge=0.0, lt=1.0),
+        Param("dfsph.chebyshev", "float", "-", 0.8, "spectral-radius estimate of the density solve's Jacobi sweep "
+              "for its Chebyshev acceleration (Wang 2015; 0: plain Jacobi), used when the fluid is at least "
+              "dfsph.chebyshev_min_layers deep; with dfsph.continuous_stop off a solve ending on an accelerated sweep "
+              "keeps the P its stop test checked. 0.8: a third fewer sweeps on the dam break at 59k particles, the "
+              "same mean density error and hydrostatic load as plain Jacobi; higher values leave fluid at rest "
+              "jittering", ge=0.0, lt=1.0),
+        Param("dfsph.chebyshev_min_layers", "int", "-", 10, "the Chebyshev weights (dfsph.chebyshev) apply only when "
+              "the fluid at the start is at least this many particle layers deep along gravity (its height / d + 1); "
+              "shallower fluid's sweep converges faster than the estimate says, so the weights would slow it: a "
+              "5-layer tank packed by time.settle stays at 3e-3 m/s instead of coming to rest (0: always)",
+              ge=0, le=100000),
         Param("dfsph.continuous_stop", "bool", "-", True, "the density solve ends where its mean error crosses the "
               "target between its last two sweeps (P_(k-1) + theta (P_k - P_(k-1))), not on a whole sweep: the "
               "pressure is then a continuous function of the fluid's state. Off, a resting tank's sweep count flips "
@@ -152,6 +171,11 @@ class DfsphSolver(DfsphSearch, Solver):
         target = float(self.config.target_density_error)
         self.stabilize_threshold = max(STABILIZE_FACTOR * target, STABILIZE_FLOOR)
         self.max_shift = 0.5 * m.particle_radius
+        #: the fluid's depth at the start in layers, and the Chebyshev estimate the density solve uses:
+        #: dfsph.chebyshev when the fluid is at least dfsph.chebyshev_min_layers deep, else 0 (plain Jacobi)
+        self.fluid_layers = fluid_layers(sim.get_field("particle_x")[: m.fluid_count], m.gravity, m.spacing)
+        deep = self.fluid_layers >= int(self.config.chebyshev_min_layers)
+        self.chebyshev = float(self.config.chebyshev) if deep else 0.0
         self._kept_force = None  # finish_frame's copy of the walls' force (allocated on the first frame)
         # figures of the last step (host values, read by step_statistics and tests)
         self.last_iterations = 0
@@ -214,7 +238,7 @@ class DfsphSolver(DfsphSearch, Solver):
         launched = 0
         block = max(1, min_iterations)
         self.solves += 1
-        rho = float(self.config.chebyshev) if chebyshev else 0.0
+        rho = self.chebyshev if chebyshev else 0.0
         keep = rho > 0.0 or continuous
         if self._replays is not None and self.sweep_loop and n > 0:
             # CPU: every sweep of the solve in one run_loop (one hand-off per solve, a barrier between the
@@ -396,7 +420,8 @@ class DfsphSolver(DfsphSearch, Solver):
                   + (("dfsph_divergence_pressure",) if bodies and p.divergence_solve else ()),
                   updates=("dfsph_pressure", "dfsph_acceleration", "dfsph_error"),
                   writes=("boundary_pressure_term",) if bodies else (),
-                  doc=f"Jacobi sweeps (omega {p.relaxation:g}, Chebyshev rho {p.chebyshev:g}) until the mean predicted "
+                  doc=f"Jacobi sweeps (omega {p.relaxation:g}, Chebyshev rho {self.chebyshev:g}: {self.fluid_layers} layers "
+                      f"deep, weights from {p.chebyshev_min_layers}) until the mean predicted "
                       f"over-density < "
                       f"{p.target_density_error:g} ({p.min_iterations}-{p.max_iterations})"
                       + ("; bodies: term_i = (P^v_i + P_i) / rho0, the walls' pressure of the step" if bodies else "")),
@@ -477,4 +502,4 @@ class DfsphSolver(DfsphSearch, Solver):
 
     def summary(self) -> dict:
         return {"neighbor_threshold": self.neighbor_threshold, "stabilize_threshold": self.stabilize_threshold,
-                "check_every": self.check_every}
+                "check_every": self.check_every, "fluid_layers": self.fluid_layers, "chebyshev": self.chebyshev}
