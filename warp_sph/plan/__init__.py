@@ -246,7 +246,10 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         candidates = [c for c in candidates_for(scene, models) if c.solver in lead]
         if not candidates:
             break
-        free = choose(candidates, budget_s, target_error, limit, scene.source, max_extrapolation=None)
+        try:
+            free = choose(candidates, budget_s, target_error, limit, scene.source, max_extrapolation=None)
+        except PlanError:
+            break  # no setting of the lead qualifies: the others' points below may (the final choice says if none)
         if free.count_extrapolation <= MAX_COUNT_EXTRAPOLATION:
             break
         # the setting the fit would choose lies far beyond the calibration: one more point of its solver, when
