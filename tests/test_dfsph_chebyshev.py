@@ -9,7 +9,7 @@ import pytest
 
 from small_scenes import small_tank, stage
 from test_dfsph import prepared
-from warp_sph.methods.solvers.dfsph import CHEBYSHEV_DELAY, chebyshev_weight, fluid_layers
+from warp_sph.methods.solvers.dfsph_solve import CHEBYSHEV_DELAY, chebyshev_weight, fluid_layers
 from warp_sph.run.simulation import Simulation
 
 
