@@ -53,11 +53,14 @@ WHY = {
                    "0.91-1.10 of the weight over 1-2 s); the mid-depth probe reads the particle pressure field, "
                    "which alternates layer by layer from the walls",
     "hydrostatic_fcc": "the fcc start holds its columns (the cubic lattice's slip is gone: the spread of vertical "
-                       "displacement per plane 0.03-0.13 d at 2 s against 0.41 d), so what moves is the solver's own "
-                       "noise: PBF's two-iteration solve (its floor load swings from step to step) and coarse DFSPH "
-                       "(1.2e-3 m/s with twice the viscosity; no warm start, no divergence solve or a 2.5 ms step "
-                       "change it by under 10 %); the fcc block has 1.41x the "
-                       "particles of the cubic one at the same radius",
+                       "displacement per plane 0.03-0.13 d at 2 s against 0.41 d), and PBF's solve no longer "
+                       "amplifies the lattice's shortest density wave (its relaxation from the lattice, docs/methods.md), "
+                       "so what still moves is coarse DFSPH: a slow flow, fastest in the top planes (3.7e-3 m/s) and "
+                       "the interior columns, not the wall edges nor its solve (1.2e-3 m/s with twice the viscosity; "
+                       "relaxation 0.3, no warm start, no divergence solve or a 2.5 ms step change it by under 10 %; "
+                       "time.settle = 1e-3 brings it to 6.1e-4 m/s); the coarse mid-depth probe reads the fcc "
+                       "planes' particle pressures, not a smooth field; the fcc block has 1.41x the particles of the "
+                       "cubic one at the same radius",
 }
 
 
