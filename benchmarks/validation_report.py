@@ -114,15 +114,16 @@ def misses(case: str, records: list[dict]) -> list[str]:
 
 
 ENSEMBLE_WHY = ("a median of 5 (coarse) or 3 (fine) runs is itself uncertain by about the goal: two 5-run DFSPH coarse "
-                "ensembles (a = 1e-4 and 1e-2) gave medians 9-13 points apart; at sensor 1 the coarse runs spread as "
-                "widely as the experiment's own band (25-94 % of their median against its 61 %), so DFSPH's and PBF's "
-                "+10 / +11 % there are not resolved. Not scatter: DFSPH fine's sensor 1 (its runs 4.33-4.78 lie over "
-                "every coarse run, 3.15-3.99: the spike rises with resolution) and sensor 3, where every run of every "
-                "solver lies above Table 2's band (the one-sample spike of the front's few particles stopping on the "
-                "sensor's wall cell, the misses above). Sensor 4: Table 2's median of the per-run peaks lies 43 % over "
-                "the digitised curve; DFSPH's medians (0.58, 0.73) and PBF fine's (0.57) lie at or above the curve and "
-                "under the band; its median time misses on the curve's plateau (within 10 % of its maximum from -5 to "
-                "+26 % of its time). WCSPH adds the water hammer rho0 c_s v of its artificial speed of sound")
+                "ensembles (a = 1e-4 and 1e-2) gave medians 9-13 points apart; at sensor 1 the coarse runs spread "
+                "20 % (DFSPH) and 38 % (PBF) of their median against the experiment's own 61 % band, so DFSPH's +4 % "
+                "and PBF's -16 % there are within the scatter. Not scatter: DFSPH fine's sensor 1 (its runs 4.38-6.2 "
+                "lie over every coarse run, 2.98-3.62: the spike rises with resolution) and sensor 3, where every "
+                "DFSPH and WCSPH run lies above Table 2's band (the one-sample spike of the front's few particles "
+                "stopping on the sensor's wall cell, the misses above; PBF fine's runs, 1.5-1.75, reach into it since "
+                "its relaxation comes from the lattice). Sensor 4: Table 2's median of the per-run peaks lies 43 % over "
+                "the digitised curve; DFSPH's medians (0.57, 0.73) and PBF fine's (0.64) lie near or above the curve "
+                "and under the band; its median time misses on the curve's plateau (within 10 % of its maximum from "
+                "-5 to +26 % of its time). WCSPH adds the water hammer rho0 c_s v of its artificial speed of sound")
 
 
 def ensemble_rows(recs: list[dict], fmt) -> list[str]:
