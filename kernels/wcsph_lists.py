@@ -12,6 +12,33 @@ from .smoothing import SMOOTHING_FUNCTIONS
 
 
 @functools.cache
+def boundary_density_sum_function(smoothing: str, boundary_terms):
+    """A @wp.func: sum_b density_b(W_ib, V_b) [-] over particle i's listed boundary particles closer than H_s (the
+    wall's share of report eq. 13 before the factor rho0), in the lists' order; shared by the list pass and the
+    fused search (one copy of the loop, the same expressions)."""
+    value = SMOOTHING_FUNCTIONS[smoothing][0]
+    density_term = boundary_terms.density
+
+    @wp.func
+    def boundary_density_sum(boundary_params: boundary_terms.Params, boundary_neighbors: NeighborList,
+                             boundary_x: wp.array(dtype=wp.vec3), boundary_volume: wp.array(dtype=float), i: int,
+                             xi: wp.vec3, h: float, support2: float):
+        boundary_sum = float(0.0)
+        k = int(0)
+        k_end = int(neighbor_count(boundary_neighbors, i))
+        while k < k_end:
+            b = boundary_neighbors.index[i, k]
+            x_ib = xi - boundary_x[b]
+            if wp.dot(x_ib, x_ib) < support2:
+                w = wp.static(value)(wp.length(x_ib), h)
+                boundary_sum += wp.static(density_term)(boundary_params, w, boundary_volume[b])
+            k += 1
+        return boundary_sum
+
+    return boundary_density_sum
+
+
+@functools.cache
 def density_pairs_kernel(smoothing: str, boundary_terms=None):
     """rho_i = m sum_j W_ij + rho0 sum_b density_b(W_ib, V_b) [kg/m^3] (report eq. 7/13) over neighbour lists that
     hold pairs up to H_s + a skin (``wcsph.search_skin``; pairs at or beyond H_s add nothing), and the step's
@@ -77,17 +104,8 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
         pairs_out.count[i] = n
         rho = particle_mass * total
         if wp.static(with_boundary):
-            boundary_sum = float(0.0)
-            k = int(0)
-            k_end = int(neighbor_count(boundary_neighbors, i))
-            while k < k_end:
-                b = boundary_neighbors.index[i, k]
-                x_ib = xi - boundary_x[b]
-                if wp.dot(x_ib, x_ib) < support2:
-                    w = wp.static(value)(wp.length(x_ib), h)
-                    boundary_sum += wp.static(density_term)(boundary_params, w, boundary_volume[b])
-                k += 1
-            rho += rest_density * boundary_sum
+            rho += rest_density * wp.static(boundary_density_sum_function(smoothing, boundary_terms))(
+                boundary_params, boundary_neighbors, boundary_x, boundary_volume, i, xi, h, support2)
         particle_density_out[i] = rho
 
     return compute_density_pairs
@@ -182,17 +200,8 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
         pairs_out.count[i] = n
         rho = particle_mass * total
         if wp.static(with_boundary):
-            boundary_sum = float(0.0)
-            k = int(0)
-            k_end = int(neighbor_count(boundary_neighbors, i))
-            while k < k_end:
-                b = boundary_neighbors.index[i, k]
-                x_ib = xi - boundary_x[b]
-                if wp.dot(x_ib, x_ib) < support2:
-                    w = wp.static(value)(wp.length(x_ib), h)
-                    boundary_sum += wp.static(density_term)(boundary_params, w, boundary_volume[b])
-                k += 1
-            rho += rest_density * boundary_sum
+            rho += rest_density * wp.static(boundary_density_sum_function(smoothing, boundary_terms))(
+                boundary_params, boundary_neighbors, boundary_x, boundary_volume, i, xi, h, support2)
         particle_density_out[i] = rho
 
     return search_density_pairs
