@@ -243,23 +243,16 @@ class NeighborLists:
         fc = self.fluid_cells
         if not self.has_boundary:
             return
-        walls = self.static_walls
-        if boundary_density:
-            kernel = _dev.neighbor_list_kernel(smoothing, boundary_terms)
-            params = boundary_params
-        else:
-            kernel = _dev.neighbor_list_kernel("")
-            params = self._no_params
+        kind = (smoothing, boundary_terms) if boundary_density else ("", None)
+        kernel = _dev.neighbor_list_kernel(*kind, False)  # the walk (moving boundary particles)
+        params = boundary_params if boundary_density else self._no_params
         bc = self.boundary_cells
         if bc is not None:
             mask = self._boundary_mask
-            wall_args = self._no_walls
-            static_kernel = kernel
-            if walls is not None and walls.cells is bc:
-                wall_args = [walls.inv_size, walls.dims, walls.start, walls.entry]
-                static_kernel = _dev.neighbor_list_kernel(smoothing if boundary_density else "",
-                                                          boundary_terms if boundary_density else None, True)
-            launch(static_kernel, n,
+            walls = self.static_walls
+            listed = walls is not None and walls.cells is bc  # the per-run lists of the static walls, or the walk
+            wall_args = [walls.inv_size, walls.dims, walls.start, walls.entry] if listed else self._no_walls
+            launch(_dev.neighbor_list_kernel(*kind, listed), n,
                    [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, self._boundary_weight,
                     self._no_mask if mask is None else mask, int(mask is not None), 0, 0, self.search_radius,
                     float(smoothing_length), float(rest_density), params] + wall_args + [fc.cell_point, particle_x],
