@@ -108,7 +108,7 @@ def walk_counts(sim) -> dict:
 
 def side_by_side(frames: int, rounds: int, clock=time.process_time) -> dict:
     import warp_sph.methods.solvers.dfsph_search as host
-    import warp_sph.methods.solvers.dfsph_walls as walls
+    import warp_sph.neighbors.wall_reach as walls
     import warp_sph.neighbors.cell_lists as cell_lists
     from warp_sph.run.simulation import Simulation
 
@@ -225,7 +225,7 @@ def walls_runs(frames: int, repeats: int) -> dict:
     """Whole runs of the dam break (``frames`` frames, no output) with the static walls from their sub-cell
     lists (``WALL_SUBCELLS``) and with the per-step wall walk (0), ``repeats`` times in turns: process CPU
     and wall seconds of each run (the first frames' kernel compiles are outside: a run of one frame first)."""
-    import warp_sph.methods.solvers.dfsph_walls as walls
+    import warp_sph.neighbors.wall_reach as walls
     from warp_sph.run.simulation import Simulation
 
     subcells = walls.WALL_SUBCELLS

@@ -8,7 +8,7 @@ import functools
 
 import warp as wp
 
-from .dfsph_walls import subcell_of
+from .wall_reach import subcell_of
 from .neighbors import NoBoundaryParams, cell_of, cell_rows, row_points
 from .smoothing import SMOOTHING_FUNCTIONS
 
@@ -23,7 +23,7 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
     delta_i(v) (v_i - v_b). With ``moving`` (rigid bodies) a second grid, over the moving boundary
     particles (boundary indices moving_start + k), is walked after the static one, its neighbours
     listed after the static ones. With ``walls`` the static grid is not walked: the particle's sub-cell
-    list of static boundary particles in reach (``kernels/dfsph_walls.py``, built once per run) is
+    list of static boundary particles in reach (``kernels/wall_reach.py``, built once per run) is
     tested, in the walk's order (the same neighbours and sums, bitwise). With ``lists`` (the search skin)
     nothing is walked: the boundary
     neighbour list (built within H_s + skin, boundary indices) is read and its particles b closer than
@@ -212,7 +212,7 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         sorted_volume: wp.array(dtype=float),
         cell_mask: wp.array(dtype=wp.uint8),
         use_mask: int,
-        # Static boundary particles in reach of each sub-cell (with ``walls``, ``kernels/dfsph_walls.py``):
+        # Static boundary particles in reach of each sub-cell (with ``walls``, ``kernels/wall_reach.py``):
         wall_inv_size: float,
         wall_dims: wp.vec3i,
         wall_start: wp.array(dtype=wp.int32),

@@ -5,7 +5,7 @@ from typing import Any
 
 import warp as wp
 
-from .dfsph_walls import subcell_of
+from .wall_reach import subcell_of
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -225,7 +225,7 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None, walls: bool =
     cells extend to infinity here, matching the clamping of out-of-grid points.
 
     ``walls`` (static boundary particles): the cells are not walked; the points tested are those of the
-    query's sub-cell list (``kernels/dfsph_walls.py``, built once per run over the same grid: wall_inv_size,
+    query's sub-cell list (``kernels/wall_reach.py``, built once per run over the same grid: wall_inv_size,
     wall_dims, wall_start, wall_entry), the points the walk could reach in its order, so the lists and sums
     are bitwise the walk's."""
     with_density = bool(smoothing)

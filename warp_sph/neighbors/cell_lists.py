@@ -125,7 +125,7 @@ class NeighborLists:
         self._no_walls = [0.0, wp.vec3i(1, 1, 1), wp.zeros(2, dtype=wp.int32, device=device),
                           wp.zeros(1, dtype=wp.int32, device=device)]
         #: the static boundary particles in reach of each cell of ``boundary_cells``, built once per run (a
-        #: ``WallReach`` of ``methods/solvers/dfsph_walls.py``, set by the solver): the boundary lists test
+        #: ``WallReach`` of ``neighbors/wall_reach.py``, set by the solver): the boundary lists test
         #: them instead of walking the grid, bitwise the same lists and sums. None: the walk.
         self.static_walls = None
         total = boundary_x.shape[0] if boundary_x is not None else 0

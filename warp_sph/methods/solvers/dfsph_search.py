@@ -25,7 +25,7 @@ from ...kernels import dfsph_factor as _factor
 from ...kernels import dfsph_search as _search
 from ...kernels import dfsph_skin as _skin
 from ...kernels import reduction as _reduce
-from . import dfsph_walls as _walls
+from ...neighbors import wall_reach as _walls
 
 #: neighbours (fluid + boundary, self excluded) a particle needs for its divergence error to count,
 #: on the cubic lattice with support 2d (26 interior, 17 on a flat free surface; SPlisHSPlasH: 20)
@@ -61,7 +61,7 @@ class DfsphSearch:
         self._search = _search.fluid_search_kernel(m.smoothing.name)
         terms = sim.boundary_terms
         moving = self.with_bodies and self.nl.moving_cells is not None
-        # static walls: their sub-cell lists in reach (``dfsph_walls.py``, built on the first search)
+        # static walls: their sub-cell lists in reach (``neighbors/wall_reach.py``, built on the first search)
         self._wall_subcells = _walls.WALL_SUBCELLS if self.nl.boundary_cells is not None else 0
         self._walls = None
         self._boundary_factor = _factor.boundary_factor_kernel(m.smoothing.name, terms, m.boundary_count > 0, moving,

@@ -39,7 +39,7 @@ from ...kernels import wcsph_lists as _wcsph
 from ...kernels import pbf_search as _lists_reuse  # identity_slots: generic list-reuse slots
 from ...kernels import reduction as _reduce
 from ...neighbors.cell_lists import simulation_neighbor_lists
-from .dfsph_walls import WallReach
+from ...neighbors.wall_reach import WallReach
 
 #: the static walls' boundary lists are built from per-run sub-cell lists (``static_wall_lists``); False: the
 #: per-search walk of the wall grid (the reference: the same lists bitwise)

@@ -8,8 +8,8 @@ import pytest
 import warp as wp
 
 from small_scenes import small_tank
-from warp_sph.kernels.dfsph_walls import subcell_of
-from warp_sph.methods.solvers import dfsph_walls
+from warp_sph.kernels.wall_reach import subcell_of
+from warp_sph.neighbors import wall_reach
 from warp_sph.neighbors.cell_lists import CellGrid
 from warp_sph.run.simulation import Simulation
 
@@ -54,7 +54,7 @@ def test_sub_cell_lists_hold_every_wall_in_reach_in_walk_order(subcells, device)
     pts, queries = walls_and_queries(rng, radius)
     grid = CellGrid(radius, [-0.55] * 3, [0.55] * 3, len(pts), device=device)
     grid.build(wp.array(pts, dtype=wp.vec3, device=device))
-    reach = dfsph_walls.WallReach(grid, radius, subcells, device=device)
+    reach = wall_reach.WallReach(grid, radius, subcells, device=device)
     assert reach.subcells == subcells and reach.entries > 0
     start, entry = reach.start.numpy(), reach.entry.numpy()
     for s in np.nonzero(np.diff(start) > 1)[0][:200]:
@@ -86,7 +86,7 @@ def test_finer_sub_cells_give_shorter_lists(device):
     grid.build(wp.array(pts, dtype=wp.vec3, device=device))
     means = []
     for subcells in (1, 2, 4):
-        reach = dfsph_walls.WallReach(grid, radius, subcells, device=device)
+        reach = wall_reach.WallReach(grid, radius, subcells, device=device)
         found = wp.zeros((len(queries), 1), dtype=wp.int32, device=device)
         listed = wp.zeros(len(queries), dtype=wp.int32, device=device)
         wp.launch(listed_in_reach, len(queries), [grid.lo, reach.inv_size, reach.dims, reach.start, reach.entry,
@@ -101,7 +101,7 @@ def test_dfsph_with_wall_lists_is_bitwise_the_wall_walk(monkeypatch, device):
     """A dam break in a small tank, 30 steps: with the walls' sub-cell lists (1, 2 and 4 per cell) the
     state, density and boundary neighbour lists are bitwise those of the per-step wall walk."""
     def run(subcells):
-        monkeypatch.setattr(dfsph_walls, "WALL_SUBCELLS", subcells)
+        monkeypatch.setattr(wall_reach, "WALL_SUBCELLS", subcells)
         sim = Simulation(small_tank("walls"), device=device)
         for _ in range(30):
             sim.step(4e-3)
@@ -116,7 +116,7 @@ def test_dfsph_with_a_moving_body_lists_the_static_walls_then_walks_the_body(mon
     from test_rigid_stages import pool
 
     def run(subcells):
-        monkeypatch.setattr(dfsph_walls, "WALL_SUBCELLS", subcells)
+        monkeypatch.setattr(wall_reach, "WALL_SUBCELLS", subcells)
         sim = Simulation(pool(solver="dfsph"), device=device)
         for _ in range(4):
             sim.step(2e-3)

@@ -1,6 +1,7 @@
-"""DFSPH's static walls in reach of each sub-cell, built once per run (``WallReach``; device half
-``kernels/dfsph_walls.py``), so the step's boundary search tests one short list per fluid particle
-instead of walking the wall grid's rows (``kernels/dfsph_factor.py``, ``walls``).
+"""The static walls in reach of each sub-cell, built once per run (``WallReach``; device half
+``kernels/wall_reach.py``), so a step's boundary search tests one short list per fluid particle
+instead of walking the wall grid's rows: DFSPH's (``kernels/dfsph_factor.py``, ``walls``) and the boundary
+lists WCSPH and PBF build (``kernels/neighbors.py`` ``neighbor_list_kernel``, ``walls``).
 
 The static boundary particles do not move, and the search's cell grids keep one frame for the whole run
 (``simulation_neighbor_lists``), so the boundary particles within H_s of each sub-cell of that frame
@@ -8,14 +9,14 @@ The static boundary particles do not move, and the search's cell grids keep one 
 sorted index), so the results are bitwise those of the per-step walk. Moving boundary particles (rigid
 bodies) keep the per-step walk of their own grid.
 
-A helper of the solver ``dfsph.py`` (it registers nothing; the registry imports it harmlessly).
+Used by ``methods/solvers/dfsph_search.py`` and ``methods/solvers/wcsph_lists.py`` ``static_wall_lists``.
 """
 from __future__ import annotations
 
 import warp as wp
 
-from ...core.launch import launch
-from ...kernels import dfsph_walls as _walls
+from ..core.launch import launch
+from ..kernels import wall_reach as _walls
 
 #: sub-cells per cell of the search grid along each axis (0: walk the wall grid every step instead). The
 #: reach of a sub-cell of side a is its box grown by H_s: with cells of H_s, 1 -> 2 -> 4 sub-cells shrink it

@@ -1,4 +1,4 @@
-"""DFSPH's static walls in reach, built once per run (host half ``warp_sph/methods/solvers/dfsph_walls.py``).
+"""The static walls in reach of each cell, built once per run (host half ``warp_sph/neighbors/wall_reach.py``).
 
 The fluid's cell grid frame (the static boundary ``CellGrid``'s lo and cell size, fixed for the run) is
 cut into sub-cells, ``subcells`` per cell along each axis. For each sub-cell the list holds the static
