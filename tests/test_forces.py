@@ -33,7 +33,8 @@ def test_scene_entries_round_trip_and_keep_their_values():
     assert [f.method for f in scene.forces] == ["explicit_viscosity", "xsph"]
     assert scene.forces[0].viscosity == 0.02 and scene.forces[1].factor == 0.05  # the declared default
     data = scene.to_dict()
-    assert data["forces"] == [{"method": "explicit_viscosity", "viscosity": 0.02}, {"method": "xsph", "factor": 0.05}]
+    assert data["forces"] == [{"method": "explicit_viscosity", "viscosity": 0.02}, {"method": "xsph", "factor": 0.05,
+                                                                                    "reference_step": 0.0}]
     assert scene_from_dict(data) == scene
     assert "forces" not in small_tank("bare").to_dict()  # a scene without forces has no [[forces]]
 
