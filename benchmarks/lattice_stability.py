@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from warp_sph.core.smoothing import evaluate, get_smoothing_kernel
+from warp_sph.core.smoothing import LATTICE_LAYER, evaluate, get_smoothing_kernel
 
 
 def lattice_points(spacing: float, layer: float, shift: float, radius: float) -> np.ndarray:
@@ -126,17 +126,30 @@ class Lattice:
         in a checkerboard, q = (pi / d, pi / d, 0), u = e_z: the slip of the cubic lattice's columns (issue #31)."""
         D, _ = self.dynamical(np.array([np.pi / self.d, np.pi / self.d, 0.0]))
         return 2.0 * self.volume * self.d ** 2 * float(D[2, 2])
+    @property
+    def solver_lattice(self) -> str | None:
+        """The name PBF's calibration gives this start ("cubic" or "fcc", ``fluid[].lattice``), None for a start no
+        scene samples (bcc, the --layer stackings)."""
+        for name, layer in LATTICE_LAYER.items():
+            shift = 0.0 if name == "cubic" else 0.5
+            if math.isclose(self.layer, layer) and math.isclose(self.shift, shift):
+                return name
+        return None
+
     def pbf_jacobi(self, n: int = 8) -> dict:
         """PBF's Jacobi solve on this lattice (issue #31): the constraint C_i = rho_i / rho0 - 1 linearised, a
         correction dx = J^T lambda (dx_i = sum_j V (lambda_i + lambda_j) grad W_ij) with lambda = -C / (D + eps) changes
         a wave lambda_j = cos(q . x_j) of C by the factor 1 - A(q) / (D + eps), A(q) = |sum_j V grad W_j sin(q . x_j)|^2
         the symbol of J J^T and D = sum_j |V grad W_j|^2 its diagonal (interior particle). Returns the largest
-        A / D over an n^3 grid of the Brillouin zone and its wave (in pi / d); ``relaxation_convergent`` and
-        ``relaxation_monotone``: the smallest pbf.relaxation (eps over the solver's D0, ``rest_denominator``: the
-        cubic lattice's sum with this lattice's mass) at which no wave grows (factor >= -1) and no wave overshoots
-        (factor >= 0); ``relaxation_smoother``: the Jacobi smoother's optimum for the upper half of the waves
-        (A in [A_max / 2, A_max]: D + eps = 3/4 A_max, factors within +-1/3 there)."""
-        from warp_sph.methods.solvers.pbf_lattice import rest_denominator
+        A / D over an n^3 grid of the Brillouin zone and its wave (in pi / d); ``factor_at_default``: that wave's
+        factor at PBF's default eps (``pbf.relaxation`` absent: ``pbf_lattice.auto_epsilon`` on this start's lattice,
+        3/4 of the finer-searched A_max less D0: -1/3 at A_max; None for a start no scene samples) and ``epsilon_default``
+        that eps over D0; ``relaxation_convergent`` and ``relaxation_monotone``: the smallest pbf.relaxation (eps over the
+        solver's D0, ``rest_denominator``: the start's own lattice's sum, cubic or fcc, as the solver computes it; the
+        cubic lattice's with this lattice's mass for a start no scene samples) at which no wave grows (factor >= -1) and
+        no wave overshoots (factor >= 0); ``relaxation_smoother``: the Jacobi smoother's optimum for the upper half of the
+        waves (A in [A_max / 2, A_max]: D + eps = 3/4 A_max, factors within +-1/3 there)."""
+        from warp_sph.methods.solvers.pbf_lattice import auto_epsilon, rest_denominator
 
         g = self.volume * self.grad
         D = float(np.sum(g * g))
@@ -145,9 +158,13 @@ class Lattice:
         Q = F @ self.b
         A = np.sum((np.sin(Q @ self.x.T) @ g) ** 2, axis=1)
         k = int(np.argmax(A))
-        D0 = rest_denominator(self.name, self.h, self.d, self.volume, 1.0)
+        lattice = self.solver_lattice
+        rest = (self.name, self.h, self.d, self.volume, 1.0, lattice or "cubic")   # m = V, rho0 = 1: V = m / rho0
+        D0 = rest_denominator(*rest)
+        eps = auto_epsilon(*rest) if lattice else None
         return {"A_over_D": float(A[k] / D), "q_pi_over_d": [round(float(v) * self.d / np.pi, 3) for v in Q[k]],
-                "D_over_D0": D / D0, "factor_at_default": 1.0 - float(A[k]) / (D + 1e-4 * D0),
+                "D_over_D0": D / D0, "epsilon_default": None if eps is None else eps / D0,
+                "factor_at_default": None if eps is None else 1.0 - float(A[k]) / (D + eps),
                 "relaxation_convergent": (0.5 * float(A[k]) - D) / D0, "relaxation_monotone": (float(A[k]) - D) / D0,
                 "relaxation_smoother": (0.75 * float(A[k]) - D) / D0}
 

@@ -166,7 +166,8 @@ def test_pbf_jacobi_symbol_against_a_brute_force_correction(start):
     within 2 H_s of the origin moved by dx_k = sum_j V (lambda_k + lambda_j) grad W_kj with lambda_j = cos(q . x_j),
     the origin's density re-summed at +-t dx (central differences): dC_0 / dt = A(q) lambda_0, at the lattice's worst
     wave and at a long one. That worst wave grows under the old default pbf.relaxation (1e-4 D0): factor 1 - A / D below
-    -1 (cubic -1.8, fcc -2.3; docs/validation.md, "PBF at rest")."""
+    -1 (cubic -1.8, fcc -2.3; docs/validation.md, "PBF at rest"); the default (``pbf_lattice.auto_epsilon``,
+    D + eps = 3/4 A_max) damps it, factor in [-1/3, 0) (-1/3 at A_max; the grid's worst wave is at most A_max)."""
     layer, shift = STARTS[start]
     L = Lattice("cubic", D, D, layer, shift)
     jac = L.pbf_jacobi(8)
@@ -192,5 +193,23 @@ def test_pbf_jacobi_symbol_against_a_brute_force_correction(start):
         g = L.volume * L.grad
         A = float(np.sum((np.sin(L.x @ q) @ g) ** 2))
         assert brute == pytest.approx(A, rel=2e-3, abs=1e-6 * A + 1e-12)
-    assert jac["factor_at_default"] < -1.0
+    assert 1.0 - jac["A_over_D"] / (1.0 + 1e-4 / jac["D_over_D0"]) < -1.0      # the old default, eps = 1e-4 D0
+    assert -1.0 / 3.0 - 1e-9 <= jac["factor_at_default"] < -0.2
+    assert jac["relaxation_convergent"] < jac["epsilon_default"] < jac["relaxation_monotone"]
     assert jac["relaxation_convergent"] < jac["relaxation_smoother"] < jac["relaxation_monotone"]
+
+
+@pytest.mark.parametrize("start", ["cubic", "fcc"])
+def test_pbf_jacobi_default_is_the_solvers(start):
+    """``Lattice.pbf_jacobi``'s default eps and D0 are the ones PBF computes for a scene of that start (its
+    ``epsilon`` and ``rest_denominator``, ``pbf.relaxation`` absent), so ``relaxation_*`` read as pbf.relaxation
+    values; a start no scene samples (bcc) has no default."""
+    from warp_sph.run.simulation import Simulation
+
+    sim = Simulation(small_tank("pbf_default", solver="pbf", fluid=[{"shape": "box", "min": [0.0, 0.0, 0.0],
+                                                                    "max": [0.3, 0.3, 0.3], "lattice": start}]))
+    m, solver = sim.model, sim.solver
+    jac = Lattice(m.smoothing.name, m.smoothing_length, m.spacing, *STARTS[start]).pbf_jacobi(4)
+    assert jac["epsilon_default"] == pytest.approx(solver.epsilon / solver.rest_denominator, rel=1e-9)
+    assert jac["D_over_D0"] == pytest.approx(1.0, rel=1e-9)       # the start's own lattice: D = D0
+    assert Lattice("cubic", D, D, *STARTS["bcc"]).pbf_jacobi(4)["factor_at_default"] is None
