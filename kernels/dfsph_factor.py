@@ -52,6 +52,44 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         add_pair_terms = None
 
     @wp.func(module="unique")
+    def add_if_near(
+        i: int,
+        xi: wp.vec3,
+        k: int,
+        radius2: float,
+        index_offset: int,
+        h: float,
+        cell_point: wp.array(dtype=wp.int32),
+        sorted_points: wp.array(dtype=wp.vec3),
+        sorted_volume: wp.array(dtype=float),
+        boundary_params: BoundaryParams,
+        boundary_v: wp.array(dtype=wp.vec3),
+        neighbor_index_out: wp.array2d(dtype=wp.int32),
+        nb_in: int,
+        ratio_in: float,
+        sb_in: wp.vec3,
+        bvel_in: float,
+    ):
+        """Sorted boundary point k tested against x_i: when |x_ib|^2 < radius2 [m^2], b = cell_point[k] + index_offset
+        is listed at nb (below the capacity), nb goes up by one and its terms are added to (ratio, sb, bvel). The one
+        per-point body of ``walk_boundary`` and ``reach_boundary``."""
+        nb = nb_in
+        ratio = ratio_in
+        sb = sb_in
+        bvel = bvel_in
+        x_ib = xi - sorted_points[k]
+        dd = wp.dot(x_ib, x_ib)
+        if dd < radius2:
+            b = cell_point[k] + index_offset
+            if nb < neighbor_index_out.shape[1]:
+                neighbor_index_out[i, nb] = b
+            nb += 1
+            if wp.static(with_terms):
+                ratio, sb, bvel = wp.static(add_pair_terms)(boundary_params, x_ib, dd, h, sorted_volume[k],
+                                                            boundary_v[b], ratio, sb, bvel)
+        return nb, ratio, sb, bvel
+
+    @wp.func(module="unique")
     def walk_boundary(
         i: int,
         xi: wp.vec3,
@@ -91,7 +129,6 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
             q = (xi - grid_lo) * inv_cell_size
             qr = support_radius * inv_cell_size
             radius2 = support_radius * support_radius
-            capacity = neighbor_index_out.shape[1]
             rows = cell_rows(q, qr, grid_dims)
             for z in range(rows[2], rows[3] + 1):  # a branch per candidate: most boundary candidates are kept
                 for y in range(rows[0], rows[1] + 1):
@@ -99,17 +136,9 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
                     k = span[0]
                     k_end = span[1]
                     while k < k_end:
-                        x_ib = xi - sorted_points[k]
-                        dd = wp.dot(x_ib, x_ib)
-                        if dd < radius2:
-                            b = cell_point[k] + index_offset
-                            if nb < capacity:
-                                neighbor_index_out[i, nb] = b
-                            nb += 1
-                            if wp.static(with_terms):
-                                ratio, sb, bvel = wp.static(add_pair_terms)(boundary_params, x_ib, dd, h,
-                                                                            sorted_volume[k], boundary_v[b],
-                                                                            ratio, sb, bvel)
+                        nb, ratio, sb, bvel = add_if_near(i, xi, k, radius2, index_offset, h, cell_point,
+                                                          sorted_points, sorted_volume, boundary_params, boundary_v,
+                                                          neighbor_index_out, nb, ratio, sb, bvel)
                         k += 1
         return nb, ratio, sb, bvel
 
@@ -142,22 +171,13 @@ def boundary_factor_kernel(smoothing: str, boundary_terms, search: bool, moving:
         bvel = bvel_in
         h = smoothing_length
         radius2 = support_radius * support_radius
-        capacity = neighbor_index_out.shape[1]
         s = subcell_of(xi, grid_lo, wall_inv_size, wall_dims)
         e = wall_start[s]
         e_end = wall_start[s + 1]
         while e < e_end:
-            k = wall_entry[e]
-            x_ib = xi - sorted_points[k]
-            dd = wp.dot(x_ib, x_ib)
-            if dd < radius2:
-                b = cell_point[k]
-                if nb < capacity:
-                    neighbor_index_out[i, nb] = b
-                nb += 1
-                if wp.static(with_terms):
-                    ratio, sb, bvel = wp.static(add_pair_terms)(boundary_params, x_ib, dd, h, sorted_volume[k],
-                                                                boundary_v[b], ratio, sb, bvel)
+            nb, ratio, sb, bvel = add_if_near(i, xi, wall_entry[e], radius2, 0, h, cell_point, sorted_points,
+                                              sorted_volume, boundary_params, boundary_v, neighbor_index_out, nb,
+                                              ratio, sb, bvel)
             e += 1
         return nb, ratio, sb, bvel
 
