@@ -13,6 +13,16 @@ from ..kernels import density as _density
 from ..neighbors.cell_lists import simulation_neighbor_lists
 
 
+def neighbor_args(sim, lists: bool) -> tuple:
+    """(boundary_neighbors, fluid_neighbors): a kernel launch's neighbour arguments (``kernels.density.NEIGHBOR_TYPES``)
+    at the time of the call: the neighbour lists' boundary and fluid parts (``lists``), or the boundary and fluid
+    hash grids' ids."""
+    if lists:
+        nl = sim.fields["neighbor_lists"]
+        return nl.boundary, nl.fluid
+    return sim.model.boundary_grid_id, sim.fluid_grid.id
+
+
 def neighbors_stage(sim, lists: bool = True, margin: float = 0.0) -> Stage:
     """Sort the fluid into the cells of the neighbour lists (``density_stage`` then builds the lists), or
     rebuild the fluid hash grid (cell = search radius = support radius H_s; lists: H_s + margin [m])."""

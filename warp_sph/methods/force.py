@@ -51,6 +51,7 @@ import warp as wp
 
 from ..core.step_graph import Stage
 from . import registry
+from .density import neighbor_args
 from .force_apply import FORCE_ACCELERATION, apply_stage as _apply_stage
 from .registry import FORCE_KINDS, FORCE_MODES
 from .solver import MethodBase, TimeStepBound
@@ -85,13 +86,13 @@ class ForceSlot:
 
     def neighbor_arg(self, sim):
         """The neighbour argument of a kernel launch (``kernels.density.NEIGHBOR_TYPES``)."""
-        return sim.fields["neighbor_lists"].fluid if self.lists else sim.fluid_grid.id
+        return neighbor_args(sim, self.lists)[1]
 
     def boundary_neighbor_arg(self, sim):
         """The boundary-neighbour argument of a kernel launch (the lists' boundary part, or the boundary hash
         grid); a stage that reads it declares ``boundary_x`` and ``boundary_volume`` (and ``boundary_grid``
         without lists; ``boundary_v`` with moving bodies)."""
-        return sim.fields["neighbor_lists"].boundary if self.lists else sim.model.boundary_grid_id
+        return neighbor_args(sim, self.lists)[0]
 
 
 class Force(MethodBase):

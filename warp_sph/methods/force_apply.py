@@ -9,6 +9,7 @@ from ..core.launch import launch
 from ..core.step_graph import Stage
 from ..kernels import force_apply as _apply
 from ..kernels import neighbors as _neighbors_dev
+from .density import neighbor_args
 
 #: the per-particle acceleration [m/s^2] explicit forces add into (read from the same v) before one v += dt a
 FORCE_ACCELERATION = "force_acceleration"
@@ -32,11 +33,7 @@ def apply_stage(sim, slot, with_forces: bool, name: str = "apply_forces") -> Sta
 
     def run(sim, dt):
         f = sim.fields
-        if slot.lists:
-            nl = f["neighbor_lists"]
-            bn, fn = nl.boundary, nl.fluid
-        else:
-            bn, fn = m.boundary_grid_id, sim.fluid_grid.id
+        bn, fn = neighbor_args(sim, slot.lists)
         launch(kernel, m.fluid_count,
                [m.particle_mass, m.smoothing_length, m.support_radius, float(dt), params, bn, m.boundary_x,
                 m.boundary_v, m.boundary_volume, fn, f[positions], f["particle_density"],

@@ -28,7 +28,7 @@ from ...core.step_graph import Stage
 from ...kernels import integrate as _integrate
 from ...kernels import wcsph as _wcsph
 from ...scene.parameters import Param
-from ..density import density_stage, neighbors_stage
+from ..density import density_stage, neighbor_args, neighbors_stage
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
 from ..force import FORCE_ACCELERATION, ForceSlot
@@ -160,11 +160,7 @@ class WcsphSolver(Solver):
 
         def run_forces(sim, dt):
             f = sim.fields
-            if self.lists:
-                nl = f["neighbor_lists"]
-                bn, fn = nl.boundary, nl.fluid
-            else:
-                bn, fn = m.boundary_grid_id, sim.fluid_grid.id
+            bn, fn = neighbor_args(sim, self.lists)
             run(force_kernel, m.fluid_count,
                 [m.particle_mass, m.smoothing_length, m.support_radius, m.rest_density, gravity,
                  float(self.config.artificial_viscosity * m.smoothing_length * m.speed_of_sound),
