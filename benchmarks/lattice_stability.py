@@ -142,13 +142,14 @@ class Lattice:
         a wave lambda_j = cos(q . x_j) of C by the factor 1 - A(q) / (D + eps), A(q) = |sum_j V grad W_j sin(q . x_j)|^2
         the symbol of J J^T and D = sum_j |V grad W_j|^2 its diagonal (interior particle). Returns the largest
         A / D over an n^3 grid of the Brillouin zone and its wave (in pi / d); ``factor_at_default``: that wave's
-        factor at PBF's default eps (``pbf.relaxation`` absent: ``pbf_lattice.auto_epsilon`` on this start's lattice,
-        3/4 of the finer-searched A_max less D0: -1/3 at A_max; None for a start no scene samples) and ``epsilon_default``
-        that eps over D0; ``relaxation_convergent`` and ``relaxation_monotone``: the smallest pbf.relaxation (eps over the
-        solver's D0, ``rest_denominator``: the start's own lattice's sum, cubic or fcc, as the solver computes it; the
-        cubic lattice's with this lattice's mass for a start no scene samples) at which no wave grows (factor >= -1) and
-        no wave overshoots (factor >= 0); ``relaxation_smoother``: the Jacobi smoother's optimum for the upper half of the
-        waves (A in [A_max / 2, A_max]: D + eps = 3/4 A_max, factors within +-1/3 there)."""
+        factor at PBF's default eps (``pbf.relaxation`` absent: ``pbf_lattice.auto_epsilon`` on this start's
+        lattice, 3/4 of the finer-searched A_max less D0: -1/3 at A_max; None for a start no scene samples) and
+        ``epsilon_default`` that eps over D0; ``relaxation_convergent`` and ``relaxation_monotone``: the smallest
+        pbf.relaxation (eps over the solver's D0, ``rest_denominator``: the start's own lattice's sum, cubic or fcc,
+        as the solver computes it; the cubic lattice's with this lattice's mass for a start no scene samples) at
+        which no wave grows (factor >= -1) and no wave overshoots (factor >= 0); ``relaxation_smoother``: the Jacobi
+        smoother's optimum for the upper half of the waves (A in [A_max / 2, A_max]: D + eps = 3/4 A_max, factors
+        within +-1/3 there)."""
         from warp_sph.methods.solvers.pbf_lattice import auto_epsilon, rest_denominator
 
         g = self.volume * self.grad

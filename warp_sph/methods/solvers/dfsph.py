@@ -1,6 +1,6 @@
 """Divergence-free SPH (Bender & Koschier 2015, 2017) as SPlisHSPlasH >= 2.12 computes it; kernels
-in ``kernels/dfsph.py`` and ``kernels/dfsph_search.py``, equations there and in the research note
-``dfsph.md``.
+in ``kernels/dfsph.py``, ``kernels/dfsph_solve.py`` and ``kernels/dfsph_search.py``, equations
+there and in the research note ``dfsph.md``.
 
 Step (one dt per substep):
   the fluid sorted into cells (the shared "neighbors" stage) -> one search at x ("density"): the
@@ -14,7 +14,7 @@ Step (one dt per substep):
   adaptive step, 2 dt / bound for a smaller fixed step, so that it becomes a velocity e d / tau, not
   e d / dt) -> density solve: Jacobi sweeps on P with Chebyshev weights (``dfsph.chebyshev``, for fluid
   that starts at least ``dfsph.chebyshev_min_layers`` layers deep, ``fluid_layers``; else plain Jacobi; weights
-  on the device, ``kernels/dfsph.py`` solve_control) until the mean predicted over-density is below
+  on the device, ``kernels/dfsph_solve.py`` solve_control) until the mean predicted over-density is below
   target_density_error, ending on the target's crossing between the last two sweeps
   (``dfsph.continuous_stop``) -> integrate: v = v* + dt a(P), x += dt v.
 
@@ -41,6 +41,7 @@ import warp as wp
 from ...core.launch import LIGHT_MIN_RANGE, Replays, launch
 from ...core.step_graph import Stage
 from ...kernels import dfsph as _dfsph
+from ...kernels import dfsph_solve as _dfsph_solve
 from ...kernels import reduction as _reduce
 from ...scene.parameters import Param
 from ..density import neighbors_stage
@@ -160,9 +161,9 @@ class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
             sim.allocate(name, dtype)
         chunks = max(1, -(-n // _reduce.REDUCE_CHUNK))
         self._partial = wp.zeros(chunks, dtype=float, device=dev)
-        self._control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=dev)
+        self._control = wp.zeros(_dfsph_solve.CONTROL_COUNT, dtype=wp.float64, device=dev)
         self._previous = wp.zeros(max(n, 1), dtype=float, device=dev)
-        self._zero_control = wp.zeros(_dfsph.CONTROL_COUNT, dtype=wp.float64, device=dev)
+        self._zero_control = wp.zeros(_dfsph_solve.CONTROL_COUNT, dtype=wp.float64, device=dev)
         # CPU: the sweeps' launches recorded once per solve site, the control read through a view
         self._replays = Replays() if dev.is_cpu else None
         self._control_view = self._control.numpy() if dev.is_cpu else None

@@ -1,5 +1,5 @@
 """DFSPH's Jacobi solves (Bender & Koschier 2017, Algorithms 2 and 3) with Chebyshev weights (Wang 2015), and the
-stabilisation of an over-dense start: the host side of ``kernels/dfsph.py``'s sweeps. A mixin of
+stabilisation of an over-dense start: the host side of ``kernels/dfsph_solve.py``'s sweeps. A mixin of
 ``DfsphSolver`` (``dfsph.py``), as ``dfsph_search.py`` is for the step's search: it reads the solver's model,
 fields, configuration, neighbour lists and the control/partial arrays ``DfsphSolver._allocate`` makes.
 """
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.launch import launch, run_loop
-from ...kernels import dfsph as _dfsph
+from ...kernels import dfsph_solve as _dfsph_solve
 from ...kernels import reduction as _reduce
 
 #: stabilise when the mean over-density at x exceeds this many times the density target (and 0.1 %)
@@ -24,11 +24,11 @@ STABILIZE_ROUNDS = 50
 STABILIZE_ITERATIONS = 5
 
 
-CHEBYSHEV_DELAY = _dfsph.CHEBYSHEV_DELAY
+CHEBYSHEV_DELAY = _dfsph_solve.CHEBYSHEV_DELAY
 
 
 def chebyshev_weight(sweep: int, rho: float, last: float) -> float:
-    """Host copy of ``kernels/dfsph.py``'s chebyshev_weight (tests): the weight w of sweep ``sweep``
+    """Host copy of ``kernels/dfsph_solve.py``'s chebyshev_weight (tests): the weight w of sweep ``sweep``
     (0-based), P <- max(0, P_prev + w (P_jacobi - P_prev)); 1 (plain
     Jacobi) for the first CHEBYSHEV_DELAY sweeps or rho = 0; then 2 / (2 - rho^2), then
     4 / (4 - rho^2 w_last)."""
@@ -59,7 +59,7 @@ class DfsphSolve:
     def mean_error(self) -> float:
         """Mean of the per-particle ``dfsph_error`` [-], summed in a fixed order (one read)."""
         n = self.model.fluid_count
-        launch(_dfsph.error_chunks, self._partial.shape[0], [_reduce.REDUCE_CHUNK, self.sim.fields["dfsph_error"],
+        launch(_dfsph_solve.error_chunks, self._partial.shape[0], [_reduce.REDUCE_CHUNK, self.sim.fields["dfsph_error"],
                                                              self._zero_control], [self._partial], device=self.model.device)
         return float(self._partial.numpy().sum(dtype=np.float64)) / max(n, 1)
 
@@ -67,9 +67,9 @@ class DfsphSolve:
               max_iterations: int, active_only: bool, chebyshev: bool = False,
               continuous: bool = False) -> tuple[int, float]:
         """Jacobi sweeps on the workspace field ``pressure`` for the field ``source`` (see
-        ``kernels/dfsph.py``) until the mean error is at most ``target`` after at least
+        ``kernels/dfsph_solve.py``) until the mean error is at most ``target`` after at least
         ``min_iterations`` sweeps, or ``max_iterations`` ran. ``continuous``: the solve ends on the linear
-        crossing of the target between its last two sweeps (``kernels/dfsph.py`` solve_control), not on the
+        crossing of the target between its last two sweeps (``kernels/dfsph_solve.py`` solve_control), not on the
         whole last sweep. Returns (iterations, mean error of the last sweep)."""
         m, f = self.model, self.sim.fields
         n, dev = m.fluid_count, m.device
@@ -77,7 +77,7 @@ class DfsphSolve:
         control, partial = self._control, self._partial
         acc, err, p, b, fac = f["dfsph_acceleration"], f["dfsph_error"], f[pressure], f[source], f["dfsph_factor"]
         omega = float(self.config.relaxation)
-        launch(_dfsph.reset_control, 1, [], [control], device=dev)
+        launch(_dfsph_solve.reset_control, 1, [], [control], device=dev)
         launched = 0
         block = max(1, min_iterations)
         self.solves += 1
@@ -87,40 +87,40 @@ class DfsphSolve:
             # CPU: every sweep of the solve in one run_loop (one hand-off per solve, a barrier between the
             # passes; the same launches in the same order, so bitwise the launch-per-pass path below)
             r, tag = self._replays, (pressure, bool(active_only))
-            passes = [[r.get(_dfsph.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev, tag=tag)],
-                      [r.get(_dfsph.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only),
+            passes = [[r.get(_dfsph_solve.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev, tag=tag)],
+                      [r.get(_dfsph_solve.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only),
                                                       control, int(keep)], [p, self._previous, err], device=dev,
                              tag=tag)],
-                      [r.get(_dfsph.error_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, err, control], [partial],
+                      [r.get(_dfsph_solve.error_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, err, control], [partial],
                              device=dev, tag=tag),
-                       r.get(_dfsph.solve_control, 1, [partial, n, float(target), int(min_iterations),
+                       r.get(_dfsph_solve.solve_control, 1, [partial, n, float(target), int(min_iterations),
                                                        int(max_iterations), rho, int(continuous)], [control],
                              device=dev, tag=tag)]]
             c = self._control_view
             first, every = block, self.check_every
 
             def stop(sweep: int) -> bool:  # the same checks as the loop below: after `first`, every `every`
-                return sweep >= first and (sweep - first) % every == 0 and c[_dfsph.CONTROL_DONE] != 0.0
+                return sweep >= first and (sweep - first) % every == 0 and c[_dfsph_solve.CONTROL_DONE] != 0.0
 
             run_loop(passes, max_iterations, stop)
             if keep:
-                launch(_dfsph.finish_sweeps, n, [fn, control, self._previous], [p], device=dev)
-            return int(c[_dfsph.CONTROL_ITERATIONS]), float(c[_dfsph.CONTROL_ERROR])
+                launch(_dfsph_solve.finish_sweeps, n, [fn, control, self._previous], [p], device=dev)
+            return int(c[_dfsph_solve.CONTROL_ITERATIONS]), float(c[_dfsph_solve.CONTROL_ERROR])
         while True:
             block = min(block, max_iterations - launched)
             for _ in range(block):
-                launch(_dfsph.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev)
-                launch(_dfsph.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only), control,
+                launch(_dfsph_solve.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev)
+                launch(_dfsph_solve.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only), control,
                                                  int(keep)], [p, self._previous, err], device=dev)
-                launch(_dfsph.error_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, err, control], [partial], device=dev)
-                launch(_dfsph.solve_control, 1, [partial, n, float(target), int(min_iterations), int(max_iterations),
+                launch(_dfsph_solve.error_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, err, control], [partial], device=dev)
+                launch(_dfsph_solve.solve_control, 1, [partial, n, float(target), int(min_iterations), int(max_iterations),
                                                  rho, int(continuous)], [control], device=dev)
             launched += block
             c = control.numpy()  # the one read per check
-            if c[_dfsph.CONTROL_DONE] != 0.0 or launched >= max_iterations:
+            if c[_dfsph_solve.CONTROL_DONE] != 0.0 or launched >= max_iterations:
                 if keep:
-                    launch(_dfsph.finish_sweeps, n, [fn, control, self._previous], [p], device=dev)
-                return int(c[_dfsph.CONTROL_ITERATIONS]), float(c[_dfsph.CONTROL_ERROR])
+                    launch(_dfsph_solve.finish_sweeps, n, [fn, control, self._previous], [p], device=dev)
+                return int(c[_dfsph_solve.CONTROL_ITERATIONS]), float(c[_dfsph_solve.CONTROL_ERROR])
             block = self.check_every
 
     def run_stabilize(self, sim, dt) -> None:
@@ -140,12 +140,12 @@ class DfsphSolve:
         rounds = 0
         while err > target and rounds < STABILIZE_ROUNDS:
             fn, pairs = self.nl.fluid, f["dfsph_pairs"]
-            launch(_dfsph.stabilize_source, m.fluid_count, [m.rest_density, fn, f["particle_density"]],
+            launch(_dfsph_solve.stabilize_source, m.fluid_count, [m.rest_density, fn, f["particle_density"]],
                    [f["dfsph_divergence_source"], f["dfsph_divergence_pressure"]], device=m.device)
             sweeps = min(STABILIZE_ITERATIONS, int(p.max_iterations))
             self.solve("dfsph_divergence_pressure", "dfsph_divergence_source", 1.0, target, min(int(p.min_iterations), sweeps),
                        sweeps, False)
-            launch(_dfsph.shift_positions, m.fluid_count, [fn, pairs, f["dfsph_divergence_pressure"], self.max_shift],
+            launch(_dfsph_solve.shift_positions, m.fluid_count, [fn, pairs, f["dfsph_divergence_pressure"], self.max_shift],
                    [f["particle_x"]], device=m.device)
             self._neighbors.run(sim, dt)
             self.search(dt)
