@@ -249,8 +249,6 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     if not pts:
         return None
     split = int(getattr(cal, "split_particles", 0) or 0)
-    slowed = slowed_points(pts, split)
-    timed = [p for p in pts if all(p is not a for a, _ in slowed)]  # the points the step's cost is fitted to
     d = [p.spacing for p in pts]
     n = [p.particles for p in pts]
     steady = [p for p in pts if not p.first_in_process] or pts
@@ -275,27 +273,15 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     # the error's laws from the finest ERROR_FIT_POINTS radii: the order near the settings a plan extrapolates to
     fine = pts[:ERROR_FIT_POINTS]
     d_fine = [p.spacing for p in fine]
-    # the step's cost above the thread split from the points there alone, where two counts or more were calibrated
-    above = [p for p in timed if split and p.particles >= split]
-    split_cost = (fit_step_cost([p.fluid for p in above], [max(p.boundary, 0) for p in above],
-                                [p.step_time for p in above])
-                  if len({p.particles for p in above}) >= 2 and len(above) < len(timed) else None)
-    # the count law from the points whose fluid alone splits (a dam break's coarse points pass the split on their walls)
-    split_fluid = [p for p in timed if split and p.fluid >= split]
-    count_law = fit_count_law([p.fluid for p in split_fluid], [p.step_time for p in split_fluid], COUNT_EXPONENT_RANGE,
-                              COUNT_FIT_POINTS) if split_fluid else None
     measured_ratio, window = whole_run_cost_ratio(pts, profile, solver, t0) if profile is not None else (None, 0.0)
     # the sweeps per step against d (the finest radii), and the largest count's split of its step into the sweeps' part
     # and the rest: the step's cost beyond that count as a + b x sweeps (``SolverModel.sweep_factor``)
     ref = max(pts, key=lambda p: (p.fluid, -p.particle_radius))
-    top = max(timed, key=lambda p: (p.fluid, -p.particle_radius))
     from .points import sweep_bounds
     return SolverModel(
         solver=solver,
         steps_per_second=rate,
         error=fit_power_law(d_fine, [max(p.density_error_mean, 1e-9) for p in fine], ORDER_RANGE),
-        step_time=fit_step_cost([p.fluid for p in timed], [max(p.boundary, 0) for p in timed],
-                                [p.step_time for p in timed]),
         setup_time=setup,
         frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
         fluid_count=fit_lattice_count(d, [p.fluid for p in pts], 3),
@@ -308,14 +294,38 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         calibrated_frames=min(p.frames for p in pts), metric=metric, metric_error=metric_law,
         tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents, tolerance_particles=pair_particles,
         profile=_profile(profile, solver, t0) if profile is not None else [],
-        split_particles=split if split_cost is not None else 0, step_time_split=split_cost,
-        count_law=count_law, count_fluid=max(p.fluid for p in split_fluid) if count_law is not None else 0,
-        count_anchor=(top.fluid, max(top.boundary, 0), top.step_time) if split and top.fluid >= split else (),
-        slowed=[(p.particle_radius, p.fluid, p.step_time, q.particle_radius, q.fluid, q.step_time) for p, q in slowed],
+        **step_cost_fields(pts, split),
         cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
         cost_ratio_window=window, sweeps=fit_sweeps(d, [p.sweeps for p in pts], ERROR_FIT_POINTS),
         sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, 0.0), sweeps_fluid=ref.fluid,
         sweeps_reference=ref.sweeps, solve_share=ref.solve_share)
+
+
+def step_cost_fields(pts, split: int) -> dict:
+    """The SolverModel fields of the step's cost fitted to the calibration points ``pts`` (``points.Point``: fluid,
+    boundary, step_time, particle_radius) with the CPU's thread split at ``split`` particles (0: a GPU): ``step_time``,
+    ``step_time_split`` and ``split_particles``, ``count_law`` and ``count_fluid``, ``count_anchor`` and ``slowed``
+    (module docstring). Apart from ``fit_models`` so that a recorded plan's points can be fitted again
+    (``benchmarks/plan_replay.py``)."""
+    slowed = slowed_points(pts, split)
+    timed = [p for p in pts if all(p is not a for a, _ in slowed)]  # the points the step's cost is fitted to
+    # the step's cost above the thread split from the points there alone, where two counts or more were calibrated
+    above = [p for p in timed if split and p.particles >= split]
+    split_cost = (fit_step_cost([p.fluid for p in above], [max(p.boundary, 0) for p in above],
+                                [p.step_time for p in above])
+                  if len({p.particles for p in above}) >= 2 and len(above) < len(timed) else None)
+    # the count law from the points whose fluid alone splits (a dam break's coarse points pass the split on their walls)
+    split_fluid = [p for p in timed if split and p.fluid >= split]
+    count_law = fit_count_law([p.fluid for p in split_fluid], [p.step_time for p in split_fluid], COUNT_EXPONENT_RANGE,
+                              COUNT_FIT_POINTS) if split_fluid else None
+    top = max(timed, key=lambda p: (p.fluid, -p.particle_radius))
+    return dict(
+        step_time=fit_step_cost([p.fluid for p in timed], [max(p.boundary, 0) for p in timed],
+                                [p.step_time for p in timed]),
+        split_particles=split if split_cost is not None else 0, step_time_split=split_cost,
+        count_law=count_law, count_fluid=max(p.fluid for p in split_fluid) if count_law is not None else 0,
+        count_anchor=(top.fluid, max(top.boundary, 0), top.step_time) if split and top.fluid >= split else (),
+        slowed=[(p.particle_radius, p.fluid, p.step_time, q.particle_radius, q.fluid, q.step_time) for p, q in slowed])
 
 
 def whole_run_cost_ratio(pts, profile: Calibration, solver: str, t0) -> tuple:
