@@ -168,7 +168,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             save_info("running")
             started = True
         for frame in range(start_frame + 1, total + 1):
-            t_frame, before = time.perf_counter(), _stage_seconds(sim)
+            t_frame, before, cpu = time.perf_counter(), _stage_seconds(sim), time.process_time()
             first_step = not any(t.calls for t in sim.graph.timings.values())  # this frame loads the kernels
             stats = sim.advance_frame()
             sim.check_health(stats)
@@ -176,7 +176,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             d["frame"] = frame
             # this frame's own timing, apart from the frame log (which a resumed run reproduces bitwise)
             frame_times.append(frame_timing(frame, stats.steps, time.perf_counter() - t_frame,
-                                            _stage_seconds(sim) - before, first_step=first_step))
+                                            _stage_seconds(sim) - before, time.process_time() - cpu, first_step))
             if sim.whitewater is not None:  # live spray / foam / bubbles, generated and dropped so far
                 d["whitewater"] = sim.whitewater.frame_record()
             frame_log.append(d)
@@ -336,14 +336,16 @@ def _run_info(scene, sim: Simulation, total: int, frame_log: list[dict], out: Pa
     }
 
 
-def frame_timing(frame: int, steps: int, wall: float, step_seconds: float, first_step: bool = False) -> dict:
+def frame_timing(frame: int, steps: int, wall: float, step_seconds: float, cpu: float = 0.0,
+                 first_step: bool = False) -> dict:
     """One entry of run.json ``frame_times``: the frame's number, its substeps, its wall time [s] (``advance_frame``:
-    the substeps, the cell-order sort, the statistics, a redone frame's steps), its steps' stage time [s] and
-    ``first_step``: whether it holds the process's first step, whose kernel loads (``first_step_time``) its stage time
-    includes (not after a ``time.settle`` pass, which stepped first). A median over the frames' step time is robust
-    to a load spike where the run's mean (``sim_time_per_step_ms``) is not (``warp_sph.plan.points``)."""
+    the substeps, the cell-order sort, the statistics, a redone frame's steps), its steps' stage time [s], the
+    process's CPU time over the frame [s] (every thread: the export thread's too) and ``first_step``: whether it holds
+    the process's first step, whose kernel loads (``first_step_time``) its stage time includes (not after a
+    ``time.settle`` pass, which stepped first). A median over the frames' step time is robust to a load spike where
+    the run's mean (``sim_time_per_step_ms``) is not (``warp_sph.plan.points``)."""
     return {"frame": int(frame), "steps": int(steps), "wall_time": float(wall), "step_seconds": float(step_seconds),
-            "first_step": bool(first_step)}
+            "cpu_time": float(cpu), "first_step": bool(first_step)}
 
 
 def _stage_seconds(sim) -> float:
