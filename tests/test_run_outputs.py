@@ -194,6 +194,7 @@ def test_resume_reproduces_uninterrupted_run(reference, tmp_path):
     assert [t["steps"] for t in times] == [f["steps"] for f in info["frames"][1:]]
     assert all(t["wall_time"] >= t["step_seconds"] > 0 and t["cpu_time"] > 0 for t in times)
     assert [t["first_step"] for t in times] == [True, False, False, True, False, False]  # each session's first step
+    assert info["array_bytes"] > 0  # the arrays the steps read (``run.working_set``)
     assert_blender_ready(usd_path(out), FRAMES)
 
 

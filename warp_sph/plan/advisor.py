@@ -143,6 +143,7 @@ def point_summary(p, whole: bool = False) -> dict:
     return {"solver": p.solver, "particle_radius": p.particle_radius, "tolerance": p.tolerance, "status": p.status,
             "fluid": p.fluid, "boundary": p.boundary, "frames": p.frames, "steps": p.steps, "step_time": p.step_time,
             "sweeps": p.sweeps, "wall_time": p.wall_time, "seconds": p.seconds, "first_in_process": p.first_in_process,
+            "array_bytes": p.array_bytes,
             "density_error_mean": p.density_error_mean, "density_error_last": p.density_error_last, "whole_run": whole}
 
 

@@ -122,6 +122,18 @@ class SolverModel:
     sweeps_fluid: int = 0                        # the largest calibrated fluid count: the reference of the sweeps' part
     sweeps_reference: float = 0.0                # that point's sweeps per step
     solve_share: float = 0.0                     # [-] that point's steady step time share of the sweeps' stages
+    array_bytes: StepCost | None = None          # [bytes] the run's arrays against Nf, Nb (None: no point recorded them)
+    array_bytes_calibrated: int = 0              # [bytes] the most any calibration point's arrays took
+    cache_bytes: int = 0                         # [bytes] the CPU's last-level cache (0: a GPU, or not listed)
+
+    def past_cache(self, fluid: int, boundary: int) -> float | None:
+        """[bytes] the run's arrays at ``fluid`` and ``boundary`` particles where they pass the CPU's last-level cache
+        and no calibration point's did (its step cost is then carried past the cache unmeasured: docs/plan.md, item
+        12); None otherwise."""
+        if self.array_bytes is None or not self.cache_bytes or self.array_bytes_calibrated >= self.cache_bytes:
+            return None
+        need = self.array_bytes(fluid, boundary)
+        return need if need > self.cache_bytes else None
 
     def sweeps_at(self, d: float) -> float:
         """Sweeps per step at spacing ``d`` [m] at the scene's tolerance: ``sweeps`` within ``sweeps_bounds`` (0 for a
@@ -298,7 +310,18 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
         cost_ratio_window=window, sweeps=fit_sweeps(d, [p.sweeps for p in pts], ERROR_FIT_POINTS),
         sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, 0.0), sweeps_fluid=ref.fluid,
-        sweeps_reference=ref.sweeps, solve_share=ref.solve_share)
+        sweeps_reference=ref.sweeps, solve_share=ref.solve_share, **array_fields(pts, cal))
+
+
+def array_fields(pts, cal) -> dict:
+    """The SolverModel fields of the run's arrays: their bytes fitted against the fluid and wall counts of the points
+    that recorded them (``fit_step_cost``'s non-negative line), the most any point took and the CPU's last-level
+    cache (``Calibration.cache_bytes``)."""
+    sized = [p for p in pts if getattr(p, "array_bytes", 0) > 0]
+    return dict(array_bytes=fit_step_cost([p.fluid for p in sized], [max(p.boundary, 0) for p in sized],
+                                          [p.array_bytes for p in sized]) if sized else None,
+                array_bytes_calibrated=max((p.array_bytes for p in sized), default=0),
+                cache_bytes=int(getattr(cal, "cache_bytes", 0) or 0))
 
 
 def step_cost_fields(pts, split: int) -> dict:

@@ -167,4 +167,10 @@ def cost_notes(model, chosen) -> list:
                    f"{model.sweeps_at(d):.3g} per step predicted at r = {chosen.particle_radius:.4g} m (~ d^"
                    f"{model.sweeps.exponent:.2f} over the finest calibrated radii) against {model.sweeps_reference:.3g} "
                    f"at that count, whose sweeps' stages took {100 * model.solve_share:.0f} % of its step")
+    need = model.past_cache(chosen.fluid_particles, chosen.boundary_particles)
+    if need is not None:
+        out.append(f"{model.solver}'s step cost is carried past this CPU's last-level cache ({model.cache_bytes / 2**20:.3g} "
+                   f"MiB) unmeasured: the run's arrays take about {need / 2**20:.3g} MiB at the chosen count, no calibration "
+                   f"run's more than {model.array_bytes_calibrated / 2**20:.3g} MiB (the dam break's DFSPH then cost more per "
+                   f"particle-step than calibrated, its PBF and the hydrostatic tank's DFSPH did not: docs/plan.md, item 12)")
     return out
