@@ -1,6 +1,7 @@
 """Replay the recorded ``warp-sph bench plan`` cases: the step's cost fitted again from each record's calibration points.
 
-``python -m benchmarks.plan_replay [PLAN.jsonl ...]`` (default ``benchmarks/results/plan.jsonl``) takes every record
+``python -m warp_sph.benchmarks.plan_replay [--detail-only] [PLAN.jsonl ...]`` (default ``benchmarks/results/plan.jsonl``;
+``--detail-only``: the records with the run's step detail) takes every record
 that kept its calibration points and its whole run's figures, fits the chosen solver's step cost again from those
 points with the present code (``warp_sph.plan.models.step_cost_fields``), and predicts the chosen setting's wall time
 with the record's own other models and its predicted steps: wall = load + set-up(N) + steps x step(Nf, Nb, d) +
@@ -91,7 +92,7 @@ def records(paths) -> list[dict]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("paths", nargs="*", default=["benchmarks/results/plan.jsonl"])
+    ap.add_argument("paths", nargs="*", default=[str(Path(__file__).parent / "results" / "plan.jsonl")])
     ap.add_argument("--detail-only", action="store_true", help="only the records with the run's step detail")
     args = ap.parse_args(argv)
     rows = [replay(r) for r in records(args.paths) if not args.detail_only or r.get("detail")]
