@@ -169,8 +169,10 @@ def cost_notes(model, chosen) -> list:
                    f"at that count, whose sweeps' stages took {100 * model.solve_share:.0f} % of its step")
     need = model.past_cache(chosen.fluid_particles, chosen.boundary_particles)
     if need is not None:
-        out.append(f"{model.solver}'s step cost is carried past this CPU's last-level cache ({model.cache_bytes / 2**20:.3g} "
-                   f"MiB) unmeasured: the run's arrays take about {need / 2**20:.3g} MiB at the chosen count, no calibration "
-                   f"run's more than {model.array_bytes_calibrated / 2**20:.3g} MiB (the dam break's DFSPH then cost more per "
-                   f"particle-step than calibrated, its PBF and the hydrostatic tank's DFSPH did not: docs/plan.md, item 12)")
+        mib = 2.0**20
+        out.append(f"{model.solver}'s step cost is carried past this CPU's last-level cache "
+                   f"({model.cache_bytes / mib:.3g} MiB) unmeasured: the run's arrays take about {need / mib:.3g} MiB "
+                   f"at the chosen count, no calibration run's more than {model.array_bytes_calibrated / mib:.3g} MiB "
+                   f"(the dam break's DFSPH then cost more per particle-step than calibrated, its PBF and the "
+                   f"hydrostatic tank's DFSPH did not: docs/plan.md, item 12)")
     return out
