@@ -1,7 +1,7 @@
-"""Replay the recorded ``warp-sph bench plan`` cases: the step's cost fitted again from each record's calibration points.
+"""Replay the recorded ``warp-sph bench plan`` cases: the step's cost fitted again from each record's points.
 
-``python -m warp_sph.benchmarks.plan_replay [--detail-only] [PLAN.jsonl ...]`` (default ``benchmarks/results/plan.jsonl``;
-``--detail-only``: the records with the run's step detail) takes every record
+``python -m warp_sph.benchmarks.plan_replay [--detail-only] [PLAN.jsonl ...]`` (default
+``benchmarks/results/plan.jsonl``; ``--detail-only``: the records with the run's step detail) takes every record
 that kept its calibration points and its whole run's figures, fits the chosen solver's step cost again from those
 points with the present code (``warp_sph.plan.models.step_cost_fields``), and predicts the chosen setting's wall time
 with the record's own other models and its predicted steps: wall = load + set-up(N) + steps x step(Nf, Nb, d) +
