@@ -68,3 +68,27 @@ def test_a_plan_past_the_cache_without_a_point_there_says_so(tiny):  # noqa: F81
         cal.cache_bytes = cache
         assert fit_models(cal, "wcsph", tiny).past_cache(*TARGET) is None
     assert not any("last-level cache" in n for n in cost_notes(fit_models(_cal(_points()), "wcsph", tiny), _chosen()))
+
+
+def test_the_bench_detail_keeps_the_arrays_against_the_cache(tiny):  # noqa: F811
+    """``warp-sph bench plan``'s detail: the plan's fitted bytes at the chosen counts (the linear law's, NumPy oracle),
+    the run's own (run.json ``array_bytes``), the most any calibration run took and the cache."""
+    from types import SimpleNamespace
+
+    from warp_sph.benchmarks.plan import run_detail
+    from warp_sph.plan.advisor import point_summary, predict
+
+    pts = _sized(2000.0, 100.0)
+    cal = _cal(pts)
+    cal.cache_bytes = 16 * MIB
+    m = fit_models(cal, "wcsph", tiny)
+    c = predict(tiny, m, 0.008)
+    p = SimpleNamespace(chosen=c, models={"wcsph": m}, points=[point_summary(q) for q in pts])
+    frames = [{"frame": 1, "density_error_mean": 0.0}] + [{"frame": k, "density_error_mean": 1e-3, "steps": 9}
+                                                          for k in (2, 3, 4)]
+    info = {"frames": frames, "sim_time_per_step_ms": 5.0, "fluid_particles": c.fluid_particles,
+            "array_bytes": 123456789}
+    got = run_detail(p, info)["array_bytes"]
+    assert got["predicted"] == pytest.approx(2000.0 * c.fluid_particles + 100.0 * c.boundary_particles, rel=1e-6)
+    assert got["actual"] == 123456789 and got["cache"] == 16 * MIB
+    assert got["largest_calibrated"] == max(q.array_bytes for q in pts)
