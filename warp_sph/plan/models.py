@@ -125,6 +125,7 @@ class SolverModel:
     array_bytes: StepCost | None = None          # [bytes] the run's arrays against Nf, Nb (None: no point recorded them)
     array_bytes_calibrated: int = 0              # [bytes] the most any calibration point's arrays took
     cache_bytes: int = 0                         # [bytes] the CPU's last-level cache (0: a GPU, or not listed)
+    timing_radii: list = field(default_factory=list)  # [m] timing-only points in the step's cost (``past_cache.py``)
 
     def past_cache(self, fluid: int, boundary: int) -> float | None:
         """[bytes] the run's arrays at ``fluid`` and ``boundary`` particles where they pass the CPU's last-level cache
@@ -251,15 +252,17 @@ def tolerance_exponents(cal: Calibration, solver: str, t0: float | None, metric:
 
 
 def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
-               profile: Calibration | None = None) -> SolverModel | None:
+               profile: Calibration | None = None, timing: Calibration | None = None) -> SolverModel | None:
     """The models of ``solver`` from its completed calibration points at the scene's tolerance (None: it has
     none); ``metric``: the error a target names (its law from the points' ``reference``); ``profile``: the
-    whole-duration calibration whose per-frame errors give R (module docstring)."""
+    whole-duration calibration whose per-frame errors give R (module docstring); ``timing``: timing-only points
+    (``past_cache.py``: past the CPU's last-level cache), fitted into the step's cost and the arrays' bytes only."""
     t0 = scene_tolerance(scene, solver) if scene is not None else None
     pts = sorted(cal.for_solver(solver, t0) if scene is not None else cal.for_solver(solver),
                  key=lambda p: p.particle_radius)
     if not pts:
         return None
+    timed = pts + (timing.for_solver(solver, t0) if timing is not None and scene is not None else [])
     split = int(getattr(cal, "split_particles", 0) or 0)
     d = [p.spacing for p in pts]
     n = [p.particles for p in pts]
@@ -288,7 +291,7 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     measured_ratio, window = whole_run_cost_ratio(pts, profile, solver, t0) if profile is not None else (None, 0.0)
     # the sweeps per step against d (the finest radii), and the largest count's split of its step into the sweeps' part
     # and the rest: the step's cost beyond that count as a + b x sweeps (``SolverModel.sweep_factor``)
-    ref = max(pts, key=lambda p: (p.fluid, -p.particle_radius))
+    ref = max(timed, key=lambda p: (p.fluid, -p.particle_radius))
     from .points import sweep_bounds
     return SolverModel(
         solver=solver,
@@ -306,11 +309,12 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         calibrated_frames=min(p.frames for p in pts), metric=metric, metric_error=metric_law,
         tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents, tolerance_particles=pair_particles,
         profile=_profile(profile, solver, t0) if profile is not None else [],
-        **step_cost_fields(pts, split),
+        **step_cost_fields(timed, split),
         cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
         cost_ratio_window=window, sweeps=fit_sweeps(d, [p.sweeps for p in pts], ERROR_FIT_POINTS),
         sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, 0.0), sweeps_fluid=ref.fluid,
-        sweeps_reference=ref.sweeps, solve_share=ref.solve_share, **array_fields(pts, cal))
+        sweeps_reference=ref.sweeps, solve_share=ref.solve_share, **array_fields(timed, cal),
+        timing_radii=[p.particle_radius for p in timed[len(pts):]])
 
 
 def array_fields(pts, cal) -> dict:

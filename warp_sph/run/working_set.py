@@ -42,10 +42,11 @@ def array_bytes(sim) -> int:
     return int(total)
 
 
-def last_level_cache_bytes(root: Path = CPU_CACHE_DIR) -> int:
-    """[bytes] of the CPU's largest-level cache (Linux sysfs; 0 where it is not listed)."""
+def last_level_cache_bytes(root: Path | None = None) -> int:
+    """[bytes] of the CPU's largest-level cache (Linux sysfs under ``root``, default CPU_CACHE_DIR; 0 where it is not
+    listed)."""
     best = (0, 0)
-    for index in sorted(Path(root).glob("index*")):
+    for index in sorted(Path(root or CPU_CACHE_DIR).glob("index*")):
         try:
             level = int((index / "level").read_text().strip())
             size = (index / "size").read_text().strip().upper()
