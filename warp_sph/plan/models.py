@@ -290,7 +290,10 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     d_fine = [p.spacing for p in fine]
     measured_ratio, window = whole_run_cost_ratio(pts, profile, solver, t0) if profile is not None else (None, 0.0)
     # the sweeps per step against d (the finest radii), and the largest count's split of its step into the sweeps' part
-    # and the rest: the step's cost beyond that count as a + b x sweeps (``SolverModel.sweep_factor``)
+    # and the rest: the step's cost beyond that count as a + b x sweeps (``SolverModel.sweep_factor``); a timing point
+    # in both (the reference and the law from the same points: measured, dam break 60 s, DFSPH: the timing point's 12.2
+    # sweeps at 24,389 fluid against a law over the calibration points alone, 5.26 at 50,239, gave x 0.542; the run took
+    # 7.1 per step)
     ref = max(timed, key=lambda p: (p.fluid, -p.particle_radius))
     from .points import sweep_bounds
     return SolverModel(
@@ -311,7 +314,8 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         profile=_profile(profile, solver, t0) if profile is not None else [],
         **step_cost_fields(timed, split),
         cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
-        cost_ratio_window=window, sweeps=fit_sweeps(d, [p.sweeps for p in pts], ERROR_FIT_POINTS),
+        cost_ratio_window=window,
+        sweeps=fit_sweeps([p.spacing for p in timed], [p.sweeps for p in timed], ERROR_FIT_POINTS),
         sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, 0.0), sweeps_fluid=ref.fluid,
         sweeps_reference=ref.sweeps, solve_share=ref.solve_share, **array_fields(timed, cal),
         timing_radii=[p.particle_radius for p in timed[len(pts):]])
