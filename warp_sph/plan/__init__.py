@@ -8,6 +8,7 @@ short calibration runs of the scene itself (docs/plan.md).
     models.py     a solver's models fitted to its calibration points (SolverModel)
     advisor.py    models -> candidates (solver x tolerance x radius) -> the recommendation (Plan)
     share.py      the calibration's decisions: the solvers' order, the runs' predicted costs, what fits the share
+    past_cache.py the step's cost past the CPU's last-level cache: a timing-only point there, or the choice capped
     decisions.py  the previous plan's decisions, kept where fresh timings move them within a margin
     report.py     the table, the Pareto plot, the scene file or --set flags of --apply
 """
@@ -55,7 +56,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     the largest calibrated particle count is chosen; when the fit would choose one, a finer calibration point
     of its solver is run first (at a quarter of its count, at least 1.5x and at most 4x the largest calibrated
     count, smaller where only that fits), while the calibration stays within its share of the budget; where the 4x
-    limit rather than the budget stops the plan, a note says so (``budget_cap``).
+    limit rather than the budget stops the plan, a note says so (``budget_cap``). A setting whose arrays pass the CPU's
+    last-level cache is chosen only once a calibration point of its solver is past it: a timing-only point (one frame,
+    ``past_cache.py``) under the same share, else the choice is capped inside the cache (a note says so).
 
     Returns a ``Plan``: ``chosen`` (a ``Candidate``: solver, particle_radius, tolerance, fluid_particles,
     steps, wall_time [s], memory [bytes], density_error [-], metric_error [-] and how far each is
