@@ -104,3 +104,19 @@ def test_without_room_for_the_timing_point_the_choice_stays_inside_the_cache(tin
     assert f"{cache / 2**20:.3g} MiB last-level cache" in note and f"({c.fluid_particles:,} fluid" in note
     assert p.calibration_seconds <= CALIBRATION_SHARE * 60.0
     assert not any("unmeasured" in n for n in p.notes)  # the capped choice carries nothing past the cache
+
+
+def test_the_replay_fits_a_recorded_timing_point_into_the_step_cost(tiny, monkeypatch, tmp_path):  # noqa: F811
+    """``benchmarks/plan_replay.py`` on the record of the timing point's plan (as ``bench plan`` writes it): the
+    replayed wall time is the plan's; without the timing point it falls (the L3's rise unmeasured again)."""
+    from warp_sph.benchmarks.plan_replay import replay
+
+    _sysfs(tmp_path, monkeypatch, 35e6 / 2**20)
+    monkeypatch.setattr(calibrate_module, "calibrate", CacheClock())
+    p = plan(tiny, budget_s=60.0, solvers=["wcsph", "pbf"])
+    rec = p.to_dict()
+    record = {"kind": "plan", "status": "completed", "label": "tiny-60s", "date": "2026-11-26T00:00:00",
+              "solver": p.chosen.solver, "plan": rec, "actual": {"wall_time": 30.0}, "wall_ratio": 1.0}
+    assert replay(record)["replayed"] == pytest.approx(p.chosen.wall_time, rel=1e-9)
+    rec["points"] = [q for q in rec["points"] if not q.get("timing_only")]
+    assert replay(record)["replayed"] < 0.9 * p.chosen.wall_time
