@@ -134,7 +134,21 @@ def run_detail(p, info: dict) -> dict:
             "cost_ratio": {"measured": m.cost_ratio_measured, "applied": m.cost_ratio},
             "count_law_exponent": m.count_law.exponent if m.count_law is not None else None,
             "later_ratio": {"plan": m.later_ratio(frames) if m.has_profile(frames) else None, "run": r_run},
+            "slowed_points": slowed_detail(m),
+            # the run's arrays [bytes] against the CPU's last-level cache (docs/plan.md, item 12): the plan's fit at
+            # the chosen counts, the run's own, the most any calibration run took
+            "array_bytes": {"predicted": m.array_bytes(c.fluid_particles, c.boundary_particles)
+                            if m.array_bytes is not None else None, "actual": info.get("array_bytes"),
+                            "largest_calibrated": m.array_bytes_calibrated, "cache": m.cache_bytes},
             "density_errors": errors}
+
+
+def slowed_detail(model) -> list:
+    """The chosen solver's calibration points left out of its step cost as slowed by the machine's load
+    (``warp_sph.plan.points.slowed_points``): each point's radius [m], fluid count and step time [s], and those of
+    the larger count that stepped faster."""
+    keys = ("particle_radius", "fluid", "step_time")
+    return [{**dict(zip(keys, s[:3])), "faster": dict(zip(keys, s[3:]))} for s in model.slowed]
 
 
 def plan_scene(scene_name: str, overrides: list, **kwargs):
@@ -230,6 +244,13 @@ def section(records: list[dict], fmt, head) -> list[str]:
                 "/".join(fmt(d["cost_ratio"][k]) for k in ("measured", "applied")),
                 "/".join(fmt(d["later_ratio"][k]) for k in ("plan", "run"))]) + " |")
         lines.append("")
+    slowed = [f"- {r['params']['scene']} {fmt(r['params']['budget'])} s: r = {fmt(q['particle_radius'])} m "
+              f"({q['fluid']} fluid) {fmt(q['step_time'], 1e3)} ms per step, slower than r = "
+              f"{fmt(q['faster']['particle_radius'])} m ({q['faster']['fluid']} fluid) at "
+              f"{fmt(q['faster']['step_time'], 1e3)} ms" for r in detailed for q in r["detail"].get("slowed_points") or []]
+    if detailed:
+        lines += ["Calibration points left out of the chosen solver's step cost as slowed by the machine's load (a larger "
+                  "count stepped faster): " + ("none." if not slowed else ""), ""] + slowed + ([""] if slowed else [])
     notes = [f"- {r['params']['scene']} {fmt(r['params']['budget'])} s: {n}" for r in records for n in r.get("notes") or []]
     if notes:
         lines += ["What the calibration left out (to keep within 10 % of the budget) and what stopped a plan short "

@@ -90,3 +90,47 @@ def test_a_flat_fitted_cost_beyond_the_largest_count_holds_its_cost_per_particle
     # the clean calibration grows as Nf^0.91 there: no fallback; on a GPU none either
     assert fit_models(_cal(_points()), "wcsph", tiny).flat_growth(*TARGET) is None
     assert fit_models(_cal(pts, split=0), "wcsph", tiny).flat_growth(*TARGET) is None
+
+
+def test_a_points_step_time_is_the_median_of_its_frames_robust_to_one_slowed_frame():
+    """run.json ``frame_times``: each frame's steps' stage time; the point's step time is the median per step over the
+    frames (the first step's kernel loads left out of the frame that holds it), so one frame slowed 5x by a load spike
+    does not move it, where the mean over the steps (``sim_time_per_step_ms``) moves by 2.3x."""
+    from warp_sph.plan.points import steady_step_time
+
+    step, steps, load = 0.01, 9, 0.4  # [s] per step, steps per frame, the first step's kernel loads
+    frames = [{"frame": 2, "steps": steps, "step_seconds": steps * step + load, "first_step": True},
+              {"frame": 3, "steps": steps, "step_seconds": 5 * steps * step, "first_step": False},  # the spike
+              {"frame": 4, "steps": steps, "step_seconds": steps * step, "first_step": False}]
+    mean_ms = 1e3 * (sum(f["step_seconds"] for f in frames) - load - step) / (3 * steps - 1)
+    info = {"frame_times": frames, "first_step_time": load + step, "sim_time_per_step_ms": mean_ms}
+    assert steady_step_time(info) == pytest.approx(step, rel=1e-12)
+    assert 1e-3 * mean_ms / step > 2.0
+    # a run.json from before the frames' timings were kept: the mean over the steps
+    assert steady_step_time({"sim_time_per_step_ms": mean_ms, "first_step_time": load}) == pytest.approx(1e-3 * mean_ms)
+    # a frame without its first step (after a settle pass) keeps all its steps
+    even = [dict(f, first_step=False, step_seconds=steps * step) for f in frames[:2]]
+    assert steady_step_time({"frame_times": even, "first_step_time": load, "sim_time_per_step_ms": 1.0}) == \
+        pytest.approx(step)
+
+
+def test_the_bench_detail_names_the_slowed_points(tiny):  # noqa: F811
+    """``warp-sph bench plan``'s detail keeps which calibration points the step cost left out (``slowed_points``) and
+    its section lists them; none: an empty list and "none."."""
+    from warp_sph.benchmarks.plan import section, slowed_detail
+
+    m = fit_models(_cal(_points(3.0)), "wcsph", tiny)
+    (q,) = slowed_detail(m)
+    slow = next(p for p in _points(3.0) if p.fluid == 1440)
+    assert (q["fluid"], q["step_time"], q["faster"]["fluid"]) == (1440, slow.step_time, 2352)
+    assert q["particle_radius"] == slow.particle_radius and q["faster"]["step_time"] == pytest.approx(law(2352))
+    assert slowed_detail(fit_models(_cal(_points()), "wcsph", tiny)) == []
+    detail = {"step_time": {"predicted": 0.1, "actual": 0.1},
+              "per_fluid_particle_step": {"predicted": 1e-6, "actual": 1e-6, "largest_calibrated": 1e-6},
+              "sweeps": {}, "cost_ratio": {"measured": None, "applied": 1.0}, "later_ratio": {"plan": None, "run": None}}
+    record = {"params": {"scene": "hydrostatic", "budget": 60.0, "duration": 0.5}, "status": "completed",
+              "detail": {**detail, "slowed_points": [q]}}
+    fmt = lambda v, scale=1.0: "-" if v is None else f"{v * scale:.4g}"  # noqa: E731
+    text = "\n".join(section([record], fmt, lambda records: []))
+    assert "r = 0.0" in text and "(1440 fluid) " in text and "slower than r = " in text and "(2352 fluid)" in text
+    assert "none." in "\n".join(section([{**record, "detail": {**detail, "slowed_points": []}}], fmt, lambda r: []))

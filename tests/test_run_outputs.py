@@ -182,9 +182,19 @@ def test_resume_reproduces_uninterrupted_run(reference, tmp_path):
     assert sorted(p.name for p in (out / "checkpoints").iterdir()) == \
         ["checkpoint_000001.npz", "checkpoint_000004.npz", "checkpoint_000005.npz"]
     rf.checkpoint_path(out, 5).unlink()  # as if stopped before it: frame 5 is recomputed after the resume
+    before = rf.read_run_json(out)["frame_times"]
     info = runner.run(None, frames=FRAMES, resume=out, progress=False, device="cpu", log=quiet)
     assert info["status"] == "completed"
     assert_same_run(reference, out)
+    # each advanced frame's own timing: the frames up to the checkpoint as the first session measured them, the
+    # others from the resumed session, one entry per frame with the frame's substeps
+    times = rf.read_run_json(out)["frame_times"]
+    assert [t["frame"] for t in times] == list(range(2, FRAMES + 1))
+    assert times[:3] == before[:3] and [t["frame"] for t in before] == [2, 3, 4, 5]
+    assert [t["steps"] for t in times] == [f["steps"] for f in info["frames"][1:]]
+    assert all(t["wall_time"] >= t["step_seconds"] > 0 and t["cpu_time"] > 0 for t in times)
+    assert [t["first_step"] for t in times] == [True, False, False, True, False, False]  # each session's first step
+    assert info["array_bytes"] > 0  # the arrays the steps read (``run.working_set``)
     assert_blender_ready(usd_path(out), FRAMES)
 
 

@@ -8,6 +8,7 @@ short calibration runs of the scene itself (docs/plan.md).
     models.py     a solver's models fitted to its calibration points (SolverModel)
     advisor.py    models -> candidates (solver x tolerance x radius) -> the recommendation (Plan)
     share.py      the calibration's decisions: the solvers' order, the runs' predicted costs, what fits the share
+    past_cache.py the step's cost past the CPU's last-level cache: a timing-only point there, or the choice capped
     decisions.py  the previous plan's decisions, kept where fresh timings move them within a margin
     report.py     the table, the Pareto plot, the scene file or --set flags of --apply
 """
@@ -18,6 +19,7 @@ from dataclasses import replace
 
 from .advisor import Candidate, Plan, SolverModel
 from .calibrate import PlanError
+from .past_cache import TIMING_FRAMES, cap_note, timing_cost, timing_target, within_cache
 from .decisions import DECISION_MARGIN, decisions_path, keep_previous, read_previous, request_key, write_decision
 from .share import budget_cap, cost_notes, least_run_time, point_cost, profile_solvers, rank_solvers, whole_run_cost
 
@@ -54,7 +56,9 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     the largest calibrated particle count is chosen; when the fit would choose one, a finer calibration point
     of its solver is run first (at a quarter of its count, at least 1.5x and at most 4x the largest calibrated
     count, smaller where only that fits), while the calibration stays within its share of the budget; where the 4x
-    limit rather than the budget stops the plan, a note says so (``budget_cap``).
+    limit rather than the budget stops the plan, a note says so (``budget_cap``). A setting whose arrays pass the CPU's
+    last-level cache is chosen only once a calibration point of its solver is past it: a timing-only point (one frame,
+    ``past_cache.py``) under the same share, else the choice is capped inside the cache (a note says so).
 
     Returns a ``Plan``: ``chosen`` (a ``Candidate``: solver, particle_radius, tolerance, fluid_particles,
     steps, wall_time [s], memory [bytes], density_error [-], metric_error [-] and how far each is
@@ -126,10 +130,15 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
             for s, r, t in asked)])
 
     profile_seconds = 0.0
+    timing, timing_seconds, timed, untimed = None, 0.0, set(), {}  # timing-only points past the L3 (``past_cache.py``)
     forecast = [0.0, 0.0]  # [s] predicted and measured of the runs whose cost was predicted before they ran
 
     def spent_of(cal):  # the calibration's whole cost: every point of these solvers, run now or from the cache
-        return sum(p.seconds for p in cal.points if p.solver in names) + profile_seconds
+        return sum(p.seconds for p in cal.points if p.solver in names) + profile_seconds + timing_seconds
+
+    def fit_all(with_profile=True):  # every solver's models from the points so far (None where it has none)
+        return {s: m for s in names
+                if (m := fit_models(cal, s, scene, metric, profile if with_profile else None, timing)) is not None}
 
     def overrun():  # what the predicted runs took over their prediction so far (at least 1)
         return max(1.0, forecast[1] / forecast[0]) if forecast[0] > 0 else 1.0
@@ -193,6 +202,35 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         forecast[0] += profile_costs[s]
         forecast[1] += secs
         cached = cached and out.cached
+        return True
+
+    def time_past_cache(choice, cands, models_) -> bool:
+        """A timing-only point of ``choice``'s solver past the L3 where ``choice`` passes it and no point of that solver
+        did, when its cost times the overrun fits in the share (``past_cache.py``); whether it ran."""
+        nonlocal timing, timing_seconds, cached
+        s = choice.solver
+        target = timing_target(cands, models_[s], choice) if s not in timed else None
+        if target is None:
+            return False
+        tf = min(TIMING_FRAMES, frames)
+        cost = timing_cost(cal, models_[s], target, tf)
+        if spent_of(cal) + reserved + cost * overrun() > share:
+            untimed[s] = (target, cost * overrun())
+            return False
+        t = target.tolerance
+        out = calibrate(scene, [s], device=dev, radii=[target.particle_radius], frames=tf, cache=cache,
+                        refresh=refresh and timing is None and tf not in (frames, whole), progress=progress, log=quiet,
+                        tolerance_factor=1.0 if t is None else t / scene_tolerance(scene, s))
+        timed.add(s)
+        keep = [p for p in out.points if p.solver == s and _same_radius(p.particle_radius, target.particle_radius)
+                and _same_tolerance(p.tolerance, t)]
+        timing = replace(out, points=(timing.points if timing is not None else []) + keep)
+        secs = sum(p.seconds for p in keep)
+        timing_seconds += secs
+        forecast[0] += cost
+        forecast[1] += secs
+        cached = cached and out.cached
+        untimed.pop(s, None)
         return True
 
     # the lead's whole run at once: what it really took counts before the finer points are decided (measured, dam
@@ -259,6 +297,14 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
             break
         cal = run_forecast(cal, cost, [free.solver], [r_new])
         cached = cached and cal.cached
+    # the lead's choice past the L3 with no point of it there: a timing point first (before its second tolerance and
+    # the others' points), when it fits in the share
+    models = fit_all()
+    lead_candidates = [c for c in candidates_for(scene, models) if c.solver in lead]
+    try:
+        time_past_cache(choose(lead_candidates, budget_s, target_error, limit, scene.source), lead_candidates, models)
+    except PlanError:
+        pass
     # then the lead's second tolerance, at its finest default radius: a budget plan chooses the finest radius first
     # and the tolerance only between settings at one radius, so the finer points have the first claim on the share
     cal = second_tolerance(cal, lead)
@@ -267,7 +313,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
     # and the plan stayed at 3.5k fluid particles, 3.9 s predicted of a 60 s budget)
     others = [s for s in order if s not in lead]
     cal = second_tolerance(further(cal, others), others)
-    models = {s: m for s in names if (m := fit_models(cal, s, scene, metric)) is not None}
+    models = fit_all(with_profile=False)
     if not models:
         raise PlanError(f"{scene.source}: the scene cannot be calibrated for --target-error {metric}: no "
                         f"calibration run measured it")
@@ -279,7 +325,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         if s not in whole_runs:
             take_profile(s)
     if profile is not None:
-        models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
+        models = fit_all()
         candidates = candidates_for(scene, models)
     chosen = choose(candidates, budget_s, target_error, limit, scene.source)
     # the chosen solver's error over the whole run is measured, or the choice is made again among the solvers whose
@@ -292,7 +338,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         s = chosen.solver
         if s in profile_costs and s not in profiled and take_profile(s, say=False):
             profiled.append(s)
-            models = {s: m for s in names if (m := fit_models(cal, s, scene, metric, profile)) is not None}
+            models = fit_all()
             candidates = candidates_for(scene, models)
             chosen = choose(candidates, budget_s, target_error, limit, scene.source)
             continue
@@ -311,11 +357,28 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                      f"{sum(profile_costs[s] for s in unprofiled):.3g} s, does not fit in {100 * CALIBRATION_SHARE:.0f} % "
                      f"of the budget): the error after the calibrated {(frames - 1) / scene.fps:.3g} s is held at its "
                      f"last calibrated frame's")
-    chosen = keep_previous(chosen, candidates, previous, budget_s, target_error, limit)
+    # the step's cost is never carried past the L3 unmeasured: a timing point of the chosen solver there, or the choice
+    # capped at the settings within it (``past_cache.py``; measured, dam break 60 s: 1.98x the predicted wall time)
+    for _ in range(len(names)):
+        if not time_past_cache(chosen, candidates, models):
+            break
+        models = fit_all()
+        candidates = candidates_for(scene, models)
+        chosen = choose(candidates, budget_s, target_error, limit, scene.source)
+    pool = candidates
+    if models[chosen.solver].past_cache(chosen.fluid_particles, chosen.boundary_particles) is not None:
+        pool = within_cache(candidates, models)
+        try:
+            free, chosen = chosen, choose(pool, budget_s, target_error, limit, scene.source)
+            target, cost = untimed.get(free.solver) or (timing_target(candidates, models[free.solver], free), 0.0)
+            notes.append(cap_note(models[free.solver], free, chosen, target, cost, 100 * CALIBRATION_SHARE))
+        except PlanError:
+            pool = candidates  # nothing qualifies within the cache: the choice stands, the cost notes say it passes
+    chosen = keep_previous(chosen, pool, previous, budget_s, target_error, limit)
     write_decision(memo, request, chosen, (profiled or order or [None])[0])
     notes += cost_notes(models[chosen.solver], chosen)
     if budget_s is not None and target_error is None:
-        cap = budget_cap(candidates, chosen, budget_s, limit, scene.source)
+        cap = budget_cap(pool, chosen, budget_s, limit, scene.source)
         if cap is not None:
             notes.append(cap)
     failed = {p.solver: p.error for p in cal.failures() if p.solver in names and p.solver not in models}
@@ -324,7 +387,7 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
         if s == chosen.solver:
             continue
         try:
-            alternatives.append(choose([c for c in candidates if c.solver == s], budget_s, target_error, limit,
+            alternatives.append(choose([c for c in pool if c.solver == s], budget_s, target_error, limit,
                                        scene.source))
         except PlanError:
             pass
@@ -334,7 +397,8 @@ def plan(scene, budget_s: float | None = None, target_error: float | None = None
                 calibration_seconds=spent_of(cal), calibration_cached=cached, cache_path=cal.path,
                 machine=cal.machine, failed_solvers=failed, metric=metric, notes=notes,
                 points=[point_summary(p) for p in cal.points if p.solver in names]
-                + [point_summary(p, whole=True) for p in (profile.points if profile is not None else [])])
+                + [point_summary(p, whole=True) for p in (profile.points if profile is not None else [])]
+                + [point_summary(p, timing=True) for p in (timing.points if timing is not None else [])])
 
 
 __all__ = ["Candidate", "Plan", "PlanError", "SolverModel", "budget_cap", "cost_notes", "least_run_time", "plan", "point_cost",

@@ -61,6 +61,7 @@ class Calibration:
     step_floor: float = 0.0             # [1/s] fewest substeps per simulated second (``fit.step_floor``)
     step_quantum: float = 0.0           # [1/s] the frame rate: frames are split into whole steps (0: unknown)
     split_particles: int = 0            # particles from which a CPU launch splits over the threads (0: never)
+    cache_bytes: int = 0                # [bytes] the CPU's last-level cache (0: a GPU, or not listed)
 
     def for_solver(self, solver: str, tolerance: float | None | str = "any") -> list[Point]:
         """The completed points of ``solver`` (at ``tolerance`` only, unless "any")."""
@@ -254,8 +255,11 @@ def calibrate(scene, solvers, device=None, radii=None, frames: int | None = None
     ran = points[len(points) - len(todo):] if todo else []
     t = scene.time
     floor = step_floor(scene.fps, t.dt_max, t.fixed_dt)
+    from ..run.working_set import last_level_cache_bytes
+
     return Calibration(key=key, machine=machine, points=points, step_floor=floor, split_particles=split_particles(dev),
-                       step_quantum=float(scene.fps), seconds=sum(p.seconds for p in ran), cached=not todo, path=str(path))
+                       step_quantum=float(scene.fps), seconds=sum(p.seconds for p in ran), cached=not todo, path=str(path),
+                       cache_bytes=last_level_cache_bytes() if dev.is_cpu else 0)
 
 
 def split_particles(device) -> int:

@@ -122,6 +122,19 @@ class SolverModel:
     sweeps_fluid: int = 0                        # the largest calibrated fluid count: the reference of the sweeps' part
     sweeps_reference: float = 0.0                # that point's sweeps per step
     solve_share: float = 0.0                     # [-] that point's steady step time share of the sweeps' stages
+    array_bytes: StepCost | None = None          # [bytes] the run's arrays against Nf, Nb (None: no point recorded them)
+    array_bytes_calibrated: int = 0              # [bytes] the most any calibration point's arrays took
+    cache_bytes: int = 0                         # [bytes] the CPU's last-level cache (0: a GPU, or not listed)
+    timing_radii: list = field(default_factory=list)  # [m] timing-only points in the step's cost (``past_cache.py``)
+
+    def past_cache(self, fluid: int, boundary: int) -> float | None:
+        """[bytes] the run's arrays at ``fluid`` and ``boundary`` particles where they pass the CPU's last-level cache
+        and no calibration point's did (its step cost is then carried past the cache unmeasured: docs/plan.md, item
+        12); None otherwise."""
+        if self.array_bytes is None or not self.cache_bytes or self.array_bytes_calibrated >= self.cache_bytes:
+            return None
+        need = self.array_bytes(fluid, boundary)
+        return need if need > self.cache_bytes else None
 
     def sweeps_at(self, d: float) -> float:
         """Sweeps per step at spacing ``d`` [m] at the scene's tolerance: ``sweeps`` within ``sweeps_bounds`` (0 for a
@@ -239,18 +252,18 @@ def tolerance_exponents(cal: Calibration, solver: str, t0: float | None, metric:
 
 
 def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
-               profile: Calibration | None = None) -> SolverModel | None:
+               profile: Calibration | None = None, timing: Calibration | None = None) -> SolverModel | None:
     """The models of ``solver`` from its completed calibration points at the scene's tolerance (None: it has
     none); ``metric``: the error a target names (its law from the points' ``reference``); ``profile``: the
-    whole-duration calibration whose per-frame errors give R (module docstring)."""
+    whole-duration calibration whose per-frame errors give R (module docstring); ``timing``: timing-only points
+    (``past_cache.py``: past the CPU's last-level cache), fitted into the step's cost and the arrays' bytes only."""
     t0 = scene_tolerance(scene, solver) if scene is not None else None
     pts = sorted(cal.for_solver(solver, t0) if scene is not None else cal.for_solver(solver),
                  key=lambda p: p.particle_radius)
     if not pts:
         return None
+    timed = pts + (timing.for_solver(solver, t0) if timing is not None and scene is not None else [])
     split = int(getattr(cal, "split_particles", 0) or 0)
-    slowed = slowed_points(pts, split)
-    timed = [p for p in pts if all(p is not a for a, _ in slowed)]  # the points the step's cost is fitted to
     d = [p.spacing for p in pts]
     n = [p.particles for p in pts]
     steady = [p for p in pts if not p.first_in_process] or pts
@@ -275,27 +288,18 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
     # the error's laws from the finest ERROR_FIT_POINTS radii: the order near the settings a plan extrapolates to
     fine = pts[:ERROR_FIT_POINTS]
     d_fine = [p.spacing for p in fine]
-    # the step's cost above the thread split from the points there alone, where two counts or more were calibrated
-    above = [p for p in timed if split and p.particles >= split]
-    split_cost = (fit_step_cost([p.fluid for p in above], [max(p.boundary, 0) for p in above],
-                                [p.step_time for p in above])
-                  if len({p.particles for p in above}) >= 2 and len(above) < len(timed) else None)
-    # the count law from the points whose fluid alone splits (a dam break's coarse points pass the split on their walls)
-    split_fluid = [p for p in timed if split and p.fluid >= split]
-    count_law = fit_count_law([p.fluid for p in split_fluid], [p.step_time for p in split_fluid], COUNT_EXPONENT_RANGE,
-                              COUNT_FIT_POINTS) if split_fluid else None
     measured_ratio, window = whole_run_cost_ratio(pts, profile, solver, t0) if profile is not None else (None, 0.0)
     # the sweeps per step against d (the finest radii), and the largest count's split of its step into the sweeps' part
-    # and the rest: the step's cost beyond that count as a + b x sweeps (``SolverModel.sweep_factor``)
-    ref = max(pts, key=lambda p: (p.fluid, -p.particle_radius))
-    top = max(timed, key=lambda p: (p.fluid, -p.particle_radius))
+    # and the rest: the step's cost beyond that count as a + b x sweeps (``SolverModel.sweep_factor``); a timing point
+    # in both (the reference and the law from the same points: measured, dam break 60 s, DFSPH: the timing point's 12.2
+    # sweeps at 24,389 fluid against a law over the calibration points alone, 5.26 at 50,239, gave x 0.542; the run took
+    # 7.1 per step)
+    ref = max(timed, key=lambda p: (p.fluid, -p.particle_radius))
     from .points import sweep_bounds
     return SolverModel(
         solver=solver,
         steps_per_second=rate,
         error=fit_power_law(d_fine, [max(p.density_error_mean, 1e-9) for p in fine], ORDER_RANGE),
-        step_time=fit_step_cost([p.fluid for p in timed], [max(p.boundary, 0) for p in timed],
-                                [p.step_time for p in timed]),
         setup_time=setup,
         frame_overhead=fit_line(n, [p.frame_overhead for p in pts]),
         fluid_count=fit_lattice_count(d, [p.fluid for p in pts], 3),
@@ -308,14 +312,51 @@ def fit_models(cal: Calibration, solver: str, scene=None, metric: str = DENSITY,
         calibrated_frames=min(p.frames for p in pts), metric=metric, metric_error=metric_law,
         tolerance=t0, tolerances=tolerances, tolerance_exponents=exponents, tolerance_particles=pair_particles,
         profile=_profile(profile, solver, t0) if profile is not None else [],
+        **step_cost_fields(timed, split),
+        cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
+        cost_ratio_window=window,
+        sweeps=fit_sweeps([p.spacing for p in timed], [p.sweeps for p in timed], ERROR_FIT_POINTS),
+        sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, 0.0), sweeps_fluid=ref.fluid,
+        sweeps_reference=ref.sweeps, solve_share=ref.solve_share, **array_fields(timed, cal),
+        timing_radii=[p.particle_radius for p in timed[len(pts):]])
+
+
+def array_fields(pts, cal) -> dict:
+    """The SolverModel fields of the run's arrays: their bytes fitted against the fluid and wall counts of the points
+    that recorded them (``fit_step_cost``'s non-negative line), the most any point took and the CPU's last-level
+    cache (``Calibration.cache_bytes``)."""
+    sized = [p for p in pts if getattr(p, "array_bytes", 0) > 0]
+    return dict(array_bytes=fit_step_cost([p.fluid for p in sized], [max(p.boundary, 0) for p in sized],
+                                          [p.array_bytes for p in sized]) if sized else None,
+                array_bytes_calibrated=max((p.array_bytes for p in sized), default=0),
+                cache_bytes=int(getattr(cal, "cache_bytes", 0) or 0))
+
+
+def step_cost_fields(pts, split: int) -> dict:
+    """The SolverModel fields of the step's cost fitted to the calibration points ``pts`` (``points.Point``: fluid,
+    boundary, step_time, particle_radius) with the CPU's thread split at ``split`` particles (0: a GPU): ``step_time``,
+    ``step_time_split`` and ``split_particles``, ``count_law`` and ``count_fluid``, ``count_anchor`` and ``slowed``
+    (module docstring). Apart from ``fit_models`` so that a recorded plan's points can be fitted again
+    (``benchmarks/plan_replay.py``)."""
+    slowed = slowed_points(pts, split)
+    timed = [p for p in pts if all(p is not a for a, _ in slowed)]  # the points the step's cost is fitted to
+    # the step's cost above the thread split from the points there alone, where two counts or more were calibrated
+    above = [p for p in timed if split and p.particles >= split]
+    split_cost = (fit_step_cost([p.fluid for p in above], [max(p.boundary, 0) for p in above],
+                                [p.step_time for p in above])
+                  if len({p.particles for p in above}) >= 2 and len(above) < len(timed) else None)
+    # the count law from the points whose fluid alone splits (a dam break's coarse points pass the split on their walls)
+    split_fluid = [p for p in timed if split and p.fluid >= split]
+    count_law = fit_count_law([p.fluid for p in split_fluid], [p.step_time for p in split_fluid], COUNT_EXPONENT_RANGE,
+                              COUNT_FIT_POINTS) if split_fluid else None
+    top = max(timed, key=lambda p: (p.fluid, -p.particle_radius))
+    return dict(
+        step_time=fit_step_cost([p.fluid for p in timed], [max(p.boundary, 0) for p in timed],
+                                [p.step_time for p in timed]),
         split_particles=split if split_cost is not None else 0, step_time_split=split_cost,
         count_law=count_law, count_fluid=max(p.fluid for p in split_fluid) if count_law is not None else 0,
         count_anchor=(top.fluid, max(top.boundary, 0), top.step_time) if split and top.fluid >= split else (),
-        slowed=[(p.particle_radius, p.fluid, p.step_time, q.particle_radius, q.fluid, q.step_time) for p, q in slowed],
-        cost_ratio=applied_cost_ratio(measured_ratio, window), cost_ratio_measured=measured_ratio,
-        cost_ratio_window=window, sweeps=fit_sweeps(d, [p.sweeps for p in pts], ERROR_FIT_POINTS),
-        sweeps_bounds=sweep_bounds(scene, solver) if scene is not None else (0.0, 0.0), sweeps_fluid=ref.fluid,
-        sweeps_reference=ref.sweeps, solve_share=ref.solve_share)
+        slowed=[(p.particle_radius, p.fluid, p.step_time, q.particle_radius, q.fluid, q.step_time) for p, q in slowed])
 
 
 def whole_run_cost_ratio(pts, profile: Calibration, solver: str, t0) -> tuple:

@@ -50,6 +50,7 @@ class Point:
     sweeps: float = 0.0                 # solver sweeps per step: pressure + divergence iterations, mean over the steps (0: none)
     solve_share: float = 0.0            # [-] the sweeps' stages' share of the steady step time (``solve_share``)
     first_in_process: bool = False      # the process's first calibration run: its set-up loaded the shared kernels
+    array_bytes: int = 0                # [bytes] the run's Warp arrays (run.json ``array_bytes``; 0: not recorded)
     reference: dict = field(default_factory=dict)  # metric -> error against the experiment (None: not measurable)
     seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
 
@@ -112,7 +113,8 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     point.steps = int(info["steps"])
     point.simulated_time = float(info["simulated_time"])
     point.wall_time = float(info["wall_time"])
-    point.step_time = float(info["sim_time_per_step_ms"]) * 1e-3
+    point.step_time = steady_step_time(info)
+    point.array_bytes = int(info.get("array_bytes", 0))
     point.export_wait = float(info.get("export_wait_time", 0.0))
     point.first_step_time = float(info.get("first_step_time", 0.0))
     point.density_error_mean = sum(f["density_error_mean"] for f in advanced) / max(len(advanced), 1)
@@ -124,6 +126,25 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     point.solve_share = solve_share(info.get("stage_times") or [])
     point.frame_speeds = [max(float(f.get("max_speed", 0.0)), float(f.get("body_speed", 0.0))) for f in info["frames"]]
     return point
+
+
+def steady_step_time(info: dict) -> float:
+    """[s] the steady wall time of one step of a run (run.json ``info``): the median over its advanced frames of each
+    frame's steps' stage time per step (``frame_times``; in the frame that holds the process's first step, its kernel
+    loads, ``first_step_time``, and that step left out), robust to a load spike that slows one frame; without
+    ``frame_times`` (a run.json from before they were kept) the mean over the steps, ``sim_time_per_step_ms``."""
+    per_frame, first = [], float(info.get("first_step_time", 0.0))
+    for t in info.get("frame_times") or []:
+        steps, seconds = int(t["steps"]), float(t["step_seconds"])
+        if t.get("first_step"):  # the first step loads the kernels
+            steps, seconds = steps - 1, seconds - first
+        if steps > 0 and seconds > 0:
+            per_frame.append(seconds / steps)
+    if not per_frame:
+        return float(info["sim_time_per_step_ms"]) * 1e-3
+    per_frame.sort()
+    m = len(per_frame) // 2
+    return per_frame[m] if len(per_frame) % 2 else 0.5 * (per_frame[m - 1] + per_frame[m])
 
 
 def slowed_points(pts, split: int) -> list:

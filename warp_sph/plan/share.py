@@ -167,4 +167,12 @@ def cost_notes(model, chosen) -> list:
                    f"{model.sweeps_at(d):.3g} per step predicted at r = {chosen.particle_radius:.4g} m (~ d^"
                    f"{model.sweeps.exponent:.2f} over the finest calibrated radii) against {model.sweeps_reference:.3g} "
                    f"at that count, whose sweeps' stages took {100 * model.solve_share:.0f} % of its step")
+    need = model.past_cache(chosen.fluid_particles, chosen.boundary_particles)
+    if need is not None:
+        mib = 2.0**20
+        out.append(f"{model.solver}'s step cost is carried past this CPU's last-level cache "
+                   f"({model.cache_bytes / mib:.3g} MiB) unmeasured: the run's arrays take about {need / mib:.3g} MiB "
+                   f"at the chosen count, no calibration run's more than {model.array_bytes_calibrated / mib:.3g} MiB "
+                   f"(the dam break's DFSPH then cost more per particle-step than calibrated, its PBF and the "
+                   f"hydrostatic tank's DFSPH did not: docs/plan.md, item 12)")
     return out

@@ -23,6 +23,7 @@ from ..io import atomic
 from ..io import run_folder as rf
 from ..io.probe_files import ProbeFiles
 from ..core.device import resolve_device
+from .working_set import array_bytes
 from ..core.errors import OutputError, SimulationError, WarpSphError
 from .checkpoints import check_checkpoint, checkpoint_info, scene_hash, versions
 from .preflight import preflight_checks
@@ -82,6 +83,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
     settled = None  # the packing pass's record (time.settle; a fresh run only)
     if resume_info is not None:
         start_frame, frame_log, exporter = _resume_start(sim, out, total, *resume_info, log=log)
+        # the frames' timings up to the checkpoint, as the interrupted run measured them (none before they were kept)
+        frame_times = [t for t in resume_info[0].get("frame_times", []) if int(t["frame"]) <= start_frame]
         probe_files = None  # the probes' CSV files (``warp_sph.io.probe_files``)
         if sim.probes is not None:  # rows after the checkpoint's time go; sampling continues after it
             probe_files = ProbeFiles.resume(out, sim.probes.lines, scene.name, sim.state.time)
@@ -91,7 +94,7 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             log(f"{out}: no checkpoint to resume from ({restart}): running it again from frame 1 with the scene "
                 f"of its {rf.RUN_JSON}, replacing its run files")
         settled = settle(sim, log)  # time.settle: the packing pass before t = 0 (None: off)
-        start_frame, frame_log = 1, []
+        start_frame, frame_log, frame_times = 1, [], []
         exporter, created, probe_files = _fresh_outputs(sim, out, scene, total)
 
     worker = ExportThread(exporter) if threaded_export else None
@@ -127,6 +130,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["steps"] = sim.state.step
         run_info["wall_time"] = time.perf_counter() - t_start
         run_info["stage_times"] = sim.graph.timing_table()
+        run_info["frame_times"] = frame_times
+        run_info["array_bytes"] = array_bytes(sim)  # what the steps read, against the CPU's caches (``working_set``)
         if sim.graph.frame_timings:  # per-frame work outside the substeps (emitters and sinks)
             run_info["frame_stage_times"] = sim.graph.frame_timing_table()
         run_info["export_time"] = exporter.seconds
@@ -165,10 +170,15 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
             save_info("running")
             started = True
         for frame in range(start_frame + 1, total + 1):
+            t_frame, before, cpu = time.perf_counter(), _stage_seconds(sim), time.process_time()
+            first_step = not any(t.calls for t in sim.graph.timings.values())  # this frame loads the kernels
             stats = sim.advance_frame()
             sim.check_health(stats)
             d = stats.to_dict()
             d["frame"] = frame
+            # this frame's own timing, apart from the frame log (which a resumed run reproduces bitwise)
+            frame_times.append(frame_timing(frame, stats.steps, time.perf_counter() - t_frame,
+                                            _stage_seconds(sim) - before, time.process_time() - cpu, first_step))
             if sim.whitewater is not None:  # live spray / foam / bubbles, generated and dropped so far
                 d["whitewater"] = sim.whitewater.frame_record()
             frame_log.append(d)
@@ -326,6 +336,23 @@ def _run_info(scene, sim: Simulation, total: int, frame_log: list[dict], out: Pa
                                          "updates": list(s.updates), "doc": s.doc} for s in sim.graph.stages],
         "frames": frame_log, "status": "running", "out": str(out),
     }
+
+
+def frame_timing(frame: int, steps: int, wall: float, step_seconds: float, cpu: float = 0.0,
+                 first_step: bool = False) -> dict:
+    """One entry of run.json ``frame_times``: the frame's number, its substeps, its wall time [s] (``advance_frame``:
+    the substeps, the cell-order sort, the statistics, a redone frame's steps), its steps' stage time [s], the
+    process's CPU time over the frame [s] (every thread: the export thread's too) and ``first_step``: whether it holds
+    the process's first step, whose kernel loads (``first_step_time``) its stage time includes (not after a
+    ``time.settle`` pass, which stepped first). A median over the frames' step time is robust to a load spike where
+    the run's mean (``sim_time_per_step_ms``) is not (``warp_sph.plan.points``)."""
+    return {"frame": int(frame), "steps": int(steps), "wall_time": float(wall), "step_seconds": float(step_seconds),
+            "cpu_time": float(cpu), "first_step": bool(first_step)}
+
+
+def _stage_seconds(sim) -> float:
+    """[s] the step stages' wall time so far in this process (``StepGraph.timings``, every call)."""
+    return sum(t.seconds for t in sim.graph.timings.values())
 
 
 def _step_times(run_info: dict) -> None:

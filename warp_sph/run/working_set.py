@@ -1,0 +1,61 @@
+"""What a run's step reads against what the CPU caches: the bytes of the simulation's arrays (run.json ``array_bytes``)
+and the size of the CPU's last-level cache.
+
+``warp-sph plan`` compares the two (docs/plan.md, item 12): the dam break's DFSPH calibrated with its arrays inside this
+CPU's 32 MiB L3 (20.4 MiB at 10,648 fluid particles) ran at 50,653 (90.7 MiB) 1.47x its largest calibrated count's cost
+per fluid particle-step, while the dam break's PBF and the hydrostatic tank's DFSPH crossed the L3 at no cost. So the
+plan says when a prediction carries the step's cost past the cache without a point there; it does not scale it.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import warp as wp
+
+#: where Linux lists the CPU's caches (``index*/level`` and ``index*/size``, e.g. "32768K")
+CPU_CACHE_DIR = Path("/sys/devices/system/cpu/cpu0/cache")
+
+
+def array_bytes(sim) -> int:
+    """[bytes] of every Warp array the simulation ``sim`` holds (its fields, model, state, solver and forces, and the
+    objects of this package they hold: neighbour lists, pair caches), each array counted once."""
+    seen: set[int] = set()
+    total = 0
+    stack = [sim]
+    while stack:
+        obj = stack.pop()
+        if id(obj) in seen:
+            continue
+        seen.add(id(obj))
+        if isinstance(obj, wp.array):
+            total += obj.size * wp.types.type_size_in_bytes(obj.dtype)
+        elif isinstance(obj, dict):
+            stack.extend(obj.values())
+        elif isinstance(obj, (list, tuple)):
+            stack.extend(obj)
+        elif isinstance(obj, type):
+            continue
+        elif hasattr(getattr(obj, "_cls", None), "vars"):  # a Warp struct (a pair cache, a list's rows)
+            stack.extend(getattr(obj, name) for name in obj._cls.vars)
+        elif type(obj).__module__.startswith("warp_sph") and hasattr(obj, "__dict__"):
+            stack.extend(vars(obj).values())
+    return int(total)
+
+
+def last_level_cache_bytes(root: Path | None = None) -> int:
+    """[bytes] of the CPU's largest-level cache (Linux sysfs under ``root``, default CPU_CACHE_DIR; 0 where it is not
+    listed)."""
+    best = (0, 0)
+    for index in sorted(Path(root or CPU_CACHE_DIR).glob("index*")):
+        try:
+            level = int((index / "level").read_text().strip())
+            size = (index / "size").read_text().strip().upper()
+        except (OSError, ValueError):
+            continue
+        scale = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(size[-1:], 1)
+        try:
+            value = int(size.rstrip("KMG")) * scale
+        except ValueError:
+            continue
+        best = max(best, (level, value))
+    return best[1]
