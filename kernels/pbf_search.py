@@ -74,8 +74,11 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
         w_sum = float(0.0)
         grad_i = wp.vec3(0.0)
         grad_sq = float(0.0)
+        # the walk: a tight loop that stores the sorted index of every candidate and advances the count only for
+        # those within the search radius (no branch to mispredict per candidate; past the capacity the last
+        # slot is overwritten: an overflowing frame is redone), then the listed pairs in the same order
+        last = capacity - 1
         n = int(0)
-        p = int(0)
         for z in range(rows[2], rows[3] + 1):
             for y in range(rows[0], rows[1] + 1):
                 span = row_points(q, qr, y, z, grid_dims, cell_start)
@@ -83,25 +86,30 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
                 k_end = span[1]
                 while k < k_end:
                     x_ij = xi - sorted_points[k]
-                    dd = wp.dot(x_ij, x_ij)
-                    if dd < radius2:
-                        if n < capacity:
-                            j = cell_point[k]
-                            fluid_neighbors.index[i, n] = j
-                            if dd < support2:  # the pairs the density pass keeps, in its order
-                                wg = wp.static(value_gradient)(x_ij, h)
-                                w = wg[0]
-                                w_sum += w
-                                g = volume * wp.vec3(wg[1], wg[2], wg[3])
-                                grad_i += g
-                                grad_sq += wp.dot(g, g)
-                                pairs_out.index[i, p] = j
-                                pairs_out.gradient[i, p] = g
-                                if wp.static(tensile):
-                                    pairs_out.value[i, p] = w
-                                p += 1
-                        n += 1
+                    fluid_neighbors.index[i, wp.min(n, last)] = k
+                    n += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
                     k += 1
+        p = int(0)
+        m = int(0)
+        m_end = wp.min(n, capacity)
+        while m < m_end:
+            k = fluid_neighbors.index[i, m]
+            j = cell_point[k]
+            fluid_neighbors.index[i, m] = j
+            x_ij = xi - sorted_points[k]
+            if wp.dot(x_ij, x_ij) < support2:  # the pairs the density pass keeps, in its order
+                wg = wp.static(value_gradient)(x_ij, h)
+                w = wg[0]
+                w_sum += w
+                g = volume * wp.vec3(wg[1], wg[2], wg[3])
+                grad_i += g
+                grad_sq += wp.dot(g, g)
+                pairs_out.index[i, p] = j
+                pairs_out.gradient[i, p] = g
+                if wp.static(tensile):
+                    pairs_out.value[i, p] = w
+                p += 1
+            m += 1
         fluid_neighbors.count[i] = n
         neighbor_slot_out[i] = i  # (``pbf.neighbor_drift_chunks``: the lists' indices hold while this does)
         if n > capacity:  # per particle, no atomics (the boundary lists' launch wrote before this one)
