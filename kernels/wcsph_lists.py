@@ -164,8 +164,11 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
         h = smoothing_length
         support2 = support_radius * support_radius
         total = float(0.0)
+        # the walk: a tight loop that stores every candidate's sorted index and advances the count only for those
+        # within the search radius (no branch to mispredict per candidate; past the capacity the last slot is
+        # overwritten: an overflowing frame is redone), then density_pairs_kernel's body over the stored pairs
+        last = capacity - 1
         m = int(0)  # listed
-        n = int(0)  # cached pairs
         for z in range(rows[2], rows[3] + 1):
             for y in range(rows[0], rows[1] + 1):
                 span = row_points(q, qr, y, z, grid_dims, cell_start)
@@ -173,27 +176,33 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
                 k_end = span[1]
                 while k < k_end:
                     x_ij = xi - sorted_points[k]
-                    dd = wp.dot(x_ij, x_ij)
-                    if dd < radius2:
-                        if m < capacity:  # a stored pair: density_pairs_kernel's body
-                            j = cell_point[k]
-                            fluid_neighbors.index[i, m] = j
-                            if wp.static(select):
-                                wg = cubic_value_gradient_select(x_ij, h)
-                                total += wg[0]
-                                pairs_out.index[i, n] = j
-                                pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
-                                n += wp.where((dd < support2) and (j != i), 1, 0)
-                            else:
-                                if dd < support2:
-                                    wg = wp.static(value_gradient)(x_ij, h)
-                                    total += wg[0]
-                                    if j != i:
-                                        pairs_out.index[i, n] = j
-                                        pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
-                                        n += 1
-                        m += 1
+                    fluid_neighbors.index[i, wp.min(m, last)] = k
+                    m += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
                     k += 1
+        n = int(0)  # cached pairs
+        e = int(0)
+        e_end = wp.min(m, capacity)
+        while e < e_end:
+            k = fluid_neighbors.index[i, e]
+            j = cell_point[k]
+            fluid_neighbors.index[i, e] = j
+            x_ij = xi - sorted_points[k]
+            dd = wp.dot(x_ij, x_ij)
+            if wp.static(select):
+                wg = cubic_value_gradient_select(x_ij, h)
+                total += wg[0]
+                pairs_out.index[i, n] = j
+                pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                n += wp.where((dd < support2) and (j != i), 1, 0)
+            else:
+                if dd < support2:
+                    wg = wp.static(value_gradient)(x_ij, h)
+                    total += wg[0]
+                    if j != i:
+                        pairs_out.index[i, n] = j
+                        pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                        n += 1
+            e += 1
         fluid_neighbors.count[i] = m
         if m > capacity:  # per particle, no atomics (the boundary lists' launch wrote before this one)
             max_count_out[i] = wp.max(max_count_out[i], m)
