@@ -217,24 +217,29 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
         w_sum = float(0.0)
         grad_i = wp.vec3(0.0)
         grad_sq = float(0.0)
+        # the listed pairs closer than H_s into the cache's index row without a branch per pair (each listed j is
+        # written at the next free slot, which only those pairs advance), then their terms in the same order
         n = int(0)
         k = int(0)
         k_end = int(neighbor_count(fluid_neighbors, i))
         while k < k_end:
             j = fluid_neighbors.index[i, k]
             x_ij = xi - predicted_x[j]
-            if wp.dot(x_ij, x_ij) < support2:
-                wg = wp.static(value_gradient)(x_ij, h)
-                w = wg[0]
-                w_sum += w
-                g = volume * wp.vec3(wg[1], wg[2], wg[3])
-                grad_i += g
-                grad_sq += wp.dot(g, g)
-                pairs_out.index[i, n] = j
-                pairs_out.gradient[i, n] = g
-                if wp.static(tensile):
-                    pairs_out.value[i, n] = w
-                n += 1
+            pairs_out.index[i, n] = j  # (n <= k: within the row)
+            n += wp.where(wp.dot(x_ij, x_ij) < support2, 1, 0)
+            k += 1
+        k = int(0)
+        while k < n:
+            x_ij = xi - predicted_x[pairs_out.index[i, k]]
+            wg = wp.static(value_gradient)(x_ij, h)
+            w = wg[0]
+            w_sum += w
+            g = volume * wp.vec3(wg[1], wg[2], wg[3])
+            grad_i += g
+            grad_sq += wp.dot(g, g)
+            pairs_out.gradient[i, k] = g
+            if wp.static(tensile):
+                pairs_out.value[i, k] = w
             k += 1
         pairs_out.count[i] = n
         ratio = volume * w_sum

@@ -93,6 +93,8 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
         if n >= capacity:  # full: the last slot was overwritten by later candidates
             fluid_neighbors.index[i, last] = walk_nth_candidate(q, qr, xi, radius2, grid_dims, cell_start,
                                                                 sorted_points, last)
+        # the listed pairs: their indices, and those closer than H_s into the cache's index row without a branch
+        # (each at the next free slot, which only those advance); then those pairs' terms in the same order
         p = int(0)
         m = int(0)
         m_end = wp.min(n, capacity)
@@ -101,18 +103,21 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
             j = cell_point[k]
             fluid_neighbors.index[i, m] = j
             x_ij = xi - sorted_points[k]
-            if wp.dot(x_ij, x_ij) < support2:  # the pairs the density pass keeps, in its order
-                wg = wp.static(value_gradient)(x_ij, h)
-                w = wg[0]
-                w_sum += w
-                g = volume * wp.vec3(wg[1], wg[2], wg[3])
-                grad_i += g
-                grad_sq += wp.dot(g, g)
-                pairs_out.index[i, p] = j
-                pairs_out.gradient[i, p] = g
-                if wp.static(tensile):
-                    pairs_out.value[i, p] = w
-                p += 1
+            pairs_out.index[i, p] = j  # (p <= m: within the row)
+            p += wp.where(wp.dot(x_ij, x_ij) < support2, 1, 0)
+            m += 1
+        m = int(0)
+        while m < p:
+            x_ij = xi - predicted_x[pairs_out.index[i, m]]  # (sorted_points holds the same x*)
+            wg = wp.static(value_gradient)(x_ij, h)
+            w = wg[0]
+            w_sum += w
+            g = volume * wp.vec3(wg[1], wg[2], wg[3])
+            grad_i += g
+            grad_sq += wp.dot(g, g)
+            pairs_out.gradient[i, m] = g
+            if wp.static(tensile):
+                pairs_out.value[i, m] = w
             m += 1
         fluid_neighbors.count[i] = n
         neighbor_slot_out[i] = i  # (``pbf.neighbor_drift_chunks``: the lists' indices hold while this does)
