@@ -61,7 +61,8 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
         pairs_out: PairCache,
         neighbor_slot_out: wp.array(dtype=wp.int32),
     ):
-        i = int(fluid_neighbors.order[wp.tid() + tid_offset])
+        t = wp.tid() + tid_offset  # the pair cache's row
+        i = int(fluid_neighbors.order[t])
         xi = predicted_x[i]
         q = (xi - grid_lo) * inv_cell_size
         qr = search_radius * inv_cell_size
@@ -103,27 +104,27 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
             j = cell_point[k]
             fluid_neighbors.index[i, m] = j
             x_ij = xi - sorted_points[k]
-            pairs_out.index[i, p] = j  # (p <= m: within the row)
+            pairs_out.index[t, p] = j  # (p <= m: within the row)
             p += wp.where(wp.dot(x_ij, x_ij) < support2, 1, 0)
             m += 1
         m = int(0)
         while m < p:
-            x_ij = xi - predicted_x[pairs_out.index[i, m]]  # (sorted_points holds the same x*)
+            x_ij = xi - predicted_x[pairs_out.index[t, m]]  # (sorted_points holds the same x*)
             wg = wp.static(value_gradient)(x_ij, h)
             w = wg[0]
             w_sum += w
             g = volume * wp.vec3(wg[1], wg[2], wg[3])
             grad_i += g
             grad_sq += wp.dot(g, g)
-            pairs_out.gradient[i, m] = g
+            pairs_out.gradient[t, m] = g
             if wp.static(tensile):
-                pairs_out.value[i, m] = w
+                pairs_out.value[t, m] = w
             m += 1
         fluid_neighbors.count[i] = n
         neighbor_slot_out[i] = i  # (``pbf.neighbor_drift_chunks``: the lists' indices hold while this does)
         if n > capacity:  # per particle, no atomics (the boundary lists' launch wrote before this one)
             max_count_out[i] = wp.max(max_count_out[i], n)
-        pairs_out.count[i] = p
+        pairs_out.count[t] = p
         ratio = volume * w_sum
         grad_b = wp.vec3(0.0)
         if wp.static(with_boundary):
