@@ -76,7 +76,8 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
         particle_density_out: wp.array(dtype=float),
         pairs_out: PairCache,
     ):
-        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        t = wp.tid() + tid_offset  # the pair cache's row (``pbf.PairCache``)
+        i = particle_in_cell_order(fluid_neighbors, t)
         xi = particle_x[i]
         h = smoothing_length
         support2 = support_radius * support_radius
@@ -90,19 +91,19 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
             if wp.static(select):  # W = 0 and grad W = 0 from H_s on: no test for the sum
                 wg = cubic_value_gradient_select(x_ij, h)
                 total += wg[0]
-                pairs_out.index[i, n] = j
-                pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                pairs_out.index[t, n] = j
+                pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
                 n += wp.where((wp.dot(x_ij, x_ij) < support2) and (j != i), 1, 0)
             else:
                 if wp.dot(x_ij, x_ij) < support2:
                     wg = wp.static(value_gradient)(x_ij, h)
                     total += wg[0]
                     if j != i:
-                        pairs_out.index[i, n] = j
-                        pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                        pairs_out.index[t, n] = j
+                        pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
                         n += 1
             k += 1
-        pairs_out.count[i] = n
+        pairs_out.count[t] = n
         rho = particle_mass * total
         if wp.static(with_boundary):
             rho += rest_density * wp.static(boundary_density_sum_function(smoothing, boundary_terms))(
@@ -155,7 +156,8 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
         particle_density_out: wp.array(dtype=float),
         pairs_out: PairCache,
     ):
-        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        t = wp.tid() + tid_offset  # the pair cache's row (``pbf.PairCache``)
+        i = particle_in_cell_order(fluid_neighbors, t)
         xi = particle_x[i]
         q = (xi - grid_lo) * inv_cell_size
         qr = search_radius * inv_cell_size
@@ -196,22 +198,22 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
             if wp.static(select):
                 wg = cubic_value_gradient_select(x_ij, h)
                 total += wg[0]
-                pairs_out.index[i, n] = j
-                pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                pairs_out.index[t, n] = j
+                pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
                 n += wp.where((dd < support2) and (j != i), 1, 0)
             else:
                 if dd < support2:
                     wg = wp.static(value_gradient)(x_ij, h)
                     total += wg[0]
                     if j != i:
-                        pairs_out.index[i, n] = j
-                        pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                        pairs_out.index[t, n] = j
+                        pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
                         n += 1
             e += 1
         fluid_neighbors.count[i] = m
         if m > capacity:  # per particle, no atomics (the boundary lists' launch wrote before this one)
             max_count_out[i] = wp.max(max_count_out[i], m)
-        pairs_out.count[i] = n
+        pairs_out.count[t] = n
         rho = particle_mass * total
         if wp.static(with_boundary):
             rho += rest_density * wp.static(boundary_density_sum_function(smoothing, boundary_terms))(
