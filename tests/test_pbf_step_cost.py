@@ -137,3 +137,50 @@ def test_static_wall_lists_match_the_walk_outside_the_grid(device):
     near = r < nl.search_radius * (1 - 1e-5)
     for i in range(0, n, 7):
         assert set(np.nonzero(near[i])[0]) <= set(index[i, :count[i]].tolist())
+
+
+def _rows_by_particle(nl):
+    """The fluid lists as {particle: list of neighbours} (count clipped to the capacity)."""
+    count, index = nl.fluid.count.numpy(), nl.fluid.index.numpy()
+    return count, [index[i, :min(c, index.shape[1])].tolist() for i, c in enumerate(count)]
+
+
+def test_fused_searches_keep_full_lists_the_walk_prefix(device):
+    """The fused searches of PBF (search + density) and WCSPH (kept lists: search + density + pairs) store their
+    candidates without a branch and restore a full list's last slot: with lists as long as the median count, the
+    counts stay exact and every list is the first entries of the complete one (also those exactly full); the
+    density of a particle whose list holds all its neighbours is bitwise the complete lists'."""
+    from small_scenes import small_tank as tank
+
+    for solver in ("pbf", "wcsph"):
+        sim = Simulation(fixed_step_tank() if solver == "pbf" else
+                         tank("wcsph_full", solver="wcsph", particle_radius=0.025), device=device)
+        sim.advance_frame()
+        s = sim.solver
+        if solver == "pbf":
+            nl = s.nl
+
+            def search():
+                s.sort_neighbors()
+                s.search_density_pass()
+        else:
+            kept = s.kept_lists
+            nl = kept.nl
+
+            def search():
+                kept._search, kept._search_walls = True, True
+                nl.sort(sim.fields["particle_x"])
+                kept.run_density(sim, 0.0)
+        search()
+        count, full_rows = _rows_by_particle(nl)
+        density = sim.fields["particle_density"].numpy().copy()
+        capacity = int(np.median(count))
+        nl._allocate(nl.fluid, capacity)
+        search()
+        small_count, rows = _rows_by_particle(nl)
+        np.testing.assert_array_equal(small_count, count)
+        assert (count == capacity).any() and (count > capacity).any(), solver
+        for i, row in enumerate(rows):
+            assert row == full_rows[i][:capacity], (solver, i, count[i])
+        fits = count <= capacity
+        np.testing.assert_array_equal(sim.fields["particle_density"].numpy()[fits], density[fits])
