@@ -249,6 +249,10 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None, walls: bool =
     to the sphere, so the cells visited hug the sphere (cells may be smaller than the radius). Border
     cells extend to infinity here, matching the clamping of out-of-grid points.
 
+    keep_distance >= 0 (static points searched alone, no append, no density): a query point within keep_distance
+    [m] of keep_x[i], where its row was last searched, keeps its row (which then holds every point closer than
+    search_radius - keep_distance, in the same sorted order); the others search and set keep_x[i] = x_i.
+
     ``walls`` (static boundary particles): the cells are not walked; the points tested are those of the
     query's sub-cell list (``kernels/wall_reach.py``, built once per run over the same grid: wall_inv_size,
     wall_dims, wall_start, wall_entry), the points the walk could reach in its order, so the lists and sums
@@ -284,6 +288,9 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None, walls: bool =
         wall_dims: wp.vec3i,
         wall_start: wp.array(dtype=wp.int32),
         wall_entry: wp.array(dtype=wp.int32),
+        # Kept rows (keep_distance >= 0):
+        keep_distance: float,
+        keep_x: wp.array(dtype=wp.vec3),
         # Query points (threads in the order ``query_order``):
         query_order: wp.array(dtype=wp.int32),
         query_x: wp.array(dtype=wp.vec3),
@@ -295,6 +302,10 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None, walls: bool =
     ):
         i = int(query_order[wp.tid() + tid_offset])
         xi = query_x[i]
+        if keep_distance >= 0.0:  # row i holds the points within the radius of keep_x[i]: kept while i is near it
+            if wp.length(xi - keep_x[i]) <= keep_distance:
+                return
+            keep_x[i] = xi
         if use_mask != 0:
             c = cell_of(xi, grid_lo, inv_cell_size, grid_dims)
             if cell_mask[c[0] + grid_dims[0] * (c[1] + grid_dims[1] * c[2])] == wp.uint8(0):

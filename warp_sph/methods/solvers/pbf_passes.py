@@ -81,6 +81,16 @@ class PbfPasses:
                               tag=tag).launch()
 
     @property
+    def _wall_keep(self) -> float:
+        """How far [m] a particle may be from where its static-wall list was searched and keep it: 0.9 of the lists'
+        margin (the walls do not move, so the list still holds every wall particle closer than H_s; rounding
+        aside, 0.9); -1 (search every list) without a margin or with moving bodies (``NeighborLists.
+        build_boundary_lists``)."""
+        if self.neighbor_mode != "margin" or self.with_bodies:
+            return -1.0
+        return 0.9 * (self.nl.search_radius - self.model.support_radius)
+
+    @property
     def _with_boundary_gradient(self) -> bool:
         terms = self.sim.boundary_terms
         return terms is not None and terms.gradient is not None
@@ -108,7 +118,9 @@ class PbfPasses:
         """Neighbours of the current x*; remember where they were searched."""
         x = self.sim.fields["predicted_x"]
         if self.lists:
-            self.nl.build(x)
+            self.nl.sort(x)
+            self.nl.build_lists(x, boundary=False)
+            self.nl.build_boundary_lists(x, self._wall_keep)
         else:
             self.sim.fluid_grid.build(x)
         self._run(_pbf_search.identity_slots, self.model.fluid_count, [], [self.sim.fields["pbf_neighbor_slot"]],
@@ -121,7 +133,7 @@ class PbfPasses:
         in one walk."""
         x = self.sim.fields["predicted_x"]
         self.nl.sort(x)
-        self.nl.build_boundary_lists(x)
+        self.nl.build_boundary_lists(x, self._wall_keep)
         self._searched_at(x)
 
     def _searched_at(self, x) -> None:
