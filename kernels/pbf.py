@@ -161,10 +161,11 @@ def boundary_share_function(smoothing: str, boundary_terms):
 class PairCache:
     """Pairs of the last density pass, for the correction at the same positions (lists only).
 
-    count: pairs closer than the support radius per particle, shape (fluid_count,); index[i, k]:
-    neighbour j; gradient[i, k] = V grad_i W_ij [1/m]; value[i, k] = W_ij [1/m^3] (s_corr only,
-    else shape (1, 1)); boundary_gradient[i] = sum_b V_b grad_i W_ib [1/m]. The 2-D arrays have
-    the fluid list's capacity per row.
+    Row t holds the pairs of particle i = order[t], the particle that thread t of the list passes visits
+    (``particle_in_cell_order``): the passes then stream through the rows in memory order. count[t]: pairs closer
+    than the support radius, shape (fluid_count,); index[t, k]: neighbour j; gradient[t, k] = V grad_i W_ij [1/m];
+    value[t, k] = W_ij [1/m^3] (s_corr only, else shape (1, 1)); boundary_gradient[i] = sum_b V_b grad_i W_ib
+    [1/m] (by particle). The 2-D arrays have the fluid list's capacity per row.
     """
 
     count: wp.array(dtype=wp.int32)
@@ -209,7 +210,8 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
         particle_constraint_out: wp.array(dtype=float),
         pairs_out: PairCache,
     ):
-        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        t = wp.tid() + tid_offset  # the pair cache's row
+        i = particle_in_cell_order(fluid_neighbors, t)
         xi = predicted_x[i]
         h = smoothing_length
         support2 = support_radius * support_radius
@@ -217,26 +219,31 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
         w_sum = float(0.0)
         grad_i = wp.vec3(0.0)
         grad_sq = float(0.0)
+        # the listed pairs closer than H_s into the cache's index row without a branch per pair (each listed j is
+        # written at the next free slot, which only those pairs advance), then their terms in the same order
         n = int(0)
         k = int(0)
         k_end = int(neighbor_count(fluid_neighbors, i))
         while k < k_end:
             j = fluid_neighbors.index[i, k]
             x_ij = xi - predicted_x[j]
-            if wp.dot(x_ij, x_ij) < support2:
-                wg = wp.static(value_gradient)(x_ij, h)
-                w = wg[0]
-                w_sum += w
-                g = volume * wp.vec3(wg[1], wg[2], wg[3])
-                grad_i += g
-                grad_sq += wp.dot(g, g)
-                pairs_out.index[i, n] = j
-                pairs_out.gradient[i, n] = g
-                if wp.static(tensile):
-                    pairs_out.value[i, n] = w
-                n += 1
+            pairs_out.index[t, n] = j  # (n <= k: within the row)
+            n += wp.where(wp.dot(x_ij, x_ij) < support2, 1, 0)
             k += 1
-        pairs_out.count[i] = n
+        k = int(0)
+        while k < n:
+            x_ij = xi - predicted_x[pairs_out.index[t, k]]
+            wg = wp.static(value_gradient)(x_ij, h)
+            w = wg[0]
+            w_sum += w
+            g = volume * wp.vec3(wg[1], wg[2], wg[3])
+            grad_i += g
+            grad_sq += wp.dot(g, g)
+            pairs_out.gradient[t, k] = g
+            if wp.static(tensile):
+                pairs_out.value[t, k] = w
+            k += 1
+        pairs_out.count[t] = n
         ratio = volume * w_sum
         grad_b = wp.vec3(0.0)
         if wp.static(with_boundary):
@@ -287,16 +294,17 @@ def correction_pairs_kernel(with_boundary: bool, tensile: bool, with_pressure_te
         boundary_pressure_term_out: wp.array(dtype=float),
         predicted_x: wp.array(dtype=wp.vec3),
     ):
-        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        t = wp.tid() + tid_offset  # the pair cache's row
+        i = particle_in_cell_order(fluid_neighbors, t)
         lam_i = particle_lambda[i]
         dx = wp.vec3(0.0)
         k = int(0)
-        k_end = int(pairs.count[i])
+        k_end = int(pairs.count[t])
         while k < k_end:
-            s = lam_i + particle_lambda[pairs.index[i, k]]
+            s = lam_i + particle_lambda[pairs.index[t, k]]
             if wp.static(tensile):
-                s -= tensile_k * wp.pow(pairs.value[i, k] * tensile_inv_w, float(tensile_n)) * tensile_scale
-            dx += s * pairs.gradient[i, k]
+                s -= tensile_k * wp.pow(pairs.value[t, k] * tensile_inv_w, float(tensile_n)) * tensile_scale
+            dx += s * pairs.gradient[t, k]
             k += 1
         if wp.static(with_boundary):
             dx_b = lam_i * pairs.boundary_gradient[i]

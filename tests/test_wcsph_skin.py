@@ -55,7 +55,8 @@ def check_step(sim, kept, band: float = 0.0):
     ref_rho, ref_pairs = oracle(sim, x)
     np.testing.assert_allclose(rho, ref_rho, rtol=2e-5)
     count, index, grad = kept.pairs.count.numpy(), kept.pairs.index.numpy(), kept.pairs.gradient.numpy()
-    got = {(i, int(index[i, k])): grad[i, k] for i in range(len(count)) for k in range(count[i])}
+    order = kept.nl.fluid.order.numpy()  # row t of the cache holds the pairs of particle order[t]
+    got = {(int(order[t]), int(index[t, k])): grad[t, k] for t in range(sim.model.fluid_count) for k in range(count[t])}
     differ = set(got) ^ set(ref_pairs)
     if band > 0.0 and differ:
         r = np.array([np.linalg.norm(x[i].astype(np.float64) - x[j]) for i, j in differ])

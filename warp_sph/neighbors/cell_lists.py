@@ -124,6 +124,10 @@ class NeighborLists:
         self._no_params = _dev.NoBoundaryParams()
         self._no_walls = [0.0, wp.vec3i(1, 1, 1), wp.zeros(2, dtype=wp.int32, device=device),
                           wp.zeros(1, dtype=wp.int32, device=device)]
+        self._no_keep = [-1.0, wp.zeros(1, dtype=wp.vec3, device=device)]
+        #: where each fluid particle's boundary list was last searched [m] (``build_boundary_lists(keep=...)``;
+        #: 1e30: search it): written with the row by the list kernel, so the two always agree
+        self._boundary_keep_x = wp.full(max(self.fluid_count, 1), wp.vec3(1.0e30), dtype=wp.vec3, device=device)
         #: the static boundary particles in reach of each cell of ``boundary_cells``, built once per run (a
         #: ``WallReach`` of ``neighbors/wall_reach.py``, set by the solver): the boundary lists test
         #: them instead of walking the grid, bitwise the same lists and sums. None: the walk.
@@ -185,6 +189,8 @@ class NeighborLists:
 
     def _allocate(self, lists, capacity: int) -> None:
         n = max(self.fluid_count, 1)
+        if lists is getattr(self, "boundary", None):
+            self._boundary_keep_x.fill_(wp.vec3(1.0e30))  # new rows: every boundary list is searched again
         lists.count = wp.zeros(n, dtype=wp.int32, device=self.device)
         lists.index = wp.zeros((n, max(capacity, 1)), dtype=wp.int32, device=self.device)
         lists.order = self.fluid_cells.cell_point
@@ -222,20 +228,24 @@ class NeighborLists:
         launch(kernel, n,
                [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x, self._no_weight,
                 self._no_mask, 0, 0, 0, self.search_radius, float(smoothing_length), float(particle_mass),
-                self._no_params] + self._no_walls + [fc.cell_point, particle_x],
+                self._no_params] + self._no_walls + self._no_keep + [fc.cell_point, particle_x],
                [self.fluid.count, self.fluid.index, self._max_count, density], device=self.device)
         if not boundary:
             return
         self._build_boundary(particle_x, density, smoothing, smoothing_length, rest_density, boundary_terms,
                              boundary_params, boundary_density)
 
-    def build_boundary_lists(self, particle_x: wp.array) -> None:
+    def build_boundary_lists(self, particle_x: wp.array, keep: float = -1.0) -> None:
         """The fluid-boundary lists alone for the positions ``particle_x`` [m] that ``sort`` was given (a solver
-        that builds the fluid lists in a search of its own, e.g. PBF's fused search and density pass)."""
-        self._build_boundary(particle_x, self._no_density, "", 0.0, 0.0, None, None, False)
+        that builds the fluid lists in a search of its own, e.g. PBF's fused search and density pass).
+        keep [m] >= 0 (static walls only, no moving boundary particles): a particle within ``keep`` of where its
+        list was last searched keeps it; with keep <= search radius - H_s the list still holds every wall
+        particle closer than H_s, in the same order (the walls are sorted once per run), so a pass that sums the
+        pairs closer than H_s gets bitwise the sums of a list searched now."""
+        self._build_boundary(particle_x, self._no_density, "", 0.0, 0.0, None, None, False, keep)
 
     def _build_boundary(self, particle_x, density, smoothing, smoothing_length, rest_density, boundary_terms,
-                        boundary_params, boundary_density: bool) -> None:
+                        boundary_params, boundary_density: bool, keep: float = -1.0) -> None:
         from ..core.launch import launch
         from ..kernels import neighbors as _dev
 
@@ -252,10 +262,13 @@ class NeighborLists:
             walls = self.static_walls
             listed = walls is not None and walls.cells is bc  # the per-run lists of the static walls, or the walk
             wall_args = [walls.inv_size, walls.dims, walls.start, walls.entry] if listed else self._no_walls
+            kept = keep >= 0.0 and self.moving_cells is None and not boundary_density
+            keep_args = [float(keep), self._boundary_keep_x] if kept else self._no_keep
             launch(_dev.neighbor_list_kernel(*kind, listed), n,
                    [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, self._boundary_weight,
                     self._no_mask if mask is None else mask, int(mask is not None), 0, 0, self.search_radius,
-                    float(smoothing_length), float(rest_density), params] + wall_args + [fc.cell_point, particle_x],
+                    float(smoothing_length), float(rest_density), params] + wall_args + keep_args
+                   + [fc.cell_point, particle_x],
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
         mc = self.moving_cells
         if mc is not None:  # the moving particles after the static ones (the lists then hold both)
@@ -264,7 +277,8 @@ class NeighborLists:
                    [mc.lo, mc.inv_cell_size, mc.dims, mc.cell_start, mc.cell_point, mc.sorted_x, self._moving_weight,
                     self._no_mask if mask is None else mask, int(mask is not None), self.moving_start,
                     int(bc is not None), self.search_radius,
-                    float(smoothing_length), float(rest_density), params] + self._no_walls + [fc.cell_point, particle_x],
+                    float(smoothing_length), float(rest_density), params] + self._no_walls + self._no_keep
+                   + [fc.cell_point, particle_x],
                    [self.boundary.count, self.boundary.index, self._max_count, density], device=self.device)
 
     @property

@@ -9,7 +9,8 @@ Cost per step (issue #32): the fluid lists are written by the step's first densi
 (``search_density_pass``, ``kernels/pbf_search.py``: one walk over the cells, bitwise the build + pass);
 the stabilize stage's density pass at x reads the last step's lists, which still hold every pair
 closer than H_s there unless a particle drifted past margin / 2 or the frame reordered the particles
-(``reuse_neighbors``); a correction adds dx to x* in its own kernel.
+(``reuse_neighbors``); a correction adds dx to x* in its own kernel; a particle keeps its static-wall
+list until it moved 0.9 margin from where it was searched (``_wall_keep``).
 
 A helper of the solver ``pbf.py`` (it registers nothing; the registry imports it harmlessly).
 """
@@ -81,6 +82,16 @@ class PbfPasses:
                               tag=tag).launch()
 
     @property
+    def _wall_keep(self) -> float:
+        """How far [m] a particle may be from where its static-wall list was searched and keep it: 0.9 of the lists'
+        margin (the walls do not move, so the list still holds every wall particle closer than H_s; rounding
+        aside, 0.9); -1 (search every list) without a margin or with moving bodies (``NeighborLists.
+        build_boundary_lists``)."""
+        if self.neighbor_mode != "margin" or self.with_bodies:
+            return -1.0
+        return 0.9 * (self.nl.search_radius - self.model.support_radius)
+
+    @property
     def _with_boundary_gradient(self) -> bool:
         terms = self.sim.boundary_terms
         return terms is not None and terms.gradient is not None
@@ -108,7 +119,9 @@ class PbfPasses:
         """Neighbours of the current x*; remember where they were searched."""
         x = self.sim.fields["predicted_x"]
         if self.lists:
-            self.nl.build(x)
+            self.nl.sort(x)
+            self.nl.build_lists(x, boundary=False)
+            self.nl.build_boundary_lists(x, self._wall_keep)
         else:
             self.sim.fluid_grid.build(x)
         self._run(_pbf_search.identity_slots, self.model.fluid_count, [], [self.sim.fields["pbf_neighbor_slot"]],
@@ -121,7 +134,7 @@ class PbfPasses:
         in one walk."""
         x = self.sim.fields["predicted_x"]
         self.nl.sort(x)
-        self.nl.build_boundary_lists(x)
+        self.nl.build_boundary_lists(x, self._wall_keep)
         self._searched_at(x)
 
     def _searched_at(self, x) -> None:
