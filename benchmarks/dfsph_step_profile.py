@@ -12,9 +12,11 @@ twice, once per path of the solves' sweeps (``PATHS``: a split launch per pass, 
   ``wp.launch`` is routed here by recording it first) is timed on the thread that runs it. Per step:
   kernel runs, wall, the main thread's kernel time and its Python time (wall minus that), each worker
   thread's kernel time and its idle time (wall minus its kernel time: the serial stretches, the
-  hand-offs), host reads (``wp.array.numpy`` calls), and the kernels by total time.
+  hand-offs), host reads (``wp.array.numpy`` calls), the threads' synchronisations (barrier rounds,
+  wakes of the persistent threads, split launches on the fallback pool), and the kernels by total time.
 The instrumentation adds a few microseconds per run; compare its wall with the plain one. Last, the
-cost of one split-launch hand-off against one pass of ``run_loop``'s barrier (``handoff``).
+cost of one split-launch hand-off, of the thread pool's it replaced, and of one pass of ``run_loop``'s barrier
+(``handoff``).
 One JSON object on stdout. Wrap it in ``flock /tmp/warp_sph_bench.lock`` on a shared machine.
 """
 from __future__ import annotations
@@ -81,14 +83,38 @@ def _instrumented(sim, frames: int) -> dict:
         reads[0] += 1
         return plain_numpy(self)
 
+    # the threads' synchronisations: barrier rounds (counted on the main thread), wakes of the persistent
+    # threads (a run_loop or a split launch), split launches on the fallback thread pool
+    from concurrent.futures import ThreadPoolExecutor
+
+    from warp_sph.core import launch as L
+
+    syncs = collections.Counter()
+    plain_wait, plain_start, plain_submit = L._Barrier.wait, L._LoopWorkers.start, ThreadPoolExecutor.submit
+
+    def counted_wait(self):
+        if threading.get_ident() == main:
+            syncs["barrier_rounds"] += 1
+        return plain_wait(self)
+
+    def counted_start(self, *a, **kw):
+        syncs["thread_wakes"] += 1
+        return plain_start(self, *a, **kw)
+
+    def counted_submit(self, *a, **kw):
+        syncs["pool_submits"] += 1
+        return plain_submit(self, *a, **kw)
+
+    main = threading.get_ident()
     ctx.Launch.launch, wp.launch, wp.array.numpy = timed_run, recorded_launch, counted_numpy
+    L._Barrier.wait, L._LoopWorkers.start, ThreadPoolExecutor.submit = counted_wait, counted_start, counted_submit
     try:
-        main = threading.get_ident()
         t0, c0 = time.perf_counter(), time.process_time()
         steps = _frames(sim, frames)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     finally:
         ctx.Launch.launch, wp.launch, wp.array.numpy = plain_run, plain_launch, plain_numpy
+        L._Barrier.wait, L._LoopWorkers.start, ThreadPoolExecutor.submit = plain_wait, plain_start, plain_submit
     main_k = kernel_s.get(main, 0.0)
     workers = [{"kernel_ms_per_step": 1e3 * s / steps, "idle_ms_per_step": 1e3 * (wall - s) / steps,
                 "runs_per_step": runs[t] / steps} for t, s in kernel_s.items() if t != main]
@@ -100,6 +126,7 @@ def _instrumented(sim, frames: int) -> dict:
         "main_runs_per_step": runs.get(main, 0) / steps,
         "workers": workers,
         "host_reads_per_step": reads[0] / steps,
+        "syncs_per_step": {k: v / steps for k, v in sorted(syncs.items())},
         "solver_last": sim.solver.step_statistics(),
         "kernels": {k: {"runs_per_step": n / steps, "ms_per_step": 1e3 * s / steps, "us_per_run": 1e6 * s / max(n, 1)}
                     for k, (n, s) in sorted(by_kernel.items(), key=lambda kv: -kv[1][1])},
@@ -108,8 +135,11 @@ def _instrumented(sim, frames: int) -> dict:
 
 def handoff_costs(rounds: int = 5000) -> dict:
     """Microseconds (wall and process CPU) per synchronisation of 2 threads doing nothing else: the split
-    launch's hand-off (``_run_split``: submit to the pool, run, wait), and a pass of ``run_loop``'s
-    barrier (``_Barrier.wait`` on both threads)."""
+    launch's hand-off (``_run_split``: wake a persistent thread, run, meet at the barrier), the thread
+    pool's it replaced (``pool_handoff_us``: submit, run, wait for the future; still the fallback inside a
+    loop), and a pass of ``run_loop``'s barrier (``_Barrier.wait`` on both threads)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     from warp_sph.core import launch as L
 
     def noop():
@@ -120,6 +150,13 @@ def handoff_costs(rounds: int = 5000) -> dict:
     for _ in range(rounds):
         L._run_split([noop, noop])
     out["split_handoff_us"] = (1e6 * (time.perf_counter() - t0) / rounds, 1e6 * (time.process_time() - c0) / rounds)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        t0, c0 = time.perf_counter(), time.process_time()
+        for _ in range(rounds):
+            f = pool.submit(noop)
+            noop()
+            f.result()
+        out["pool_handoff_us"] = (1e6 * (time.perf_counter() - t0) / rounds, 1e6 * (time.process_time() - c0) / rounds)
     barrier = L._Barrier(2)
     other = threading.Thread(target=lambda: [barrier.wait() for _ in range(rounds)])
     t0, c0 = time.perf_counter(), time.process_time()

@@ -64,9 +64,9 @@ def test_run_loop_passes_see_the_last_pass_and_stop(monkeypatch, threads):
 @pytest.mark.parametrize("threads", [1, 2, 3])
 def test_run_loop_runs_before_and_after_once_in_order(monkeypatch, threads):
     """``before`` runs once ahead of the sweeps and ``after`` once behind the last one, in the same hand-off:
-    x = x0 + 1 (before), then 4 sweeps of smoothing, then y = x + 1 (after, every range reading what the
-    other ranges wrote in the last sweep); the serial _count group counts the sweeps (4, also when the stop
-    test ends the loop early)."""
+    x = x0 + 1 (before), then 4 sweeps of smoothing, then y = smoothed x (after, every range reading what the
+    other ranges wrote in the last sweep); the serial _count groups count the sweeps (the stop test ends the
+    loop after 4) and the one-thread groups before and after (once each)."""
     monkeypatch.setenv("WARP_SPH_CPU_THREADS", str(threads))
     n = 3500
     x0 = np.random.default_rng(5).random(n).astype(np.float32)
@@ -74,13 +74,15 @@ def test_run_loop_runs_before_and_after_once_in_order(monkeypatch, threads):
     counter = wp.zeros(2, dtype=float, device="cpu")
     view = counter.numpy()
     replays = Replays()
-    before = [[replays.get(_shift, n, [x, 1.0], [y], device="cpu", tag="before 1")],
+    count = [[replays.get(_count, 1, [x], [counter], device="cpu", tag=tag)] for tag in ("first", "last")]
+    before = [count[0],  # one thread's group: runs before the other threads start
+              [replays.get(_shift, n, [x, 1.0], [y], device="cpu", tag="before 1")],
               [replays.get(_shift, n, [y, 0.0], [x], device="cpu", tag="before 2")]]
     passes = [[replays.get(_smooth, n, [x], [y], device="cpu")], [replays.get(_shift, n, [y, 0.0], [x], device="cpu")],
               [replays.get(_count, 1, [x], [counter], device="cpu")]]
-    after = [[replays.get(_smooth, n, [x], [y], device="cpu", tag="after")]]
-    ran = run_loop(passes, 10, lambda s: view[0] >= 4, before=before, after=after)
-    assert ran == 4 and view[0] == 4
+    after = [[replays.get(_smooth, n, [x], [y], device="cpu", tag="after")], count[1]]  # the last: after they stop
+    ran = run_loop(passes, 10, lambda s: view[0] >= 5, before=before, after=after)
+    assert ran == 4 and view[0] == 6
     expect = x0 + np.float32(1.0)
     for _ in range(4):
         expect = (0.5 * (np.roll(expect, 1) + np.roll(expect, -1))).astype(np.float32)

@@ -222,28 +222,43 @@ class Replays:
         return rec
 
 
+_gate = threading.local()
+
+
+def _own_gate():
+    """This thread's gate for ``_Barrier``: a plain lock held while the thread does not wait (the cheapest
+    sleep and wake CPython has: no condition variable, no Python-level semaphore)."""
+    gate = getattr(_gate, "lock", None)
+    if gate is None:
+        gate = _gate.lock = threading.Lock()
+        gate.acquire()
+    return gate
+
+
 class _Barrier:
-    """A reusable barrier for ``parties`` threads: a counter under a lock and two semaphores used in
-    alternate rounds (a thread already waiting in the next round cannot take a release meant for
-    this one); about half the cost of ``threading.Barrier``'s condition variable."""
+    """A reusable barrier for ``parties`` threads: a counter under a lock; each thread that is not the last
+    to arrive sleeps on its own gate (``_own_gate``) and the last one opens them. A thread opened in this
+    round takes its gate again only in a later round, so it cannot take a release meant for another.
+    About half the cost of a barrier over semaphores (``threading.Semaphore`` is a condition variable
+    in Python) on a loaded machine."""
 
     def __init__(self, parties: int):
         self.parties = parties
         self._lock = threading.Lock()
-        self._count = 0
-        self._round = 0
-        self._gates = (threading.Semaphore(0), threading.Semaphore(0))
+        self._waiting: list = []
 
     def wait(self) -> None:
+        gate = _own_gate()
         with self._lock:
-            gate = self._gates[self._round]
-            self._count += 1
-            last = self._count == self.parties
+            waiting = self._waiting
+            last = len(waiting) + 1 == self.parties
             if last:
-                self._count = 0
-                self._round ^= 1
+                self._waiting = []
+            else:
+                waiting.append(gate)
         if last:
-            gate.release(self.parties - 1)
+            for g in waiting:
+                g.release()
         else:
             gate.acquire()
 
@@ -256,7 +271,9 @@ class _LoopWorkers:
         self.count = count
         self._barriers: dict[int, _Barrier] = {}
         self.job = None
-        self._start = [threading.Semaphore(0) for _ in range(count)]
+        self._start = [threading.Lock() for _ in range(count)]  # held: released to start thread k + 1
+        for s in self._start:
+            s.acquire()
         for k in range(count):
             threading.Thread(target=self._work, args=(k,), daemon=True, name=f"warp_sph_loop_{k + 1}").start()
 
@@ -298,6 +315,14 @@ def _ranges(item) -> list:
     return [cmd.launch for cmd in item.cmds] if isinstance(item, Recorded) else [item]
 
 
+def _run_serial(groups) -> None:
+    """Every range of every group of ``groups`` (``_ranges`` lists) in turn, on this thread."""
+    for g in groups:
+        for r in g:
+            for run in r:
+                run()
+
+
 def run_loop(groups, sweeps: int, stop=None, before=(), after=()) -> int:
     """Run up to ``sweeps`` sweeps of ``groups`` (a list of lists of :class:`Recorded` launches, or of
     callables that run on thread 0, e.g. ``wp.utils.array_scan`` between two passes) with one
@@ -313,24 +338,23 @@ def run_loop(groups, sweeps: int, stop=None, before=(), after=()) -> int:
     those of ``launch``. Returns the sweeps run."""
     pre, ranges, post = ([[_ranges(r) for r in g] for g in gs] for gs in (before, groups, after))
     threads = max((len(r) for gs in (pre, ranges, post) for g in gs for r in g), default=1)
+    # groups before the first (after the last) that only thread 0 runs: run on this thread before the other
+    # threads start (after they stopped), with no barrier
+    lead = next((i for i, g in enumerate(pre) if any(len(r) > 1 for r in g)), len(pre))
+    trail = next((i for i in range(len(post), 0, -1) if any(len(r) > 1 for r in post[i - 1])), 0)
+    if threads <= 1:
+        lead, trail = len(pre), 0
+    _run_serial(pre[:lead])
+    pre = pre[lead:]
+    post, solo_post = post[:trail], post[trail:]
     if threads <= 1:
         done = max(sweeps, 0)
-        for g in pre:
-            for r in g:
-                for run in r:
-                    run()
         for s in range(1, sweeps + 1):
-            for g in ranges:
-                for r in g:
-                    for run in r:
-                        run()
+            _run_serial(ranges)
             if s < sweeps and stop is not None and stop(s):
                 done = s
                 break
-        for g in post:
-            for r in g:
-                for run in r:
-                    run()
+        _run_serial(solo_post)
         return done
     with _loop_lock:  # one loop at a time on the shared workers
         workers = _workers(threads - 1)
@@ -375,4 +399,5 @@ def run_loop(groups, sweeps: int, stop=None, before=(), after=()) -> int:
         job(0)  # returns after the last barrier: every worker has run its last launch
         if state["error"] is not None:
             raise state["error"]
-        return state["done"]
+    _run_serial(solo_post)
+    return state["done"]
