@@ -16,7 +16,7 @@ twice, once per path of the solves' sweeps (``PATHS``: a split launch per pass, 
   wakes of the persistent threads, split launches on the fallback pool), and the kernels by total time.
 The instrumentation adds a few microseconds per run; compare its wall with the plain one. Last, the
 cost of one split-launch hand-off, of the thread pool's it replaced, and of one pass of ``run_loop``'s barrier
-(``handoff``).
+(``handoff``), and whether a kernel's range costs more CPU while the other thread runs (``concurrency``).
 One JSON object on stdout. Wrap it in ``flock /tmp/warp_sph_bench.lock`` on a shared machine.
 """
 from __future__ import annotations
@@ -168,6 +168,51 @@ def handoff_costs(rounds: int = 5000) -> dict:
     return {k: {"wall": round(w, 1), "cpu": round(c, 1)} for k, (w, c) in out.items()}
 
 
+def concurrent_runs(sim, runs: int = 3000) -> dict:
+    """Does a kernel cost more CPU when the other thread runs at the same time? The two ranges of one
+    Jacobi sweep's ``pressure_acceleration`` launched ``runs`` times each from two threads at once; per
+    thread, the median process-CPU microseconds of the runs that ran unpreempted (thread CPU >= 97 % of
+    their wall time) alone (< 10 % of their wall time overlapped by an unpreempted run of the other
+    thread) and together (> 90 %). Equal medians: running together does not slow a range down."""
+    import numpy as np
+    import warp as wp
+
+    from warp_sph.kernels import dfsph as _dfsph
+
+    solver, f, n = sim.solver, sim.fields, sim.model.fluid_count
+    control = wp.zeros_like(solver._control)  # not done: the sweep runs
+    args = [solver.nl.fluid, f["dfsph_pairs"], f["dfsph_pressure"], control]
+    half = n // 2
+    cmds = [wp.launch(_dfsph.pressure_acceleration, dim=hi - lo, inputs=[lo, *args], outputs=[f["dfsph_acceleration"]],
+                      record_cmd=True) for lo, hi in ((0, half), (half, n))]
+    times = {0: [], 1: []}
+
+    def loop(k):
+        out = times[k]
+        for _ in range(runs):
+            t0, c0 = time.perf_counter(), time.thread_time()
+            cmds[k].launch()
+            out.append((t0, time.perf_counter(), c0, time.thread_time()))
+
+    threads = [threading.Thread(target=loop, args=(k,)) for k in (0, 1)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    a = {k: np.array(v) for k, v in times.items()}
+    clean = {k: v[(v[:, 3] - v[:, 2]) >= 0.97 * (v[:, 1] - v[:, 0])] for k, v in a.items()}
+    out = {}
+    for k in (0, 1):
+        other = clean[1 - k]
+        rows = np.array([(np.clip(np.minimum(other[:, 1], t1) - np.maximum(other[:, 0], t0), 0, None).sum() / (t1 - t0),
+                          c1 - c0) for t0, t1, c0, c1 in clean[k]])
+        alone, together = rows[rows[:, 0] < 0.1, 1], rows[rows[:, 0] > 0.9, 1]
+        out[f"thread_{k}"] = {"alone_runs": len(alone), "together_runs": len(together),
+                              "alone_cpu_us": float(1e6 * np.median(alone)) if len(alone) else None,
+                              "together_cpu_us": float(1e6 * np.median(together)) if len(together) else None}
+    return out
+
+
 def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3, rounds: int = 2) -> dict:
     """Both paths of the DFSPH solves (``PATHS``) side by side on two equal simulations: ``rounds``
     alternating rounds of ``frames`` plain frames each, then one instrumented round each."""
@@ -196,6 +241,7 @@ def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3, rounds: 
                            "cores_busy": c / w} for name, (n, w, c) in plain.items()}
     out["instrumented"] = {name: _instrumented(sim, frames) for name, sim in sims.items()}
     out["handoff"] = handoff_costs()
+    out["concurrency"] = concurrent_runs(first)  # (the last step's pairs; only the time matters)
     out["load_after"] = os.getloadavg()
     return out
 
