@@ -16,7 +16,8 @@ twice, once per path of the solves' sweeps (``PATHS``: a split launch per pass, 
   wakes of the persistent threads, split launches on the fallback pool), and the kernels by total time.
 The instrumentation adds a few microseconds per run; compare its wall with the plain one. Last, the
 cost of one split-launch hand-off, of the thread pool's it replaced, and of one pass of ``run_loop``'s barrier
-(``handoff``), and whether a kernel's range costs more CPU while the other thread runs (``concurrency``).
+(``handoff``), whether a kernel's range costs more CPU while the other thread runs (``concurrency``), and
+what a Jacobi sweep would cost on compressed pair rows (``compressed_rows``).
 One JSON object on stdout. Wrap it in ``flock /tmp/warp_sph_bench.lock`` on a shared machine.
 """
 from __future__ import annotations
@@ -213,6 +214,53 @@ def concurrent_runs(sim, runs: int = 3000) -> dict:
     return out
 
 
+def compressed_rows(sim, sweeps: int = 100, rounds: int = 3) -> dict:
+    """Would compressed pair rows pay? Process CPU microseconds per Jacobi sweep (``pressure_acceleration`` +
+    ``jacobi_update`` over every particle in one launch each) on the search's pair cache as it is (row i at
+    i x the list capacity) and on the same pairs copied into compressed rows (row i right after row i - 1),
+    ``rounds`` alternating rounds of ``sweeps`` sweeps from the same P; ``same_pressure``: both give
+    bitwise the same P (the same pairs in the same order)."""
+    import numpy as np
+    import warp as wp
+
+    from warp_sph.kernels import dfsph as _dfsph
+    from warp_sph.kernels.dfsph_search import DfsphPairs
+
+    solver, f, n = sim.solver, sim.fields, sim.model.fluid_count
+    with sim.in_cell_order():
+        for stage in sim.graph.stages[:2]:  # the neighbours and the search at the frame's positions
+            stage.run(sim, sim.frame_dt / 10)
+        padded = f["dfsph_pairs"]
+        offset, count = padded.offset.numpy()[:n], padded.count.numpy()[:n]
+        rows = np.concatenate([np.arange(o, o + c) for o, c in zip(offset, count)])
+        packed = DfsphPairs()
+        for name in ("count", "gradient_sum", "boundary_gradient", "boundary_velocity", "active"):
+            setattr(packed, name, getattr(padded, name))
+        starts = np.concatenate([[0], np.cumsum(count)[:-1], padded.offset.numpy()[n:] * 0]).astype(np.int32)
+        packed.offset = wp.array(starts, dtype=wp.int32)
+        packed.index = wp.array(padded.index.numpy()[rows], dtype=wp.int32)
+        packed.gradient = wp.array(padded.gradient.numpy()[rows], dtype=wp.vec3)
+        control = wp.zeros_like(solver._control)  # not done: the sweeps run
+        p, acc = f["dfsph_pressure"], f["dfsph_acceleration"]
+        p0 = p.numpy().copy()
+        out, final = {"padded": [], "compressed": []}, {}
+        for _ in range(rounds):
+            for name, pairs in (("padded", padded), ("compressed", packed)):
+                p.assign(p0)
+                c0 = time.process_time()
+                for _ in range(sweeps):
+                    wp.launch(_dfsph.pressure_acceleration, dim=n, inputs=[0, solver.nl.fluid, pairs, p, control],
+                              outputs=[acc])
+                    wp.launch(_dfsph.jacobi_update, dim=n, inputs=[0, solver.nl.fluid, pairs, f["dfsph_factor"],
+                                                                   f["dfsph_density_source"], acc, 1e-6, 0.5, 0, control, 0],
+                              outputs=[p, solver._previous, f["dfsph_error"]])
+                out[name].append(round(1e6 * (time.process_time() - c0) / sweeps))
+                final[name] = p.numpy().copy()
+        p.assign(p0)
+    return {"cpu_us_per_sweep": out, "row_use": float(count.mean() / sim.fields["neighbor_lists"].capacities[0]),
+            "same_pressure": bool(np.array_equal(final["padded"], final["compressed"]))}
+
+
 def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3, rounds: int = 2) -> dict:
     """Both paths of the DFSPH solves (``PATHS``) side by side on two equal simulations: ``rounds``
     alternating rounds of ``frames`` plain frames each, then one instrumented round each."""
@@ -242,6 +290,7 @@ def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3, rounds: 
     out["instrumented"] = {name: _instrumented(sim, frames) for name, sim in sims.items()}
     out["handoff"] = handoff_costs()
     out["concurrency"] = concurrent_runs(first)  # (the last step's pairs; only the time matters)
+    out["compressed_rows"] = compressed_rows(first)
     out["load_after"] = os.getloadavg()
     return out
 
