@@ -17,7 +17,7 @@ twice, once per path of the solves' sweeps (``PATHS``: a split launch per pass, 
 The instrumentation adds a few microseconds per run; compare its wall with the plain one. Last, the
 cost of one split-launch hand-off, of the thread pool's it replaced, and of one pass of ``run_loop``'s barrier
 (``handoff``), whether a kernel's range costs more CPU while the other thread runs (``concurrency``), and
-what a Jacobi sweep would cost on compressed pair rows (``compressed_rows``).
+what packing the pair rows saves per Jacobi sweep (``compressed_rows``).
 One JSON object on stdout. Wrap it in ``flock /tmp/warp_sph_bench.lock`` on a shared machine.
 """
 from __future__ import annotations
@@ -215,11 +215,11 @@ def concurrent_runs(sim, runs: int = 3000) -> dict:
 
 
 def compressed_rows(sim, sweeps: int = 100, rounds: int = 3) -> dict:
-    """Would compressed pair rows pay? Process CPU microseconds per Jacobi sweep (``pressure_acceleration`` +
-    ``jacobi_update`` over every particle in one launch each) on the search's pair cache as it is (row i at
-    i x the list capacity) and on the same pairs copied into compressed rows (row i right after row i - 1),
-    ``rounds`` alternating rounds of ``sweeps`` sweeps from the same P; ``same_pressure``: both give
-    bitwise the same P (the same pairs in the same order)."""
+    """What packing the pair rows pays: process CPU microseconds per Jacobi sweep (``pressure_acceleration``
+    + ``jacobi_update`` over every particle in one launch each) on the search's pairs laid out padded (row i
+    at i x the list capacity, the search's own layout) and packed (row i right after row i - 1, what
+    ``pack_pair_rows`` makes of it on the CPU), ``rounds`` alternating rounds of ``sweeps`` sweeps from the
+    same P; ``same_pressure``: both give bitwise the same P (the same pairs in the same order)."""
     import numpy as np
     import warp as wp
 
@@ -227,25 +227,31 @@ def compressed_rows(sim, sweeps: int = 100, rounds: int = 3) -> dict:
     from warp_sph.kernels.dfsph_search import DfsphPairs
 
     solver, f, n = sim.solver, sim.fields, sim.model.fluid_count
+    capacity = sim.fields["neighbor_lists"].capacities[0]
     with sim.in_cell_order():
         for stage in sim.graph.stages[:2]:  # the neighbours and the search at the frame's positions
             stage.run(sim, sim.frame_dt / 10)
-        padded = f["dfsph_pairs"]
-        offset, count = padded.offset.numpy()[:n], padded.count.numpy()[:n]
+        cache = f["dfsph_pairs"]
+        offset, count = cache.offset.numpy()[:n], cache.count.numpy()[:n]
         rows = np.concatenate([np.arange(o, o + c) for o, c in zip(offset, count)])
-        packed = DfsphPairs()
-        for name in ("count", "gradient_sum", "boundary_gradient", "boundary_velocity", "active"):
-            setattr(packed, name, getattr(padded, name))
-        starts = np.concatenate([[0], np.cumsum(count)[:-1], padded.offset.numpy()[n:] * 0]).astype(np.int32)
-        packed.offset = wp.array(starts, dtype=wp.int32)
-        packed.index = wp.array(padded.index.numpy()[rows], dtype=wp.int32)
-        packed.gradient = wp.array(padded.gradient.numpy()[rows], dtype=wp.vec3)
+        index, gradient = cache.index.numpy()[rows], cache.gradient.numpy()[rows]
+        layouts = {}
+        for name, starts in (("padded", np.arange(n) * capacity), ("packed", np.concatenate([[0], np.cumsum(count)[:-1]]))):
+            pairs = DfsphPairs()
+            for field in ("count", "gradient_sum", "boundary_gradient", "boundary_velocity", "active"):
+                setattr(pairs, field, getattr(cache, field))
+            at = np.concatenate([np.arange(s0, s0 + c) for s0, c in zip(starts, count)])
+            idx, grad = np.zeros(n * capacity, np.int32), np.zeros((n * capacity, 3), np.float32)
+            idx[at], grad[at] = index, gradient
+            pairs.offset = wp.array(starts.astype(np.int32), dtype=wp.int32)
+            pairs.index, pairs.gradient = wp.array(idx, dtype=wp.int32), wp.array(grad, dtype=wp.vec3)
+            layouts[name] = pairs
         control = wp.zeros_like(solver._control)  # not done: the sweeps run
         p, acc = f["dfsph_pressure"], f["dfsph_acceleration"]
         p0 = p.numpy().copy()
-        out, final = {"padded": [], "compressed": []}, {}
+        out, final = {name: [] for name in layouts}, {}
         for _ in range(rounds):
-            for name, pairs in (("padded", padded), ("compressed", packed)):
+            for name, pairs in layouts.items():
                 p.assign(p0)
                 c0 = time.process_time()
                 for _ in range(sweeps):
@@ -257,8 +263,8 @@ def compressed_rows(sim, sweeps: int = 100, rounds: int = 3) -> dict:
                 out[name].append(round(1e6 * (time.process_time() - c0) / sweeps))
                 final[name] = p.numpy().copy()
         p.assign(p0)
-    return {"cpu_us_per_sweep": out, "row_use": float(count.mean() / sim.fields["neighbor_lists"].capacities[0]),
-            "same_pressure": bool(np.array_equal(final["padded"], final["compressed"]))}
+    return {"cpu_us_per_sweep": out, "row_use": float(count.mean() / capacity),
+            "same_pressure": bool(np.array_equal(final["padded"], final["packed"]))}
 
 
 def profile(radius: float = 0.025, start: float = 0.3, frames: int = 3, rounds: int = 2) -> dict:
