@@ -7,7 +7,8 @@ Neighbours and the factor come from one search per step (``fluid_search_kernel``
 ``warp_sph.neighbors.NeighborLists``, walked with ``cell_rows`` / ``row_points`` of
 ``kernels/neighbors.py``: rows of cells trimmed to the sphere): each pair within
 the support radius is found once, and its G_ij goes straight into row i of the pair cache
-(``DfsphPairs``, row i at i x the list capacity), read as one stream per particle by every later pass;
+(``DfsphPairs``, row i at i x the list capacity; on the CPU ``pack_pair_rows`` then packs the rows
+one after the other), read as one stream per particle by every later pass;
 the solves evaluate no smoothing kernel (with the search skin the pairs come from lists, in compressed
 rows: ``kernels/dfsph_skin.py``). The same search writes the fluid and boundary
 neighbour lists (fluid lists without i itself) that the shared viscosity and XSPH stages read.
