@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_sph.core.launch import Replays, run_loop
+from warp_sph.core import launch as core_launch
+from warp_sph.core.launch import Replays, launch, run_loop
 from warp_sph.run.simulation import Simulation
 
 
@@ -58,6 +59,67 @@ def test_run_loop_passes_see_the_last_pass_and_stop(monkeypatch, threads):
         np.testing.assert_allclose(x.numpy(), expect, rtol=1e-6)
         assert view[1] == x.numpy()[0]
     assert np.abs(y2.numpy()).max() > 0  # the swapped scratch array was written
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_run_loop_runs_before_and_after_once_in_order(monkeypatch, threads):
+    """``before`` runs once ahead of the sweeps and ``after`` once behind the last one, in the same hand-off:
+    x = x0 + 1 (before), then 4 sweeps of smoothing, then y = smoothed x (after, every range reading what the
+    other ranges wrote in the last sweep); the serial _count groups count the sweeps (the stop test ends the
+    loop after 4) and the one-thread groups before and after (once each)."""
+    monkeypatch.setenv("WARP_SPH_CPU_THREADS", str(threads))
+    n = 3500
+    x0 = np.random.default_rng(5).random(n).astype(np.float32)
+    x, y = wp.array(x0, dtype=float, device="cpu"), wp.zeros(n, dtype=float, device="cpu")
+    counter = wp.zeros(2, dtype=float, device="cpu")
+    view = counter.numpy()
+    replays = Replays()
+    count = [[replays.get(_count, 1, [x], [counter], device="cpu", tag=tag)] for tag in ("first", "last")]
+    before = [count[0],  # one thread's group: runs before the other threads start
+              [replays.get(_shift, n, [x, 1.0], [y], device="cpu", tag="before 1")],
+              [replays.get(_shift, n, [y, 0.0], [x], device="cpu", tag="before 2")]]
+    passes = [[replays.get(_smooth, n, [x], [y], device="cpu")], [replays.get(_shift, n, [y, 0.0], [x], device="cpu")],
+              [replays.get(_count, 1, [x], [counter], device="cpu")]]
+    after = [[replays.get(_smooth, n, [x], [y], device="cpu", tag="after")], count[1]]  # the last: after they stop
+    ran = run_loop(passes, 10, lambda s: view[0] >= 5, before=before, after=after)
+    assert ran == 4 and view[0] == 6
+    expect = x0 + np.float32(1.0)
+    for _ in range(4):
+        expect = (0.5 * (np.roll(expect, 1) + np.roll(expect, -1))).astype(np.float32)
+    np.testing.assert_allclose(x.numpy(), expect, rtol=1e-6)
+    np.testing.assert_allclose(y.numpy(), 0.5 * (np.roll(expect, 1) + np.roll(expect, -1)), rtol=1e-6)
+
+
+def test_split_launches_share_the_loop_threads_and_fall_back_inside_a_loop(monkeypatch):
+    """A split launch runs its ranges on run_loop's persistent threads (no thread pool made), a split launch
+    from inside a run_loop callable (the threads busy at its barrier) falls back to the pool instead of
+    waiting forever, and an error in another thread's range reaches the caller, after which the threads
+    still work."""
+    monkeypatch.setenv("WARP_SPH_CPU_THREADS", "2")
+    monkeypatch.setattr(core_launch, "_pool", None)
+    n = 3000
+    x0 = np.arange(n, dtype=np.float32)
+    x, y = wp.array(x0, dtype=float, device="cpu"), wp.zeros(n, dtype=float, device="cpu")
+    launch(_shift, n, [x, 2.0], [y], device="cpu")  # the first launch loads the module (one range)
+    launch(_shift, n, [x, 3.0], [y], device="cpu")
+    np.testing.assert_array_equal(y.numpy(), x0 + 3.0)
+    assert core_launch._pool is None and core_launch._loop_workers is not None
+
+    def nested():
+        launch(_shift, n, [y, 1.0], [x], device="cpu")
+
+    rec = Replays().get(_shift, n, [x, 0.5], [y], device="cpu")
+    assert run_loop([[rec], [nested]], 2) == 2  # y = x + 0.5, x = y + 1, twice
+    np.testing.assert_array_equal(x.numpy(), x0 + 3.0)
+    assert core_launch._pool is not None  # the nested launch's other range ran on the pool
+
+    def fail():
+        raise ValueError("range 1")
+
+    with pytest.raises(ValueError, match="range 1"):
+        core_launch._run_split([lambda: None, fail])
+    launch(_shift, n, [x, -3.0], [y], device="cpu")
+    np.testing.assert_array_equal(y.numpy(), x0)
 
 
 def _block(steps_dt, threads, loop, monkeypatch):

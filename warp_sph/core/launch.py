@@ -14,6 +14,7 @@ Worker count: ``WARP_SPH_CPU_THREADS`` if set, else the number of cores this pro
 """
 from __future__ import annotations
 
+import ctypes
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -86,8 +87,31 @@ def _thread_count(dim: int, device, min_range: int) -> int:
 
 
 def _run_split(calls) -> None:
-    """Run ``calls[1:]`` on the thread pool and ``calls[0]`` on this thread; return when all have finished."""
+    """Run ``calls[k]`` on thread k (0: this thread; the others: ``run_loop``'s persistent threads, woken by a
+    semaphore and met at its barrier, about 10 us of hand-off against a thread pool's 17-180 us); return when
+    all have finished. While those threads are taken (a split launch from inside a ``run_loop`` callable, or
+    from a second Python thread) the others run on a thread pool instead."""
     global _pool
+    if len(calls) > 1 and _loop_lock.acquire(blocking=False):
+        try:
+            errors = []
+            workers = _workers(len(calls) - 1)
+            barrier = workers.barrier_of(len(calls))
+
+            def job(k: int) -> None:
+                try:
+                    calls[k]()
+                except BaseException as e:  # still meet the barrier; this thread raises it
+                    errors.append(e)
+                barrier.wait()
+
+            workers.start(job, len(calls))
+            job(0)
+        finally:
+            _loop_lock.release()
+        if errors:
+            raise errors[0]
+        return
     rest = calls[1:]
     if rest and (_pool is None or _pool._max_workers < len(rest)):
         _pool = ThreadPoolExecutor(max_workers=len(rest), thread_name_prefix="warp_sph_launch")
@@ -155,8 +179,8 @@ _SCALARS = (int, float, bool)
 
 def _binding(value):
     """What decides how ``value`` is packed into a launch: arrays by pointer, shape and strides, Warp
-    structs by their packed bytes (a struct whose array member was replaced differs), scalars by type
-    and value; None (always re-bind) for anything else."""
+    structs by their packed bytes (a struct whose array member was replaced differs), scalars, vectors
+    and matrices by type and value; None (always re-bind) for anything else."""
     if isinstance(value, wp.array):
         return ("array", value.ptr, value.shape, value.strides, value.dtype)
     if type(value) in _SCALARS:
@@ -164,6 +188,8 @@ def _binding(value):
     ctype = getattr(value, "_ctype", None)
     if ctype is not None:
         return ("struct", type(value), bytes(ctype))
+    if isinstance(value, ctypes.Array):  # Warp vectors and matrices (wp.vec3, ...): by type and bytes
+        return ("values", type(value), bytes(value))
     return None
 
 
@@ -196,40 +222,58 @@ class Replays:
         return rec
 
 
+_gate = threading.local()
+
+
+def _own_gate():
+    """This thread's gate for ``_Barrier``: a plain lock held while the thread does not wait (the cheapest
+    sleep and wake CPython has: no condition variable, no Python-level semaphore)."""
+    gate = getattr(_gate, "lock", None)
+    if gate is None:
+        gate = _gate.lock = threading.Lock()
+        gate.acquire()
+    return gate
+
+
 class _Barrier:
-    """A reusable barrier for ``parties`` threads: a counter under a lock and two semaphores used in
-    alternate rounds (a thread already waiting in the next round cannot take a release meant for
-    this one); about half the cost of ``threading.Barrier``'s condition variable."""
+    """A reusable barrier for ``parties`` threads: a counter under a lock; each thread that is not the last
+    to arrive sleeps on its own gate (``_own_gate``) and the last one opens them. A thread opened in this
+    round takes its gate again only in a later round, so it cannot take a release meant for another.
+    About half the cost of a barrier over semaphores (``threading.Semaphore`` is a condition variable
+    in Python) on a loaded machine."""
 
     def __init__(self, parties: int):
         self.parties = parties
         self._lock = threading.Lock()
-        self._count = 0
-        self._round = 0
-        self._gates = (threading.Semaphore(0), threading.Semaphore(0))
+        self._waiting: list = []
 
     def wait(self) -> None:
+        gate = _own_gate()
         with self._lock:
-            gate = self._gates[self._round]
-            self._count += 1
-            last = self._count == self.parties
+            waiting = self._waiting
+            last = len(waiting) + 1 == self.parties
             if last:
-                self._count = 0
-                self._round ^= 1
+                self._waiting = []
+            else:
+                waiting.append(gate)
         if last:
-            gate.release(self.parties - 1)
+            for g in waiting:
+                g.release()
         else:
             gate.acquire()
 
 
 class _LoopWorkers:
-    """Persistent daemon threads 1..count of ``run_loop`` (thread 0 is the caller)."""
+    """Persistent daemon threads 1..count of ``run_loop`` and ``_run_split`` (thread 0 is the caller); a job
+    may take the first ``parties - 1`` of them, meeting at that many parties' barrier."""
 
     def __init__(self, count: int):
         self.count = count
-        self.barrier = _Barrier(count + 1)
+        self._barriers: dict[int, _Barrier] = {}
         self.job = None
-        self._start = [threading.Semaphore(0) for _ in range(count)]
+        self._start = [threading.Lock() for _ in range(count)]  # held: released to start thread k + 1
+        for s in self._start:
+            s.acquire()
         for k in range(count):
             threading.Thread(target=self._work, args=(k,), daemon=True, name=f"warp_sph_loop_{k + 1}").start()
 
@@ -238,9 +282,18 @@ class _LoopWorkers:
             self._start[k].acquire()
             self.job(k + 1)
 
-    def start(self, job) -> None:
+    def barrier_of(self, parties: int) -> _Barrier:
+        """The barrier of ``parties`` threads (the caller's thread 0 included), made on first use."""
+        barrier = self._barriers.get(parties)
+        if barrier is None:
+            barrier = self._barriers[parties] = _Barrier(parties)
+        return barrier
+
+    def start(self, job, parties: int | None = None) -> None:
+        """Run ``job(k)`` on threads k = 1..parties - 1 (default: all of them); the job meets at
+        ``barrier_of(parties)``."""
         self.job = job
-        for s in self._start:
+        for s in self._start[: (self.count + 1 if parties is None else parties) - 1]:
             s.release()
 
 
@@ -248,12 +301,29 @@ _loop_workers: _LoopWorkers | None = None
 _loop_lock = threading.Lock()
 
 
+def _workers(count: int) -> _LoopWorkers:
+    """Persistent threads, at least ``count`` of them (made on first use, anew only for a larger count, so
+    their number stays bounded by the largest split); hold ``_loop_lock``."""
+    global _loop_workers
+    if _loop_workers is None or _loop_workers.count < count:
+        _loop_workers = _LoopWorkers(count)
+    return _loop_workers
+
+
 def _ranges(item) -> list:
     """The callables of a ``run_loop`` item: one per recorded range, or the item itself (thread 0)."""
     return [cmd.launch for cmd in item.cmds] if isinstance(item, Recorded) else [item]
 
 
-def run_loop(groups, sweeps: int, stop=None) -> int:
+def _run_serial(groups) -> None:
+    """Every range of every group of ``groups`` (``_ranges`` lists) in turn, on this thread."""
+    for g in groups:
+        for r in g:
+            for run in r:
+                run()
+
+
+def run_loop(groups, sweeps: int, stop=None, before=(), after=()) -> int:
     """Run up to ``sweeps`` sweeps of ``groups`` (a list of lists of :class:`Recorded` launches, or of
     callables that run on thread 0, e.g. ``wp.utils.array_scan`` between two passes) with one
     hand-off for the whole loop: on the CPU each range k of a recorded launch runs on thread k
@@ -262,41 +332,56 @@ def run_loop(groups, sweeps: int, stop=None) -> int:
     ranges (a serial kernel: a reduction, a one-thread control kernel) runs its ranges on the first
     threads while the rest wait at the barrier. After each sweep thread 0 calls ``stop(sweep)``
     (sweep: 1-based; a host read such as a solve's stop test) and all threads end the loop when it
-    returns True. The same launches in the same order as launching each range of each group in turn,
-    sweep after sweep: results are bitwise those of ``launch``. Returns the sweeps run."""
-    global _loop_workers
-    ranges = [[_ranges(r) for r in g] for g in groups]
-    threads = max((len(r) for g in ranges for r in g), default=1)
-    if threads <= 1 or sweeps <= 0:
+    returns True. ``before`` and ``after``: groups run once before the first sweep and once after the
+    last (e.g. a solve's reset and its final update), in the same hand-off. The same launches in the
+    same order as launching each range of each group in turn, sweep after sweep: results are bitwise
+    those of ``launch``. Returns the sweeps run."""
+    pre, ranges, post = ([[_ranges(r) for r in g] for g in gs] for gs in (before, groups, after))
+    threads = max((len(r) for gs in (pre, ranges, post) for g in gs for r in g), default=1)
+    # groups before the first (after the last) that only thread 0 runs: run on this thread before the other
+    # threads start (after they stopped), with no barrier
+    lead = next((i for i, g in enumerate(pre) if any(len(r) > 1 for r in g)), len(pre))
+    trail = next((i for i in range(len(post), 0, -1) if any(len(r) > 1 for r in post[i - 1])), 0)
+    if threads <= 1:
+        lead, trail = len(pre), 0
+    _run_serial(pre[:lead])
+    pre = pre[lead:]
+    post, solo_post = post[:trail], post[trail:]
+    if threads <= 1:
+        done = max(sweeps, 0)
         for s in range(1, sweeps + 1):
-            for g in ranges:
-                for r in g:
-                    for run in r:
-                        run()
+            _run_serial(ranges)
             if s < sweeps and stop is not None and stop(s):
-                return s
-        return max(sweeps, 0)
+                done = s
+                break
+        _run_serial(solo_post)
+        return done
     with _loop_lock:  # one loop at a time on the shared workers
-        if _loop_workers is None or _loop_workers.count != threads - 1:
-            _loop_workers = _LoopWorkers(threads - 1)
-        workers = _loop_workers
-        barrier = workers.barrier
+        workers = _workers(threads - 1)
+        barrier = workers.barrier_of(threads)
         state = {"done": 0, "error": None}
-        plan = [[[r[k] for r in g if k < len(r)] for g in ranges] for k in range(threads)]
+        plans = [[[[r[k] for r in g if k < len(r)] for g in gs] for k in range(threads)] for gs in (pre, ranges, post)]
+        # the last group of a sweep needs no barrier of its own when the stop test reads nothing the other
+        # threads wrote in it (no stop test, or a group only thread 0 runs): the sweep's end barrier follows
+        solo_last = stop is None or (bool(ranges) and all(len(r) <= 1 for r in ranges[-1]))
+
+        def run_groups(mine, skip_last: bool = False) -> None:
+            for g, cmds in enumerate(mine):
+                if state["error"] is None:
+                    try:
+                        for run in cmds:
+                            run()
+                    except BaseException as e:  # keep meeting the barriers; thread 0 raises it
+                        state["error"] = e
+                if not (skip_last and g == len(mine) - 1):
+                    barrier.wait()
 
         def job(k: int) -> None:
-            mine = plan[k]
+            run_groups(plans[0][k])
             s = 0
-            while True:
+            while s < sweeps:
                 s += 1
-                for cmds in mine:
-                    if state["error"] is None:
-                        try:
-                            for run in cmds:
-                                run()
-                        except BaseException as e:  # keep meeting the barriers; thread 0 raises it
-                            state["error"] = e
-                    barrier.wait()
+                run_groups(plans[1][k], solo_last)
                 if k == 0:
                     end = s >= sweeps or state["error"] is not None
                     if not end and stop is not None:
@@ -307,10 +392,12 @@ def run_loop(groups, sweeps: int, stop=None) -> int:
                     state["done"] = s if end else 0
                 barrier.wait()
                 if state["done"]:
-                    return
+                    break
+            run_groups(plans[2][k])
 
-        workers.start(job)
+        workers.start(job, threads)
         job(0)  # returns after the last barrier: every worker has run its last launch
         if state["error"] is not None:
             raise state["error"]
-        return state["done"]
+    _run_serial(solo_post)
+    return state["done"]

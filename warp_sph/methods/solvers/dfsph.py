@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ...core.launch import LIGHT_MIN_RANGE, Replays, launch
+from ...core.launch import LIGHT_MIN_RANGE, MIN_RANGE, Replays, launch
 from ...core.step_graph import Stage
 from ...kernels import dfsph as _dfsph
 from ...kernels import dfsph_solve as _dfsph_solve
@@ -167,6 +167,7 @@ class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
         # CPU: the sweeps' launches recorded once per solve site, the control read through a view
         self._replays = Replays() if dev.is_cpu else None
         self._control_view = self._control.numpy() if dev.is_cpu else None
+        self._gravity = wp.vec3(*m.gravity)  # [m/s^2], one value (a replayed launch compares it by value)
         self._allocate_search()
         if self.with_bodies:
             # term_i of the walls' pressure (``body_pressure_term``) and the velocities the boundary
@@ -174,27 +175,36 @@ class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
             sim.allocate("boundary_pressure_term", float)
             sim.allocate("boundary_force_velocity", wp.vec3)
 
+    def replayed(self, kernel, dim: int, inputs, outputs, min_range: int = MIN_RANGE) -> None:
+        """A launch of the step: on the CPU replayed from its recording (``core.launch.Replays``: arguments
+        packed again only where they changed; the ranges on the persistent threads), else ``launch``; the
+        same ranges, so bitwise the same."""
+        if self._replays is not None and self.sweep_loop and dim > 0:
+            self._replays.get(kernel, dim, inputs, outputs, device=self.model.device, min_range=min_range).launch()
+        else:
+            launch(kernel, dim, inputs, outputs, device=self.model.device, min_range=min_range)
+
     # --- stages ----------------------------------------------------------------------------
     def run_search(self, sim, dt) -> None:
         self.search(dt)
 
     def run_divergence(self, sim, dt) -> None:
         m, f, p = self.model, sim.fields, self.config
+        finish = (_dfsph.finish_divergence, m.fluid_count,
+                  [m.particle_mass, float(dt), self.nl.fluid, f["dfsph_pairs"], f["dfsph_divergence_pressure"]],
+                  [f["particle_v"], f["boundary_force"], f["dfsph_divergence_warm"]])
         it, err = self.solve("dfsph_divergence_pressure", "dfsph_divergence_source", dt,
                              float(p.target_divergence_error) / dt, int(p.divergence_min_iterations),
-                             int(p.divergence_max_iterations), True)
+                             int(p.divergence_max_iterations), True, finish=finish)
         self.last_divergence_iterations = it
         self.last_divergence_error = err * dt
-        launch(_dfsph.finish_divergence, m.fluid_count,
-               [m.particle_mass, float(dt), self.nl.fluid, f["dfsph_pairs"], f["dfsph_divergence_pressure"]],
-               [f["particle_v"], f["boundary_force"], f["dfsph_divergence_warm"]], device=m.device)
 
     def run_source(self, sim, dt) -> None:
         m, f = self.model, sim.fields
-        launch(_dfsph.density_source, m.fluid_count,
-               [m.rest_density, wp.vec3(*m.gravity), float(dt), float(self.config.warm_start), self.error_share(dt),
-                self.nl.fluid, f["dfsph_pairs"], f["particle_density"], f["particle_v"]],
-               [f["dfsph_pressure"], f["dfsph_density_source"]], device=m.device)
+        self.replayed(_dfsph.density_source, m.fluid_count,
+                      [m.rest_density, self._gravity, float(dt), float(self.config.warm_start), self.error_share(dt),
+                       self.nl.fluid, f["dfsph_pairs"], f["particle_density"], f["particle_v"]],
+                      [f["dfsph_pressure"], f["dfsph_density_source"]])
 
     def run_pressure(self, sim, dt) -> None:
         p = self.config
@@ -214,11 +224,11 @@ class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
 
     def run_integrate(self, sim, dt) -> None:
         m, f = self.model, sim.fields
-        launch(_dfsph.integrate, m.fluid_count,
-               [m.particle_mass, m.rest_density, wp.vec3(*m.gravity), float(dt), self.nl.fluid, f["dfsph_pairs"],
-                f["dfsph_pressure"], f["particle_density"]],
-               [f["particle_v"], f["particle_x"], f["boundary_force"], f["particle_pressure"],
-                f["particle_acceleration"]], device=m.device)
+        self.replayed(_dfsph.integrate, m.fluid_count,
+                      [m.particle_mass, m.rest_density, self._gravity, float(dt), self.nl.fluid, f["dfsph_pairs"],
+                       f["dfsph_pressure"], f["particle_density"]],
+                      [f["particle_v"], f["particle_x"], f["boundary_force"], f["particle_pressure"],
+                       f["particle_acceleration"]])
 
     def stages(self) -> list[Stage]:
         sim, m, p = self.sim, self.model, self.config

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ...core.launch import LIGHT_MIN_RANGE, launch, run_loop
+from ...core.launch import LIGHT_MIN_RANGE, cpu_threads, launch, run_loop
 from ...core.smoothing import get_smoothing_kernel, lattice_offsets
 from ...kernels import dfsph_factor as _factor
 from ...kernels import dfsph_search as _search
@@ -141,14 +141,22 @@ class DfsphSearch:
                   [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient,
                    pairs.boundary_velocity, pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"],
                    f["dfsph_acceleration"], f["dfsph_error"], f["boundary_force"]])
+        # CPU: the rows packed after the search, one range per thread (``pack_pair_rows``); a device keeps
+        # row i at i x capacity
+        ranges = cpu_threads() if dev.is_cpu else 0
+        pack = (_search.pack_pair_rows, ranges, [n, ranges, nl.capacities[0], pairs.count],
+                [pairs.offset, pairs.index, pairs.gradient])
         replays = getattr(self, "_replays", None)
         if replays is not None and self.sweep_loop and n > 0:
-            # CPU: the two passes in one run_loop (one hand-off, recorded launches; bitwise the launches below)
+            # CPU: the passes in one run_loop (one hand-off, recorded launches; bitwise the launches below)
             run_loop([[replays.get(*search, device=dev, tag="search")],
-                      [replays.get(*factor, device=dev, tag="search")]], 1)
+                      [replays.get(*factor, device=dev, tag="search")],
+                      [replays.get(*pack, device=dev, min_range=1, tag="search")]], 1)
             return
         launch(*search, device=dev)
         launch(*factor, device=dev)
+        if n > 0:
+            launch(*pack, device=dev, min_range=1)
 
     def _wall_reach(self, cells) -> list:
         """The boundary kernel's arguments for the static walls' sub-cell lists (``WallReach`` over the static

@@ -59,25 +59,25 @@ class DfsphSolve:
     def mean_error(self) -> float:
         """Mean of the per-particle ``dfsph_error`` [-], summed in a fixed order (one read)."""
         n = self.model.fluid_count
-        launch(_dfsph_solve.error_chunks, self._partial.shape[0], [_reduce.REDUCE_CHUNK, self.sim.fields["dfsph_error"],
-                                                             self._zero_control], [self._partial], device=self.model.device)
+        self.replayed(_dfsph_solve.error_chunks, self._partial.shape[0], [_reduce.REDUCE_CHUNK, self.sim.fields["dfsph_error"],
+                                                                    self._zero_control], [self._partial])
         return float(self._partial.numpy().sum(dtype=np.float64)) / max(n, 1)
 
     def solve(self, pressure: str, source: str, scale: float, target: float, min_iterations: int,
               max_iterations: int, active_only: bool, chebyshev: bool = False,
-              continuous: bool = False) -> tuple[int, float]:
+              continuous: bool = False, finish=None) -> tuple[int, float]:
         """Jacobi sweeps on the workspace field ``pressure`` for the field ``source`` (see
         ``kernels/dfsph_solve.py``) until the mean error is at most ``target`` after at least
         ``min_iterations`` sweeps, or ``max_iterations`` ran. ``continuous``: the solve ends on the linear
         crossing of the target between its last two sweeps (``kernels/dfsph_solve.py`` solve_control), not on the
-        whole last sweep. Returns (iterations, mean error of the last sweep)."""
+        whole last sweep. ``finish``: (kernel, dim, inputs, outputs) of a particle-parallel launch after the
+        sweeps (the CPU runs it in the sweeps' hand-off). Returns (iterations, mean error of the last sweep)."""
         m, f = self.model, self.sim.fields
         n, dev = m.fluid_count, m.device
         fn, pairs = self.nl.fluid, f["dfsph_pairs"]
         control, partial = self._control, self._partial
         acc, err, p, b, fac = f["dfsph_acceleration"], f["dfsph_error"], f[pressure], f[source], f["dfsph_factor"]
         omega = float(self.config.relaxation)
-        launch(_dfsph_solve.reset_control, 1, [], [control], device=dev)
         launched = 0
         block = max(1, min_iterations)
         self.solves += 1
@@ -87,6 +87,10 @@ class DfsphSolve:
             # CPU: every sweep of the solve in one run_loop (one hand-off per solve, a barrier between the
             # passes; the same launches in the same order, so bitwise the launch-per-pass path below)
             r, tag = self._replays, (pressure, bool(active_only))
+            before = [[r.get(_dfsph_solve.reset_control, 1, [], [control], device=dev, tag=tag)]]
+            after = [[r.get(_dfsph_solve.finish_sweeps, n, [fn, control, self._previous], [p], device=dev, tag=tag)]] if keep else []
+            if finish is not None:
+                after.append([r.get(*finish, device=dev, tag=tag)])
             passes = [[r.get(_dfsph_solve.pressure_acceleration, n, [fn, pairs, p, control], [acc], device=dev, tag=tag)],
                       [r.get(_dfsph_solve.jacobi_update, n, [fn, pairs, fac, b, acc, float(scale), omega, int(active_only),
                                                       control, int(keep)], [p, self._previous, err], device=dev,
@@ -102,10 +106,9 @@ class DfsphSolve:
             def stop(sweep: int) -> bool:  # the same checks as the loop below: after `first`, every `every`
                 return sweep >= first and (sweep - first) % every == 0 and c[_dfsph_solve.CONTROL_DONE] != 0.0
 
-            run_loop(passes, max_iterations, stop)
-            if keep:
-                launch(_dfsph_solve.finish_sweeps, n, [fn, control, self._previous], [p], device=dev)
+            run_loop(passes, max_iterations, stop, before=before, after=after)
             return int(c[_dfsph_solve.CONTROL_ITERATIONS]), float(c[_dfsph_solve.CONTROL_ERROR])
+        launch(_dfsph_solve.reset_control, 1, [], [control], device=dev)
         while True:
             block = min(block, max_iterations - launched)
             for _ in range(block):
@@ -120,6 +123,8 @@ class DfsphSolve:
             if c[_dfsph_solve.CONTROL_DONE] != 0.0 or launched >= max_iterations:
                 if keep:
                     launch(_dfsph_solve.finish_sweeps, n, [fn, control, self._previous], [p], device=dev)
+                if finish is not None:
+                    launch(*finish, device=dev)
                 return int(c[_dfsph_solve.CONTROL_ITERATIONS]), float(c[_dfsph_solve.CONTROL_ERROR])
             block = self.check_every
 
