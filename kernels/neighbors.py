@@ -1,38 +1,12 @@
 """Neighbour search kernels: per-step neighbour lists over a dense cell grid (with the fused WCSPH
-density sum), the cell-order gathers, and list collection over a hash grid (diagnostics, tests)."""
+density sum). The cell-order gathers are in ``particle_order.py``, list collection over a hash grid
+(diagnostics, tests) in ``hash_grid.py``."""
 import functools
-from typing import Any
 
 import warp as wp
 
 from .wall_reach import subcell_of
 from .smoothing import SMOOTHING_FUNCTIONS
-
-
-@wp.kernel(enable_backward=False)
-def collect_neighbors(
-    # In:
-    grid: wp.uint64,
-    points: wp.array(dtype=wp.vec3),
-    query_x: wp.array(dtype=wp.vec3),
-    radius: float,
-    capacity: int,
-    # Out:
-    neighbor_count_out: wp.array(dtype=int),
-    neighbor_index_out: wp.array2d(dtype=int),
-):
-    """Indices j with |query_x[i] - points[j]| < radius (up to ``capacity`` per query; the count is exact)."""
-    i = wp.tid()
-    xi = query_x[i]
-    count = int(0)
-    query = wp.hash_grid_query(grid, xi, radius)
-    j = int(0)
-    while wp.hash_grid_query_next(query, j):
-        if wp.length(xi - points[j]) < radius:
-            if count < capacity:
-                neighbor_index_out[i, count] = j
-            count += 1
-    neighbor_count_out[i] = count
 
 
 # --- Per-step neighbour lists over a dense cell grid ------------------------------------------
@@ -413,34 +387,3 @@ def mark_near_cells(
                         x = c[0] + dx
                         if x >= 0 and x < grid_dims[0]:
                             cell_mask_out[x + grid_dims[0] * (y + grid_dims[1] * z)] = wp.uint8(1)
-
-
-# --- Particle order (warp_sph/particle_order.py) ----------------------------------------------
-
-
-@wp.kernel(enable_backward=False)
-def gather_by_order(
-    tid_offset: int,
-    # In:
-    order: wp.array(dtype=wp.int32),
-    source: wp.array(dtype=Any),
-    # Out:
-    target_out: wp.array(dtype=Any),
-):
-    """target[k] = source[order[k]] (into cell order)."""
-    k = wp.tid() + tid_offset
-    target_out[k] = source[order[k]]
-
-
-@wp.kernel(enable_backward=False)
-def scatter_by_order(
-    tid_offset: int,
-    # In:
-    order: wp.array(dtype=wp.int32),
-    source: wp.array(dtype=Any),
-    # Out:
-    target_out: wp.array(dtype=Any),
-):
-    """target[order[k]] = source[k] (back to the stable particle order)."""
-    k = wp.tid() + tid_offset
-    target_out[order[k]] = source[k]

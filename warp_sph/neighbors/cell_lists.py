@@ -173,6 +173,7 @@ class NeighborLists:
         they moved), with their volumes in that order (a device gather, no host copy)."""
         from ..core.launch import LIGHT_MIN_RANGE, launch
         from ..kernels import neighbors as _dev
+        from ..kernels import particle_order as _order_dev
 
         mc = self.moving_cells
         if mc is None:
@@ -180,7 +181,7 @@ class NeighborLists:
         moving_x = boundary_x[self.moving_start:]
         mc.build(moving_x)
         if self._moving_volume is not None:
-            launch(_dev.gather_by_order, mc.count, [mc.cell_point, self._moving_volume], [self._moving_weight],
+            launch(_order_dev.gather_by_order, mc.count, [mc.cell_point, self._moving_volume], [self._moving_weight],
                    device=self.device, min_range=LIGHT_MIN_RANGE)
         if self._moving_mask is not None:
             self._moving_mask.zero_()
