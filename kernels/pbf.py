@@ -176,16 +176,97 @@ class PairCache:
 
 
 @functools.cache
+def density_lambda_functions(smoothing: str, boundary_terms, tensile: bool):
+    """(cached_pair_sums, write_density_lambda): the two halves of PBF's first density pass that the list pass
+    (``density_lambda_pairs_kernel``) and the fused search (``pbf_search.search_density_lambda_kernel``) share, so
+    the two stay bitwise one another's.
+
+    cached_pair_sums(t, pair_count, x_i, h, V, predicted_x, pairs) -> (sum_j W_ij [1/m^3], grad_i C = sum_j
+    V grad_i W_ij [1/m], sum_j |V grad_i W_ij|^2 [1/m^2]) over the pairs already in row t of the ``PairCache``
+    (index[t, k < pair_count]), in the row's order; stores V grad_i W_ij [and W_ij with ``tensile``] beside them.
+
+    write_density_lambda(...): from those sums and the boundary's share (eq. 13 and 19), the row's pair count, the
+    boundary gradient, density rho_i = rho0 (V sum_j W_ij + boundary) [kg/m^3], C_i (eq. 17) and lambda_i (eq. 19)."""
+    value_gradient = value_gradient_function(smoothing)
+    with_boundary = boundary_terms is not None and boundary_terms.density is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    boundary_share = boundary_share_function(smoothing, boundary_terms) if with_boundary else None
+
+    @wp.func(module="unique")
+    def cached_pair_sums(t: int, pair_count: int, xi: wp.vec3, h: float, volume: float,
+                         predicted_x: wp.array(dtype=wp.vec3), pairs_out: PairCache):
+        w_sum = float(0.0)
+        grad_i = wp.vec3(0.0)
+        grad_sq = float(0.0)
+        k = int(0)
+        while k < pair_count:
+            x_ij = xi - predicted_x[pairs_out.index[t, k]]
+            wg = wp.static(value_gradient)(x_ij, h)
+            w = wg[0]
+            w_sum += w
+            g = volume * wp.vec3(wg[1], wg[2], wg[3])
+            grad_i += g
+            grad_sq += wp.dot(g, g)
+            pairs_out.gradient[t, k] = g
+            if wp.static(tensile):
+                pairs_out.value[t, k] = w
+            k += 1
+        return w_sum, grad_i, grad_sq
+
+    @wp.func(module="unique")
+    def write_density_lambda(
+        t: int,
+        i: int,
+        xi: wp.vec3,
+        pair_count: int,
+        w_sum: float,
+        grad_fluid: wp.vec3,
+        grad_sq: float,
+        # Model:
+        volume: float,
+        h: float,
+        support2: float,
+        rest_density: float,
+        relaxation_epsilon: float,
+        boundary_params: BoundaryParams,
+        boundary_neighbors: NeighborList,
+        boundary_x: wp.array(dtype=wp.vec3),
+        boundary_volume: wp.array(dtype=float),
+        # State in:
+        constraint_offset: wp.array(dtype=float),
+        # Out:
+        pairs_out: PairCache,
+        particle_density_out: wp.array(dtype=float),
+        particle_lambda_out: wp.array(dtype=float),
+        particle_constraint_out: wp.array(dtype=float),
+    ):
+        pairs_out.count[t] = pair_count
+        ratio = volume * w_sum
+        grad_b = wp.vec3(0.0)
+        if wp.static(with_boundary):
+            rb = wp.static(boundary_share)(ratio, i, xi, h, support2, boundary_params, boundary_neighbors, boundary_x,
+                                           boundary_volume)
+            ratio = rb[0]
+            grad_b = wp.vec3(rb[1], rb[2], rb[3])
+        pairs_out.boundary_gradient[i] = grad_b
+        grad_i = grad_fluid + grad_b
+        c_lam = constraint_lambda(ratio - constraint_offset[i], grad_i, grad_sq, relaxation_epsilon)
+        particle_density_out[i] = rest_density * ratio
+        particle_lambda_out[i] = c_lam[1]
+        particle_constraint_out[i] = c_lam[0]
+
+    return cached_pair_sums, write_density_lambda
+
+
+@functools.cache
 def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
     """Density (eq. 7/13), constraint C (eq. 17) and Lagrange multiplier lambda (eq. 19) at the
     predicted positions over neighbour lists; keeps what the correction needs at these positions in a
     ``PairCache``: the pairs within the support radius (the lists hold a margin more) with
     V grad W_ij [and W_ij], and the boundary gradient sum. boundary_terms: the boundary method's
     ``BoundaryTerms`` (its density and gradient terms; None or without them: fluid only)."""
-    value_gradient = value_gradient_function(smoothing)
-    with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
-    boundary_share = boundary_share_function(smoothing, boundary_terms) if with_boundary else None
+    cached_pair_sums, write_density_lambda = density_lambda_functions(smoothing, boundary_terms, tensile)
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_density_lambda_pairs(
@@ -216,9 +297,6 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
         h = smoothing_length
         support2 = support_radius * support_radius
         volume = particle_mass / rest_density
-        w_sum = float(0.0)
-        grad_i = wp.vec3(0.0)
-        grad_sq = float(0.0)
         # the listed pairs closer than H_s into the cache's index row without a branch per pair (each listed j is
         # written at the next free slot, which only those pairs advance), then their terms in the same order
         n = int(0)
@@ -230,33 +308,10 @@ def density_lambda_pairs_kernel(smoothing: str, boundary_terms, tensile: bool):
             pairs_out.index[t, n] = j  # (n <= k: within the row)
             n += wp.where(wp.dot(x_ij, x_ij) < support2, 1, 0)
             k += 1
-        k = int(0)
-        while k < n:
-            x_ij = xi - predicted_x[pairs_out.index[t, k]]
-            wg = wp.static(value_gradient)(x_ij, h)
-            w = wg[0]
-            w_sum += w
-            g = volume * wp.vec3(wg[1], wg[2], wg[3])
-            grad_i += g
-            grad_sq += wp.dot(g, g)
-            pairs_out.gradient[t, k] = g
-            if wp.static(tensile):
-                pairs_out.value[t, k] = w
-            k += 1
-        pairs_out.count[t] = n
-        ratio = volume * w_sum
-        grad_b = wp.vec3(0.0)
-        if wp.static(with_boundary):
-            rb = wp.static(boundary_share)(ratio, i, xi, h, support2, boundary_params, boundary_neighbors, boundary_x,
-                                           boundary_volume)
-            ratio = rb[0]
-            grad_b = wp.vec3(rb[1], rb[2], rb[3])
-        pairs_out.boundary_gradient[i] = grad_b
-        grad_i += grad_b
-        c_lam = constraint_lambda(ratio - constraint_offset[i], grad_i, grad_sq, relaxation_epsilon)
-        particle_density_out[i] = rest_density * ratio
-        particle_lambda_out[i] = c_lam[1]
-        particle_constraint_out[i] = c_lam[0]
+        w_sum, grad_i, grad_sq = cached_pair_sums(t, n, xi, h, volume, predicted_x, pairs_out)
+        write_density_lambda(t, i, xi, n, w_sum, grad_i, grad_sq, volume, h, support2, rest_density, relaxation_epsilon,
+                             boundary_params, boundary_neighbors, boundary_x, boundary_volume, constraint_offset,
+                             pairs_out, particle_density_out, particle_lambda_out, particle_constraint_out)
 
     return compute_density_lambda_pairs
 
