@@ -13,7 +13,7 @@ import functools
 import warp as wp
 
 from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, row_points, walk_nth_candidate
-from .pbf import PairCache, density_lambda_functions, value_gradient_function
+from .pbf_pairs import PairCache, density_lambda_functions, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -21,8 +21,8 @@ from .smoothing import SMOOTHING_FUNCTIONS
 def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
     """Fluid neighbour lists within ``search_radius`` [m] (as ``neighbors.neighbor_list_kernel``: count exact,
     entries past the capacity dropped, max_count_out[i] their largest count) plus, over the stored pairs
-    closer than the support radius, what ``pbf.density_lambda_pairs_kernel`` writes: density [kg/m^3],
-    lambda [m^2], C [-] and the ``PairCache`` (with the list pass's two halves, ``pbf.density_lambda_functions``)."""
+    closer than the support radius, what ``pbf_pairs.density_lambda_pairs_kernel`` writes: density [kg/m^3],
+    lambda [m^2], C [-] and the ``PairCache`` (with the list pass's two halves, ``pbf_pairs.density_lambda_functions``)."""
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
     cached_pair_sums, write_density_lambda = density_lambda_functions(smoothing, boundary_terms, tensile)
 
@@ -155,7 +155,7 @@ def identity_slots(
 def constraint_kernel(smoothing: str, boundary_terms):
     """Density [kg/m^3] and C [-] alone (eq. 7/13, 17) over the neighbour lists: what the stabilize stage's
     constraint offset reads at x (no lambda, no pair cache: the step's density stage writes those at x*).
-    The same pairs, order and expressions as ``pbf.density_lambda_pairs_kernel``: bitwise its density and C."""
+    The same pairs, order and expressions as ``pbf_pairs.density_lambda_pairs_kernel``: bitwise its density and C."""
     value = SMOOTHING_FUNCTIONS[smoothing][0]
     value_gradient = value_gradient_function(smoothing)  # the fluid pairs' W as the density passes evaluate it
     with_boundary = boundary_terms is not None and boundary_terms.density is not None

@@ -1,6 +1,6 @@
 """WCSPH's pass over neighbour lists kept over several steps (``wcsph.search_skin``; host:
 ``warp_sph/methods/solvers/wcsph_lists.py``): the density (report eq. 7/13) over lists that hold pairs up to
-H_s + a skin, and the step's ``PairCache`` (``kernels/pbf.py``) of the pairs closer than H_s with grad W, which
+H_s + a skin, and the step's ``PairCache`` (``kernels/pbf_pairs.py``) of the pairs closer than H_s with grad W, which
 the force kernel (``wcsph.acceleration_kernel``, neighbors "pairs") reads."""
 import functools
 
@@ -8,7 +8,7 @@ import warp as wp
 
 from .neighbors import (NeighborList, NoBoundaryParams, cell_rows, neighbor_count, particle_in_cell_order,
                         row_points, walk_nth_candidate)
-from .pbf import PairCache, cubic_value_gradient_select, value_gradient_function
+from .pbf_pairs import PairCache, cubic_value_gradient_select, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -100,7 +100,7 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
     ``PairCache`` of the pairs closer than H_s (j != i): index j and grad_i W_ij [1/m^4] in the lists' order, which
     the force kernel (``acceleration_kernel``, neighbors "pairs") reads instead of evaluating the kernel again.
     The density is bitwise the list pass's (``density.density_kernel``) and the fused search's over the same lists;
-    the cached gradient bitwise ``gradient(x_ij, h)`` (``pbf.value_gradient_function``); the cubic spline is
+    the cached gradient bitwise ``gradient(x_ij, h)`` (``pbf_pairs.value_gradient_function``); the cubic spline is
     evaluated without branches (``cubic_value_gradient_select``, equal to rounding) and the cache is filled
     without a branch per pair (every listed pair is written at the next free slot, which only the pairs closer
     than H_s advance)."""
@@ -126,7 +126,7 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
         particle_density_out: wp.array(dtype=float),
         pairs_out: PairCache,
     ):
-        t = wp.tid() + tid_offset  # the pair cache's row (``pbf.PairCache``)
+        t = wp.tid() + tid_offset  # the pair cache's row (``pbf_pairs.PairCache``)
         i = particle_in_cell_order(fluid_neighbors, t)
         xi = particle_x[i]
         h = smoothing_length
@@ -184,7 +184,7 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
         particle_density_out: wp.array(dtype=float),
         pairs_out: PairCache,
     ):
-        t = wp.tid() + tid_offset  # the pair cache's row (``pbf.PairCache``)
+        t = wp.tid() + tid_offset  # the pair cache's row (``pbf_pairs.PairCache``)
         i = particle_in_cell_order(fluid_neighbors, t)
         xi = particle_x[i]
         q = (xi - grid_lo) * inv_cell_size
