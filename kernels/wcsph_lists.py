@@ -6,8 +6,7 @@ import functools
 
 import warp as wp
 
-from .neighbors import (NeighborList, NoBoundaryParams, cell_rows, neighbor_count, particle_in_cell_order,
-                        row_points, walk_nth_candidate)
+from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order, walk_candidates
 from .pbf_pairs import PairCache, cubic_value_gradient_select, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
@@ -191,29 +190,12 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
         qr = search_radius * inv_cell_size
         radius2 = search_radius * search_radius
         capacity = fluid_neighbors.index.shape[1]
-        rows = cell_rows(q, qr, grid_dims)
         h = smoothing_length
         support2 = support_radius * support_radius
         total = float(0.0)
-        # the walk (as in ``dfsph_search.fluid_search_kernel``): a tight loop that stores every candidate's sorted
-        # index and advances the count only for those within the search radius (no branch to mispredict per
-        # candidate; a full list's last slot, overwritten by later candidates, is restored by a second walk), then
+        # the branch-free walk (``neighbors.walk_candidates``) stores the candidates' sorted indices, then
         # density_pairs_kernel's body over the stored pairs in the same order
-        last = capacity - 1
-        m = int(0)  # listed
-        for z in range(rows[2], rows[3] + 1):
-            for y in range(rows[0], rows[1] + 1):
-                span = row_points(q, qr, y, z, grid_dims, cell_start)
-                k = span[0]
-                k_end = span[1]
-                while k < k_end:
-                    x_ij = xi - sorted_points[k]
-                    fluid_neighbors.index[i, wp.min(m, last)] = k
-                    m += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
-                    k += 1
-        if m >= capacity:  # full: the last slot was overwritten by later candidates
-            fluid_neighbors.index[i, last] = walk_nth_candidate(q, qr, xi, radius2, grid_dims, cell_start,
-                                                                sorted_points, last)
+        m = walk_candidates(q, qr, xi, radius2, grid_dims, cell_start, sorted_points, fluid_neighbors.index, i, 0)
         n = int(0)  # cached pairs
         e = int(0)
         e_end = wp.min(m, capacity)
