@@ -1,38 +1,12 @@
 """Neighbour search kernels: per-step neighbour lists over a dense cell grid (with the fused WCSPH
-density sum), the cell-order gathers, and list collection over a hash grid (diagnostics, tests)."""
+density sum) and the cell walk's functions. Building the cell grid is in ``cell_lists.py``, the cell-order gathers
+in ``particle_order.py``, list collection over a hash grid (diagnostics, tests) in ``hash_grid.py``."""
 import functools
-from typing import Any
 
 import warp as wp
 
 from .wall_reach import subcell_of
 from .smoothing import SMOOTHING_FUNCTIONS
-
-
-@wp.kernel(enable_backward=False)
-def collect_neighbors(
-    # In:
-    grid: wp.uint64,
-    points: wp.array(dtype=wp.vec3),
-    query_x: wp.array(dtype=wp.vec3),
-    radius: float,
-    capacity: int,
-    # Out:
-    neighbor_count_out: wp.array(dtype=int),
-    neighbor_index_out: wp.array2d(dtype=int),
-):
-    """Indices j with |query_x[i] - points[j]| < radius (up to ``capacity`` per query; the count is exact)."""
-    i = wp.tid()
-    xi = query_x[i]
-    count = int(0)
-    query = wp.hash_grid_query(grid, xi, radius)
-    j = int(0)
-    while wp.hash_grid_query_next(query, j):
-        if wp.length(xi - points[j]) < radius:
-            if count < capacity:
-                neighbor_index_out[i, count] = j
-            count += 1
-    neighbor_count_out[i] = count
 
 
 # --- Per-step neighbour lists over a dense cell grid ------------------------------------------
@@ -160,60 +134,36 @@ def walk_nth_candidate(q: wp.vec3, qr: float, xi: wp.vec3, radius2: float, grid_
     return found
 
 
-@wp.kernel(enable_backward=False)
-def compute_cell_keys(
-    tid_offset: int,
-    # Grid:
-    grid_lo: wp.vec3,
-    inv_cell_size: float,
-    grid_dims: wp.vec3i,
-    # In:
-    points: wp.array(dtype=wp.vec3),
-    # Out (length 2 n for the radix sort):
-    cell_key_out: wp.array(dtype=wp.int32),
-    cell_point_out: wp.array(dtype=wp.int32),
-):
-    """Linear cell index (x fastest) of every point, and the identity permutation."""
-    i = wp.tid() + tid_offset
-    c = cell_of(points[i], grid_lo, inv_cell_size, grid_dims)
-    cell_key_out[i] = c[0] + grid_dims[0] * (c[1] + grid_dims[1] * c[2])
-    cell_point_out[i] = i
-
-
-@wp.kernel(enable_backward=False)
-def compute_cell_start(
-    tid_offset: int,
-    # In:
-    point_count: int,
-    cell_count: int,
-    cell_key: wp.array(dtype=wp.int32),
-    # Out:
-    cell_start_out: wp.array(dtype=wp.int32),
-):
-    """cell_start[c] = first sorted index with key >= c, for c = 0..cell_count (point_count + 1 threads).
-    Every entry is written by exactly one thread."""
-    k = wp.tid() + tid_offset
-    below = int(-1)
-    if k > 0:
-        below = int(cell_key[k - 1])
-    above = cell_count
-    if k < point_count:
-        above = int(cell_key[k])
-    for c in range(below + 1, above + 1):
-        cell_start_out[c] = k
-
-
-@wp.kernel(enable_backward=False)
-def gather_sorted_points(
-    tid_offset: int,
-    # In:
-    points: wp.array(dtype=wp.vec3),
-    cell_point: wp.array(dtype=wp.int32),
-    # Out:
-    sorted_points_out: wp.array(dtype=wp.vec3),
-):
-    k = wp.tid() + tid_offset
-    sorted_points_out[k] = points[cell_point[k]]
+@wp.func
+def walk_candidates(q: wp.vec3, qr: float, xi: wp.vec3, radius2: float, grid_dims: wp.vec3i,
+                    cell_start: wp.array(dtype=wp.int32), sorted_points: wp.array(dtype=wp.vec3),
+                    index: wp.array2d(dtype=wp.int32), i: int, first: int) -> int:
+    """The branch-free cell walk of ``neighbor_list_kernel`` and the fused searches: the sorted indices of the
+    points closer than sqrt(radius2) to xi, in the walk's order, into index[i, first:] (up to the row's capacity);
+    returns first + their count (exact). A tight loop stores every candidate at the next free slot (clamped to the
+    last) and advances the count only for those within the radius (no branch to mispredict per candidate); a full
+    list's last slot, overwritten by later candidates, is restored by a second walk (``walk_nth_candidate``), and
+    a row already full at ``first`` (an append) keeps its last entry."""
+    capacity = index.shape[1]
+    last = capacity - 1
+    kept = index[i, last]
+    n = first
+    rows = cell_rows(q, qr, grid_dims)
+    for z in range(rows[2], rows[3] + 1):
+        for y in range(rows[0], rows[1] + 1):
+            span = row_points(q, qr, y, z, grid_dims, cell_start)
+            k = span[0]
+            k_end = span[1]
+            while k < k_end:  # a while loop: measured 20 % faster than range() here
+                d = xi - sorted_points[k]
+                index[i, wp.min(n, last)] = k
+                n += wp.where(wp.dot(d, d) < radius2, 1, 0)
+                k += 1
+    if first >= capacity:
+        index[i, last] = kept
+    elif n >= capacity:  # full: the last slot was overwritten by later candidates
+        index[i, last] = walk_nth_candidate(q, qr, xi, radius2, grid_dims, cell_start, sorted_points, last - first)
+    return n
 
 
 @wp.struct
@@ -316,7 +266,6 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None, walls: bool =
         qr = search_radius * inv_cell_size
         radius2 = search_radius * search_radius
         capacity = neighbor_index_out.shape[1]
-        rows = cell_rows(q, qr, grid_dims)
         n = int(0)
         if append != 0:
             n = neighbor_count_out[i]
@@ -340,28 +289,10 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None, walls: bool =
                         total += w
                 e += 1
         else:
-            # a tight loop stores every candidate's sorted index and advances the count only for those within
-            # the radius (no branch to mispredict per candidate: 5.5 -> 3.4 ms for the dam break's fluid lists;
-            # a full list's last slot, overwritten by later candidates, is restored by a second walk), then the
-            # stored ones, in the same order, get their index and density term
-            last = capacity - 1
+            # the branch-free walk (``walk_candidates``: 5.5 -> 3.4 ms for the dam break's fluid lists) stores the
+            # candidates' sorted indices; then the stored ones, in the same order, get their index and density term
             first = n
-            kept = neighbor_index_out[i, last]  # (append to a full list: the earlier set's last entry)
-            for z in range(rows[2], rows[3] + 1):
-                for y in range(rows[0], rows[1] + 1):
-                    span = row_points(q, qr, y, z, grid_dims, cell_start)
-                    k = span[0]
-                    k_end = span[1]
-                    while k < k_end:  # a while loop: measured 20 % faster than range() here
-                        d = xi - sorted_points[k]
-                        neighbor_index_out[i, wp.min(n, last)] = k
-                        n += wp.where(wp.dot(d, d) < radius2, 1, 0)
-                        k += 1
-            if first >= capacity:
-                neighbor_index_out[i, last] = kept
-            elif n >= capacity:  # full: the last slot was overwritten by later candidates
-                neighbor_index_out[i, last] = walk_nth_candidate(q, qr, xi, radius2, grid_dims, cell_start,
-                                                                 sorted_points, last - first)
+            n = walk_candidates(q, qr, xi, radius2, grid_dims, cell_start, sorted_points, neighbor_index_out, i, first)
             e = first
             e_end = wp.min(n, capacity)
             while e < e_end:
@@ -386,61 +317,3 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None, walls: bool =
         # its neighbours after those already listed, with indices index_offset + its own, and its density)
 
     return build_neighbor_list
-
-
-@wp.kernel(enable_backward=False)
-def mark_near_cells(
-    tid_offset: int,
-    # Grid:
-    grid_lo: wp.vec3,
-    inv_cell_size: float,
-    grid_dims: wp.vec3i,
-    # In:
-    points: wp.array(dtype=wp.vec3),
-    # Out (cleared by the caller):
-    cell_mask_out: wp.array(dtype=wp.uint8),
-):
-    """cell_mask = 1 in the cell of every point and its 26 neighbours (the mask of the moving boundary
-    particles, rebuilt when they move). Threads only ever write 1: the result is the same in any order."""
-    c = cell_of(points[wp.tid() + tid_offset], grid_lo, inv_cell_size, grid_dims)
-    for dz in range(-1, 2):
-        z = c[2] + dz
-        if z >= 0 and z < grid_dims[2]:
-            for dy in range(-1, 2):
-                y = c[1] + dy
-                if y >= 0 and y < grid_dims[1]:
-                    for dx in range(-1, 2):
-                        x = c[0] + dx
-                        if x >= 0 and x < grid_dims[0]:
-                            cell_mask_out[x + grid_dims[0] * (y + grid_dims[1] * z)] = wp.uint8(1)
-
-
-# --- Particle order (warp_sph/particle_order.py) ----------------------------------------------
-
-
-@wp.kernel(enable_backward=False)
-def gather_by_order(
-    tid_offset: int,
-    # In:
-    order: wp.array(dtype=wp.int32),
-    source: wp.array(dtype=Any),
-    # Out:
-    target_out: wp.array(dtype=Any),
-):
-    """target[k] = source[order[k]] (into cell order)."""
-    k = wp.tid() + tid_offset
-    target_out[k] = source[order[k]]
-
-
-@wp.kernel(enable_backward=False)
-def scatter_by_order(
-    tid_offset: int,
-    # In:
-    order: wp.array(dtype=wp.int32),
-    source: wp.array(dtype=Any),
-    # Out:
-    target_out: wp.array(dtype=Any),
-):
-    """target[order[k]] = source[k] (back to the stable particle order)."""
-    k = wp.tid() + tid_offset
-    target_out[order[k]] = source[k]

@@ -18,7 +18,7 @@ from .smoothing import SMOOTHING_FUNCTIONS
 def density_lambda_kernel(smoothing: str, boundary_terms):
     """Density (eq. 7/13), constraint C (eq. 17) and Lagrange multiplier lambda (eq. 19) at the
     predicted positions, in one hash-grid pass (the reference variant of
-    ``pbf.density_lambda_pairs_kernel``). Writes C_i to ``particle_constraint_out``."""
+    ``pbf_pairs.density_lambda_pairs_kernel``). Writes C_i to ``particle_constraint_out``."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
     with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
@@ -88,7 +88,7 @@ def density_lambda_kernel(smoothing: str, boundary_terms):
 @functools.cache
 def correction_kernel(smoothing: str, boundary_terms, tensile: bool):
     """Jacobi position correction dx_i (eq. 18) over the hash grid (the reference variant of
-    ``pbf.correction_pairs_kernel``), optional tensile term
+    ``pbf_pairs.correction_pairs_kernel``), optional tensile term
     s_corr = -k (W_ij / W(dq))^n * tensile_scale [m^2] (Macklin & Mueller 2013 eq. 13, made
     dimensionally consistent: tensile_scale = 1 / rest-lattice denominator, so s_corr acts like a
     constraint violation of k). Adds m dx_i^boundary / dt^2 to the boundary force [N] and writes

@@ -12,8 +12,8 @@ import functools
 
 import warp as wp
 
-from .neighbors import NeighborList, NoBoundaryParams, cell_rows, neighbor_count, row_points, walk_nth_candidate
-from .pbf import PairCache, boundary_share_function, constraint_lambda, value_gradient_function
+from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, walk_candidates
+from .pbf_pairs import PairCache, density_lambda_functions, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -21,12 +21,10 @@ from .smoothing import SMOOTHING_FUNCTIONS
 def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
     """Fluid neighbour lists within ``search_radius`` [m] (as ``neighbors.neighbor_list_kernel``: count exact,
     entries past the capacity dropped, max_count_out[i] their largest count) plus, over the stored pairs
-    closer than the support radius, what ``pbf.density_lambda_pairs_kernel`` writes: density [kg/m^3],
-    lambda [m^2], C [-] and the ``PairCache``."""
-    value_gradient = value_gradient_function(smoothing)
-    with_boundary = boundary_terms is not None and boundary_terms.density is not None
+    closer than the support radius, what ``pbf_pairs.density_lambda_pairs_kernel`` writes: density [kg/m^3],
+    lambda [m^2], C [-] and the ``PairCache`` (with the list pass's two halves, ``pbf_pairs.density_lambda_functions``)."""
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
-    boundary_share = boundary_share_function(smoothing, boundary_terms) if with_boundary else None
+    cached_pair_sums, write_density_lambda = density_lambda_functions(smoothing, boundary_terms, tensile)
 
     @wp.kernel(enable_backward=False, module="unique")
     def search_density_lambda(
@@ -68,32 +66,12 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
         qr = search_radius * inv_cell_size
         radius2 = search_radius * search_radius
         capacity = fluid_neighbors.index.shape[1]
-        rows = cell_rows(q, qr, grid_dims)
         h = smoothing_length
         support2 = support_radius * support_radius
         volume = particle_mass / rest_density
-        w_sum = float(0.0)
-        grad_i = wp.vec3(0.0)
-        grad_sq = float(0.0)
-        # the walk (as in ``dfsph_search.fluid_search_kernel``): a tight loop that stores the sorted index of every
-        # candidate and advances the count only for those within the search radius (no branch to mispredict per
-        # candidate: 7.2 -> 5.8 ms per pass on the dam break; a full list's last slot, overwritten by later
-        # candidates, is restored by a second walk), then the listed pairs in the same order
-        last = capacity - 1
-        n = int(0)
-        for z in range(rows[2], rows[3] + 1):
-            for y in range(rows[0], rows[1] + 1):
-                span = row_points(q, qr, y, z, grid_dims, cell_start)
-                k = span[0]
-                k_end = span[1]
-                while k < k_end:
-                    x_ij = xi - sorted_points[k]
-                    fluid_neighbors.index[i, wp.min(n, last)] = k
-                    n += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
-                    k += 1
-        if n >= capacity:  # full: the last slot was overwritten by later candidates
-            fluid_neighbors.index[i, last] = walk_nth_candidate(q, qr, xi, radius2, grid_dims, cell_start,
-                                                                sorted_points, last)
+        # the branch-free walk (``neighbors.walk_candidates``: 7.2 -> 5.8 ms per pass on the dam break) stores the
+        # candidates' sorted indices, then the listed pairs in the same order
+        n = walk_candidates(q, qr, xi, radius2, grid_dims, cell_start, sorted_points, fluid_neighbors.index, i, 0)
         # the listed pairs: their indices, and those closer than H_s into the cache's index row without a branch
         # (each at the next free slot, which only those advance); then those pairs' terms in the same order
         p = int(0)
@@ -107,37 +85,15 @@ def search_density_lambda_kernel(smoothing: str, boundary_terms, tensile: bool):
             pairs_out.index[t, p] = j  # (p <= m: within the row)
             p += wp.where(wp.dot(x_ij, x_ij) < support2, 1, 0)
             m += 1
-        m = int(0)
-        while m < p:
-            x_ij = xi - predicted_x[pairs_out.index[t, m]]  # (sorted_points holds the same x*)
-            wg = wp.static(value_gradient)(x_ij, h)
-            w = wg[0]
-            w_sum += w
-            g = volume * wp.vec3(wg[1], wg[2], wg[3])
-            grad_i += g
-            grad_sq += wp.dot(g, g)
-            pairs_out.gradient[t, m] = g
-            if wp.static(tensile):
-                pairs_out.value[t, m] = w
-            m += 1
+        # (predicted_x, not sorted_points: the same x*, read as the list pass reads them)
+        w_sum, grad_i, grad_sq = cached_pair_sums(t, p, xi, h, volume, predicted_x, pairs_out)
         fluid_neighbors.count[i] = n
         neighbor_slot_out[i] = i  # (``pbf.neighbor_drift_chunks``: the lists' indices hold while this does)
         if n > capacity:  # per particle, no atomics (the boundary lists' launch wrote before this one)
             max_count_out[i] = wp.max(max_count_out[i], n)
-        pairs_out.count[t] = p
-        ratio = volume * w_sum
-        grad_b = wp.vec3(0.0)
-        if wp.static(with_boundary):
-            rb = wp.static(boundary_share)(ratio, i, xi, h, support2, boundary_params, boundary_neighbors, boundary_x,
-                                           boundary_volume)
-            ratio = rb[0]
-            grad_b = wp.vec3(rb[1], rb[2], rb[3])
-        pairs_out.boundary_gradient[i] = grad_b
-        grad_i += grad_b
-        c_lam = constraint_lambda(ratio - constraint_offset[i], grad_i, grad_sq, relaxation_epsilon)
-        particle_density_out[i] = rest_density * ratio
-        particle_lambda_out[i] = c_lam[1]
-        particle_constraint_out[i] = c_lam[0]
+        write_density_lambda(t, i, xi, p, w_sum, grad_i, grad_sq, volume, h, support2, rest_density, relaxation_epsilon,
+                             boundary_params, boundary_neighbors, boundary_x, boundary_volume, constraint_offset,
+                             pairs_out, particle_density_out, particle_lambda_out, particle_constraint_out)
 
     return search_density_lambda
 
@@ -182,7 +138,7 @@ def identity_slots(
 def constraint_kernel(smoothing: str, boundary_terms):
     """Density [kg/m^3] and C [-] alone (eq. 7/13, 17) over the neighbour lists: what the stabilize stage's
     constraint offset reads at x (no lambda, no pair cache: the step's density stage writes those at x*).
-    The same pairs, order and expressions as ``pbf.density_lambda_pairs_kernel``: bitwise its density and C."""
+    The same pairs, order and expressions as ``pbf_pairs.density_lambda_pairs_kernel``: bitwise its density and C."""
     value = SMOOTHING_FUNCTIONS[smoothing][0]
     value_gradient = value_gradient_function(smoothing)  # the fluid pairs' W as the density passes evaluate it
     with_boundary = boundary_terms is not None and boundary_terms.density is not None

@@ -12,7 +12,7 @@ import warp as wp
 
 from .density import NEIGHBOR_TYPES
 from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order
-from .pbf import PairCache
+from .pbf_pairs import PairCache
 from .smoothing import SMOOTHING_FUNCTIONS
 
 

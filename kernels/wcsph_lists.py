@@ -1,14 +1,13 @@
 """WCSPH's pass over neighbour lists kept over several steps (``wcsph.search_skin``; host:
 ``warp_sph/methods/solvers/wcsph_lists.py``): the density (report eq. 7/13) over lists that hold pairs up to
-H_s + a skin, and the step's ``PairCache`` (``kernels/pbf.py``) of the pairs closer than H_s with grad W, which
+H_s + a skin, and the step's ``PairCache`` (``kernels/pbf_pairs.py``) of the pairs closer than H_s with grad W, which
 the force kernel (``wcsph.acceleration_kernel``, neighbors "pairs") reads."""
 import functools
 
 import warp as wp
 
-from .neighbors import (NeighborList, NoBoundaryParams, cell_rows, neighbor_count, particle_in_cell_order,
-                        row_points, walk_nth_candidate)
-from .pbf import PairCache, cubic_value_gradient_select, value_gradient_function
+from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, particle_in_cell_order, walk_candidates
+from .pbf_pairs import PairCache, cubic_value_gradient_select, value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -40,22 +39,72 @@ def boundary_density_sum_function(smoothing: str, boundary_terms):
 
 
 @functools.cache
+def density_pair_functions(smoothing: str, boundary_terms):
+    """(add_pair, write_density): the per-pair body and the density tail that the list pass
+    (``density_pairs_kernel``) and the fused search (``search_density_pairs_kernel``) share, so the two stay
+    bitwise one another's.
+
+    add_pair(t, n, i, j, x_ij, h, H_s^2, pairs, total) -> (total', n'): listed pair ij added to total = sum_j W_ij
+    [1/m^3] and, when closer than H_s and j != i, stored at slot n of the ``PairCache``'s row t (j, grad_i W_ij
+    [1/m^4]); the cubic spline without branches (``cubic_value_gradient_select``: W = 0 and grad W = 0 from H_s on,
+    every pair written at the next free slot, which only the cached pairs advance).
+
+    write_density(t, i, x_i, n, total, ...): the row's pair count and rho_i = m total + rho0 sum_b density_b(W_ib,
+    V_b) [kg/m^3] (report eq. 7/13)."""
+    select = smoothing == "cubic"
+    value_gradient = cubic_value_gradient_select if select else value_gradient_function(smoothing)
+    with_boundary = boundary_terms is not None and boundary_terms.density is not None
+    BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
+    boundary_density_sum = boundary_density_sum_function(smoothing, boundary_terms) if with_boundary else None
+
+    @wp.func(module="unique")
+    def add_pair(t: int, n: int, i: int, j: int, x_ij: wp.vec3, h: float, support2: float, pairs_out: PairCache,
+                 total: float):
+        if wp.static(select):
+            wg = cubic_value_gradient_select(x_ij, h)
+            total += wg[0]
+            pairs_out.index[t, n] = j
+            pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
+            n += wp.where((wp.dot(x_ij, x_ij) < support2) and (j != i), 1, 0)
+        else:
+            if wp.dot(x_ij, x_ij) < support2:
+                wg = wp.static(value_gradient)(x_ij, h)
+                total += wg[0]
+                if j != i:
+                    pairs_out.index[t, n] = j
+                    pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
+                    n += 1
+        return total, n
+
+    @wp.func(module="unique")
+    def write_density(t: int, i: int, xi: wp.vec3, n: int, total: float, particle_mass: float, h: float,
+                      support2: float, rest_density: float, boundary_params: BoundaryParams,
+                      boundary_neighbors: NeighborList, boundary_x: wp.array(dtype=wp.vec3),
+                      boundary_volume: wp.array(dtype=float), pairs_out: PairCache,
+                      particle_density_out: wp.array(dtype=float)):
+        pairs_out.count[t] = n
+        rho = particle_mass * total
+        if wp.static(with_boundary):
+            rho += rest_density * wp.static(boundary_density_sum)(boundary_params, boundary_neighbors, boundary_x,
+                                                                  boundary_volume, i, xi, h, support2)
+        particle_density_out[i] = rho
+
+    return add_pair, write_density
+
+
+@functools.cache
 def density_pairs_kernel(smoothing: str, boundary_terms=None):
     """rho_i = m sum_j W_ij + rho0 sum_b density_b(W_ib, V_b) [kg/m^3] (report eq. 7/13) over neighbour lists that
     hold pairs up to H_s + a skin (``wcsph.search_skin``; pairs at or beyond H_s add nothing), and the step's
     ``PairCache`` of the pairs closer than H_s (j != i): index j and grad_i W_ij [1/m^4] in the lists' order, which
     the force kernel (``acceleration_kernel``, neighbors "pairs") reads instead of evaluating the kernel again.
     The density is bitwise the list pass's (``density.density_kernel``) and the fused search's over the same lists;
-    the cached gradient bitwise ``gradient(x_ij, h)`` (``pbf.value_gradient_function``); the cubic spline is
+    the cached gradient bitwise ``gradient(x_ij, h)`` (``pbf_pairs.value_gradient_function``); the cubic spline is
     evaluated without branches (``cubic_value_gradient_select``, equal to rounding) and the cache is filled
     without a branch per pair (every listed pair is written at the next free slot, which only the pairs closer
     than H_s advance)."""
-    select = smoothing == "cubic"
-    value_gradient = cubic_value_gradient_select if select else value_gradient_function(smoothing)
-    value = SMOOTHING_FUNCTIONS[smoothing][0]
-    with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
-    density_term = boundary_terms.density if with_boundary else None
+    add_pair, write_density = density_pair_functions(smoothing, boundary_terms)
 
     @wp.kernel(enable_backward=False, module="unique")
     def compute_density_pairs(
@@ -76,7 +125,7 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
         particle_density_out: wp.array(dtype=float),
         pairs_out: PairCache,
     ):
-        t = wp.tid() + tid_offset  # the pair cache's row (``pbf.PairCache``)
+        t = wp.tid() + tid_offset  # the pair cache's row (``pbf_pairs.PairCache``)
         i = particle_in_cell_order(fluid_neighbors, t)
         xi = particle_x[i]
         h = smoothing_length
@@ -87,28 +136,10 @@ def density_pairs_kernel(smoothing: str, boundary_terms=None):
         k_end = int(neighbor_count(fluid_neighbors, i))
         while k < k_end:
             j = fluid_neighbors.index[i, k]
-            x_ij = xi - particle_x[j]
-            if wp.static(select):  # W = 0 and grad W = 0 from H_s on: no test for the sum
-                wg = cubic_value_gradient_select(x_ij, h)
-                total += wg[0]
-                pairs_out.index[t, n] = j
-                pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
-                n += wp.where((wp.dot(x_ij, x_ij) < support2) and (j != i), 1, 0)
-            else:
-                if wp.dot(x_ij, x_ij) < support2:
-                    wg = wp.static(value_gradient)(x_ij, h)
-                    total += wg[0]
-                    if j != i:
-                        pairs_out.index[t, n] = j
-                        pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
-                        n += 1
+            total, n = add_pair(t, n, i, j, xi - particle_x[j], h, support2, pairs_out, total)
             k += 1
-        pairs_out.count[t] = n
-        rho = particle_mass * total
-        if wp.static(with_boundary):
-            rho += rest_density * wp.static(boundary_density_sum_function(smoothing, boundary_terms))(
-                boundary_params, boundary_neighbors, boundary_x, boundary_volume, i, xi, h, support2)
-        particle_density_out[i] = rho
+        write_density(t, i, xi, n, total, particle_mass, h, support2, rest_density, boundary_params,
+                      boundary_neighbors, boundary_x, boundary_volume, pairs_out, particle_density_out)
 
     return compute_density_pairs
 
@@ -121,12 +152,8 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
     ``PairCache``. The stored pairs in the lists' order with the same expressions (sorted_points[k] is a copy of
     x_j), so bitwise that pass; the boundary lists are built before it (it reads them), as in PBF's fused
     search (``kernels/pbf_search.py``)."""
-    select = smoothing == "cubic"
-    value_gradient = cubic_value_gradient_select if select else value_gradient_function(smoothing)
-    value = SMOOTHING_FUNCTIONS[smoothing][0]
-    with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
-    density_term = boundary_terms.density if with_boundary else None
+    add_pair, write_density = density_pair_functions(smoothing, boundary_terms)
 
     @wp.kernel(enable_backward=False, module="unique")
     def search_density_pairs(
@@ -156,36 +183,19 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
         particle_density_out: wp.array(dtype=float),
         pairs_out: PairCache,
     ):
-        t = wp.tid() + tid_offset  # the pair cache's row (``pbf.PairCache``)
+        t = wp.tid() + tid_offset  # the pair cache's row (``pbf_pairs.PairCache``)
         i = particle_in_cell_order(fluid_neighbors, t)
         xi = particle_x[i]
         q = (xi - grid_lo) * inv_cell_size
         qr = search_radius * inv_cell_size
         radius2 = search_radius * search_radius
         capacity = fluid_neighbors.index.shape[1]
-        rows = cell_rows(q, qr, grid_dims)
         h = smoothing_length
         support2 = support_radius * support_radius
         total = float(0.0)
-        # the walk (as in ``dfsph_search.fluid_search_kernel``): a tight loop that stores every candidate's sorted
-        # index and advances the count only for those within the search radius (no branch to mispredict per
-        # candidate; a full list's last slot, overwritten by later candidates, is restored by a second walk), then
+        # the branch-free walk (``neighbors.walk_candidates``) stores the candidates' sorted indices, then
         # density_pairs_kernel's body over the stored pairs in the same order
-        last = capacity - 1
-        m = int(0)  # listed
-        for z in range(rows[2], rows[3] + 1):
-            for y in range(rows[0], rows[1] + 1):
-                span = row_points(q, qr, y, z, grid_dims, cell_start)
-                k = span[0]
-                k_end = span[1]
-                while k < k_end:
-                    x_ij = xi - sorted_points[k]
-                    fluid_neighbors.index[i, wp.min(m, last)] = k
-                    m += wp.where(wp.dot(x_ij, x_ij) < radius2, 1, 0)
-                    k += 1
-        if m >= capacity:  # full: the last slot was overwritten by later candidates
-            fluid_neighbors.index[i, last] = walk_nth_candidate(q, qr, xi, radius2, grid_dims, cell_start,
-                                                                sorted_points, last)
+        m = walk_candidates(q, qr, xi, radius2, grid_dims, cell_start, sorted_points, fluid_neighbors.index, i, 0)
         n = int(0)  # cached pairs
         e = int(0)
         e_end = wp.min(m, capacity)
@@ -193,32 +203,13 @@ def search_density_pairs_kernel(smoothing: str, boundary_terms=None):
             k = fluid_neighbors.index[i, e]
             j = cell_point[k]
             fluid_neighbors.index[i, e] = j
-            x_ij = xi - sorted_points[k]
-            dd = wp.dot(x_ij, x_ij)
-            if wp.static(select):
-                wg = cubic_value_gradient_select(x_ij, h)
-                total += wg[0]
-                pairs_out.index[t, n] = j
-                pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
-                n += wp.where((dd < support2) and (j != i), 1, 0)
-            else:
-                if dd < support2:
-                    wg = wp.static(value_gradient)(x_ij, h)
-                    total += wg[0]
-                    if j != i:
-                        pairs_out.index[t, n] = j
-                        pairs_out.gradient[t, n] = wp.vec3(wg[1], wg[2], wg[3])
-                        n += 1
+            total, n = add_pair(t, n, i, j, xi - sorted_points[k], h, support2, pairs_out, total)
             e += 1
         fluid_neighbors.count[i] = m
         if m > capacity:  # per particle, no atomics (the boundary lists' launch wrote before this one)
             max_count_out[i] = wp.max(max_count_out[i], m)
-        pairs_out.count[t] = n
-        rho = particle_mass * total
-        if wp.static(with_boundary):
-            rho += rest_density * wp.static(boundary_density_sum_function(smoothing, boundary_terms))(
-                boundary_params, boundary_neighbors, boundary_x, boundary_volume, i, xi, h, support2)
-        particle_density_out[i] = rho
+        write_density(t, i, xi, n, total, particle_mass, h, support2, rest_density, boundary_params,
+                      boundary_neighbors, boundary_x, boundary_volume, pairs_out, particle_density_out)
 
     return search_density_pairs
 

@@ -144,11 +144,11 @@ def test_kept_lists_bitwise_over_threads(threads, monkeypatch, device):
 
 
 def test_branch_free_cubic_matches_the_cubic_spline():
-    """``pbf.cubic_value_gradient_select`` (the pair passes of PBF and WCSPH) against ``smoothing.cubic_value`` and
+    """``pbf_pairs.cubic_value_gradient_select`` (the pair passes of PBF and WCSPH) against ``smoothing.cubic_value`` and
     ``cubic_gradient`` from r = 0 to past the support, to float32 rounding; 0 from H_s on."""
     import warp as wp
 
-    from warp_sph.kernels.pbf import cubic_value_gradient_select
+    from warp_sph.kernels.pbf_pairs import cubic_value_gradient_select
 
     @wp.kernel
     def evaluate_select(x: wp.array(dtype=wp.vec3), h: float, out: wp.array(dtype=wp.vec4)):

@@ -49,21 +49,21 @@ class CellGrid:
 
     def build(self, points: wp.array) -> None:
         """Sort ``points`` (wp.array of vec3 [m], at most ``capacity``) by cell."""
-        from ..kernels import neighbors as _dev
+        from ..kernels import cell_lists as _grid_dev
         from ..core.launch import LIGHT_MIN_RANGE, launch
 
         n = points.shape[0]
         if n > self.capacity:
             raise ValueError(f"CellGrid holds {self.capacity} points, got {n}")
         self.count = n
-        launch(_dev.compute_cell_keys, n, [self.lo, self.inv_cell_size, self.dims, points],
+        launch(_grid_dev.compute_cell_keys, n, [self.lo, self.inv_cell_size, self.dims, points],
                [self._keys, self.cell_point], device=self.device, min_range=LIGHT_MIN_RANGE)
         if n:
             # keys < cell_count: sort only their low bits (measured 0.22 -> 0.1 ms at 6.9k points)
             wp.utils.radix_sort_pairs(self._keys, self.cell_point, n, 0, max(1, int(self.cell_count - 1).bit_length()))
-        launch(_dev.compute_cell_start, n + 1, [n, self.cell_count, self._keys], [self.cell_start],
+        launch(_grid_dev.compute_cell_start, n + 1, [n, self.cell_count, self._keys], [self.cell_start],
                device=self.device, min_range=LIGHT_MIN_RANGE)
-        launch(_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device, min_range=LIGHT_MIN_RANGE)
+        launch(_grid_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device, min_range=LIGHT_MIN_RANGE)
 
     def occupied_near_mask(self, reach: int = 1) -> wp.array:
         """uint8 per cell: 1 where a point lies in the cell or one of its neighbours up to ``reach`` cells
@@ -172,7 +172,8 @@ class NeighborLists:
         """Re-sort the moving boundary particles ``boundary_x[moving_start:]`` [m] into their cells (after
         they moved), with their volumes in that order (a device gather, no host copy)."""
         from ..core.launch import LIGHT_MIN_RANGE, launch
-        from ..kernels import neighbors as _dev
+        from ..kernels import cell_lists as _grid_dev
+        from ..kernels import particle_order as _order_dev
 
         mc = self.moving_cells
         if mc is None:
@@ -180,11 +181,11 @@ class NeighborLists:
         moving_x = boundary_x[self.moving_start:]
         mc.build(moving_x)
         if self._moving_volume is not None:
-            launch(_dev.gather_by_order, mc.count, [mc.cell_point, self._moving_volume], [self._moving_weight],
+            launch(_order_dev.gather_by_order, mc.count, [mc.cell_point, self._moving_volume], [self._moving_weight],
                    device=self.device, min_range=LIGHT_MIN_RANGE)
         if self._moving_mask is not None:
             self._moving_mask.zero_()
-            launch(_dev.mark_near_cells, mc.count, [mc.lo, mc.inv_cell_size, mc.dims, moving_x], [self._moving_mask],
+            launch(_grid_dev.mark_near_cells, mc.count, [mc.lo, mc.inv_cell_size, mc.dims, moving_x], [self._moving_mask],
                    device=self.device, min_range=LIGHT_MIN_RANGE)
 
     def _allocate(self, lists, capacity: int) -> None:

@@ -36,7 +36,7 @@ class NeighborGrid:
 def query_neighbors(grid: NeighborGrid, points: wp.array, query_x: wp.array, capacity: int = 256):
     """(counts, list of index arrays): points within the grid's search radius of each query point."""
 
-    from ..kernels import neighbors as _dev
+    from ..kernels import hash_grid as _dev
     from ..core.launch import launch
 
     n = query_x.shape[0]

@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from ..core.launch import LIGHT_MIN_RANGE, launch
-from ..kernels import neighbors as _dev
+from ..kernels import particle_order as _dev
 from .cell_lists import CellGrid
 
 

@@ -1,5 +1,6 @@
 """Position-based fluids (Macklin & Mueller 2013; seed report section 4.5, eq. 17-20); kernels in
-``kernels/pbf.py`` (neighbour lists) and ``kernels/pbf_hash_grid.py`` (the reference variant).
+``kernels/pbf.py`` (per particle), ``kernels/pbf_pairs.py`` (over neighbour lists) and ``kernels/pbf_hash_grid.py``
+(the reference variant).
 
 Step: [stabilize x] -> predict (v += dt g, x* = x + dt v) -> neighbours on x* -> density and lambda at
 x* -> solve (iterations of a density pass and a Jacobi correction dx, eq. 18, as in SPlisHSPlasH: until

@@ -1,6 +1,6 @@
 """PBF's device passes (``PbfPasses``, a base of ``PbfSolver``): the workspace fields it allocates,
 the neighbour search on x*, one density pass (density, C, lambda; eq. 7/13, 17, 19) and one Jacobi
-correction (eq. 18), launching ``kernels/pbf.py`` (neighbour lists) or ``kernels/pbf_hash_grid.py``
+correction (eq. 18), launching ``kernels/pbf_pairs.py`` (neighbour lists) or ``kernels/pbf_hash_grid.py``
 (the reference variant). ``pbf.py`` decides when they run (stages, the solve loop) and what the
 solver reports; the attributes the passes read (``lists``, ``margin``, ``epsilon``, ``max_step``,
 ``tensile_*``, ``query_radius``, ``allowed_drift``) are set by ``PbfSolver.__init__``.
@@ -21,6 +21,7 @@ import warp as wp
 
 from ...core.launch import LIGHT_MIN_RANGE, MIN_RANGE, Replays, launch
 from ...kernels import pbf as _pbf
+from ...kernels import pbf_pairs as _pbf_pairs
 from ...kernels import pbf_hash_grid as _pbf_grid
 from ...kernels import pbf_search as _pbf_search
 from ...kernels import reduction as _reduce
@@ -56,12 +57,12 @@ class PbfPasses:
         if self.lists:
             self.nl = simulation_neighbor_lists(sim, self.margin)
             static_wall_lists(self.nl)
-            self._density_kernel = _pbf.density_lambda_pairs_kernel(m.smoothing.name, terms, tensile)
+            self._density_kernel = _pbf_pairs.density_lambda_pairs_kernel(m.smoothing.name, terms, tensile)
             self._search_kernel = _pbf_search.search_density_lambda_kernel(m.smoothing.name, terms, tensile)
             self._constraint_kernel = _pbf_search.constraint_kernel(m.smoothing.name, terms)
-            self._correction_kernel = _pbf.correction_pairs_kernel(self._with_boundary_gradient, tensile,
-                                                                   self.with_bodies and self._with_boundary_gradient)
-            pairs = _pbf.PairCache()
+            self._correction_kernel = _pbf_pairs.correction_pairs_kernel(self._with_boundary_gradient, tensile,
+                                                                         self.with_bodies and self._with_boundary_gradient)
+            pairs = _pbf_pairs.PairCache()
             pairs.count = wp.zeros(n, dtype=wp.int32, device=dev)
             pairs.boundary_gradient = wp.zeros(n, dtype=wp.vec3, device=dev)
             sim.fields["pbf_pairs"] = pairs

@@ -59,7 +59,7 @@ def static_wall_lists(nl) -> None:
 
 
 def pair_cache(n: int, capacity: int, device) -> _wcsph.PairCache:
-    """A ``PairCache`` (``kernels/pbf.py``) with n rows of ``capacity`` pairs: index and grad W (no values, no
+    """A ``PairCache`` (``kernels/pbf_pairs.py``) with n rows of ``capacity`` pairs: index and grad W (no values, no
     boundary gradient: WCSPH's force kernel reads the boundary lists)."""
     pairs = _wcsph.PairCache()
     pairs.count = wp.zeros(max(n, 1), dtype=wp.int32, device=device)
