@@ -206,7 +206,8 @@ def neighbor_list_kernel(smoothing: str = "", boundary_terms=None, walls: bool =
     ``walls`` (static boundary particles): the cells are not walked; the points tested are those of the
     query's sub-cell list (``kernels/wall_reach.py``, built once per run over the same grid: wall_inv_size,
     wall_dims, wall_start, wall_entry), the points the walk could reach in its order, so the lists and sums
-    are bitwise the walk's."""
+    are bitwise the walk's while the lists hold every pair (on an overflow this path sums every point within
+    the radius, the walk only the stored ones; the frame is redone with longer lists either way)."""
     with_density = bool(smoothing)
     value = SMOOTHING_FUNCTIONS[smoothing or "cubic"][0]
     boundary_density = with_density and boundary_terms is not None and boundary_terms.density is not None
