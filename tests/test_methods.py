@@ -185,6 +185,9 @@ def _arrays(value):
         if holder is not None and hasattr(holder, "count"):
             out[f".{holder_name}.count"] = holder.count
             out[f".{holder_name}.index"] = holder.index
+    keep_x = getattr(value, "boundary_keep_x", None)  # where each kept boundary row was searched (PBF)
+    if out and isinstance(keep_x, wp.array):
+        out[".boundary_keep_x"] = keep_x
     if not out:  # a struct of arrays (PBF's PairCache, DFSPH's DfsphPairs)
         for attr in ("count", "index", "gradient", "value", "boundary_gradient", "gradient_sum", "boundary_velocity",
                      "active", "offset"):

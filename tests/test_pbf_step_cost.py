@@ -205,7 +205,7 @@ def _wall_rows_complete(sim):
         assert set(near.tolist()) <= set(row.tolist()), i
         assert np.all(np.diff(rank[row]) > 0), i
     searched_at = sim.fields["pbf_neighbor_x"].numpy()[order]
-    return float(np.mean(np.any(nl._boundary_keep_x.numpy()[: m.fluid_count] != searched_at, axis=1)))
+    return float(np.mean(np.any(nl.boundary_keep_x.numpy()[: m.fluid_count] != searched_at, axis=1)))
 
 
 def test_kept_wall_lists_bitwise_the_searched_ones(monkeypatch, device):

@@ -126,8 +126,9 @@ class NeighborLists:
                           wp.zeros(1, dtype=wp.int32, device=device)]
         self._no_keep = [-1.0, wp.zeros(1, dtype=wp.vec3, device=device)]
         #: where each fluid particle's boundary list was last searched [m] (``build_boundary_lists(keep=...)``;
-        #: 1e30: search it): written with the row by the list kernel, so the two always agree
-        self._boundary_keep_x = wp.full(max(self.fluid_count, 1), wp.vec3(1.0e30), dtype=wp.vec3, device=device)
+        #: 1e30: search it): written with the row by the list kernel, so the two always agree; part of the lists'
+        #: state (whoever saves or restores the boundary rows must save or restore it with them)
+        self.boundary_keep_x = wp.full(max(self.fluid_count, 1), wp.vec3(1.0e30), dtype=wp.vec3, device=device)
         #: the static boundary particles in reach of each cell of ``boundary_cells``, built once per run (a
         #: ``WallReach`` of ``neighbors/wall_reach.py``, set by the solver): the boundary lists test
         #: them instead of walking the grid, bitwise the same lists and sums. None: the walk.
@@ -191,7 +192,7 @@ class NeighborLists:
     def _allocate(self, lists, capacity: int) -> None:
         n = max(self.fluid_count, 1)
         if lists is getattr(self, "boundary", None):
-            self._boundary_keep_x.fill_(wp.vec3(1.0e30))  # new rows: every boundary list is searched again
+            self.boundary_keep_x.fill_(wp.vec3(1.0e30))  # new rows: every boundary list is searched again
         lists.count = wp.zeros(n, dtype=wp.int32, device=self.device)
         lists.index = wp.zeros((n, max(capacity, 1)), dtype=wp.int32, device=self.device)
         lists.order = self.fluid_cells.cell_point
@@ -264,7 +265,7 @@ class NeighborLists:
             listed = walls is not None and walls.cells is bc  # the per-run lists of the static walls, or the walk
             wall_args = [walls.inv_size, walls.dims, walls.start, walls.entry] if listed else self._no_walls
             kept = keep >= 0.0 and self.moving_cells is None and not boundary_density
-            keep_args = [float(keep), self._boundary_keep_x] if kept else self._no_keep
+            keep_args = [float(keep), self.boundary_keep_x] if kept else self._no_keep
             launch(_dev.neighbor_list_kernel(*kind, listed), n,
                    [bc.lo, bc.inv_cell_size, bc.dims, bc.cell_start, bc.cell_point, bc.sorted_x, self._boundary_weight,
                     self._no_mask if mask is None else mask, int(mask is not None), 0, 0, self.search_radius,
