@@ -92,3 +92,30 @@ def test_the_bench_detail_keeps_the_arrays_against_the_cache(tiny):  # noqa: F81
     assert got["predicted"] == pytest.approx(2000.0 * c.fluid_particles + 100.0 * c.boundary_particles, rel=1e-6)
     assert got["actual"] == 123456789 and got["cache"] == 16 * MIB
     assert got["largest_calibrated"] == max(q.array_bytes for q in pts)
+
+
+def test_read_bytes_counts_the_rows_used_entries():
+    """NumPy oracle: a neighbour list's rows count at min(count, capacity) entries, a 1-D row array (DFSPH's pair rows)
+    likewise, arrays of one entry per particle whole; array_bytes counts the allocation."""
+    from warp_sph.kernels.neighbors import NeighborList
+    from warp_sph.run.working_set import read_bytes
+
+    counts = np.array([3, 0, 70, 5], dtype=np.int32)  # 70 > the capacity 64: 64 stored
+    nl = NeighborList()
+    nl.count = wp.array(counts, device="cpu")
+    nl.index = wp.zeros((4, 64), dtype=wp.int32, device="cpu")
+    nl.order = wp.zeros(4, dtype=wp.int32, device="cpu")
+    from warp_sph.kernels.dfsph_search import DfsphPairs
+
+    pairs = DfsphPairs()  # 1-D rows of n x capacity entries
+    pairs.count = wp.array(np.minimum(counts, 64), device="cpu")
+    pairs.offset = wp.zeros(4, dtype=wp.int32, device="cpu")
+    pairs.index = wp.zeros(4 * 64, dtype=wp.int32, device="cpu")
+    pairs.gradient = wp.zeros(4 * 64, dtype=wp.vec3, device="cpu")
+    used = int(np.minimum(counts, 64).sum())
+    holder = {"lists": nl, "pairs": pairs, "x": wp.zeros(4, dtype=wp.vec3, device="cpu")}
+    per_row = 4 + 4 + 12  # list index, pair index, pair gradient
+    small = 4 * 4 + 4 * 4 + 4 * 4 + 4 * 4 + 4 * 12  # the counts, order, offset and x
+    assert array_bytes(holder) == 4 * 64 * per_row + small
+    assert read_bytes(holder) == used * per_row + small
+    assert read_bytes({"x": holder["x"]}) == array_bytes({"x": holder["x"]})  # no rows: the same

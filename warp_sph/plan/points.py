@@ -50,7 +50,8 @@ class Point:
     sweeps: float = 0.0                 # solver sweeps per step: pressure + divergence iterations, mean over the steps (0: none)
     solve_share: float = 0.0            # [-] the sweeps' stages' share of the steady step time (``solve_share``)
     first_in_process: bool = False      # the process's first calibration run: its set-up loaded the shared kernels
-    array_bytes: int = 0                # [bytes] the run's Warp arrays (run.json ``array_bytes``; 0: not recorded)
+    array_bytes: int = 0                # [bytes] what its steps read of its Warp arrays (run.json ``read_bytes``, else
+    #                                     ``array_bytes`` for older runs; 0: not recorded)
     reference: dict = field(default_factory=dict)  # metric -> error against the experiment (None: not measurable)
     seconds: float = 0.0                # wall time the calibration run took, start-up included [s]
 
@@ -114,7 +115,8 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     point.simulated_time = float(info["simulated_time"])
     point.wall_time = float(info["wall_time"])
     point.step_time = steady_step_time(info)
-    point.array_bytes = int(info.get("array_bytes", 0))
+    # what its steps read (used pair and list entries), else the allocation (runs recorded before read_bytes)
+    point.array_bytes = int(info.get("read_bytes", info.get("array_bytes", 0)))
     point.export_wait = float(info.get("export_wait_time", 0.0))
     point.first_step_time = float(info.get("first_step_time", 0.0))
     point.density_error_mean = sum(f["density_error_mean"] for f in advanced) / max(len(advanced), 1)

@@ -23,7 +23,7 @@ from ..io import atomic
 from ..io import run_folder as rf
 from ..io.probe_files import ProbeFiles
 from ..core.device import resolve_device
-from .working_set import array_bytes
+from .working_set import array_bytes, read_bytes
 from ..core.errors import OutputError, SimulationError, WarpSphError
 from .checkpoints import check_checkpoint, checkpoint_info, scene_hash, versions
 from .preflight import preflight_checks
@@ -131,7 +131,8 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["wall_time"] = time.perf_counter() - t_start
         run_info["stage_times"] = sim.graph.timing_table()
         run_info["frame_times"] = frame_times
-        run_info["array_bytes"] = array_bytes(sim)  # what the steps read, against the CPU's caches (``working_set``)
+        run_info["array_bytes"] = array_bytes(sim)  # the arrays' allocation (``working_set``)
+        run_info["read_bytes"] = read_bytes(sim)  # what the steps read of them, against the CPU's caches
         if sim.graph.frame_timings:  # per-frame work outside the substeps (emitters and sinks)
             run_info["frame_stage_times"] = sim.graph.frame_timing_table()
         run_info["export_time"] = exporter.seconds

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import warp as wp
 
 #: where Linux lists the CPU's caches (``index*/level`` and ``index*/size``, e.g. "32768K")
@@ -36,6 +37,54 @@ def array_bytes(sim) -> int:
         elif isinstance(obj, type):
             continue
         elif hasattr(getattr(obj, "_cls", None), "vars"):  # a Warp struct (a pair cache, a list's rows)
+            stack.extend(getattr(obj, name) for name in obj._cls.vars)
+        elif type(obj).__module__.startswith("warp_sph") and hasattr(obj, "__dict__"):
+            stack.extend(vars(obj).values())
+    return int(total)
+
+
+def _rows(holder):
+    """(per-row counts as NumPy, the row arrays) of a holder of row-structured arrays: a ``count`` int32 array of n
+    rows and arrays of n x capacity entries (2-D (n, capacity), or 1-D of n x capacity: DFSPH's pair rows); (None,
+    ()) for anything else."""
+    count = getattr(holder, "count", None)
+    if not isinstance(count, wp.array) or count.dtype != wp.int32 or count.ndim != 1 or count.shape[0] < 1:
+        return None, ()
+    n = count.shape[0]
+    rows = []
+    for name in dir(holder):
+        a = getattr(holder, name, None) if not name.startswith("_") else None
+        if isinstance(a, wp.array) and a is not count and a.size > n and a.shape[0] in (n, a.size) and a.size % n == 0:
+            rows.append(a)
+    return count.numpy(), rows
+
+
+def read_bytes(sim) -> int:
+    """[bytes] a step reads of the simulation's arrays: ``array_bytes``, with each row-structured array (neighbour
+    lists, pair caches: a ``count`` per row and rows of a fixed capacity) counted at its rows' used entries,
+    sum_i min(count_i, capacity) entries, not at its allocation (DFSPH's pair rows use about 40 % of their 64 slots, and
+    on the CPU they are packed: what the passes stream, docs/plan.md item 12)."""
+    total = array_bytes(sim)
+    seen: set[int] = set()
+    stack = [sim]
+    while stack:
+        obj = stack.pop()
+        if id(obj) in seen or isinstance(obj, (wp.array, type)):
+            continue
+        seen.add(id(obj))
+        counts, rows = _rows(obj)
+        for a in rows:
+            if id(a) in seen:
+                continue
+            seen.add(id(a))
+            capacity = a.size // counts.shape[0]
+            used = int(np.minimum(np.maximum(counts, 0), capacity).sum())
+            total -= (a.size - used) * wp.types.type_size_in_bytes(a.dtype)
+        if isinstance(obj, dict):
+            stack.extend(obj.values())
+        elif isinstance(obj, (list, tuple)):
+            stack.extend(obj)
+        elif hasattr(getattr(obj, "_cls", None), "vars"):
             stack.extend(getattr(obj, name) for name in obj._cls.vars)
         elif type(obj).__module__.startswith("warp_sph") and hasattr(obj, "__dict__"):
             stack.extend(vars(obj).values())
