@@ -4,7 +4,9 @@ and the size of the CPU's last-level cache.
 ``warp-sph plan`` compares the two (docs/plan.md, item 12): the dam break's DFSPH calibrated with its arrays inside this
 CPU's 32 MiB L3 (20.4 MiB at 10,648 fluid particles) ran at 50,653 (90.7 MiB) 1.47x its largest calibrated count's cost
 per fluid particle-step, while the dam break's PBF and the hydrostatic tank's DFSPH crossed the L3 at no cost. So the
-plan says when a prediction carries the step's cost past the cache without a point there; it does not scale it.
+plan measures the cost past the cache (a timing point) rather than scale it. What it compares with the cache is
+``read_bytes``, the arrays at the rows' used entries: DFSPH's pair rows use about 40 % of their slots and, packed on the
+CPU, stream only those, so the allocation (``array_bytes``) put a point past the L3 whose steps read half of it.
 """
 from __future__ import annotations
 
