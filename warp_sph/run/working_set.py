@@ -53,9 +53,10 @@ def _rows(holder):
     if not isinstance(count, wp.array) or count.dtype != wp.int32 or count.ndim != 1 or count.shape[0] < 1:
         return None, ()
     n = count.shape[0]
+    names = holder._cls.vars if hasattr(getattr(holder, "_cls", None), "vars") else vars(holder)  # fields, no properties
     rows = []
-    for name in dir(holder):
-        a = getattr(holder, name, None) if not name.startswith("_") else None
+    for name in names:
+        a = getattr(holder, name, None)
         if isinstance(a, wp.array) and a is not count and a.size > n and a.shape[0] in (n, a.size) and a.size % n == 0:
             rows.append(a)
     return count.numpy(), rows
