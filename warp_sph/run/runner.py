@@ -131,8 +131,9 @@ def run(scene, out: Path | None = None, device: str | None = None, frames: int |
         run_info["wall_time"] = time.perf_counter() - t_start
         run_info["stage_times"] = sim.graph.timing_table()
         run_info["frame_times"] = frame_times
-        run_info["array_bytes"] = array_bytes(sim)  # the arrays' allocation (``working_set``)
-        run_info["read_bytes"] = read_bytes(sim)  # what the steps read of them, against the CPU's caches
+        if status != "running":  # once, at the end (read_bytes reads the lists' counts back from the device)
+            run_info["array_bytes"] = array_bytes(sim)  # the arrays' allocation (``working_set``)
+            run_info["read_bytes"] = read_bytes(sim)  # what the steps read of them, against the CPU's caches
         if sim.graph.frame_timings:  # per-frame work outside the substeps (emitters and sinks)
             run_info["frame_stage_times"] = sim.graph.frame_timing_table()
         run_info["export_time"] = exporter.seconds

@@ -19,47 +19,63 @@ import warp as wp
 CPU_CACHE_DIR = Path("/sys/devices/system/cpu/cpu0/cache")
 
 
-def array_bytes(sim) -> int:
-    """[bytes] of every Warp array the simulation ``sim`` holds (its fields, model, state, solver and forces, and the
-    objects of this package they hold: neighbour lists, pair caches), each array counted once."""
+def _fields(obj) -> list:
+    """The values ``obj`` holds that the walk follows: a dict's values, a list's items, a Warp struct's fields, the
+    attributes of an object of this package (never its properties); nothing for anything else."""
+    if isinstance(obj, dict):
+        return list(obj.values())
+    if isinstance(obj, (list, tuple)):
+        return list(obj)
+    if isinstance(obj, type):
+        return []
+    if hasattr(getattr(obj, "_cls", None), "vars"):  # a Warp struct (a pair cache, a list's rows)
+        return [getattr(obj, name, None) for name in obj._cls.vars]
+    if type(obj).__module__.startswith("warp_sph") and hasattr(obj, "__dict__"):
+        return list(vars(obj).values())
+    return []
+
+
+def _holders(sim):
+    """Every object the simulation ``sim`` holds (its fields, model, state, solver and forces, and the objects of this
+    package they hold: neighbour lists, pair caches), each once, Warp arrays included."""
     seen: set[int] = set()
-    total = 0
     stack = [sim]
     while stack:
         obj = stack.pop()
         if id(obj) in seen:
             continue
         seen.add(id(obj))
-        if isinstance(obj, wp.array):
-            total += obj.size * wp.types.type_size_in_bytes(obj.dtype)
-        elif isinstance(obj, dict):
-            stack.extend(obj.values())
-        elif isinstance(obj, (list, tuple)):
-            stack.extend(obj)
-        elif isinstance(obj, type):
-            continue
-        elif hasattr(getattr(obj, "_cls", None), "vars"):  # a Warp struct (a pair cache, a list's rows)
-            stack.extend(getattr(obj, name) for name in obj._cls.vars)
-        elif type(obj).__module__.startswith("warp_sph") and hasattr(obj, "__dict__"):
-            stack.extend(vars(obj).values())
-    return int(total)
+        yield obj
+        if not isinstance(obj, wp.array):
+            stack.extend(_fields(obj))
 
 
-def _rows(holder):
-    """(per-row counts as NumPy, the row arrays) of a holder of row-structured arrays: a ``count`` int32 array of n
-    rows and arrays of n x capacity entries (2-D (n, capacity), or 1-D of n x capacity: DFSPH's pair rows); (None,
-    ()) for anything else."""
+def _bytes(a: wp.array) -> int:
+    return a.size * wp.types.type_size_in_bytes(a.dtype)
+
+
+def array_bytes(sim) -> int:
+    """[bytes] of every Warp array the simulation ``sim`` holds, each array counted once (their allocation)."""
+    return int(sum(_bytes(obj) for obj in _holders(sim) if isinstance(obj, wp.array)))
+
+
+def _unused_row_bytes(holder, counted: set[int]) -> int:
+    """[bytes] of the unused entries of a holder's row arrays: a ``count`` int32 array of n rows and arrays of n x
+    capacity entries (2-D (n, capacity), or 1-D of n x capacity: DFSPH's pair rows), row i using min(count_i,
+    capacity) of them; 0 for anything else. Arrays already in ``counted`` are skipped, the others added to it."""
     count = getattr(holder, "count", None)
     if not isinstance(count, wp.array) or count.dtype != wp.int32 or count.ndim != 1 or count.shape[0] < 1:
-        return None, ()
-    n = count.shape[0]
-    names = holder._cls.vars if hasattr(getattr(holder, "_cls", None), "vars") else vars(holder)  # fields, no properties
-    rows = []
-    for name in names:
-        a = getattr(holder, name, None)
-        if isinstance(a, wp.array) and a is not count and a.size > n and a.shape[0] in (n, a.size) and a.size % n == 0:
-            rows.append(a)
-    return count.numpy(), rows
+        return 0
+    n, counts, unused = count.shape[0], None, 0
+    for a in _fields(holder):
+        if (not isinstance(a, wp.array) or a is count or id(a) in counted or a.size <= n
+                or a.shape[0] not in (n, a.size) or a.size % n):
+            continue
+        counted.add(id(a))
+        counts = count.numpy() if counts is None else counts
+        used = int(np.minimum(np.maximum(counts, 0), a.size // n).sum())
+        unused += (a.size - used) * wp.types.type_size_in_bytes(a.dtype)
+    return unused
 
 
 def read_bytes(sim) -> int:
@@ -67,30 +83,12 @@ def read_bytes(sim) -> int:
     lists, pair caches: a ``count`` per row and rows of a fixed capacity) counted at its rows' used entries,
     sum_i min(count_i, capacity) entries, not at its allocation (DFSPH's pair rows use about 40 % of their 64 slots, and
     on the CPU they are packed: what the passes stream, docs/plan.md item 12)."""
-    total = array_bytes(sim)
-    seen: set[int] = set()
-    stack = [sim]
-    while stack:
-        obj = stack.pop()
-        if id(obj) in seen or isinstance(obj, (wp.array, type)):
-            continue
-        seen.add(id(obj))
-        counts, rows = _rows(obj)
-        for a in rows:
-            if id(a) in seen:
-                continue
-            seen.add(id(a))
-            capacity = a.size // counts.shape[0]
-            used = int(np.minimum(np.maximum(counts, 0), capacity).sum())
-            total -= (a.size - used) * wp.types.type_size_in_bytes(a.dtype)
-        if isinstance(obj, dict):
-            stack.extend(obj.values())
-        elif isinstance(obj, (list, tuple)):
-            stack.extend(obj)
-        elif hasattr(getattr(obj, "_cls", None), "vars"):
-            stack.extend(getattr(obj, name) for name in obj._cls.vars)
-        elif type(obj).__module__.startswith("warp_sph") and hasattr(obj, "__dict__"):
-            stack.extend(vars(obj).values())
+    total, counted = 0, set()
+    for obj in _holders(sim):
+        if isinstance(obj, wp.array):
+            total += _bytes(obj)
+        else:
+            total -= _unused_row_bytes(obj, counted)
     return int(total)
 
 
