@@ -1,9 +1,9 @@
 """The rule "never extrapolate the step's cost across the CPU's last-level cache without a measurement" of ``warp-sph
 plan`` (docs/plan.md, item 12).
 
-Where the setting a plan would choose has arrays past the L3 (``SolverModel.past_cache``) and no calibration point of
-its solver is past it, the plan runs a TIMING-ONLY point of that solver: the coarsest ladder radius whose fitted arrays
-pass the L3 by CACHE_MARGIN (never finer than the setting itself), TIMING_FRAMES frames (its steady step from the
+Where the setting a plan would choose reads arrays past the L3 (``SolverModel.past_cache``; the bytes a step reads,
+run.json ``read_bytes``) and no calibration point of its solver is past it, the plan runs a TIMING-ONLY point of that
+solver: the coarsest ladder radius whose fitted bytes pass the L3 by CACHE_MARGIN (never finer than the setting itself), TIMING_FRAMES frames (its steady step from the
 frames after the first step), its step time then entering the step's cost like any point (``models.fit_models``'
 ``timing``; the error models ignore it). It is decided under the calibration's share like the finer points: its cost
 (``timing_cost``) times the runs' over-run. Where it does not fit, the choice is capped at the settings whose step cost
@@ -59,7 +59,7 @@ def cap_note(model, free, capped, target, cost: float, share_pct: float) -> str:
     need = model.past_cache(free.fluid_particles, free.boundary_particles) or 0.0
     return (f"capped at {capped.solver}, r = {capped.particle_radius:.4g} m ({capped.fluid_particles:,} fluid "
             f"particles): the budget would allow r = {free.particle_radius:.4g} m ({free.fluid_particles:,}), whose "
-            f"arrays (about {need / mib:.3g} MiB) pass this CPU's {model.cache_bytes / mib:.3g} MiB last-level cache "
-            f"where no calibration run's did ({model.array_bytes_calibrated / mib:.3g} MiB at most), and a timing point "
+            f"steps read about {need / mib:.3g} MiB of arrays, past this CPU's {model.cache_bytes / mib:.3g} MiB "
+            f"last-level cache where no calibration run's did ({model.array_bytes_calibrated / mib:.3g} MiB at most), and a timing point "
             f"past it (r = {target.particle_radius:.4g} m, {target.fluid_particles:,} fluid, predicted {cost:.3g} s) "
             f"did not fit in {share_pct:.0f} % of the budget: the step's cost is not extrapolated across the cache")

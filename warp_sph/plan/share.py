@@ -171,8 +171,9 @@ def cost_notes(model, chosen) -> list:
     if need is not None:
         mib = 2.0**20
         out.append(f"{model.solver}'s step cost is carried past this CPU's last-level cache "
-                   f"({model.cache_bytes / mib:.3g} MiB) unmeasured: the run's arrays take about {need / mib:.3g} MiB "
-                   f"at the chosen count, no calibration run's more than {model.array_bytes_calibrated / mib:.3g} MiB "
+                   f"({model.cache_bytes / mib:.3g} MiB) unmeasured: the run's steps read about {need / mib:.3g} MiB of "
+                   f"arrays at the chosen count, no calibration run's more than "
+                   f"{model.array_bytes_calibrated / mib:.3g} MiB "
                    f"(the dam break's DFSPH then cost more per particle-step than calibrated, its PBF and the "
                    f"hydrostatic tank's DFSPH did not: docs/plan.md, item 12)")
     return out
