@@ -3,9 +3,9 @@ plan`` (docs/plan.md, item 12).
 
 Where the setting a plan would choose reads arrays past the L3 (``SolverModel.past_cache``; the bytes a step reads,
 run.json ``read_bytes``) and no calibration point of its solver is past it, the plan runs a TIMING-ONLY point of that
-solver: the coarsest ladder radius whose fitted bytes pass the L3 by CACHE_MARGIN (never finer than the setting itself), TIMING_FRAMES frames (its steady step from the
-frames after the first step), its step time then entering the step's cost like any point (``models.fit_models``'
-``timing``; the error models ignore it). It is decided under the calibration's share like the finer points: its cost
+solver: the coarsest ladder radius whose fitted bytes pass the L3 by CACHE_MARGIN (never finer than the setting
+itself), TIMING_FRAMES frames (its steady step from the frames after the first step), its step time then entering
+the step's cost like any point (``models.fit_models``' ``timing``; the error models ignore it). It is decided under the calibration's share like the finer points: its cost
 (``timing_cost``) times the runs' over-run. Where it does not fit, the choice is capped at the settings whose step cost
 is not carried past the L3 unmeasured (``within_cache``) and a note says so (``cap_note``).
 Measured (dam break 60 s, DFSPH): every point inside the 32 MiB L3, the run's arrays 90.7 MiB at 50,653 fluid
