@@ -4,10 +4,11 @@ plan`` (docs/plan.md, item 12).
 Where the setting a plan would choose reads arrays past the L3 (``SolverModel.past_cache``; the bytes a step reads,
 run.json ``read_bytes``) and no calibration point of its solver is past it, the plan runs a TIMING-ONLY point of that
 solver: the coarsest ladder radius whose fitted bytes pass the L3 by CACHE_MARGIN (never finer than the setting
-itself), TIMING_FRAMES frames (its steady step from the frames after the first step), its step time then entering
-the step's cost like any point (``models.fit_models``' ``timing``; the error models ignore it). It is decided under the calibration's share like the finer points: its cost
-(``timing_cost``) times the runs' over-run. Where it does not fit, the choice is capped at the settings whose step cost
-is not carried past the L3 unmeasured (``within_cache``) and a note says so (``cap_note``).
+itself), TIMING_FRAMES frames (its steady step from the frames after the first step), its step time then entering the
+step's cost like any point (``models.fit_models``' ``timing``; the error models ignore it). It is decided under the
+calibration's share like the finer points: its cost (``timing_cost``) times the runs' over-run. Where it does not fit,
+the choice is capped at the settings whose step cost is not carried past the L3 unmeasured (``within_cache``) and a
+note says so (``cap_note``).
 Measured (dam break 60 s, DFSPH): every point inside the 32 MiB L3, the run's arrays 90.7 MiB at 50,653 fluid
 particles: 1.98x the predicted wall time; a point past the L3 (21,952 fluid, 40.6 MiB) replayed into that plan: 1.31x.
 """
@@ -60,6 +61,7 @@ def cap_note(model, free, capped, target, cost: float, share_pct: float) -> str:
     return (f"capped at {capped.solver}, r = {capped.particle_radius:.4g} m ({capped.fluid_particles:,} fluid "
             f"particles): the budget would allow r = {free.particle_radius:.4g} m ({free.fluid_particles:,}), whose "
             f"steps read about {need / mib:.3g} MiB of arrays, past this CPU's {model.cache_bytes / mib:.3g} MiB "
-            f"last-level cache where no calibration run's did ({model.array_bytes_calibrated / mib:.3g} MiB at most), and a timing point "
-            f"past it (r = {target.particle_radius:.4g} m, {target.fluid_particles:,} fluid, predicted {cost:.3g} s) "
+            f"last-level cache where no calibration run's did ({model.array_bytes_calibrated / mib:.3g} MiB at most), "
+            f"and a timing point past it (r = {target.particle_radius:.4g} m, {target.fluid_particles:,} fluid, "
+            f"predicted {cost:.3g} s) "
             f"did not fit in {share_pct:.0f} % of the budget: the step's cost is not extrapolated across the cache")
