@@ -217,8 +217,8 @@ def concurrent_runs(sim, runs: int = 3000) -> dict:
 def compressed_rows(sim, sweeps: int = 100, rounds: int = 3) -> dict:
     """What packing the pair rows pays: process CPU microseconds per Jacobi sweep (``pressure_acceleration``
     + ``jacobi_update`` over every particle in one launch each) on the search's pairs laid out padded (row i
-    at i x the list capacity, the search's own layout) and packed (row i right after row i - 1, what
-    ``pack_pair_rows`` makes of it on the CPU), ``rounds`` alternating rounds of ``sweeps`` sweeps from the
+    at i x the list capacity, the search's layout on a device) and packed (row i right after row i - 1, as
+    the search writes them on the CPU), ``rounds`` alternating rounds of ``sweeps`` sweeps from the
     same P; ``same_pressure``: both give bitwise the same P (the same pairs in the same order)."""
     import numpy as np
     import warp as wp

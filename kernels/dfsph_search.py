@@ -7,8 +7,8 @@ Neighbours and the factor come from one search per step (``fluid_search_kernel``
 ``warp_sph.neighbors.NeighborLists``, walked with ``cell_rows`` / ``row_points`` of
 ``kernels/neighbors.py``: rows of cells trimmed to the sphere): each pair within
 the support radius is found once, and its G_ij goes straight into row i of the pair cache
-(``DfsphPairs``, row i at i x the list capacity; on the CPU ``pack_pair_rows`` then packs the rows
-one after the other), read as one stream per particle by every later pass;
+(``DfsphPairs``; on the CPU the rows are written packed in cell order, one range per thread; a device
+puts row i at i x the list capacity), read as one stream per particle by every later pass;
 the solves evaluate no smoothing kernel (with the search skin the pairs come from lists, in compressed
 rows: ``kernels/dfsph_skin.py``). The same search writes the fluid and boundary
 neighbour lists (fluid lists without i itself) that the shared viscosity and XSPH stages read.
@@ -30,7 +30,7 @@ class DfsphPairs:
     Pairs of particle i (neighbours j != i closer than the support radius): entries
     offset[i] .. offset[i] + count[i] - 1 of index (neighbour j) and gradient (G_ij = V grad_i W_ij
     [1/m]); the 1-D arrays hold fluid_count x the list capacity entries (the per-step search puts row i
-    at i x capacity, and on the CPU ``pack_pair_rows`` then moves each row right after the one before;
+    at i x capacity on a device, and packs the rows in cell order per thread range on the CPU;
     the search skin's rows are compressed, one after the other). gradient_sum[i] = s_i [1/m]; boundary_gradient[i] = sum_b gb_ib [1/m];
     boundary_velocity[i] = sum_b v_b . gb_ib [1/s]; active[i] = 1 when i has at least the threshold
     of neighbours (fluid, plus boundary when the boundary enters the density): its divergence error
@@ -48,7 +48,7 @@ class DfsphPairs:
 
 
 @functools.cache
-def fluid_search_kernel(smoothing: str):
+def fluid_search_kernel(smoothing: str, packed: bool = False):
     """The fluid search in one pass per particle i (threads in cell order, k_i = i's sorted index) over
     the fluid cell grid. First the walk: the sorted indices k of every point within the support radius
     (i itself included), in walk order, into row i of neighbor_index_out (the first ``capacity``; when
@@ -57,14 +57,21 @@ def fluid_search_kernel(smoothing: str):
     Then, over that row while it is in cache, the kept points in walk order: the fluid neighbour list
     (j != i, rewritten in place; the count is exact; when i and its neighbours do not fit the capacity,
     entries are dropped and max_count_out[i] keeps the largest such number), row i of the pair cache
-    (offset i x capacity, count, index j, G_ij) and the fluid parts of: rho_i = m sum_j W_ij (self
-    included) [kg/m^3], s_i, sum_j |G_ij|^2 and delta_i(v) [1/s] (finished by ``boundary_factor_kernel``)."""
+    (count, index j, G_ij, from its offset) and the fluid parts of: rho_i = m sum_j W_ij (self
+    included) [kg/m^3], s_i, sum_j |G_ij|^2 and delta_i(v) [1/s] (finished by ``boundary_factor_kernel``).
+
+    Row i's offset: i x capacity (one thread per particle; a device), or with ``packed`` (the CPU) packed
+    in cell order: thread r of ``range_count`` walks the sorted indices [n r / R, n (r + 1) / R) one
+    after the other, the first row at its k x capacity and every next one right after the one before (the
+    running sum of the counts is their exclusive scan), so no row needs moving afterwards and the solves,
+    which visit particles in cell order, read the cache as one stream. The same pairs in the same order
+    as the padded rows: every value and sum is bitwise the same for any range count."""
     value, gradient = SMOOTHING_FUNCTIONS[smoothing]
 
-    @wp.kernel(enable_backward=False, module="unique")
-    def search_fluid(
-        tid_offset: int,
-        # Fluid cell grid:
+    @wp.func(module="unique")
+    def search_particle(
+        k_self: int,
+        base: int,
         grid_lo: wp.vec3,
         inv_cell_size: float,
         grid_dims: wp.vec3i,
@@ -72,13 +79,10 @@ def fluid_search_kernel(smoothing: str):
         cell_point: wp.array(dtype=wp.int32),
         sorted_points: wp.array(dtype=wp.vec3),
         support_radius: float,
-        # Model:
         particle_mass: float,
         smoothing_length: float,
         rest_density: float,
-        # State in:
         particle_v: wp.array(dtype=wp.vec3),
-        # Out:
         neighbor_count_out: wp.array(dtype=wp.int32),
         neighbor_index_out: wp.array2d(dtype=wp.int32),
         max_count_out: wp.array(dtype=wp.int32),
@@ -91,7 +95,8 @@ def fluid_search_kernel(smoothing: str):
         square_sum_out: wp.array(dtype=float),
         divergence_out: wp.array(dtype=float),
     ):
-        k_self = wp.tid() + tid_offset
+        """The search of the particle at sorted index k_self, its pair row written from entry ``base``;
+        returns the pairs written (at most the capacity)."""
         i = int(cell_point[k_self])
         xi = sorted_points[k_self]
         q = (xi - grid_lo) * inv_cell_size
@@ -119,7 +124,6 @@ def fluid_search_kernel(smoothing: str):
         vi = particle_v[i]
         h = smoothing_length
         volume = particle_mass / rest_density
-        base = i * capacity
         w_sum = float(0.0)
         s = wp.vec3(0.0)
         sq = float(0.0)
@@ -144,6 +148,7 @@ def fluid_search_kernel(smoothing: str):
             e += 1
         pair_offset_out[i] = base
         pair_count_out[i] = n
+        written = n
         if found > capacity:  # pairs were dropped: the frame is redone with larger lists
             max_count_out[i] = wp.max(max_count_out[i], found)  # per particle, no atomics
             n = found - 1
@@ -152,40 +157,59 @@ def fluid_search_kernel(smoothing: str):
         gradient_sum_out[i] = s
         square_sum_out[i] = sq
         divergence_out[i] = div
+        return written
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def search_fluid(
+        tid_offset: int,
+        # Ranges (with ``packed``: the particle count n and the range count R; else unused):
+        particle_count: int,
+        range_count: int,
+        # Fluid cell grid:
+        grid_lo: wp.vec3,
+        inv_cell_size: float,
+        grid_dims: wp.vec3i,
+        cell_start: wp.array(dtype=wp.int32),
+        cell_point: wp.array(dtype=wp.int32),
+        sorted_points: wp.array(dtype=wp.vec3),
+        support_radius: float,
+        # Model:
+        particle_mass: float,
+        smoothing_length: float,
+        rest_density: float,
+        # State in:
+        particle_v: wp.array(dtype=wp.vec3),
+        # Out:
+        neighbor_count_out: wp.array(dtype=wp.int32),
+        neighbor_index_out: wp.array2d(dtype=wp.int32),
+        max_count_out: wp.array(dtype=wp.int32),
+        pair_offset_out: wp.array(dtype=wp.int32),
+        pair_count_out: wp.array(dtype=wp.int32),
+        pair_index_out: wp.array(dtype=wp.int32),
+        pair_gradient_out: wp.array(dtype=wp.vec3),
+        particle_density_out: wp.array(dtype=float),
+        gradient_sum_out: wp.array(dtype=wp.vec3),
+        square_sum_out: wp.array(dtype=float),
+        divergence_out: wp.array(dtype=float),
+    ):
+        capacity = neighbor_index_out.shape[1]
+        if wp.static(packed):
+            r = wp.tid() + tid_offset
+            lo = (particle_count * r) // range_count
+            hi = (particle_count * (r + 1)) // range_count
+            dest = lo * capacity
+            for k_self in range(lo, hi):
+                dest += search_particle(k_self, dest, grid_lo, inv_cell_size, grid_dims, cell_start, cell_point,
+                                        sorted_points, support_radius, particle_mass, smoothing_length, rest_density,
+                                        particle_v, neighbor_count_out, neighbor_index_out, max_count_out,
+                                        pair_offset_out, pair_count_out, pair_index_out, pair_gradient_out,
+                                        particle_density_out, gradient_sum_out, square_sum_out, divergence_out)
+        else:
+            k_self = wp.tid() + tid_offset
+            search_particle(k_self, int(cell_point[k_self]) * capacity, grid_lo, inv_cell_size, grid_dims,
+                            cell_start, cell_point, sorted_points, support_radius, particle_mass, smoothing_length,
+                            rest_density, particle_v, neighbor_count_out, neighbor_index_out, max_count_out,
+                            pair_offset_out, pair_count_out, pair_index_out, pair_gradient_out, particle_density_out,
+                            gradient_sum_out, square_sum_out, divergence_out)
 
     return search_fluid
-
-
-@wp.kernel(enable_backward=False)
-def pack_pair_rows(
-    tid_offset: int,
-    # Model:
-    particle_count: int,
-    range_count: int,
-    row_capacity: int,
-    # In:
-    pair_count: wp.array(dtype=wp.int32),
-    # In/out:
-    pair_offset: wp.array(dtype=wp.int32),
-    pair_index: wp.array(dtype=wp.int32),
-    pair_gradient: wp.array(dtype=wp.vec3),
-):
-    """Range r of ``range_count`` equal ranges of particles [n r / R, n (r + 1) / R) (one per CPU thread):
-    each row i of the pair cache, written by ``fluid_search_kernel`` at i x row_capacity, moves in place to
-    right after the range's previous row, front to back (a row only moves towards the range's start, onto
-    entries already moved), and offset[i] says where. The same pairs in the same order, packed: a sweep
-    then streams 40 % of the bytes' span (measured 0.85x its CPU time at 6,859 particles); the values and
-    sums of every later pass do not depend on the range count."""
-    r = wp.tid() + tid_offset
-    lo = (particle_count * r) // range_count
-    hi = (particle_count * (r + 1)) // range_count
-    dest = lo * row_capacity
-    for i in range(lo, hi):
-        src = i * row_capacity
-        c = pair_count[i]
-        if dest != src:
-            for e in range(c):
-                pair_index[dest + e] = pair_index[src + e]
-                pair_gradient[dest + e] = pair_gradient[src + e]
-        pair_offset[i] = dest
-        dest += c

@@ -88,7 +88,7 @@ def prepared(seed=0, device=None, **kw):
 
 def assert_rows_apart(offset, count, size):
     """The pair cache's rows [offset_i, offset_i + count_i) lie inside its arrays (size entries) and do not
-    overlap (the per-step search puts row i at i x capacity and packs them on the CPU, the search skin
+    overlap (the per-step search puts row i at i x capacity on a device and packs them on the CPU, the search skin
     compresses them)."""
     order = np.argsort(offset, kind="stable")
     start, end = offset[order], offset[order] + count[order]

@@ -119,19 +119,48 @@ def test_search_reports_full_lists_and_keeps_its_rows_apart_until_they_grow(devi
 
 
 @pytest.mark.parametrize("threads", ["1", "2", "3"])
-def test_per_step_pair_rows_are_packed_per_thread_range(monkeypatch, threads):
-    """On the CPU the per-step search's pair rows are packed (``pack_pair_rows``): within each thread's
-    range of particles row i starts where row i - 1 ends, the range's first row at its own i x capacity;
-    the packed rows still match the brute-force oracle (pairs, gradients, and every other search output)."""
+def test_per_step_pair_rows_are_packed_in_cell_order_per_thread_range(monkeypatch, threads):
+    """On the CPU the per-step search writes its pair rows packed: thread r's range of sorted indices
+    [n r / R, n (r + 1) / R) starts at its first index x capacity, and the rows follow in cell order (the
+    order the solves visit), each at the exclusive scan of the counts before it (a NumPy oracle of that
+    scan); the packed rows still match the brute-force oracle (pairs, gradients, every other output)."""
     monkeypatch.setenv("WARP_SPH_CPU_THREADS", threads)
     sim, o = prepared(device="cpu")
     stage(sim, "density").run(sim, 3e-3)
     check_search_against_oracle(sim, o)
-    pairs = sim.fields["dfsph_pairs"]
-    n, capacity = sim.model.fluid_count, sim.fields["neighbor_lists"].capacities[0]
+    pairs, nl = sim.fields["dfsph_pairs"], sim.fields["neighbor_lists"]
+    n, capacity = sim.model.fluid_count, nl.capacities[0]
     offset, count = pairs.offset.numpy()[:n], pairs.count.numpy()[:n]
+    order = nl.fluid_cells.cell_point.numpy()[:n]  # particle at each sorted index
+    assert not np.array_equal(order, np.arange(n))  # cell order differs from index order here
     ranges = int(threads)
     for r in range(ranges):
         lo, hi = n * r // ranges, n * (r + 1) // ranges
-        assert offset[lo] == lo * capacity
-        np.testing.assert_array_equal(offset[lo + 1:hi], offset[lo:hi - 1] + count[lo:hi - 1])
+        rows = order[lo:hi]
+        scan = lo * capacity + np.concatenate([[0], np.cumsum(count[rows])[:-1]])
+        np.testing.assert_array_equal(offset[rows], scan)
+
+
+def test_padded_pair_rows_of_a_device_run_on_the_cpu_give_the_same_search():
+    """The search's padded layout (a device's: one thread per particle, row i at i x capacity), run on the
+    CPU: the rows start at i x capacity, match the brute-force oracle, and hold bitwise the pairs, gradients
+    and sums of the packed CPU search (the same pairs in the same order)."""
+    from warp_sph.kernels.dfsph_search import fluid_search_kernel
+
+    out = {}
+    for packed in (True, False):
+        sim, o = prepared(device="cpu")
+        solver = sim.solver
+        solver._packed_rows = packed
+        solver._search = fluid_search_kernel(sim.model.smoothing.name, packed=packed)
+        stage(sim, "density").run(sim, 3e-3)
+        check_search_against_oracle(sim, o)
+        pairs = sim.fields["dfsph_pairs"]
+        n, capacity = sim.model.fluid_count, solver.nl.capacities[0]
+        offset, count = pairs.offset.numpy()[:n], pairs.count.numpy()[:n]
+        rows = [(pairs.index.numpy()[a:a + c], pairs.gradient.numpy()[a:a + c]) for a, c in zip(offset, count)]
+        out[packed] = (offset, rows, sim.get_field("particle_density"), sim.get_field("dfsph_factor"))
+    np.testing.assert_array_equal(out[False][0], np.arange(n) * capacity)
+    for (ia, ga), (ib, gb) in zip(out[True][1], out[False][1]):
+        assert np.array_equal(ia, ib) and np.array_equal(ga, gb)
+    assert np.array_equal(out[True][2], out[False][2]) and np.array_equal(out[True][3], out[False][3])

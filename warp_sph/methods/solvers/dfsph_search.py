@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ...core.launch import LIGHT_MIN_RANGE, cpu_threads, launch, run_loop
+from ...core.launch import LIGHT_MIN_RANGE, MIN_RANGE, cpu_threads, launch, run_loop
 from ...core.smoothing import get_smoothing_kernel, lattice_offsets
 from ...kernels import dfsph_factor as _factor
 from ...kernels import dfsph_search as _search
@@ -58,7 +58,9 @@ class DfsphSearch:
         self._room = wp.zeros(size, dtype=wp.int32, device=dev)    # pairs kept per particle (search skin)
         self._square_sum = wp.zeros(size, dtype=float, device=dev)  # sum_j |G_ij|^2 (fluid part of D_i)
         self._pairs_capacity = 0
-        self._search = _search.fluid_search_kernel(m.smoothing.name)
+        # CPU: the search writes its pair rows packed, one range of sorted indices per thread
+        self._packed_rows = dev.is_cpu
+        self._search = _search.fluid_search_kernel(m.smoothing.name, packed=self._packed_rows)
         terms = sim.boundary_terms
         moving = self.with_bodies and self.nl.moving_cells is not None
         # static walls: their sub-cell lists in reach (``neighbors/wall_reach.py``, built on the first search)
@@ -80,7 +82,7 @@ class DfsphSearch:
 
     def _pairs(self):
         """The pair cache, sized for the fluid lists' capacity (which grows on overflow): the rows the solves
-        read (row i at i x capacity; with the skin compressed, and a padded row per particle for the pair pass)."""
+        read (row i at i x capacity on a device, packed on the CPU; with the skin compressed, and a padded row per particle for the pair pass)."""
         pairs = self.sim.fields["dfsph_pairs"]
         capacity = self.nl.capacities[0]
         if capacity != self._pairs_capacity:
@@ -109,8 +111,9 @@ class DfsphSearch:
         n, dev = m.fluid_count, m.device
         pairs = self._pairs()
         fc = nl.fluid_cells
-        search = (self._search, n,
-                  [fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x,
+        ranges = cpu_threads() if self._packed_rows else 0
+        search = (self._search, ranges if self._packed_rows else n,
+                  [n, max(ranges, 1), fc.lo, fc.inv_cell_size, fc.dims, fc.cell_start, fc.cell_point, fc.sorted_x,
                    m.support_radius,
                    m.particle_mass, m.smoothing_length, m.rest_density, f["particle_v"]],
                   [nl.fluid.count, nl.fluid.index, nl.max_count, pairs.offset, pairs.count, pairs.index, pairs.gradient,
@@ -141,22 +144,16 @@ class DfsphSearch:
                   [nl.boundary.count, nl.boundary.index, nl.max_count, pairs.boundary_gradient,
                    pairs.boundary_velocity, pairs.active, f["dfsph_factor"], f["dfsph_divergence_pressure"],
                    f["dfsph_acceleration"], f["dfsph_error"], f["boundary_force"]])
-        # CPU: the rows packed after the search, one range per thread (``pack_pair_rows``); a device keeps
-        # row i at i x capacity
-        ranges = cpu_threads() if dev.is_cpu else 0
-        pack = (_search.pack_pair_rows, ranges, [n, ranges, nl.capacities[0], pairs.count],
-                [pairs.offset, pairs.index, pairs.gradient])
         replays = getattr(self, "_replays", None)
+        min_range = 1 if self._packed_rows else MIN_RANGE  # packed: a range per thread
         if replays is not None and self.sweep_loop and n > 0:
             # CPU: the passes in one run_loop (one hand-off, recorded launches; bitwise the launches below)
-            run_loop([[replays.get(*search, device=dev, tag="search")],
-                      [replays.get(*factor, device=dev, tag="search")],
-                      [replays.get(*pack, device=dev, min_range=1, tag="search")]], 1)
+            run_loop([[replays.get(*search, device=dev, tag="search", min_range=min_range)],
+                      [replays.get(*factor, device=dev, tag="search")]], 1)
             return
-        launch(*search, device=dev)
+        if n > 0 or not self._packed_rows:
+            launch(*search, device=dev, min_range=min_range)
         launch(*factor, device=dev)
-        if n > 0:
-            launch(*pack, device=dev, min_range=1)
 
     def _wall_reach(self, cells) -> list:
         """The boundary kernel's arguments for the static walls' sub-cell lists (``WallReach`` over the static
