@@ -136,13 +136,25 @@ class SolverModel:
         need = self.array_bytes(fluid, boundary)
         return need if need > self.cache_bytes else None
 
+    def sweeps_grow(self) -> bool:
+        """Whether the calibration window's sweeps per step grew with refinement (the law's measured exponent below
+        its clipped one, 0): the growth is not extrapolated, and beyond the largest calibrated count the step then
+        takes that count's sweeps (``sweeps_at``), not the law's constant (the points' mean, below the reference)."""
+        law = self.sweeps
+        return law is not None and law.measured is not None and law.measured < law.exponent and \
+            self.sweeps_reference > 0
+
     def sweeps_at(self, d: float) -> float:
         """Sweeps per step at spacing ``d`` [m] at the scene's tolerance: ``sweeps`` within ``sweeps_bounds`` (0 for a
-        solver without sweeps)."""
+        solver without sweeps); where they grew with refinement (``sweeps_grow``), the largest count's
+        (``sweeps_reference``), held: measured, dam break DFSPH, whole 0.5 s runs at r = 0.0315, 0.0198 and 0.0132 m:
+        the first frames' sweeps 5.4, 10.3 and 18.5 per step (growth, the law clipped to a constant, their mean) while
+        the runs' steps cost 1.14, 0.93 and 0.90x their first frames' (process CPU time; the sweeps fall to 4-5 after
+        the impact, each frame's steps cost more: docs/plan.md, item 8)."""
         if self.sweeps is None:
             return 0.0
         lo, hi = self.sweeps_bounds
-        s = max(self.sweeps(d), lo)
+        s = max(self.sweeps_reference if self.sweeps_grow() else self.sweeps(d), lo)
         return float(min(s, hi) if hi > 0 else s)
 
     def sweep_factor(self, fluid: int, d: float) -> float:
