@@ -146,6 +146,10 @@ def test_sweeps_that_grow_with_refinement_hold_the_largest_counts(tiny):  # noqa
     assert m.sweep_factor(4 * ref.fluid, d) == pytest.approx(1.0)    # the old rule: 0.36 + 0.64 x mean / 18.45
     plain = replace(m, sweeps=None)
     assert m.step_cost(4 * ref.fluid, 0, d) == pytest.approx(plain.step_cost(4 * ref.fluid, 0))
+    c = predict(tiny, m, 0.0083)
+    assert c.fluid_particles > ref.fluid
+    note = [n for n in cost_notes(m, c) if "grew with refinement" in n]
+    assert len(note) == 1 and "18.4 per step are held" in note[0] and "for its sweeps" not in " ".join(cost_notes(m, c))
     # sweeps that fall with refinement (the tank's) still carry the law's fall
     falling = fit_models(_cal(*_dfsph_points(tiny)), "dfsph", tiny)
     assert not falling.sweeps_grow() and falling.sweep_factor(10 ** 6, 2 * 0.012) < 1.0

@@ -167,6 +167,10 @@ def cost_notes(model, chosen) -> list:
                    f"{model.sweeps_at(d):.3g} per step predicted at r = {chosen.particle_radius:.4g} m (~ d^"
                    f"{model.sweeps.exponent:.2f} over the finest calibrated radii) against {model.sweeps_reference:.3g} "
                    f"at that count, whose sweeps' stages took {100 * model.solve_share:.0f} % of its step")
+    elif model.sweeps_grow() and chosen.fluid_particles > model.sweeps_fluid:
+        out.append(f"{model.solver}'s sweeps per step grew with refinement over the finest calibrated radii (~ d^"
+                   f"{model.sweeps.measured:.2f}): beyond {model.sweeps_fluid:,} fluid particles its "
+                   f"{model.sweeps_reference:.3g} per step are held (the whole run's sweeps fall after its first frames)")
     need = model.past_cache(chosen.fluid_particles, chosen.boundary_particles)
     if need is not None:
         mib = 2.0**20
