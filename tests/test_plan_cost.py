@@ -95,7 +95,7 @@ def test_the_whole_runs_step_cost_ratio(tiny, measured, applied):  # noqa: F811
     short = replace(window[0], step_time=0.01)                                               # 30 steps: 0.3 s
     ms = fit_models(_cal(short, window[1]), "wcsph", tiny, profile=_cal(replace(whole, step_time=0.01 * measured)))
     assert ms.cost_ratio_measured == pytest.approx(measured) and ms.cost_ratio == 1.0
-    assert abs(measured - 1.0) <= 0.1 or "not applied: the calibration point's steps took 0.3 s, under 0.5 s" in \
+    assert abs(measured - 1.0) <= 0.1 or "not applied: the calibration window's steps took 0.3 s, under 0.5 s" in \
         cost_notes(ms, c)[0]
     # against the process's first calibration run (its steady steps are not a reference): no ratio
     first = replace(window[0], first_in_process=True)
@@ -103,6 +103,34 @@ def test_the_whole_runs_step_cost_ratio(tiny, measured, applied):  # noqa: F811
     # without a whole run there is nothing to say and nothing applied
     m0 = fit_models(_cal(*window), "wcsph", tiny)
     assert m0.cost_ratio == 1.0 and m0.cost_ratio_measured is None and cost_notes(m0, c) == []
+
+
+@pytest.mark.parametrize("later", [1.3, 0.7])
+def test_the_course_of_the_step_cost_is_measured_within_the_whole_run(tiny, later):  # noqa: F811
+    """Where the whole run recorded its frames' CPU time, C is that run's CPU per step over its advanced frames 2..F over
+    its frames 2..F_c (F_c: the calibration's frames; the first frame, which loads the kernels, left out), whatever
+    the calibration point at that radius measured (another process's steps); NumPy oracle on synthetic frame_times."""
+    from warp_sph.plan.points import course_ratio
+
+    window = [_point("wcsph", 0.03, None, step_time=0.02, first_in_process=True),
+              _point("wcsph", 0.02, None, step_time=0.05)]
+    steps = np.array([9, 9, 9, 12, 14, 14, 13, 12, 12, 11, 11, 10])
+    per_step = np.array([0.9] + [0.05] * 2 + [0.05 * later] * 9)     # [s] CPU per step; frame 1 loads the kernels
+    cpu = steps * per_step
+    whole = _point("wcsph", 0.03, None, frames=12, steps=int(steps.sum()), step_time=0.07,
+                   density_errors=[1e-3] * 12, frame_steps=steps.tolist(), frame_cpu=cpu.tolist())
+    oracle = (cpu[1:].sum() / steps[1:].sum()) / (cpu[1:3].sum() / steps[1:3].sum())
+    assert course_ratio(whole, 3) == (pytest.approx(oracle), pytest.approx(cpu[1:3].sum()))
+    m = fit_models(_cal(*window), "wcsph", tiny, profile=_cal(whole))   # the old rule: none (a first-in-process point)
+    assert m.cost_ratio_measured == pytest.approx(oracle) and m.cost_ratio_window == pytest.approx(0.9)
+    assert m.cost_ratio == pytest.approx(applied_cost_ratio(oracle, 0.9)) and m.cost_ratio != 1.0
+    # the same course over a window of ms steps (the coarsest radius's): measured, not applied (its timing noise)
+    short = replace(whole, frame_cpu=(cpu * 0.01).tolist())
+    ms = fit_models(_cal(*window), "wcsph", tiny, profile=_cal(short))
+    assert ms.cost_ratio_measured == pytest.approx(oracle) and ms.cost_ratio == 1.0
+    # a run without frame_cpu (cached before it) or no frame beyond the window: the cross-run rule, or nothing
+    assert course_ratio(replace(whole, frame_cpu=[]), 3) == (None, 0.0)
+    assert course_ratio(replace(whole, frame_cpu=cpu[:3].tolist(), frame_steps=steps[:3].tolist()), 3) == (None, 0.0)
 
 
 def test_the_count_law_takes_the_points_whose_fluid_splits(tiny):  # noqa: F811

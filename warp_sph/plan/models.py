@@ -41,7 +41,7 @@ from .fit import (LatticeCount, Line, PowerLaw, StepCost, StepRate, fit_count_la
                   fit_power_law, fit_speed_exponent, fit_step_cost, fit_step_rate, fit_sweeps, log_slope,
                   scene_bound_rate)
 from .metrics import DENSITY
-from .points import slowed_points
+from .points import course_ratio, slowed_points
 
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
 #: (hydrostatic, DFSPH, 0.5 s): the calibration's last frames give p' = -2.4 between d = 0.085 and 0.057 m,
@@ -372,15 +372,23 @@ def step_cost_fields(pts, split: int) -> dict:
 
 
 def whole_run_cost_ratio(pts, profile: Calibration, solver: str, t0) -> tuple:
-    """(C, the calibration point's steps' time [s]): C the steady step time of ``solver``'s whole run (``profile``)
-    over that of its calibration point in ``pts`` at the same radius. The steps' number over the run is modelled
-    apart (``StepRate``); C is what each step costs later in the run against the calibration window (a dam break's
-    splash: more neighbours). Not against the process's first calibration run: its steady steps measured 0.76-1.46x
-    the whole run's (DFSPH, six plans), the other runs' 0.96-1.07x (PBF, four). (None, 0) without both."""
+    """(C, the window's steps' time [s]): what each step of ``solver``'s whole run (``profile``) costs over the run
+    against the calibration window (the steps' number is modelled apart, ``StepRate``). Where the whole run recorded
+    its frames' CPU time, from that run alone (``points.course_ratio``: its CPU per step over frames 2..F over frames
+    2..F_c, F_c the calibration's frames; measured, dam break DFSPH, whole 0.5 s runs, load 1-2: 0.79, 0.88 and 1.01
+    at r = 0.0747 m in three runs of the same setting, 1.15, 1.14, 0.93 and 0.90 at r = 0.05, 0.0315, 0.0198 and
+    0.0132 m; hydrostatic DFSPH 1.01 twice, dam break PBF 1.08 and 1.11 at the coarsest radii: the coarsest radius's
+    is the timing noise of ms steps, not the finer radii's course); else the whole run's steady step time over its
+    calibration point's at the same radius, not against the process's first calibration run (its steady steps
+    measured 0.76-1.46x the whole run's, DFSPH, six plans). (None, 0) without both."""
     whole = profile.for_solver(solver, t0)
     if not whole:
         return None, 0.0
     w = max(whole, key=lambda p: p.particle_radius)
+    if w.frame_cpu and pts:  # within the one run: its later frames' CPU per step over its window frames'
+        ratio, window = course_ratio(w, min(p.frames for p in pts))
+        if ratio is not None:
+            return ratio, window
     same = [p for p in pts if abs(p.particle_radius / w.particle_radius - 1.0) <= 1e-6 and p.step_time > 0
             and not p.first_in_process]
     if not same or w.step_time <= 0:

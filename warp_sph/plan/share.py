@@ -140,7 +140,7 @@ def cost_notes(model, chosen) -> list:
     if model.cost_ratio_measured is not None:
         how = (f"applied: x {model.cost_ratio:.3g}" if model.cost_ratio != 1.0 else
                "not applied: within the timing noise of 1" if abs(model.cost_ratio_measured - 1.0) <= COST_RATIO_NOISE
-               else f"not applied: the calibration point's steps took {model.cost_ratio_window:.2g} s, under "
+               else f"not applied: the calibration window's steps took {model.cost_ratio_window:.2g} s, under "
                     f"{COST_RATIO_MIN_WINDOW:g} s" if model.cost_ratio_window < COST_RATIO_MIN_WINDOW
                else "not applied")
         out.append(f"{model.solver}'s step cost over the whole run: {model.cost_ratio_measured:.3g}x the calibration "
