@@ -143,3 +143,36 @@ def test_the_count_law_takes_the_points_whose_fluid_splits(tiny):  # noqa: F811
     assert m.count_fluid == 8000 and m.count_law.measured == pytest.approx(1.0)
     assert m.count_law(32000) == pytest.approx(2e-6 * 32000)
     assert fit_models(_cal(*walls, fine[0], split=2048), "wcsph", tiny).count_law is None
+
+
+def test_the_bench_detail_compares_the_steps_cpu_time(tiny):  # noqa: F811
+    """``warp-sph bench plan``'s detail: the prediction in process CPU time (the predicted wall step times the largest
+    calibrated count's CPU per wall second of step) against the run's CPU per step over its frames 2.. (NumPy oracle)."""
+    from types import SimpleNamespace
+
+    from warp_sph.benchmarks.plan import run_detail
+    from warp_sph.plan.advisor import point_summary
+
+    steps = np.array([9, 9, 9])
+    pts = [_point("wcsph", r, None, frame_steps=steps.tolist()) for r in (0.03, 0.02)]
+    for p in pts:
+        p.frame_cpu = (steps * 1.5 * p.step_time).tolist()              # 1.5 s of CPU per second of step
+    m = fit_models(_cal(*pts), "wcsph", tiny)
+    c = predict(tiny, m, 0.012)
+    p = SimpleNamespace(chosen=c, models={"wcsph": m}, points=[{**point_summary(q), "whole_run": False} for q in pts])
+    run_steps = np.array([9, 12, 14, 14])
+    run_cpu = np.array([5.0, 0.2, 0.25, 0.26])
+    frames = [{"frame": 1, "density_error_mean": 0.0}] + [{"frame": k + 2, "density_error_mean": 1e-3, "steps": int(n)}
+                                                          for k, n in enumerate(run_steps)]
+    info = {"frames": frames, "sim_time_per_step_ms": 5.0, "fluid_particles": c.fluid_particles,
+            "frame_times": [{"steps": int(n), "cpu_time": float(t)} for n, t in zip(run_steps, run_cpu)]}
+    got = run_detail(p, info)["cpu"]
+    step = m.step_cost(c.fluid_particles, c.boundary_particles, 2 * 0.012)
+    assert got["largest_calibrated_per_wall"] == pytest.approx(1.5)
+    assert got["predicted"] == pytest.approx(1.5 * step)
+    assert got["run"] == pytest.approx(run_cpu[1:].sum() / run_steps[1:].sum())
+    assert got["ratio"] == pytest.approx(got["run"] / (1.5 * step))
+    # points or a run from before the frames' CPU time was kept: nothing to compare
+    old = SimpleNamespace(chosen=c, models={"wcsph": m},
+                          points=[{**point_summary(q), "whole_run": False, "cpu_per_step": None} for q in pts])
+    assert run_detail(old, {**info, "frame_times": []})["cpu"]["ratio"] is None

@@ -132,6 +132,14 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     return point
 
 
+def cpu_per_step(steps, cpu) -> float | None:
+    """[s] process CPU time per step over frames 2.. of per-frame ``steps`` and ``cpu`` [s] (the first frame loads the
+    kernels); None without them."""
+    if len(cpu) != len(steps) or len(cpu) < 2 or sum(steps[1:]) <= 0:
+        return None
+    return float(sum(cpu[1:]) / sum(steps[1:]))
+
+
 def course_ratio(point: Point, window: int) -> tuple:
     """(C, the window's CPU seconds): one whole run's process CPU time per step over its advanced frames 2..F over that
     over frames 2..``window`` (the calibration window's), its first advanced frame left out (it loads the kernels):
