@@ -153,6 +153,10 @@ def test_sweeps_that_grow_with_refinement_hold_the_largest_counts(tiny):  # noqa
     # sweeps that fall with refinement (the tank's) still carry the law's fall
     falling = fit_models(_cal(*_dfsph_points(tiny)), "dfsph", tiny)
     assert not falling.sweeps_grow() and falling.sweep_factor(10 ** 6, 2 * 0.012) < 1.0
+    # sweeps at the solver's fewest at every radius (PBF's 2: a fit's rounding, not a growth): no note
+    flat = fit_models(_cal(*[replace(p, sweeps=2.0) for p in pts]), "dfsph", tiny)
+    flat = replace(flat, sweeps=replace(flat.sweeps, measured=-1e-16))
+    assert not flat.sweeps_grow() and not any("grew with refinement" in n for n in cost_notes(flat, c))
 
 
 def test_no_sweeps_part_without_a_measured_share_or_sweeps(tiny):  # noqa: F811

@@ -141,8 +141,8 @@ class SolverModel:
         its clipped one, 0): the growth is not extrapolated, and beyond the largest calibrated count the step then
         takes that count's sweeps (``sweeps_at``), not the law's constant (the points' mean, below the reference)."""
         law = self.sweeps
-        return law is not None and law.measured is not None and law.measured < law.exponent and \
-            self.sweeps_reference > 0
+        return law is not None and law.measured is not None and law.measured < law.exponent - 1e-9 and \
+            self.sweeps_reference > 0  # (PBF's constant 2 fits to +-1e-16)
 
     def sweeps_at(self, d: float) -> float:
         """Sweeps per step at spacing ``d`` [m] at the scene's tolerance: ``sweeps`` within ``sweeps_bounds`` (0 for a
