@@ -145,18 +145,17 @@ def run_detail(p, info: dict) -> dict:
 
 
 def cpu_detail(step: float, largest: dict | None, info: dict) -> dict:
-    """The step's process CPU time [s], fair on a loaded machine where wall time is not: the calibration's largest
-    count's CPU per step and its CPU per wall second of step, the prediction in CPU (the predicted wall ``step`` [s]
-    times that), the run's CPU per step over its frames 2.. (run.json ``frame_times``) and run / predicted (None where
-    either was not recorded)."""
+    """The step's process CPU time [s], fair on a loaded machine where wall time is not: the largest calibrated count's
+    CPU seconds per wall second of its steps (``points.cpu_per_wall``: the cores it got; a timing point's too), the
+    prediction in CPU (the predicted wall ``step`` [s] times that), the run's CPU per step over its frames 2.. (run.json
+    ``frame_times``) and run / predicted (None where either was not recorded)."""
     from warp_sph.plan.points import cpu_per_step
 
     times = info.get("frame_times") or []
     run = cpu_per_step([int(t["steps"]) for t in times], [float(t.get("cpu_time", 0.0)) for t in times])
-    cal = largest.get("cpu_per_step") if largest else None
-    per_wall = cal / largest["step_time"] if cal and largest["step_time"] > 0 else None
+    per_wall = largest.get("cpu_per_wall") if largest else None
     predicted = step * per_wall if per_wall else None
-    return {"largest_calibrated": cal, "largest_calibrated_per_wall": per_wall, "predicted": predicted, "run": run,
+    return {"largest_calibrated_per_wall": per_wall, "predicted": predicted, "run": run,
             "ratio": run / predicted if run and predicted else None}
 
 

@@ -147,16 +147,23 @@ def test_the_count_law_takes_the_points_whose_fluid_splits(tiny):  # noqa: F811
 
 def test_the_bench_detail_compares_the_steps_cpu_time(tiny):  # noqa: F811
     """``warp-sph bench plan``'s detail: the prediction in process CPU time (the predicted wall step times the largest
-    calibrated count's CPU per wall second of step) against the run's CPU per step over its frames 2.. (NumPy oracle)."""
+    calibrated count's CPU per wall second of its steps, ``cpu_per_wall``, a one-frame timing point's too) against the
+    run's CPU per step over its frames 2.. (NumPy oracle)."""
     from types import SimpleNamespace
 
     from warp_sph.benchmarks.plan import run_detail
     from warp_sph.plan.advisor import point_summary
+    from warp_sph.plan.points import cpu_per_wall
 
     steps = np.array([9, 9, 9])
-    pts = [_point("wcsph", r, None, frame_steps=steps.tolist()) for r in (0.03, 0.02)]
+    pts = [_point("wcsph", r, None, frame_steps=steps.tolist(), first_step_time=0.0) for r in (0.03, 0.02)]
     for p in pts:
+        p.steps = int(steps.sum())
         p.frame_cpu = (steps * 1.5 * p.step_time).tolist()              # 1.5 s of CPU per second of step
+    assert cpu_per_wall(pts[0]) == pytest.approx(1.5) and cpu_per_wall(replace(pts[0], frame_cpu=[])) is None
+    one = replace(pts[0], steps=9, frame_steps=[9], frame_cpu=[0.7 + 9 * pts[0].step_time], first_step_time=0.5 +
+                  pts[0].step_time)                                     # a timing point: its one frame loads kernels
+    assert cpu_per_wall(one) == pytest.approx((0.7 + 9 * one.step_time) / (9 * one.step_time + 0.5))
     m = fit_models(_cal(*pts), "wcsph", tiny)
     c = predict(tiny, m, 0.012)
     p = SimpleNamespace(chosen=c, models={"wcsph": m}, points=[{**point_summary(q), "whole_run": False} for q in pts])
@@ -174,5 +181,5 @@ def test_the_bench_detail_compares_the_steps_cpu_time(tiny):  # noqa: F811
     assert got["ratio"] == pytest.approx(got["run"] / (1.5 * step))
     # points or a run from before the frames' CPU time was kept: nothing to compare
     old = SimpleNamespace(chosen=c, models={"wcsph": m},
-                          points=[{**point_summary(q), "whole_run": False, "cpu_per_step": None} for q in pts])
+                          points=[{**point_summary(q), "whole_run": False, "cpu_per_wall": None} for q in pts])
     assert run_detail(old, {**info, "frame_times": []})["cpu"]["ratio"] is None

@@ -140,6 +140,14 @@ def cpu_per_step(steps, cpu) -> float | None:
     return float(sum(cpu[1:]) / sum(steps[1:]))
 
 
+def cpu_per_wall(point: Point) -> float | None:
+    """[-] the process CPU seconds a point's frames took per wall second of its steps' stages (steps x steady step
+    time + the first step's kernel loads): the cores the run got, about 1.9 on 2 quiet cores, under 1 on a loaded
+    machine (a timing point's one frame too); None where its frames' CPU time was not recorded."""
+    wall = point.steps * point.step_time + point.load_time
+    return float(sum(point.frame_cpu) / wall) if point.frame_cpu and wall > 0 else None
+
+
 def course_ratio(point: Point, window: int) -> tuple:
     """(C, the window's CPU seconds): one whole run's process CPU time per step over its advanced frames 2..F over that
     over frames 2..``window`` (the calibration window's), its first advanced frame left out (it loads the kernels):
