@@ -134,6 +134,7 @@ def run_detail(p, info: dict) -> dict:
             "cost_ratio": {"measured": m.cost_ratio_measured, "applied": m.cost_ratio},
             "count_law_exponent": m.count_law.exponent if m.count_law is not None else None,
             "later_ratio": {"plan": m.later_ratio(frames) if m.has_profile(frames) else None, "run": r_run},
+            "cpu": cpu_detail(step, largest, info),
             "slowed_points": slowed_detail(m),
             # the run's arrays [bytes] against the CPU's last-level cache (docs/plan.md, item 12): the plan's fit at
             # the chosen counts, the run's own, the most any calibration run took
@@ -141,6 +142,21 @@ def run_detail(p, info: dict) -> dict:
                             if m.array_bytes is not None else None, "actual": info.get("array_bytes"),
                             "largest_calibrated": m.array_bytes_calibrated, "cache": m.cache_bytes},
             "density_errors": errors}
+
+
+def cpu_detail(step: float, largest: dict | None, info: dict) -> dict:
+    """The step's process CPU time [s], fair on a loaded machine where wall time is not: the largest calibrated count's
+    CPU seconds per wall second of its steps (``points.cpu_per_wall``: the cores it got; a timing point's too), the
+    prediction in CPU (the predicted wall ``step`` [s] times that), the run's CPU per step over its frames 2.. (run.json
+    ``frame_times``) and run / predicted (None where either was not recorded)."""
+    from warp_sph.plan.points import cpu_per_step
+
+    times = info.get("frame_times") or []
+    run = cpu_per_step([int(t["steps"]) for t in times], [float(t.get("cpu_time", 0.0)) for t in times])
+    per_wall = largest.get("cpu_per_wall") if largest else None
+    predicted = step * per_wall if per_wall else None
+    return {"largest_calibrated_per_wall": per_wall, "predicted": predicted, "run": run,
+            "ratio": run / predicted if run and predicted else None}
 
 
 def slowed_detail(model) -> list:
@@ -230,10 +246,13 @@ def section(records: list[dict], fmt, head) -> list[str]:
         lines += ["The chosen setting's step and error course, predicted against the run: the steady time per step, per "
                   "fluid particle-step (and at the largest calibrated count), the solver's sweeps per step (pressure and "
                   "divergence iterations: at the largest calibrated count / predicted / in the run), the whole-run step cost ratio "
-                  "C (measured at the coarsest radius / applied) and the error's later-frames ratio R (the plan's, "
-                  "measured at the coarsest radius / the run's own at the chosen radius).", "",
+                  "C (measured within the coarsest radius's whole run / applied), the error's later-frames ratio R (the "
+                  "plan's, measured at the coarsest radius / the run's own at the chosen radius) and the step's process "
+                  "CPU time, run / predicted (the predicted step times the largest calibrated count's CPU per wall "
+                  "second: fair where the machine's load moved the wall time).", "",
                   "| scene | budget | step pred. / actual [ms] | us per fluid particle-step pred. / actual / largest calib. "
-                  "| sweeps calib. / pred. / run | C measured / applied | R plan / run |", "|---|---|---|---|---|---|---|"]
+                  "| sweeps calib. / pred. / run | C measured / applied | R plan / run | step CPU run / pred. |",
+                  "|---|---|---|---|---|---|---|---|"]
         for r in detailed:
             d = r["detail"]
             lines.append("| " + " | ".join([
@@ -242,7 +261,8 @@ def section(records: list[dict], fmt, head) -> list[str]:
                 "/".join(fmt(d["per_fluid_particle_step"][k], 1e6) for k in ("predicted", "actual", "largest_calibrated")),
                 "/".join(fmt(d["sweeps"].get(k)) for k in ("largest_calibrated", "predicted", "actual")),
                 "/".join(fmt(d["cost_ratio"][k]) for k in ("measured", "applied")),
-                "/".join(fmt(d["later_ratio"][k]) for k in ("plan", "run"))]) + " |")
+                "/".join(fmt(d["later_ratio"][k]) for k in ("plan", "run")),
+                fmt((d.get("cpu") or {}).get("ratio"))]) + " |")
         lines.append("")
     slowed = [f"- {r['params']['scene']} {fmt(r['params']['budget'])} s: r = {fmt(q['particle_radius'])} m "
               f"({q['fluid']} fluid) {fmt(q['step_time'], 1e3)} ms per step, slower than r = "

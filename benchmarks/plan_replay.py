@@ -5,7 +5,8 @@
 that kept its calibration points and its whole run's figures, fits the chosen solver's step cost again from those
 points with the present code (``warp_sph.plan.models.step_cost_fields``), and predicts the chosen setting's wall time
 with the record's own other models and its predicted steps: wall = load + set-up(N) + steps x step(Nf, Nb, d) +
-frames x export wait(N). Printed per record: the recorded prediction and the replayed one [s], the actual wall time
+frames x export wait(N); the whole run's course C is taken again from its frames' CPU time where the record kept them
+(``points.course_ratio``; records before 2026-11-27 did not: their own C). Printed per record: the recorded prediction and the replayed one [s], the actual wall time
 and actual / replayed (and the step's cost per fluid particle-step, replayed and actual [us], where the record has
 the run's step time), then how many cases lie within 25 % (the goal of issue 37) and the geometric mean of the ratio.
 Only the step's cost changes between the code a record was made with and the replay: the steps, the chosen setting
@@ -30,8 +31,8 @@ def _law(d):
 def replay_model(record: dict):
     """(SolverModel of the record's chosen solver with the step cost fitted again from its points, the points)."""
     from warp_sph.plan.fit import Line, StepCost
-    from warp_sph.plan.models import SolverModel, step_cost_fields
-    from warp_sph.plan.points import Point
+    from warp_sph.plan.models import SolverModel, applied_cost_ratio, step_cost_fields
+    from warp_sph.plan.points import Point, course_ratio
     from warp_sph.core.launch import MIN_RANGE
 
     plan = record["plan"]
@@ -44,12 +45,23 @@ def replay_model(record: dict):
            for q in plan["points"] if q["solver"] == solver and q["status"] == "completed" and not q.get("whole_run")
            and (q["tolerance"] == t0 or t0 is None)]
     fields = step_cost_fields(pts, 2 * MIN_RANGE)  # every record was made on a CPU
+    # the course C from the record's whole run where it kept its frames' CPU time (``points.course_ratio``), applied as
+    # a plan applies it; else the record's own C
+    cost_ratio = m.get("cost_ratio", 1.0)
+    whole = [q for q in plan["points"] if q["solver"] == solver and q.get("whole_run") and q.get("frame_cpu")
+             and (q["tolerance"] == t0 or t0 is None)]
+    if whole and pts:
+        w = max(whole, key=lambda q: q["particle_radius"])
+        ratio, window = course_ratio(Point(solver=solver, particle_radius=w["particle_radius"],
+                                           frame_steps=w["frame_steps"], frame_cpu=w["frame_cpu"]),
+                                     min(p.frames for p in pts))
+        cost_ratio = applied_cost_ratio(ratio, window) if ratio is not None else cost_ratio
     model = SolverModel(
         solver=solver, steps_per_second=None, error=None, step_time=fields.pop("step_time"),
         setup_time=Line(**m["setup_time"]), frame_overhead=Line(**m["frame_overhead"]), fluid_count=None,
         boundary_count=None, load_time=m["load_time"], calibrated_radii=m["calibrated_radii"],
         calibrated_particles=m["calibrated_particles"], tolerance=t0, tolerances=m.get("tolerances", []),
-        tolerance_exponents=m.get("tolerance_exponents", {}), cost_ratio=m.get("cost_ratio", 1.0),
+        tolerance_exponents=m.get("tolerance_exponents", {}), cost_ratio=cost_ratio,
         sweeps=_law(m.get("sweeps")), sweeps_bounds=tuple(m.get("sweeps_bounds", (0.0, 0.0))),
         sweeps_fluid=m.get("sweeps_fluid", 0), sweeps_reference=m.get("sweeps_reference", 0.0),
         solve_share=m.get("solve_share", 0.0), **fields)

@@ -95,7 +95,7 @@ def test_the_whole_runs_step_cost_ratio(tiny, measured, applied):  # noqa: F811
     short = replace(window[0], step_time=0.01)                                               # 30 steps: 0.3 s
     ms = fit_models(_cal(short, window[1]), "wcsph", tiny, profile=_cal(replace(whole, step_time=0.01 * measured)))
     assert ms.cost_ratio_measured == pytest.approx(measured) and ms.cost_ratio == 1.0
-    assert abs(measured - 1.0) <= 0.1 or "not applied: the calibration point's steps took 0.3 s, under 0.5 s" in \
+    assert abs(measured - 1.0) <= 0.1 or "not applied: the calibration window's steps took 0.3 s, under 0.5 s" in \
         cost_notes(ms, c)[0]
     # against the process's first calibration run (its steady steps are not a reference): no ratio
     first = replace(window[0], first_in_process=True)
@@ -103,6 +103,34 @@ def test_the_whole_runs_step_cost_ratio(tiny, measured, applied):  # noqa: F811
     # without a whole run there is nothing to say and nothing applied
     m0 = fit_models(_cal(*window), "wcsph", tiny)
     assert m0.cost_ratio == 1.0 and m0.cost_ratio_measured is None and cost_notes(m0, c) == []
+
+
+@pytest.mark.parametrize("later", [1.3, 0.7])
+def test_the_course_of_the_step_cost_is_measured_within_the_whole_run(tiny, later):  # noqa: F811
+    """Where the whole run recorded its frames' CPU time, C is that run's CPU per step over its advanced frames 2..F over
+    its frames 2..F_c (F_c: the calibration's frames; the first frame, which loads the kernels, left out), whatever
+    the calibration point at that radius measured (another process's steps); NumPy oracle on synthetic frame_times."""
+    from warp_sph.plan.points import course_ratio
+
+    window = [_point("wcsph", 0.03, None, step_time=0.02, first_in_process=True),
+              _point("wcsph", 0.02, None, step_time=0.05)]
+    steps = np.array([9, 9, 9, 12, 14, 14, 13, 12, 12, 11, 11, 10])
+    per_step = np.array([0.9] + [0.05] * 2 + [0.05 * later] * 9)     # [s] CPU per step; frame 1 loads the kernels
+    cpu = steps * per_step
+    whole = _point("wcsph", 0.03, None, frames=12, steps=int(steps.sum()), step_time=0.07,
+                   density_errors=[1e-3] * 12, frame_steps=steps.tolist(), frame_cpu=cpu.tolist())
+    oracle = (cpu[1:].sum() / steps[1:].sum()) / (cpu[1:3].sum() / steps[1:3].sum())
+    assert course_ratio(whole, 3) == (pytest.approx(oracle), pytest.approx(cpu[1:3].sum()))
+    m = fit_models(_cal(*window), "wcsph", tiny, profile=_cal(whole))   # the old rule: none (a first-in-process point)
+    assert m.cost_ratio_measured == pytest.approx(oracle) and m.cost_ratio_window == pytest.approx(0.9)
+    assert m.cost_ratio == pytest.approx(applied_cost_ratio(oracle, 0.9)) and m.cost_ratio != 1.0
+    # the same course over a window of ms steps (the coarsest radius's): measured, not applied (its timing noise)
+    short = replace(whole, frame_cpu=(cpu * 0.01).tolist())
+    ms = fit_models(_cal(*window), "wcsph", tiny, profile=_cal(short))
+    assert ms.cost_ratio_measured == pytest.approx(oracle) and ms.cost_ratio == 1.0
+    # a run without frame_cpu (cached before it) or no frame beyond the window: the cross-run rule, or nothing
+    assert course_ratio(replace(whole, frame_cpu=[]), 3) == (None, 0.0)
+    assert course_ratio(replace(whole, frame_cpu=cpu[:3].tolist(), frame_steps=steps[:3].tolist()), 3) == (None, 0.0)
 
 
 def test_the_count_law_takes_the_points_whose_fluid_splits(tiny):  # noqa: F811
@@ -115,3 +143,43 @@ def test_the_count_law_takes_the_points_whose_fluid_splits(tiny):  # noqa: F811
     assert m.count_fluid == 8000 and m.count_law.measured == pytest.approx(1.0)
     assert m.count_law(32000) == pytest.approx(2e-6 * 32000)
     assert fit_models(_cal(*walls, fine[0], split=2048), "wcsph", tiny).count_law is None
+
+
+def test_the_bench_detail_compares_the_steps_cpu_time(tiny):  # noqa: F811
+    """``warp-sph bench plan``'s detail: the prediction in process CPU time (the predicted wall step times the largest
+    calibrated count's CPU per wall second of its steps, ``cpu_per_wall``, a one-frame timing point's too) against the
+    run's CPU per step over its frames 2.. (NumPy oracle)."""
+    from types import SimpleNamespace
+
+    from warp_sph.benchmarks.plan import run_detail
+    from warp_sph.plan.advisor import point_summary
+    from warp_sph.plan.points import cpu_per_wall
+
+    steps = np.array([9, 9, 9])
+    pts = [_point("wcsph", r, None, frame_steps=steps.tolist(), first_step_time=0.0) for r in (0.03, 0.02)]
+    for p in pts:
+        p.steps = int(steps.sum())
+        p.frame_cpu = (steps * 1.5 * p.step_time).tolist()              # 1.5 s of CPU per second of step
+    assert cpu_per_wall(pts[0]) == pytest.approx(1.5) and cpu_per_wall(replace(pts[0], frame_cpu=[])) is None
+    one = replace(pts[0], steps=9, frame_steps=[9], frame_cpu=[0.7 + 9 * pts[0].step_time], first_step_time=0.5 +
+                  pts[0].step_time)                                     # a timing point: its one frame loads kernels
+    assert cpu_per_wall(one) == pytest.approx((0.7 + 9 * one.step_time) / (9 * one.step_time + 0.5))
+    m = fit_models(_cal(*pts), "wcsph", tiny)
+    c = predict(tiny, m, 0.012)
+    p = SimpleNamespace(chosen=c, models={"wcsph": m}, points=[{**point_summary(q), "whole_run": False} for q in pts])
+    run_steps = np.array([9, 12, 14, 14])
+    run_cpu = np.array([5.0, 0.2, 0.25, 0.26])
+    frames = [{"frame": 1, "density_error_mean": 0.0}] + [{"frame": k + 2, "density_error_mean": 1e-3, "steps": int(n)}
+                                                          for k, n in enumerate(run_steps)]
+    info = {"frames": frames, "sim_time_per_step_ms": 5.0, "fluid_particles": c.fluid_particles,
+            "frame_times": [{"steps": int(n), "cpu_time": float(t)} for n, t in zip(run_steps, run_cpu)]}
+    got = run_detail(p, info)["cpu"]
+    step = m.step_cost(c.fluid_particles, c.boundary_particles, 2 * 0.012)
+    assert got["largest_calibrated_per_wall"] == pytest.approx(1.5)
+    assert got["predicted"] == pytest.approx(1.5 * step)
+    assert got["run"] == pytest.approx(run_cpu[1:].sum() / run_steps[1:].sum())
+    assert got["ratio"] == pytest.approx(got["run"] / (1.5 * step))
+    # points or a run from before the frames' CPU time was kept: nothing to compare
+    old = SimpleNamespace(chosen=c, models={"wcsph": m},
+                          points=[{**point_summary(q), "whole_run": False, "cpu_per_wall": None} for q in pts])
+    assert run_detail(old, {**info, "frame_times": []})["cpu"]["ratio"] is None

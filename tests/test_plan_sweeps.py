@@ -127,6 +127,38 @@ def test_the_step_cost_beyond_the_largest_count_carries_the_predicted_sweeps(tin
     assert len(note) == 1 and "against 3.58 at that count" in note[0] and "took 40 % of its step" in note[0]
 
 
+def test_sweeps_that_grow_with_refinement_hold_the_largest_counts(tiny):  # noqa: F811
+    """The dam break's DFSPH: the calibration window's sweeps grow with refinement (5.4, 10.3, 18.5 per step at r =
+    0.0315, 0.0198, 0.0132 m; the law's exponent clipped to 0 makes it a constant, the points' geometric mean, below
+    the largest count's own). Beyond that count the step takes the largest count's sweeps (factor 1), not the mean
+    (the whole runs' steps cost 0.90-1.14x their first frames': the growth is not the run's, nor is a fall)."""
+    t0 = scene_tolerance(tiny, "dfsph")
+    radii = [0.0315, 0.0198, 0.0132]
+    sweeps = [5.44, 10.33, 18.45]
+    pts = [_point("dfsph", r, t0, sweeps=s, solve_share=0.64) for r, s in zip(radii, sweeps)]
+    m = fit_models(_cal(*pts), "dfsph", tiny)
+    assert m.sweeps.measured < 0 and m.sweeps.exponent == 0.0 and m.sweeps_grow()
+    mean = float(np.exp(np.mean(np.log(sweeps))))                    # what the clipped law alone gives
+    assert m.sweeps(0.01) == pytest.approx(mean) and mean < 0.7 * 18.45
+    ref = pts[-1]
+    d = 2 * 0.0083
+    assert m.sweeps_reference == pytest.approx(18.45) and m.sweeps_at(d) == pytest.approx(18.45)
+    assert m.sweep_factor(4 * ref.fluid, d) == pytest.approx(1.0)    # the old rule: 0.36 + 0.64 x mean / 18.45
+    plain = replace(m, sweeps=None)
+    assert m.step_cost(4 * ref.fluid, 0, d) == pytest.approx(plain.step_cost(4 * ref.fluid, 0))
+    c = predict(tiny, m, 0.0083)
+    assert c.fluid_particles > ref.fluid
+    note = [n for n in cost_notes(m, c) if "grew with refinement" in n]
+    assert len(note) == 1 and "18.4 per step are held" in note[0] and "for its sweeps" not in " ".join(cost_notes(m, c))
+    # sweeps that fall with refinement (the tank's) still carry the law's fall
+    falling = fit_models(_cal(*_dfsph_points(tiny)), "dfsph", tiny)
+    assert not falling.sweeps_grow() and falling.sweep_factor(10 ** 6, 2 * 0.012) < 1.0
+    # sweeps at the solver's fewest at every radius (PBF's 2: a fit's rounding, not a growth): no note
+    flat = fit_models(_cal(*[replace(p, sweeps=2.0) for p in pts]), "dfsph", tiny)
+    flat = replace(flat, sweeps=replace(flat.sweeps, measured=-1e-16))
+    assert not flat.sweeps_grow() and not any("grew with refinement" in n for n in cost_notes(flat, c))
+
+
 def test_no_sweeps_part_without_a_measured_share_or_sweeps(tiny):  # noqa: F811
     """A cached point of an older schema, or a solver without sweeps (WCSPH), leaves the step cost as fitted."""
     m = fit_models(_cal(*_dfsph_points(tiny, share=0.0)), "dfsph", tiny)

@@ -139,12 +139,16 @@ class Plan:
 def point_summary(p, whole: bool = False, timing: bool = False) -> dict:
     """A calibration run's figures as the plan's record keeps them: solver, radius [m], tolerance, counts, frames,
     steps, steady step time [s], solver sweeps per step, wall time [s] of the run and of the whole calibration
-    point, mean and last density error; ``whole``: a whole-duration run (the error profile); ``timing``: a timing-only
-    point past the CPU's last-level cache (``past_cache.py``: in the step's cost only)."""
-    return {"solver": p.solver, "particle_radius": p.particle_radius, "tolerance": p.tolerance, "status": p.status,
+    point, process CPU seconds per wall second of its steps (``points.cpu_per_wall``), mean and last density error; ``whole``: a whole-duration run (the error profile), with its frames' steps
+    and process CPU time [s] (the course C, ``points.course_ratio``); ``timing``: a timing-only point past the CPU's
+    last-level cache (``past_cache.py``: in the step's cost only)."""
+    from .points import cpu_per_wall
+
+    course = {"frame_steps": p.frame_steps, "frame_cpu": p.frame_cpu} if whole else {}
+    return {**course, "solver": p.solver, "particle_radius": p.particle_radius, "tolerance": p.tolerance, "status": p.status,
             "fluid": p.fluid, "boundary": p.boundary, "frames": p.frames, "steps": p.steps, "step_time": p.step_time,
             "sweeps": p.sweeps, "wall_time": p.wall_time, "seconds": p.seconds, "first_in_process": p.first_in_process,
-            "array_bytes": p.array_bytes,
+            "array_bytes": p.array_bytes, "cpu_per_wall": cpu_per_wall(p),
             "density_error_mean": p.density_error_mean, "density_error_last": p.density_error_last, "whole_run": whole,
             "timing_only": timing}
 

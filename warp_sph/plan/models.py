@@ -41,7 +41,7 @@ from .fit import (LatticeCount, Line, PowerLaw, StepCost, StepRate, fit_count_la
                   fit_power_law, fit_speed_exponent, fit_step_cost, fit_step_rate, fit_sweeps, log_slope,
                   scene_bound_rate)
 from .metrics import DENSITY
-from .points import slowed_points
+from .points import course_ratio, slowed_points
 
 #: the order of the error fit is clipped to this range (an error that grows with refinement: p < 0). Measured
 #: (hydrostatic, DFSPH, 0.5 s): the calibration's last frames give p' = -2.4 between d = 0.085 and 0.057 m,
@@ -136,13 +136,25 @@ class SolverModel:
         need = self.array_bytes(fluid, boundary)
         return need if need > self.cache_bytes else None
 
+    def sweeps_grow(self) -> bool:
+        """Whether the calibration window's sweeps per step grew with refinement (the law's measured exponent below
+        its clipped one, 0): the growth is not extrapolated, and beyond the largest calibrated count the step then
+        takes that count's sweeps (``sweeps_at``), not the law's constant (the points' mean, below the reference)."""
+        law = self.sweeps
+        return law is not None and law.measured is not None and law.measured < law.exponent - 1e-9 and \
+            self.sweeps_reference > 0  # (PBF's constant 2 fits to +-1e-16)
+
     def sweeps_at(self, d: float) -> float:
         """Sweeps per step at spacing ``d`` [m] at the scene's tolerance: ``sweeps`` within ``sweeps_bounds`` (0 for a
-        solver without sweeps)."""
+        solver without sweeps); where they grew with refinement (``sweeps_grow``), the largest count's
+        (``sweeps_reference``), held: measured, dam break DFSPH, whole 0.5 s runs at r = 0.0315, 0.0198 and 0.0132 m:
+        the first frames' sweeps 5.4, 10.3 and 18.5 per step (growth, the law clipped to a constant, their mean) while
+        the runs' steps cost 1.14, 0.93 and 0.90x their first frames' (process CPU time; the sweeps fall to 4-5 after
+        the impact, each frame's steps cost more: docs/plan.md, item 8)."""
         if self.sweeps is None:
             return 0.0
         lo, hi = self.sweeps_bounds
-        s = max(self.sweeps(d), lo)
+        s = max(self.sweeps_reference if self.sweeps_grow() else self.sweeps(d), lo)
         return float(min(s, hi) if hi > 0 else s)
 
     def sweep_factor(self, fluid: int, d: float) -> float:
@@ -360,15 +372,23 @@ def step_cost_fields(pts, split: int) -> dict:
 
 
 def whole_run_cost_ratio(pts, profile: Calibration, solver: str, t0) -> tuple:
-    """(C, the calibration point's steps' time [s]): C the steady step time of ``solver``'s whole run (``profile``)
-    over that of its calibration point in ``pts`` at the same radius. The steps' number over the run is modelled
-    apart (``StepRate``); C is what each step costs later in the run against the calibration window (a dam break's
-    splash: more neighbours). Not against the process's first calibration run: its steady steps measured 0.76-1.46x
-    the whole run's (DFSPH, six plans), the other runs' 0.96-1.07x (PBF, four). (None, 0) without both."""
+    """(C, the window's steps' time [s]): what each step of ``solver``'s whole run (``profile``) costs over the run
+    against the calibration window (the steps' number is modelled apart, ``StepRate``). Where the whole run recorded
+    its frames' CPU time, from that run alone (``points.course_ratio``: its CPU per step over frames 2..F over frames
+    2..F_c, F_c the calibration's frames; measured, dam break DFSPH, whole 0.5 s runs, load 1-2: 0.79, 0.88 and 1.01
+    at r = 0.0747 m in three runs of the same setting, 1.15, 1.14, 0.93 and 0.90 at r = 0.05, 0.0315, 0.0198 and
+    0.0132 m; hydrostatic DFSPH 1.01 twice, dam break PBF 1.08 and 1.11 at the coarsest radii: the coarsest radius's
+    is the timing noise of ms steps, not the finer radii's course); else the whole run's steady step time over its
+    calibration point's at the same radius, not against the process's first calibration run (its steady steps
+    measured 0.76-1.46x the whole run's, DFSPH, six plans). (None, 0) without both."""
     whole = profile.for_solver(solver, t0)
     if not whole:
         return None, 0.0
     w = max(whole, key=lambda p: p.particle_radius)
+    if w.frame_cpu and pts:  # within the one run: its later frames' CPU per step over its window frames'
+        ratio, window = course_ratio(w, min(p.frames for p in pts))
+        if ratio is not None:
+            return ratio, window
     same = [p for p in pts if abs(p.particle_radius / w.particle_radius - 1.0) <= 1e-6 and p.step_time > 0
             and not p.first_in_process]
     if not same or w.step_time <= 0:

@@ -47,6 +47,7 @@ class Point:
     density_errors: list = field(default_factory=list)  # [-] each advanced frame's mean error, in order
     frame_steps: list = field(default_factory=list)     # substeps of each advanced frame, in order
     frame_speeds: list = field(default_factory=list)    # [m/s] fastest particle (fluid or body) at each frame's end, initial first
+    frame_cpu: list = field(default_factory=list)       # [s] process CPU time of each advanced frame (run.json ``frame_times``)
     sweeps: float = 0.0                 # solver sweeps per step: pressure + divergence iterations, mean over the steps (0: none)
     solve_share: float = 0.0            # [-] the sweeps' stages' share of the steady step time (``solve_share``)
     first_in_process: bool = False      # the process's first calibration run: its set-up loaded the shared kernels
@@ -127,7 +128,37 @@ def run_point(scene, solver: str, radius: float, frames: int, device, folder: Pa
     point.sweeps = solver_sweeps(advanced)
     point.solve_share = solve_share(info.get("stage_times") or [])
     point.frame_speeds = [max(float(f.get("max_speed", 0.0)), float(f.get("body_speed", 0.0))) for f in info["frames"]]
+    point.frame_cpu = [float(t.get("cpu_time", 0.0)) for t in info.get("frame_times") or []]
     return point
+
+
+def cpu_per_step(steps, cpu) -> float | None:
+    """[s] process CPU time per step over frames 2.. of per-frame ``steps`` and ``cpu`` [s] (the first frame loads the
+    kernels); None without them."""
+    if len(cpu) != len(steps) or len(cpu) < 2 or sum(steps[1:]) <= 0:
+        return None
+    return float(sum(cpu[1:]) / sum(steps[1:]))
+
+
+def cpu_per_wall(point: Point) -> float | None:
+    """[-] the process CPU seconds a point's frames took per wall second of its steps' stages (steps x steady step
+    time + the first step's kernel loads): the cores the run got, about 1.9 on 2 quiet cores, under 1 on a loaded
+    machine (a timing point's one frame too); None where its frames' CPU time was not recorded."""
+    wall = point.steps * point.step_time + point.load_time
+    return float(sum(point.frame_cpu) / wall) if point.frame_cpu and wall > 0 else None
+
+
+def course_ratio(point: Point, window: int) -> tuple:
+    """(C, the window's CPU seconds): one whole run's process CPU time per step over its advanced frames 2..F over that
+    over frames 2..``window`` (the calibration window's), its first advanced frame left out (it loads the kernels):
+    the course of the step's cost over the run, from one process and one set of particles (no cross-run noise). (None,
+    0) where the run did not record ``frame_cpu`` or has no frame beyond the window."""
+    cpu, steps = point.frame_cpu, point.frame_steps
+    if len(cpu) != len(steps) or len(cpu) <= window or window < 2 or min(cpu[1:], default=0.0) <= 0:
+        return None, 0.0
+    first = sum(cpu[1:window]) / max(sum(steps[1:window]), 1)
+    whole = sum(cpu[1:]) / max(sum(steps[1:]), 1)
+    return (float(whole / first), float(sum(cpu[1:window]))) if first > 0 else (None, 0.0)
 
 
 def steady_step_time(info: dict) -> float:

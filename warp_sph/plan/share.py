@@ -140,7 +140,7 @@ def cost_notes(model, chosen) -> list:
     if model.cost_ratio_measured is not None:
         how = (f"applied: x {model.cost_ratio:.3g}" if model.cost_ratio != 1.0 else
                "not applied: within the timing noise of 1" if abs(model.cost_ratio_measured - 1.0) <= COST_RATIO_NOISE
-               else f"not applied: the calibration point's steps took {model.cost_ratio_window:.2g} s, under "
+               else f"not applied: the calibration window's steps took {model.cost_ratio_window:.2g} s, under "
                     f"{COST_RATIO_MIN_WINDOW:g} s" if model.cost_ratio_window < COST_RATIO_MIN_WINDOW
                else "not applied")
         out.append(f"{model.solver}'s step cost over the whole run: {model.cost_ratio_measured:.3g}x the calibration "
@@ -167,6 +167,10 @@ def cost_notes(model, chosen) -> list:
                    f"{model.sweeps_at(d):.3g} per step predicted at r = {chosen.particle_radius:.4g} m (~ d^"
                    f"{model.sweeps.exponent:.2f} over the finest calibrated radii) against {model.sweeps_reference:.3g} "
                    f"at that count, whose sweeps' stages took {100 * model.solve_share:.0f} % of its step")
+    elif model.sweeps_grow() and chosen.fluid_particles > model.sweeps_fluid:
+        out.append(f"{model.solver}'s sweeps per step grew with refinement over the finest calibrated radii (~ d^"
+                   f"{model.sweeps.measured:.2f}): beyond {model.sweeps_fluid:,} fluid particles its "
+                   f"{model.sweeps_reference:.3g} per step are held (the whole run's sweeps fall after its first frames)")
     need = model.past_cache(chosen.fluid_particles, chosen.boundary_particles)
     if need is not None:
         mib = 2.0**20
