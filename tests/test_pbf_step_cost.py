@@ -224,3 +224,45 @@ def test_kept_wall_lists_bitwise_the_searched_ones(monkeypatch, device):
     a = (kept.get_field("particle_x"), kept.get_field("particle_v"))
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
     assert max(shares) > 0.2, shares
+
+
+def test_list_rows_sized_from_the_rest_neighbour_count(device):
+    """PBF's fluid list rows (and so the pair cache's) hold ``LIST_HEADROOM`` times the neighbours a particle has
+    at rest density within the search radius, (4/3) pi R^3 / V (``pbf_passes.list_capacity``), not the lists'
+    general 64 per support volume (86 slots at H_s + 0.2 d: the correction then streamed a cache of 1.5x the bytes'
+    span, issue #32); three frames of a falling block fit them (no overflow, no redone frame)."""
+    import math
+    import warnings
+
+    sim = Simulation(fixed_step_tank(), device=device)
+    m, nl = sim.model, sim.solver.nl
+    volume = m.particle_mass / m.rest_density
+    at_rest = 4.0 / 3.0 * math.pi * nl.search_radius ** 3 / volume  # 44.6 at H_s + 0.2 d on d = V^(1/3)
+    capacity = nl.capacities[0]
+    assert capacity == math.ceil(1.3 * at_rest) < math.ceil(64 * (nl.search_radius / m.support_radius) ** 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # an overflow warns and redoes the frame
+        run_frames(sim, 3)
+    assert nl.capacities[0] == capacity
+    assert sim.fields["pbf_pairs"].gradient.shape[1] == capacity
+    assert int(nl.fluid.count.numpy()[: m.fluid_count].max()) <= capacity
+
+
+def test_overflowing_list_rows_grow_and_redo_the_frame_bitwise(monkeypatch, device):
+    """Rows too short for a particle's neighbours (here forced to 20 slots) overflow: the frame is redone with grown
+    lists (``run.frame_loop``) and the run is bitwise the one whose rows were long enough from the start (the same
+    pairs in the same order); the pair cache follows the lists' capacity."""
+    import pytest
+
+    from warp_sph.methods.solvers import pbf_passes
+
+    ref = Simulation(fixed_step_tank(), device=device)
+    monkeypatch.setattr(pbf_passes, "list_capacity", lambda radius, volume: 20)
+    short = Simulation(fixed_step_tank(), device=device)
+    assert short.solver.nl.capacities[0] == 20
+    with pytest.warns(RuntimeWarning, match="the lists grow and the frame is redone"):
+        a = run_frames(short, 2)
+    b = run_frames(ref, 2)
+    assert short.solver.nl.capacities[0] > 20
+    assert short.fields["pbf_pairs"].gradient.shape[1] == short.solver.nl.capacities[0]
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and a[2] == b[2]
