@@ -266,3 +266,63 @@ def test_overflowing_list_rows_grow_and_redo_the_frame_bitwise(monkeypatch, devi
     assert short.solver.nl.capacities[0] > 20
     assert short.fields["pbf_pairs"].gradient.shape[1] == short.solver.nl.capacities[0]
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and a[2] == b[2]
+
+
+def test_reciprocal_cubic_matches_the_cubic_spline():
+    """``pbf_pairs.cubic_value_gradient_reciprocal`` (PBF's fluid pair passes: one division per pair) against
+    ``smoothing``'s cubic spline from r = 0 to past the support, to float32 rounding; 0 from H_s on."""
+    import warp as wp
+
+    from warp_sph.core.smoothing import evaluate
+    from warp_sph.kernels.pbf_pairs import cubic_value_gradient_reciprocal
+
+    @wp.kernel
+    def evaluate_reciprocal(x: wp.array(dtype=wp.vec3), h: float, out: wp.array(dtype=wp.vec4)):
+        i = wp.tid()
+        out[i] = cubic_value_gradient_reciprocal(x[i], h)
+
+    h = 0.05
+    rng = np.random.default_rng(5)
+    directions = rng.normal(size=(400, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    offsets = (directions * np.linspace(0.0, 2.4 * h, 400)[:, None]).astype(np.float32)
+    out = wp.zeros(len(offsets), dtype=wp.vec4, device="cpu")
+    wp.launch(evaluate_reciprocal, len(offsets), [wp.array(offsets, dtype=wp.vec3, device="cpu"), h, out], device="cpu")
+    got = out.numpy()
+    w, g = evaluate("cubic", offsets.astype(np.float64), h)
+    np.testing.assert_allclose(got[:, 0], w, rtol=2e-6, atol=1e-6 * w.max())
+    np.testing.assert_allclose(got[:, 1:], g, rtol=0, atol=2e-6 * np.abs(g).max())
+    outside = np.linalg.norm(offsets, axis=1) >= 2.0 * h
+    assert outside.any() and not got[outside].any()
+    assert not got[0, 1:].any()  # r = 0: no gradient (x_ij = 0 times a finite 1 / max(r, 1e-30))
+
+
+def test_pair_passes_cache_the_listed_pairs_and_their_gradients(device):
+    """The fused search and the list density pass fill the pair cache with exactly the listed pairs closer than H_s,
+    in the lists' order, and V grad_i W_ij at x* (``cubic_value_gradient_reciprocal``) to float32 rounding: NumPy
+    oracles of the filter and of the cubic spline's gradient (float64)."""
+    from warp_sph.core.smoothing import evaluate
+
+    sim = Simulation(fixed_step_tank(), device=device)
+    run_frames(sim, 1)
+    s, m = sim.solver, sim.model
+    volume = m.particle_mass / m.rest_density
+    for name, run_pass in (("search", lambda: (s.sort_neighbors(), s.search_density_pass())), ("list", s.density_pass)):
+        run_pass()
+        pairs, nl = sim.fields["pbf_pairs"], s.nl
+        x = sim.fields["predicted_x"].numpy()
+        order, lists, listed = nl.fluid.order.numpy(), nl.fluid.index.numpy(), nl.fluid.count.numpy()
+        count, index, grad = pairs.count.numpy(), pairs.index.numpy(), pairs.gradient.numpy()
+        offsets, cached = [], []
+        for t in range(m.fluid_count):
+            i = order[t]
+            js = lists[i, :listed[i]]
+            x_ij = x[i] - x[js]
+            inside = np.sum(x_ij * x_ij, axis=1, dtype=np.float32) < np.float32(m.support_radius) ** 2
+            assert np.array_equal(index[t, :count[t]], js[inside]), name
+            offsets.append(x_ij[inside])
+            cached.append(grad[t, :count[t]])
+        _, g = evaluate("cubic", np.concatenate(offsets).astype(np.float64), m.smoothing_length)
+        got = np.concatenate(cached)
+        assert len(got) > 10 * m.fluid_count
+        np.testing.assert_allclose(got, volume * g, rtol=0, atol=2e-6 * np.abs(volume * g).max(), err_msg=name)
