@@ -10,7 +10,8 @@ Cost per step (issue #32): the fluid lists are written by the step's first densi
 the stabilize stage's density pass at x reads the last step's lists, which still hold every pair
 closer than H_s there unless a particle drifted past margin / 2 or the frame reordered the particles
 (``reuse_neighbors``); a correction adds dx to x* in its own kernel; a particle keeps its static-wall
-list until it moved 0.9 margin from where it was searched (``_wall_keep``).
+list until it moved 0.9 margin from where it was searched (``_wall_keep``); the fluid list rows and the pair
+cache's hold ``LIST_HEADROOM`` times the neighbours at rest density (``list_capacity``: 58 slots, not 86).
 
 A helper of the solver ``pbf.py`` (it registers nothing; the registry imports it harmlessly).
 """
