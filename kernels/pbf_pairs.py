@@ -52,7 +52,7 @@ def cubic_value_gradient_reciprocal(x_ij: wp.vec3, h: float) -> wp.vec4:
 
 def pair_value_gradient_function(smoothing: str):
     """The ``@wp.func (x_ij, h) -> vec4(W, grad_i W)`` of PBF's passes over the fluid pairs (density, lambda,
-    pair cache, the constraint pass at x: all bitwise one another's): ``cubic_value_gradient_reciprocal`` for the
+    pair cache, the constraint pass at x: one expression for all): ``cubic_value_gradient_reciprocal`` for the
     cubic spline, else ``value_gradient_function``."""
     if smoothing == "cubic":
         return cubic_value_gradient_reciprocal
