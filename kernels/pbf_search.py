@@ -13,7 +13,7 @@ import functools
 import warp as wp
 
 from .neighbors import NeighborList, NoBoundaryParams, neighbor_count, walk_candidates
-from .pbf_pairs import PairCache, density_lambda_functions, value_gradient_function
+from .pbf_pairs import PairCache, density_lambda_functions, pair_value_gradient_function
 from .smoothing import SMOOTHING_FUNCTIONS
 
 
@@ -140,7 +140,7 @@ def constraint_kernel(smoothing: str, boundary_terms):
     constraint offset reads at x (no lambda, no pair cache: the step's density stage writes those at x*).
     The same pairs, order and expressions as ``pbf_pairs.density_lambda_pairs_kernel``: bitwise its density and C."""
     value = SMOOTHING_FUNCTIONS[smoothing][0]
-    value_gradient = value_gradient_function(smoothing)  # the fluid pairs' W as the density passes evaluate it
+    value_gradient = pair_value_gradient_function(smoothing)  # the fluid pairs' W as the density passes evaluate it
     with_boundary = boundary_terms is not None and boundary_terms.density is not None
     BoundaryParams = boundary_terms.Params if boundary_terms is not None else NoBoundaryParams
     density_term = boundary_terms.density if with_boundary else None

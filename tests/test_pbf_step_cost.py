@@ -224,3 +224,105 @@ def test_kept_wall_lists_bitwise_the_searched_ones(monkeypatch, device):
     a = (kept.get_field("particle_x"), kept.get_field("particle_v"))
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
     assert max(shares) > 0.2, shares
+
+
+def test_list_rows_sized_from_the_rest_neighbour_count(device):
+    """PBF's fluid list rows (and so the pair cache's) hold ``LIST_HEADROOM`` times the neighbours a particle has
+    at rest density within the search radius, (4/3) pi R^3 / V (``pbf_passes.list_capacity``), not the lists'
+    general 64 per support volume (86 slots at H_s + 0.2 d: the correction then streamed a cache of 1.5x the bytes'
+    span, issue #32); three frames of a falling block fit them (no overflow, no redone frame)."""
+    import math
+    import warnings
+
+    sim = Simulation(fixed_step_tank(), device=device)
+    m, nl = sim.model, sim.solver.nl
+    volume = m.particle_mass / m.rest_density
+    at_rest = 4.0 / 3.0 * math.pi * nl.search_radius ** 3 / volume  # 44.6 at H_s + 0.2 d on d = V^(1/3)
+    capacity = nl.capacities[0]
+    assert capacity == math.ceil(1.3 * at_rest) < math.ceil(64 * (nl.search_radius / m.support_radius) ** 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # an overflow warns and redoes the frame
+        run_frames(sim, 3)
+    assert nl.capacities[0] == capacity
+    assert sim.fields["pbf_pairs"].gradient.shape[1] == capacity
+    assert int(nl.fluid.count.numpy()[: m.fluid_count].max()) <= capacity
+
+
+def test_overflowing_list_rows_grow_and_redo_the_frame_bitwise(monkeypatch, device):
+    """Rows too short for a particle's neighbours (here forced to 20 slots) overflow: the frame is redone with grown
+    lists (``run.frame_loop``) and the run is bitwise the one whose rows were long enough from the start (the same
+    pairs in the same order); the pair cache follows the lists' capacity."""
+    import pytest
+
+    from warp_sph.methods.solvers import pbf_passes
+
+    ref = Simulation(fixed_step_tank(), device=device)
+    monkeypatch.setattr(pbf_passes, "list_capacity", lambda radius, volume: 20)
+    short = Simulation(fixed_step_tank(), device=device)
+    assert short.solver.nl.capacities[0] == 20
+    with pytest.warns(RuntimeWarning, match="the lists grow and the frame is redone"):
+        a = run_frames(short, 2)
+    b = run_frames(ref, 2)
+    assert short.solver.nl.capacities[0] > 20
+    assert short.fields["pbf_pairs"].gradient.shape[1] == short.solver.nl.capacities[0]
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and a[2] == b[2]
+
+
+def test_reciprocal_cubic_matches_the_cubic_spline():
+    """``pbf_pairs.cubic_value_gradient_reciprocal`` (PBF's fluid pair passes: one division per pair) against
+    ``smoothing``'s cubic spline from r = 0 to past the support, to float32 rounding; 0 from H_s on."""
+    import warp as wp
+
+    from warp_sph.core.smoothing import evaluate
+    from warp_sph.kernels.pbf_pairs import cubic_value_gradient_reciprocal
+
+    @wp.kernel
+    def evaluate_reciprocal(x: wp.array(dtype=wp.vec3), h: float, out: wp.array(dtype=wp.vec4)):
+        i = wp.tid()
+        out[i] = cubic_value_gradient_reciprocal(x[i], h)
+
+    h = 0.05
+    rng = np.random.default_rng(5)
+    directions = rng.normal(size=(400, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    offsets = (directions * np.linspace(0.0, 2.4 * h, 400)[:, None]).astype(np.float32)
+    out = wp.zeros(len(offsets), dtype=wp.vec4, device="cpu")
+    wp.launch(evaluate_reciprocal, len(offsets), [wp.array(offsets, dtype=wp.vec3, device="cpu"), h, out], device="cpu")
+    got = out.numpy()
+    w, g = evaluate("cubic", offsets.astype(np.float64), h)
+    np.testing.assert_allclose(got[:, 0], w, rtol=2e-6, atol=1e-6 * w.max())
+    np.testing.assert_allclose(got[:, 1:], g, rtol=0, atol=2e-6 * np.abs(g).max())
+    outside = np.linalg.norm(offsets, axis=1) >= 2.0 * h
+    assert outside.any() and not got[outside].any()
+    assert not got[0, 1:].any()  # r = 0: no gradient (x_ij = 0 times a finite 1 / max(r, 1e-30))
+
+
+def test_pair_passes_cache_the_listed_pairs_and_their_gradients(device):
+    """The fused search and the list density pass fill the pair cache with exactly the listed pairs closer than H_s,
+    in the lists' order, and V grad_i W_ij at x* (``cubic_value_gradient_reciprocal``) to float32 rounding: NumPy
+    oracles of the filter and of the cubic spline's gradient (float64)."""
+    from warp_sph.core.smoothing import evaluate
+
+    sim = Simulation(fixed_step_tank(), device=device)
+    run_frames(sim, 1)
+    s, m = sim.solver, sim.model
+    volume = m.particle_mass / m.rest_density
+    for name, run_pass in (("search", lambda: (s.sort_neighbors(), s.search_density_pass())), ("list", s.density_pass)):
+        run_pass()
+        pairs, nl = sim.fields["pbf_pairs"], s.nl
+        x = sim.fields["predicted_x"].numpy()
+        order, lists, listed = nl.fluid.order.numpy(), nl.fluid.index.numpy(), nl.fluid.count.numpy()
+        count, index, grad = pairs.count.numpy(), pairs.index.numpy(), pairs.gradient.numpy()
+        offsets, cached = [], []
+        for t in range(m.fluid_count):
+            i = order[t]
+            js = lists[i, :listed[i]]
+            x_ij = x[i] - x[js]
+            inside = np.sum(x_ij * x_ij, axis=1, dtype=np.float32) < np.float32(m.support_radius) ** 2
+            assert np.array_equal(index[t, :count[t]], js[inside]), name
+            offsets.append(x_ij[inside])
+            cached.append(grad[t, :count[t]])
+        _, g = evaluate("cubic", np.concatenate(offsets).astype(np.float64), m.smoothing_length)
+        got = np.concatenate(cached)
+        assert len(got) > 10 * m.fluid_count
+        np.testing.assert_allclose(got, volume * g, rtol=0, atol=2e-6 * np.abs(volume * g).max(), err_msg=name)

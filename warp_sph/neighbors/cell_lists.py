@@ -334,7 +334,8 @@ class NeighborLists:
             self._allocate(self.boundary, new)
 
 
-def simulation_neighbor_lists(sim, margin: float = 0.0, cells_per_radius: int = 1) -> NeighborLists:
+def simulation_neighbor_lists(sim, margin: float = 0.0, cells_per_radius: int = 1, *,
+                              fluid_capacity: int | None = None) -> NeighborLists:
     """The simulation's per-step neighbour lists (created on first use, workspace field ``neighbor_lists``).
 
     Their dense cell grid covers the container, the boundary and the initial fluid, padded by two
@@ -342,7 +343,8 @@ def simulation_neighbor_lists(sim, margin: float = 0.0, cells_per_radius: int = 
     margin [m]: the search radius is H_s + margin (lists that stay complete while particles move
     by up to margin / 2); the capacities grow with the searched volume. cells_per_radius: cells per
     search radius along each axis (2: cells of half the radius, fewer candidates per query). Lists of
-    another search radius or cell size are replaced.
+    another search radius or cell size are replaced. fluid_capacity: neighbours per fluid row when the lists are
+    created (default 64 per support volume of the search radius); lists that exist keep theirs (``grow``).
     """
 
     import numpy as np
@@ -368,7 +370,7 @@ def simulation_neighbor_lists(sim, margin: float = 0.0, cells_per_radius: int = 
         with_boundary = m.boundary_count > 0
         lists = NeighborLists(radius, lo - pad, hi + pad, m.capacity,
                               m.boundary_x if with_boundary else None,
-                              fluid_capacity=int(math.ceil(64 * volume)), boundary_capacity=int(math.ceil(48 * volume)),
+                              fluid_capacity=int(fluid_capacity or math.ceil(64 * volume)), boundary_capacity=int(math.ceil(48 * volume)),
                               device=m.device, boundary_volume=m.boundary_volume if with_boundary else None,
                               moving_start=m.static_boundary_count if with_boundary else None,
                               cells_per_radius=cells_per_radius)
