@@ -50,17 +50,21 @@ WHY = {
                    "at 2.7x the CPU); the water fills its 0.6 m tank at both radii since issue #31's hydrostatic "
                    "pass (the 0.61 m walls left the fine tank 0.22 d of slack, into which it spread in its first "
                    "frame and re-packed: floor +1.9 % with DFSPH); WCSPH's tank still swings (the walls' load "
-                   "0.91-1.10 of the weight over 1-2 s); the mid-depth probe reads the particle pressure field, "
-                   "which alternates layer by layer from the walls",
+                   "0.91-1.10 of the weight over 1-2 s); the mid-depth gauge (Wendland C2, h = sqrt(3) d, as "
+                   "DualSPHysics' gauges) reads the field's level, not the layers' alternating particle pressures: "
+                   "DFSPH coarse -1.5 to -2.0 % at every depth from 0.15 to 0.35 m (docs/validation.md)",
     "hydrostatic_fcc": "the fcc start holds its columns (the cubic lattice's slip is gone: the spread of vertical "
                        "displacement per plane 0.03-0.13 d at 2 s against 0.41 d), and PBF's solve no longer "
                        "amplifies the lattice's shortest density wave (its relaxation from the lattice, docs/methods.md), "
                        "so what still moves is coarse DFSPH: a slow flow, fastest in the top planes (3.7e-3 m/s) and "
                        "the interior columns, not the wall edges nor its solve (1.2e-3 m/s with twice the viscosity; "
                        "relaxation 0.3, no warm start, no divergence solve or a 2.5 ms step change it by under 10 %; "
-                       "time.settle = 1e-3 brings it to 6.1e-4 m/s); the coarse mid-depth probe reads the fcc "
-                       "planes' particle pressures, not a smooth field; the fcc block has 1.41x the particles of the "
-                       "cubic one at the same radius",
+                       "time.settle = 1e-3 brings it to 6.1e-4 m/s; its XSPH filter acts per step, 4.7x less per second "
+                       "at DFSPH's step than at WCSPH's: 1.1e-3 m/s at WCSPH's rate; under 1e-3 only with the Baumgarte "
+                       "share dfsph.error_share = 0.1, which compresses the fine tank); the fine mid-depth gauge reads "
+                       "-0.8 to -1.0 % at every depth (DFSPH), a level the size of a surface 0.09 d above the water's "
+                       "weight, not the fcc planes' alternating pressures it read before its kernel (+5 % coarse); "
+                       "the fcc block has 1.41x the particles of the cubic one at the same radius",
 }
 
 

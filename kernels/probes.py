@@ -1,16 +1,19 @@
 """Probe kernels: kernel-weighted fluid values at fixed points, and the probe readings made from them.
 
-At a point x_k, with rest volumes V = m / rho0 of the fluid particles j within the support H_s:
-    fill      F_k = sum_j V W(x_k - x_j)                                     [-]  (1 in the bulk, ~0.5 on a wall)
-    pressure  p_k = sum_j V W (p_j + rho0 g . (x_k - x_j)) / F_k             [Pa]
-The pressure is Shepard-normalised (as SPHERIC studies sample wall pressure) and carries each
-neighbour's pressure to the probe point x_p with the hydrostatic term of Adami, Hu & Adams 2012 (eq. 27
-with a static wall): p_p = sum_j V W(x_k - x_j) (p_j + rho0 g . (x_p - x_j)) / F_k, so a probe on a wall at
-rest reads rho0 |g| depth at the probe, not at the first fluid layer. The kernel is centred at x_k, which
-the host moves off the container's walls to where the first fluid layer lies (DualSPHysics measures
-1.5 h inside the fluid for the same reason: on the wall the kernel sees a few particles). Heights and fronts walk the fill along a line (step ``line_step``): the free
-surface is where F falls through 1/2 (DualSPHysics' mass-limit rule with the limit half the
-bulk value), linearly interpolated between the two points around the crossing.
+At a point x_k, with rest volumes V = m / rho0 of the fluid particles j:
+    fill      F_k = sum_j V W(x_k - x_j)                          (the simulation's kernel)  [-]  (1 in the bulk)
+    pressure  p_k = sum_j V K (p_j + rho0 g . (x_p - x_j)) / sum_j V K   (K the gauge kernel)    [Pa]
+The pressure is Shepard-normalised (as SPHERIC studies and DualSPHysics' gauges and MeasureTool ``-kcorr``
+sample it) and carries each neighbour's pressure to the probe point x_p with the hydrostatic term of Adami, Hu &
+Adams 2012 (eq. 27 with a static wall), so a probe at rest reads rho0 |g| depth at x_p. K is DualSPHysics'
+interpolation kernel: Wendland C2 with h_g = coefh sqrt(3) d at coefh = 1 (its 3D smoothing length; support
+2 h_g = 3.46 d), not the simulation's cubic spline of support 2 d: the particle pressures of a lattice carry a
+mode alternating from plane to plane that exerts no force (docs/validation.md), and a kernel of 2 d gives the
+nearest plane half the weight and reads the mode (+5 % at the fcc tank's mid-depth), where 3.46 d averages it
+out. The kernel is centred at x_k, which the host moves off the container's walls to where the first fluid
+layer lies (DualSPHysics measures 1.5 h inside the fluid for the same reason). Heights and fronts walk the fill
+along a line (step ``line_step``): the free surface is where F falls through 1/2 (DualSPHysics' mass-limit rule
+with the limit half the bulk value), linearly interpolated between the two points around the crossing.
 """
 import functools
 
@@ -26,9 +29,21 @@ KIND_FRONT = wp.constant(2)
 SURFACE_FILL = wp.constant(0.5)
 
 
+@wp.func
+def wendland_c2_value(r: float, h: float) -> float:
+    """Wendland C2 kernel in 3D (Wendland 1995; DualSPHysics' kernel), support 2h:
+    W = 21 / (16 pi h^3) (1 - q/2)^4 (2q + 1), q = r / h [1/m^3]."""
+    q = r / h
+    if q >= 2.0:
+        return 0.0
+    t = 1.0 - 0.5 * q
+    return 21.0 / (16.0 * wp.pi * h * h * h) * t * t * t * t * (2.0 * q + 1.0)
+
+
 @functools.cache
 def point_values_kernel(smoothing: str, with_pressure: bool):
-    """Kernel: fill and (``with_pressure``) Shepard pressure at each point ``point_x``, the pressure carried
+    """Kernel: fill (the simulation's kernel, ``smoothing_length``) and (``with_pressure``) Shepard pressure with
+    the gauge kernel (Wendland C2, ``gauge_smoothing_length``) at each point ``point_x``, the pressure carried
     hydrostatically to ``point_target`` (the probe's point, where the evaluation point was moved off a wall);
     one thread per point."""
     value, _ = SMOOTHING_FUNCTIONS[smoothing]
@@ -41,6 +56,7 @@ def point_values_kernel(smoothing: str, with_pressure: bool):
         gravity: wp.vec3,
         smoothing_length: float,
         support_radius: float,
+        gauge_smoothing_length: float,
         # In:
         fluid_grid: wp.uint64,
         particle_x: wp.array(dtype=wp.vec3),
@@ -55,22 +71,27 @@ def point_values_kernel(smoothing: str, with_pressure: bool):
         xk = point_x[k]
         target = point_target[k]
         fill = float(0.0)
+        gauge_fill = float(0.0)
         weighted = float(0.0)
-        query = wp.hash_grid_query(fluid_grid, xk, support_radius)
+        reach = support_radius
+        if wp.static(with_pressure):
+            reach = wp.max(support_radius, 2.0 * gauge_smoothing_length)
+        query = wp.hash_grid_query(fluid_grid, xk, reach)
         j = int(0)
         while wp.hash_grid_query_next(query, j):
             d = xk - particle_x[j]
             r = wp.length(d)
             if r < support_radius:
-                w = particle_volume * wp.static(value)(r, smoothing_length)
-                fill += w
-                if wp.static(with_pressure):
-                    weighted += w * (particle_pressure[j] + rest_density * wp.dot(gravity, target - particle_x[j]))
+                fill += particle_volume * wp.static(value)(r, smoothing_length)
+            if wp.static(with_pressure):
+                w = particle_volume * wendland_c2_value(r, gauge_smoothing_length)
+                gauge_fill += w
+                weighted += w * (particle_pressure[j] + rest_density * wp.dot(gravity, target - particle_x[j]))
         point_fill_out[k] = fill
         if wp.static(with_pressure):
             p = float(0.0)
-            if fill > 0.0:
-                p = weighted / fill
+            if gauge_fill > 0.0:
+                p = weighted / gauge_fill
             point_pressure_out[k] = p
 
     return probe_point_values

@@ -237,6 +237,22 @@ def test_source_and_integrate_against_numpy(device):
     np.testing.assert_allclose(sim.get_field("particle_pressure"), P * rho ** 2 / m.rest_density, rtol=1e-4)
 
 
+
+def test_error_share_scales_only_the_over_density_of_the_source(device):
+    """``dfsph.error_share`` = 0.25: b = 0.25 min(1 - rho_hat, 0) + max(1 - rho_hat, 0) - dt delta(v + dt g) (the
+    Baumgarte share of the over-density already at x; an under-dense particle keeps all its room); the default 1
+    is the source above."""
+    sim, o = prepared(seed=3, device=device, dfsph={"error_share": 0.25})
+    m = sim.model
+    dt = 2e-3
+    stage(sim, "density").run(sim, dt)
+    stage(sim, "source").run(sim, dt)
+    g = np.asarray(m.gravity, dtype=np.float64)
+    deficit = 1.0 - o.rho_hat
+    b = 0.25 * np.minimum(deficit, 0.0) + np.maximum(deficit, 0.0) - dt * o.delta(o.v + dt * g)
+    np.testing.assert_allclose(sim.get_field("dfsph_density_source"), b, rtol=1e-3, atol=1e-4 * np.abs(b).max())
+    assert (deficit < -1e-2).sum() > 10  # the block is over-dense: the share shows
+
 # --- the operator (T2) -----------------------------------------------------------------------------
 def test_operator_diagonal_symmetry_and_momentum(device):
     """(A e_i)_i = -dt^2 D_i; A_ik = A_ki (equal volumes); the fluid pairs of a(P) conserve momentum and

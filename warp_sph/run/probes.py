@@ -16,7 +16,8 @@ the state's time back: the stage sees it and drops the samples taken after it, s
 is sampled once, from the state that is kept.
 
 Readings (``kernels/probes.py``): pressure [Pa], Shepard mean of the fluid around the point with the
-hydrostatic carry rho0 g . (x_p - x_j) (Adami et al. 2012), the kernel centred at the point clamped into
+hydrostatic carry rho0 g . (x_p - x_j) (Adami et al. 2012), with DualSPHysics' gauge kernel (Wendland C2, h =
+sqrt(3) d: ``GAUGE_SMOOTHING_PER_SPACING``), centred at the point clamped into
 the container shrunk by the wall gap (a probe on a wall or in a corner reads the first fluid layers, carried
 to the wall), 0 where the fill (sum of V W) there is below ``MIN_FILL`` (dry); height [m], the world z where the fill along the vertical line first falls through
 1/2; front [m], the world coordinate along the axis of the last point of the line with fill >= 1/2
@@ -43,6 +44,10 @@ KINDS = {"pressure": ("Pa", 0), "height": ("m", 1), "front": ("m", 2)}
 MIN_FILL = 0.1
 #: spacing of the points of a height or front line, in particle spacings d [-]
 LINE_STEP = 0.25
+#: smoothing length of the pressure gauge's Wendland C2 kernel, in particle spacings d [-]: DualSPHysics' 3D
+#: h = coefh sqrt(3 dp^2) at coefh = 1 (support 3.46 d; its gauges interpolate with the case's kernel), wide enough
+#: to average the lattice's plane-to-plane pressure mode (``kernels/probes.py``)
+GAUGE_SMOOTHING_PER_SPACING = math.sqrt(3.0)
 
 
 @dataclass
@@ -317,7 +322,8 @@ class Probes:
         pressure = f["particle_pressure"] if g.with_pressure else self._no_pressure
         launch(_dev.point_values_kernel(m.smoothing.name, g.with_pressure), g.point_x.shape[0],
                [m.particle_mass / m.rest_density, m.rest_density, wp.vec3(*m.gravity), m.smoothing_length,
-                m.support_radius, self.grid.id, f["particle_x"], pressure, g.point_x, g.point_target],
+                m.support_radius, GAUGE_SMOOTHING_PER_SPACING * m.spacing, self.grid.id, f["particle_x"], pressure,
+                g.point_x, g.point_target],
                [g.point_fill, g.point_pressure], device=dev)
         if g.wall_count:
             launch(_dev.probe_wall_loads, g.wall_count,

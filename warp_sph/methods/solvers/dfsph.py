@@ -10,8 +10,8 @@ Step (one dt per substep):
   without velocity] -> divergence solve: Jacobi
   sweeps on P^v until the mean positive compression rate is below target_divergence_error / dt,
   v += dt a(P^v) -> [the scene's forces (slot "before_pressure") and the boundary method's force] -> density source for
-  v* = v + dt g (the over-density already at x enters with the share s = ``error_share(dt)``: 1 at the
-  adaptive step, 2 dt / bound for a smaller fixed step, so that it becomes a velocity e d / tau, not
+  v* = v + dt g (the over-density already at x enters with the share s = ``dfsph.error_share`` times
+  ``error_share(dt)``: 1 at the adaptive step, 2 dt / bound for a smaller fixed step, so that it becomes a velocity e d / tau, not
   e d / dt) -> density solve: Jacobi sweeps on P with Chebyshev weights (``dfsph.chebyshev``, for fluid
   that starts at least ``dfsph.chebyshev_min_layers`` layers deep, ``fluid_layers``; else plain Jacobi; weights
   on the device, ``kernels/dfsph_solve.py`` solve_control) until the mean predicted over-density is below
@@ -110,6 +110,12 @@ class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
               "rounding, the sums run in the lists' order)", ge=0.0, le=2.0),
         Param("dfsph.relaxation", "float", "-", 0.5, "Jacobi relaxation omega of both solves (SPlisHSPlasH: 0.5; "
               "1 overshoots on coupled pairs)", gt=0.0, le=1.0),
+        Param("dfsph.error_share", "float", "-", 1.0, "share of the over-density present at a step's start that the "
+              "density solve corrects within one adaptive step (Baumgarte stabilisation; the source's s = error_share "
+              "min(1, 2 dt / adaptive step)): 1 corrects it at once, as SPlisHSPlasH; 0.1 spreads it over about 10 "
+              "steps, so a leftover the solve cannot remove feeds a tenth of the velocity. Not a fix: with 0.1 the coarse fcc "
+              "tank comes to rest (8.4e-4 m/s at 2 s) but the fine one compresses (0.1 m/s, mid-depth -28 %; "
+              "docs/validation.md)", gt=0.0, le=1.0),
     )
 
     @classmethod
@@ -202,7 +208,8 @@ class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
     def run_source(self, sim, dt) -> None:
         m, f = self.model, sim.fields
         self.replayed(_dfsph.density_source, m.fluid_count,
-                      [m.rest_density, self._gravity, float(dt), float(self.config.warm_start), self.error_share(dt),
+                      [m.rest_density, self._gravity, float(dt), float(self.config.warm_start),
+                       float(self.config.error_share) * self.error_share(dt),
                        self.nl.fluid, f["dfsph_pairs"], f["particle_density"], f["particle_v"]],
                       [f["dfsph_pressure"], f["dfsph_density_source"]])
 
@@ -287,8 +294,8 @@ class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
             Stage("source", self.run_source,
                   reads=("neighbor_lists", "dfsph_pairs", "particle_density", "particle_v"),
                   writes=("dfsph_density_source",), updates=("dfsph_pressure",),
-                  doc=f"b = s min(1 - rho/rho0, 0) + max(1 - rho/rho0, 0) - dt delta(v + dt g), s = min(1, 2 dt / "
-                      f"adaptive step); warm start {p.warm_start:g} P where compressing"),
+                  doc=f"b = s min(1 - rho/rho0, 0) + max(1 - rho/rho0, 0) - dt delta(v + dt g), s = {p.error_share:g} "
+                      f"min(1, 2 dt / adaptive step); warm start {p.warm_start:g} P where compressing"),
             Stage("pressure", self.run_pressure,
                   reads=("neighbor_lists", "dfsph_pairs", "dfsph_factor", "dfsph_density_source")
                   + (("dfsph_divergence_pressure",) if bodies and p.divergence_solve else ()),
