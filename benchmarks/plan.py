@@ -136,8 +136,8 @@ def run_detail(p, info: dict) -> dict:
             "later_ratio": {"plan": m.later_ratio(frames) if m.has_profile(frames) else None, "run": r_run},
             "cpu": cpu_detail(step, largest, info),
             "slowed_points": slowed_detail(m),
-            # the run's arrays [bytes] against the CPU's last-level cache (docs/plan.md, item 12): the plan's fit at
-            # the chosen counts, the run's own, the most any calibration run took
+            # the run's arrays [bytes] against the CPU's last-level cache (docs/plan-model.md, item 12): the plan's
+            # fit at the chosen counts, the run's own, the most any calibration run took
             "array_bytes": {"predicted": m.array_bytes(c.fluid_particles, c.boundary_particles)
                             if m.array_bytes is not None else None, "actual": info.get("array_bytes"),
                             "largest_calibrated": m.array_bytes_calibrated, "cache": m.cache_bytes},

@@ -1,7 +1,7 @@
 """The rule "never extrapolate the step's cost across the CPU's last-level cache without a measurement"
-(``warp_sph.plan.past_cache``, docs/plan.md item 12), on the fake clock of test_plan_share: synthetic runs whose arrays
-take 2,000 B per fluid particle and whose step costs 1.5x more once they pass the L3, the L3's size read from a fake
-sysfs folder (``working_set.CPU_CACHE_DIR``)."""
+(``warp_sph.plan.past_cache``, docs/plan-model.md item 12), on the fake clock of test_plan_share: synthetic runs whose
+arrays take 2,000 B per fluid particle and whose step costs 1.5x more once they pass the L3, the L3's size read from a
+fake sysfs folder (``working_set.CPU_CACHE_DIR``)."""
 from __future__ import annotations
 
 import importlib

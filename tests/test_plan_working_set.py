@@ -1,5 +1,5 @@
 """The run's arrays against the CPU's last-level cache (``warp_sph.run.working_set``) and the plan's note where the step's
-cost is carried past that cache with no calibration point there (docs/plan.md, item 12)."""
+cost is carried past that cache with no calibration point there (docs/plan-model.md, item 12)."""
 from __future__ import annotations
 
 import numpy as np

@@ -129,8 +129,8 @@ class SolverModel:
 
     def past_cache(self, fluid: int, boundary: int) -> float | None:
         """[bytes] the run's arrays at ``fluid`` and ``boundary`` particles where they pass the CPU's last-level cache
-        and no calibration point's did (its step cost is then carried past the cache unmeasured: docs/plan.md, item
-        12); None otherwise."""
+        and no calibration point's did (its step cost is then carried past the cache unmeasured:
+        docs/plan-model.md, item 12); None otherwise."""
         if self.array_bytes is None or not self.cache_bytes or self.array_bytes_calibrated >= self.cache_bytes:
             return None
         need = self.array_bytes(fluid, boundary)
@@ -150,7 +150,7 @@ class SolverModel:
         (``sweeps_reference``), held: measured, dam break DFSPH, whole 0.5 s runs at r = 0.0315, 0.0198 and 0.0132 m:
         the first frames' sweeps 5.4, 10.3 and 18.5 per step (growth, the law clipped to a constant, their mean) while
         the runs' steps cost 1.14, 0.93 and 0.90x their first frames' (process CPU time; the sweeps fall to 4-5 after
-        the impact, each frame's steps cost more: docs/plan.md, item 8)."""
+        the impact, each frame's steps cost more: docs/plan-model.md, item 8)."""
         if self.sweeps is None:
             return 0.0
         lo, hi = self.sweeps_bounds

@@ -1,5 +1,5 @@
 """The rule "never extrapolate the step's cost across the CPU's last-level cache without a measurement" of ``warp-sph
-plan`` (docs/plan.md, item 12).
+plan`` (docs/plan-model.md, item 12).
 
 Where the setting a plan would choose reads arrays past the L3 (``SolverModel.past_cache``; the bytes a step reads,
 run.json ``read_bytes``) and no calibration point of its solver is past it, the plan runs a TIMING-ONLY point of that

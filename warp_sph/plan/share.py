@@ -179,5 +179,5 @@ def cost_notes(model, chosen) -> list:
                    f"arrays at the chosen count, no calibration run's more than "
                    f"{model.array_bytes_calibrated / mib:.3g} MiB "
                    f"(the dam break's DFSPH then cost more per particle-step than calibrated, its PBF and the "
-                   f"hydrostatic tank's DFSPH did not: docs/plan.md, item 12)")
+                   f"hydrostatic tank's DFSPH did not: docs/plan-model.md, item 12)")
     return out

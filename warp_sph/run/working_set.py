@@ -1,12 +1,13 @@
 """What a run's step reads against what the CPU caches: the bytes of the simulation's arrays (run.json ``array_bytes``)
 and the size of the CPU's last-level cache.
 
-``warp-sph plan`` compares the two (docs/plan.md, item 12): the dam break's DFSPH calibrated with its arrays inside this
-CPU's 32 MiB L3 (20.4 MiB at 10,648 fluid particles) ran at 50,653 (90.7 MiB) 1.47x its largest calibrated count's cost
-per fluid particle-step, while the dam break's PBF and the hydrostatic tank's DFSPH crossed the L3 at no cost. So the
-plan measures the cost past the cache (a timing point) rather than scale it. What it compares with the cache is
-``read_bytes``, the arrays at the rows' used entries: DFSPH's pair rows use about 40 % of their slots and, packed on the
-CPU, stream only those, so the allocation (``array_bytes``) put a point past the L3 whose steps read half of it.
+``warp-sph plan`` compares the two (docs/plan-model.md, item 12): the dam break's DFSPH calibrated with its arrays
+inside this CPU's 32 MiB L3 (20.4 MiB at 10,648 fluid particles) ran at 50,653 (90.7 MiB) 1.47x its largest calibrated
+count's cost per fluid particle-step, while the dam break's PBF and the hydrostatic tank's DFSPH crossed the L3 at no
+cost. So the plan measures the cost past the cache (a timing point) rather than scale it. What it compares with the
+cache is ``read_bytes``, the arrays at the rows' used entries: DFSPH's pair rows use about 40 % of their slots and,
+packed on the CPU, stream only those, so the allocation (``array_bytes``) put a point past the L3 whose steps read half
+of it.
 """
 from __future__ import annotations
 
@@ -82,7 +83,7 @@ def read_bytes(sim) -> int:
     """[bytes] a step reads of the simulation's arrays: ``array_bytes``, with each row-structured array (neighbour
     lists, pair caches: a ``count`` per row and rows of a fixed capacity) counted at its rows' used entries,
     sum_i min(count_i, capacity) entries, not at its allocation (DFSPH's pair rows use about 40 % of their 64 slots, and
-    on the CPU they are packed: what the passes stream, docs/plan.md item 12)."""
+    on the CPU they are packed: what the passes stream, docs/plan-model.md item 12)."""
     total, counted = 0, set()
     for obj in _holders(sim):
         if isinstance(obj, wp.array):
