@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics as M
+from .peak_memory import MemoryWindow
 from .records import SCHEMA, host_info, label, now, print_row
 
 
@@ -83,11 +84,14 @@ def _warm_up(scene, device) -> float:
     return time.perf_counter() - t0
 
 
-def _memory_metrics(sim, rss_before: int) -> dict:
+def _memory_metrics(sim, rss_before: int, window: MemoryWindow | None = None) -> dict:
     import warp as wp
 
     from warp_sph.neighbors import GRID_DIM
+    from warp_sph.run.working_set import read_bytes
 
+    # the case's own peak against the RSS right before it was built (peak_memory.py), read first
+    peak = window.close(sim.model.fluid_count) if window is not None else {}
     arrays = [a for a in sim.fields.values() if isinstance(a, wp.array)]
     m = sim.model
     arrays += [getattr(m, k) for k in ("boundary_x", "boundary_volume") if isinstance(getattr(m, k, None), wp.array)]
@@ -105,7 +109,9 @@ def _memory_metrics(sim, rss_before: int) -> dict:
            "bytes_per_particle": (a_bytes + g_bytes) / n,
            "array_bytes_per_particle": a_bytes / n,
            "peak_rss_bytes": host["peak_rss_bytes"], "rss_growth_bytes": host["rss_bytes"] - rss_before,
-           "rss_growth_per_particle": (host["rss_bytes"] - rss_before) / n}
+           "rss_growth_per_particle": (host["rss_bytes"] - rss_before) / n,
+           "read_bytes": read_bytes(sim)}  # what one pass over the step's arrays reads (run.json read_bytes)
+    out.update(peak)
     out.update(M.device_memory(sim.device))
     return out
 
@@ -145,6 +151,8 @@ def run_warp_sph(spec: RunSpec) -> dict:
         from warp_sph.run.simulation import Simulation
 
         rss0 = M.current_rss_bytes()
+        # the case's peak: VmHWM reset here, after the warm-up loaded the kernels (peak_memory.py)
+        window = MemoryWindow().open()
         t0 = time.perf_counter()
         sim = Simulation(scene, device=device)
         wp.synchronize_device(sim.device)
@@ -262,7 +270,7 @@ def run_warp_sph(spec: RunSpec) -> dict:
         met = {"setup_seconds": setup_s, "warm_up_seconds": warm_s, "wall_seconds": wall,
                "simulated_seconds": simulated, "steps": steps, "frames": len(series["time"]) - 1}
         met.update(M.speed_metrics(wall, simulated, steps, m.fluid_count))
-        met.update(_memory_metrics(sim, rss0))
+        met.update(_memory_metrics(sim, rss0, window))
         if spec.steps > 0 and iterations and None not in iterations:
             # iterative solvers: the iterations a step needs grow with the fluid's depth in particles
             # (Jacobi), so the cost of one particle-iteration is the flat measure of the kernels
