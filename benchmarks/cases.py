@@ -33,6 +33,8 @@ class RunSpec:
     initial CFL step instead of frames (speed-only runs, the scaling benchmark), timed in
     ``repeats`` consecutive blocks of which the fastest counts (this VM's speed drifts by ±20 %).
     time_limit: stop after this many seconds of stepping wall time (status "time_limit").
+    traffic_steps: with ``steps``, that many more steps after the timed blocks, their kernel launches' array bytes
+    counted (``traffic.step_traffic``: a model of the bytes a step moves, not a measurement).
     """
 
     scene: str = "dam_break"
@@ -47,6 +49,7 @@ class RunSpec:
     hydrostatic: bool | None = None   # None: when the scene's name starts with "hydrostatic"
     warm_up: bool = True
     repeats: int = 1
+    traffic_steps: int = 0  # steps run after the timed ones counting their launches' array bytes (traffic.py)
 
 
 def _fluid_volume(scene) -> float:
@@ -207,6 +210,7 @@ def run_warp_sph(spec: RunSpec) -> dict:
                     series["pressure_error_mean_abs"].append(None)
 
         status = "ok"
+        traffic: dict = {}
         wall = 0.0
         cpu = 0.0  # process CPU seconds of the frames (all threads): a load-independent measure of work
         extra_series: dict[str, list] = {}
@@ -240,6 +244,10 @@ def run_warp_sph(spec: RunSpec) -> dict:
             except SimulationError as e:
                 status, record["error"] = "unstable", str(e)
             observe(stats, wall)
+            if spec.traffic_steps > 0:  # after the timed blocks and the statistics: a model, not timed
+                from .traffic import step_traffic
+
+                traffic = step_traffic(sim, dt, spec.traffic_steps)
         else:
             observe(None, 0.0, 0.0)
             for _ in range(spec.frames):
@@ -271,6 +279,9 @@ def run_warp_sph(spec: RunSpec) -> dict:
                "simulated_seconds": simulated, "steps": steps, "frames": len(series["time"]) - 1}
         met.update(M.speed_metrics(wall, simulated, steps, m.fluid_count))
         met.update(_memory_metrics(sim, rss0, window))
+        if traffic:
+            met.update(traffic)
+            met["passes_per_step"] = traffic["launch_bytes_per_step"] / met["read_bytes"] if met["read_bytes"] else None
         if spec.steps > 0 and iterations and None not in iterations:
             # iterative solvers: the iterations a step needs grow with the fluid's depth in particles
             # (Jacobi), so the cost of one particle-iteration is the flat measure of the kernels
