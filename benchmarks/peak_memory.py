@@ -8,7 +8,8 @@ memory; divided by the fluid particle count it is the *peak RSS per fluid partic
 ``warp-sph bench splishsplash`` puts beside SPlisHSPlasH's (each engine's case in its own process).
 
 Standard library only: SPlisHSPlasH's driver (``splishsplash_driver.py``, run as a script, no Warp)
-imports it by its plain name.
+imports it by its plain name (``warp_sph/sweep/runs.py`` makes the same two reads for a sweep's rows, but
+importing it loads Warp).
 """
 from __future__ import annotations
 
