@@ -201,4 +201,28 @@ def adaptive_section(records: list[dict], figures: Figures, rel: str) -> list[st
         if png:
             lines += [f"![speed against accuracy, {n} particles]({rel}/{png.name})", ""]
         lines += failure_lines(recs) + [""]
+    slopes = rss_slopes([r for rs in by_radius.values() for r in latest_per_case(rs)])
+    if slopes:
+        lines += ["RSS per added fluid particle between the smallest and the largest resolution, (Δ peak increment) / "
+                  "(Δ fluid N), which leaves out what a case allocates whatever its size: "
+                  + "; ".join(f"{engine} {case} {fmt(b)} B ({n0:,} -> {n1:,})" for engine, case, n0, n1, b in slopes)
+                  + ".", ""]
     return lines
+
+
+def rss_slopes(records: list[dict]) -> list[tuple]:
+    """(engine, case, smallest N, largest N, bytes per added fluid particle) of each adaptive case with a finished
+    record at two or more fluid particle counts: the difference of the peak increments (``rss_peak_increment_bytes``)
+    over the difference of the fluid counts."""
+    by_case: dict[tuple, dict[int, float]] = {}
+    for r in records:
+        inc, n = metric(r, "rss_peak_increment_bytes"), r.get("fluid_particles")
+        if r.get("status") == "ok" and inc is not None and n:
+            p = r.get("params") or {}
+            by_case.setdefault((r.get("engine"), p.get("case") or p.get("solver")), {})[int(n)] = float(inc)
+    out = []
+    for (engine, case), points in sorted(by_case.items(), key=lambda kv: (str(kv[0][0]), str(kv[0][1]))):
+        if len(points) > 1:
+            n0, n1 = min(points), max(points)
+            out.append((engine, case, n0, n1, (points[n1] - points[n0]) / (n1 - n0)))
+    return out

@@ -14,6 +14,7 @@ import warp as wp
 from warp_sph.benchmarks import peak_memory as PM
 from warp_sph.benchmarks import records as REC
 from warp_sph.benchmarks import splishsplash as S
+from warp_sph.benchmarks import splishsplash_report as SR
 from warp_sph.benchmarks import traffic as T
 from warp_sph.benchmarks.report import write_report
 from warp_sph.benchmarks.splishsplash_driver import read_frames
@@ -179,3 +180,23 @@ def test_counted_steps_are_the_steps_a_run_takes():
     assert met["launches_per_step"] > 5
     assert met["launch_bytes_per_particle_step"] == pytest.approx(met["launch_bytes_per_step"] / n)
     assert 0 < met["launch_bytes_per_particle_step"] <= met["launch_allocation_bytes_per_particle_step"]
+
+
+def test_rss_per_added_particle_from_two_resolutions(tmp_path):
+    """The adaptive section's RSS per added fluid particle: (increment at the large N - at the small N) / (N
+    difference) of each case, from the records (NumPy oracle: the slope of a line through the two points)."""
+    ns, incs = np.array([6859, 59319]), np.array([[30e6, 120e6], [8e6, 50e6]])
+    recs = []
+    for k, engine in enumerate(("warp-sph", "splishsplash")):
+        for n, inc, r in zip(ns, incs[k], (0.025, 0.0125)):
+            rec = _record(engine, "dfsph", int(n), 4e8, inc)
+            rec["params"]["particle_radius"] = r
+            recs.append(rec)
+    slopes = {(e, c): b for e, c, _, _, b in SR.rss_slopes(recs)}
+    for k, engine in enumerate(("warp-sph", "splishsplash")):
+        assert slopes[(engine, "dfsph")] == pytest.approx(np.polyfit(ns, incs[k], 1)[0])
+    with open(tmp_path / "splishsplash.jsonl", "w") as f:
+        for r in recs:
+            f.write(json.dumps(r) + "\n")
+    text = write_report(tmp_path, log=lambda *a: None).read_text()
+    assert f"warp-sph dfsph {fmt(slopes[('warp-sph', 'dfsph')])} B (6,859 -> 59,319)" in text
