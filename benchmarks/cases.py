@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics as M
+from .peak_memory import MemoryWindow
 from .records import SCHEMA, host_info, label, now, print_row
 
 
@@ -32,6 +33,8 @@ class RunSpec:
     initial CFL step instead of frames (speed-only runs, the scaling benchmark), timed in
     ``repeats`` consecutive blocks of which the fastest counts (this VM's speed drifts by ±20 %).
     time_limit: stop after this many seconds of stepping wall time (status "time_limit").
+    traffic_steps: with ``steps``, that many more steps after the timed blocks, their kernel launches' array bytes
+    counted (``traffic.step_traffic``: a model of the bytes a step moves, not a measurement).
     """
 
     scene: str = "dam_break"
@@ -46,6 +49,7 @@ class RunSpec:
     hydrostatic: bool | None = None   # None: when the scene's name starts with "hydrostatic"
     warm_up: bool = True
     repeats: int = 1
+    traffic_steps: int = 0  # steps run after the timed ones counting their launches' array bytes (traffic.py)
 
 
 def _fluid_volume(scene) -> float:
@@ -83,11 +87,14 @@ def _warm_up(scene, device) -> float:
     return time.perf_counter() - t0
 
 
-def _memory_metrics(sim, rss_before: int) -> dict:
+def _memory_metrics(sim, rss_before: int, window: MemoryWindow | None = None) -> dict:
     import warp as wp
 
     from warp_sph.neighbors import GRID_DIM
+    from warp_sph.run.working_set import read_bytes
 
+    # the case's own peak against the RSS right before it was built (peak_memory.py), read first
+    peak = window.close(sim.model.fluid_count) if window is not None else {}
     arrays = [a for a in sim.fields.values() if isinstance(a, wp.array)]
     m = sim.model
     arrays += [getattr(m, k) for k in ("boundary_x", "boundary_volume") if isinstance(getattr(m, k, None), wp.array)]
@@ -105,7 +112,9 @@ def _memory_metrics(sim, rss_before: int) -> dict:
            "bytes_per_particle": (a_bytes + g_bytes) / n,
            "array_bytes_per_particle": a_bytes / n,
            "peak_rss_bytes": host["peak_rss_bytes"], "rss_growth_bytes": host["rss_bytes"] - rss_before,
-           "rss_growth_per_particle": (host["rss_bytes"] - rss_before) / n}
+           "rss_growth_per_particle": (host["rss_bytes"] - rss_before) / n,
+           "read_bytes": read_bytes(sim)}  # what one pass over the step's arrays reads (run.json read_bytes)
+    out.update(peak)
     out.update(M.device_memory(sim.device))
     return out
 
@@ -145,6 +154,8 @@ def run_warp_sph(spec: RunSpec) -> dict:
         from warp_sph.run.simulation import Simulation
 
         rss0 = M.current_rss_bytes()
+        # the case's peak: VmHWM reset here, after the warm-up loaded the kernels (peak_memory.py)
+        window = MemoryWindow().open()
         t0 = time.perf_counter()
         sim = Simulation(scene, device=device)
         wp.synchronize_device(sim.device)
@@ -199,6 +210,7 @@ def run_warp_sph(spec: RunSpec) -> dict:
                     series["pressure_error_mean_abs"].append(None)
 
         status = "ok"
+        traffic: dict = {}
         wall = 0.0
         cpu = 0.0  # process CPU seconds of the frames (all threads): a load-independent measure of work
         extra_series: dict[str, list] = {}
@@ -232,6 +244,10 @@ def run_warp_sph(spec: RunSpec) -> dict:
             except SimulationError as e:
                 status, record["error"] = "unstable", str(e)
             observe(stats, wall)
+            if spec.traffic_steps > 0:  # after the timed blocks and the statistics: a model, not timed
+                from .traffic import step_traffic
+
+                traffic = step_traffic(sim, dt, spec.traffic_steps)
         else:
             observe(None, 0.0, 0.0)
             for _ in range(spec.frames):
@@ -262,7 +278,10 @@ def run_warp_sph(spec: RunSpec) -> dict:
         met = {"setup_seconds": setup_s, "warm_up_seconds": warm_s, "wall_seconds": wall,
                "simulated_seconds": simulated, "steps": steps, "frames": len(series["time"]) - 1}
         met.update(M.speed_metrics(wall, simulated, steps, m.fluid_count))
-        met.update(_memory_metrics(sim, rss0))
+        met.update(_memory_metrics(sim, rss0, window))
+        if traffic:
+            met.update(traffic)
+            met["passes_per_step"] = traffic["launch_bytes_per_step"] / met["read_bytes"] if met["read_bytes"] else None
         if spec.steps > 0 and iterations and None not in iterations:
             # iterative solvers: the iterations a step needs grow with the fluid's depth in particles
             # (Jacobi), so the cost of one particle-iteration is the flat measure of the kernels

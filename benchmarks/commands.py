@@ -122,6 +122,7 @@ def cmd_scaling(args, argv: list[str], log=print) -> int:
 
     from .cases import RunSpec
     from .records import solver_names
+    from .traffic import TRAFFIC_STEPS
 
     check_names("--solver", args.solver, solver_names())
     radii = [float(r) for r in split_values(args.radii)] if args.radii else list(SCALING_RADII)
@@ -133,6 +134,7 @@ def cmd_scaling(args, argv: list[str], log=print) -> int:
 
     specs = [RunSpec(scene=args.scene, overrides=[f"particle_radius={r}", f"solver={args.solver}"] + fixed(r) + list(args.set),
                      steps=args.steps, repeats=args.repeats, device=args.device, kind="scaling", name="scaling",
+                     traffic_steps=TRAFFIC_STEPS,
                      params={"scene": args.scene, "solver": args.solver, "particle_radius": r}) for r in radii]
     invocation = now()
     records = _run(specs, args, log)

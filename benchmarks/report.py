@@ -23,6 +23,23 @@ from .tables import failure_lines, fmt, latest, markdown_table, metric, section_
 
 
 
+
+#: what the scaling tables' memory columns are (benchmarks/cases.py ``_memory_metrics``)
+SCALING_MEMORY_NOTE = ("*bytes/particle*: the bytes of the arrays the bench finds on the simulation (its fields, the "
+                       "state, the walls, the solver's own arrays; not the arrays inside neighbour-list and pair-cache "
+                       "structs) plus an estimate of two hash grids (2 dim³ int32 cells + 4 int32 per point: the cell "
+                       "table dominates at small N), per fluid particle: an allocation, not traffic; *RSS growth/"
+                       "particle*: the process's RSS after the timed steps less the RSS before the simulation was "
+                       "built, per fluid particle; *peak RSS*: the benchmark process's lifetime peak (ru_maxrss: "
+                       "Python, Warp, the warm-up's kernel loading and the run).")
+TRAFFIC_NOTE = ("*launch bytes/particle-step (model)*: a model of the bytes a step moves, not a measurement (no "
+                "hardware counter is readable on this VM): every kernel launch of the steps run after the timed ones "
+                "(traffic_steps in the record) streams each distinct "
+                "array among its arguments once (arrays in struct arguments included; row arrays at their used "
+                "entries), per fluid particle-step; *passes/step*: that over one pass over the step's arrays "
+                "(run.json read_bytes). benchmarks/traffic.py.")
+
+
 def load_records(results_dir: Path) -> dict[str, list[dict]]:
     """{kind: [records]} from every ``*.jsonl`` in results_dir (bad lines are skipped)."""
     out: dict[str, list[dict]] = {}
@@ -150,6 +167,7 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
         iterative = any(metric(r, "ns_per_particle_iteration") for r in scaling)
         with_cpu = any(metric(r, "cpu_ns_per_particle_step") for r in scaling)  # records since the CPU column
         with_div = any(metric(r, "divergence_iterations_mean") for r in scaling)
+        with_traffic = any(metric(r, "launch_bytes_per_particle_step") for r in scaling)  # records since the model
         rows = []
         for r in sorted(scaling, key=lambda r: r.get("fluid_particles") or 0):
             rows.append([fmt((r.get("params") or {}).get("particle_radius")), r.get("status", "?"),
@@ -160,12 +178,17 @@ def write_report(results_dir: Path, md_path: Path | None = None, log=print) -> P
                            fmt(metric(r, "rss_growth_per_particle")), fmt((metric(r, "peak_rss_bytes") or 0) / 2**20)]
                         + ([fmt(metric(r, "solver_iterations_mean")), fmt(metric(r, "ns_per_particle_iteration"))]
                            if iterative else [])
-                        + ([fmt(metric(r, "divergence_iterations_mean"))] if with_div else []))
+                        + ([fmt(metric(r, "divergence_iterations_mean"))] if with_div else [])
+                        + ([fmt(metric(r, "launch_bytes_per_particle_step")), fmt(metric(r, "passes_per_step"))]
+                           if with_traffic else []))
         lines += markdown_table(["radius [m]", "status", "fluid N", "boundary N", "steps", "ms/step", "ns/particle-step"]
                         + (["CPU ns/particle-step"] if with_cpu else [])
                         + ["particle-steps/s", "bytes/particle", "RSS growth/particle", "peak RSS [MiB]"]
                         + (["iterations/step", "ns/particle-iteration"] if iterative else [])
-                        + (["divergence it./step"] if with_div else []), rows) + [""]
+                        + (["divergence it./step"] if with_div else [])
+                        + (["launch bytes/particle-step (model)", "passes/step (model)"] if with_traffic else []),
+                        rows) + [""]
+        lines += [SCALING_MEMORY_NOTE + (" " + TRAFFIC_NOTE if with_traffic else ""), ""]
         if with_cpu:
             lines += ["ns/particle-step is the wall time of the fastest block of steps; CPU ns/particle-step its "
                       "process CPU time over every thread (the steadier measure on a shared machine).", ""]

@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from .peak_memory import rss_ratio
 from .splishsplash_case import available, run_splishsplash_case
 from .splishsplash_scene import ADAPTIVE_CFL
 
@@ -243,7 +244,8 @@ def fastest_of(runs: list[dict]) -> dict:
 
 def adaptive_ratios(records: list[dict]) -> list[dict]:
     """Per resolution: warp-sph DFSPH against each SPlisHSPlasH DFSPH case of an adaptive comparison:
-    the ratio of wall (and CPU) seconds per simulated second and both mean density errors."""
+    the ratio of wall (and CPU) seconds per simulated second, of peak RSS per fluid particle (``rss_ratio``,
+    None for records without it) and both mean density errors."""
     ok = [r for r in records if r.get("status") == "ok" and (r.get("params") or {}).get("mode") == "adaptive"]
     out = []
     for n in sorted({r.get("fluid_particles") for r in ok if r.get("engine") == "warp-sph"} - {None}):
@@ -264,5 +266,6 @@ def adaptive_ratios(records: list[dict]) -> list[dict]:
                    "ours_error": mo.get("density_error_mean_avg"), "ref_error": mr.get("density_error_mean_avg")}
             if mo.get("cpu_per_simulated_second") and mr.get("cpu_per_simulated_second"):
                 row["cpu_ratio"] = mo["cpu_per_simulated_second"] / mr["cpu_per_simulated_second"]
+            row["rss_ratio"] = rss_ratio(mo, mr)  # peak RSS per fluid particle, each case in its own process
             out.append(row)
     return out

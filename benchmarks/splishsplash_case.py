@@ -145,6 +145,8 @@ def run_splishsplash_case(scene_dict: dict, model: dict, fluid_min, fluid_max, s
            "simulated_seconds": info["simulated_seconds"], "steps": info["steps"], "frames": len(series["time"]) - 1}
     met.update(M.speed_metrics(info["wall_seconds"], info["simulated_seconds"], info["steps"], n))
     met.update(acc)
+    # the case's peak RSS in the driver's process (peak_memory.MemoryWindow; the same keys as warp-sph's records)
+    met.update(info.get("memory") or {})
     if info.get("cpu_seconds") is not None and info["simulated_seconds"] > 0:
         met["cpu_seconds"] = info["cpu_seconds"]
         met["cpu_per_simulated_second"] = info["cpu_seconds"] / info["simulated_seconds"]

@@ -2,6 +2,11 @@
 ``LD_PRELOAD`` (``splishsplash_case._env``), as ``python splishsplash_driver.py CONFIG.json OUT.npz``:
 simulate the translated scene, record positions, velocities and densities per frame.
 Imports only the standard library and NumPy (and ``pysplishsplash``), never Warp.
+
+Memory: the peak RSS of the case (``peak_memory.MemoryWindow``: VmHWM reset after ``import pysplishsplash``,
+read after the run, before the frames are gathered) goes into the record. So that the driver's own recording
+does not count as SPlisHSPlasH's memory, each frame's arrays go to a file beside OUT.npz (``OUT_frames.bin``) at once
+and are read back only after the peak was read.
 """
 from __future__ import annotations
 
@@ -19,13 +24,17 @@ def driver_main(argv: list[str]) -> int:
     out = Path(argv[1])
     import pysplishsplash as sph
 
+    from peak_memory import MemoryWindow  # a sibling module: this file runs as a script
+
+    window = MemoryWindow().open()  # the baseline: Python, NumPy and SPlisHSPlasH's libraries loaded
+    frame_file = open(out.with_name(out.stem + "_frames.bin"), "wb")
     frame_dt = 1.0 / float(cfg["fps"])
     frames = int(cfg["frames"])
     stop = frames * frame_dt + 0.5 * float(cfg["dt"])
     base = sph.Exec.SimulatorBase()
     base.init(useGui=False, sceneFile=cfg["scene_file"], outputDir=cfg["output_dir"], useCache=False,
               initialPause=False, stopAt=stop)
-    rec = {"x": [], "v": [], "rho": [], "t": [], "steps": [], "iterations": [], "iterations_v": [], "cb": 0.0,
+    rec = {"n": [], "t": [], "steps": [], "iterations": [], "iterations_v": [], "cb": 0.0,
            "cb_cpu": 0.0}
     state = {"steps": 0, "next": frame_dt}
 
@@ -33,9 +42,9 @@ def driver_main(argv: list[str]) -> int:
         sim = sph.Simulation.getCurrent()
         f = sim.getFluidModel(0)
         n = f.numActiveParticles()
-        rec["x"].append(np.array(np.asarray(f.getFieldBuffer("position"))[:n], dtype=np.float32))
-        rec["v"].append(np.array(np.asarray(f.getFieldBuffer("velocity"))[:n], dtype=np.float32))
-        rec["rho"].append(np.array(np.asarray(f.getFieldBuffer("density"))[:n], dtype=np.float32))
+        for name in ("position", "velocity", "density"):  # to the file now, read back after the peak
+            frame_file.write(np.ascontiguousarray(np.asarray(f.getFieldBuffer(name))[:n], dtype=np.float32).tobytes())
+        rec["n"].append(n)
         rec["t"].append(t)
         rec["steps"].append(state["steps"])
         its = state.pop("its", [])
@@ -100,13 +109,26 @@ def driver_main(argv: list[str]) -> int:
     base.runSimulation()
     wall = time.perf_counter() - t1 - rec["cb"]
     cpu = time.process_time() - c1 - rec["cb_cpu"]
+    info["memory"] = window.close(info["fluid_particles"])  # before cleanup and before the frames are read back
     base.cleanup()
+    frame_file.close()
     info.update(setup_seconds=setup, wall_seconds=wall, cpu_seconds=cpu, steps=state["steps"],
                 simulated_seconds=float(state.get("time", 0.0)))
-    np.savez(out, x=np.stack(rec["x"]), v=np.stack(rec["v"]), rho=np.stack(rec["rho"]),
+    x, v, rho = read_frames(Path(frame_file.name), rec["n"])
+    Path(frame_file.name).unlink()
+    np.savez(out, x=x, v=v, rho=rho,
              t=np.asarray(rec["t"]), steps=np.asarray(rec["steps"]), iterations=np.asarray(rec["iterations"]),
              iterations_v=np.asarray(rec["iterations_v"]), info=json.dumps(info))
     return 0
+
+
+def read_frames(path: Path, counts: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The frames ``grab`` wrote to ``path``: per frame n x 3 positions, n x 3 velocities, n densities (float32);
+    stacked (frames, n, 3), (frames, n, 3), (frames, n) (every frame has the first frame's n particles)."""
+    data = np.fromfile(path, dtype=np.float32)
+    n = counts[0]
+    frames = data.reshape(len(counts), 7 * n)
+    return (frames[:, :3 * n].reshape(-1, n, 3), frames[:, 3 * n:6 * n].reshape(-1, n, 3), frames[:, 6 * n:])
 
 
 if __name__ == "__main__":

@@ -7,13 +7,30 @@ the rows of the cases it ran. The particle masses are read from the records: SPl
 """
 from __future__ import annotations
 
+from .peak_memory import rss_ratio
 from .plots import SPEED_KEY, Figures, plot_adaptive, plot_series, plot_tradeoff
 from .tables import failure_lines, fmt, invocation_heads, latest, markdown_table, metric, section_head
 
 
+#: the memory columns of both comparisons' tables (``rss_cells``) and of their ratio tables
+RSS_HEADER = ["peak RSS [MiB]", "RSS/particle [B]"]
+RSS_RATIO_HEADER = "warp-sph RSS/particle / its"
+RSS_NOTE = ("*peak RSS*: the most the case's process held while the case ran (VmHWM reset right before the case "
+            "built its simulation: after warp-sph's warm-up loaded its kernels, after `import pysplishsplash`), "
+            "interpreter and libraries included; *RSS/particle*: that peak less the RSS at the reset, per fluid "
+            "particle (walls included), each engine's case in its own process (benchmarks/peak_memory.py).")
+
+
+def rss_cells(r: dict) -> list[str]:
+    """The ``RSS_HEADER`` cells of a record: its case's peak RSS [MiB] and (peak - baseline) / fluid N [bytes]."""
+    peak = metric(r, "rss_case_peak_bytes")
+    return [fmt(peak / 2 ** 20 if peak is not None else None), fmt(metric(r, "rss_peak_per_particle"))]
+
+
 def speed_ratios(records: list[dict]) -> list[dict]:
     """warp-sph against SPlisHSPlasH per solver: ratio of wall time per simulated second (both run the
-    same fixed time step, so this is also the ratio of time per step) and the two mean density errors."""
+    same fixed time step, so this is also the ratio of time per step), of peak RSS per fluid particle
+    (``rss_ratio``) and the two mean density errors."""
     out = []
     ok = [r for r in records if r.get("status") == "ok"]
     for solver in ("wcsph", "pbf"):
@@ -27,6 +44,7 @@ def speed_ratios(records: list[dict]) -> list[dict]:
             cpu_ours, cpu_ref = metric(ours[0], "cpu_per_simulated_second"), metric(ref[0], "cpu_per_simulated_second")
             if cpu_ours and cpu_ref:  # process CPU time of every thread: the steadier measure on a shared machine
                 q["cpu_ratio"] = cpu_ours / cpu_ref
+            q["rss_ratio"] = rss_ratio(ours[0].get("metrics") or {}, ref[0].get("metrics") or {})
             out.append(q)
     return out
 
@@ -103,20 +121,21 @@ def fixed_step_section(records: list[dict], figures: Figures, rel: str) -> list[
                          fmt(metric(r, SPEED_KEY)), fmt(metric(r, "particle_steps_per_second")),
                          fmt(metric(r, "density_error_mean_avg"), 100), fmt(metric(r, "density_error_max"), 100),
                          fmt(metric(r, "volume_drift_max_abs"), 100), fmt(metric(r, "energy_change_final")),
-                         fmt(metric(r, "front_final"))])
+                         fmt(metric(r, "front_final"))] + rss_cells(r))
         lines += markdown_table(["case", "solver", "status", "dt [s]", "threads", "fluid N", "steps", "wall s / sim s",
                          "particle-steps/s", "mean ρ err %", "max ρ err %", "max |vol drift| %", "energy change",
-                         "front [m]"], rows) + [""]
+                         "front [m]"] + RSS_HEADER, rows) + [""]
         ratios = speed_ratios(sph)
         if ratios:
             lines += markdown_table(["solver", "SPlisHSPlasH threads", "warp-sph time / SPlisHSPlasH time", "(CPU)",
-                             "warp-sph mean ρ err %", "SPlisHSPlasH mean ρ err %"],
+                             "warp-sph mean ρ err %", "SPlisHSPlasH mean ρ err %", RSS_RATIO_HEADER],
                             [[q["solver"], fmt(q["threads"]), fmt(q["ratio"]), fmt(q.get("cpu_ratio")),
-                              fmt(q["ours_error"], 100), fmt(q["ref_error"], 100)] for q in ratios]) + [""]
+                              fmt(q["ours_error"], 100), fmt(q["ref_error"], 100), fmt(q.get("rss_ratio"))]
+                             for q in ratios]) + [""]
         lines += ["Threads: SPlisHSPlasH runs with OMP_NUM_THREADS as listed; warp-sph splits each particle-parallel "
                   "kernel over all cores (WARP_SPH_CPU_THREADS). Same box, fluid lattice, particle radius, fixed step "
                   "and Akinci 2012 walls; SPlisHSPlasH samples the walls with its own sampler "
-                  "(benchmarks/splishsplash.py). " + mass_note(sph), ""]
+                  "(benchmarks/splishsplash.py). " + mass_note(sph), "", RSS_NOTE, ""]
         ok = [r for r in sph if r.get("status") == "ok"]
         png = figures.get(f"splishsplash_series{suffix}.png", ok, lambda p, ok=ok: plot_series(
             ok, [("front", "surge front [m]", 1.0), ("density_error_mean", "mean density error [%]", 100.0),
@@ -149,7 +168,7 @@ def adaptive_section(records: list[dict], figures: Figures, rel: str) -> list[st
              "particles in both, the same fluid lattice. *mean ρ err* is each engine's own density at the frames "
              "(mean of max(ρ/ρ0 − 1, 0)). *CPU s / sim s* counts every thread of the process: on a shared machine "
              "it is the steadier measure of work. Each table holds the latest run of each case (a run filtered "
-             "with --solvers replaces only its own rows).", ""]
+             "with --solvers replaces only its own rows).", "", RSS_NOTE, ""]
     for radius in sorted(by_radius, reverse=True):
         recs = latest_per_case(by_radius[radius])
         n = max((r.get("fluid_particles") or 0) for r in recs)
@@ -166,19 +185,44 @@ def adaptive_section(records: list[dict], figures: Figures, rel: str) -> list[st
                          fmt(metric(r, "steps")), fmt(metric(r, "dt_mean"), 1e3), fmt(metric(r, "solver_iterations_mean")),
                          fmt(metric(r, "divergence_iterations_mean")), fmt(metric(r, SPEED_KEY)),
                          fmt(metric(r, "cpu_per_simulated_second")), fmt(metric(r, "density_error_mean_avg"), 100),
-                         fmt(metric(r, "density_error_max"), 100)])
+                         fmt(metric(r, "density_error_max"), 100)] + rss_cells(r))
         lines += markdown_table(["engine", "case", "status", "threads", "fluid N", "sim s", "steps", "mean dt [ms]",
                          "iterations/step", "divergence it./step", "wall s / sim s", "CPU s / sim s", "mean ρ err %",
-                         "max ρ err %"], rows) + [""]
+                         "max ρ err %"] + RSS_HEADER, rows) + [""]
         ratios = adaptive_ratios(recs)
         if ratios:
             lines += markdown_table(["SPlisHSPlasH case", "its threads", "warp-sph dfsph / it (wall)", "(CPU)",
-                             "warp-sph mean ρ err %", "its mean ρ err %"],
+                             "warp-sph mean ρ err %", "its mean ρ err %", RSS_RATIO_HEADER],
                             [[q["case"], fmt(q["threads"]), fmt(q["ratio"]), fmt(q.get("cpu_ratio")),
-                              fmt(q["ours_error"], 100), fmt(q["ref_error"], 100)] for q in ratios]) + [""]
+                              fmt(q["ours_error"], 100), fmt(q["ref_error"], 100), fmt(q.get("rss_ratio"))]
+                             for q in ratios]) + [""]
         png = figures.get(f"splishsplash_adaptive_{n}.png", recs, lambda p, recs=recs, n=n: plot_adaptive(
             recs, p, f"dam break, {n:,} fluid particles: speed against accuracy (each engine's adaptive step)"))
         if png:
             lines += [f"![speed against accuracy, {n} particles]({rel}/{png.name})", ""]
         lines += failure_lines(recs) + [""]
+    slopes = rss_slopes([r for rs in by_radius.values() for r in latest_per_case(rs)])
+    if slopes:
+        lines += ["RSS per added fluid particle between the smallest and the largest resolution, (Δ peak increment) / "
+                  "(Δ fluid N), which leaves out what a case allocates whatever its size: "
+                  + "; ".join(f"{engine} {case} {fmt(b)} B ({n0:,} -> {n1:,})" for engine, case, n0, n1, b in slopes)
+                  + ".", ""]
     return lines
+
+
+def rss_slopes(records: list[dict]) -> list[tuple]:
+    """(engine, case, smallest N, largest N, bytes per added fluid particle) of each adaptive case with a finished
+    record at two or more fluid particle counts: the difference of the peak increments (``rss_peak_increment_bytes``)
+    over the difference of the fluid counts."""
+    by_case: dict[tuple, dict[int, float]] = {}
+    for r in records:
+        inc, n = metric(r, "rss_peak_increment_bytes"), r.get("fluid_particles")
+        if r.get("status") == "ok" and inc is not None and n:
+            p = r.get("params") or {}
+            by_case.setdefault((r.get("engine"), p.get("case") or p.get("solver")), {})[int(n)] = float(inc)
+    out = []
+    for (engine, case), points in sorted(by_case.items(), key=lambda kv: (str(kv[0][0]), str(kv[0][1]))):
+        if len(points) > 1:
+            n0, n1 = min(points), max(points)
+            out.append((engine, case, n0, n1, (points[n1] - points[n0]) / (n1 - n0)))
+    return out

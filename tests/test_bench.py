@@ -186,7 +186,11 @@ def test_scaling_fixed_step_scales_with_the_radius_and_records_cpu_time(tmp_path
         assert 0 < met["cpu_seconds"] == min(r["block_cpu_seconds"])
         assert met["cpu_ns_per_particle_step"] == pytest.approx(1e9 * met["cpu_seconds"] / (2 * r["fluid_particles"]))
         assert met["divergence_iterations_mean"] >= 1 and met["solver_iterations_mean"] >= 2
+        # the launch-bytes model of steps run after the timed ones (benchmarks/traffic.py), over one pass
+        assert met["traffic_steps"] >= 1 and met["launches_per_step"] > 0 and met["read_bytes"] > 0
+        assert met["passes_per_step"] == pytest.approx(met["launch_bytes_per_step"] / met["read_bytes"])
     md = (tmp_path / "RESULTS.md").read_text()
+    assert "launch bytes/particle-step (model) | passes/step (model)" in md
     assert md.count("## Scaling: dfsph") == 1 and "## Scaling: dfsph (" not in md
     assert "CPU ns/particle-step" in md and "divergence it./step" in md
     assert "Flatness: the slowest cost per particle-step (CPU) is" in md

@@ -60,14 +60,15 @@ def array_bytes(sim) -> int:
     return int(sum(_bytes(obj) for obj in _holders(sim) if isinstance(obj, wp.array)))
 
 
-def _unused_row_bytes(holder, counted: set[int]) -> int:
-    """[bytes] of the unused entries of a holder's row arrays: a ``count`` int32 array of n rows and arrays of n x
-    capacity entries (2-D (n, capacity), or 1-D of n x capacity: DFSPH's pair rows), row i using min(count_i,
-    capacity) of them; 0 for anything else. Arrays already in ``counted`` are skipped, the others added to it."""
+def _unused_row_bytes_each(holder, counted: set[int]) -> list[tuple]:
+    """(array, [bytes] of its unused entries) of each of a holder's row arrays: a ``count`` int32 array of n rows and
+    arrays of n x capacity entries (2-D (n, capacity), or 1-D of n x capacity: DFSPH's pair rows), row i using
+    min(count_i, capacity) of them; [] for anything else. Arrays already in ``counted`` are skipped, the others added
+    to it."""
     count = getattr(holder, "count", None)
     if not isinstance(count, wp.array) or count.dtype != wp.int32 or count.ndim != 1 or count.shape[0] < 1:
-        return 0
-    n, counts, unused = count.shape[0], None, 0
+        return []
+    n, counts, out = count.shape[0], None, []
     for a in _fields(holder):
         if (not isinstance(a, wp.array) or a is count or id(a) in counted or a.size <= n
                 or a.shape[0] not in (n, a.size) or a.size % n):
@@ -75,8 +76,8 @@ def _unused_row_bytes(holder, counted: set[int]) -> int:
         counted.add(id(a))
         counts = count.numpy() if counts is None else counts
         used = int(np.minimum(np.maximum(counts, 0), a.size // n).sum())
-        unused += (a.size - used) * wp.types.type_size_in_bytes(a.dtype)
-    return unused
+        out.append((a, (a.size - used) * wp.types.type_size_in_bytes(a.dtype)))
+    return out
 
 
 def read_bytes(sim) -> int:
@@ -84,13 +85,20 @@ def read_bytes(sim) -> int:
     lists, pair caches: a ``count`` per row and rows of a fixed capacity) counted at its rows' used entries,
     sum_i min(count_i, capacity) entries, not at its allocation (DFSPH's pair rows use about 40 % of their 64 slots, and
     on the CPU they are packed: what the passes stream, docs/plan-model.md item 12)."""
-    total, counted = 0, set()
+    return int(sum(used_bytes(sim).values()))
+
+
+def used_bytes(sim) -> dict[int, int]:
+    """{id(array): [bytes]} of every Warp array the simulation ``sim`` holds, as ``read_bytes`` counts it: a row
+    array at its rows' used entries, any other at its allocation (``bench scaling``'s launch-bytes model reads it)."""
+    sizes, counted = {}, set()
     for obj in _holders(sim):
         if isinstance(obj, wp.array):
-            total += _bytes(obj)
+            sizes.setdefault(id(obj), _bytes(obj))
         else:
-            total -= _unused_row_bytes(obj, counted)
-    return int(total)
+            for a, unused in _unused_row_bytes_each(obj, counted):
+                sizes[id(a)] = sizes.get(id(a), _bytes(a)) - unused
+    return sizes
 
 
 def last_level_cache_bytes(root: Path | None = None) -> int:
