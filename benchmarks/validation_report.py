@@ -21,7 +21,7 @@ def latest_per_run(records: list[dict]) -> list[dict]:
 
 
 
-#: why a case's figures miss their goals (measured in docs/validation.md, where the numbers behind each are)
+#: why a case's figures miss their goals (measured in docs/validation-notes.md, where the numbers behind each are)
 WHY = {
     "martin_moyce": "a coarse tip a few particles thick runs behind the front line, an instant release ahead of "
                     "the experiment's gate",
@@ -33,15 +33,15 @@ WHY = {
                 "sensor within a step; around them the load is under the curve's (the mean over the span where the "
                 "curve is within 10 % of its peak, span_mean_error); the sensor model cannot make a peak high: its "
                 "cell (d = 20 / 10 mm) is larger than the 4.2 mm face and its 1 ms mean longer than the experiment's "
-                "20 kHz samples, both lower a peak, and a finer step and sample raise the spike (docs/validation.md, "
-                "'Why sensor 4 peaks late, and what the sensor model does'). WCSPH adds the water hammer rho0 c_s v "
+                "20 kHz samples, both lower a peak, and a finer step and sample raise the spike (docs/validation-notes.md, "
+                "'The sensor model: the transducer'). WCSPH adds the water hammer rho0 c_s v "
                 "of its artificial speed of sound. Sensor 4: its time misses are not a late load: the load reaches "
                 "half the curve's peak on time (the arrival figures); the curve's maximum in the simulated 0.8 s is "
                 "a plateau, within 10 % of it for -5 to +26 % of its time, so the maximum has no time to 5 %, and "
                 "the simulated load on that plateau stays under the curve's, so its largest sample is a spike of "
                 "that lower, noisy load, late on it or at the arrival: the simulated water turns up the wall lower "
                 "than the experiment's, loading the lowest 50 mm more and 80 mm less; the plateau rises with resolution (H/d = 15 "
-                "-> 30) and wall friction lowers it (docs/validation.md). The curve at "
+                "-> 30) and wall friction lowers it (docs/validation-notes.md, 'Why sensor 4 peaks late'). The curve at "
                 "sensor 4 (0.58 rho g H) lies 43 % under Table 2's median of the per-run peaks; the experiment's own "
                 "per-run peaks spread widely (Table 2: sensor 1 from 2.55 to 4.45 rho g H)",
     "hydrostatic": "the tank does not come to rest within 2 s: the lattice re-packs toward its discrete equilibrium "
@@ -52,7 +52,7 @@ WHY = {
                    "frame and re-packed: floor +1.9 % with DFSPH); WCSPH's tank still swings (the walls' load "
                    "0.91-1.10 of the weight over 1-2 s); the mid-depth gauge (Wendland C2, h = sqrt(3) d, as "
                    "DualSPHysics' gauges) reads the field's level, not the layers' alternating particle pressures: "
-                   "DFSPH coarse -1.5 to -2.0 % at every depth from 0.15 to 0.35 m (docs/validation.md)",
+                   "DFSPH coarse -1.5 to -2.0 % at every depth from 0.15 to 0.35 m (docs/validation-notes.md)",
     "hydrostatic_fcc": "the fcc start holds its columns (the cubic lattice's slip is gone: the spread of vertical "
                        "displacement per plane 0.03-0.13 d at 2 s against 0.41 d), and PBF's solve no longer "
                        "amplifies the lattice's shortest density wave (its relaxation from the lattice, docs/methods.md), "
@@ -114,7 +114,7 @@ def misses(case: str, records: list[dict]) -> list[str]:
         return []
     goal = {"martin_moyce": "front RMS <= 4 %", "lobovsky": "peak within 10 %, time within 5 %",
             "hydrostatic": "within 1 %, at rest below 1e-3 m/s"}[case_kind(case)]
-    return [f"Misses ({goal}): " + "; ".join(out) + f". Why: {WHY[case]} (docs/validation.md).", ""]
+    return [f"Misses ({goal}): " + "; ".join(out) + f". Why: {WHY[case]} (docs/validation-notes.md).", ""]
 
 
 ENSEMBLE_WHY = ("a median of 5 (coarse) or 3 (fine) runs is itself uncertain by about the goal: two 5-run DFSPH coarse "
@@ -186,7 +186,7 @@ def ensemble_rows(recs: list[dict], fmt) -> list[str]:
                            + f" (the runs' spread {100 * st['spread']:.0f} %)")
     if bad:
         lines += ["Ensemble misses (median peak within 10 % of Table 2's median, median time within 5 %): "
-                  + "; ".join(bad) + f". Why: {ENSEMBLE_WHY} (docs/validation.md, 'The ensemble').", ""]
+                  + "; ".join(bad) + f". Why: {ENSEMBLE_WHY} (docs/validation-notes.md, 'The ensemble').", ""]
     ref = refinement(recs)
     if ref:
         lines += ["Refining (coarse -> fine, |error| of the ensemble medians; toward: it shrinks): " + "; ".join(ref)

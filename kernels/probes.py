@@ -8,7 +8,7 @@ sample it) and carries each neighbour's pressure to the probe point x_p with the
 Adams 2012 (eq. 27 with a static wall), so a probe at rest reads rho0 |g| depth at x_p. K is DualSPHysics'
 interpolation kernel: Wendland C2 with h_g = coefh sqrt(3) d at coefh = 1 (its 3D smoothing length; support
 2 h_g = 3.46 d), not the simulation's cubic spline of support 2 d: the particle pressures of a lattice carry a
-mode alternating from plane to plane that exerts no force (docs/validation.md), and a kernel of 2 d gives the
+mode alternating from plane to plane that exerts no force (docs/validation-notes.md), and a kernel of 2 d gives the
 nearest plane half the weight and reads the mode (+5 % at the fcc tank's mid-depth), where 3.46 d averages it
 out. The kernel is centred at x_k, which the host moves off the container's walls to where the first fluid
 layer lies (DualSPHysics measures 1.5 h inside the fluid for the same reason). Heights and fronts walk the fill

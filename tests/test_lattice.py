@@ -166,7 +166,7 @@ def test_pbf_jacobi_symbol_against_a_brute_force_correction(start):
     within 2 H_s of the origin moved by dx_k = sum_j V (lambda_k + lambda_j) grad W_kj with lambda_j = cos(q . x_j),
     the origin's density re-summed at +-t dx (central differences): dC_0 / dt = A(q) lambda_0, at the lattice's worst
     wave and at a long one. That worst wave grows under the old default pbf.relaxation (1e-4 D0): factor 1 - A / D below
-    -1 (cubic -1.8, fcc -2.3; docs/validation.md, "PBF at rest"); the default (``pbf_lattice.auto_epsilon``,
+    -1 (cubic -1.8, fcc -2.3; docs/validation-notes.md, "PBF at rest"); the default (``pbf_lattice.auto_epsilon``,
     D + eps = 3/4 A_max) damps it, factor in [-1/3, 0) (-1/3 at A_max; the grid's worst wave is at most A_max)."""
     layer, shift = STARTS[start]
     L = Lattice("cubic", D, D, layer, shift)

@@ -91,7 +91,7 @@ def test_pressure_probe_matches_oracle_and_hydrostatic_depths(device):
 def test_pressure_probe_averages_the_plane_to_plane_mode(device):
     """An fcc block (13 planes, d/sqrt 2 apart) holding the smooth field rho0 g (H - z_j) plus a mode
     A (-1)^k alternating from plane k to plane k + 1 (the mode the solvers leave in the fcc tank at rest, which
-    exerts no force: docs/validation.md): probes at mid-depth, at and between planes, read rho0 g (H - z_p)
+    exerts no force: docs/validation-notes.md): probes at mid-depth, at and between planes, read rho0 g (H - z_p)
     within 1 % of A with the gauge kernel (Wendland C2, h = sqrt(3) d: 0.4 % measured). The simulation's cubic
     kernel (support 2 d), which the probe used before, reads up to 5 % of A off: the brute-force oracle checks
     that this field tells the two apart."""
@@ -325,7 +325,7 @@ def test_floor_probe_reads_the_weight_of_the_water(solver):
     rho0 g D within 1.5 %, D = the water's volume over the floor area it covers (the depth by mass, no height
     probe involved), with DFSPH and with PBF (which has no pressure field), and rho0 g (h - z_floor) within 1 %,
     h the surface the height probe reads (as the validation case, warp_sph/validation/cases.py); the first
-    layer's particle pressures, which the old kernel-average probe read, are 30-70 % over (docs/validation.md).
+    layer's particle pressures, which the old kernel-average probe read, are 30-70 % over (docs/validation-notes.md).
     The water fills the case's 0.6 m tank (D = 0.5 m); the settled surface lies ~0.1 d below it (the lattice
     re-packs), so the depth by mass reads DFSPH 0.9 % / PBF 1.2 % low (rho0 g (h - z): +0.07 % / +0.13 %;
     measured with the 0.61 m walls before issue #31's hydrostatic pass: 1.6 % low and +0.01 % / +0.54 %)."""
@@ -386,7 +386,7 @@ def test_height_of_lattice_columns_at_several_depths(layers, device):
     fill's 1/2 crossing of a cubic lattice at h = d lies within 0.0013 d of it, NumPy): a free surface that
     sits flat reads where it is, at any depth. (On the settled hydrostatic tank the surface lies ~0.15 d below
     the level the water's volume gives over its sampled footprint because the water spreads into the wall
-    gaps and re-packs, not because of this rule: docs/validation.md.)"""
+    gaps and re-packs, not because of this rule: docs/validation-notes.md.)"""
     d, gap = 0.1, small_tank("g").wall_gap
     top = gap + (layers - 1) * d
     # the block fills the 0.8 x 0.6 m floor (walls on every side, no free vertical face near the lines)

@@ -21,7 +21,7 @@ WIDTH = COLUMNS * 2 * R + 0.06
 
 def tank(tol: float, **kw):
     """7 x 7 columns of 5 layers (245 particles; a 0.3 m block less the floor gap) in a tank they fill, the hydrostatic scene's
-    damping (docs/validation.md), DFSPH at its defaults."""
+    damping (docs/validation-notes.md), DFSPH at its defaults."""
     return small_tank("settle", "dfsph", particle_radius=R, container={"min": [0, 0, 0], "max": [WIDTH, WIDTH, 0.5]},
                       fluid=[{"shape": "box", "min": [0, 0, 0], "max": [WIDTH, WIDTH, 0.3]}],
                       material={"viscosity": 0.05, "xsph": 0.4}, time={"settle": tol}, **kw)
@@ -40,7 +40,7 @@ def late_mean_speed(sim, frames=24, late=12) -> float:
 def test_settled_tank_stays_at_rest_and_the_lattice_start_does_not():
     """Packed until a frame's mean |v| is below 1.2e-3 m/s, the tank stays below 3e-3 m/s over 0.5-1 s of the run
     (measured 1.4e-3); started from its lattice it is at 5e-3 m/s then (the first step's free fall and the
-    layer-alternating kick that the solvers cannot see, docs/validation.md)."""
+    layer-alternating kick that the solvers cannot see, docs/validation-notes.md)."""
     sim = Simulation(tank(1.2e-3))
     rec = settle(sim)
     assert rec["converged"] and rec["steps"] < sim.scene.time.settle_steps and rec["mean_speed"] < 1.2e-3

@@ -164,7 +164,7 @@ def test_density_diffusion_keeps_the_walls_push():
     Before the wall-layer pairs were left out of the diffusion, a particle went through the floor at t = 1.94 s
     with density 218 kg/m^3 (its correction had bled the wall's share away); without diffusion none leaves in
     3 s. The rule is not the whole cure: with it a splash drop still leaves at 2.62 s, carrying a negative
-    correction made at the free surface (docs/validation.md), which is why the diffusion stays off by default."""
+    correction made at the free surface (docs/validation-notes.md), which is why the diffusion stays off by default."""
     sim = sloshing_block(0.1)
     while sim.state.time < 2.2 - 1e-9:
         assert sim.advance_frame().outside == 0

@@ -4,8 +4,8 @@ under gravity, then the run starts from there at rest.
 A fluid sampled on a lattice is not in the discrete equilibrium of the kernel, the walls and the solver: a
 resting tank started from the lattice falls for one step (DFSPH: its interior is at rest density, so no
 pressure at first; WCSPH: uncompressed), kicks a layer-alternating velocity the solvers cannot see (the
-cubic spline's grad W(2 d) = 0) and keeps creeping toward the packing it wants (docs/validation.md,
-"Hydrostatic"). The pass steps the scene's own step graph and damps the velocity after every step,
+cubic spline's grad W(2 d) = 0) and keeps creeping toward the packing it wants (docs/validation-notes.md,
+"Hydrostatic depth and the tank at rest"). The pass steps the scene's own step graph and damps the velocity after every step,
 v <- KEEP v (damped dynamics: the packing keeps some momentum, which converges faster than steps that each
 start from rest), until the time-mean of the fluid's mean |v| over one frame of packing time (1/fps) is
 below ``time.settle`` [m/s] (a mean over a frame: DFSPH at rest ends in a cycle of a few steps whose speeds

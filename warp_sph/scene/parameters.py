@@ -76,7 +76,7 @@ _TAIL = (
        "half the time step", choices=("stop", "retry")),
     _P("time.max_steps", "int", "-", 10_000_000, "refuse a run that would take more substeps than this "
        "(estimated before the first step from the time-step bounds at the scene's reference speed)", ge=1),
-    _P("time.settle", "float", "m/s", 0.0, "packing pass before t = 0 (docs/validation.md): the solver steps the "
+    _P("time.settle", "float", "m/s", 0.0, "packing pass before t = 0 (docs/validation-notes.md): the solver steps the "
        "fluid with its velocity damped by 10 % a step until the fluid's mean speed, averaged over a frame "
        "(1/fps) of packing, is below this; then the run starts there at rest (0: off, the fluid starts on its "
        "lattice)", ge=0.0),
@@ -94,7 +94,7 @@ _TAIL = (
     _P("container.inner", "bool", "-", False, "true: min/max are the tank's inner faces, the water's boundary "
        "(an experiment's tank): the wall particles stand the water offset g d - r (about 0.6 d) outside them, so "
        "water given flush with a wall fills the box at every resolution, and a probe on a face of the box moves "
-       "with its wall (docs/validation.md); false: min/max are the wall particles' planes"),
+       "with its wall (docs/validation-notes.md); false: min/max are the wall particles' planes"),
     # fluid blocks
     _P("fluid", "tables", "-", REQUIRED, "fluid blocks ([[fluid]]), at least one"),
     _P("fluid[].shape", "str", "-", "box", "block shape", choices=FLUID_SHAPES),
@@ -114,7 +114,7 @@ _TAIL = (
        "nearest neighbours d (the points of a cubic grid of spacing d/sqrt(2) whose indices sum to an even number: "
        "every face a square net of spacing d, each particle over four of the layer below), 1.41x the particles, "
        "mass and wall gap calibrated on it; a stable rest state under pressure where the cubic lattice's columns "
-       "slip (issue #31, docs/validation.md); one lattice for every block, cubic with emitters",
+       "slip (issue #31, docs/validation-notes.md); one lattice for every block, cubic with emitters",
        choices=("cubic", "fcc")),
     _P("fluid[].jitter", "float", "-", 0.0, "seeded perturbation of the start, a fraction of d: each coordinate of "
        "each particle of the block moves by a uniform draw in [-jitter d, +jitter d] (an ensemble of runs of a "

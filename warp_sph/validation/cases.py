@@ -62,7 +62,7 @@ CASES = {
                         {"last_state": lambda d: f"output.checkpoint_every={LAST_STATE_EVERY}"},
                         "Hydrostatic tank, floor and mid-depth pressure"),
     # the same tank started on the fcc lattice (``fluid[].lattice``), which holds under load where the cubic one's
-    # columns slip (docs/validation.md "A start that holds under load"); its tank is the fcc block's own width
+    # columns slip (docs/validation-notes.md "The fcc lattice"); its tank is the fcc block's own width
     # (``fcc_tank_width``), so the water fills it exactly at both radii, as the cubic case's 0.6 m tank does
     "hydrostatic_fcc": Case("hydrostatic_fcc", "hydrostatic_probes.toml", (0.025, 0.0125),
                             {"last_state": lambda d: f"output.checkpoint_every={LAST_STATE_EVERY}",

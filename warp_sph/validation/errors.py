@@ -31,7 +31,7 @@ MAX_SHIFT = 0.2
 #: the centred moving-average window applied to simulated pressures before their peak is compared [s]: none.
 #: Lobovsky et al. 2014 sampled at 20 kHz and no filter of theirs is stated in the sources at hand
 #: (data/lobovsky_2014_peaks.csv); a window would need the sensor's own, cited, response time.
-#: The simulated signal is compared as sampled (docs/validation.md, "Sampling as the experiment").
+#: The simulated signal is compared as sampled (docs/validation-notes.md, "Sampling as the experiment").
 PRESSURE_WINDOW = 0.0
 #: the window of the figures published before (kept in each record as ``peak_4ms``, for comparison) [s]
 OLD_PRESSURE_WINDOW = 0.004

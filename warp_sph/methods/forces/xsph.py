@@ -5,7 +5,7 @@ Not a viscosity and not physical (its factor has no unit; it damps particle-scal
 every relative motion). A filter: it runs after the other forces of the slot.
 
 The filter acts once per step, so with a fixed factor its smoothing per second grows as 1 / dt: a solver
-whose steps are 4.7x longer (DFSPH against WCSPH in the fcc tank at rest, docs/validation.md) is damped
+whose steps are 4.7x longer (DFSPH against WCSPH in the fcc tank at rest, docs/validation-notes.md) is damped
 4.7x less. ``xsph.reference_step`` = tau > 0 makes eps the smoothing per tau: a step of dt runs
 n = ceil(dt / tau) passes, each with eps_n = 1 - (1 - eps)^(dt / (n tau)), so that any steps spanning the
 same time apply (1 - eps) per tau to a velocity difference the filter removes whole (exactly: a step of

@@ -115,7 +115,7 @@ class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
               "min(1, 2 dt / adaptive step)): 1 corrects it at once, as SPlisHSPlasH; 0.1 spreads it over about 10 "
               "steps, so a leftover the solve cannot remove feeds a tenth of the velocity. Not a fix: with 0.1 the coarse fcc "
               "tank comes to rest (8.4e-4 m/s at 2 s) but the fine one compresses (0.1 m/s, mid-depth -28 %; "
-              "docs/validation.md)", gt=0.0, le=1.0),
+              "docs/validation-notes.md)", gt=0.0, le=1.0),
     )
 
     @classmethod

@@ -81,7 +81,7 @@ class WcsphSolver(Solver):
               "continuity equation, every particle starting at rho0, pairs next to a wall left out (their wall share of the "
               "density is the wall's push); damps acoustic noise (a settling tank) but a negative correction a "
               "particle takes at a free surface goes with it into a splash, which the one-layer wall then holds less "
-              "well (docs/validation.md), hence off (0) by default", ge=0.0, le=1.0),
+              "well (docs/validation-notes.md), hence off (0) by default", ge=0.0, le=1.0),
         Param("wcsph.artificial_viscosity", "float", "-", 0.0, "artificial viscosity alpha (Monaghan 1992, "
               "Becker & Teschner 2007): nu = 2 alpha h c_s / (rho_i + rho_j) on approaching pairs only; dissipates "
               "impacts (a 14 m/s drop keeps 30 % of its energy with 0.5 instead of 100 %), the acoustic step shrinks "
