@@ -164,3 +164,46 @@ def test_padded_pair_rows_of_a_device_run_on_the_cpu_give_the_same_search():
     for (ia, ga), (ib, gb) in zip(out[True][1], out[False][1]):
         assert np.array_equal(ia, ib) and np.array_equal(ga, gb)
     assert np.array_equal(out[True][2], out[False][2]) and np.array_equal(out[True][3], out[False][3])
+
+
+def run_frames(sim, frames):
+    for _ in range(frames):
+        sim.advance_frame()
+    return [sim.get_field(name) for name in ("particle_x", "particle_v", "particle_density")]
+
+
+def test_fluid_list_rows_sized_from_the_rest_neighbour_count(device):
+    """DFSPH's fluid list rows (and the pair cache's allocation) hold 1.3 times the neighbours a particle has at
+    rest density within H_s, (4/3) pi H_s^3 / V (``pbf_passes.list_capacity``, as PBF's rows: 44 slots), not the
+    lists' general 64 per support volume; three frames of a dam break in a small tank fit them (no overflow, no
+    redone frame)."""
+    import math
+    import warnings
+
+    sim = Simulation(small_tank("rows"), device=device)
+    m, nl = sim.model, sim.solver.nl
+    at_rest = 4.0 / 3.0 * math.pi * m.support_radius ** 3 / (m.particle_mass / m.rest_density)  # 33.5 on d^3 = V
+    capacity = nl.capacities[0]
+    assert capacity == math.ceil(1.3 * at_rest) == 44 < 64
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # an overflow warns and redoes the frame
+        run_frames(sim, 3)
+    assert nl.capacities[0] == capacity
+    assert sim.fields["dfsph_pairs"].index.shape[0] == max(m.capacity, 1) * capacity
+    assert int(nl.fluid.count.numpy()[: m.fluid_count].max()) < capacity
+
+
+def test_overflowing_fluid_list_rows_grow_and_redo_the_frame_bitwise(device):
+    """Rows too short for a particle's neighbours (cut to 20 slots after the start) overflow: the frame is redone
+    with grown lists (``run.frame_loop``) and the run is bitwise the one whose rows were long enough throughout (the
+    same pairs in the same order); the pair cache follows the lists' capacity."""
+    ref = Simulation(small_tank("rows"), device=device)
+    short = Simulation(small_tank("rows"), device=device)
+    nl = short.solver.nl
+    nl._allocate(nl.fluid, 20)
+    with pytest.warns(RuntimeWarning, match="the lists grow and the frame is redone"):
+        a = run_frames(short, 2)
+    b = run_frames(ref, 2)
+    capacity = nl.capacities[0]
+    assert capacity > 20 and short.fields["dfsph_pairs"].index.shape[0] == short.model.capacity * capacity
+    assert all(np.array_equal(u, w) for u, w in zip(a, b))

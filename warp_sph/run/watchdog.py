@@ -116,9 +116,10 @@ class Watchdog:
         self._bodies = self.sim.bodies.save() if self.sim.bodies is not None else None
         # animated obstacles (pose, work so far) and whitewater (a redone frame generates the same particles)
         self._parts = tuple((p, p.save()) for p in self.sim.parts if hasattr(p, "save"))
-        if self.mode == "retry":
-            arrays = {**self.sim.solver.checkpoint_arrays(), **self.sim.forces.checkpoint_arrays()}
-            self._extra = {k: wp.clone(a) if isinstance(a, wp.array) else a for k, a in arrays.items()}
+        # the carried fields (e.g. DFSPH's warm start) too, in every mode: a frame redone after a neighbour list
+        # overflowed (``frame_loop``) must start from the same values to be bitwise the run with longer rows
+        arrays = {**self.sim.solver.checkpoint_arrays(), **self.sim.forces.checkpoint_arrays()}
+        self._extra = {k: wp.clone(a) if isinstance(a, wp.array) else a for k, a in arrays.items()}
 
     def restore(self) -> None:
         s = self.sim.state
