@@ -248,17 +248,17 @@ def test_list_rows_sized_from_the_rest_neighbour_count(device):
     assert int(nl.fluid.count.numpy()[: m.fluid_count].max()) <= capacity
 
 
-def test_overflowing_list_rows_grow_and_redo_the_frame_bitwise(monkeypatch, device):
-    """Rows too short for a particle's neighbours (here forced to 20 slots) overflow: the frame is redone with grown
-    lists (``run.frame_loop``) and the run is bitwise the one whose rows were long enough from the start (the same
-    pairs in the same order); the pair cache follows the lists' capacity."""
+def test_overflowing_list_rows_grow_and_redo_the_frame_bitwise(device):
+    """Rows too short for a particle's neighbours (cut to 20 slots after the start, whose density pass would grow
+    them) overflow: the frame is redone with grown lists (``run.frame_loop``) and the run is bitwise the one whose
+    rows were long enough from the start (the same pairs in the same order); the pair cache follows the lists'
+    capacity."""
     import pytest
 
-    from warp_sph.methods.solvers import pbf_passes
-
     ref = Simulation(fixed_step_tank(), device=device)
-    monkeypatch.setattr(pbf_passes, "list_capacity", lambda radius, volume: 20)
     short = Simulation(fixed_step_tank(), device=device)
+    nl = short.solver.nl
+    nl._allocate(nl.fluid, 20)
     assert short.solver.nl.capacities[0] == 20
     with pytest.warns(RuntimeWarning, match="the lists grow and the frame is redone"):
         a = run_frames(short, 2)
@@ -326,3 +326,25 @@ def test_pair_passes_cache_the_listed_pairs_and_their_gradients(device):
         got = np.concatenate(cached)
         assert len(got) > 10 * m.fluid_count
         np.testing.assert_allclose(got, volume * g, rtol=0, atol=2e-6 * np.abs(volume * g).max(), err_msg=name)
+
+
+def test_a_start_denser_than_the_rows_reads_its_whole_density(monkeypatch, device):
+    """A block sampled at 0.8 d has about 80 neighbours within H_s + 0.2 d, more than the rows' 1.3x the rest count:
+    the start's density pass grows the lists and runs again (as DFSPH's ``refresh_density``), so the start's density
+    is bitwise the one of rows long enough from the beginning (the truncated rows read it up to 47 % low)."""
+    from warp_sph.methods.solvers import pbf_passes
+
+    def compressed():
+        r = 0.025
+        return small_tank("pbf_dense_start", solver="pbf", particle_radius=r,
+                          container={"min": [0, 0, 0], "max": [0.5, 0.5, 0.5]},
+                          fluid=[{"min": [0, 0, 0], "max": [0.25, 0.25, 0.25], "spacing_scale": 0.8}])
+
+    sim = Simulation(compressed(), device=device)
+    grown = sim.solver.nl.capacities[0]
+    rho = sim.get_field("particle_density")
+    monkeypatch.setattr(pbf_passes, "list_capacity", lambda radius, volume: 200)
+    long_rows = Simulation(compressed(), device=device)
+    assert long_rows.solver.nl.capacities[0] == 200
+    assert grown > int(long_rows.solver.nl.fluid.count.numpy().max())  # the rows grew past what the start needs
+    assert np.array_equal(rho, long_rows.get_field("particle_density"))
