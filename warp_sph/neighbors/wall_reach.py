@@ -20,8 +20,8 @@ from ..kernels import wall_reach as _walls
 
 #: sub-cells per cell of the search grid along each axis (0: walk the wall grid every step instead). The
 #: reach of a sub-cell of side a is its box grown by H_s: with cells of H_s, 1 -> 2 -> 4 sub-cells shrink it
-#: from 20.6 to 10.5 to 6.9 H_s^3 (the search sphere: 4.2 H_s^3). Measured on the dam break (docs/methods.md
-#: "Where the search's time goes"): 21.7 / 10.2 / 5.9 wall candidates per particle, but the same time at 1
+#: from 20.6 to 10.5 to 6.9 H_s^3 (the search sphere: 4.2 H_s^3). Measured on the dam break (docs/performance.md
+#: "Neighbour search"): 21.7 / 10.2 / 5.9 wall candidates per particle, but the same time at 1
 #: and 2 (4 is slower: 432 list entries per wall particle) for 4x the memory at 2, so 1.
 WALL_SUBCELLS = 1
 #: most sub-cells (their list starts: 4 B each); fewer sub-cells per cell on larger grids

@@ -293,13 +293,13 @@ _TAIL = (
     # cost grows with the surface area / cell^2 (sparse narrow band). Defaults (cells of 2 r, 5
     # smoothing steps, no decimation): the default dam break's surface in ~1/10 of the CPU time of
     # 1.0 r with 15 steps and decimation to convergence, as many triangles, flatter pool and rounder
-    # sphere (docs/benchmarks.md); more steps on coarse cells grow marching cubes' "barnacles".
+    # sphere (docs/performance.md); more steps on coarse cells grow marching cubes' "barnacles".
     _P("output", "table", "-", {}, "what a run writes"),
     _P("output.usd", "bool", "-", True, "write a USD stage (points, and the surface mesh if surface)"),
     _P("output.surface", "bool", "-", True, "reconstruct the fluid surface (marching cubes)"),
     _P("output.surface_cell_per_radius", "float", "-", 2.0, "surface grid cell size / r (2.0: with 5 "
        "smoothing steps flatter and rounder than 1.0 with 15 steps and decimation, as many triangles, "
-       "about 1/10 of the cost; docs/benchmarks.md)", ge=0.1, le=4.0),
+       "about 1/10 of the cost; docs/performance.md)", ge=0.1, le=4.0),
     _P("output.surface_method", "str", "-", "marching_cubes", "iso-surface extraction: marching cubes "
        "on the sparse narrow band (Warp's case table)", choices=("marching_cubes",)),
     _P("output.surface_iso", "float", "-", 0.6, "iso level of Phi = sum_j f_j/rho~_j (1 inside the "

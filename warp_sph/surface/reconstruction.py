@@ -49,7 +49,7 @@ DEFAULT_SMOOTHING_ITERATIONS = 5
 #: default decimation error bound [r] (``output.surface_decimation_error``; 0: no decimation)
 DEFAULT_DECIMATION_ERROR = 0.0
 #: collapse rounds per frame with an error bound only (``output.surface_decimation_rounds`` = 0); each
-#: round cuts ~1/8 of the triangles and costs about a smoothing pass (docs/benchmarks.md)
+#: round cuts ~1/8 of the triangles and costs about a smoothing pass (docs/performance.md, "The surface's cost")
 DEFAULT_DECIMATION_ROUNDS = 2
 #: rounds with a triangle budget (0 rounds: until the budget is met, at most this many)
 BUDGET_DECIMATION_ROUNDS = 40

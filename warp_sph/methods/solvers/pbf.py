@@ -55,7 +55,7 @@ __all__ = ["LIST_MARGIN", "PbfSolver", "fluid_depth", "lattice_transport", "rest
 #: search margin of the lists [spacings d]: pairs within H_s + margin, rebuilt once a particle moved margin / 2.
 #: 0.1 d listed 12 % fewer pairs (0.90x CPU per step on the fixed-step dam break) but changes the pairs' order, and
 #: the resting tank's floor probe (tests/test_probes.py, PBF, coarse) then read +1.14 % against its 1 % goal
-#: (+0.13 % at 0.2 d): kept at 0.2 d (docs/methods.md, issue #32)
+#: (+0.13 % at 0.2 d): kept at 0.2 d (docs/performance.md, "PBF's step")
 LIST_MARGIN = 0.2
 
 

@@ -37,7 +37,7 @@ from .wcsph_lists import static_wall_lists
 #: most 52 = 1.17x at their frame ends over 0.5-1 s, the cubic start lattice 33); a row that
 #: overflows grows the lists and redoes the frame (``run.frame_loop``). The pair cache's rows are as long: 58 slots
 #: at H_s + 0.2 d, against 86 at the lists' general 64 per support volume (issue #32: the solve stage 5.2-5.5 ->
-#: 4.0-4.4 ms per step on a loaded machine; rows packed further gained nothing: docs/methods.md, PBF)
+#: 4.0-4.4 ms per step on a loaded machine; rows packed further gained nothing: docs/performance.md, "PBF's step")
 LIST_HEADROOM = 1.3
 
 
