@@ -159,7 +159,8 @@ def _prepared(cmd):
 
 class Recorded:
     """A launch recorded once and replayed (``record``): Warp packs the arguments at recording only,
-    so a replay costs a few microseconds of Python instead of a full ``wp.launch``. The same split
+    and on the CPU each range's argument struct is built once (``_prepared``), so a replay is one call of
+    the kernel (0.2-0.4 us of Python) instead of a full ``wp.launch``. The same split
     into thread ranges as ``launch``; ``set(index, value)`` replaces input/output ``index`` (counted
     without ``tid_offset``) in every range."""
 
