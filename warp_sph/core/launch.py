@@ -136,6 +136,10 @@ def _prepared(cmd):
     if not PREPARED_REPLAY or not cmd.device.is_cpu or cmd.block_dim > 1 or cmd.adjoint:
         return cmd.launch, None
     kernel, params = cmd.kernel, cmd.params
+    runtime = _ctx.runtime
+    if not (hasattr(kernel, "_invoke_cache") and hasattr(runtime, "_apic_capture")
+            and getattr(cmd.hooks, "forward", None) is not None):  # another Warp than 1.19's internals: its launch
+        return cmd.launch, None
     key = (tuple(type(p) for p in params[1:]), False)
     cached = kernel._invoke_cache.get(key)
     if cached is None:  # as Warp's invoke builds and caches it on a first launch
@@ -146,7 +150,6 @@ def _prepared(cmd):
     for i, field in enumerate(fields):
         setattr(args, field[0], params[1 + i])
     forward, bounds_ref, args_ref = cmd.hooks.forward, ctypes.byref(params[0]), ctypes.byref(args)
-    runtime = _ctx.runtime
 
     def run(args=args) -> None:  # (args: keeps the struct alive)
         if runtime._apic_capture is None:
