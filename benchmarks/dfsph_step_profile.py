@@ -12,7 +12,9 @@ twice, once per path of the solves' sweeps (``PATHS``: a split launch per pass, 
   ``wp.launch`` is routed here by recording it first) is timed on the thread that runs it. Per step:
   kernel runs, wall, the main thread's kernel time and its Python time (wall minus that), each worker
   thread's kernel time and its idle time (wall minus its kernel time: the serial stretches, the
-  hand-offs), host reads (``wp.array.numpy`` calls), the threads' synchronisations (barrier rounds,
+  hand-offs; replays go through Warp's launch here, ``core.launch.PREPARED_REPLAY`` off, so the
+  per-launch argument packing the plain rounds skip is in this round's Python time), host reads
+  (``wp.array.numpy`` calls), the threads' synchronisations (barrier rounds,
   wakes of the persistent threads, split launches on the fallback pool), and the kernels by total time.
 The instrumentation adds a few microseconds per run; compare its wall with the plain one. Last, the
 cost of one split-launch hand-off, of the thread pool's it replaced, and of one pass of ``run_loop``'s barrier
@@ -107,6 +109,8 @@ def _instrumented(sim, frames: int) -> dict:
         return plain_submit(self, *a, **kw)
 
     main = threading.get_ident()
+    # replays through warp's Launch.launch (timed above), not core.launch's prepared calls that bypass it
+    prepared, L.PREPARED_REPLAY = L.PREPARED_REPLAY, False
     ctx.Launch.launch, wp.launch, wp.array.numpy = timed_run, recorded_launch, counted_numpy
     L._Barrier.wait, L._LoopWorkers.start, ThreadPoolExecutor.submit = counted_wait, counted_start, counted_submit
     try:
@@ -115,6 +119,7 @@ def _instrumented(sim, frames: int) -> dict:
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     finally:
         ctx.Launch.launch, wp.launch, wp.array.numpy = plain_run, plain_launch, plain_numpy
+        L.PREPARED_REPLAY = prepared
         L._Barrier.wait, L._LoopWorkers.start, ThreadPoolExecutor.submit = plain_wait, plain_start, plain_submit
     main_k = kernel_s.get(main, 0.0)
     workers = [{"kernel_ms_per_step": 1e3 * s / steps, "idle_ms_per_step": 1e3 * (wall - s) / steps,

@@ -150,3 +150,48 @@ def test_dfsph_sweep_loop_is_bitwise_the_launch_per_pass(monkeypatch, threads):
         assert np.array_equal(a, b)
     assert old[3] == new[3]
     assert all(f[0] >= 2 for f in new[3])
+
+
+@wp.kernel(enable_backward=False)
+def _affine(tid_offset: int, x: wp.array(dtype=float), a: float, v: wp.vec3, y: wp.array(dtype=float)):
+    """y_i = a x_i + v_0 - v_2 (a scalar, a vector and two arrays per launch)."""
+    i = wp.tid() + tid_offset
+    y[i] = a * x[i] + v[0] - v[2]
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_replays_run_prepared_without_warps_per_launch_packing(monkeypatch, threads):
+    """A replayed CPU launch calls the kernel with its argument struct packed once (``core.launch._prepared``),
+    not through Warp's ``invoke`` (which packs every argument on each launch), and still computes what a fresh
+    ``wp.launch`` computes after each change: a new scalar, a new vector, another output array, another size
+    (NumPy oracle; bitwise, the same float32 operations)."""
+    from warp._src import context as warp_context
+
+    monkeypatch.setenv("WARP_SPH_CPU_THREADS", str(threads))
+    rng = np.random.default_rng(5)
+    n = 4096
+    x = wp.array(rng.random(n).astype(np.float32), dtype=float, device="cpu")
+    y, y2 = wp.zeros(n, dtype=float, device="cpu"), wp.zeros(n, dtype=float, device="cpu")
+    replays = Replays()
+    replays.get(_affine, n, [x, 1.5, wp.vec3(0.25, 0.0, 0.5)], [y], device="cpu").launch()  # recorded, loaded
+    invoked = []
+    plain = warp_context.invoke
+    monkeypatch.setattr(warp_context, "invoke", lambda *a, **k: (invoked.append(1), plain(*a, **k)))
+    xs = x.numpy()
+    for a, v, out, dim in [(1.5, (0.25, 0.0, 0.5), y, n), (-3.0, (0.25, 0.0, 0.5), y, n), (-3.0, (2.0, 0.0, -1.0), y, n),
+                           (0.5, (2.0, 0.0, -1.0), y2, n), (0.5, (2.0, 0.0, -1.0), y2, 3000)]:
+        out.zero_()
+        rec = replays.get(_affine, dim, [x, a, wp.vec3(*v)], [out], device="cpu")
+        assert len(rec.cmds) == threads
+        for _ in range(2):
+            rec.launch()
+        expect = np.zeros(n, np.float32)
+        expect[:dim] = np.float32(a) * xs[:dim] + np.float32(v[0]) - np.float32(v[2])
+        assert np.array_equal(out.numpy(), expect)
+    assert not invoked  # every replay ran prepared
+    core_launch.PREPARED_REPLAY = False
+    try:
+        replays.get(_affine, n, [x, 0.5, wp.vec3(0.0)], [y], device="cpu").launch()
+    finally:
+        core_launch.PREPARED_REPLAY = True
+    assert len(invoked) == threads  # the switch (benchmarks/dfsph_step_profile.py) goes back through Warp's launch

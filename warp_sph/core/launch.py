@@ -120,9 +120,50 @@ def _run_split(calls) -> None:
     for f in futures:
         f.result()
 
+#: replay recorded CPU launches through ``_prepared`` (their packed argument struct built once per change, not per
+#: launch); False: through ``warp.Launch.launch`` (benchmarks/dfsph_step_profile.py times kernels there)
+PREPARED_REPLAY = True
+
+
+def _prepared(cmd):
+    """(callable, (struct, fields) or None): a callable that runs the recorded launch ``cmd`` (a ``warp`` Launch) as ``cmd.launch()`` does on the CPU, with
+    its argument struct packed now, once: Warp's CPU ``invoke`` builds a ctypes struct of every argument on each
+    launch (~0.3 us per argument, with the GIL held, on every thread of a split launch); here a replay is one call of
+    the kernel's entry point with the same struct contents, so the kernel computes bitwise the same. ``cmd.launch``
+    itself where that does not apply (a device, tile blocks, an adjoint, an active Warp graph capture)."""
+    from warp._src import context as _ctx
+
+    if not PREPARED_REPLAY or not cmd.device.is_cpu or cmd.block_dim > 1 or cmd.adjoint:
+        return cmd.launch, None
+    kernel, params = cmd.kernel, cmd.params
+    runtime = _ctx.runtime
+    if not (hasattr(kernel, "_invoke_cache") and hasattr(runtime, "_apic_capture")
+            and getattr(cmd.hooks, "forward", None) is not None):  # another Warp than 1.19's internals: its launch
+        return cmd.launch, None
+    key = (tuple(type(p) for p in params[1:]), False)
+    cached = kernel._invoke_cache.get(key)
+    if cached is None:  # as Warp's invoke builds and caches it on a first launch
+        fields = [(a.label, type(params[1 + i])) for i, a in enumerate(kernel.adj.args)]
+        cached = kernel._invoke_cache[key] = (type("ArgsStruct", (ctypes.Structure,), {"_fields_": fields}), fields)
+    struct_type, fields = cached
+    args = struct_type()
+    for i, field in enumerate(fields):
+        setattr(args, field[0], params[1 + i])
+    forward, bounds_ref, args_ref = cmd.hooks.forward, ctypes.byref(params[0]), ctypes.byref(args)
+
+    def run(args=args) -> None:  # (args: keeps the struct alive)
+        if runtime._apic_capture is None:
+            forward(bounds_ref, args_ref)
+        else:
+            cmd.launch()
+
+    return run, (args, fields)
+
+
 class Recorded:
     """A launch recorded once and replayed (``record``): Warp packs the arguments at recording only,
-    so a replay costs a few microseconds of Python instead of a full ``wp.launch``. The same split
+    and on the CPU each range's argument struct is built once (``_prepared``), so a replay is one call of
+    the kernel (0.2-0.4 us of Python) instead of a full ``wp.launch``. The same split
     into thread ranges as ``launch``; ``set(index, value)`` replaces input/output ``index`` (counted
     without ``tid_offset``) in every range."""
 
@@ -139,6 +180,18 @@ class Recorded:
         self.cmds = [wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *ins][1 - offset:],
                                outputs=outs, device=device, record_cmd=True)
                      for k in range(threads) if bounds[k + 1] > bounds[k]]
+        self._runs = None  # ``_prepared`` callables of the ranges (made on first use, again after a change)
+        self._runs_mode = PREPARED_REPLAY
+        self._structs: list = []
+
+    def runs(self) -> list:
+        """One callable per range (``_prepared``): what ``launch`` and ``run_loop`` call."""
+        if self._runs is None or self._runs_mode != PREPARED_REPLAY:
+            prepared = [_prepared(cmd) for cmd in self.cmds]
+            self._runs = [run for run, _ in prepared]
+            self._structs = [struct for _, struct in prepared]
+            self._runs_mode = PREPARED_REPLAY
+        return self._runs
 
     def resize(self, dim: int) -> None:
         """Launch over ``dim`` threads from now on, in as many ranges as recorded (each non-empty:
@@ -146,6 +199,7 @@ class Recorded:
         if dim == self.dim:
             return
         n = len(self.cmds)
+        self._runs = None
         for k, cmd in enumerate(self.cmds):
             lo, hi = dim * k // n, dim * (k + 1) // n
             cmd.set_dim(hi - lo)
@@ -154,13 +208,22 @@ class Recorded:
         self.dim = dim
 
     def set(self, index: int, value) -> None:
-        for cmd in self.cmds:
-            cmd.set_param_at_index(index + self.offset, value)
+        at = index + self.offset
+        for k, cmd in enumerate(self.cmds):
+            cmd.set_param_at_index(at, value)
+            struct = self._structs[k] if self._runs is not None else None
+            if struct is not None:  # the prepared struct's field, packed as Warp packed the parameter
+                args, fields = struct
+                name, ctype = fields[at]
+                if type(cmd.params[1 + at]) is ctype:
+                    setattr(args, name, cmd.params[1 + at])
+                else:
+                    self._runs = None
 
     def launch(self) -> None:
         """Run the recorded launch (every range; waits for all of them)."""
         if self.cmds:
-            _run_split([cmd.launch for cmd in self.cmds])
+            _run_split(self.runs())
 
 def record(kernel, dim: int, inputs, outputs=(), device=None, min_range: int = MIN_RANGE) -> Recorded:
     """A :class:`Recorded` launch of ``kernel`` over ``dim`` threads (1-D; split into ranges like
@@ -210,14 +273,17 @@ class Replays:
         entry = self._cache.get(key)
         if entry is None or entry[0].threads != threads or len(entry[1]) != len(args):
             rec = record(kernel, dim, inputs, outputs, device=device, min_range=min_range)
-            self._cache[key] = (rec, [_binding(a) for a in args])
+            self._cache[key] = (rec, [_binding(a) for a in args], args)
             return rec
-        rec, bound = entry
+        rec, bound, last = entry
         for i, value in enumerate(args):
+            if value is last[i] and type(value) is wp.array:  # the same array object: the same binding
+                continue
             b = _binding(value)
             if b is None or b != bound[i]:
                 rec.set(i, value)
                 bound[i] = b
+        entry[2][:] = args
         rec.resize(dim)
         return rec
 
@@ -312,7 +378,7 @@ def _workers(count: int) -> _LoopWorkers:
 
 def _ranges(item) -> list:
     """The callables of a ``run_loop`` item: one per recorded range, or the item itself (thread 0)."""
-    return [cmd.launch for cmd in item.cmds] if isinstance(item, Recorded) else [item]
+    return item.runs() if isinstance(item, Recorded) else [item]
 
 
 def _run_serial(groups) -> None:

@@ -46,24 +46,39 @@ class CellGrid:
         self.sorted_x = wp.zeros(max(capacity, 1), dtype=wp.vec3, device=device)
         self.cell_start = wp.zeros(self.cell_count + 1, dtype=wp.int32, device=device)
         self.count = 0
+        self._key_bits = max(1, int(self.cell_count - 1).bit_length())  # bits of the largest cell key
+        self._replays = None  # CPU: ``build``'s recorded launches (``_launch``)
 
     def build(self, points: wp.array) -> None:
         """Sort ``points`` (wp.array of vec3 [m], at most ``capacity``) by cell."""
         from ..kernels import cell_lists as _grid_dev
-        from ..core.launch import LIGHT_MIN_RANGE, launch
 
         n = points.shape[0]
         if n > self.capacity:
             raise ValueError(f"CellGrid holds {self.capacity} points, got {n}")
         self.count = n
-        launch(_grid_dev.compute_cell_keys, n, [self.lo, self.inv_cell_size, self.dims, points],
-               [self._keys, self.cell_point], device=self.device, min_range=LIGHT_MIN_RANGE)
+        self._launch(_grid_dev.compute_cell_keys, n, [self.lo, self.inv_cell_size, self.dims, points],
+                     [self._keys, self.cell_point])
         if n:
             # keys < cell_count: sort only their low bits (measured 0.22 -> 0.1 ms at 6.9k points)
-            wp.utils.radix_sort_pairs(self._keys, self.cell_point, n, 0, max(1, int(self.cell_count - 1).bit_length()))
-        launch(_grid_dev.compute_cell_start, n + 1, [n, self.cell_count, self._keys], [self.cell_start],
-               device=self.device, min_range=LIGHT_MIN_RANGE)
-        launch(_grid_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x], device=self.device, min_range=LIGHT_MIN_RANGE)
+            wp.utils.radix_sort_pairs(self._keys, self.cell_point, n, 0, self._key_bits)
+        self._launch(_grid_dev.compute_cell_start, n + 1, [n, self.cell_count, self._keys], [self.cell_start])
+        self._launch(_grid_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x])
+
+    def _launch(self, kernel, dim: int, inputs, outputs) -> None:
+        """A light launch of ``build`` (``LIGHT_MIN_RANGE``): on the CPU replayed from its recording
+        (``core.launch.Replays``: arguments packed again only where they changed; the same ranges as ``launch``,
+        so bitwise the same), elsewhere ``launch``."""
+        from ..core.launch import LIGHT_MIN_RANGE, Replays, launch
+
+        if dim <= 0:
+            return
+        if self._replays is None:
+            self._replays = Replays() if wp.get_device(self.device).is_cpu else False
+        if self._replays:
+            self._replays.get(kernel, dim, inputs, outputs, device=self.device, min_range=LIGHT_MIN_RANGE).launch()
+        else:
+            launch(kernel, dim, inputs, outputs, device=self.device, min_range=LIGHT_MIN_RANGE)
 
     def occupied_near_mask(self, reach: int = 1) -> wp.array:
         """uint8 per cell: 1 where a point lies in the cell or one of its neighbours up to ``reach`` cells
