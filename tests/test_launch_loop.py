@@ -165,6 +165,8 @@ def test_replays_run_prepared_without_warps_per_launch_packing(monkeypatch, thre
     not through Warp's ``invoke`` (which packs every argument on each launch), and still computes what a fresh
     ``wp.launch`` computes after each change: a new scalar, a new vector, another output array, another size
     (NumPy oracle; bitwise, the same float32 operations)."""
+    if not wp.__version__.startswith(core_launch.PREPARED_WARP_VERSIONS):
+        pytest.skip(f"Warp {wp.__version__}: replays go through Warp's launch (PREPARED_WARP_VERSIONS)")
     from warp._src import context as warp_context
 
     monkeypatch.setenv("WARP_SPH_CPU_THREADS", str(threads))
@@ -195,3 +197,18 @@ def test_replays_run_prepared_without_warps_per_launch_packing(monkeypatch, thre
     finally:
         core_launch.PREPARED_REPLAY = True
     assert len(invoked) == threads  # the switch (benchmarks/dfsph_step_profile.py) goes back through Warp's launch
+
+
+def test_replays_of_an_unverified_warp_go_through_its_launch(monkeypatch):
+    """On a Warp release whose CPU launch ABI was not verified (``PREPARED_WARP_VERSIONS``), a replay is Warp's own
+    ``cmd.launch`` (never the prepared struct), and computes what the NumPy oracle says after a changed scalar."""
+    monkeypatch.setattr(wp, "__version__", "9.0.0")
+    n = 1000
+    x = wp.array(np.arange(n, dtype=np.float32), dtype=float, device="cpu")
+    y = wp.zeros(n, dtype=float, device="cpu")
+    replays = Replays()
+    for a in (2.0, -1.0):
+        rec = replays.get(_affine, n, [x, a, wp.vec3(1.0, 0.0, 0.5)], [y], device="cpu")
+        rec.launch()
+        assert all(run == cmd.launch for run, cmd in zip(rec.runs(), rec.cmds))
+        assert np.array_equal(y.numpy(), np.float32(a) * np.arange(n, dtype=np.float32) + np.float32(0.5))

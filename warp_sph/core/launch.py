@@ -123,6 +123,10 @@ def _run_split(calls) -> None:
 #: replay recorded CPU launches through ``_prepared`` (their packed argument struct built once per change, not per
 #: launch); False: through ``warp.Launch.launch`` (benchmarks/dfsph_step_profile.py times kernels there)
 PREPARED_REPLAY = True
+#: the Warp releases whose CPU launch ABI ``_prepared`` copies (an argument struct of (label, type(param)) fields passed
+#: by reference to the kernel's forward entry, its type cached in ``Kernel._invoke_cache``): verified on 1.19.0; any
+#: other version replays through Warp's own launch, which is always correct, only slower
+PREPARED_WARP_VERSIONS = ("1.19.",)
 
 
 def _prepared(cmd):
@@ -131,9 +135,12 @@ def _prepared(cmd):
     launch (~0.3 us per argument, with the GIL held, on every thread of a split launch); here a replay is one call of
     the kernel's entry point with the same struct contents, so the kernel computes bitwise the same. ``cmd.launch``
     itself where that does not apply (a device, tile blocks, an adjoint, an active Warp graph capture)."""
-    from warp._src import context as _ctx
-
-    if not PREPARED_REPLAY or not cmd.device.is_cpu or cmd.block_dim > 1 or cmd.adjoint:
+    if not PREPARED_REPLAY or not wp.__version__.startswith(PREPARED_WARP_VERSIONS) or not cmd.device.is_cpu \
+            or cmd.block_dim > 1 or cmd.adjoint:
+        return cmd.launch, None
+    try:
+        from warp._src import context as _ctx
+    except ImportError:  # (guarded by the version above; kept for a patched Warp)
         return cmd.launch, None
     kernel, params = cmd.kernel, cmd.params
     runtime = _ctx.runtime
