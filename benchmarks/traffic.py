@@ -79,9 +79,12 @@ class LaunchBytes:
 @contextmanager
 def counting_launches(threads: int | None = 1):
     """Count every kernel launch run inside the block (``LaunchBytes``): ``wp.launch`` calls (not those that only
-    record a launch) and replays of recorded launches. ``threads``: ``WARP_SPH_CPU_THREADS`` inside the block
-    (None: unchanged), restored after it."""
+    record a launch) and replays of recorded launches, which run through Warp's ``Launch.launch`` inside the block
+    (``core.launch.PREPARED_REPLAY`` off: the prepared replays call the kernel without it). ``threads``:
+    ``WARP_SPH_CPU_THREADS`` inside the block (None: unchanged), restored after it."""
     from warp._src.context import Launch
+
+    from warp_sph.core import launch as core_launch
 
     counter = LaunchBytes()
     plain, replay = wp.launch, Launch.launch
@@ -97,12 +100,14 @@ def counting_launches(threads: int | None = 1):
 
     old_threads = os.environ.get("WARP_SPH_CPU_THREADS")
     wp.launch, Launch.launch = counted_launch, counted_replay
+    prepared, core_launch.PREPARED_REPLAY = core_launch.PREPARED_REPLAY, False
     if threads is not None:
         os.environ["WARP_SPH_CPU_THREADS"] = str(int(threads))
     try:
         yield counter
     finally:
         wp.launch, Launch.launch = plain, replay
+        core_launch.PREPARED_REPLAY = prepared
         if threads is not None:
             if old_threads is None:
                 os.environ.pop("WARP_SPH_CPU_THREADS", None)
