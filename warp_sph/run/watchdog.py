@@ -71,6 +71,15 @@ class Finding:
     first: int          # smallest particle index breaking it
 
 
+def _kept_copy(kept, a: wp.array) -> wp.array:
+    """``a`` copied into ``kept`` where that array has its shape, dtype and device (the last frame's copy: no
+    allocation per frame), else into a new clone."""
+    if isinstance(kept, wp.array) and kept.shape == a.shape and kept.dtype == a.dtype and kept.device == a.device:
+        wp.copy(kept, a)
+        return kept
+    return wp.clone(a)
+
+
 class Watchdog:
     """Health rules, frame-start snapshot and retry state of one Simulation."""
 
@@ -119,7 +128,8 @@ class Watchdog:
         # the carried fields (e.g. DFSPH's warm start) too, in every mode: a frame redone after a neighbour list
         # overflowed (``frame_loop``) must start from the same values to be bitwise the run with longer rows
         arrays = {**self.sim.solver.checkpoint_arrays(), **self.sim.forces.checkpoint_arrays()}
-        self._extra = {k: wp.clone(a) if isinstance(a, wp.array) else a for k, a in arrays.items()}
+        kept = self._extra or {}
+        self._extra = {k: _kept_copy(kept.get(k), a) if isinstance(a, wp.array) else a for k, a in arrays.items()}
 
     def restore(self) -> None:
         s = self.sim.state
