@@ -174,7 +174,7 @@ def run_frames(sim, frames):
 
 def test_fluid_list_rows_sized_from_the_rest_neighbour_count(device):
     """DFSPH's fluid list rows (and the pair cache's allocation) hold 1.3 times the neighbours a particle has at
-    rest density within H_s, (4/3) pi H_s^3 / V (``pbf_passes.list_capacity``, as PBF's rows: 44 slots), not the
+    rest density within H_s, (4/3) pi H_s^3 / V (``cell_lists.list_capacity``, as PBF's rows: 44 slots), not the
     lists' general 64 per support volume; three frames of a dam break in a small tank fit them (no overflow, no
     redone frame)."""
     import math

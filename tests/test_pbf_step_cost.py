@@ -228,7 +228,7 @@ def test_kept_wall_lists_bitwise_the_searched_ones(monkeypatch, device):
 
 def test_list_rows_sized_from_the_rest_neighbour_count(device):
     """PBF's fluid list rows (and so the pair cache's) hold ``LIST_HEADROOM`` times the neighbours a particle has
-    at rest density within the search radius, (4/3) pi R^3 / V (``pbf_passes.list_capacity``), not the lists'
+    at rest density within the search radius, (4/3) pi R^3 / V (``cell_lists.list_capacity``), not the lists'
     general 64 per support volume (86 slots at H_s + 0.2 d: the correction then streamed a cache of 1.5x the bytes'
     span, issue #32); three frames of a falling block fit them (no overflow, no redone frame)."""
     import math

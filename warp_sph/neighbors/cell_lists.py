@@ -348,6 +348,33 @@ class NeighborLists:
         if self.has_boundary and new > bcap:
             self._allocate(self.boundary, new)
 
+    def grow_to_fit(self) -> bool:
+        """Grow both lists for the largest neighbour count that overflowed a row (one host read); True when they
+        grew, so the caller's pass runs again with every pair. The overflow flag is left set: a frame whose steps
+        overflowed is still redone by the frame loop (``overflow`` clears it). A start sampled denser than rest
+        needs this, its rows holding 1.3x the rest count (DFSPH's and PBF's ``refresh_density``)."""
+        worst = int(self._max_count.numpy().max())
+        if not worst:
+            return False
+        before = self.capacities
+        self.grow(worst)
+        return self.capacities != before
+
+
+#: fluid list rows hold this many times the neighbours a particle has at rest density within the search radius,
+#: (4/3) pi R^3 / V (44.6 at H_s + 0.2 d; the dam break, drop_into_pool, crown_splash and hydrostatic scenes listed at
+#: most 52 = 1.17x at their frame ends over 0.5-1 s, the cubic start lattice 33); a row that
+#: overflows grows the lists and redoes the frame (``run.frame_loop``). The solvers' pair caches follow: PBF's rows 58 slots
+#: at H_s + 0.2 d, against 86 at the lists' general 64 per support volume (issue #32, PBF: the solve stage 5.2-5.5 ->
+#: 4.0-4.4 ms per step on a loaded machine; rows packed further gained nothing: docs/performance.md, "PBF's step")
+LIST_HEADROOM = 1.3
+
+
+def list_capacity(search_radius: float, particle_volume: float) -> int:
+    """Fluid neighbours per list row [-]: ``LIST_HEADROOM`` (4/3) pi R^3 / V, R the search radius [m] and V = m / rho0
+    the volume of a fluid particle [m^3] (the neighbours of a particle at rest density, itself included)."""
+    return int(math.ceil(LIST_HEADROOM * (4.0 / 3.0) * math.pi * search_radius ** 3 / particle_volume))
+
 
 def simulation_neighbor_lists(sim, margin: float = 0.0, cells_per_radius: int = 1, *,
                               fluid_capacity: int | None = None) -> NeighborLists:

@@ -44,14 +44,13 @@ from ...kernels import dfsph as _dfsph
 from ...kernels import dfsph_solve as _dfsph_solve
 from ...kernels import reduction as _reduce
 from ...scene.parameters import Param
-from ...neighbors.cell_lists import simulation_neighbor_lists
+from ...neighbors.cell_lists import list_capacity, simulation_neighbor_lists
 from ..density import neighbors_stage
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
 from ..force import ForceSlot
 from .dfsph_search import FACTOR_FLOOR, NEIGHBOR_THRESHOLD_CUBIC, DfsphSearch, neighbor_threshold
 from .dfsph_solve import STABILIZE_FACTOR, STABILIZE_FLOOR, DfsphSolve, fluid_layers
-from .pbf_passes import list_capacity
 
 @register_solver
 class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
@@ -242,7 +241,7 @@ class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
     def stages(self) -> list[Stage]:
         sim, m, p = self.sim, self.model, self.config
         # fluid list rows (and the pair cache's allocation) sized from the rest neighbour count, as PBF's
-        # (``pbf_passes.list_capacity``: 1.3 (4/3) pi R^3 / V, 44 slots at R = H_s, not 64); overflow grows and redoes
+        # (``cell_lists.list_capacity``: 1.3 (4/3) pi R^3 / V, 44 slots at R = H_s, not 64); overflow grows and redoes
         simulation_neighbor_lists(sim, self.skin, fluid_capacity=list_capacity(m.support_radius + self.skin,
                                                                                m.particle_mass / m.rest_density))
         self._neighbors = neighbors_stage(sim, True, self.skin)
@@ -369,16 +368,10 @@ class DfsphSolver(DfsphSearch, DfsphSolve, Solver):
     def refresh_density(self) -> None:
         """The search at the current positions (``Solver.refresh_density``); when a row overflowed (a start sampled
         denser than rest: the rows hold 1.3x the rest count), the lists grow and the search runs again, so the start's
-        density counts every pair. One host read; the overflow flag is left set, so a frame whose steps overflowed
-        is still redone by the frame loop."""
+        density counts every pair (``NeighborLists.grow_to_fit``)."""
         super().refresh_density()
-        nl = self.nl
-        worst = int(nl.max_count.numpy().max())
-        if worst:
-            before = nl.capacities
-            nl.grow(worst)
-            if nl.capacities != before:
-                super().refresh_density()
+        if self.nl.grow_to_fit():
+            super().refresh_density()
 
     def checkpoint_arrays(self) -> dict:
         f = self.sim.fields

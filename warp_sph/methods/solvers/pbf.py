@@ -402,22 +402,16 @@ class PbfSolver(PbfPasses, Solver):
     def refresh_density(self) -> None:
         """Density, lambda and C at the current positions (x* = x), e.g. after a resume or at the start; when a row
         overflowed (a start sampled denser than rest: the rows hold 1.3x the rest count), the lists grow and the pass
-        runs again, so the start's density counts every pair (as DFSPH's). The overflow flag is left set, so a frame
-        whose steps overflowed is still redone by the frame loop."""
-        for attempt in range(2):
-            wp.copy(self.sim.fields["predicted_x"], self.sim.fields["particle_x"])
-            self.build_neighbors()
-            self.density_pass()
-            nl = self.nl
-            if attempt or not self.lists:
-                break
-            worst = int(nl.max_count.numpy().max())
-            before = nl.capacities
-            if worst:
-                nl.grow(worst)
-            if nl.capacities == before:
-                break
+        runs again, so the start's density counts every pair (``NeighborLists.grow_to_fit``, as DFSPH's)."""
+        self._density_at_x()
+        if self.lists and self.nl.grow_to_fit():
+            self._density_at_x()
         self._density_is_current = True
+
+    def _density_at_x(self) -> None:
+        wp.copy(self.sim.fields["predicted_x"], self.sim.fields["particle_x"])
+        self.build_neighbors()
+        self.density_pass()
 
     def instability_hint(self, rule: str, stage: str | None) -> str | None:
         p = self.config

@@ -11,13 +11,11 @@ the stabilize stage's density pass at x reads the last step's lists, which still
 closer than H_s there unless a particle drifted past margin / 2 or the frame reordered the particles
 (``reuse_neighbors``); a correction adds dx to x* in its own kernel; a particle keeps its static-wall
 list until it moved 0.9 margin from where it was searched (``_wall_keep``); the fluid list rows and the pair
-cache's hold ``LIST_HEADROOM`` times the neighbours at rest density (``list_capacity``: 58 slots, not 86).
+cache's hold ``cell_lists.LIST_HEADROOM`` times the neighbours at rest density (``list_capacity``: 58 slots, not 86).
 
 A helper of the solver ``pbf.py`` (it registers nothing; the registry imports it harmlessly).
 """
 from __future__ import annotations
-
-import math
 
 import numpy as np
 import warp as wp
@@ -28,23 +26,8 @@ from ...kernels import pbf_pairs as _pbf_pairs
 from ...kernels import pbf_hash_grid as _pbf_grid
 from ...kernels import pbf_search as _pbf_search
 from ...kernels import reduction as _reduce
-from ...neighbors.cell_lists import simulation_neighbor_lists
+from ...neighbors.cell_lists import list_capacity, simulation_neighbor_lists
 from .wcsph_lists import static_wall_lists
-
-
-#: fluid list rows hold this many times the neighbours a particle has at rest density within the search radius,
-#: (4/3) pi R^3 / V (44.6 at H_s + 0.2 d; the dam break, drop_into_pool, crown_splash and hydrostatic scenes listed at
-#: most 52 = 1.17x at their frame ends over 0.5-1 s, the cubic start lattice 33); a row that
-#: overflows grows the lists and redoes the frame (``run.frame_loop``). The pair cache's rows are as long: 58 slots
-#: at H_s + 0.2 d, against 86 at the lists' general 64 per support volume (issue #32: the solve stage 5.2-5.5 ->
-#: 4.0-4.4 ms per step on a loaded machine; rows packed further gained nothing: docs/performance.md, "PBF's step")
-LIST_HEADROOM = 1.3
-
-
-def list_capacity(search_radius: float, particle_volume: float) -> int:
-    """Fluid neighbours per list row [-]: ``LIST_HEADROOM`` (4/3) pi R^3 / V, R the search radius [m] and V = m / rho0
-    the volume of a fluid particle [m^3] (the neighbours of a particle at rest density, itself included)."""
-    return int(math.ceil(LIST_HEADROOM * (4.0 / 3.0) * math.pi * search_radius ** 3 / particle_volume))
 
 
 class PbfPasses:
