@@ -250,7 +250,7 @@ def test_static_wall_lists_bitwise_the_walk(device):
 
 def test_replayed_launches_bitwise_the_plain_ones(monkeypatch, device):
     """On the CPU WCSPH's own launches (density over the kept lists, drift check, pressure, forces, integration)
-    replay recorded launches (``wcsph_lists.replaying_launch``); each must re-bind the arguments that changed (dt,
+    replay recorded launches (``core.launch.replaying_launch``); each must re-bind the arguments that changed (dt,
     the pair cache after the lists grew, the lists after a search; checked: replays that never re-bind fail this
     test). A frame of the falling block, then steps of growing dt, replayed against plain ``launch``: bitwise the
     same positions and velocities."""

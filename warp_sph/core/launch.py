@@ -295,6 +295,23 @@ class Replays:
         return rec
 
 
+def replaying_launch(device):
+    """A ``launch(kernel, dim, inputs, outputs=(), min_range=MIN_RANGE, tag=None)`` on ``device``: on the CPU a
+    replay of the launch recorded at that call site (``core.launch.Replays``: Warp packs the arguments once, ~50 us
+    less per launch; the same ranges, so bitwise ``launch``; ``tag`` tells apart two call sites of one kernel),
+    elsewhere ``launch``."""
+    if not wp.get_device(device).is_cpu:
+        def run(kernel, dim, inputs, outputs=(), min_range=MIN_RANGE, tag=None):
+            launch(kernel, dim, inputs, outputs, device=device, min_range=min_range)
+        return run
+    replays = Replays()
+
+    def replay(kernel, dim, inputs, outputs=(), min_range=MIN_RANGE, tag=None):
+        if dim > 0:
+            replays.get(kernel, dim, inputs, outputs, device=device, min_range=min_range, tag=tag).launch()
+    return replay
+
+
 _gate = threading.local()
 
 

@@ -47,7 +47,7 @@ class CellGrid:
         self.cell_start = wp.zeros(self.cell_count + 1, dtype=wp.int32, device=device)
         self.count = 0
         self._key_bits = max(1, int(self.cell_count - 1).bit_length())  # bits of the largest cell key
-        self._replays = None  # CPU: ``build``'s recorded launches (``_launch``)
+        self._launcher = None  # ``build``'s launches (``_launch``: replayed on the CPU)
 
     def build(self, points: wp.array) -> None:
         """Sort ``points`` (wp.array of vec3 [m], at most ``capacity``) by cell."""
@@ -66,19 +66,13 @@ class CellGrid:
         self._launch(_grid_dev.gather_sorted_points, n, [points, self.cell_point], [self.sorted_x])
 
     def _launch(self, kernel, dim: int, inputs, outputs) -> None:
-        """A light launch of ``build`` (``LIGHT_MIN_RANGE``): on the CPU replayed from its recording
-        (``core.launch.Replays``: arguments packed again only where they changed; the same ranges as ``launch``,
-        so bitwise the same), elsewhere ``launch``."""
-        from ..core.launch import LIGHT_MIN_RANGE, Replays, launch
+        """A light launch of ``build`` (``LIGHT_MIN_RANGE``), replayed on the CPU (``core.launch.replaying_launch``:
+        arguments packed again only where they changed; the same ranges as ``launch``, so bitwise the same)."""
+        from ..core.launch import LIGHT_MIN_RANGE, replaying_launch
 
-        if dim <= 0:
-            return
-        if self._replays is None:
-            self._replays = Replays() if wp.get_device(self.device).is_cpu else False
-        if self._replays:
-            self._replays.get(kernel, dim, inputs, outputs, device=self.device, min_range=LIGHT_MIN_RANGE).launch()
-        else:
-            launch(kernel, dim, inputs, outputs, device=self.device, min_range=LIGHT_MIN_RANGE)
+        if self._launcher is None:
+            self._launcher = replaying_launch(self.device)
+        self._launcher(kernel, dim, inputs, outputs, min_range=LIGHT_MIN_RANGE)
 
     def occupied_near_mask(self, reach: int = 1) -> wp.array:
         """uint8 per cell: 1 where a point lies in the cell or one of its neighbours up to ``reach`` cells

@@ -24,7 +24,7 @@ import warp as wp
 from ..core.errors import SceneError
 from ..kernels import neighbors as _neighbors_dev
 from ..kernels import reduction as _reduce
-from ..core.launch import Replays, launch
+from ..core.launch import launch, replaying_launch
 from ..core.model import build_model
 from ..neighbors import NeighborGrid, fluid_grid_dim
 from ..core.step_graph import StepGraph
@@ -100,7 +100,7 @@ class Simulation:
         #: per-chunk largest |v|^2 of ``current_speed``
         self._speed_partial = wp.zeros(max(1, -(-self.model.capacity // _reduce.REDUCE_CHUNK)), dtype=float,
                                        device=self.device)
-        self._speed_replay = Replays() if self.device.is_cpu else None  # current_speed's launch, replayed (CPU)
+        self._speed_launch = replaying_launch(self.device)  # current_speed's launch (replayed on the CPU)
         self.frame_dt = 1.0 / float(scene.fps)
         self.step_bound = 0.0  # set by ``time_step``
         self.last_frame: FrameStatistics | None = None
@@ -280,12 +280,8 @@ class Simulation:
     def current_speed(self) -> float:
         """The fastest fluid particle's speed now [m/s] (a chunked maximum on the device, one read)."""
         partial = self._speed_partial
-        if self._speed_replay is not None:  # CPU: the recorded launch (``core.launch.Replays``), the same ranges
-            self._speed_replay.get(_reduce.max_speed_chunks, partial.shape[0],
-                                   [_reduce.REDUCE_CHUNK, self.fields["particle_v"]], [partial], device=self.device).launch()
-        else:
-            launch(_reduce.max_speed_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, self.fields["particle_v"]],
-                   [partial], device=self.device)
+        self._speed_launch(_reduce.max_speed_chunks, partial.shape[0], [_reduce.REDUCE_CHUNK, self.fields["particle_v"]],
+                           [partial])
         return math.sqrt(float(partial.numpy().max()))
 
     @contextmanager

@@ -23,7 +23,7 @@ import math
 import numpy as np
 import warp as wp
 
-from ...core.launch import LIGHT_MIN_RANGE, launch
+from ...core.launch import LIGHT_MIN_RANGE, launch, replaying_launch
 from ...core.step_graph import Stage
 from ...kernels import integrate as _integrate
 from ...kernels import wcsph as _wcsph
@@ -32,7 +32,7 @@ from ..density import density_stage, neighbor_args, neighbors_stage
 from ..registry import register_solver
 from ..solver import Solver, TimeStepBound
 from ..force import FORCE_ACCELERATION, ForceSlot
-from .wcsph_lists import KeptLists, pair_cache, replaying_launch
+from .wcsph_lists import KeptLists, pair_cache
 
 EQUATIONS_OF_STATE = ("linear", "tait")
 

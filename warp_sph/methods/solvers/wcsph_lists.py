@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ...core.launch import LIGHT_MIN_RANGE, MIN_RANGE, Replays, launch
+from ...core.launch import LIGHT_MIN_RANGE, replaying_launch
 from ...core.step_graph import Stage
 from ...kernels import wcsph_lists as _wcsph
 from ...kernels import pbf_search as _lists_reuse  # identity_slots: generic list-reuse slots
@@ -68,23 +68,6 @@ def pair_cache(n: int, capacity: int, device) -> _wcsph.PairCache:
     pairs.value = wp.zeros((1, 1), dtype=float, device=device)
     pairs.boundary_gradient = wp.zeros(1, dtype=wp.vec3, device=device)
     return pairs
-
-
-def replaying_launch(device):
-    """A ``launch(kernel, dim, inputs, outputs=(), min_range=MIN_RANGE, tag=None)`` on ``device``: on the CPU a
-    replay of the launch recorded at that call site (``core.launch.Replays``: Warp packs the arguments once, ~50 us
-    less per launch; the same ranges, so bitwise ``launch``; ``tag`` tells apart two call sites of one kernel),
-    elsewhere ``launch``."""
-    if not wp.get_device(device).is_cpu:
-        def run(kernel, dim, inputs, outputs=(), min_range=MIN_RANGE, tag=None):
-            launch(kernel, dim, inputs, outputs, device=device, min_range=min_range)
-        return run
-    replays = Replays()
-
-    def replay(kernel, dim, inputs, outputs=(), min_range=MIN_RANGE, tag=None):
-        if dim > 0:
-            replays.get(kernel, dim, inputs, outputs, device=device, min_range=min_range, tag=tag).launch()
-    return replay
 
 
 class KeptLists:
